@@ -1,0 +1,416 @@
+"""The one configuration tree. Every default equals the paper's reference value (DESIGN §4).
+
+Sources named in the field comments:
+- [HER-py]  the public PyTorch HER implementation the paper builds on (DDPG+HER, arguments.py).
+- [HER-CS]  the authors' code for cluster-based sampling (fgb size, k, small-cluster rule).
+- [EBP]     Zhao & Tresp 2018, energy-based prioritisation (clip_energy for PickAndPlace).
+- [DESIGN]  our agreed architecture where the paper is silent.
+
+Overrides come from YAML (`load_yaml`) and the CLI (`apply_overrides` with `section.field=value`);
+every construction runs `__post_init__` validation, whose messages name the field and value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hercs.errors import ConfigError
+from hercs.tasks import TASKS, TaskSpec, task_spec
+
+METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
+
+
+def _check(cond: bool, where: str, value: object, must: str) -> None:
+    if not cond:
+        raise ConfigError(f"{where}: got {value!r}, must {must}")
+
+
+def _positive(where: str, value: float) -> None:
+    _check(value > 0, where, value, "be > 0")
+
+
+def _unit_interval(where: str, value: float, *, closed: bool = True) -> None:
+    ok = 0.0 <= value <= 1.0 if closed else 0.0 < value < 1.0
+    _check(ok, where, value, "lie in [0, 1]" if closed else "lie in (0, 1)")
+
+
+@dataclass
+class RunConfig:
+    method: str = "her-cs"
+    """Sampling method: her, her-cs, her-ebp or her-ebp-cs."""
+    seed: int = 1
+    """Root seed; every service and actor derives its own generator from it."""
+    name: str = ""
+    """Run name (key prefix hercs/<name>/ and folder runs/<name>); empty = derived at start."""
+    run_dir: str = "runs"
+    """Parent folder of run directories."""
+
+    def __post_init__(self) -> None:
+        _check(self.method in METHODS, "run.method", self.method, f"be one of {list(METHODS)}")
+        _check(self.seed >= 0, "run.seed", self.seed, "be >= 0")
+        _check(
+            all(c.isalnum() or c in "-_." for c in self.name),
+            "run.name",
+            self.name,
+            "contain only letters, digits, '-', '_' or '.' (it is a Zenoh key chunk)",
+        )
+
+    @property
+    def uses_clusters(self) -> bool:
+        return self.method.endswith("-cs")
+
+    @property
+    def uses_energy(self) -> bool:
+        return "ebp" in self.method
+
+
+@dataclass
+class TaskConfig:
+    name: str = "push"
+    """Task preset: reach, push, pick (PickAndPlace) or slide; Fetch*-v4 environments."""
+
+    def __post_init__(self) -> None:
+        _check(self.name in TASKS, "task.name", self.name, f"be one of {sorted(TASKS)}")
+
+    @property
+    def spec(self) -> TaskSpec:
+        return task_spec(self.name)
+
+
+@dataclass
+class DDPGConfig:
+    hidden_size: int = 256
+    """Units per hidden layer of actor and critic [HER-py]."""
+    hidden_layers: int = 3
+    """Hidden ReLU layers of actor and critic [HER-py]."""
+    lr_actor: float = 1e-3
+    """Adam learning rate of the actor [HER-py]."""
+    lr_critic: float = 1e-3
+    """Adam learning rate of the critic [HER-py]."""
+    gamma: float = 0.98
+    """Discount [HER-py]."""
+    polyak: float = 0.95
+    """Target nets: θ' ← polyak·θ' + (1−polyak)·θ, once per cycle [HER-py]."""
+    action_l2: float = 1.0
+    """Weight of the actor's (a/max_action)² penalty [HER-py]."""
+    clip_return: bool = True
+    """Clip the critic target to [−1/(1−γ), 0] [HER-py]."""
+    batch_size: int = 256
+    """Transitions per minibatch [HER-py]."""
+    noise_eps: float = 0.2
+    """Gaussian exploration noise, times max_action [HER-py]."""
+    random_eps: float = 0.3
+    """Probability of a uniformly random action while exploring [HER-py]."""
+    clip_obs: float = 200.0
+    """Observations and goals are clipped to ±clip_obs before normalising [HER-py]."""
+    norm_clip: float = 5.0
+    """Normalised inputs are clipped to ±norm_clip [HER-py]."""
+    norm_eps: float = 0.01
+    """Floor of the normaliser's standard deviation [HER-py]."""
+
+    def __post_init__(self) -> None:
+        for name in ("hidden_size", "hidden_layers", "batch_size"):
+            _check(getattr(self, name) >= 1, f"ddpg.{name}", getattr(self, name), "be >= 1")
+        for name in ("lr_actor", "lr_critic", "clip_obs", "norm_clip", "norm_eps"):
+            _positive(f"ddpg.{name}", getattr(self, name))
+        _unit_interval("ddpg.gamma", self.gamma, closed=False)
+        _unit_interval("ddpg.polyak", self.polyak)
+        _unit_interval("ddpg.random_eps", self.random_eps)
+        _check(self.action_l2 >= 0, "ddpg.action_l2", self.action_l2, "be >= 0")
+        _check(self.noise_eps >= 0, "ddpg.noise_eps", self.noise_eps, "be >= 0")
+
+    @property
+    def clip_return_value(self) -> float:
+        return 1.0 / (1.0 - self.gamma)
+
+
+@dataclass
+class HERConfig:
+    replay_k: int = 4
+    """Relabel ratio: a sampled transition gets a future goal with p = 1 − 1/(1+k) [HER-py]."""
+
+    def __post_init__(self) -> None:
+        _check(self.replay_k >= 0, "her.replay_k", self.replay_k, "be >= 0")
+
+    @property
+    def future_p(self) -> float:
+        return 1.0 - 1.0 / (1.0 + self.replay_k)
+
+
+@dataclass
+class ClusterConfig:
+    k: int = 8
+    """Number of k-means clusters of failed goals [HER-CS]."""
+    fgb_size: int = 150
+    """Failed-goal buffer capacity; a refit happens each time it has been entirely replaced
+    [HER-CS]."""
+    failure_threshold: float = 0.05
+    """An episode failed if ‖ag_T − g‖ > this at its last step (the Fetch success radius)."""
+    small_cluster_repeat: int = 4
+    """A cluster with fewer than share/repeat episodes contributes each member ~repeat times
+    and fills the rest of its share uniformly [HER-CS]."""
+    kmeans_n_init: int = 10
+    """k-means restarts per refit (scikit-learn; seeded)."""
+
+    def __post_init__(self) -> None:
+        _check(self.k >= 1, "cluster.k", self.k, "be >= 1")
+        _check(self.fgb_size >= self.k, "cluster.fgb_size", self.fgb_size, f"be >= k={self.k}")
+        _positive("cluster.failure_threshold", self.failure_threshold)
+        _check(self.small_cluster_repeat >= 1, "cluster.small_cluster_repeat",
+               self.small_cluster_repeat, "be >= 1")
+        _check(self.kmeans_n_init >= 1, "cluster.kmeans_n_init", self.kmeans_n_init, "be >= 1")
+
+
+@dataclass
+class EnergyConfig:
+    clip_energy: float = 0.5
+    """Per-transition energy clip; the reference's PickAndPlace setting, used for every task
+    [EBP]."""
+    mass: float = 1.0
+    """Object mass m in the potential and kinetic terms [EBP]."""
+    gravity: float = 9.81
+    """g in the potential term m·g·(z_t − z_0) [EBP]."""
+    delta_t: float = 0.04
+    """Time between env steps, for velocities Δag/Δt [EBP]."""
+    w_potential: float = 1.0
+    """Weight of the potential energy [EBP]."""
+    w_kinetic: float = 1.0
+    """Weight of the kinetic energy [EBP]."""
+    epsilon: float = 1e-6
+    """Added to every trajectory energy so no episode has p = 0 [DESIGN]."""
+
+    def __post_init__(self) -> None:
+        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon"):
+            _positive(f"energy.{name}", getattr(self, name))
+        for name in ("w_potential", "w_kinetic"):
+            _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
+
+
+@dataclass
+class TrainingConfig:
+    epochs: int = 200
+    """Training epochs [HER-CS paper]."""
+    cycles_per_epoch: int = 50
+    """Cycles per epoch [HER-py]."""
+    episodes_per_cycle: int = 4
+    """Episodes inserted per cycle (10,000 env steps per epoch, as the authors' runs) [DESIGN]."""
+    minibatches_per_cycle: int = 40
+    """DDPG updates per cycle [HER-py]; updates per episode = this / episodes_per_cycle."""
+    eval_episodes: int = 20
+    """Deterministic test episodes after each epoch [HER-CS paper]."""
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
+                     "minibatches_per_cycle", "eval_episodes"):
+            _check(getattr(self, name) >= 1, f"training.{name}", getattr(self, name), "be >= 1")
+
+    @property
+    def updates_per_episode(self) -> float:
+        return self.minibatches_per_cycle / self.episodes_per_cycle
+
+
+@dataclass
+class ReplayConfig:
+    buffer_transitions: int = 1_000_000
+    """Capacity in transitions; the store holds buffer_transitions // T episodes [HER-py]."""
+    min_episodes_to_sample: int = 4
+    """Samples wait until this many episodes are stored (one cycle's worth) [DESIGN]."""
+    rate_tolerance_updates: float = 80.0
+    """How far updates may run ahead of or behind updates_per_episode × inserts, in
+    minibatches (Reverb's error_buffer); two cycles' worth by default [DESIGN]."""
+    free_run: bool = False
+    """Disable the rate limiter: inserts and samples never wait [DESIGN]."""
+    max_message_bytes: int = 8 * 1024 * 1024
+    """Larger wire messages are rejected as oversized [DESIGN]."""
+
+    def __post_init__(self) -> None:
+        _check(self.buffer_transitions >= 1, "replay.buffer_transitions",
+               self.buffer_transitions, "be >= 1")
+        _check(self.min_episodes_to_sample >= 1, "replay.min_episodes_to_sample",
+               self.min_episodes_to_sample, "be >= 1")
+        _check(self.rate_tolerance_updates >= 0, "replay.rate_tolerance_updates",
+               self.rate_tolerance_updates, "be >= 0")
+        _check(self.max_message_bytes >= 1024, "replay.max_message_bytes",
+               self.max_message_bytes, "be >= 1024")
+
+
+@dataclass
+class ActorConfig:
+    num_actors: int = 1
+    """Rollout workers started by `hercs up` (the paper used one)."""
+    insert_timeout_s: float = 10.0
+    """An insert without an InsertAck after this long is retried with the same (actor, seq)."""
+
+    def __post_init__(self) -> None:
+        _check(self.num_actors >= 0, "actor.num_actors", self.num_actors, "be >= 0")
+        _positive("actor.insert_timeout_s", self.insert_timeout_s)
+
+
+@dataclass
+class TransportConfig:
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    """Endpoints the router listens on (`hercs up`, `hercs router`)."""
+    connect: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    """Endpoints clients connect to; they retry until the router is up."""
+
+    def __post_init__(self) -> None:
+        for name in ("listen", "connect"):
+            for endpoint in getattr(self, name):
+                _check(isinstance(endpoint, str) and "/" in endpoint, f"transport.{name}",
+                       endpoint, "be a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
+
+
+@dataclass
+class HercsConfig:
+    run: RunConfig = field(default_factory=RunConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    her: HERConfig = field(default_factory=HERConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    energy: EnergyConfig = field(default_factory=EnergyConfig)
+    training: TrainingConfig = field(default_factory=TrainingConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    transport: TransportConfig = field(default_factory=TransportConfig)
+
+    def __post_init__(self) -> None:
+        spec = self.task.spec
+        _check(self.replay.buffer_transitions >= spec.episode_steps, "replay.buffer_transitions",
+               self.replay.buffer_transitions, f"hold at least one episode ({spec.episode_steps})")
+
+    @property
+    def capacity_episodes(self) -> int:
+        return self.replay.buffer_transitions // self.task.spec.episode_steps
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> HercsConfig:
+        return _build(cls, data, "")
+
+
+def _build(cls: type, data: Any, where: str) -> Any:
+    """Build dataclass `cls` from a mapping, refusing unknown keys and wrong types."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where or 'config'}: got {data!r}, must be a mapping")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(
+            f"{where or 'config'}: unknown key(s) {unknown}; known: {sorted(names)}"
+        )
+    kwargs = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else key
+        kwargs[key] = _coerce(hints[key], value, path)
+    return cls(**kwargs)
+
+
+def _coerce(hint: Any, value: Any, where: str) -> Any:
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, where)
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be true or false")
+    if hint is int:
+        if isinstance(value, bool):
+            raise ConfigError(f"{where}: got {value!r}, must be an integer")
+        if isinstance(value, str):
+            value = _parse_number(value, where)
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, int):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be an integer")
+    if hint is float:
+        if isinstance(value, bool):
+            raise ConfigError(f"{where}: got {value!r}, must be a number")
+        if isinstance(value, str):
+            value = _parse_number(value, where)
+        if isinstance(value, int | float):
+            return float(value)
+        raise ConfigError(f"{where}: got {value!r}, must be a number")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be a string")
+    if typing.get_origin(hint) is list:
+        if isinstance(value, str):
+            value = [v for v in value.split(",") if v]
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: got {value!r}, must be a list")
+        (item,) = typing.get_args(hint)
+        return [_coerce(item, v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise ConfigError(f"{where}: unsupported config type {hint!r}")  # pragma: no cover
+
+
+def _parse_number(text: str, where: str) -> int | float:
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{where}: got {text!r}, must be a number") from None
+
+
+def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
+    """Return a new config with `section.field=value` overrides applied and validated.
+
+    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work).
+    """
+    data = config.to_dict()
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or "." not in key:
+            raise ConfigError(
+                f"override {item!r}: must look like section.field=value, e.g. ddpg.lr_actor=1e-3"
+            )
+        section, _, name = key.strip().partition(".")
+        if section not in data or not isinstance(data[section], dict):
+            raise ConfigError(f"override {item!r}: unknown section {section!r}; "
+                              f"known: {sorted(data)}")
+        if name not in data[section]:
+            raise ConfigError(f"override {item!r}: unknown field {key!r}; known in {section}: "
+                              f"{sorted(data[section])}")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
+        data[section][name] = value
+    return HercsConfig.from_dict(data)
+
+
+def load_yaml(path: str | Path) -> HercsConfig:
+    """Load a (possibly partial) config; missing fields keep their defaults."""
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"config file {str(path)!r}: cannot read ({exc})") from None
+    merged = HercsConfig().to_dict()
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {str(path)!r}: must hold a mapping, got {data!r}")
+    for section, values in data.items():
+        if section not in merged:
+            raise ConfigError(f"config file {str(path)!r}: unknown section {section!r}; "
+                              f"known: {sorted(merged)}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"config file {str(path)!r}: section {section!r} must be a "
+                              f"mapping, got {values!r}")
+        merged[section].update(values)
+    return HercsConfig.from_dict(merged)
+
+
+def save_yaml(config: HercsConfig, path: str | Path) -> None:
+    """Write the full resolved config (every field, defaults included)."""
+    Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))

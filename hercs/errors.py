@@ -1,0 +1,28 @@
+"""The project's error hierarchy. Messages name the offending value and what happens next."""
+
+from __future__ import annotations
+
+
+class HercsError(Exception):
+    """Base of every error hercs raises on purpose."""
+
+
+class ConfigError(HercsError, ValueError):
+    """A configuration value is invalid; the process refuses to start with it."""
+
+
+class InvalidMessage(HercsError):
+    """A wire message was rejected; it never reaches a buffer, the clusterer or the learner.
+
+    `reason` is one of `proto.validation.RejectReason`'s values, counted by reason in
+    `ReplayStatus`; `detail` says what was wrong and where.
+    """
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+class SamplingError(HercsError):
+    """A batch could not be drawn (e.g. the replay is empty); the request is answered with this."""
