@@ -383,6 +383,10 @@ def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
         if name not in data[section]:
             raise ConfigError(f"override {item!r}: unknown field {key!r}; known in {section}: "
                               f"{sorted(data[section])}")
+        if isinstance(data[section][name], str):
+            # A string field takes the text as it is, so a run named "007" stays a string.
+            data[section][name] = raw
+            continue
         try:
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError as exc:

@@ -1,0 +1,40 @@
+# Two commands on a fresh machine: `make run` and `make test`. Each creates .venv on its own.
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+STAMP := $(VENV)/.installed
+
+.PHONY: run test lint proto install clean
+
+$(PY):
+	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
+
+# torch goes in first, pinned to the local CPU wheel: a later, unpinned resolution of torch
+# would pull several GB of CUDA packages. The project's own range (>=2.13,<2.14) is then
+# already satisfied.
+$(STAMP): pyproject.toml | $(PY)
+	$(PIP) install --quiet --upgrade pip
+	$(PIP) install --quiet torch==2.13.0
+	$(PIP) install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# A short default run (FetchReach, HER-CS); prints where the run directory is.
+run: $(STAMP)
+	$(VENV)/bin/hercs config --task reach --method her-cs --epochs 2
+
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(PY) -m pytest -q tests
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+# Regenerate proto/hercs_pb2.py(.pyi) from proto/hercs.proto with the pinned grpcio-tools.
+proto: $(STAMP)
+	cd proto && ../$(PY) -m grpc_tools.protoc -I. --python_out=. --pyi_out=. hercs.proto
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

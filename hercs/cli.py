@@ -1,0 +1,108 @@
+"""The `hercs` command line. Every command resolves one `HercsConfig` the same way:
+defaults (DESIGN §4) ← `--config FILE.yaml` ← shortcut flags (`--task`, `--method`, …) ←
+`--set section.field=value` (repeatable). Bad values exit with status 2 and a message naming
+the field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+import yaml
+
+from hercs.config import METHODS, HercsConfig, apply_overrides, load_yaml
+from hercs.errors import ConfigError
+from hercs.tasks import TASKS
+
+# Shortcut flags and the config field each one sets.
+SHORTCUTS: dict[str, str] = {
+    "task": "task.name",
+    "method": "run.method",
+    "seed": "run.seed",
+    "epochs": "training.epochs",
+    "run": "run.name",
+    "run_dir": "run.run_dir",
+    "actors": "actor.num_actors",
+}
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options every command shares for building its config."""
+    group = parser.add_argument_group("configuration")
+    group.add_argument("--config", metavar="FILE", help="YAML config (partial is fine)")
+    group.add_argument("--set", dest="overrides", action="append", default=[],
+                       metavar="SECTION.FIELD=VALUE",
+                       help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
+    group.add_argument("--task", choices=sorted(TASKS), help="task preset (Fetch*-v4)")
+    group.add_argument("--method", choices=METHODS, help="sampling method")
+    group.add_argument("--seed", type=int, help="root seed")
+    group.add_argument("--epochs", type=int, help="training epochs")
+    group.add_argument("--run", help="run name (Zenoh key prefix and folder name)")
+    group.add_argument("--run-dir", help="parent folder of run directories")
+    group.add_argument("--actors", type=int, help="rollout actors to start")
+    group.add_argument("--connect", action="append", metavar="ENDPOINT",
+                       help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)")
+    group.add_argument("--listen", action="append", metavar="ENDPOINT",
+                       help="Zenoh endpoint for the router to listen on (repeatable)")
+
+
+def resolve_config(args: argparse.Namespace) -> HercsConfig:
+    config = load_yaml(args.config) if args.config else HercsConfig()
+    overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
+                 if getattr(args, flag, None) is not None]
+    for flag in ("connect", "listen"):
+        endpoints = getattr(args, flag, None)
+        if endpoints:
+            listed = yaml.safe_dump(endpoints, default_flow_style=True).strip()
+            overrides.append(f"transport.{flag}={listed}")
+    return apply_overrides(config, overrides + list(args.overrides))
+
+
+def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
+    text = yaml.safe_dump(config.to_dict(), sort_keys=False)
+    if args.output:
+        with open(args.output, "w") as f:
+            f.write(text)
+        print(f"wrote {args.output}")
+    else:
+        print(text, end="")
+    return 0
+
+
+Command = Callable[[argparse.Namespace, HercsConfig], int]
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
+    parser = argparse.ArgumentParser(
+        prog="hercs",
+        description="Hindsight Experience Replay with Cluster-based Sampling, as distributed "
+                    "services over Eclipse Zenoh.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    commands: dict[str, Command] = {}
+
+    p = sub.add_parser("config", help="print (or save) the fully resolved configuration")
+    add_config_arguments(p)
+    p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
+    commands["config"] = _cmd_config
+    return parser, commands
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, commands = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        config = resolve_config(args)
+    except ConfigError as exc:
+        print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
+        return 2
+    return commands[args.command](args, config)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

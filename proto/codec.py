@@ -1,0 +1,134 @@
+"""numpy ⇄ message conversion. Arrays travel as {dtype, shape, raw little-endian bytes}.
+
+Decoding is strict: a dtype outside `WIRE_DTYPES`, a negative dimension or a byte count that
+does not match the shape raises `InvalidMessage` naming the field, so a malformed array never
+becomes a numpy array.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from hercs.episode import EpisodeData
+from hercs.errors import InvalidMessage
+from proto import hercs_pb2 as pb
+from proto.schema import SCHEMA_VERSION
+
+WIRE_DTYPES = frozenset({"float32", "float64", "int32", "int64", "uint8", "bool"})
+
+# Reject reasons raised by the codec itself (validation.RejectReason holds the full list).
+BAD_ARRAY = "bad_array"
+BAD_DTYPE = "bad_dtype"
+
+
+def array_to_msg(value: np.ndarray, out: pb.Array | None = None) -> pb.Array:
+    """Encode an array as C-order little-endian bytes (copies only if needed)."""
+    arr = np.asarray(value)
+    if arr.dtype.name not in WIRE_DTYPES:
+        raise TypeError(f"array dtype {arr.dtype} cannot travel; use one of {sorted(WIRE_DTYPES)}")
+    arr = np.ascontiguousarray(arr, dtype=arr.dtype.newbyteorder("<"))
+    msg = out if out is not None else pb.Array()
+    msg.dtype = arr.dtype.name
+    msg.shape[:] = arr.shape
+    msg.data = arr.tobytes()
+    return msg
+
+
+def msg_to_array(msg: pb.Array, *, where: str = "array") -> np.ndarray:
+    """Decode an Array message; the result is a read-only view of the message bytes."""
+    if msg.dtype not in WIRE_DTYPES:
+        raise InvalidMessage(
+            BAD_DTYPE, f"{where}: dtype {msg.dtype!r} is not one of {sorted(WIRE_DTYPES)}"
+        )
+    shape = tuple(int(d) for d in msg.shape)
+    if any(d < 0 for d in shape):
+        raise InvalidMessage(BAD_ARRAY, f"{where}: negative dimension in shape {shape}")
+    dtype = np.dtype(msg.dtype).newbyteorder("<")
+    expected = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if len(msg.data) != expected:
+        raise InvalidMessage(
+            BAD_ARRAY,
+            f"{where}: {len(msg.data)} data bytes for shape {shape} {msg.dtype}, "
+            f"expected {expected}",
+        )
+    return np.frombuffer(msg.data, dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="),
+                                                                       copy=False)
+
+
+def arrays_to_named(params: Mapping[str, np.ndarray]) -> list[pb.NamedArray]:
+    return [pb.NamedArray(name=name, array=array_to_msg(value)) for name, value in params.items()]
+
+
+def named_to_arrays(items: list[pb.NamedArray] | object, *, where: str) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for item in items:  # type: ignore[attr-defined]
+        if item.name in out:
+            raise InvalidMessage(BAD_ARRAY, f"{where}: duplicate array name {item.name!r}")
+        out[item.name] = msg_to_array(item.array, where=f"{where}[{item.name}]")
+    return out
+
+
+def episode_to_msg(episode: EpisodeData, *, run: str, task: str) -> pb.Episode:
+    return pb.Episode(
+        schema_version=SCHEMA_VERSION,
+        run=run,
+        actor_id=episode.actor_id,
+        seq=episode.seq,
+        task=task,
+        obs=array_to_msg(episode.obs.astype(np.float32, copy=False)),
+        ag=array_to_msg(episode.ag.astype(np.float32, copy=False)),
+        g=array_to_msg(episode.g.astype(np.float32, copy=False)),
+        actions=array_to_msg(episode.actions.astype(np.float32, copy=False)),
+        success=bool(episode.success),
+        policy_version=int(episode.policy_version),
+    )
+
+
+def msg_to_episode(msg: pb.Episode) -> EpisodeData:
+    """Convert without checking shapes against a task; use validation.decode_episode on input
+    from the wire."""
+    return EpisodeData(
+        obs=msg_to_array(msg.obs, where="Episode.obs"),
+        ag=msg_to_array(msg.ag, where="Episode.ag"),
+        g=msg_to_array(msg.g, where="Episode.g"),
+        actions=msg_to_array(msg.actions, where="Episode.actions"),
+        actor_id=msg.actor_id,
+        seq=int(msg.seq),
+        success=bool(msg.success),
+        policy_version=int(msg.policy_version),
+    )
+
+
+NORMALIZER_ARRAYS = ("sum", "sumsq", "mean", "std")
+
+
+def stats_to_msg(state: Mapping[str, np.ndarray | float]) -> pb.NormalizerStats:
+    """Encode a normaliser state dict {sum, sumsq, count, mean, std}."""
+    msg = pb.NormalizerStats(count=float(state["count"]))
+    for name in NORMALIZER_ARRAYS:
+        array_to_msg(np.asarray(state[name]), out=getattr(msg, name))
+    return msg
+
+
+def msg_to_stats(msg: pb.NormalizerStats, *, where: str) -> dict[str, np.ndarray | float]:
+    state: dict[str, np.ndarray | float] = {"count": float(msg.count)}
+    for name in NORMALIZER_ARRAYS:
+        state[name] = msg_to_array(getattr(msg, name), where=f"{where}.{name}")
+    return state
+
+
+MINIBATCH_FIELDS = ("o", "o2", "ag", "ag2", "g", "u", "r")
+
+
+def minibatch_to_msg(batch: Mapping[str, np.ndarray]) -> pb.Minibatch:
+    msg = pb.Minibatch()
+    for name in MINIBATCH_FIELDS:
+        array_to_msg(np.asarray(batch[name], dtype=np.float32), out=getattr(msg, name))
+    return msg
+
+
+def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> dict[str, np.ndarray]:
+    return {name: msg_to_array(getattr(msg, name), where=f"{where}.{name}")
+            for name in MINIBATCH_FIELDS}

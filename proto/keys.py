@@ -1,0 +1,61 @@
+"""Zenoh key expressions, all under `hercs/<run>/` (DESIGN §3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ROOT = "hercs"
+
+
+@dataclass(frozen=True)
+class RunKeys:
+    run: str
+
+    def _key(self, suffix: str) -> str:
+        return f"{ROOT}/{self.run}/{suffix}"
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.run}"
+
+    @property
+    def insert(self) -> str:
+        return self._key("replay/insert")
+
+    @property
+    def sample(self) -> str:
+        return self._key("replay/sample")
+
+    @property
+    def inserted(self) -> str:
+        return self._key("replay/inserted")
+
+    @property
+    def status(self) -> str:
+        return self._key("replay/status")
+
+    @property
+    def cluster_model(self) -> str:
+        return self._key("cluster/model")
+
+    @property
+    def weights(self) -> str:
+        return self._key("weights")
+
+    @property
+    def eval_result(self) -> str:
+        return self._key("eval/result")
+
+    def metrics(self, service: str) -> str:
+        return self._key(f"metrics/{service}")
+
+    @property
+    def all_metrics(self) -> str:
+        return self._key("metrics/**")
+
+    def alive(self, role: str, ident: str) -> str:
+        return self._key(f"alive/{role}/{ident}")
+
+    @property
+    def all_alive(self) -> str:
+        return self._key("alive/**")

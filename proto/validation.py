@@ -1,0 +1,157 @@
+"""Validation of messages from the wire. A rejected message never reaches a buffer, the
+clusterer or the learner; the reason is counted in `ReplayStatus.rejects` and sent back in
+the error reply.
+
+`validate_episode` returns a `Rejection` (reason + detail saying what and where) or None;
+`decode_episode` goes from raw bytes to a checked `EpisodeData` and raises `InvalidMessage`.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import NamedTuple, TypeVar
+
+import numpy as np
+from google.protobuf.message import DecodeError, Message
+
+from hercs.episode import EpisodeData, expected_shapes
+from hercs.errors import InvalidMessage
+from hercs.tasks import TaskSpec
+from proto import hercs_pb2 as pb
+from proto.codec import msg_to_array, msg_to_episode
+from proto.schema import SCHEMA_VERSION
+
+
+class RejectReason(StrEnum):
+    UNDECODABLE = "undecodable"
+    OVERSIZED = "oversized"
+    SCHEMA_VERSION = "schema_version"
+    UNKNOWN_RUN = "unknown_run"
+    WRONG_TASK = "wrong_task"
+    MISSING_FIELD = "missing_field"
+    BAD_ARRAY = "bad_array"
+    BAD_DTYPE = "bad_dtype"
+    BAD_SHAPE = "bad_shape"
+    BAD_LENGTH = "bad_length"
+    NON_FINITE = "non_finite"
+    BAD_VALUE = "bad_value"
+
+
+class Rejection(NamedTuple):
+    reason: RejectReason
+    detail: str
+
+    def error(self) -> InvalidMessage:
+        return InvalidMessage(self.reason.value, self.detail)
+
+
+M = TypeVar("M", bound=Message)
+
+
+def parse_message(raw: bytes, cls: type[M], *, max_bytes: int) -> M:
+    """Parse bytes into `cls`, checking size and schema version first."""
+    name = cls.DESCRIPTOR.name
+    if len(raw) > max_bytes:
+        raise InvalidMessage(RejectReason.OVERSIZED,
+                             f"{name}: {len(raw)} bytes exceeds the limit of {max_bytes}")
+    msg = cls()
+    try:
+        msg.ParseFromString(bytes(raw))
+    except (DecodeError, ValueError, RuntimeError) as exc:
+        raise InvalidMessage(RejectReason.UNDECODABLE,
+                             f"{name}: {len(raw)} bytes do not parse ({exc})") from None
+    version = getattr(msg, "schema_version", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise InvalidMessage(
+            RejectReason.SCHEMA_VERSION,
+            f"{name}: schema_version {version}, this process speaks {SCHEMA_VERSION}"
+            + (" (0 usually means the bytes are not a hercs message)" if version == 0 else ""),
+        )
+    return msg
+
+
+def _array_rejection(field: str, msg: pb.Array, shape: tuple[int, ...],
+                     length_axis: bool) -> Rejection | None:
+    where = f"Episode.{field}"
+    if not msg.dtype and not msg.data and not msg.shape:
+        return Rejection(RejectReason.MISSING_FIELD, f"{where} is missing")
+    if msg.dtype != "float32":
+        return Rejection(RejectReason.BAD_DTYPE, f"{where}: dtype {msg.dtype!r}, expected float32")
+    got = tuple(int(d) for d in msg.shape)
+    if got != shape:
+        if length_axis and len(got) == len(shape) and got[1:] == shape[1:]:
+            return Rejection(RejectReason.BAD_LENGTH,
+                             f"{where}: {got[0]} steps, the task's episodes have {shape[0]}")
+        return Rejection(RejectReason.BAD_SHAPE, f"{where}: shape {got}, expected {shape}")
+    try:
+        values = msg_to_array(msg, where=where)
+    except InvalidMessage as exc:
+        return Rejection(RejectReason(exc.reason), exc.detail)
+    finite = np.isfinite(values)
+    if not finite.all():
+        index = tuple(int(i) for i in np.argwhere(~finite)[0])
+        return Rejection(RejectReason.NON_FINITE,
+                         f"{where}: non-finite value {values[index]!r} at index {index}")
+    return None
+
+
+def validate_episode(
+    msg: pb.Episode, spec: TaskSpec, *, run: str | None = None
+) -> Rejection | None:
+    """Check a parsed Episode against the task; None if it may be stored."""
+    if msg.schema_version != SCHEMA_VERSION:
+        return Rejection(RejectReason.SCHEMA_VERSION,
+                         f"Episode: schema_version {msg.schema_version}, expected {SCHEMA_VERSION}")
+    if run is not None and msg.run != run:
+        return Rejection(RejectReason.UNKNOWN_RUN,
+                         f"Episode.run {msg.run!r}: this replay serves run {run!r}")
+    if msg.task != spec.name:
+        return Rejection(RejectReason.WRONG_TASK,
+                         f"Episode.task {msg.task!r}: this replay serves task {spec.name!r}")
+    if not msg.actor_id:
+        return Rejection(RejectReason.MISSING_FIELD, "Episode.actor_id is empty")
+    for field, shape in expected_shapes(spec).items():
+        rejection = _array_rejection(field, getattr(msg, field), shape, length_axis=True)
+        if rejection is not None:
+            return rejection
+    return None
+
+
+def decode_episode(raw: bytes, spec: TaskSpec, *, run: str | None, max_bytes: int) -> EpisodeData:
+    """Raw bytes from `replay/insert` to a checked episode, or `InvalidMessage`."""
+    msg = parse_message(raw, pb.Episode, max_bytes=max_bytes)
+    rejection = validate_episode(msg, spec, run=run)
+    if rejection is not None:
+        raise rejection.error()
+    return msg_to_episode(msg)
+
+
+def validate_sample_request(msg: pb.SampleRequest, *, run: str | None,
+                            max_minibatches: int, max_batch_size: int) -> Rejection | None:
+    if run is not None and msg.run != run:
+        return Rejection(RejectReason.UNKNOWN_RUN,
+                         f"SampleRequest.run {msg.run!r}: this replay serves run {run!r}")
+    if not 1 <= msg.num_minibatches <= max_minibatches:
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"SampleRequest.num_minibatches {msg.num_minibatches}, "
+                         f"must be in [1, {max_minibatches}]")
+    if not 1 <= msg.batch_size <= max_batch_size:
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"SampleRequest.batch_size {msg.batch_size}, "
+                         f"must be in [1, {max_batch_size}]")
+    return None
+
+
+def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> Rejection | None:
+    """Check a ClusterModel before the replay relabels its episodes with it."""
+    try:
+        centroids = msg_to_array(msg.centroids, where="ClusterModel.centroids")
+    except InvalidMessage as exc:
+        return Rejection(RejectReason(exc.reason), exc.detail)
+    if centroids.shape != (k, goal_dim):
+        return Rejection(RejectReason.BAD_SHAPE,
+                         f"ClusterModel.centroids: shape {centroids.shape}, "
+                         f"expected {(k, goal_dim)}")
+    if not np.isfinite(centroids).all():
+        return Rejection(RejectReason.NON_FINITE, "ClusterModel.centroids: non-finite values")
+    return None

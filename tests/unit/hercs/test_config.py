@@ -1,0 +1,84 @@
+"""Config defaults equal DESIGN §4; overrides and YAML round trip; bad values name the field."""
+
+from pathlib import Path
+
+import pytest
+
+from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
+from hercs.errors import ConfigError
+
+
+def test_defaults_are_the_paper_reference_values() -> None:
+    c = HercsConfig()
+    assert (c.ddpg.hidden_size, c.ddpg.hidden_layers) == (256, 3)
+    assert (c.ddpg.lr_actor, c.ddpg.lr_critic, c.ddpg.gamma, c.ddpg.polyak) == (
+        1e-3, 1e-3, 0.98, 0.95)
+    assert (c.ddpg.action_l2, c.ddpg.batch_size, c.ddpg.noise_eps, c.ddpg.random_eps) == (
+        1.0, 256, 0.2, 0.3)
+    assert (c.ddpg.clip_obs, c.ddpg.norm_clip, c.ddpg.norm_eps) == (200.0, 5.0, 0.01)
+    assert c.ddpg.clip_return_value == pytest.approx(50.0)
+    assert c.her.replay_k == 4 and c.her.future_p == pytest.approx(0.8)
+    assert (c.training.cycles_per_epoch, c.training.episodes_per_cycle,
+            c.training.minibatches_per_cycle, c.training.epochs,
+            c.training.eval_episodes) == (50, 4, 40, 200, 20)
+    assert c.training.updates_per_episode == 10.0
+    assert c.replay.buffer_transitions == 1_000_000 and c.capacity_episodes == 20_000
+    assert (c.cluster.k, c.cluster.fgb_size, c.cluster.failure_threshold,
+            c.cluster.small_cluster_repeat) == (8, 150, 0.05, 4)
+    assert c.energy.clip_energy == 0.5 and (c.energy.delta_t, c.energy.gravity) == (0.04, 9.81)
+
+
+def test_overrides_are_typed() -> None:
+    c = apply_overrides(HercsConfig(), ["ddpg.lr_actor=5e-4", "replay.buffer_transitions=1e5",
+                                        "replay.free_run=true", "run.name=007",
+                                        "transport.connect=[tcp/10.0.0.1:7447]"])
+    assert c.ddpg.lr_actor == 5e-4
+    assert c.replay.buffer_transitions == 100_000 and isinstance(c.replay.buffer_transitions, int)
+    assert c.replay.free_run is True
+    assert c.run.name == "007"
+    assert c.transport.connect == ["tcp/10.0.0.1:7447"]
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("ddpg.gamma=1.0", "ddpg.gamma: got 1.0"),
+        ("ddpg.batch_size=0", "ddpg.batch_size: got 0"),
+        ("ddpg.batch_size=2.5", "ddpg.batch_size: got 2.5, must be an integer"),
+        ("ddpg.clip_return=maybe", "ddpg.clip_return: got 'maybe', must be true or false"),
+        ("run.method=her-xx", "run.method: got 'her-xx'"),
+        ("task.name=ant", "task.name: got 'ant'"),
+        ("cluster.fgb_size=4", "cluster.fgb_size: got 4, must be >= k=8"),
+        ("ddpg.lr=1", "unknown field 'ddpg.lr'"),
+        ("nosuch.x=1", "unknown section 'nosuch'"),
+        ("gamma=0.9", "must look like section.field=value"),
+        ("run.name=a/b", "run.name: got 'a/b'"),
+        ("transport.connect=[localhost]", "transport.connect: got 'localhost'"),
+        ("energy.clip_energy=-1", "energy.clip_energy: got -1.0, must be > 0"),
+    ],
+    ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "fgb", "unknown-field",
+         "unknown-section", "no-section", "run-name", "endpoint", "clip-energy"],
+)
+def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        apply_overrides(HercsConfig(), [override])
+    assert message in str(err.value)
+
+
+def test_yaml_round_trip(tmp_path: Path) -> None:
+    c = apply_overrides(HercsConfig(), ["task.name=pick", "run.method=her-ebp-cs",
+                                        "cluster.k=4", "training.epochs=3"])
+    save_yaml(c, tmp_path / "config.yaml")
+    assert load_yaml(tmp_path / "config.yaml") == c
+
+
+def test_partial_yaml_keeps_defaults_and_rejects_unknown(tmp_path: Path) -> None:
+    (tmp_path / "a.yaml").write_text("ddpg:\n  lr_actor: 0.0005\n")
+    c = load_yaml(tmp_path / "a.yaml")
+    assert c.ddpg.lr_actor == 0.0005 and c.ddpg.gamma == 0.98
+    (tmp_path / "b.yaml").write_text("ddpg:\n  lr_actr: 0.0005\n")
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_yaml(tmp_path / "b.yaml")
+    (tmp_path / "c.yaml").write_text("- not a mapping\n")
+    with pytest.raises(ConfigError, match="must hold a mapping"):
+        load_yaml(tmp_path / "c.yaml")

@@ -1,0 +1,150 @@
+"""Round trips of every message and the array codec's strictness."""
+
+import numpy as np
+import pytest
+
+from hercs.episode import random_episode
+from hercs.errors import InvalidMessage
+from hercs.tasks import task_spec
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from proto.codec import (
+    array_to_msg,
+    arrays_to_named,
+    episode_to_msg,
+    minibatch_to_msg,
+    msg_to_array,
+    msg_to_episode,
+    msg_to_minibatch,
+    msg_to_stats,
+    named_to_arrays,
+    stats_to_msg,
+)
+
+
+@pytest.mark.parametrize(
+    "value",
+    [
+        np.arange(12, dtype=np.float32).reshape(3, 4),
+        np.array([[1.5, -2.0]], dtype=np.float64),
+        np.array([1, -2, 3], dtype=np.int64),
+        np.array([True, False]),
+        np.zeros((0, 3), dtype=np.float32),
+        np.asfortranarray(np.arange(6, dtype=np.int32).reshape(2, 3)),
+        np.arange(4, dtype=">f4"),
+    ],
+    ids=["f32-2d", "f64", "i64", "bool", "empty", "fortran-order", "big-endian-input"],
+)
+def test_array_round_trip(value: np.ndarray) -> None:
+    wire = pb.Array.FromString(array_to_msg(value).SerializeToString())
+    back = msg_to_array(wire)
+    assert back.shape == value.shape
+    assert back.dtype.name == value.dtype.name
+    np.testing.assert_array_equal(back, value)
+
+
+def test_array_bytes_are_little_endian() -> None:
+    msg = array_to_msg(np.array([1.0], dtype=np.float32))
+    assert msg.data == b"\x00\x00\x80\x3f"
+
+
+def test_array_with_wrong_byte_count_is_rejected() -> None:
+    msg = array_to_msg(np.zeros((2, 3), dtype=np.float32))
+    msg.shape[:] = [2, 4]
+    with pytest.raises(InvalidMessage) as err:
+        msg_to_array(msg, where="Episode.obs")
+    assert err.value.reason == "bad_array"
+    assert "Episode.obs" in err.value.detail and "24 data bytes" in err.value.detail
+
+
+def test_unknown_dtype_is_rejected() -> None:
+    msg = array_to_msg(np.zeros(2, dtype=np.float32))
+    msg.dtype = "complex64"
+    with pytest.raises(InvalidMessage, match="bad_dtype"):
+        msg_to_array(msg)
+
+
+def test_episode_round_trip() -> None:
+    spec = task_spec("push")
+    episode = random_episode(spec, np.random.default_rng(0), actor_id="a-1", seq=7)
+    episode.success = True
+    episode.policy_version = 12
+    wire = episode_to_msg(episode, run="r1", task="push").SerializeToString()
+    msg = pb.Episode.FromString(wire)
+    assert (msg.schema_version, msg.run, msg.task) == (SCHEMA_VERSION, "r1", "push")
+    back = msg_to_episode(msg)
+    for name in ("obs", "ag", "g", "actions"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(episode, name))
+    assert (back.actor_id, back.seq, back.success, back.policy_version) == ("a-1", 7, True, 12)
+
+
+def test_normalizer_stats_round_trip() -> None:
+    rng = np.random.default_rng(1)
+    state = {"sum": rng.normal(size=25), "sumsq": rng.random(25), "count": 1234.0,
+             "mean": rng.normal(size=25), "std": rng.random(25)}
+    back = msg_to_stats(pb.NormalizerStats.FromString(stats_to_msg(state).SerializeToString()),
+                        where="o_stats")
+    assert back["count"] == 1234.0
+    for name in ("sum", "sumsq", "mean", "std"):
+        np.testing.assert_array_equal(back[name], state[name])
+
+
+def test_named_arrays_round_trip_and_duplicates() -> None:
+    params = {"fc1.weight": np.ones((4, 3), np.float32), "fc1.bias": np.zeros(4, np.float32)}
+    weights = pb.Weights(version=3, actor_params=arrays_to_named(params))
+    back = named_to_arrays(pb.Weights.FromString(weights.SerializeToString()).actor_params,
+                           where="Weights.actor_params")
+    assert list(back) == list(params)
+    np.testing.assert_array_equal(back["fc1.weight"], params["fc1.weight"])
+    weights.actor_params.append(weights.actor_params[0])
+    with pytest.raises(InvalidMessage, match="duplicate"):
+        named_to_arrays(weights.actor_params, where="Weights.actor_params")
+
+
+def test_minibatch_round_trip() -> None:
+    rng = np.random.default_rng(2)
+    batch = {"o": rng.random((8, 25)), "o2": rng.random((8, 25)), "ag": rng.random((8, 3)),
+             "ag2": rng.random((8, 3)), "g": rng.random((8, 3)), "u": rng.random((8, 4)),
+             "r": -rng.integers(0, 2, 8)}
+    back = msg_to_minibatch(pb.Minibatch.FromString(minibatch_to_msg(batch).SerializeToString()))
+    for name, value in batch.items():
+        np.testing.assert_array_equal(back[name], value.astype(np.float32))
+        assert back[name].dtype == np.float32
+
+
+def _sample_of_each_message() -> list:
+    arr = array_to_msg(np.ones((8, 3), np.float32))
+    stats = stats_to_msg({"sum": np.ones(3), "sumsq": np.ones(3), "count": 2.0,
+                          "mean": np.ones(3), "std": np.ones(3)})
+    v = SCHEMA_VERSION
+    return [
+        pb.InsertAck(schema_version=v, actor_id="a", seq=3, episode_id=9, duplicate=True),
+        pb.EpisodeHeader(schema_version=v, episode_id=9, actor_id="a", seq=3, success=False,
+                         final_achieved_goal=array_to_msg(np.ones(3, np.float32)),
+                         desired_goal=array_to_msg(np.zeros(3, np.float32)), energy=0.25,
+                         cluster=-1, policy_version=4),
+        pb.SampleRequest(schema_version=v, run="r", learner_id="l", request_id=5,
+                         num_minibatches=40, batch_size=256),
+        pb.Batch(schema_version=v, request_id=5, minibatches=[pb.Minibatch(o=arr)],
+                 o_stats=stats, g_stats=stats, cluster_model_version=2,
+                 cluster_draws=[32] * 8, inserts=100, env_steps=5000),
+        pb.ClusterModel(schema_version=v, version=2, centroids=arr, fitted_on=150,
+                        failed_goals_seen=300),
+        pb.Weights(schema_version=v, version=7, o_stats=stats, g_stats=stats, epoch=1,
+                   evaluate=True, actor_params=arrays_to_named({"w": np.ones(2, np.float32)})),
+        pb.EvalResult(schema_version=v, epoch=1, weights_version=7, episodes=20,
+                      success_rate=0.35, mean_final_distance=0.08),
+        pb.ReplayStatus(schema_version=v, size_episodes=10, size_transitions=500, inserts=12,
+                        duplicates=2, samples=40, rate_limiter="ok",
+                        rejects={"non_finite": 1}, cluster_sizes=[1, 2], cluster_model_version=1),
+        pb.Metrics(schema_version=v, service="learner", step=3, values={"critic_loss": 0.5}),
+        pb.Reject(schema_version=v, reason="bad_shape", detail="Episode.obs: shape (3,)"),
+    ]
+
+
+@pytest.mark.parametrize("msg", _sample_of_each_message(),
+                         ids=lambda m: type(m).DESCRIPTOR.name)
+def test_every_message_round_trips(msg) -> None:
+    back = type(msg).FromString(msg.SerializeToString())
+    assert back == msg
+    assert back.schema_version == SCHEMA_VERSION
