@@ -1,0 +1,112 @@
+"""Sample-to-insert rate limiter (Reverb's SampleToInsertRatio, restated for hercs).
+
+Let I be the episodes inserted, S the minibatches sampled and ρ = updates_per_episode (samples
+per insert). The limiter tracks the surplus
+
+    d = ρ·I − S
+
+(how many minibatches the learner is owed) and keeps it inside a window around its value at
+the moment sampling may begin, ρ·N_min, with half-width E (the error buffer):
+
+    d_min = ρ·N_min − E,   d_max = ρ·N_min + E.
+
+An insert is admitted while d + ρ ≤ d_max (else the actor waits: the learner is behind);
+a request for n minibatches is admitted once I ≥ N_min and d − n ≥ d_min (else the learner
+waits: actors are behind). So over any stretch |S − ρ·I| stays within E + n + ρ of the target
+line, i.e. updates per episode stay at ρ up to a bounded error that vanishes relative to I.
+
+A window narrower than one request plus one insert could hold both sides at once, so the
+constructor refuses it: 2E ≥ n_max + ρ. With `free_run` everything is admitted (the counts are
+still kept for the status).
+
+The object is pure bookkeeping: it never blocks. The replay service parks queries that are not
+admitted and retries them after every insert or sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hercs.errors import ConfigError
+
+
+@dataclass
+class RateLimiterState:
+    inserts: int
+    samples: int
+    surplus: float
+    min_surplus: float
+    max_surplus: float
+
+
+class SampleToInsertRatio:
+    def __init__(
+        self,
+        *,
+        samples_per_insert: float,
+        min_size_to_sample: int,
+        error_buffer: float,
+        max_request: int,
+        free_run: bool = False,
+    ) -> None:
+        if samples_per_insert <= 0:
+            raise ConfigError(f"samples_per_insert: got {samples_per_insert}, must be > 0")
+        if min_size_to_sample < 1:
+            raise ConfigError(f"min_size_to_sample: got {min_size_to_sample}, must be >= 1")
+        if not free_run and 2 * error_buffer < max_request + samples_per_insert:
+            raise ConfigError(
+                f"replay.rate_tolerance_updates: got {error_buffer}, must be at least "
+                f"(max_request + samples_per_insert)/2 = {(max_request + samples_per_insert) / 2}"
+                " or inserts and samples could both wait forever"
+            )
+        self.samples_per_insert = float(samples_per_insert)
+        self.min_size_to_sample = int(min_size_to_sample)
+        self.error_buffer = float(error_buffer)
+        self.max_request = int(max_request)
+        self.free_run = free_run
+        self.inserts = 0
+        self.samples = 0
+        center = self.samples_per_insert * self.min_size_to_sample
+        self.min_surplus = center - self.error_buffer
+        self.max_surplus = center + self.error_buffer
+
+    @property
+    def surplus(self) -> float:
+        return self.samples_per_insert * self.inserts - self.samples
+
+    def can_insert(self) -> bool:
+        return self.free_run or self.surplus + self.samples_per_insert <= self.max_surplus
+
+    def can_sample(self, num_minibatches: int) -> bool:
+        if self.inserts < self.min_size_to_sample:
+            return False
+        return self.free_run or self.surplus - num_minibatches >= self.min_surplus
+
+    def record_insert(self) -> None:
+        self.inserts += 1
+
+    def record_sample(self, num_minibatches: int) -> None:
+        self.samples += num_minibatches
+
+    def describe(self, *, inserts_waiting: int, samples_waiting: int) -> str:
+        """A short word for ReplayStatus.rate_limiter."""
+        if self.free_run:
+            return "free-run"
+        if self.inserts < self.min_size_to_sample:
+            return "filling"
+        if samples_waiting:
+            return "holding-samples"
+        if inserts_waiting:
+            return "holding-inserts"
+        return "ok"
+
+    def state(self) -> RateLimiterState:
+        return RateLimiterState(self.inserts, self.samples, self.surplus, self.min_surplus,
+                                self.max_surplus)
+
+    def state_dict(self) -> dict[str, int]:
+        return {"inserts": self.inserts, "samples": self.samples}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        self.inserts = int(state["inserts"])
+        self.samples = int(state["samples"])
