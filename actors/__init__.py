@@ -1,0 +1,1 @@
+"""Actors: rollout workers (exploring) and the evaluator (deterministic test episodes)."""
