@@ -1,0 +1,92 @@
+"""The clusterer's pure core: classify episodes, keep the failed goals, refit k-means.
+
+Per observed episode (DESIGN §4): the episode failed if ‖ag_T − g‖ > failure_threshold; a
+failed episode's desired goal g goes into the failed-goal buffer, a successful one is only
+counted. When the buffer has been entirely replaced since the last fit, k-means (k clusters)
+is refitted and a new `ClusterModel` returned for publication. Refit `v` is seeded with
+`int_seed(seed, "clusterer", "kmeans", str(v))`, so a run's models are reproducible.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from clusterer.failed_goals import FailedGoalBuffer
+from clusterer.kmeans import fit_cluster_model
+from hercs.clustering import ClusterModel
+from hercs.config import ClusterConfig
+from hercs.seeding import int_seed
+
+
+class Clusterer:
+    """Turns a stream of (final achieved goal, desired goal) pairs into cluster models."""
+
+    def __init__(self, *, config: ClusterConfig, seed: int, goal_dim: int = 3) -> None:
+        self.config = config
+        self.seed = int(seed)
+        self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=goal_dim)
+        self.inserts_seen = 0
+        """Episodes observed (successes and failures)."""
+        self.failures_seen = 0
+        self.model: ClusterModel | None = None
+        """Latest fitted model (None before the first fit); republished to late joiners."""
+
+    def observe(self, *, final_ag: np.ndarray, desired_goal: np.ndarray) -> ClusterModel | None:
+        """Account for one stored episode; return a new model if this episode triggered a refit.
+
+        final_ag is ag_T (the achieved goal after the last step), desired_goal is g.
+        """
+        final_ag = np.asarray(final_ag, dtype=np.float64)
+        desired_goal = np.asarray(desired_goal, dtype=np.float64)
+        if final_ag.shape != desired_goal.shape:
+            raise ValueError(f"Clusterer.observe: final_ag {final_ag.shape} and desired_goal "
+                             f"{desired_goal.shape} must have the same shape")
+        if not (np.all(np.isfinite(final_ag)) and np.all(np.isfinite(desired_goal))):
+            raise ValueError("Clusterer.observe: final_ag or desired_goal holds NaN or Inf")
+        self.inserts_seen += 1
+        if np.linalg.norm(final_ag - desired_goal) <= self.config.failure_threshold:
+            return None
+        self.failures_seen += 1
+        self.fgb.add(desired_goal)
+        if not self.fgb.refit_due:
+            return None
+        return self._refit()
+
+    def _refit(self) -> ClusterModel:
+        version = 1 if self.model is None else self.model.version + 1
+        goals = self.fgb.goals()
+        centroids = fit_cluster_model(
+            goals,
+            k=self.config.k,
+            seed=int_seed(self.seed, "clusterer", "kmeans", str(version)),
+            n_init=self.config.kmeans_n_init,
+        )
+        self.fgb.mark_fitted()
+        self.model = ClusterModel(version=version, centroids=centroids, n_goals=len(goals),
+                                  inserts_seen=self.inserts_seen)
+        return self.model
+
+    def state_dict(self) -> dict[str, Any]:
+        model = None
+        if self.model is not None:
+            model = {"version": self.model.version, "centroids": self.model.centroids.copy(),
+                     "n_goals": self.model.n_goals, "inserts_seen": self.model.inserts_seen}
+        return {
+            "seed": self.seed,
+            "fgb": self.fgb.state_dict(),
+            "inserts_seen": self.inserts_seen,
+            "failures_seen": self.failures_seen,
+            "model": model,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore a `state_dict()`; the seed is restored too, so later refits match."""
+        self.fgb.load_state_dict(state["fgb"])
+        self.seed = int(state["seed"])
+        self.inserts_seen = int(state["inserts_seen"])
+        self.failures_seen = int(state["failures_seen"])
+        model = state["model"]
+        self.model = None if model is None else ClusterModel(**model)

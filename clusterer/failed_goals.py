@@ -1,0 +1,97 @@
+"""The failed-goal buffer (FGB) of HER-CS: a ring of the most recent failed desired goals.
+
+Refit rule (DESIGN §4, the paper's "when the FGB is filled with entirely new FGs"): a refit is
+due once `capacity` failed goals have been added since the last fit. The first time this holds
+is when the ring first fills; after each `mark_fitted()` the count restarts, so with
+capacity 150 the fits happen at the 150th, 300th, 450th, … failed goal — each fit sees a
+buffer none of whose goals the previous fit saw.
+
+The authors' code (`rl_modules/replay_buffer.py`, `store_failed_goal`) refits when its ring
+index reaches capacity − 1, i.e. at the 149th, 299th, 449th, … failed goal (the first fit on
+149 goals) and only uses the model once the ring holds 150. We fit one goal later, on a full
+ring; the cadence (every `capacity` failed goals) is the same.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+
+class FailedGoalBuffer:
+    """Ring of the last `capacity` failed goals, with the count added since the last fit."""
+
+    def __init__(self, capacity: int = 150, *, goal_dim: int = 3) -> None:
+        if capacity < 1:
+            raise ValueError(f"FailedGoalBuffer capacity: got {capacity!r}, must be >= 1")
+        if goal_dim < 1:
+            raise ValueError(f"FailedGoalBuffer goal_dim: got {goal_dim!r}, must be >= 1")
+        self.capacity = int(capacity)
+        self.goal_dim = int(goal_dim)
+        self._goals = np.zeros((self.capacity, self.goal_dim), np.float32)
+        self._next = 0
+        """Slot the next goal goes to; the oldest goal once the ring is full."""
+        self._size = 0
+        self.total_added = 0
+        """Failed goals ever added."""
+        self.new_since_fit = 0
+        """Failed goals added since the last `mark_fitted()` (or since creation)."""
+
+    def __len__(self) -> int:
+        return self._size
+
+    def add(self, goal: np.ndarray) -> None:
+        """Append one failed desired goal (goal_dim,), overwriting the oldest when full."""
+        goal = np.asarray(goal, dtype=np.float32)
+        if goal.shape != (self.goal_dim,) or not np.all(np.isfinite(goal)):
+            raise ValueError(f"FailedGoalBuffer.add: got {goal!r}, must be a finite "
+                             f"({self.goal_dim},) vector")
+        self._goals[self._next] = goal
+        self._next = (self._next + 1) % self.capacity
+        self._size = min(self._size + 1, self.capacity)
+        self.total_added += 1
+        self.new_since_fit += 1
+
+    @property
+    def refit_due(self) -> bool:
+        """True once the ring is full and entirely replaced since the last fit."""
+        return self._size == self.capacity and self.new_since_fit >= self.capacity
+
+    def mark_fitted(self) -> None:
+        """Record that a model was fitted on the current contents."""
+        self.new_since_fit = 0
+
+    def goals(self) -> np.ndarray:
+        """Stored goals, oldest first, shape (len, goal_dim) float32 (a copy)."""
+        if self._size < self.capacity:
+            return self._goals[: self._size].copy()
+        return np.roll(self._goals, -self._next, axis=0)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "capacity": self.capacity,
+            "goal_dim": self.goal_dim,
+            "goals": self.goals(),
+            "total_added": self.total_added,
+            "new_since_fit": self.new_since_fit,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore a `state_dict()` of a buffer with the same capacity and goal_dim."""
+        if (state["capacity"], state["goal_dim"]) != (self.capacity, self.goal_dim):
+            raise ValueError(
+                f"FailedGoalBuffer.load_state_dict: state has capacity {state['capacity']}, "
+                f"goal_dim {state['goal_dim']}; this buffer has {self.capacity}, {self.goal_dim}"
+            )
+        goals = np.asarray(state["goals"], dtype=np.float32).reshape(-1, self.goal_dim)
+        if len(goals) > self.capacity:
+            raise ValueError(f"FailedGoalBuffer.load_state_dict: {len(goals)} goals exceed "
+                             f"capacity {self.capacity}")
+        self._goals[:] = 0.0
+        self._goals[: len(goals)] = goals
+        self._size = len(goals)
+        self._next = len(goals) % self.capacity
+        self.total_added = int(state["total_added"])
+        self.new_since_fit = int(state["new_since_fit"])

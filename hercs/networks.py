@@ -1,0 +1,122 @@
+"""Actor and critic of DDPG+HER, and the input preprocessing shared by actors and learner.
+
+Shapes and arithmetic follow the reference PyTorch HER code (`rl_modules/models.py`):
+- actor  μ(x)    = max_action · tanh(W_out · relu(… relu(W_1 x)))          x = [o_norm, g_norm]
+- critic Q(x, a) = W_out · relu(… relu(W_1 [x, a / max_action]))
+with `hidden_layers` ReLU layers of `hidden_size` units (3 × 256) and PyTorch's default
+`nn.Linear` initialisation, as the reference.
+
+Seeded construction (`seed=`) builds the layers inside `torch.random.fork_rng`, so the weights
+depend only on the seed and building a network never changes the caller's global torch RNG.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+from torch import nn
+
+from hercs.config import DDPGConfig
+from hercs.normalizer import Normalizer
+from hercs.tasks import TaskSpec
+
+
+def _mlp(in_dim: int, out_dim: int, config: DDPGConfig) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    width = in_dim
+    for _ in range(config.hidden_layers):
+        layers += [nn.Linear(width, config.hidden_size), nn.ReLU()]
+        width = config.hidden_size
+    layers.append(nn.Linear(width, out_dim))
+    return nn.Sequential(*layers)
+
+
+@contextlib.contextmanager
+def _seeded(seed: int | None) -> Iterator[None]:
+    """Run the block with torch's global RNG seeded by `seed`, restoring the caller's state after.
+
+    `nn.Linear` draws its initial weights from the global generator at construction, so the
+    layers must be built inside this block. `seed=None` leaves the global generator in use.
+    """
+    if seed is None:
+        yield
+        return
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        yield
+
+
+class Actor(nn.Module):
+    """Deterministic policy μ(o_norm, g_norm) ∈ [−max_action, max_action]^action_dim."""
+
+    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int | None = None) -> None:
+        super().__init__()
+        self.max_action = float(spec.max_action)
+        with _seeded(seed):
+            self.net = _mlp(spec.obs_dim + spec.goal_dim, spec.action_dim, config)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x: (B, obs_dim + goal_dim) normalised inputs → actions (B, action_dim)."""
+        return self.max_action * torch.tanh(self.net(x))
+
+
+class Critic(nn.Module):
+    """Action value Q(o_norm, g_norm, a); the action enters scaled by 1/max_action."""
+
+    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int | None = None) -> None:
+        super().__init__()
+        self.max_action = float(spec.max_action)
+        with _seeded(seed):
+            self.net = _mlp(spec.obs_dim + spec.goal_dim + spec.action_dim, 1, config)
+
+    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """x: (B, obs_dim + goal_dim), a: (B, action_dim) → Q (B, 1)."""
+        return self.net(torch.cat([x, a / self.max_action], dim=-1))
+
+
+def preprocess(
+    o: np.ndarray, g: np.ndarray, o_norm: Normalizer, g_norm: Normalizer, clip_obs: float
+) -> np.ndarray:
+    """Network input [o_norm, g_norm] (float32, last axis concatenated).
+
+    As the reference: o and g are clipped to ±clip_obs, then normalised (which clips to
+    ±clip_range). Leading shapes of o and g must agree.
+    """
+    o = np.clip(o, -clip_obs, clip_obs)
+    g = np.clip(g, -clip_obs, clip_obs)
+    return np.concatenate([o_norm.normalize(o), g_norm.normalize(g)], axis=-1)
+
+
+def to_arrays(module: nn.Module) -> dict[str, np.ndarray]:
+    """The module's parameters as plain float32 numpy arrays (copies), keyed by state-dict name.
+
+    This is the wire form of network weights (`Weights.actor`).
+    """
+    return {name: t.detach().cpu().numpy().astype(np.float32, copy=True)
+            for name, t in module.state_dict().items()}
+
+
+def load_arrays(module: nn.Module, arrays: dict[str, np.ndarray]) -> None:
+    """Load `to_arrays` output into `module`; names and shapes must match exactly.
+
+    Everything is checked before anything is written, so a bad dict leaves the module as it was.
+    """
+    own = module.state_dict()
+    missing = sorted(set(own) - set(arrays))
+    unexpected = sorted(set(arrays) - set(own))
+    if missing or unexpected:
+        raise ValueError(f"{type(module).__name__} weights: missing {missing}, "
+                         f"unexpected {unexpected}")
+    tensors = {}
+    for name, ref in own.items():
+        arr = np.asarray(arrays[name], dtype=np.float32)
+        if tuple(arr.shape) != tuple(ref.shape):
+            raise ValueError(f"{type(module).__name__} weights: {name!r} has shape "
+                             f"{arr.shape}, expected {tuple(ref.shape)}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{type(module).__name__} weights: {name!r} holds NaN or Inf")
+        tensors[name] = torch.from_numpy(arr.copy())
+    module.load_state_dict(tensors)

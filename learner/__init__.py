@@ -1,0 +1,8 @@
+"""The learner service: DDPG updates, target nets, checkpoints, weight broadcast.
+
+`learner.ddpg` is the pure core (no Zenoh); the service module wraps it.
+"""
+
+from learner.ddpg import BATCH_KEYS, DDPGLearner, critic_target
+
+__all__ = ["BATCH_KEYS", "DDPGLearner", "critic_target"]

@@ -1,0 +1,217 @@
+"""DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
+
+Notation (the DDPG paper's): μ actor, Q critic, μ' and Q' their target copies, s = [o, g]
+normalised, s' = [o', g] (the goal does not change within a transition), γ discount.
+
+One `update(batch)` is one of the reference's `_update_network` calls:
+
+    y   = clip(r + γ · Q'(s', μ'(s')), −1/(1−γ), 0)                       (clip_return)
+    L_Q = mean (y − Q(s, u))²
+    L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s) / max_action)²
+    Adam step on L_μ (actor), then Adam step on L_Q (critic)
+
+Both losses are computed from the parameters before either step, as in the reference.
+`update_targets()` is the once-per-cycle Polyak average θ' ← polyak·θ' + (1−polyak)·θ.
+
+The normalisers live in the replay (it sees every stored episode); the learner only adopts the
+statistics it is sent (`set_normalizer_state`) and forwards them with the actor weights.
+
+Threads: this module never calls `torch.set_num_threads`; that process-wide choice belongs
+to the service (on the 2-core development machine, 1–2 threads for the learner).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from hercs.config import DDPGConfig
+from hercs.networks import Actor, Critic, preprocess, to_arrays
+from hercs.normalizer import Normalizer
+from hercs.policy import PolicyWeights
+from hercs.seeding import int_seed
+from hercs.tasks import TaskSpec
+
+BATCH_KEYS = ("o", "g", "u", "r", "o2")
+"""Arrays of one minibatch: o (B, obs_dim), g (B, goal_dim), u (B, action_dim), r (B,) or
+(B, 1), o2 (B, obs_dim). Extra keys are ignored."""
+
+
+def critic_target(
+    r: torch.Tensor,
+    s2: torch.Tensor,
+    *,
+    actor_target: Actor,
+    critic_target: Critic,
+    gamma: float,
+    clip_return: float | None,
+) -> torch.Tensor:
+    """y = r + γ · Q'(s', μ'(s')), clipped to [−clip_return, 0] unless clip_return is None.
+
+    r: (B, 1); s2: (B, obs_dim + goal_dim) normalised next inputs. No gradient flows through
+    y. There is no terminal mask: Fetch episodes end by time limit only, as in the reference.
+    Rewards are ≤ 0, so 0 and −1/(1−γ) bound every true return.
+    """
+    with torch.no_grad():
+        y = r + gamma * critic_target(s2, actor_target(s2))
+        if clip_return is not None:
+            y = torch.clamp(y, -clip_return, 0.0)
+    return y
+
+
+class DDPGLearner:
+    """Actor, critic, their targets and optimisers; one `update` per minibatch."""
+
+    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int) -> None:
+        self.spec = spec
+        self.config = config
+        self.actor = Actor(spec=spec, config=config, seed=int_seed(seed, "learner", "actor"))
+        self.critic = Critic(spec=spec, config=config, seed=int_seed(seed, "learner", "critic"))
+        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.lr_actor)
+        self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.lr_critic)
+        self.o_norm = Normalizer(spec.obs_dim, eps=config.norm_eps, clip_range=config.norm_clip)
+        self.g_norm = Normalizer(spec.goal_dim, eps=config.norm_eps, clip_range=config.norm_clip)
+        self.updates = 0
+        """Minibatch updates done (Adam steps per network)."""
+        self.target_updates = 0
+        """Polyak updates done (one per cycle)."""
+
+    def set_normalizer_state(
+        self, o_state: Mapping[str, np.ndarray], g_state: Mapping[str, np.ndarray]
+    ) -> None:
+        """Adopt the replay's normaliser statistics (`Normalizer.state_dict()` form)."""
+        o_norm = Normalizer(self.spec.obs_dim, eps=self.o_norm.eps,
+                            clip_range=self.o_norm.clip_range)
+        g_norm = Normalizer(self.spec.goal_dim, eps=self.g_norm.eps,
+                            clip_range=self.g_norm.clip_range)
+        o_norm.load_state_dict(o_state)
+        g_norm.load_state_dict(g_state)
+        self.o_norm, self.g_norm = o_norm, g_norm
+
+    def update(self, batch: Mapping[str, np.ndarray]) -> dict[str, float]:
+        """One DDPG step on a minibatch (see `BATCH_KEYS`); returns losses and means."""
+        o, g, u, r, o2 = self._check_batch(batch)
+        cfg, max_action = self.config, self.spec.max_action
+
+        # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
+        s = torch.from_numpy(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        s2 = torch.from_numpy(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        u_t = torch.from_numpy(u)
+        r_t = torch.from_numpy(r)
+
+        # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
+        y = critic_target(
+            r_t, s2,
+            actor_target=self.actor_target, critic_target=self.critic_target,
+            gamma=cfg.gamma,
+            clip_return=cfg.clip_return_value if cfg.clip_return else None,
+        )
+
+        # Critic loss: L_Q = mean (y − Q(s, u))².
+        q = self.critic(s, u_t)
+        critic_loss = (y - q).pow(2).mean()
+
+        # Actor loss: L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s)/max_action)².
+        pi = self.actor(s)
+        action_l2 = (pi / max_action).pow(2).mean()
+        actor_loss = -self.critic(s, pi).mean() + cfg.action_l2 * action_l2
+
+        # Adam steps, actor then critic (the critic's grads from L_μ are discarded).
+        self.actor_optim.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_optim.step()
+        self.critic_optim.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_optim.step()
+
+        self.updates += 1
+        return {
+            "critic_loss": critic_loss.item(),
+            "actor_loss": actor_loss.item(),
+            "q_mean": q.mean().item(),
+            "y_mean": y.mean().item(),
+            "action_l2": action_l2.item(),
+        }
+
+    def update_targets(self) -> None:
+        """Polyak averaging θ' ← polyak·θ' + (1−polyak)·θ for μ' and Q' (once per cycle)."""
+        rho = self.config.polyak
+        with torch.no_grad():
+            for net, target in ((self.actor, self.actor_target),
+                                (self.critic, self.critic_target)):
+                for p, p_targ in zip(net.parameters(), target.parameters(), strict=True):
+                    p_targ.copy_((1.0 - rho) * p + rho * p_targ)
+        self.target_updates += 1
+
+    def actor_weights(self) -> dict[str, np.ndarray]:
+        """μ's parameters as float32 numpy arrays, for the `Weights` broadcast."""
+        return to_arrays(self.actor)
+
+    def normalizer_state(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """(o_state, g_state) the learner currently uses, to broadcast with the weights."""
+        return self.o_norm.state_dict(), self.g_norm.state_dict()
+
+    def policy_weights(self, version: int) -> PolicyWeights:
+        """Everything an actor needs, tagged with `version`."""
+        o_state, g_state = self.normalizer_state()
+        return PolicyWeights(version=version, actor=self.actor_weights(),
+                             o_stats=o_state, g_stats=g_state)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Checkpoint: nets, targets, optimisers, normaliser stats, counters (deep copies)."""
+        return copy.deepcopy({
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "actor_target": self.actor_target.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "actor_optim": self.actor_optim.state_dict(),
+            "critic_optim": self.critic_optim.state_dict(),
+            "o_norm": self.o_norm.state_dict(),
+            "g_norm": self.g_norm.state_dict(),
+            "updates": self.updates,
+            "target_updates": self.target_updates,
+        })
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore a `state_dict()` checkpoint of a learner with the same spec and config."""
+        expected = {"actor", "critic", "actor_target", "critic_target", "actor_optim",
+                    "critic_optim", "o_norm", "g_norm", "updates", "target_updates"}
+        missing = sorted(expected - set(state))
+        if missing:
+            raise ValueError(f"DDPGLearner.load_state_dict: missing key(s) {missing}; "
+                             "is this a learner checkpoint?")
+        self.set_normalizer_state(state["o_norm"], state["g_norm"])
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.actor_target.load_state_dict(state["actor_target"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.actor_optim.load_state_dict(state["actor_optim"])
+        self.critic_optim.load_state_dict(state["critic_optim"])
+        self.updates = int(state["updates"])
+        self.target_updates = int(state["target_updates"])
+
+    def _check_batch(self, batch: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """Arrays as float32 with shapes checked; r reshaped to (B, 1) so that y broadcasts
+        row-wise (a (B,) r plus a (B, 1) Q' would silently broadcast to (B, B))."""
+        missing = [k for k in BATCH_KEYS if k not in batch]
+        if missing:
+            raise ValueError(f"DDPGLearner.update: batch lacks {missing}; needs {BATCH_KEYS}")
+        spec = self.spec
+        o, g, u, r, o2 = (np.asarray(batch[k], dtype=np.float32) for k in BATCH_KEYS)
+        b = o.shape[0] if o.ndim == 2 else -1
+        want = {"o": (b, spec.obs_dim), "g": (b, spec.goal_dim), "u": (b, spec.action_dim),
+                "o2": (b, spec.obs_dim)}
+        for key, arr in zip(("o", "g", "u", "o2"), (o, g, u, o2), strict=True):
+            if b < 1 or arr.shape != want[key]:
+                raise ValueError(f"DDPGLearner.update: {key!r} has shape {arr.shape}, "
+                                 f"expected {want[key]} (B from 'o')")
+        if r.size != b or r.ndim > 2:
+            raise ValueError(f"DDPGLearner.update: 'r' has shape {r.shape}, expected ({b},) "
+                             f"or ({b}, 1)")
+        return o, g, u, np.ascontiguousarray(r.reshape(b, 1)), o2
