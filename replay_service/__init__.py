@@ -1,0 +1,1 @@
+"""Replay service: episode store, HER relabelling, energy, samplers (pure core, no transport)."""

@@ -1,0 +1,69 @@
+"""HER-EBP-CS's episode draw: cluster-balanced shares, energy-prioritised inside them.
+
+No public code combines the two; this is our definition. With w = trajectory energy + ε:
+
+- How many draws each cluster gets is exactly HER-CS's plan (samplers.cluster_balanced:
+  share ⌊B/k⌋, small clusters repeat·n_c, empty clusters and the remainder go to the whole
+  buffer). Balancing *which regions of goal space* are replayed stays HER-CS's job.
+- Inside cluster c, a member i is drawn with p = w_i / Σ_{j∈c} w_j (EBP within the cluster), so
+  a small cluster's repeat·n_c draws also favour its energetic members.
+- Every whole-buffer fill is drawn with p ∝ w over the whole buffer (EBP), not uniformly.
+- Before any cluster model (every label −1) the draw is plain HER-EBP: p ∝ w over the buffer.
+
+So the expected count of episode i in cluster c per batch is
+member_draws_c · w_i / W_c + fill · w_i / W, with W_c and W the cluster and buffer masses.
+
+Implementation: one cumulative sum of w in cluster-sorted order serves every segment; each
+draw is an inverse-CDF lookup (searchsorted) inside its cluster's segment or the whole array.
+Stateless.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from replay_service.samplers.base import (
+    SampleInfo,
+    SampleSource,
+    check_epsilon,
+    check_request,
+    cumulative,
+    draw_weighted,
+    make_info,
+)
+from replay_service.samplers.cluster_balanced import check_cluster_args, plan_shares
+
+
+class EnergyClusterSampler:
+    """HER-EBP-CS as defined in the module docstring."""
+
+    def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4) -> None:
+        check_cluster_args(k, small_cluster_repeat)
+        check_epsilon(epsilon)
+        self.k = k
+        self.epsilon = epsilon
+        self.small_cluster_repeat = small_cluster_repeat
+
+    def sample(
+        self, store: SampleSource, batch_size: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, SampleInfo]:
+        check_request(store, batch_size)
+        labels = store.cluster
+        weights = store.energy + self.epsilon
+        plan = plan_shares(
+            labels, k=self.k, repeat=self.small_cluster_repeat, batch_size=batch_size
+        )
+        if plan is None:
+            idxs = draw_weighted(cumulative(weights), 0, store.size, batch_size, rng)
+            fill, balanced = batch_size, False
+        else:
+            cum = cumulative(weights[plan.order])
+            of_cluster = np.repeat(np.arange(self.k), plan.member_draws)
+            lo = plan.starts[of_cluster]
+            members = draw_weighted(cum, lo, lo + plan.sizes[of_cluster], lo.size, rng)
+            fills = draw_weighted(cum, 0, store.size, plan.fill, rng)
+            idxs = plan.order[np.concatenate([members, fills])]
+            fill, balanced = plan.fill, True
+        return idxs, make_info(
+            labels, idxs, num_clusters=self.k, whole_buffer_draws=fill, balanced=balanced
+        )

@@ -1,0 +1,279 @@
+"""A preallocated FIFO ring of whole episodes, with per-episode metadata.
+
+Invariants (enforced by `insert` and `load_state_dict`):
+- Episode ids are global and monotonic from 0: the n-th inserted episode has id n-1 and lives
+  in slot ``id % capacity_episodes`` until `capacity_episodes` later episodes overwrite it.
+- Hence the valid slots are always the prefix ``[0, size)``; every array property returns a
+  read-only view of that prefix (no copy), indexed by slot.
+- Every stored array has the task's shapes (`hercs.episode.expected_shapes`); a mismatch is
+  refused before anything is written.
+
+Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
+as slots are written. The store is not thread-safe: the service serialises calls.
+
+Deviation from the reference HER buffer: once full, the reference overwrites *random* slots;
+this ring overwrites the oldest episode (DESIGN §2 "ring"), which also makes ids and slots
+recoverable from the episode log.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hercs.episode import EpisodeData, expected_shapes
+from hercs.errors import ConfigError
+from hercs.tasks import TaskSpec
+
+UNASSIGNED = -1
+"""Cluster label of an episode that no cluster model has labelled yet."""
+
+_ARRAY_FIELDS = ("obs", "ag", "g", "actions")
+_META_FIELDS = (
+    "episode_id", "actor_id", "seq", "success", "final_ag", "energy", "cluster", "policy_version",
+)
+
+
+def _readonly(view: np.ndarray) -> np.ndarray:
+    view.flags.writeable = False
+    return view
+
+
+class EpisodeStore:
+    """Ring buffer of `capacity_episodes` episodes of one task (see the module invariants)."""
+
+    def __init__(self, *, capacity_episodes: int, spec: TaskSpec) -> None:
+        if capacity_episodes < 1:
+            raise ConfigError(
+                f"EpisodeStore capacity_episodes: got {capacity_episodes!r}, must be >= 1"
+            )
+        self._spec = spec
+        self._capacity = int(capacity_episodes)
+        self._shapes = expected_shapes(spec)
+        n = self._capacity
+        self._obs = np.zeros((n, *self._shapes["obs"]), np.float32)
+        self._ag = np.zeros((n, *self._shapes["ag"]), np.float32)
+        self._g = np.zeros((n, *self._shapes["g"]), np.float32)
+        self._actions = np.zeros((n, *self._shapes["actions"]), np.float32)
+        self._episode_id = np.zeros(n, np.int64)
+        self._actor_id = np.empty(n, object)
+        self._seq = np.zeros(n, np.int64)
+        self._success = np.zeros(n, bool)
+        self._final_ag = np.zeros((n, spec.goal_dim), np.float32)
+        self._energy = np.zeros(n, np.float64)
+        self._cluster = np.full(n, UNASSIGNED, np.int32)
+        self._policy_version = np.zeros(n, np.int64)
+        self._size = 0
+        self._next_id = 0
+
+    # ------------------------------------------------------------------ sizes
+
+    @property
+    def spec(self) -> TaskSpec:
+        return self._spec
+
+    @property
+    def capacity_episodes(self) -> int:
+        return self._capacity
+
+    @property
+    def size(self) -> int:
+        """Stored episodes (= number of valid slots)."""
+        return self._size
+
+    @property
+    def num_transitions(self) -> int:
+        """Stored transitions: size × T."""
+        return self._size * self._spec.episode_steps
+
+    @property
+    def num_inserted(self) -> int:
+        """Episodes ever inserted (= the id the next insert gets)."""
+        return self._next_id
+
+    # ------------------------------------------------------------------ writes
+
+    def insert(
+        self, episode: EpisodeData, *, energy: float = 0.0, cluster: int = UNASSIGNED
+    ) -> int:
+        """Store `episode` in slot ``id % capacity`` (overwriting the oldest when full).
+
+        `energy` is the trajectory energy (replay_service.energy), `cluster` the episode's
+        label under the current cluster model (-1 if there is none). Returns the episode id.
+        Raises ConfigError, storing nothing, if a shape or a metadata value is wrong.
+        """
+        arrays = {name: np.asarray(getattr(episode, name)) for name in _ARRAY_FIELDS}
+        for name, arr in arrays.items():
+            if arr.shape != self._shapes[name]:
+                raise ConfigError(
+                    f"EpisodeStore.insert: episode.{name} has shape {arr.shape}, expected "
+                    f"{self._shapes[name]} for task {self._spec.name!r}; the episode is not "
+                    "stored (the sender's task does not match the replay's)"
+                )
+        if not np.isfinite(energy) or energy < 0:
+            raise ConfigError(
+                f"EpisodeStore.insert: energy got {energy!r}, must be finite and >= 0; "
+                "the episode is not stored"
+            )
+        if cluster < UNASSIGNED:
+            raise ConfigError(
+                f"EpisodeStore.insert: cluster got {cluster!r}, must be >= -1 (-1 = unassigned); "
+                "the episode is not stored"
+            )
+        episode_id = self._next_id
+        slot = episode_id % self._capacity
+        self._obs[slot] = arrays["obs"]
+        self._ag[slot] = arrays["ag"]
+        self._g[slot] = arrays["g"]
+        self._actions[slot] = arrays["actions"]
+        self._episode_id[slot] = episode_id
+        self._actor_id[slot] = str(episode.actor_id)
+        self._seq[slot] = int(episode.seq)
+        self._success[slot] = bool(episode.success)
+        self._final_ag[slot] = arrays["ag"][-1]
+        self._energy[slot] = float(energy)
+        self._cluster[slot] = int(cluster)
+        self._policy_version[slot] = int(episode.policy_version)
+        self._next_id += 1
+        self._size = min(self._size + 1, self._capacity)
+        return episode_id
+
+    def set_clusters(self, labels: np.ndarray) -> None:
+        """Relabel every stored episode (a new cluster model): `labels` has shape (size,)."""
+        labels = np.asarray(labels)
+        if labels.shape != (self._size,):
+            raise ConfigError(
+                f"EpisodeStore.set_clusters: labels have shape {labels.shape}, expected "
+                f"({self._size},) (one per stored episode); labels unchanged"
+            )
+        if labels.size and int(labels.min()) < UNASSIGNED:
+            raise ConfigError(
+                f"EpisodeStore.set_clusters: got label {int(labels.min())}, labels must be "
+                ">= -1; labels unchanged"
+            )
+        self._cluster[: self._size] = labels
+
+    def set_cluster(self, slot: int, label: int) -> None:
+        """Relabel the episode in `slot` (a valid slot, 0 <= slot < size)."""
+        if not 0 <= slot < self._size:
+            raise ConfigError(
+                f"EpisodeStore.set_cluster: slot {slot!r} is not a valid slot (size {self._size})"
+            )
+        if label < UNASSIGNED:
+            raise ConfigError(f"EpisodeStore.set_cluster: got label {label!r}, must be >= -1")
+        self._cluster[slot] = label
+
+    # ------------------------------------------------------------------ views of valid slots
+
+    def _view(self, arr: np.ndarray) -> np.ndarray:
+        return _readonly(arr[: self._size])
+
+    @property
+    def obs(self) -> np.ndarray:
+        """(size, T+1, obs_dim) float32."""
+        return self._view(self._obs)
+
+    @property
+    def ag(self) -> np.ndarray:
+        """(size, T+1, goal_dim) float32: achieved goals ag_0..ag_T."""
+        return self._view(self._ag)
+
+    @property
+    def g(self) -> np.ndarray:
+        """(size, T, goal_dim) float32: desired goals."""
+        return self._view(self._g)
+
+    @property
+    def actions(self) -> np.ndarray:
+        """(size, T, action_dim) float32."""
+        return self._view(self._actions)
+
+    @property
+    def episode_id(self) -> np.ndarray:
+        return self._view(self._episode_id)
+
+    @property
+    def actor_id(self) -> np.ndarray:
+        return self._view(self._actor_id)
+
+    @property
+    def seq(self) -> np.ndarray:
+        return self._view(self._seq)
+
+    @property
+    def success(self) -> np.ndarray:
+        return self._view(self._success)
+
+    @property
+    def final_ag(self) -> np.ndarray:
+        """(size, goal_dim) float32: ag_T, the point clustered by HER-CS."""
+        return self._view(self._final_ag)
+
+    @property
+    def energy(self) -> np.ndarray:
+        """(size,) float64 trajectory energies."""
+        return self._view(self._energy)
+
+    @property
+    def cluster(self) -> np.ndarray:
+        """(size,) int32 cluster labels, -1 = unassigned."""
+        return self._view(self._cluster)
+
+    @property
+    def policy_version(self) -> np.ndarray:
+        return self._view(self._policy_version)
+
+    def slot_of(self, episode_id: int) -> int | None:
+        """The slot holding `episode_id`, or None if it was never inserted or was overwritten."""
+        if not self._next_id - self._size <= episode_id < self._next_id:
+            return None
+        return episode_id % self._capacity
+
+    # ------------------------------------------------------------------ checkpoint
+
+    def state_dict(self) -> dict[str, Any]:
+        """A copy of the valid prefix and the counters (plain numpy arrays and ints)."""
+        n = self._size
+        state: dict[str, Any] = {
+            "task": self._spec.name,
+            "capacity_episodes": self._capacity,
+            "next_id": self._next_id,
+        }
+        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
+            state[name] = getattr(self, f"_{name}")[:n].copy()
+        state["actor_id"] = np.asarray([str(a) for a in self._actor_id[:n]], dtype=str)
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore from `state_dict()`; refuses a different task or capacity, or broken ids."""
+        if state["task"] != self._spec.name or state["capacity_episodes"] != self._capacity:
+            raise ConfigError(
+                f"EpisodeStore.load_state_dict: checkpoint is task {state['task']!r} with "
+                f"capacity {state['capacity_episodes']}, this store is task "
+                f"{self._spec.name!r} with capacity {self._capacity}; nothing loaded"
+            )
+        ids = np.asarray(state["episode_id"], np.int64)
+        n, next_id = len(ids), int(state["next_id"])
+        expected = np.arange(next_id - n, next_id, dtype=np.int64)
+        if n > self._capacity or np.sort(ids).tolist() != expected.tolist() or np.any(
+            ids % self._capacity != np.arange(n)
+        ):
+            raise ConfigError(
+                f"EpisodeStore.load_state_dict: episode ids {ids[:5].tolist()}... with "
+                f"next_id {next_id} break the ring invariant slot = id % {self._capacity}; "
+                "nothing loaded"
+            )
+        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
+            arr = np.asarray(state[name])
+            want = getattr(self, f"_{name}").shape[1:]
+            if arr.shape != (n, *want):
+                raise ConfigError(
+                    f"EpisodeStore.load_state_dict: {name} has shape {arr.shape}, expected "
+                    f"{(n, *want)}; nothing loaded"
+                )
+        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
+            getattr(self, f"_{name}")[:n] = state[name]
+        self._actor_id[:n] = [str(a) for a in state["actor_id"]]
+        self._size = n
+        self._next_id = next_id
