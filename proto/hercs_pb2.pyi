@@ -103,20 +103,22 @@ class EpisodeHeader(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., episode_id: _Optional[int] = ..., actor_id: _Optional[str] = ..., seq: _Optional[int] = ..., success: _Optional[bool] = ..., final_achieved_goal: _Optional[_Union[Array, _Mapping]] = ..., desired_goal: _Optional[_Union[Array, _Mapping]] = ..., energy: _Optional[float] = ..., cluster: _Optional[int] = ..., policy_version: _Optional[int] = ...) -> None: ...
 
 class SampleRequest(_message.Message):
-    __slots__ = ("schema_version", "run", "learner_id", "request_id", "num_minibatches", "batch_size")
+    __slots__ = ("schema_version", "run", "learner_id", "request_id", "num_minibatches", "batch_size", "weights_version")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     RUN_FIELD_NUMBER: _ClassVar[int]
     LEARNER_ID_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     NUM_MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
     BATCH_SIZE_FIELD_NUMBER: _ClassVar[int]
+    WEIGHTS_VERSION_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     run: str
     learner_id: str
     request_id: int
     num_minibatches: int
     batch_size: int
-    def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., learner_id: _Optional[str] = ..., request_id: _Optional[int] = ..., num_minibatches: _Optional[int] = ..., batch_size: _Optional[int] = ...) -> None: ...
+    weights_version: int
+    def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., learner_id: _Optional[str] = ..., request_id: _Optional[int] = ..., num_minibatches: _Optional[int] = ..., batch_size: _Optional[int] = ..., weights_version: _Optional[int] = ...) -> None: ...
 
 class Minibatch(_message.Message):
     __slots__ = ("o", "o2", "ag", "ag2", "g", "u", "r")
@@ -137,7 +139,7 @@ class Minibatch(_message.Message):
     def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., ag: _Optional[_Union[Array, _Mapping]] = ..., ag2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
-    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps")
+    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
@@ -147,6 +149,7 @@ class Batch(_message.Message):
     CLUSTER_DRAWS_FIELD_NUMBER: _ClassVar[int]
     INSERTS_FIELD_NUMBER: _ClassVar[int]
     ENV_STEPS_FIELD_NUMBER: _ClassVar[int]
+    POLICY_LAG_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     request_id: int
     minibatches: _containers.RepeatedCompositeFieldContainer[Minibatch]
@@ -156,7 +159,8 @@ class Batch(_message.Message):
     cluster_draws: _containers.RepeatedScalarFieldContainer[int]
     inserts: int
     env_steps: int
-    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ...) -> None: ...
+    policy_lag: float
+    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
     __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failed_goals_seen")

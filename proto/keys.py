@@ -39,6 +39,11 @@ class RunKeys:
         return self._key("cluster/model")
 
     @property
+    def config(self) -> str:
+        """Queryable answering with the run's resolved config (YAML), for remote actors."""
+        return self._key("config")
+
+    @property
     def weights(self) -> str:
         return self._key("weights")
 
