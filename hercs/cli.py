@@ -73,6 +73,25 @@ def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
 
 Command = Callable[[argparse.Namespace, HercsConfig], int]
 
+# Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
+# when used, so `hercs --help` stays fast.
+SERVICES: dict[str, tuple[str, str]] = {
+    "replay": ("replay_service.service", "run the replay service (episode store, HER, samplers)"),
+    "clusterer": ("clusterer.service", "run the clusterer (failed goals, k-means refits)"),
+    "learner": ("learner.service", "run the DDPG learner (updates, weights, epochs)"),
+    "actor": ("actors.service", "run a rollout actor (join a run with --connect and --run)"),
+    "evaluator": ("actors.evaluator", "run the evaluator (deterministic test episodes)"),
+}
+
+
+def _service_command(module: str) -> Command:
+    def command(args: argparse.Namespace, config: HercsConfig) -> int:
+        from importlib import import_module
+
+        return int(import_module(module).run(config, ident=args.ident))
+
+    return command
+
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     parser = argparse.ArgumentParser(
@@ -87,6 +106,12 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     add_config_arguments(p)
     p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
     commands["config"] = _cmd_config
+
+    for name, (module, help_text) in SERVICES.items():
+        p = sub.add_parser(name, help=help_text)
+        add_config_arguments(p)
+        p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
+        commands[name] = _service_command(module)
     return parser, commands
 
 

@@ -1,0 +1,119 @@
+"""What every service process shares: its Zenoh transport, liveliness token, stop-on-signal,
+metrics publishing and rate-limited warnings. A service's `run(config)` builds a
+`ServiceRuntime`, declares its own entities through `runtime.transport` and loops until
+`runtime.stop` is set.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+import uuid
+from collections.abc import Mapping
+from types import FrameType
+
+import yaml
+
+from hercs.config import HercsConfig
+from hercs.errors import ConfigError
+from hercs.transport import Transport
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from proto.keys import RunKeys
+
+log = logging.getLogger(__name__)
+
+CONFIG_REQUEST_TIMEOUT_S = 10.0
+
+
+def default_ident() -> str:
+    """An id unique across hosts and restarts: host name plus a short uuid (compose-scaled
+    containers have distinct host names)."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())
+    return f"{host or 'host'}-{uuid.uuid4().hex[:6]}"
+
+
+def setup_logging(role: str) -> None:
+    logging.basicConfig(
+        level=os.environ.get("HERCS_LOG", "INFO"),
+        format=f"%(asctime)s {role} %(levelname)s %(name)s: %(message)s",
+    )
+
+
+class WarnOncePerMinute:
+    """Logs a warning once per key per minute, counting the ones it held back."""
+
+    def __init__(self, logger: logging.Logger, period_s: float = 60.0) -> None:
+        self._log = logger
+        self._period = period_s
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warn(self, key: str, message: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(key)
+            if last is not None and now - last < self._period:
+                self._held[key] = self._held.get(key, 0) + 1
+                return
+            held = self._held.pop(key, 0)
+            self._last[key] = now
+        suffix = f" ({held} more like it in the last minute)" if held else ""
+        self._log.warning("%s%s", message, suffix)
+
+
+class ServiceRuntime:
+    """One service process: transport (client of the router), liveliness token, stop event."""
+
+    def __init__(self, *, config: HercsConfig, role: str, ident: str | None = None,
+                 install_signals: bool = True) -> None:
+        if not config.run.name:
+            raise ConfigError("run.name: got '', a service needs the run's name (--run RUN)")
+        self.config = config
+        self.role = role
+        self.ident = ident or default_ident()
+        self.keys = RunKeys(config.run.name)
+        self.stop = threading.Event()
+        if install_signals:
+            self._install_signals()
+        self.transport = Transport.open(mode="client", connect=config.transport.connect)
+        self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
+        self._metrics = self.transport.publisher(self.keys.metrics(role))
+        self._metrics_step = 0
+
+    def _install_signals(self) -> None:
+        def on_signal(signum: int, frame: FrameType | None) -> None:
+            log.info("%s %s: got signal %d, stopping", self.role, self.ident, signum)
+            self.stop.set()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, on_signal)
+
+    def publish_metrics(self, values: Mapping[str, float], step: int | None = None) -> None:
+        self._metrics_step = self._metrics_step + 1 if step is None else step
+        msg = pb.Metrics(schema_version=SCHEMA_VERSION, service=f"{self.role}/{self.ident}",
+                         step=self._metrics_step,
+                         values={k: float(v) for k, v in values.items()})
+        self._metrics.put(msg.SerializeToString())
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> ServiceRuntime:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def fetch_run_config(transport: Transport, run: str, *,
+                     timeout_s: float = CONFIG_REQUEST_TIMEOUT_S) -> HercsConfig:
+    """The resolved config of a running run, served by its replay (for actors on other hosts
+    that were given only `--connect` and `--run`)."""
+    raw = transport.request(RunKeys(run).config, b"", timeout_s=timeout_s)
+    return HercsConfig.from_dict(yaml.safe_load(raw.decode()))
