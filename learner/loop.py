@@ -1,0 +1,185 @@
+"""The learner's loop as a pure object: cycles, epochs, weights versions and metrics rows.
+
+`LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one cycle = one pulled
+`SampleBatch` of `minibatches_per_cycle` minibatches → that many DDPG updates → one Polyak
+target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
+caller broadcasts the epoch-end policy for evaluation and checkpoints. When the evaluator's
+result for epoch e arrives, `record_eval` completes the epoch's metrics row.
+
+The service (learner.service) runs this object in a loop with Zenoh around it; tests drive it
+directly with locally built batches.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hercs.config import HercsConfig
+from learner.ddpg import DDPGLearner
+
+
+@dataclass
+class SampleBatch:
+    """What one Batch reply carries, decoded."""
+
+    minibatches: list[dict[str, np.ndarray]]
+    o_stats: dict[str, Any]
+    g_stats: dict[str, Any]
+    cluster_model_version: int = 0
+    cluster_draws: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    inserts: int = 0
+    env_steps: int = 0
+    policy_lag: float = 0.0
+
+
+@dataclass
+class CycleResult:
+    version: int
+    """Weights version after this cycle's updates (broadcast it)."""
+    epoch_ended: int | None
+    """The epoch (1-based) that this cycle completed, else None."""
+
+
+@dataclass
+class EpochSnapshot:
+    """Training-side figures at the end of an epoch, waiting for its evaluation."""
+
+    epoch: int
+    version: int
+    env_steps: int
+    inserts: int
+    updates: int
+    wall_s: float
+    env_steps_per_s: float
+    updates_per_s: float
+    policy_lag: float
+    cluster_model_version: int
+    cluster_share: list[float]
+    losses: dict[str, float]
+
+
+METRICS_COLUMNS = [
+    "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
+    "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
+    "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
+    "actor_loss", "q_mean",
+]
+
+
+class LearnerLoop:
+    def __init__(self, *, config: HercsConfig, learner: DDPGLearner,
+                 clock=time.monotonic) -> None:
+        self.config = config
+        self.learner = learner
+        self.clock = clock
+        self.cycle = 0
+        self.version = 0
+        """Weights version: 0 = initial weights, +1 per cycle."""
+        self.epoch = 0
+        self._start = clock()
+        self._epoch_start = self._start
+        self._epoch_start_steps = 0
+        self._epoch_start_updates = 0
+        self._epoch_draws = np.zeros(config.cluster.k, np.int64)
+        self._loss_sums: dict[str, float] = {}
+        self._loss_count = 0
+        self._last: SampleBatch | None = None
+        self.pending: dict[int, EpochSnapshot] = {}
+
+    @property
+    def done(self) -> bool:
+        return self.epoch >= self.config.training.epochs
+
+    def step(self, batch: SampleBatch) -> CycleResult:
+        """One cycle: adopt the replay's normaliser stats, update on every minibatch, update
+        the targets, bump the version."""
+        self.learner.set_normalizer_state(batch.o_stats, batch.g_stats)
+        for minibatch in batch.minibatches:
+            for name, value in self.learner.update(minibatch).items():
+                self._loss_sums[name] = self._loss_sums.get(name, 0.0) + value
+            self._loss_count += 1
+        self.learner.update_targets()
+        self.version += 1
+        self.cycle += 1
+        if batch.cluster_draws.shape == self._epoch_draws.shape:
+            self._epoch_draws += batch.cluster_draws
+        self._last = batch
+        ended = None
+        if self.cycle % self.config.training.cycles_per_epoch == 0:
+            self.epoch += 1
+            ended = self.epoch
+            self.pending[self.epoch] = self._snapshot()
+        return CycleResult(self.version, ended)
+
+    def _snapshot(self) -> EpochSnapshot:
+        now = self.clock()
+        batch = self._last
+        assert batch is not None
+        elapsed = max(now - self._epoch_start, 1e-9)
+        updates = self.learner.updates
+        draws = self._epoch_draws
+        share = (draws / draws.sum()).tolist() if draws.sum() else [0.0] * len(draws)
+        losses = {k: v / max(self._loss_count, 1) for k, v in self._loss_sums.items()}
+        snap = EpochSnapshot(
+            epoch=self.epoch, version=self.version, env_steps=batch.env_steps,
+            inserts=batch.inserts, updates=updates, wall_s=now - self._start,
+            env_steps_per_s=(batch.env_steps - self._epoch_start_steps) / elapsed,
+            updates_per_s=(updates - self._epoch_start_updates) / elapsed,
+            policy_lag=batch.policy_lag, cluster_model_version=batch.cluster_model_version,
+            cluster_share=share, losses=losses,
+        )
+        self._epoch_start, self._epoch_start_steps = now, batch.env_steps
+        self._epoch_start_updates = updates
+        self._epoch_draws = np.zeros_like(self._epoch_draws)
+        self._loss_sums, self._loss_count = {}, 0
+        return snap
+
+    def record_eval(self, *, epoch: int, success_rate: float, mean_final_distance: float,
+                    replay_status: dict[str, Any] | None = None) -> dict[str, Any] | None:
+        """Complete epoch `epoch`'s metrics row; None if that epoch is unknown or done."""
+        snap = self.pending.pop(epoch, None)
+        if snap is None:
+            return None
+        status = replay_status or {}
+        return {
+            "epoch": snap.epoch, "env_steps": snap.env_steps, "episodes": snap.inserts,
+            "updates": snap.updates, "success_rate": success_rate,
+            "mean_final_distance": mean_final_distance, "wall_s": round(snap.wall_s, 3),
+            "env_steps_per_s": round(snap.env_steps_per_s, 2),
+            "updates_per_s": round(snap.updates_per_s, 2),
+            "replay_size": status.get("size_transitions", 0),
+            "policy_lag": round(snap.policy_lag, 3), "weights_version": snap.version,
+            "cluster_model_version": snap.cluster_model_version,
+            "cluster_sizes": ";".join(str(c) for c in status.get("cluster_sizes", [])),
+            "cluster_share": ";".join(f"{s:.4f}" for s in snap.cluster_share),
+            "rejects": ";".join(f"{k}:{v}" for k, v in sorted(status.get("rejects", {}).items())),
+            "critic_loss": round(snap.losses.get("critic_loss", float("nan")), 6),
+            "actor_loss": round(snap.losses.get("actor_loss", float("nan")), 6),
+            "q_mean": round(snap.losses.get("q_mean", float("nan")), 6),
+        }
+
+
+class MetricsCsv:
+    """runs/<run>/metrics.csv, one row per evaluated epoch, flushed per row."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        new = not path.exists() or path.stat().st_size == 0
+        self._file = open(path, "a", newline="")  # noqa: SIM115 (closed in close())
+        self._writer = csv.DictWriter(self._file, fieldnames=METRICS_COLUMNS)
+        if new:
+            self._writer.writeheader()
+            self._file.flush()
+
+    def write(self, row: dict[str, Any]) -> None:
+        self._writer.writerow(row)
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
