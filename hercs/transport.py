@@ -1,0 +1,754 @@
+"""The one Zenoh layer every hercs process uses (DESIGN §3); services never touch zenoh config.
+
+What it guarantees, and the Zenoh 1.x facts it rests on (verified on eclipse-zenoh 1.10.2):
+
+- **Sessions** (`open_session`) have multicast scouting off and explicit endpoints only. A
+  client (or peer) with `connect` endpoints blocks until a router answers: Zenoh retries inside
+  one bounded window (`connect/timeout_ms`, retry from 100 ms doubling to 1 s) and we loop over
+  windows with a log line, so Ctrl-C is seen between windows and `connect_timeout_s` can bound
+  the wait. Once connected, a client reconnects by itself (and redeclares its entities) if the
+  router restarts. Timestamping is on (AdvancedPublisher refuses to start without it); the
+  500 ms scouting delay is off (it only serves multicast scouting).
+- **Never block inside Zenoh.** Every queryable and subscriber uses a channel handler and is
+  drained by our own daemon thread(s). The threads read the channel object (`entity.handler`),
+  never `entity.recv()`: calling `undeclare()` while another thread sits in
+  `Queryable.recv()` raises "Already borrowed" and can abort the interpreter. Undeclaring (or
+  closing the session) closes the channel, and `recv()` then raises `ZError`: that is how the
+  threads stop, at once, without polling. A full FifoChannel blocks Zenoh's receive path for
+  the whole session, so handlers must be quick or defer (below).
+- **Declared entities live only as long as their Python object** (dropping a channel-handled
+  queryable or subscriber undeclares it); the handles below keep them referenced.
+- **Queries are answered exactly once, possibly later and from any thread** (`PendingReply`).
+  A `Query` may be replied to after its handler returned, from another thread; the querier's
+  `get` ends only when the query is *finalised*, which needs an explicit `Query.drop()` (or its
+  context manager): Python finalisers are not prompt, and a parked-but-dropped-late query makes
+  the client wait for its full timeout. `PendingReply` replies then drops.
+- **Exactly one queryable answers a request.** Queryables are declared `complete=True` and
+  `request` uses target BEST_MATCHING: with several complete queryables on a key a remote
+  client's query reaches only one of them (with non-complete ones, or target ALL, every one
+  answers). Consolidation NONE hands each reply over as it arrives; the default (AUTO)
+  holds replies until the query is finalised.
+- **Declarations propagate asynchronously.** A get sent just after a queryable was declared
+  elsewhere can find no match and end at once with no reply; `request` then waits for a match
+  (a querier's matching listener) and asks again, within its timeout. Likewise a put sent
+  before the router knows a subscriber is lost: `Publisher.wait_for_subscribers` waits for a
+  match (note `matching_status` returns a `MatchingStatus` object, always truthy: read
+  `.matching`). A liveliness *get* can briefly miss a token its watcher already reported, so
+  we offer only the watcher (`watch_alive`), which with history is a snapshot plus changes.
+- **Error replies** are `query.reply_err` with encoding `text/plain;hercs-error` and payload
+  UTF-8 `"<reason>: <detail>"` (the reason never contains ": "). `request` turns them into
+  `RemoteError(reason, detail)`. Zenoh's own timeout arrives as an error reply `b"Timeout"`
+  (encoding `zenoh/string`) and becomes `TransportTimeout`.
+- **Latest value for late joiners** (`publisher(..., latest=True)` + `subscribe(...,
+  latest=True)`) is `zenoh.ext` AdvancedPublisher (cache 1, publisher detection) and
+  AdvancedSubscriber (history of 1, late-publisher detection): a subscriber declared after the
+  puts gets the last one at once, and one declared before the publisher gets its cache when it
+  appears. Samples from one publisher arrive in order, duplicates removed. A put is
+  asynchronous, so a subscriber joining right after it may get an older value still in
+  flight before the cached one: payloads carry a version and consumers ignore older ones.
+- **Liveliness**: a token disappears (DELETE) as soon as its session closes or its process
+  dies (the router sees the TCP link drop); a watcher declared with history also sees the
+  tokens that were already there.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import zenoh
+import zenoh.ext as zext
+
+from hercs.errors import ConfigError, HercsError, InvalidMessage
+
+log = logging.getLogger(__name__)
+
+Mode = Literal["router", "peer", "client"]
+
+ERROR_ENCODING = "text/plain;hercs-error"
+"""Encoding of every hercs error reply; its payload is UTF-8 `"<reason>: <detail>"`."""
+REASON_INTERNAL = "internal"
+"""Reason sent when a handler raised something other than `InvalidMessage` (a bug)."""
+REASON_UNAVAILABLE = "unavailable"
+"""Reason sent to queries still parked when their server closes; the caller should retry."""
+
+_CONNECT_WINDOW_S = 1.0
+_CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
+_WAIT_LOG_EVERY_S = 10.0
+_JOIN_TIMEOUT_S = 5.0
+
+_log_init_lock = threading.Lock()
+_log_initialised = False
+
+
+class TransportError(HercsError):
+    """A Zenoh session or exchange failed; the message says which endpoint or key."""
+
+
+class TransportTimeout(TransportError):
+    """A request got no reply within `timeout_s`: no queryable appeared on the key, or the one
+    that got it did not answer in time (it may have been held by backpressure).
+
+    An insert that timed out may still have been applied: retry it unchanged (the replay
+    deduplicates by `(actor_id, seq)`).
+    """
+
+    def __init__(self, key: str, timeout_s: float, why: str) -> None:
+        super().__init__(f"request to {key!r}: {why} within {timeout_s:g} s; the caller "
+                         "may retry")
+        self.key = key
+        self.timeout_s = timeout_s
+
+
+class RemoteError(TransportError):
+    """The queryable answered with an error: `reason` (e.g. a `RejectReason` value,
+    `internal` or `unavailable`) and `detail`. A rejected message is never retried unchanged."""
+
+    def __init__(self, key: str, reason: str, detail: str) -> None:
+        super().__init__(f"request to {key!r} rejected: {reason}: {detail}")
+        self.key = key
+        self.reason = reason
+        self.detail = detail
+
+
+# --------------------------------------------------------------------------- sessions
+
+
+def _init_zenoh_log() -> None:
+    """Zenoh logs errors only, unless RUST_LOG says otherwise; once per process."""
+    global _log_initialised
+    with _log_init_lock:
+        if not _log_initialised:
+            zenoh.init_log_from_env_or("error")
+            _log_initialised = True
+
+
+def _zenoh_config(mode: Mode, connect: Sequence[str], listen: Sequence[str],
+                  *, connect_window_ms: int) -> zenoh.Config:
+    config = zenoh.Config()
+    settings: dict[str, Any] = {
+        "mode": mode,
+        "scouting/multicast/enabled": False,
+        "scouting/delay": 0,
+        "timestamping/enabled": True,
+        "connect/endpoints": list(connect),
+        "listen/endpoints": list(listen),
+        "connect/retry": _CONNECT_RETRY,
+    }
+    if mode == "router":
+        # A router never waits for the routers it connects to: it retries them in the background.
+        settings["connect/timeout_ms"] = 0
+        settings["connect/exit_on_failure"] = False
+    else:
+        settings["connect/timeout_ms"] = connect_window_ms
+        settings["connect/exit_on_failure"] = True
+    for key, value in settings.items():
+        try:
+            config.insert_json5(key, json.dumps(value))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"transport: zenoh refused {key}={value!r} ({exc})") from None
+    return config
+
+
+def open_session(
+    *,
+    mode: Mode,
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    connect_timeout_s: float | None = None,
+) -> zenoh.Session:
+    """Open a Zenoh session with multicast scouting off and only the given endpoints.
+
+    A router must listen; a client must connect (else `ConfigError`, as for an endpoint Zenoh
+    cannot parse). A client or peer with `connect` endpoints
+    blocks until one of them answers, logging while it waits; `connect_timeout_s=None` waits
+    forever, otherwise `TransportError` after that long. A router starts at once (it retries
+    its `connect` endpoints in the background) and fails if it cannot listen.
+    """
+    if mode not in ("router", "peer", "client"):
+        raise ConfigError(f"transport mode: got {mode!r}, must be 'router', 'peer' or 'client'")
+    if mode == "router" and not listen:
+        raise ConfigError("transport.listen: got [], a router needs at least one endpoint")
+    if mode == "client" and not connect:
+        raise ConfigError("transport.connect: got [], a client needs at least one endpoint")
+    _init_zenoh_log()
+    if mode == "router" or not connect:
+        config = _zenoh_config(mode, connect, listen, connect_window_ms=0)
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot open a Zenoh {mode} listening on {list(listen)}: "
+                                 f"{exc}") from None
+
+    start = time.monotonic()
+    next_log = start
+    while True:
+        window = _CONNECT_WINDOW_S
+        if connect_timeout_s is not None:
+            window = min(window, max(connect_timeout_s - (time.monotonic() - start), 0.001))
+        config = _zenoh_config(mode, connect, listen, connect_window_ms=max(int(window * 1000), 1))
+        attempt = time.monotonic()
+        try:
+            session = zenoh.open(config)
+        except zenoh.ZError as exc:
+            now = time.monotonic()
+            waited = now - start
+            if connect_timeout_s is not None and waited >= connect_timeout_s:
+                raise TransportError(
+                    f"no Zenoh router reachable at {list(connect)} after {waited:.1f} s "
+                    f"(last error: {exc}); is `hercs up` or `hercs router` running?"
+                ) from None
+            if now >= next_log:
+                log.info("waiting for a Zenoh router at %s (%.0f s so far); retrying until "
+                         "it is up", list(connect), waited)
+                next_log = now + _WAIT_LOG_EVERY_S
+            # An attempt that failed early (e.g. a name that does not resolve) must not spin.
+            time.sleep(max(0.0, window - (now - attempt)))
+            continue
+        if time.monotonic() - start > _CONNECT_WINDOW_S:
+            log.info("connected to Zenoh at %s after %.1f s", list(connect),
+                     time.monotonic() - start)
+        return session
+
+
+# --------------------------------------------------------------------------- queries
+
+
+class PendingReply:
+    """One received query, to be answered exactly once, from any thread, now or later.
+
+    `reply`/`reply_error` return True if this call answered, False if it was already answered
+    (so a rate limiter and a shutdown may race harmlessly). Answering finalises the Zenoh query,
+    which ends the caller's get at once.
+    """
+
+    __slots__ = ("_done", "_key", "_lock", "_on_done", "_query", "payload")
+
+    def __init__(self, query: zenoh.Query, reply_key: str,
+                 on_done: Callable[[PendingReply], None]) -> None:
+        self._query = query
+        self._key = reply_key
+        self._lock = threading.Lock()
+        self._done = False
+        self._on_done = on_done
+        raw = query.payload
+        self.payload: bytes = raw.to_bytes() if raw is not None else b""
+        """The request payload (empty if the query carried none)."""
+
+    @property
+    def answered(self) -> bool:
+        return self._done
+
+    def reply(self, payload: bytes) -> bool:
+        """Answer with `payload`."""
+        return self._answer(lambda q: q.reply(self._key, payload))
+
+    def reply_error(self, reason: str, detail: str) -> bool:
+        """Answer with an error the caller receives as `RemoteError(reason, detail)`."""
+        if ": " in reason:
+            raise ValueError(f"reason: got {reason!r}, must not contain ': '")
+        text = f"{reason}: {detail}".encode()
+        return self._answer(lambda q: q.reply_err(text, encoding=ERROR_ENCODING))
+
+    def _answer(self, send: Callable[[zenoh.Query], None]) -> bool:
+        with self._lock:
+            if self._done:
+                return False
+            self._done = True
+            query, self._query = self._query, None
+            try:
+                send(query)
+            except Exception as exc:  # the session closed meanwhile, or a payload of bad type
+                log.warning("could not answer a query on %r: %s", self._key, exc)
+                with contextlib.suppress(Exception):  # never leave the caller without an answer
+                    query.reply_err(f"{REASON_INTERNAL}: reply not sent ({exc})".encode(),
+                                    encoding=ERROR_ENCODING)
+            finally:
+                with contextlib.suppress(zenoh.ZError):
+                    query.drop()
+        self._on_done(self)
+        return True
+
+
+def _report(on_error: Callable[[Exception], None] | None, key: str, exc: Exception) -> None:
+    if not isinstance(exc, InvalidMessage):
+        log.error("handler for %r raised; replying %r", key, REASON_INTERNAL, exc_info=exc)
+    if on_error is None:
+        if isinstance(exc, InvalidMessage):
+            log.warning("rejected a request on %r: %s", key, exc)
+        return
+    try:
+        on_error(exc)
+    except Exception:
+        log.exception("on_error for %r raised; carrying on", key)
+
+
+class QueryServer:
+    """A queryable served by our own worker threads; `close()` undeclares it.
+
+    Each received query becomes a `PendingReply` given to `handler`. If the handler raises
+    `InvalidMessage` the query is answered with its reason and detail; any other exception is
+    logged and answered with reason `internal`; both are passed to `on_error` (which the
+    service uses to count rejects by reason). A handler that returns without answering has
+    parked the query: it must answer it later. Queries still unanswered at `close()` are
+    answered with reason `unavailable`.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        handler: Callable[[PendingReply], None],
+        *,
+        on_error: Callable[[Exception], None] | None = None,
+        workers: int = 1,
+        capacity: int = 256,
+    ) -> None:
+        if workers < 1:
+            raise ValueError(f"workers: got {workers}, must be >= 1")
+        if capacity < 1:
+            raise ValueError(f"capacity: got {capacity}, must be >= 1")
+        self.key = key
+        self._handler = handler
+        self._on_error = on_error
+        self._reply_key_fixed = "*" not in key
+        self._lock = threading.Lock()
+        self._pending: set[PendingReply] = set()
+        self._closing = threading.Event()
+        self._queryable = session.declare_queryable(
+            key, zenoh.handlers.FifoChannel(capacity), complete=True
+        )
+        channel = self._queryable.handler
+        self._threads = [
+            threading.Thread(target=self._run, args=(channel,), daemon=True,
+                             name=f"hercs-query-{key}-{i}")
+            for i in range(workers)
+        ]
+        for thread in self._threads:
+            thread.start()
+
+    @property
+    def pending(self) -> int:
+        """Queries received and not yet answered (parked ones included)."""
+        with self._lock:
+            return len(self._pending)
+
+    def _forget(self, pending: PendingReply) -> None:
+        with self._lock:
+            self._pending.discard(pending)
+
+    def _run(self, channel: Any) -> None:
+        while True:
+            try:
+                query = channel.recv()
+            except zenoh.ZError:  # channel closed: undeclared or session closed
+                return
+            reply_key = self.key if self._reply_key_fixed else str(query.key_expr)
+            pending = PendingReply(query, reply_key, self._forget)
+            del query
+            with self._lock:
+                closing = self._closing.is_set()
+                if not closing:
+                    self._pending.add(pending)
+            if closing:
+                pending.reply_error(REASON_UNAVAILABLE, f"{self.key} is shutting down")
+                continue
+            try:
+                self._handler(pending)
+            except InvalidMessage as exc:  # counted before the caller hears of it
+                _report(self._on_error, self.key, exc)
+                pending.reply_error(exc.reason, exc.detail)
+            except Exception as exc:
+                _report(self._on_error, self.key, exc)
+                pending.reply_error(REASON_INTERNAL, f"{type(exc).__name__}: {exc}")
+
+    def close(self) -> None:
+        """Stop taking queries, answer parked ones `unavailable`, join the workers."""
+        with self._lock:
+            if self._closing.is_set():
+                return
+            self._closing.set()
+            parked = list(self._pending)
+        _undeclare(self._queryable)
+        for pending in parked:
+            pending.reply_error(REASON_UNAVAILABLE, f"{self.key} closed before answering")
+        _join(self._threads)
+
+
+def serve_queryable(
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[bytes], bytes],
+    *,
+    on_error: Callable[[Exception], None] | None = None,
+    workers: int = 1,
+    capacity: int = 256,
+) -> QueryServer:
+    """Answer each query on `key` with `handler(payload)`, run on our own worker thread(s).
+
+    `handler` returns the reply payload or raises `InvalidMessage` (→ error reply with its
+    reason). It should be quick: queries wait in a channel of `capacity`, and a full channel
+    stalls the whole session. To hold a query and answer later use `serve_deferred`.
+    """
+
+    def answer_now(pending: PendingReply) -> None:
+        pending.reply(handler(pending.payload))
+
+    return QueryServer(session, key, answer_now, on_error=on_error, workers=workers,
+                       capacity=capacity)
+
+
+def serve_deferred(
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[PendingReply], None],
+    *,
+    on_error: Callable[[Exception], None] | None = None,
+    workers: int = 1,
+    capacity: int = 256,
+) -> QueryServer:
+    """Give each query on `key` to `handler` as a `PendingReply`, which it answers now or parks
+    and answers later from any thread (the rate limiter's backpressure). Raising
+    `InvalidMessage` before answering sends an error reply."""
+    return QueryServer(session, key, handler, on_error=on_error, workers=workers,
+                       capacity=capacity)
+
+
+def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+    """Send `payload` to the one queryable on `key` and return its reply; blocks up to
+    `timeout_s`, waiting for a queryable to appear if none is there yet.
+
+    Raises `RemoteError` on an error reply and `TransportTimeout` when nothing answers in
+    time; closing the session ends a waiting request with `TransportError`. Thread-safe: many
+    threads may request on one session.
+    """
+    if timeout_s <= 0:
+        raise ValueError(f"timeout_s: got {timeout_s}, must be > 0")
+    deadline = time.monotonic() + timeout_s
+    why = "no queryable answered"
+    # Declarations propagate asynchronously: a queryable declared a moment ago, or one that
+    # is still starting, is not matched and the get ends at once with no reply. Then wait for
+    # a match and ask again; at most 3 gets, so a queryable that drops queries cannot spin us.
+    for _ in range(3):
+        replies = session.get(
+            key,
+            payload=payload,
+            timeout=max(deadline - time.monotonic(), 0.001),
+            target=zenoh.QueryTarget.BEST_MATCHING,
+            consolidation=zenoh.ConsolidationMode.NONE,
+        )
+        for reply in replies:
+            ok = reply.ok
+            if ok is not None:
+                return ok.payload.to_bytes()
+            err = reply.err
+            text = err.payload.to_bytes().decode("utf-8", errors="replace")
+            if str(err.encoding) == ERROR_ENCODING:
+                reason, _, detail = text.partition(": ")
+                raise RemoteError(key, reason, detail)
+            if text == "Timeout":
+                raise TransportTimeout(key, timeout_s, "no reply")
+            raise RemoteError(key, "transport", text)
+        if session.is_closed():
+            raise TransportError(f"request to {key!r}: the session closed while it waited")
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            break
+        log.debug("no queryable on %r answered; waiting up to %.1f s for one", key, remaining)
+        if not _wait_for_queryable(session, key, remaining):
+            why = "no queryable appeared"
+            break
+    raise TransportTimeout(key, timeout_s, why)
+
+
+def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> bool:
+    """True once a complete queryable matching `key` is known to this session."""
+    matched = threading.Event()
+    querier = session.declare_querier(key, target=zenoh.QueryTarget.BEST_MATCHING)
+    try:
+        listener = querier.declare_matching_listener(
+            lambda status: matched.set() if status.matching else None  # only flips an Event
+        )
+        try:
+            return querier.matching_status.matching or matched.wait(timeout_s)
+        finally:
+            _undeclare(listener)
+    finally:
+        _undeclare(querier)
+
+
+# --------------------------------------------------------------------------- pub/sub
+
+
+class Publisher:
+    """Puts on one key; with `latest=True` the last put is kept for late joiners."""
+
+    def __init__(self, session: zenoh.Session, key: str, *, latest: bool = False,
+                 block: bool = False) -> None:
+        self.key = key
+        self._lock = threading.Lock()
+        congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        if latest:
+            self._pub: Any = zext.declare_advanced_publisher(
+                session, key, congestion_control=congestion,
+                cache=zext.CacheConfig(1), publisher_detection=True,
+            )
+            self._matched: threading.Event | None = None
+            self._listener: Any = None
+        else:
+            self._pub = session.declare_publisher(key, congestion_control=congestion)
+            matched = self._matched = threading.Event()
+
+            def on_status(status: zenoh.MatchingStatus) -> None:  # only flips an Event
+                (matched.set if status.matching else matched.clear)()
+
+            self._listener = self._pub.declare_matching_listener(on_status)
+            if self._pub.matching_status.matching:  # a MatchingStatus, always truthy itself
+                matched.set()
+        self._closed = False
+
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Block until some subscriber matches this key (True) or `timeout_s` passes (False).
+
+        Puts made before any subscriber matches are lost; use this where the first sample
+        matters. Not available with `latest=True`, whose late joiners get the cached value.
+        """
+        if self._matched is None:
+            raise TransportError(f"publisher on {self.key!r}: wait_for_subscribers needs "
+                                 "latest=False (late joiners of a latest publisher get its cache)")
+        return self._matched.wait(timeout_s)
+
+    def put(self, payload: bytes) -> None:
+        with self._lock:
+            if self._closed:
+                raise TransportError(f"publisher on {self.key!r} is closed")
+            try:
+                self._pub.put(payload)
+            except zenoh.ZError as exc:  # e.g. its session was closed
+                raise TransportError(f"put on {self.key!r} failed: {exc}") from None
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            if self._listener is not None:
+                _undeclare(self._listener)
+            _undeclare(self._pub)
+
+
+def declare_publisher(session: zenoh.Session, key: str, *, latest: bool = False,
+                      block: bool = False) -> Publisher:
+    """A publisher on `key`. `latest=True`: late joiners subscribed with `latest=True` get the
+    last put at once (Weights, ClusterModel). `block=True`: a put waits when Zenoh's queues are
+    full instead of dropping the sample (streams where every sample matters)."""
+    return Publisher(session, key, latest=latest, block=block)
+
+
+class Subscription:
+    """Samples from a channel handler, dispatched on our own daemon thread; `close()`
+    undeclares and joins it. Exceptions from the callback are logged and skipped."""
+
+    def __init__(self, entity: Any, dispatch: Callable[[zenoh.Sample], None], *,
+                 name: str) -> None:
+        self.name = name
+        self._entity = entity
+        self._dispatch = dispatch
+        self._lock = threading.Lock()
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(entity.handler,),
+                                        name=f"hercs-sub-{name}", daemon=True)
+        self._thread.start()
+
+    def _run(self, channel: Any) -> None:
+        while True:
+            try:
+                sample = channel.recv()
+            except zenoh.ZError:  # channel closed: undeclared or session closed
+                return
+            if self._closing.is_set():
+                return
+            try:
+                self._dispatch(sample)
+            except Exception:
+                log.exception("callback for %r raised; skipping that sample", self.name)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closing.is_set():
+                return
+            self._closing.set()
+            _undeclare(self._entity)
+        _join([self._thread])
+
+
+def _channel(capacity: int, drop_oldest: bool) -> Any:
+    if capacity < 1:
+        raise ValueError(f"capacity: got {capacity}, must be >= 1")
+    return (zenoh.handlers.RingChannel(capacity) if drop_oldest
+            else zenoh.handlers.FifoChannel(capacity))
+
+
+def subscribe(
+    session: zenoh.Session,
+    key: str,
+    on_sample: Callable[[str, bytes], None],
+    *,
+    latest: bool = False,
+    capacity: int = 256,
+    drop_oldest: bool = False,
+) -> Subscription:
+    """Call `on_sample(key, payload)` for every put on `key` (wildcards allowed), on our thread.
+
+    `latest=True`: also receive, at once, the last value cached by each `latest` publisher
+    (late joiner); an older value still in flight may come first, so ignore stale versions.
+    `drop_oldest=True`: when `capacity` samples wait, the oldest is dropped instead of
+    stalling the session (for "only the newest matters" streams).
+    """
+    channel = _channel(capacity, drop_oldest)
+    if latest:
+        entity: Any = zext.declare_advanced_subscriber(
+            session, key, channel,
+            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+        )
+    else:
+        entity = session.declare_subscriber(key, channel)
+
+    def dispatch(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            on_sample(str(sample.key_expr), sample.payload.to_bytes())
+
+    return Subscription(entity, dispatch, name=key)
+
+
+# --------------------------------------------------------------------------- liveliness
+
+
+class AliveToken:
+    """A liveliness token; it vanishes when `close()`d, the session closes or the process dies."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.key = key
+        self._token = session.liveliness().declare_token(key)
+
+    def close(self) -> None:
+        _undeclare(self._token)
+
+
+def declare_alive(session: zenoh.Session, key: str) -> AliveToken:
+    """Announce this process as alive under `key` (e.g. `hercs/<run>/alive/<role>/<id>`)."""
+    return AliveToken(session, key)
+
+
+def watch_alive(session: zenoh.Session, key_expr: str,
+                on_change: Callable[[str, bool], None]) -> Subscription:
+    """Call `on_change(key, alive)` when a token matching `key_expr` (e.g. `…/alive/**`)
+    appears (True) or disappears (False); tokens present already are reported at once."""
+    entity = session.liveliness().declare_subscriber(
+        key_expr, zenoh.handlers.FifoChannel(256), history=True
+    )
+
+    def dispatch(sample: zenoh.Sample) -> None:
+        on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+    return Subscription(entity, dispatch, name=key_expr)
+
+
+# --------------------------------------------------------------------------- the owner
+
+
+def _undeclare(entity: Any) -> None:
+    """Undeclare; a no-op if the session is closed already."""
+    with contextlib.suppress(zenoh.ZError):
+        entity.undeclare()
+
+
+def _join(threads: Sequence[threading.Thread]) -> None:
+    me = threading.current_thread()
+    for thread in threads:
+        if thread is me:
+            continue
+        thread.join(_JOIN_TIMEOUT_S)
+        if thread.is_alive():
+            log.warning("thread %s did not stop within %.0f s (a handler is stuck); leaving "
+                        "it behind as a daemon", thread.name, _JOIN_TIMEOUT_S)
+
+
+class Transport:
+    """One process's Zenoh session and everything declared through it.
+
+    The methods are the module functions bound to this session; every handle they return is
+    also closed by `close()` (servers first, so parked queries get `unavailable`, then
+    subscriptions, publishers and tokens, then the session). Use it as a context manager.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self._lock = threading.Lock()
+        self._owned: list[Any] = []
+        self._closed = False
+
+    @classmethod
+    def open(cls, *, mode: Mode, connect: Sequence[str] = (), listen: Sequence[str] = (),
+             connect_timeout_s: float | None = None) -> Transport:
+        return cls(open_session(mode=mode, connect=connect, listen=listen,
+                                connect_timeout_s=connect_timeout_s))
+
+    def _own(self, declare: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            if self._closed:
+                raise TransportError(f"transport is closed; cannot {declare.__name__} {args[0]!r}")
+            handle = declare(self.session, *args, **kwargs)
+            self._owned.append(handle)
+        return handle
+
+    def serve(self, key: str, handler: Callable[[bytes], bytes], **kwargs: Any) -> QueryServer:
+        return self._own(serve_queryable, key, handler, **kwargs)
+
+    def serve_deferred(self, key: str, handler: Callable[[PendingReply], None],
+                       **kwargs: Any) -> QueryServer:
+        return self._own(serve_deferred, key, handler, **kwargs)
+
+    def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+        return request(self.session, key, payload, timeout_s=timeout_s)
+
+    def publisher(self, key: str, *, latest: bool = False, block: bool = False) -> Publisher:
+        return self._own(declare_publisher, key, latest=latest, block=block)
+
+    def subscribe(self, key: str, on_sample: Callable[[str, bytes], None],
+                  **kwargs: Any) -> Subscription:
+        return self._own(subscribe, key, on_sample, **kwargs)
+
+    def declare_alive(self, key: str) -> AliveToken:
+        return self._own(declare_alive, key)
+
+    def watch_alive(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Subscription:
+        return self._own(watch_alive, key_expr, on_change)
+
+    def close(self) -> None:
+        """Undeclare everything, stop our threads and close the session; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            owned, self._owned = self._owned, []
+        order = (QueryServer, Subscription, Publisher, AliveToken)
+        for kind in order:
+            for handle in owned:
+                if isinstance(handle, kind):
+                    handle.close()
+        try:
+            self.session.close()
+        except zenoh.ZError as exc:
+            log.warning("closing the Zenoh session: %s", exc)
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,410 @@
+"""hercs.transport against real Zenoh sessions on loopback (a router plus clients per test).
+
+No sleeps stand in for synchronisation: every wait is on an Event or a queue with a timeout.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import pytest
+
+from hercs.errors import ConfigError, InvalidMessage
+from hercs.transport import (
+    REASON_INTERNAL,
+    REASON_UNAVAILABLE,
+    PendingReply,
+    RemoteError,
+    Transport,
+    TransportError,
+    TransportTimeout,
+)
+
+pytestmark = pytest.mark.integration
+
+RUN = "hercs/test"
+WAIT_S = 5.0
+
+OpenClient = Callable[[], Transport]
+
+
+def _echo(payload: bytes) -> bytes:
+    return b"echo:" + payload
+
+
+@pytest.fixture
+def log_event(caplog: pytest.LogCaptureFixture) -> Iterator[Callable[[str], threading.Event]]:
+    """`log_event(text)` → an Event set when hercs.transport logs a message containing text."""
+    logger = logging.getLogger("hercs.transport")
+    caplog.set_level(logging.DEBUG, logger="hercs.transport")
+    spies: list[logging.Handler] = []
+
+    def watch(text: str) -> threading.Event:
+        seen = threading.Event()
+
+        class _Spy(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                if text in record.getMessage():
+                    seen.set()
+
+        spies.append(_Spy())
+        logger.addHandler(spies[-1])
+        return seen
+
+    yield watch
+    for spy in spies:
+        logger.removeHandler(spy)
+
+
+@pytest.mark.parametrize("size", [5, 4 * 1024 * 1024], ids=["small", "4MiB"])
+def test_request_reply_round_trip_through_router(open_client: OpenClient, size: int) -> None:
+    server, client = open_client(), open_client()
+    server.serve(f"{RUN}/replay/sample", _echo)
+    payload = bytes(range(256)) * (size // 256) + b"x" * (size % 256)
+
+    assert client.request(f"{RUN}/replay/sample", payload, timeout_s=WAIT_S) == b"echo:" + payload
+
+
+def test_invalid_message_is_an_error_reply_with_its_reason(open_client: OpenClient) -> None:
+    server, client = open_client(), open_client()
+    errors: list[Exception] = []
+
+    def handler(payload: bytes) -> bytes:
+        if payload == b"bad":
+            raise InvalidMessage("bad_shape", "obs: got shape (3,), expected (25,)")
+        return b"ok"
+
+    server.serve(f"{RUN}/replay/insert", handler, on_error=errors.append)
+
+    with pytest.raises(RemoteError) as info:
+        client.request(f"{RUN}/replay/insert", b"bad", timeout_s=WAIT_S)
+    assert (info.value.reason, info.value.detail) == ("bad_shape",
+                                                      "obs: got shape (3,), expected (25,)")
+    assert [type(e) for e in errors] == [InvalidMessage]
+    # the service carries on
+    assert client.request(f"{RUN}/replay/insert", b"good", timeout_s=WAIT_S) == b"ok"
+
+
+def _divide_by_zero(payload: bytes) -> bytes:
+    return bytes(len(payload) // 0)
+
+
+def _return_an_int(payload: bytes) -> bytes:
+    return len(payload)  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize(
+    ("handler", "detail"),
+    [(_divide_by_zero, "ZeroDivisionError"), (_return_an_int, "expected bytes")],
+    ids=["raises", "returns-non-bytes"],
+)
+def test_handler_bug_is_an_internal_error_reply_answered_once(
+    open_client: OpenClient, handler: Callable[[bytes], bytes], detail: str
+) -> None:
+    server, client = open_client(), open_client()
+    calls: list[bytes] = []
+    server.serve(f"{RUN}/replay/sample", lambda payload: calls.append(payload) or handler(payload))
+
+    with pytest.raises(RemoteError) as info:
+        client.request(f"{RUN}/replay/sample", b"x", timeout_s=WAIT_S)
+    assert info.value.reason == REASON_INTERNAL
+    assert detail in info.value.detail
+    assert calls == [b"x"]  # not re-sent
+
+
+def test_deferred_reply_is_answered_later_from_another_thread(open_client: OpenClient) -> None:
+    server, client = open_client(), open_client()
+    parked: queue.Queue[PendingReply] = queue.Queue()
+    handler_returned = threading.Event()
+
+    def park(pending: PendingReply) -> None:
+        parked.put(pending)
+        handler_returned.set()
+
+    srv = server.serve_deferred(f"{RUN}/replay/sample", park)
+    result: queue.Queue[bytes | Exception] = queue.Queue()
+
+    def ask() -> None:
+        try:
+            result.put(client.request(f"{RUN}/replay/sample", b"batch?", timeout_s=WAIT_S))
+        except Exception as exc:
+            result.put(exc)
+
+    threading.Thread(target=ask).start()
+    pending = parked.get(timeout=WAIT_S)
+    assert handler_returned.wait(WAIT_S)
+    assert srv.pending == 1 and result.empty()  # held: the request is still waiting
+
+    answered_from: list[str] = []
+
+    def answer() -> None:
+        answered_from.append(threading.current_thread().name)
+        assert pending.reply(b"batch:" + pending.payload)
+
+    limiter = threading.Thread(target=answer, name="rate-limiter")
+    limiter.start()
+    limiter.join(WAIT_S)
+
+    assert result.get(timeout=WAIT_S) == b"batch:batch?"
+    assert answered_from == ["rate-limiter"]
+    assert pending.answered and srv.pending == 0
+    assert not pending.reply(b"twice") and not pending.reply_error("late", "ignored")
+
+
+def test_closing_a_server_answers_parked_queries_unavailable(open_client: OpenClient) -> None:
+    server, client = open_client(), open_client()
+    parked: queue.Queue[PendingReply] = queue.Queue()
+    srv = server.serve_deferred(f"{RUN}/replay/insert", parked.put)
+    result: queue.Queue[bytes | Exception] = queue.Queue()
+
+    def ask() -> None:
+        try:
+            result.put(client.request(f"{RUN}/replay/insert", b"ep", timeout_s=WAIT_S))
+        except Exception as exc:
+            result.put(exc)
+
+    threading.Thread(target=ask).start()
+    pending = parked.get(timeout=WAIT_S)
+    started = time.monotonic()
+    srv.close()
+
+    error = result.get(timeout=WAIT_S)
+    assert isinstance(error, RemoteError) and error.reason == REASON_UNAVAILABLE
+    assert time.monotonic() - started < 1.0
+    assert not pending.reply(b"too late")  # the limiter's later answer is a harmless no-op
+
+
+def test_request_waits_for_a_queryable_declared_after_it_was_sent(
+    open_client: OpenClient, log_event: Callable[[str], threading.Event]
+) -> None:
+    server, client = open_client(), open_client()
+    waiting = log_event("waiting up to")
+    result: queue.Queue[bytes | Exception] = queue.Queue()
+
+    def ask() -> None:
+        try:
+            result.put(client.request(f"{RUN}/replay/sample", b"early", timeout_s=WAIT_S))
+        except Exception as exc:
+            result.put(exc)
+
+    threading.Thread(target=ask).start()
+    assert waiting.wait(WAIT_S), "the request never found itself without a queryable"
+    server.serve(f"{RUN}/replay/sample", _echo)
+    assert result.get(timeout=WAIT_S) == b"echo:early"
+
+
+def test_request_with_no_queryable_times_out(open_client: OpenClient) -> None:
+    client = open_client()
+    started = time.monotonic()
+    with pytest.raises(TransportTimeout, match=r"no queryable appeared within 0\.3 s"):
+        client.request(f"{RUN}/nobody", b"x", timeout_s=0.3)
+    assert 0.3 <= time.monotonic() - started < 2.0
+
+
+def test_request_held_past_its_timeout_raises_transport_timeout(open_client: OpenClient) -> None:
+    server, client = open_client(), open_client()
+    parked: queue.Queue[PendingReply] = queue.Queue()
+    server.serve_deferred(f"{RUN}/replay/sample", parked.put)
+
+    with pytest.raises(TransportTimeout, match=r"no reply within 0\.3 s"):
+        client.request(f"{RUN}/replay/sample", b"x", timeout_s=0.3)
+    assert parked.get(timeout=WAIT_S).reply(b"after the caller gave up")  # no error either
+
+
+def test_client_started_before_router_connects_once_router_is_up(
+    endpoint: str, log_event: Callable[[str], threading.Event]
+) -> None:
+    waiting = log_event("waiting for a Zenoh router")
+    opened: queue.Queue[Transport | Exception] = queue.Queue()
+
+    def open_client() -> None:
+        try:
+            opened.put(Transport.open(mode="client", connect=[endpoint], connect_timeout_s=10))
+        except Exception as exc:
+            opened.put(exc)
+
+    threading.Thread(target=open_client).start()
+    router = None
+    client = None
+    try:
+        assert waiting.wait(WAIT_S), "the client never reported that it is waiting"
+        assert opened.empty()
+        router = Transport.open(mode="router", listen=[endpoint])
+        router.serve(f"{RUN}/replay/sample", _echo)  # the launcher's router serves it here
+        client = opened.get(timeout=WAIT_S)
+        assert isinstance(client, Transport)
+        assert client.request(f"{RUN}/replay/sample", b"hi", timeout_s=WAIT_S) == b"echo:hi"
+    finally:
+        for transport in (client, router):
+            if isinstance(transport, Transport):
+                transport.close()
+
+
+def test_client_gives_up_after_connect_timeout(endpoint: str) -> None:
+    started = time.monotonic()
+    with pytest.raises(TransportError, match="no Zenoh router reachable"):
+        Transport.open(mode="client", connect=[endpoint], connect_timeout_s=0.3)
+    assert time.monotonic() - started < 2.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"mode": "client", "connect": ["tcp-127.0.0.1"]}, "Endpoints must be of the form"),
+        ({"mode": "client"}, "transport.connect: got"),
+        ({"mode": "router"}, "transport.listen: got"),
+        ({"mode": "broker", "connect": ["tcp/127.0.0.1:7447"]}, "transport mode: got 'broker'"),
+    ],
+    ids=["bad-endpoint", "client-without-connect", "router-without-listen", "bad-mode"],
+)
+def test_bad_session_settings_are_config_errors(kwargs: dict[str, Any], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        Transport.open(**kwargs)
+
+
+def test_router_on_a_busy_port_fails_clearly(router: Transport, endpoint: str) -> None:
+    with pytest.raises(TransportError, match="cannot open a Zenoh router"):
+        Transport.open(mode="router", listen=[endpoint])
+
+
+def test_late_joiner_gets_the_latest_value(open_client: OpenClient) -> None:
+    learner, probe = open_client(), open_client()
+    through: queue.Queue[bytes] = queue.Queue()
+    probe.subscribe(f"{RUN}/weights", lambda key, payload: through.put(payload), latest=True)
+    weights = learner.publisher(f"{RUN}/weights", latest=True)
+    weights.put(b"v1")
+    weights.put(b"v2")
+    # Puts are asynchronous: wait until v2 (so v1 too: one link is FIFO) has left the learner,
+    # or a joiner could still get v1 live. Consumers ignore older versions for that reason.
+    while through.get(timeout=WAIT_S) != b"v2":
+        pass
+
+    actor = open_client()  # a new session, joining after both puts went out
+    got: queue.Queue[tuple[str, bytes]] = queue.Queue()
+    actor.subscribe(f"{RUN}/weights", lambda key, payload: got.put((key, payload)), latest=True)
+
+    assert got.get(timeout=WAIT_S) == (f"{RUN}/weights", b"v2")
+    weights.put(b"v3")
+    assert got.get(timeout=WAIT_S) == (f"{RUN}/weights", b"v3")  # so v1 never came in between
+
+
+def test_subscriber_gets_puts_in_order_with_their_keys(open_client: OpenClient) -> None:
+    sender, monitor = open_client(), open_client()
+    got: queue.Queue[tuple[str, bytes]] = queue.Queue()
+    monitor.subscribe(f"{RUN}/metrics/**", lambda key, payload: got.put((key, payload)))
+    metrics = sender.publisher(f"{RUN}/metrics/learner", block=True)
+    assert metrics.wait_for_subscribers(WAIT_S)
+
+    for i in range(50):
+        metrics.put(str(i).encode())
+    received = [got.get(timeout=WAIT_S) for _ in range(50)]
+    assert received == [(f"{RUN}/metrics/learner", str(i).encode()) for i in range(50)]
+
+
+def test_liveliness_token_appears_and_disappears(open_client: OpenClient, endpoint: str) -> None:
+    launcher = open_client()
+    changes: queue.Queue[tuple[str, bool]] = queue.Queue()
+    launcher.watch_alive(f"{RUN}/alive/**", lambda key, alive: changes.put((key, alive)))
+
+    replay = open_client()
+    replay.declare_alive(f"{RUN}/alive/replay/0")
+    assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", True)
+    replay.close()
+    assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", False)
+
+    # a real process that dies without closing anything
+    child = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys\n"
+         "from hercs.transport import Transport\n"
+         f"t = Transport.open(mode='client', connect=[{endpoint!r}], connect_timeout_s=5)\n"
+         f"t.declare_alive('{RUN}/alive/actor/7')\n"
+         "print('ready', flush=True)\n"
+         "sys.stdin.read()\n"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/actor/7", True)
+        child.kill()
+        assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/actor/7", False)
+    finally:
+        child.kill()
+        child.wait(WAIT_S)
+
+
+def test_concurrent_requests_are_each_answered_exactly_once(open_client: OpenClient) -> None:
+    server, client = open_client(), open_client()
+    seen: Counter[bytes] = Counter()
+    lock = threading.Lock()
+
+    def handler(payload: bytes) -> bytes:
+        with lock:
+            seen[payload] += 1
+        return b"ack:" + payload
+
+    server.serve(f"{RUN}/replay/insert", handler, workers=2)
+    requests = [f"actor{i % 4}/seq{i}".encode() for i in range(100)]
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        replies = list(pool.map(
+            lambda p: client.request(f"{RUN}/replay/insert", p, timeout_s=WAIT_S), requests))
+
+    assert replies == [b"ack:" + p for p in requests]
+    assert seen == Counter(requests) and set(seen.values()) == {1}
+
+
+def test_transport_close_undeclares_everything_and_stops_threads_promptly(
+    open_client: OpenClient,
+) -> None:
+    holder = open_client()  # holds a query of `service` while it closes
+    parked: queue.Queue[PendingReply] = queue.Queue()
+    holder.serve_deferred(f"{RUN}/held", parked.put)
+    changes: queue.Queue[tuple[str, bool]] = queue.Queue()
+    holder.watch_alive(f"{RUN}/alive/**", lambda key, alive: changes.put((key, alive)))
+    before = {t.name for t in threading.enumerate()}
+    service = open_client()
+    service.serve(f"{RUN}/replay/sample", _echo, workers=3)
+    service.serve_deferred(f"{RUN}/replay/insert", lambda pending: None)
+    service.subscribe(f"{RUN}/cluster/model", lambda key, payload: None, latest=True)
+    service.subscribe(f"{RUN}/replay/inserted", lambda key, payload: None)
+    service.watch_alive(f"{RUN}/alive/**", lambda key, alive: None)
+    service.publisher(f"{RUN}/weights", latest=True).put(b"w")
+    service.publisher(f"{RUN}/replay/status").put(b"s")
+    service.declare_alive(f"{RUN}/alive/replay/0")
+    assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", True)
+    assert {t.name for t in threading.enumerate()} - before  # our threads are running
+    in_flight: queue.Queue[Exception | bytes] = queue.Queue()
+
+    def ask() -> None:
+        try:
+            in_flight.put(service.request(f"{RUN}/held", b"x", timeout_s=WAIT_S))
+        except Exception as exc:
+            in_flight.put(exc)
+
+    threading.Thread(target=ask).start()
+    parked.get(timeout=WAIT_S)
+
+    started = time.monotonic()
+    service.close()
+    service.close()  # idempotent
+
+    assert time.monotonic() - started < 2.0
+    error = in_flight.get(timeout=WAIT_S)  # the waiting request ends too
+    assert isinstance(error, TransportError) and "session closed" in str(error)
+    assert not {t.name for t in threading.enumerate() if t.name.startswith("hercs-")} - before
+    assert service.session.is_closed()
+    with pytest.raises(TransportError, match="transport is closed"):
+        service.publisher(f"{RUN}/weights")
+    assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", False)
+    with pytest.raises(TransportTimeout):  # its queryables are gone
+        holder.request(f"{RUN}/replay/sample", b"x", timeout_s=0.3)
