@@ -1,0 +1,59 @@
+"""Helpers to run hercs service processes in integration tests (real processes, real Zenoh)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+
+
+def make_test_config(tmp_path: Path, endpoint: str,
+                     overrides: list[str]) -> tuple[HercsConfig, Path]:
+    """A config for one test run, saved to tmp_path/config.yaml; runs live under tmp_path."""
+    config = apply_overrides(HercsConfig(), [
+        "run.name=t", f"run.run_dir={tmp_path / 'runs'}", f"transport.connect=[{endpoint}]",
+        f"transport.listen=[{endpoint}]", *overrides])
+    path = tmp_path / "config.yaml"
+    save_yaml(config, path)
+    return config, path
+
+
+class ServiceProcess:
+    """`hercs <service> --config FILE --id ID` as a child process, logging to a file."""
+
+    def __init__(self, service: str, config_path: Path, ident: str, log_dir: Path) -> None:
+        self.service = service
+        self.ident = ident
+        self.log_path = log_dir / f"{service}-{ident}.log"
+        self._log = open(self.log_path, "wb")  # noqa: SIM115 (closed in stop())
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "hercs.cli", service, "--config", str(config_path),
+             "--id", ident], stdout=self._log, stderr=subprocess.STDOUT, env=env)
+
+    def log_text(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def stop(self, timeout_s: float = 20.0) -> int:
+        """SIGTERM, wait; returns the exit code (SIGKILL and a failing code if it hangs)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                self._log.close()
+                raise AssertionError(f"{self.service} ignored SIGTERM for {timeout_s} s:\n"
+                                     f"{self.log_text()[-3000:]}") from None
+        self._log.close()
+        return self.proc.returncode
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+        self._log.close()
