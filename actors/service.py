@@ -1,0 +1,293 @@
+"""The rollout actor process (`hercs actor`): a thin Zenoh shell around `RolloutWorker`.
+
+What `run` does, in order:
+1. Joins the run: opens the transport (`ServiceRuntime`, role "actor") and asks the replay for
+   the run's resolved config (`keys.config`), retrying until it answers or the process is
+   stopped. Task, method and network sizes come from there; the local `transport` section is
+   kept. This is how `hercs actor --connect tcp/HOST:7447 --run RUN` on another host joins.
+2. Subscribes to `keys.weights` as a late joiner (`latest=True`): the newest `Weights` arrives
+   at once. The subscription thread decodes and checks each message (schema, arrays, shapes
+   against this task's networks); a bad one is logged once per minute and ignored, a good one
+   replaces the slot's pending weights. The rollout loop adopts the newest at each episode
+   start, and tags the episode with its version (`policy_version`, -1 before any Weights).
+3. Loops: one exploring episode, tagged `(actor_id=ident, seq=0,1,2,…)`, handed to the
+   `Inserter` (at-least-once, on its own thread; see `actors.inserter` for retries and
+   backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
+   Metrics every `METRICS_EVERY_EPISODES` episodes.
+4. On SIGTERM/SIGINT (`runtime.stop`): finishes the episode at hand, flushes queued inserts
+   for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the transport, returns 0.
+
+Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
+`generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+
+import numpy as np
+import torch
+import yaml
+
+from actors.inserter import Inserter
+from actors.rollout import RolloutWorker
+from hercs.config import HercsConfig
+from hercs.envs import make_env
+from hercs.errors import ConfigError, InvalidMessage
+from hercs.policy import Policy, PolicyWeights
+from hercs.seeding import generator, int_seed
+from hercs.service import ServiceRuntime, WarnOncePerMinute, fetch_run_config, setup_logging
+from hercs.tasks import TaskSpec
+from hercs.transport import TransportError
+from proto import hercs_pb2 as pb
+from proto.codec import episode_to_msg, msg_to_stats, named_to_arrays
+from proto.validation import RejectReason, parse_message
+
+log = logging.getLogger(__name__)
+
+INSERT_QUEUE = 2
+"""Finished episodes that may wait behind the one whose ack is in flight."""
+STOP_FLUSH_S = 3.0
+"""On stop, queued inserts get this long to be acked before they are given up."""
+METRICS_EVERY_EPISODES = 10
+CONFIG_RETRY_MAX_S = 2.0
+_CONFIG_LOG_EVERY_S = 10.0
+
+
+# --------------------------------------------------------------------------- weights
+
+
+class WeightsDecoder:
+    """Bytes from `keys.weights` → `pb.Weights` (`parse`) → checked `PolicyWeights` (`decode`);
+    both raise `InvalidMessage`.
+
+    Beyond the schema and array codec, `decode` loads the weights into a scratch `Policy` of
+    this task's sizes (names, shapes, finiteness, positive std), so the `PolicyWeights` it
+    returns always loads. Use from one thread.
+    """
+
+    def __init__(self, *, spec: TaskSpec, config: HercsConfig) -> None:
+        self._scratch = Policy(spec=spec, config=config.ddpg, seed=0)
+        self._max_bytes = config.replay.max_message_bytes
+
+    def parse(self, raw: bytes) -> pb.Weights:
+        """Schema only (size, protobuf, schema_version): enough to read `evaluate`/`epoch`."""
+        return parse_message(raw, pb.Weights, max_bytes=self._max_bytes)
+
+    def decode(self, msg: pb.Weights) -> PolicyWeights:
+        weights = PolicyWeights(
+            version=int(msg.version),
+            actor=named_to_arrays(msg.actor_params, where="Weights.actor_params"),
+            o_stats=msg_to_stats(msg.o_stats, where="Weights.o_stats"),
+            g_stats=msg_to_stats(msg.g_stats, where="Weights.g_stats"),
+        )
+        try:
+            self._scratch.load(weights)
+        except ValueError as exc:
+            raise InvalidMessage(RejectReason.BAD_VALUE,
+                                 f"Weights version {msg.version}: {exc}") from None
+        return weights
+
+
+class LatestWeights:
+    """A one-slot mailbox: the subscription thread `offer`s, the rollout loop `take`s.
+
+    The most recently received weights win (not the highest version: a learner restarted
+    without its checkpoint counts from 0 again, and its weights must still be adopted).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pending: PolicyWeights | None = None
+
+    def offer(self, weights: PolicyWeights) -> None:
+        with self._lock:
+            self._pending = weights
+
+    def take(self) -> PolicyWeights | None:
+        """The weights received since the last `take`, newest only; None if none."""
+        with self._lock:
+            weights, self._pending = self._pending, None
+        return weights
+
+
+# --------------------------------------------------------------------------- config
+
+
+def join_run(runtime: ServiceRuntime, local: HercsConfig) -> HercsConfig | None:
+    """The run's resolved config from its replay, with `local`'s transport section.
+
+    Retries (backoff up to `CONFIG_RETRY_MAX_S`) until the replay answers; None if
+    `runtime.stop` is set first. A config this version of hercs cannot read raises
+    `ConfigError` (retrying would not help).
+    """
+    run = local.run.name
+    delay = 0.1
+    start = time.monotonic()
+    next_log = start
+    while not runtime.stop.is_set():
+        try:
+            remote = fetch_run_config(runtime.transport, run)
+        except TransportError as exc:  # no replay yet, restarting, or a timeout: retry
+            now = time.monotonic()
+            if now >= next_log:
+                log.info("waiting for run %r's replay to serve its config (%.0f s so far): %s",
+                         run, now - start, exc)
+                next_log = now + _CONFIG_LOG_EVERY_S
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"run {run!r}: the replay served a config that is not YAML "
+                              f"({exc})") from None
+        else:
+            if remote.run.name != run:
+                log.warning("run %r's replay serves a config named %r; keeping %r (the keys "
+                            "this process uses)", run, remote.run.name, run)
+            return dataclasses.replace(
+                remote, run=dataclasses.replace(remote.run, name=run), transport=local.transport
+            )
+        runtime.stop.wait(delay)
+        delay = min(delay * 2.0, CONFIG_RETRY_MAX_S)
+    return None
+
+
+# --------------------------------------------------------------------------- the actor
+
+
+class ActorService:
+    """One actor on a joined run: policy, env, weights subscription and inserter.
+
+    `run()` loops until `runtime.stop` is set and flushes the inserter; the caller then closes
+    the transport and calls `close()`.
+    """
+
+    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig) -> None:
+        self.runtime = runtime
+        self.config = config
+        self.ident = runtime.ident
+        self.spec = config.task.spec
+        seed = config.run.seed
+        self.policy = Policy(spec=self.spec, config=config.ddpg,
+                             seed=int_seed(seed, "actor", self.ident))
+        self.rng = generator(seed, "actor", self.ident)
+        self.worker = RolloutWorker(spec=self.spec, env=make_env(self.spec),
+                                    seed=int_seed(seed, "actor", self.ident, "env"))
+        self.weights_rejected = 0
+        self._warn = WarnOncePerMinute(log)
+        self._weights = LatestWeights()
+        self._decoder = WeightsDecoder(spec=self.spec, config=config)
+        transport, keys = runtime.transport, runtime.keys
+        timeout_s = config.actor.insert_timeout_s
+        self.inserter = Inserter(
+            send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
+            actor_id=self.ident, capacity=INSERT_QUEUE,
+        )
+        # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
+        transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=4,
+                            drop_oldest=True)
+        self.episodes = 0
+
+    def _on_weights(self, key: str, raw: bytes) -> None:
+        """Subscription thread: decode, check, offer. Never touches the policy itself."""
+        try:
+            weights = self._decoder.decode(self._decoder.parse(raw))
+        except InvalidMessage as exc:
+            self.weights_rejected += 1
+            self._warn.warn(f"weights:{exc.reason}",
+                            f"ignored a Weights message on {key}: {exc}; keeping the current "
+                            "policy")
+            return
+        self._weights.offer(weights)
+
+    def _act(self, o: np.ndarray, g: np.ndarray) -> np.ndarray:
+        return self.policy.act(o, g, explore=True, rng=self.rng)
+
+    def run(self) -> int:
+        config, stop = self.config, self.runtime.stop
+        log.info("actor %s: run %r, task %s, method %s", self.ident, config.run.name,
+                 self.spec.name, config.run.method)
+        window = (time.monotonic(), self.worker.env_steps)
+        self.publish_metrics(steps_per_s=0.0)
+        try:
+            while not stop.is_set():
+                newest = self._weights.take()
+                if newest is not None:
+                    self.policy.load(newest)
+                episode = self.worker.run_episode(self._act)
+                episode.actor_id, episode.seq = self.ident, self.episodes
+                episode.policy_version = self.policy.version
+                msg = episode_to_msg(episode, run=config.run.name, task=self.spec.name)
+                if not self.inserter.submit(self.episodes, msg.SerializeToString(), stop=stop):
+                    break  # stopped while the queue was full: this episode is not sent
+                self.episodes += 1
+                if self.episodes % METRICS_EVERY_EPISODES == 0:
+                    now = time.monotonic()
+                    rate = (self.worker.env_steps - window[1]) / max(now - window[0], 1e-9)
+                    window = (now, self.worker.env_steps)
+                    self.publish_metrics(steps_per_s=rate)
+        finally:
+            self.inserter.close(timeout_s=STOP_FLUSH_S)
+            self.publish_metrics(steps_per_s=0.0)
+        c = self.inserter.counters
+        log.info("actor %s stopping: %d episodes, %d acked, %d dropped, %d given up unacked",
+                 self.ident, self.episodes, c.acked, c.dropped, self.unacked)
+        return 0
+
+    @property
+    def unacked(self) -> int:
+        """Episodes submitted and neither acked nor dropped: queued, in flight or given up."""
+        c = self.inserter.counters
+        return self.episodes - c.acked - c.dropped
+
+    def publish_metrics(self, *, steps_per_s: float) -> None:
+        c = self.inserter.counters
+        try:
+            self.runtime.publish_metrics({
+                "env_steps": self.worker.env_steps,
+                "episodes": self.episodes,
+                "env_steps_per_s": steps_per_s,
+                "acked": c.acked,
+                "retries": c.retries,
+                "dropped": c.dropped,
+                "unacked": self.unacked,
+                "duplicates": c.duplicates,
+                "insert_blocked_s": c.blocked_s,
+                "policy_version": self.policy.version,
+                "weights_rejected": self.weights_rejected,
+            })
+        except TransportError as exc:  # metrics are best effort
+            self._warn.warn("metrics", f"could not publish metrics: {exc}")
+
+    def close(self) -> None:
+        """After the transport is closed: wait for the sender thread, close the env."""
+        if not self.inserter.join(2.0):
+            log.warning("actor %s: inserter thread still running at exit", self.ident)
+        self.worker.close()
+
+
+def run(config: HercsConfig, *, ident: str | None = None) -> int:
+    """`hercs actor`: join `config.run.name` and collect episodes until SIGTERM/SIGINT."""
+    setup_logging("actor")
+    torch.set_num_threads(1)
+    try:
+        runtime = ServiceRuntime(config=config, role="actor", ident=ident)
+    except ConfigError as exc:
+        log.error("hercs actor: %s", exc)
+        return 2
+    service: ActorService | None = None
+    try:
+        try:
+            joined = join_run(runtime, config)
+        except ConfigError as exc:
+            log.error("actor %s: cannot use run %r's config: %s", runtime.ident,
+                      config.run.name, exc)
+            return 2
+        if joined is None:
+            return 0
+        service = ActorService(runtime=runtime, config=joined)
+        return service.run()
+    finally:
+        runtime.close()  # also ends an insert still in flight after the flush deadline
+        if service is not None:
+            service.close()

@@ -1,0 +1,237 @@
+"""`hercs actor` as a real process against a router on loopback.
+
+The test plays the replay and the learner: it serves `config` (the run's resolved YAML, as the
+replay does), answers `replay/insert` (acking, or deliberately not), and publishes `Weights`.
+No sleeps stand in for synchronisation: every wait is on a queue with a timeout or the
+process exit.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from actors.inserter import Inserter
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.policy import Policy
+from hercs.transport import PendingReply, Transport, TransportError
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from proto.codec import arrays_to_named, msg_to_array, stats_to_msg
+from proto.keys import RunKeys
+
+pytestmark = pytest.mark.integration
+
+WAIT_S = 15.0
+STOP_WITHIN_S = 5.0
+
+OpenClient = Callable[[], Transport]
+
+
+# ---- process helpers (the same in the actor and evaluator tests)
+
+
+def start_service(role: str, config: HercsConfig, ident: str, tmp_path: Path) -> subprocess.Popen:
+    path = tmp_path / f"{role}.yaml"
+    save_yaml(config, path)
+    with (tmp_path / f"{role}.log").open("w") as log:  # the child keeps its own copy
+        return subprocess.Popen(
+            [sys.executable, "-m", "hercs.cli", role, "--config", str(path), "--id", ident],
+            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "HERCS_LOG": "INFO"},
+        )
+
+
+def wait_for(q: queue.Queue, pred: Callable[[object], bool], what: str) -> object:
+    """The first item of `q` satisfying `pred` (others are discarded), within WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        try:
+            item = q.get(timeout=max(deadline - time.monotonic(), 0.001))
+        except queue.Empty:
+            raise AssertionError(f"timed out after {WAIT_S} s waiting for {what}") from None
+        if pred(item):
+            return item
+
+
+def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) -> None:
+    started = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
+    assert time.monotonic() - started < STOP_WITHIN_S
+    wait_for(alive, lambda c: c == (key, False), f"{key} to vanish")
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[list[subprocess.Popen]]:
+    started: list[subprocess.Popen] = []
+    yield started
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    for log in tmp_path.glob("*.log"):  # shown by pytest on failure
+        print(f"---- {log.name}\n{log.read_text()}")
+
+
+# ---- the actor
+
+RUN = "t-actor"
+
+
+def run_config(endpoint: str) -> HercsConfig:
+    """What the replay serves: the whole resolved config of the run."""
+    return apply_overrides(HercsConfig(), [
+        f"run.name={RUN}", "run.method=her", "task.name=reach", "ddpg.hidden_size=64",
+        "actor.insert_timeout_s=1.0", f"transport.connect=[{endpoint}]",
+    ])
+
+
+def local_config(endpoint: str) -> HercsConfig:
+    """What `hercs actor --connect ENDPOINT --run RUN` knows: run name and endpoint only (the
+    task default, push, must be replaced by the run's)."""
+    return apply_overrides(HercsConfig(), [f"run.name={RUN}", f"transport.connect=[{endpoint}]"])
+
+
+def weights_msg(policy: Policy, *, version: int) -> bytes:
+    w = policy.weights()
+    return pb.Weights(
+        schema_version=SCHEMA_VERSION, version=version, epoch=1, evaluate=False,
+        actor_params=arrays_to_named(w.actor), o_stats=stats_to_msg(w.o_stats),
+        g_stats=stats_to_msg(w.g_stats),
+    ).SerializeToString()
+
+
+class FakeReplay:
+    """`replay/insert` that acks, except: seq 1's first attempt is never answered (a timeout),
+    seq 2's first is answered `unavailable`, seq 3 is rejected `bad_shape` (to be dropped)."""
+
+    def __init__(self, transport: Transport, keys: RunKeys) -> None:
+        self.attempts: Counter[int] = Counter()
+        self.acks: Counter[int] = Counter()
+        self.acked: queue.Queue[pb.Episode] = queue.Queue()
+        self.held: list[PendingReply] = []
+        self._lock = threading.Lock()
+        transport.serve_deferred(keys.insert, self.handle)
+
+    def handle(self, pending: PendingReply) -> None:
+        episode = pb.Episode.FromString(pending.payload)
+        with self._lock:
+            self.attempts[episode.seq] += 1
+            first = self.attempts[episode.seq] == 1
+            duplicate = self.acks[episode.seq] > 0
+        if first and episode.seq == 1:
+            self.held.append(pending)  # never answered: the actor times out and retries
+            return
+        if first and episode.seq == 2:
+            pending.reply_error("unavailable", "replay restarting")
+            return
+        if episode.seq == 3:
+            pending.reply_error("bad_shape", "Episode.obs: the test rejects seq 3")
+            return
+        with self._lock:
+            self.acks[episode.seq] += 1
+        pending.reply(pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id=episode.actor_id,
+                                   seq=episode.seq, episode_id=episode.seq,
+                                   duplicate=duplicate).SerializeToString())
+        self.acked.put(episode)
+
+
+def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
+    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+) -> None:
+    served = run_config(endpoint)
+    keys = RunKeys(RUN)
+    side = open_client()
+    alive: queue.Queue = queue.Queue()
+    side.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    metrics: queue.Queue[dict[str, float]] = queue.Queue()
+    side.subscribe(keys.metrics("actor"),
+                   lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+    replay = FakeReplay(side, keys)
+
+    procs.append(start_service("actor", local_config(endpoint), "a0", tmp_path))
+    wait_for(alive, lambda c: c == (keys.alive("actor", "a0"), True), "the actor")
+    # The run's config is served only now, and its first query is refused: the actor must
+    # keep asking.
+    config_queries: list[PendingReply] = []
+
+    def serve_config(pending: PendingReply) -> None:
+        config_queries.append(pending)
+        if len(config_queries) == 1:
+            pending.reply_error("unavailable", "replay still loading its log")
+        else:
+            pending.reply(yaml.safe_dump(served.to_dict()).encode())
+
+    side.serve_deferred(keys.config, serve_config)
+
+    episodes: list[pb.Episode] = []
+
+    def next_acked() -> pb.Episode:
+        episodes.append(replay.acked.get(timeout=WAIT_S))
+        return episodes[-1]
+
+    while next_acked().seq < 5:
+        pass
+    assert {e.policy_version for e in episodes} == {-1}
+    first = episodes[0]
+    assert (first.actor_id, first.run, first.task) == ("a0", RUN, "reach"), "the run's config"
+    assert tuple(msg_to_array(first.obs).shape) == (51, served.task.spec.obs_dim)
+
+    learner = side.publisher(keys.weights, latest=True)
+    learner.put(b"\x08\x01 not a Weights message")  # ignored, the actor carries on
+    policy = Policy(spec=served.task.spec, config=served.ddpg, seed=11)
+    learner.put(weights_msg(policy, version=7))
+    while next_acked().policy_version != 7:
+        pass
+    for _ in range(3):
+        assert next_acked().policy_version == 7, "a newer policy is never replaced by an older"
+
+    assert len(config_queries) == 2
+    values = wait_for(metrics, lambda m: m["weights_rejected"] >= 1 and m["dropped"] == 1
+                      and m["policy_version"] == 7, "metrics after the weights")
+    assert values["retries"] >= 2 and values["env_steps"] >= 50 * values["episodes"] > 0
+    sigterm_exits_cleanly(procs[0], alive, keys.alive("actor", "a0"))
+
+    acked = set(replay.acks)
+    assert acked == set(range(max(acked) + 1)) - {3}, "every seq but the rejected one is acked"
+    assert set(replay.acks.values()) == {1}, "each seq acked exactly once"
+    assert replay.attempts[1] == replay.attempts[2] == 2, "same (actor, seq) retried once"
+    assert replay.attempts[3] == 1, "a validation reject is not retried"
+    assert [e.seq for e in episodes] == sorted(e.seq for e in episodes)
+
+
+def test_inserter_backpressure_then_gives_up_unacked_episodes_at_close() -> None:
+    """The replay holds the in-flight insert (rate limiter): the queue fills, `submit` refuses
+    once stopped, and `close` gives up what was never acked within its flush time."""
+    entered, release = threading.Event(), threading.Event()
+
+    def held_send(payload: bytes) -> bytes:
+        entered.set()
+        release.wait(WAIT_S)  # the transport closing ends a held request with this error
+        raise TransportError("request to 'replay/insert': the session closed while it waited")
+
+    inserter = Inserter(send=held_send, actor_id="a", capacity=2)
+    running, stopped = threading.Event(), threading.Event()
+    stopped.set()
+    assert inserter.submit(0, b"e0", stop=running)
+    assert entered.wait(WAIT_S)
+    assert inserter.submit(1, b"e1", stop=running) and inserter.submit(2, b"e2", stop=running)
+    assert inserter.queued == 2
+    assert not inserter.submit(3, b"e3", stop=stopped), "full queue + stop: not queued"
+
+    inserter.close(timeout_s=0.1)
+    release.set()
+    assert inserter.join(WAIT_S)
+    c = inserter.counters
+    assert (c.acked, c.dropped, c.abandoned, c.retries) == (0, 0, 3, 0)
