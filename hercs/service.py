@@ -81,7 +81,9 @@ class ServiceRuntime:
         self.stop = threading.Event()
         if install_signals:
             self._install_signals()
-        self.transport = Transport.open(mode="client", connect=config.transport.connect)
+        # A SIGTERM while the router is still unreachable ends the wait (ConnectAborted).
+        self.transport = Transport.open(mode="client", connect=config.transport.connect,
+                                        stop=self.stop)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0

@@ -90,6 +90,10 @@ class TransportError(HercsError):
     """A Zenoh session or exchange failed; the message says which endpoint or key."""
 
 
+class ConnectAborted(TransportError):
+    """`open_session` gave up waiting for the router because its stop event was set."""
+
+
 class TransportTimeout(TransportError):
     """A request got no reply within `timeout_s`: no queryable appeared on the key, or the one
     that got it did not answer in time (it may have been held by backpressure).
@@ -161,6 +165,7 @@ def open_session(
     connect: Sequence[str] = (),
     listen: Sequence[str] = (),
     connect_timeout_s: float | None = None,
+    stop: threading.Event | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session with multicast scouting off and only the given endpoints.
 
@@ -207,8 +212,14 @@ def open_session(
                 log.info("waiting for a Zenoh router at %s (%.0f s so far); retrying until "
                          "it is up", list(connect), waited)
                 next_log = now + _WAIT_LOG_EVERY_S
-            # An attempt that failed early (e.g. a name that does not resolve) must not spin.
-            time.sleep(max(0.0, window - (now - attempt)))
+            # An attempt that failed early (e.g. a name that does not resolve) must not spin;
+            # a stop request (SIGTERM while waiting for the router) ends the wait at once.
+            pause = max(0.0, window - (now - attempt))
+            if stop is not None and (stop.is_set() or stop.wait(pause)):
+                raise ConnectAborted(f"stopped while waiting for a Zenoh router at "
+                                     f"{list(connect)}") from None
+            if stop is None:
+                time.sleep(pause)
             continue
         if time.monotonic() - start > _CONNECT_WINDOW_S:
             log.info("connected to Zenoh at %s after %.1f s", list(connect),
@@ -695,9 +706,10 @@ class Transport:
 
     @classmethod
     def open(cls, *, mode: Mode, connect: Sequence[str] = (), listen: Sequence[str] = (),
-             connect_timeout_s: float | None = None) -> Transport:
+             connect_timeout_s: float | None = None,
+             stop: threading.Event | None = None) -> Transport:
         return cls(open_session(mode=mode, connect=connect, listen=listen,
-                                connect_timeout_s=connect_timeout_s))
+                                connect_timeout_s=connect_timeout_s, stop=stop))
 
     def _own(self, declare: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         with self._lock:
