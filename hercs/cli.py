@@ -73,6 +73,19 @@ def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
 
 Command = Callable[[argparse.Namespace, HercsConfig], int]
 
+
+def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
+    from hercs.launcher import run_up
+
+    return run_up(config)
+
+
+def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
+    from hercs.router import run_router
+
+    return run_router(config)
+
+
 # Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
 # when used, so `hercs --help` stays fast.
 SERVICES: dict[str, tuple[str, str]] = {
@@ -88,7 +101,13 @@ def _service_command(module: str) -> Command:
     def command(args: argparse.Namespace, config: HercsConfig) -> int:
         from importlib import import_module
 
-        return int(import_module(module).run(config, ident=args.ident))
+        from hercs.transport import ConnectAborted
+
+        try:
+            return int(import_module(module).run(config, ident=args.ident))
+        except ConnectAborted as exc:  # stopped before the router was ever reached
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 0
 
     return command
 
@@ -106,6 +125,21 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     add_config_arguments(p)
     p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
     commands["config"] = _cmd_config
+
+    p = sub.add_parser(
+        "up", help="run everything on this machine: embedded router, replay, clusterer, "
+                   "learner, evaluator and --actors actors; Ctrl-C stops the run",
+        description="Start a whole run locally. The router is embedded and listens on --listen "
+                    "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
+                    "connect to it on this host, so --connect is ignored.",
+    )
+    add_config_arguments(p)
+    commands["up"] = _cmd_up
+
+    p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
+                                      "tcp/0.0.0.0:7447) until Ctrl-C")
+    add_config_arguments(p)
+    commands["router"] = _cmd_router
 
     for name, (module, help_text) in SERVICES.items():
         p = sub.add_parser(name, help=help_text)

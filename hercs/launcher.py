@@ -1,0 +1,503 @@
+"""`hercs up`: one whole run on one machine (DESIGN §1, §6).
+
+What `run_up` does, in order:
+
+1. Names the run if `run.name` is empty (`<task>-<method>-s<seed>-<YYYYmmdd-HHMMSS>`) and
+   points the children's `transport.connect` at the embedded router (every `listen` endpoint,
+   with a wildcard host 0.0.0.0 / [::] replaced by loopback). Refuses a run directory that
+   already holds files (exit 2): a replay would load the old episode log into the new run.
+2. Opens the router, embedded in this process (a router-mode `Transport` on
+   `transport.listen`); a taken port fails at once with a clear message (exit 1), before
+   anything is written.
+3. Writes `runs/<run>/config.yaml` (the full resolved config, which every child reads with
+   `--config`) and `runs/<run>/logs/`.
+4. Starts the services as child processes, `python -m hercs.cli <role> --config … --id …`,
+   each child's stdout and stderr to `logs/<id>.log`: the replay first (ids `replay-0`), and
+   once its liveliness token is up the clusterer, learner, evaluator (`<role>-0`) and
+   `actor.num_actors` actors (`actor-0` … `actor-<N-1>`). Children connect as Zenoh clients.
+5. Prints one progress line per epoch (`Progress`), and logs remote processes (e.g. actors
+   started with `hercs actor --connect … --run …`) joining and leaving.
+6. Ends when:
+   - the learner exits 0 (its last epoch is done): waits up to a few seconds for the last
+     epoch's progress line, stops the others, prints the run directory, returns 0;
+   - any other child exits, or the learner exits non-zero: prints the role, id, exit code and
+     the last lines of its log, stops the others, returns 1;
+   - SIGINT (Ctrl-C) / SIGTERM / SIGHUP: stops everything, returns 128 + signal number.
+
+Stopping goes stage by stage — actors, then evaluator/learner/clusterer, then the replay last
+(so that every episode in flight can still be acked and logged) — with SIGTERM to each child's
+process group, a bounded wait (`stop_timeout_s`), then SIGKILL. A second Ctrl-C skips the
+waits and kills at once.
+
+No orphans: every child runs in its own process group (Ctrl-C at the terminal reaches only
+the launcher, which then stops the children in order) with `PR_SET_PDEATHSIG` = SIGKILL set
+between fork and exec, so if the launcher itself is SIGKILLed (or crashes) the kernel kills
+every child. The parent-death signal fires when the *thread* that forked the child exits,
+so children are only ever started from the main thread (`run_up` checks it). SIGKILL is safe
+for the data: the replay acks an episode only after it is in the log.
+
+Progress comes from `Metrics` on `metrics/**` published by the learner (`service` =
+`learner/<id>`) at each epoch end. Keys read from its `values` (all optional but `epoch`):
+`epoch` (epochs completed, 1-based), `epochs` (total; default `training.epochs`),
+`success_rate`, `env_steps_per_s`, `updates_per_s`, `replay_size`, `policy_lag`. A missing
+`success_rate` is taken from the `EvalResult` whose `epoch` equals the line's epoch (the line
+waits for it until the next epoch's metrics arrive); a missing `replay_size` from the latest
+`ReplayStatus.size_episodes`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import IO
+
+from hercs.config import HercsConfig, save_yaml
+from hercs.errors import InvalidMessage
+from hercs.router import RouterListenError, StopSignals, open_router
+from proto import hercs_pb2 as pb
+from proto.keys import RunKeys
+from proto.validation import parse_message
+
+START_ORDER = ("replay", "clusterer", "learner", "evaluator", "actor")
+"""Roles in start order; the replay alone first (it serves the config and the insert queryable)."""
+STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer"), ("replay",))
+"""Roles stopped together, stage after stage; the replay last."""
+
+STOP_TIMEOUT_S = 10.0
+READY_TIMEOUT_S = 120.0
+FINAL_PROGRESS_TIMEOUT_S = 5.0
+LOG_TAIL_LINES = 20
+_POLL_S = 1.0
+_PR_SET_PDEATHSIG = 1
+
+
+@dataclass(frozen=True)
+class ChildSpec:
+    """One service process of the run."""
+
+    role: str
+    ident: str
+
+    @property
+    def log_name(self) -> str:
+        return f"{self.ident}.log"
+
+    def __str__(self) -> str:
+        return f"{self.role} {self.ident}"
+
+
+CommandFactory = Callable[[ChildSpec, Path], list[str]]
+"""Builds a child's argv from its spec and the run's config.yaml (injectable for tests)."""
+
+
+def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
+    """The real child: `python -m hercs.cli <role> --config <config.yaml> --id <ident>`."""
+    return [sys.executable, "-m", "hercs.cli", spec.role, "--config", str(config_path),
+            "--id", spec.ident]
+
+
+def plan_children(config: HercsConfig) -> list[ChildSpec]:
+    """Every child of a run, in start order."""
+    specs = [ChildSpec(role, f"{role}-0") for role in START_ORDER if role != "actor"]
+    specs += [ChildSpec("actor", f"actor-{i}") for i in range(config.actor.num_actors)]
+    return specs
+
+
+def default_run_name(config: HercsConfig, now: datetime | None = None) -> str:
+    stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
+    return f"{config.task.name}-{config.run.method}-s{config.run.seed}-{stamp}"
+
+
+def loopback_endpoints(listen: list[str]) -> list[str]:
+    """Where a process on this host reaches a router listening on `listen`: a wildcard host
+    (0.0.0.0, [::]) becomes loopback; a concrete address stays."""
+    out = []
+    for endpoint in listen:
+        proto, sep, rest = endpoint.partition("/")
+        if sep and rest.startswith("0.0.0.0:"):
+            rest = "127.0.0.1:" + rest.removeprefix("0.0.0.0:")
+        elif sep and rest.startswith("[::]:"):
+            rest = "[::1]:" + rest.removeprefix("[::]:")
+        out.append(f"{proto}{sep}{rest}")
+    return out
+
+
+def resolve_run(config: HercsConfig, now: datetime | None = None) -> HercsConfig:
+    """The config the children get: a run name, and `connect` = the embedded router."""
+    data = config.to_dict()
+    data["run"]["name"] = config.run.name or default_run_name(config, now)
+    data["transport"]["connect"] = loopback_endpoints(config.transport.listen)
+    return HercsConfig.from_dict(data)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+class Progress:
+    """Turns the learner's per-epoch `Metrics` (and `EvalResult`s) into one line per epoch.
+
+    Pure bookkeeping, no I/O: each method returns the lines now ready, in epoch order. A line
+    without `success_rate` waits for its epoch's `EvalResult` until a later epoch's metrics
+    arrive (or `flush()`); each epoch is printed once.
+    """
+
+    def __init__(self, total_epochs: int) -> None:
+        self.total_epochs = total_epochs
+        self.last_printed = 0
+        self._pending: dict[int, dict[str, float]] = {}
+        self._success: dict[int, float] = {}
+        self._replay_size: float | None = None
+
+    def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
+        if not service.startswith("learner/") or "epoch" not in values:
+            return []
+        epoch = int(values["epoch"])
+        if epoch <= self.last_printed:
+            return []
+        self._pending[epoch] = dict(values)
+        return self._release(final=False)
+
+    def on_eval(self, epoch: int, success_rate: float) -> list[str]:
+        self._success[epoch] = success_rate
+        return self._release(final=False)
+
+    def on_replay_size(self, size: float) -> None:
+        self._replay_size = size
+
+    def flush(self) -> list[str]:
+        """Every line still waiting, with `success -` where no result came."""
+        return self._release(final=True)
+
+    def _release(self, *, final: bool) -> list[str]:
+        lines = []
+        for epoch in sorted(self._pending):
+            values = self._pending[epoch]
+            has_success = "success_rate" in values or epoch in self._success
+            later = any(e > epoch for e in self._pending)
+            if not (has_success or later or final):
+                break
+            del self._pending[epoch]
+            lines.append(self._line(epoch, values))
+            self.last_printed = epoch
+        return lines
+
+    def _line(self, epoch: int, values: Mapping[str, float]) -> str:
+        total = int(values.get("epochs", self.total_epochs))
+        success = values.get("success_rate", self._success.get(epoch))
+        replay = values.get("replay_size", self._replay_size)
+        return (f"epoch {epoch}/{total}  success {_fmt(success, '.2f')}  "
+                f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
+                f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
+                f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}")
+
+
+def _pdeathsig_preexec() -> Callable[[], None] | None:
+    """A `preexec_fn` making the child get SIGKILL when the launcher dies (Linux only).
+
+    Runs in the forked child before exec, so it only calls what was resolved here, in the
+    parent. If the launcher died before the prctl took effect the child is already
+    re-parented: it exits at once.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
+                      ctypes.c_ulong]
+    sigkill = int(signal.SIGKILL)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(_PR_SET_PDEATHSIG, sigkill, 0, 0, 0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return preexec
+
+
+def _describe_exit(code: int) -> str:
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+def _tail(path: Path, lines: int) -> list[str]:
+    try:
+        with path.open("rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 64 * 1024))
+            text = f.read().decode("utf-8", errors="replace")
+    except OSError as exc:
+        return [f"(cannot read {path}: {exc})"]
+    return text.splitlines()[-lines:]
+
+
+@dataclass
+class _Child:
+    spec: ChildSpec
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+    expected_exit: bool = False
+
+    def signal(self, sig: int) -> None:
+        """Signal the child's whole process group (it leads it), so helpers it forked go too."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, sig)
+
+
+@dataclass
+class _Launcher:
+    config: HercsConfig
+    run_dir: Path
+    signals: StopSignals
+    command: CommandFactory
+    stop_timeout_s: float
+    ready_timeout_s: float
+    out: IO[str]
+    err: IO[str]
+    children: list[_Child] = field(default_factory=list)
+    alive: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        self.keys = RunKeys(self.config.run.name)
+        self.progress = Progress(self.config.training.epochs)
+        self._print_lock = threading.RLock()
+        self._ours = {self.keys.alive(s.role, s.ident) for s in plan_children(self.config)}
+
+    # ------------------------------------------------------------------ output
+
+    def say(self, line: str, *, error: bool = False) -> None:
+        # A terminal gone (SIGHUP) must not break the shutdown that follows.
+        with self._print_lock, contextlib.suppress(OSError, ValueError):
+            print(line, file=self.err if error else self.out, flush=True)
+
+    def _say_all(self, lines: list[str]) -> None:
+        for line in lines:
+            self.say(line)
+
+    # ------------------------------------------------------------------ zenoh callbacks
+    # They run on the transport's threads: bookkeeping and printing only, then wake the loop.
+
+    def _decode(self, raw: bytes, cls: type, what: str) -> object | None:
+        try:
+            return parse_message(raw, cls, max_bytes=self.config.replay.max_message_bytes)
+        except InvalidMessage as exc:
+            self.say(f"hercs up: ignoring a bad {what} message: {exc}", error=True)
+            return None
+
+    def on_metrics(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.Metrics, "Metrics")
+        if isinstance(msg, pb.Metrics):
+            with self._print_lock:  # compute and print as one step, so lines stay in order
+                lines = self.progress.on_metrics(msg.service, dict(msg.values))
+                self._say_all(lines)
+            if lines:
+                self.signals.wake()
+
+    def on_eval(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.EvalResult, "EvalResult")
+        if isinstance(msg, pb.EvalResult):
+            with self._print_lock:
+                lines = self.progress.on_eval(int(msg.epoch), msg.success_rate)
+                self._say_all(lines)
+            if lines:
+                self.signals.wake()
+
+    def on_status(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.ReplayStatus, "ReplayStatus")
+        if isinstance(msg, pb.ReplayStatus):
+            with self._print_lock:
+                self.progress.on_replay_size(msg.size_episodes)
+
+    def on_alive(self, key: str, alive: bool) -> None:
+        (self.alive.add if alive else self.alive.discard)(key)
+        if key not in self._ours:
+            role_ident = key.removeprefix(self.keys.prefix + "/alive/").replace("/", " ", 1)
+            self.say(f"hercs up: remote {role_ident} {'joined' if alive else 'left'}")
+        self.signals.wake()
+
+    # ------------------------------------------------------------------ processes
+
+    def start(self, spec: ChildSpec) -> _Child:
+        config_path = self.run_dir / "config.yaml"
+        log_path = self.run_dir / "logs" / spec.log_name
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        with log_path.open("ab") as log_file:
+            proc = subprocess.Popen(
+                self.command(spec, config_path),
+                stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
+                env=env, close_fds=True, process_group=0, preexec_fn=_pdeathsig_preexec(),
+            )
+        child = _Child(spec, proc, log_path)
+        self.children.append(child)
+        self.say(f"hercs up: started {spec} (pid {proc.pid}), log {log_path}")
+        return child
+
+    def _report_exit(self, child: _Child, code: int) -> None:
+        lines = [f"hercs up: {child.spec.role} {child.spec.ident} exited unexpectedly "
+                 f"({_describe_exit(code)}); last lines of {child.log_path}:"]
+        lines += [f"  | {line}" for line in _tail(child.log_path, LOG_TAIL_LINES)]
+        self.say("\n".join(lines), error=True)
+
+    def check_children(self) -> int | None:
+        """None while all is well; 0 once the learner is done; 1 if a child failed."""
+        exited = [(c, c.proc.poll()) for c in self.children if not c.expected_exit]
+        exited = [(c, code) for c, code in exited if code is not None]
+        for child, code in exited:
+            if child.spec.role == "learner" and code == 0:
+                child.expected_exit = True
+                return 0
+        for child, code in exited:
+            child.expected_exit = True
+            self._report_exit(child, code)
+        return 1 if exited else None
+
+    def _interrupted(self) -> int:
+        sig = self.signals.received[0]
+        self.say(f"hercs up: got {signal.Signals(sig).name}, stopping the run "
+                 "(Ctrl-C again to kill at once)")
+        return 128 + sig
+
+    def wait_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait for `done()` while nothing else happens; False on timeout, a stop signal or a
+        child exit (which the main loop then reports)."""
+        deadline = time.monotonic() + timeout_s
+        while not done():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or self.signals.stop_requested:
+                return False
+            if any(c.proc.poll() is not None for c in self.children if not c.expected_exit):
+                return False
+            self.signals.wait(min(remaining, _POLL_S))
+        return True
+
+    def run(self) -> int:
+        specs = plan_children(self.config)
+        replay = specs[0]
+        self.start(replay)
+        replay_key = self.keys.alive(replay.role, replay.ident)
+        if not self.wait_until(lambda: replay_key in self.alive, self.ready_timeout_s):
+            if self.signals.stop_requested:
+                return self._interrupted()
+            status = self.check_children()
+            if status is not None:
+                return 1
+            self.say(f"hercs up: {replay} did not come up within {self.ready_timeout_s:g} s "
+                     f"(no liveliness token {replay_key}); see {self.children[0].log_path}",
+                     error=True)
+            return 1
+        for spec in specs[1:]:
+            self.start(spec)
+        self.say(f"hercs up: run {self.config.run.name} is running "
+                 f"({self.config.training.epochs} epochs); Ctrl-C to stop")
+        while True:
+            if self.signals.stop_requested:
+                return self._interrupted()
+            status = self.check_children()
+            if status == 0:
+                self.wait_until(lambda: self.progress.last_printed >= self.config.training.epochs,
+                                FINAL_PROGRESS_TIMEOUT_S)
+                return 0
+            if status is not None:
+                return status
+            self.signals.wait(_POLL_S)
+
+    def stop_all(self) -> None:
+        """Stop every child, stage by stage; returns only when all have exited. A stop signal
+        received meanwhile skips the remaining graceful waits."""
+        signals_before = len(self.signals.received)
+        for roles in STOP_STAGES:
+            stage = [c for c in self.children if c.spec.role in roles]
+            live = [c for c in stage if c.proc.poll() is None]
+            for child in live:
+                child.expected_exit = True
+                child.signal(signal.SIGTERM)
+            deadline = time.monotonic() + self.stop_timeout_s
+            for child in live:
+                while child.proc.poll() is None:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or len(self.signals.received) > signals_before:
+                        break
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        child.proc.wait(min(remaining, 0.5))
+            for child in live:
+                if child.proc.poll() is None:
+                    self.say(f"hercs up: {child.spec} did not stop within "
+                             f"{self.stop_timeout_s:g} s; killing it", error=True)
+                    child.signal(signal.SIGKILL)
+                    child.proc.wait()
+            for child in stage:  # anything the child forked into its group
+                child.signal(signal.SIGKILL)
+
+
+def run_up(
+    config: HercsConfig,
+    *,
+    command: CommandFactory = service_command,
+    stop_timeout_s: float = STOP_TIMEOUT_S,
+    ready_timeout_s: float = READY_TIMEOUT_S,
+    out: IO[str] | None = None,
+    err: IO[str] | None = None,
+) -> int:
+    """Run a whole experiment locally (see the module docstring); returns the exit status:
+    0 done, 1 a service failed or the router could not listen, 2 the run directory is taken,
+    128 + n after signal n. Must be called on the main thread."""
+    out = out or sys.stdout
+    err = err or sys.stderr
+    if threading.current_thread() is not threading.main_thread():
+        raise RuntimeError("run_up must run on the main thread (signal handlers, and "
+                           "PR_SET_PDEATHSIG fires when the forking thread exits)")
+    config = resolve_run(config)
+    run_dir = Path(config.run.run_dir) / config.run.name
+    if run_dir.exists() and any(run_dir.iterdir()):
+        print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
+              "(or leave it empty for a fresh name), or move that directory away",
+              file=err, flush=True)
+        return 2
+
+    signals = StopSignals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP),
+                          wake_on=(signal.SIGCHLD,))
+    with signals:
+        try:
+            router = open_router(config.transport.listen)
+        except RouterListenError as exc:
+            print(f"hercs up: {exc}", file=err, flush=True)
+            return 1
+        launcher = _Launcher(config=config, run_dir=run_dir, signals=signals, command=command,
+                             stop_timeout_s=stop_timeout_s, ready_timeout_s=ready_timeout_s,
+                             out=out, err=err)
+        status = 1
+        try:
+            (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+            save_yaml(config, run_dir / "config.yaml")
+            launcher.say(f"hercs up: run {config.run.name}, directory {run_dir}, router on "
+                         f"{list(config.transport.listen)}")
+            router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
+            router.subscribe(launcher.keys.eval_result, launcher.on_eval)
+            router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
+            router.watch_alive(launcher.keys.all_alive, launcher.on_alive)
+            status = launcher.run()
+        finally:
+            launcher.stop_all()
+            with launcher._print_lock:
+                launcher._say_all(launcher.progress.flush())
+            router.close()
+        if status == 0:
+            launcher.say(f"hercs up: run {config.run.name} finished; run directory: {run_dir}")
+        else:
+            launcher.say(f"hercs up: run {config.run.name} stopped; run directory: {run_dir}",
+                         error=status == 1)
+        return status

@@ -1,0 +1,445 @@
+"""`hercs up` (hercs.launcher): run directory, start order, progress lines, failure reports,
+shutdown order and no orphan processes — with real processes and a real embedded router.
+
+Most tests inject stand-in children (a small script per service that joins the run over
+Zenoh, announces itself and then serves, publishes learner metrics, crashes or ignores
+SIGTERM) so that the launcher's process management is tested in a second; the last test runs
+the real services end to end. Every wait is on process exit, a launcher output line, a file's
+contents or a Zenoh event, with a timeout.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import queue
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from datetime import datetime
+from importlib.util import find_spec
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hercs.cli import build_parser, main, resolve_config
+from hercs.config import HercsConfig, load_yaml
+from hercs.launcher import (
+    Progress,
+    plan_children,
+    resolve_run,
+    service_command,
+)
+from hercs.transport import Transport
+from proto.keys import RunKeys
+
+pytestmark = pytest.mark.integration
+
+REPO = Path(__file__).resolve().parents[2]
+WAIT_S = 20.0
+
+# A stand-in for one service: joins the run like a real service (client session, liveliness
+# token), records "start"/"stop" in the events file, then behaves as told for its id.
+STANDIN = r'''
+import json, os, signal, sys
+role, ident, config_path, events, behaviours = sys.argv[1:6]
+behaviour = json.loads(behaviours).get(ident, "serve")
+
+def record(what):
+    fd = os.open(events, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+    os.write(fd, f"{what} {ident} {os.getpid()}\n".encode())
+    os.close(fd)
+
+def on_term(signum, frame):
+    if behaviour == "stubborn":
+        record("ignore")
+        return
+    record("stop")
+    os._exit(0)
+
+signal.signal(signal.SIGTERM, on_term)
+
+from hercs.config import load_yaml
+from hercs.transport import Transport
+from proto import SCHEMA_VERSION, hercs_pb2 as pb
+from proto.keys import RunKeys
+
+config = load_yaml(config_path)
+keys = RunKeys(config.run.name)
+transport = Transport.open(mode="client", connect=config.transport.connect,
+                           connect_timeout_s=10)
+transport.declare_alive(keys.alive(role, ident))
+record("start")
+if behaviour == "crash":
+    print("boom: the stand-in failed on purpose", file=sys.stderr, flush=True)
+    os._exit(3)
+if behaviour == "exit0":
+    os._exit(0)
+if behaviour.startswith("epochs:"):
+    metrics = transport.publisher(keys.metrics(role))
+    evals = transport.publisher(keys.eval_result)
+    assert metrics.wait_for_subscribers(10) and evals.wait_for_subscribers(10)
+    for epoch in range(1, int(behaviour.split(":")[1]) + 1):
+        values = {"epoch": epoch, "env_steps_per_s": 1000 + epoch, "updates_per_s": 200 + epoch,
+                  "replay_size": 100 * epoch, "policy_lag": 1.5}
+        if epoch % 2:  # odd epochs carry their success; even ones come as an EvalResult
+            values["success_rate"] = epoch / 10
+        metrics.put(pb.Metrics(schema_version=SCHEMA_VERSION, service=f"{role}/{ident}",
+                               step=epoch, values=values).SerializeToString())
+        if not epoch % 2:
+            evals.put(pb.EvalResult(schema_version=SCHEMA_VERSION, epoch=epoch,
+                                    success_rate=epoch / 10).SerializeToString())
+    transport.close()
+    sys.exit(0)
+while True:
+    signal.pause()
+'''
+
+# Runs `hercs up` (argv after the first four) with the stand-ins as children.
+DRIVER = r'''
+import sys
+from hercs.cli import build_parser, resolve_config
+from hercs.launcher import run_up
+standin, events, behaviours, stop_timeout = sys.argv[1:5]
+args = build_parser()[0].parse_args(["up", *sys.argv[5:]])
+
+def command(spec, config_path):
+    return [sys.executable, standin, spec.role, spec.ident, str(config_path), events, behaviours]
+
+sys.exit(run_up(resolve_config(args), command=command, stop_timeout_s=float(stop_timeout)))
+'''
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def free_endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_tcp_port()}"
+
+
+def process_alive(pid: int) -> bool:
+    """True while `pid` runs (a zombie, dead but not yet reaped, counts as gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat.rpartition(")")[2].split()[0] not in ("Z", "X")
+
+
+def wait_for(condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(0.02)
+
+
+class Launcher:
+    """A `hercs up` process whose stdout and stderr are read line by line as they come."""
+
+    def __init__(self, argv: list[str], *, cwd: Path) -> None:
+        env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(argv, cwd=cwd, env=env, text=True,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.out: list[str] = []
+        self.err: list[str] = []
+        self._lines: queue.Queue[str] = queue.Queue()
+        self._readers = [threading.Thread(target=self._read, args=(stream, sink), daemon=True)
+                         for stream, sink in ((self.proc.stdout, self.out),
+                                              (self.proc.stderr, self.err))]
+        for reader in self._readers:
+            reader.start()
+
+    def _read(self, stream, sink: list[str]) -> None:
+        for line in stream:
+            sink.append(line.rstrip("\n"))
+            self._lines.put(line)
+
+    def wait_for_line(self, pattern: str, timeout_s: float = WAIT_S) -> str:
+        deadline = time.monotonic() + timeout_s
+        regex = re.compile(pattern)
+        seen = 0
+        while True:
+            lines = self.out + self.err
+            for line in lines[seen:]:
+                if regex.search(line):
+                    return line
+            seen = len(lines)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; "
+                                     f"output so far:\n" + "\n".join(lines))
+            with contextlib.suppress(queue.Empty):
+                self._lines.get(timeout=remaining)
+
+    def finish(self, timeout_s: float = WAIT_S) -> int:
+        code = self.proc.wait(timeout_s)
+        for reader in self._readers:
+            reader.join(timeout_s)
+        return code
+
+    @property
+    def child_pids(self) -> dict[str, int]:
+        """ident → pid, from the launcher's "started <role> <ident> (pid N)" lines."""
+        found = (re.search(r"started \w+ (\S+) \(pid (\d+)\)", line) for line in self.out)
+        return {m.group(1): int(m.group(2)) for m in found if m}
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+@pytest.fixture
+def up(tmp_path: Path):
+    """Starts `hercs up` with stand-in children: up(behaviours, *flags, stop_timeout_s=5)."""
+    standin, driver = tmp_path / "standin.py", tmp_path / "driver.py"
+    standin.write_text(STANDIN)
+    driver.write_text(DRIVER)
+    events = tmp_path / "events.txt"
+    started: list[Launcher] = []
+
+    def start(behaviours: dict[str, str], *flags: str, stop_timeout_s: float = 5.0) -> Launcher:
+        argv = [sys.executable, str(driver), str(standin), str(events), json.dumps(behaviours),
+                str(stop_timeout_s), "--run-dir", str(tmp_path / "runs"),
+                "--listen", free_endpoint(), *flags]
+        launcher = Launcher(argv, cwd=tmp_path)
+        started.append(launcher)
+        return launcher
+
+    start.events = events  # type: ignore[attr-defined]
+    yield start
+    for launcher in started:
+        pids = launcher.child_pids.values()
+        launcher.kill()
+        for pid in pids:  # never leave anything behind, even when a test failed
+            if process_alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def read_events(path: Path) -> list[tuple[str, str]]:
+    if not path.exists():
+        return []
+    return [tuple(line.split()[:2]) for line in path.read_text().splitlines()]  # type: ignore[misc]
+
+
+# --------------------------------------------------------------------------- pure parts
+
+
+def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
+    progress = Progress(total_epochs=10)
+    base = {"env_steps_per_s": 1234.4, "updates_per_s": 456.2, "replay_size": 6000,
+            "policy_lag": 1.23}
+
+    assert progress.on_metrics("learner/learner-0", {**base, "epoch": 3,
+                                                     "success_rate": 0.45}) == [
+        "epoch 3/10  success 0.45  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2"]
+    assert progress.on_metrics("learner/learner-0", {**base, "epoch": 3}) == []  # duplicate
+    assert progress.on_metrics("actor/actor-0", {"epoch": 4}) == []  # not the learner
+    # no success yet: the line waits for its EvalResult...
+    assert progress.on_metrics("learner/learner-0", {**base, "epoch": 4}) == []
+    assert progress.on_eval(4, 0.5) == [
+        "epoch 4/10  success 0.50  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2"]
+    # ...or for the next epoch's metrics, or the final flush
+    progress.on_replay_size(7000)
+    assert progress.on_metrics("learner/learner-0", {"epoch": 5}) == []
+    assert progress.on_metrics("learner/learner-0", {"epoch": 6, "success_rate": 1.0}) == [
+        "epoch 5/10  success -  env - steps/s  upd -/s  replay 7000  lag -",
+        "epoch 6/10  success 1.00  env - steps/s  upd -/s  replay 7000  lag -"]
+    assert progress.on_metrics("learner/learner-0", {"epoch": 7, "epochs": 8}) == []
+    assert progress.flush() == [
+        "epoch 7/8  success -  env - steps/s  upd -/s  replay 7000  lag -"]
+    assert progress.last_printed == 7
+
+
+@pytest.mark.parametrize(
+    ("listen", "connect"),
+    [("tcp/127.0.0.1:7447", "tcp/127.0.0.1:7447"),
+     ("tcp/0.0.0.0:9000", "tcp/127.0.0.1:9000"),
+     ("tcp/[::]:9000", "tcp/[::1]:9000"),
+     ("tcp/10.1.2.3:7447", "tcp/10.1.2.3:7447")],
+    ids=["loopback", "any-v4", "any-v6", "address"],
+)
+def test_resolve_run_names_the_run_and_points_children_at_the_router(listen: str,
+                                                                     connect: str) -> None:
+    config = resolve_config(build_parser()[0].parse_args(
+        ["up", "--task", "pick", "--method", "her-ebp", "--seed", "7", "--listen", listen,
+         "--connect", "tcp/10.9.9.9:1"]))
+    resolved = resolve_run(config, now=datetime(2025, 3, 4, 5, 6, 7))
+    assert resolved.run.name == "pick-her-ebp-s7-20250304-050607"
+    assert resolved.transport.connect == [connect]
+    named = resolve_run(HercsConfig.from_dict({**config.to_dict(), "run": {"name": "mine"}}))
+    assert named.run.name == "mine"
+
+
+def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: Path) -> None:
+    config = resolve_config(build_parser()[0].parse_args(["up", "--actors", "3"]))
+    specs = plan_children(config)
+    assert [(s.role, s.ident) for s in specs] == [
+        ("replay", "replay-0"), ("clusterer", "clusterer-0"), ("learner", "learner-0"),
+        ("evaluator", "evaluator-0"), ("actor", "actor-0"), ("actor", "actor-1"),
+        ("actor", "actor-2")]
+    parser, commands = build_parser()
+    for spec in specs:
+        argv = service_command(spec, tmp_path / "config.yaml")
+        assert argv[:3] == [sys.executable, "-m", "hercs.cli"]
+        args = parser.parse_args(argv[3:])
+        assert (args.command, args.ident, args.config) == (spec.role, spec.ident,
+                                                           str(tmp_path / "config.yaml"))
+        assert args.command in commands
+
+
+def test_up_refuses_a_run_directory_that_holds_files(tmp_path: Path, capsys) -> None:
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "episodes.mcap").write_bytes(b"old")
+    assert main(["up", "--run", "taken", "--run-dir", str(tmp_path)]) == 2
+    assert "already exists and is not empty" in capsys.readouterr().err
+
+
+def test_up_fails_clearly_when_the_router_port_is_taken(tmp_path: Path) -> None:
+    port = free_tcp_port()
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", port))
+        holder.listen()
+        done = subprocess.run(
+            [sys.executable, "-m", "hercs.cli", "up", "--run", "x", "--run-dir",
+             str(tmp_path), "--listen", f"tcp/127.0.0.1:{port}"],
+            capture_output=True, text=True, timeout=WAIT_S, cwd=REPO)
+    assert done.returncode == 1
+    assert f"tcp/127.0.0.1:{port}" in done.stderr and "already in use" in done.stderr
+    assert not (tmp_path / "x").exists()  # nothing written before the router is up
+
+
+# --------------------------------------------------------------------------- processes
+
+
+def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:
+    launcher = up({"learner-0": "epochs:2"}, "--run", "done", "--task", "reach",
+                  "--epochs", "2", "--actors", "2", "--set", "ddpg.polyak=0.9")
+
+    assert launcher.finish() == 0, launcher.err
+    run_dir = tmp_path / "runs" / "done"
+    assert launcher.out[-1] == f"hercs up: run done finished; run directory: {run_dir}"
+    assert [line for line in launcher.out if line.startswith("epoch")] == [
+        "epoch 1/2  success 0.10  env 1001 steps/s  upd 201/s  replay 100  lag 1.5",
+        "epoch 2/2  success 0.20  env 1002 steps/s  upd 202/s  replay 200  lag 1.5",
+    ]
+    # the resolved config, as the children read it
+    config = load_yaml(run_dir / "config.yaml")
+    assert (config.run.name, config.task.name, config.training.epochs) == ("done", "reach", 2)
+    assert config.ddpg.polyak == 0.9 and config.actor.num_actors == 2
+    assert config.transport.connect == config.transport.listen
+    assert yaml.safe_load((run_dir / "config.yaml").read_text()) == config.to_dict()
+    # start order, one log per child, nothing left running
+    pids = launcher.child_pids
+    assert list(pids) == ["replay-0", "clusterer-0", "learner-0", "evaluator-0", "actor-0",
+                          "actor-1"]
+    assert sorted(p.name for p in (run_dir / "logs").iterdir()) == sorted(
+        f"{ident}.log" for ident in pids)
+    assert not [ident for ident, pid in pids.items() if process_alive(pid)]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_stop_signal_stops_every_child_in_order(up, tmp_path: Path, signum: int) -> None:
+    # The clusterer ignores SIGTERM: the launcher must SIGKILL it after the stop timeout.
+    launcher = up({"clusterer-0": "stubborn"}, "--run", "stopme", "--actors", "2",
+                  stop_timeout_s=1.0)
+    launcher.wait_for_line(r"run stopme is running")
+    pids = launcher.child_pids
+    wait_for(lambda: {i for e, i in read_events(up.events) if e == "start"} == set(pids),
+             WAIT_S, "every child to start")
+
+    # a remote actor joining and leaving is reported
+    config = load_yaml(tmp_path / "runs" / "stopme" / "config.yaml")
+    keys = RunKeys("stopme")
+    with Transport.open(mode="client", connect=config.transport.connect,
+                        connect_timeout_s=5) as remote:
+        remote.declare_alive(keys.alive("actor", "otherhost-1a2b3c"))
+        launcher.wait_for_line(r"remote actor otherhost-1a2b3c joined")
+    launcher.wait_for_line(r"remote actor otherhost-1a2b3c left")
+
+    launcher.proc.send_signal(signum)
+    assert launcher.finish() == 128 + signum
+    assert any(f"got {signal.Signals(signum).name}" in line for line in launcher.out)
+    assert "hercs up: clusterer clusterer-0 did not stop within 1 s; killing it" in launcher.err
+    stops = [(e, i) for e, i in read_events(up.events) if e in ("stop", "ignore")]
+    order = [i for _, i in stops]
+    assert set(order) == set(pids)
+    stage = {"actor-0": 0, "actor-1": 0, "evaluator-0": 1, "learner-0": 1, "clusterer-0": 1,
+             "replay-0": 2}
+    assert [stage[i] for i in order] == sorted(stage[i] for i in order), order
+    assert not [ident for ident, pid in pids.items() if process_alive(pid)]
+
+
+@pytest.mark.parametrize(
+    ("ident", "behaviour", "why"),
+    [("actor-1", "crash", "exit code 3"), ("clusterer-0", "exit0", "exit code 0")],
+    ids=["actor-crashes", "clusterer-exits-0-early"],
+)
+def test_a_child_exiting_early_is_reported_and_stops_the_run(up, ident: str, behaviour: str,
+                                                             why: str) -> None:
+    launcher = up({ident: behaviour}, "--run", "broken", "--actors", "2")
+
+    assert launcher.finish() == 1
+    role = ident.rpartition("-")[0]
+    report = "\n".join(launcher.err)
+    assert f"hercs up: {role} {ident} exited unexpectedly ({why}); last lines of" in report
+    if behaviour == "crash":
+        assert "  | boom: the stand-in failed on purpose" in report
+    assert "run broken stopped" in report
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_sigkilled_launcher_leaves_no_orphans(up) -> None:
+    launcher = up({}, "--run", "orphans", "--actors", "2")
+    launcher.wait_for_line(r"run orphans is running")
+    pids = launcher.child_pids
+    wait_for(lambda: {i for e, i in read_events(up.events) if e == "start"} == set(pids),
+             WAIT_S, "every child to start")
+
+    launcher.proc.kill()  # no chance to clean up: PR_SET_PDEATHSIG must do it
+    launcher.finish()
+    wait_for(lambda: not any(process_alive(pid) for pid in pids.values()), WAIT_S,
+             "the kernel to kill every child of the SIGKILLed launcher")
+
+
+# --------------------------------------------------------------------------- real services
+
+SERVICE_MODULES = ("replay_service.service", "clusterer.service", "learner.service",
+                   "actors.service", "actors.evaluator")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
+                    reason="a service module is not written yet")
+def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
+    launcher = Launcher(
+        [sys.executable, "-m", "hercs.cli", "up", "--task", "reach", "--epochs", "2",
+         "--actors", "2", "--run", "e2e", "--run-dir", str(tmp_path / "runs"),
+         "--listen", free_endpoint(), "--set", "training.cycles_per_epoch=2",
+         "--set", "training.eval_episodes=2"],
+        cwd=tmp_path,
+    )
+    try:
+        assert launcher.finish(timeout_s=90) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    run_dir = tmp_path / "runs" / "e2e"
+    epochs = [line for line in launcher.out if line.startswith("epoch")]
+    assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
+    assert all(re.fullmatch(r"epoch \d/2  success \d\.\d\d  env \d+ steps/s  upd \d+/s  "
+                            r"replay \d+  lag [-\d.]+", line) for line in epochs), epochs
+    assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
+    assert load_yaml(run_dir / "config.yaml").run.name == "e2e"
+    assert len((run_dir / "metrics.csv").read_text().splitlines()) == 3
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]

@@ -1,0 +1,187 @@
+"""A process in another network namespace joins a run through a router it reaches over a
+veth pair — what an actor on another host does with `hercs actor --connect tcp/HOST:7447`.
+
+The namespace has only its loopback and the veth end 10.123.0.2/24; the router listens on the
+host end 10.123.0.1 (these two test addresses are the only ones touched). Needs root and
+`ip`; skipped with the reason when namespaces cannot be made. Every wait is on a queue, a
+Zenoh event or a process exit, with a timeout.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from importlib.util import find_spec
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hercs.config import HercsConfig, apply_overrides
+from hercs.router import open_router
+from hercs.transport import PendingReply, Transport
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from proto.keys import RunKeys
+from proto.validation import parse_message
+
+pytestmark = pytest.mark.integration
+
+HOST_IP = "10.123.0.1"
+NS_IP = "10.123.0.2"
+WAIT_S = 20.0
+
+
+def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    done = subprocess.run(["ip", *args], capture_output=True, text=True)
+    if check and done.returncode != 0:
+        raise RuntimeError(f"ip {' '.join(args)}: {done.stderr.strip()}")
+    return done
+
+
+@pytest.fixture(scope="module")
+def netns() -> Iterator[str]:
+    """A namespace reached over a veth pair: host 10.123.0.1/24, namespace 10.123.0.2/24."""
+    if os.geteuid() != 0:
+        pytest.skip("network namespaces need root; this test runs as uid "
+                    f"{os.geteuid()}")
+    if shutil.which("ip") is None:
+        pytest.skip("network namespaces need iproute2's `ip`, which is not installed")
+    if _ip("-o", "addr", "show", "to", f"{HOST_IP}/32", check=False).stdout.strip():
+        pytest.skip(f"{HOST_IP} is already assigned on this host; not touching it")
+    tag = os.getpid()
+    ns, host_if, ns_if = f"hercs-t{tag}", f"hv{tag}h", f"hv{tag}n"
+    try:
+        try:
+            _ip("netns", "add", ns)
+        except RuntimeError as exc:
+            pytest.skip(f"cannot create a network namespace here: {exc}")
+        _ip("link", "add", host_if, "type", "veth", "peer", "name", ns_if)
+        _ip("link", "set", ns_if, "netns", ns)
+        _ip("addr", "add", f"{HOST_IP}/24", "dev", host_if)
+        _ip("link", "set", host_if, "up")
+        _ip("-n", ns, "addr", "add", f"{NS_IP}/24", "dev", ns_if)
+        _ip("-n", ns, "link", "set", ns_if, "up")
+        _ip("-n", ns, "link", "set", "lo", "up")
+        yield ns
+    finally:
+        _ip("netns", "del", ns, check=False)  # takes its veth end, and so the pair, with it
+        _ip("link", "del", host_if, check=False)
+
+
+@pytest.fixture
+def router(netns: str) -> Iterator[tuple[Transport, str]]:
+    """A router listening only on the host end of the veth pair."""
+    with socket.socket() as sock:
+        sock.bind((HOST_IP, 0))
+        port = sock.getsockname()[1]
+    endpoint = f"tcp/{HOST_IP}:{port}"
+    transport = open_router([endpoint])
+    yield transport, endpoint
+    transport.close()
+
+
+def in_netns(ns: str, argv: list[str], log: Path) -> subprocess.Popen[bytes]:
+    with log.open("wb") as out:
+        return subprocess.Popen(["ip", "netns", "exec", ns, *argv], stdout=out,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+
+def get(q: queue.Queue, what: str) -> object:
+    try:
+        return q.get(timeout=WAIT_S)
+    except queue.Empty:
+        raise AssertionError(f"timed out after {WAIT_S} s waiting for {what}") from None
+
+
+CLIENT = textwrap.dedent('''
+    import os, sys
+    from hercs.transport import Transport
+    endpoint, key, alive_key = sys.argv[1:4]
+    with Transport.open(mode="client", connect=[endpoint], connect_timeout_s=10) as t:
+        t.declare_alive(alive_key)
+        netns = os.readlink("/proc/self/ns/net").encode()
+        print(t.request(key, netns, timeout_s=10).decode(), flush=True)
+        sys.stdin.read()  # hold the token until the test closes stdin
+''')
+
+
+def test_client_in_another_namespace_reaches_the_router(netns: str, tmp_path: Path,
+                                                        router: tuple[Transport, str]) -> None:
+    transport, endpoint = router
+    keys = RunKeys("netns")
+    requests: queue.Queue[bytes] = queue.Queue()
+    alive: queue.Queue[tuple[str, bool]] = queue.Queue()
+
+    def answer(payload: bytes) -> bytes:
+        requests.put(payload)
+        return b"pong " + payload
+
+    transport.serve(keys.config, answer)
+    transport.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    token = keys.alive("actor", "netns-1")
+    client = subprocess.Popen(
+        ["ip", "netns", "exec", netns, sys.executable, "-c", CLIENT, endpoint, keys.config,
+         token], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert get(alive, "the namespaced client's liveliness token") == (token, True)
+        their_netns = get(requests, "the namespaced client's request")
+        assert their_netns != os.readlink("/proc/self/ns/net").encode(), "not namespaced"
+        out, err = client.communicate(b"", timeout=WAIT_S)  # closes stdin: the client exits
+        assert client.returncode == 0, err.decode()
+        assert out.decode().strip() == "pong " + their_netns.decode()
+        assert get(alive, "the token to vanish") == (token, False)
+    finally:
+        if client.poll() is None:
+            client.kill()
+            client.wait()
+
+
+@pytest.mark.skipif(find_spec("actors.service") is None, reason="hercs actor not written yet")
+def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
+        netns: str, tmp_path: Path, router: tuple[Transport, str]) -> None:
+    """`hercs actor --connect … --run …` from the namespace: the test plays the replay (serves
+    the run's config, acks inserts)."""
+    transport, endpoint = router
+    run = "netns-actor"
+    keys = RunKeys(run)
+    served: HercsConfig = apply_overrides(HercsConfig(), [
+        f"run.name={run}", "run.method=her", "task.name=reach", "ddpg.hidden_size=64",
+        "transport.connect=[tcp/127.0.0.1:1]",  # the actor must keep its own endpoint
+    ])
+    inserts: queue.Queue[pb.Episode] = queue.Queue()
+    alive: queue.Queue[tuple[str, bool]] = queue.Queue()
+
+    def ack(pending: PendingReply) -> None:
+        msg = parse_message(pending.payload, pb.Episode, max_bytes=8 << 20)
+        inserts.put(msg)
+        pending.reply(pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id=msg.actor_id,
+                                   seq=msg.seq, episode_id=inserts.qsize()).SerializeToString())
+
+    transport.serve(keys.config,
+                    lambda _: yaml.safe_dump(served.to_dict(), sort_keys=False).encode())
+    transport.serve_deferred(keys.insert, ack)
+    transport.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    log = tmp_path / "actor.log"
+    actor = in_netns(netns, [sys.executable, "-m", "hercs.cli", "actor", "--connect", endpoint,
+                             "--run", run, "--id", "far-actor"], log)
+    try:
+        assert get(alive, "the actor's liveliness token") == (keys.alive("actor", "far-actor"),
+                                                              True)
+        episodes = [get(inserts, f"insert {i}") for i in range(2)]
+        assert [(e.actor_id, e.seq, e.task, e.run) for e in episodes] == [
+            ("far-actor", 0, "reach", run), ("far-actor", 1, "reach", run)]
+        actor.send_signal(signal.SIGTERM)
+        assert actor.wait(timeout=WAIT_S) == 0, log.read_text()
+    finally:
+        if actor.poll() is None:
+            actor.kill()
+            actor.wait()
+        print(log.read_text())
