@@ -21,9 +21,10 @@ $(STAMP): pyproject.toml | $(PY)
 
 install: $(STAMP)
 
-# A short default run (FetchReach, HER-CS); prints where the run directory is.
+# A short real run: router, replay, clusterer, learner, evaluator and two actors as separate
+# processes over Zenoh, FetchReach with HER-CS for 3 epochs; prints where the run directory is.
 run: $(STAMP)
-	$(VENV)/bin/hercs config --task reach --method her-cs --epochs 2
+	$(VENV)/bin/hercs up --task reach --method her-cs --epochs 3 --actors 2
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -102,8 +102,8 @@ class DDPGLearner:
         # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
         s = torch.from_numpy(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
         s2 = torch.from_numpy(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
-        u_t = torch.from_numpy(u)
-        r_t = torch.from_numpy(r)
+        u_t = torch.tensor(u)  # a copy: wire arrays are read-only views
+        r_t = torch.tensor(r)
 
         # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
         y = critic_target(

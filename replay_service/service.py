@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from hercs.clustering import ClusterModel
-from hercs.config import HercsConfig
+from hercs.config import HercsConfig, save_yaml
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.seeding import generator
@@ -62,7 +62,7 @@ STATUS_PERIOD_S = 1.0
 MAX_MINIBATCHES_PER_REQUEST = 400
 MAX_BATCH_SIZE = 8192
 POLICY_LAG_WINDOW = 64
-"""Episodes whose policy_version enters the policy-lag estimate sent with each Batch."""
+"""Recent episodes whose policy lag is averaged into each Batch's `policy_lag`."""
 
 
 @dataclass
@@ -96,7 +96,10 @@ class ReplayService:
         self.lock = threading.Lock()
         self.parked_inserts: deque[_ParkedInsert] = deque()
         self.parked_samples: deque[_ParkedSample] = deque()
-        self.recent_versions: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        # Policy lag of an episode = the learner's newest weights version when the episode
+        # arrives (known from its latest SampleRequest) minus the version the actor used.
+        self.learner_version = 0
+        self.recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self.warn = WarnOncePerMinute(log)
         self.log, recovered = EpisodeLog.open(run_dir, run=config.run.name,
                                               task=self.spec.name)
@@ -163,7 +166,7 @@ class ReplayService:
         result = self.core.insert(episode)
         assert result.episode_id == episode_id, "log and store disagree on episode ids"
         self.limiter.record_insert()
-        self.recent_versions.append(episode.policy_version)
+        self.recent_lags.append(self.learner_version - episode.policy_version)
         item.pending.reply(self._ack(episode, episode_id, duplicate=False))
         header = pb.EpisodeHeader(
             schema_version=SCHEMA_VERSION, episode_id=episode_id, actor_id=episode.actor_id,
@@ -195,12 +198,12 @@ class ReplayService:
 
     def _serve_sample(self, item: _ParkedSample) -> None:
         request = item.request
+        self.learner_version = max(self.learner_version, int(request.weights_version))
         result = self.core.sample(int(request.num_minibatches), int(request.batch_size))
         self.limiter.record_sample(int(request.num_minibatches))
         o_state, g_state = self.core.normalizer_state()
         model = self.core.cluster_model
-        lag = (float(request.weights_version) - float(np.mean(self.recent_versions))
-               if self.recent_versions else 0.0)
+        lag = float(np.mean(self.recent_lags)) if self.recent_lags else 0.0
         batch = pb.Batch(
             schema_version=SCHEMA_VERSION, request_id=request.request_id,
             minibatches=[minibatch_to_msg({name: getattr(mb, name) for name in MINIBATCH_FIELDS})
@@ -288,6 +291,8 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
     setup_logging("replay")
     run_dir = Path(config.run.run_dir) / config.run.name
     run_dir.mkdir(parents=True, exist_ok=True)
+    if not (run_dir / "config.yaml").exists():  # `hercs up` writes it; compose runs do not
+        save_yaml(config, run_dir / "config.yaml")
     with ServiceRuntime(config=config, role="replay", ident=ident or "replay") as runtime:
         service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
         log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
