@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import socket
+import subprocess
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
@@ -47,3 +49,15 @@ def open_client(router: Transport, endpoint: str) -> Iterator[Callable[[], Trans
     yield _open
     for transport in reversed(opened):
         transport.close()
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[list[subprocess.Popen]]:
+    started: list[subprocess.Popen] = []
+    yield started
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    for log in tmp_path.glob("*.log"):  # shown by pytest on failure
+        print(f"---- {log.name}\n{log.read_text()}")

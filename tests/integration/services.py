@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import os
+import queue
 import signal
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+
+WAIT_S = 15.0
+STOP_WITHIN_S = 5.0
 
 
 def make_test_config(tmp_path: Path, endpoint: str,
@@ -57,3 +63,32 @@ class ServiceProcess:
         self.proc.kill()
         self.proc.wait()
         self._log.close()
+
+def start_service(role: str, config: HercsConfig, ident: str, tmp_path: Path) -> subprocess.Popen:
+    path = tmp_path / f"{role}.yaml"
+    save_yaml(config, path)
+    with (tmp_path / f"{role}.log").open("w") as log:  # the child keeps its own copy
+        return subprocess.Popen(
+            [sys.executable, "-m", "hercs.cli", role, "--config", str(path), "--id", ident],
+            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "HERCS_LOG": "INFO"},
+        )
+
+
+def wait_for(q: queue.Queue, pred: Callable[[object], bool], what: str) -> object:
+    """The first item of `q` satisfying `pred` (others are discarded), within WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        try:
+            item = q.get(timeout=max(deadline - time.monotonic(), 0.001))
+        except queue.Empty:
+            raise AssertionError(f"timed out after {WAIT_S} s waiting for {what}") from None
+        if pred(item):
+            return item
+
+
+def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) -> None:
+    started = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
+    assert time.monotonic() - started < STOP_WITHIN_S
+    wait_for(alive, lambda c: c == (key, False), f"{key} to vanish")

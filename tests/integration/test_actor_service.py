@@ -8,28 +8,25 @@ process exit.
 
 from __future__ import annotations
 
-import os
 import queue
-import signal
 import subprocess
-import sys
 import threading
-import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import yaml
 
 from actors.inserter import Inserter
-from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
 from hercs.transport import PendingReply, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.codec import arrays_to_named, msg_to_array, stats_to_msg
 from proto.keys import RunKeys
+from tests.integration.services import sigterm_exits_cleanly, start_service, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -37,51 +34,6 @@ WAIT_S = 15.0
 STOP_WITHIN_S = 5.0
 
 OpenClient = Callable[[], Transport]
-
-
-# ---- process helpers (the same in the actor and evaluator tests)
-
-
-def start_service(role: str, config: HercsConfig, ident: str, tmp_path: Path) -> subprocess.Popen:
-    path = tmp_path / f"{role}.yaml"
-    save_yaml(config, path)
-    with (tmp_path / f"{role}.log").open("w") as log:  # the child keeps its own copy
-        return subprocess.Popen(
-            [sys.executable, "-m", "hercs.cli", role, "--config", str(path), "--id", ident],
-            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "HERCS_LOG": "INFO"},
-        )
-
-
-def wait_for(q: queue.Queue, pred: Callable[[object], bool], what: str) -> object:
-    """The first item of `q` satisfying `pred` (others are discarded), within WAIT_S."""
-    deadline = time.monotonic() + WAIT_S
-    while True:
-        try:
-            item = q.get(timeout=max(deadline - time.monotonic(), 0.001))
-        except queue.Empty:
-            raise AssertionError(f"timed out after {WAIT_S} s waiting for {what}") from None
-        if pred(item):
-            return item
-
-
-def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) -> None:
-    started = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
-    assert time.monotonic() - started < STOP_WITHIN_S
-    wait_for(alive, lambda c: c == (key, False), f"{key} to vanish")
-
-
-@pytest.fixture
-def procs(tmp_path: Path) -> Iterator[list[subprocess.Popen]]:
-    started: list[subprocess.Popen] = []
-    yield started
-    for proc in started:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-    for log in tmp_path.glob("*.log"):  # shown by pytest on failure
-        print(f"---- {log.name}\n{log.read_text()}")
 
 
 # ---- the actor
