@@ -43,7 +43,7 @@ from hercs.service import ServiceRuntime, WarnOncePerMinute, fetch_run_config, s
 from hercs.tasks import TaskSpec
 from hercs.transport import TransportError
 from proto import hercs_pb2 as pb
-from proto.codec import episode_to_msg, msg_to_stats, named_to_arrays
+from proto.codec import episode_to_msg, msg_to_weight_arrays
 from proto.validation import RejectReason, parse_message
 
 log = logging.getLogger(__name__)
@@ -78,12 +78,9 @@ class WeightsDecoder:
         return parse_message(raw, pb.Weights, max_bytes=self._max_bytes)
 
     def decode(self, msg: pb.Weights) -> PolicyWeights:
-        weights = PolicyWeights(
-            version=int(msg.version),
-            actor=named_to_arrays(msg.actor_params, where="Weights.actor_params"),
-            o_stats=msg_to_stats(msg.o_stats, where="Weights.o_stats"),
-            g_stats=msg_to_stats(msg.g_stats, where="Weights.g_stats"),
-        )
+        actor, o_stats, g_stats = msg_to_weight_arrays(msg)
+        weights = PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
+                                g_stats=g_stats)
         try:
             self._scratch.load(weights)
         except ValueError as exc:

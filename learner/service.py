@@ -33,7 +33,7 @@ from learner.ddpg import DDPGLearner
 from learner.loop import LearnerLoop, MetricsCsv, SampleBatch
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import arrays_to_named, msg_to_minibatch, msg_to_stats, stats_to_msg
+from proto.codec import msg_to_minibatch, msg_to_stats, weights_to_msg
 from proto.validation import parse_message
 
 log = logging.getLogger("hercs.learner")
@@ -165,10 +165,9 @@ class LearnerService:
 
     def publish_weights(self, *, evaluate: bool, epoch: int) -> None:
         o_state, g_state = self.learner.normalizer_state()
-        msg = pb.Weights(schema_version=SCHEMA_VERSION, version=self.loop.version,
-                         actor_params=arrays_to_named(self.learner.actor_weights()),
-                         o_stats=stats_to_msg(o_state), g_stats=stats_to_msg(g_state),
-                         epoch=epoch, evaluate=evaluate)
+        msg = weights_to_msg(version=self.loop.version,
+                             actor_params=self.learner.actor_weights(), o_stats=o_state,
+                             g_stats=g_state, epoch=epoch, evaluate=evaluate)
         self.weights_pub.put(msg.SerializeToString())
 
     def checkpoint(self) -> None:

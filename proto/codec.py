@@ -132,3 +132,24 @@ def minibatch_to_msg(batch: Mapping[str, np.ndarray]) -> pb.Minibatch:
 def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> dict[str, np.ndarray]:
     return {name: msg_to_array(getattr(msg, name), where=f"{where}.{name}")
             for name in MINIBATCH_FIELDS}
+
+
+def weights_to_msg(*, version: int, actor_params: Mapping[str, np.ndarray],
+                   o_stats: Mapping[str, np.ndarray | float],
+                   g_stats: Mapping[str, np.ndarray | float], epoch: int,
+                   evaluate: bool) -> pb.Weights:
+    """The learner's broadcast: actor parameters plus the normaliser stats it trained with."""
+    return pb.Weights(schema_version=SCHEMA_VERSION, version=version,
+                      actor_params=arrays_to_named(actor_params),
+                      o_stats=stats_to_msg(o_stats), g_stats=stats_to_msg(g_stats),
+                      epoch=epoch, evaluate=evaluate)
+
+
+def msg_to_weight_arrays(
+    msg: pb.Weights,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | float], dict[str, np.ndarray | float]]:
+    """(actor params, o stats, g stats) of a Weights message; names and shapes are checked by
+    whoever loads them into a network."""
+    return (named_to_arrays(msg.actor_params, where="Weights.actor_params"),
+            msg_to_stats(msg.o_stats, where="Weights.o_stats"),
+            msg_to_stats(msg.g_stats, where="Weights.g_stats"))

@@ -148,3 +148,19 @@ def test_every_message_round_trips(msg) -> None:
     back = type(msg).FromString(msg.SerializeToString())
     assert back == msg
     assert back.schema_version == SCHEMA_VERSION
+
+
+def test_weights_round_trip() -> None:
+    from proto.codec import msg_to_weight_arrays, weights_to_msg
+
+    params = {"fc.weight": np.ones((2, 3), np.float32)}
+    stats = {"sum": np.ones(3), "sumsq": np.ones(3), "count": 4.0, "mean": np.ones(3),
+             "std": np.ones(3)}
+    msg = weights_to_msg(version=5, actor_params=params, o_stats=stats, g_stats=stats,
+                         epoch=2, evaluate=True)
+    back = pb.Weights.FromString(msg.SerializeToString())
+    assert (back.schema_version, back.version, back.epoch, back.evaluate) == (
+        SCHEMA_VERSION, 5, 2, True)
+    actor, o_stats, g_stats = msg_to_weight_arrays(back)
+    np.testing.assert_array_equal(actor["fc.weight"], params["fc.weight"])
+    assert o_stats["count"] == g_stats["count"] == 4.0
