@@ -112,6 +112,29 @@ def _service_command(module: str) -> Command:
     return command
 
 
+def _cmd_plot(args: argparse.Namespace, config: HercsConfig | None) -> int:
+    from hercs.errors import HercsError
+    from hercs.plots import run_plot
+
+    try:
+        return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
+                        xmax=args.xmax)
+    except HercsError as exc:
+        print(f"hercs plot: {exc}", file=sys.stderr)
+        return 1
+
+
+# Commands that read existing run directories and need no config.
+NO_CONFIG_COMMANDS = {"plot", "view"}
+
+
+def _cmd_view(args: argparse.Namespace, config: HercsConfig | None) -> int:
+    from hercs.view import run_view
+
+    return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
+                    web_port=args.web_port, open_browser=not args.no_browser)
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     parser = argparse.ArgumentParser(
         prog="hercs",
@@ -146,6 +169,34 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         add_config_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
         commands[name] = _service_command(module)
+
+    p = sub.add_parser("plot", help="learning curves (PNG) and milestone tables of run folders",
+                       description="Seed mean and min–max band of success rate per epoch, one "
+                                   "panel per task; milestone tables on stdout.")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (config.yaml + "
+                   "metrics.csv)")
+    p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
+    p.add_argument("--reference", action="store_true",
+                   help="overlay the authors' curves (docs/reference/authors_success_rates.csv)")
+    p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
+    p.add_argument("--xmax", type=int, metavar="EPOCH",
+                   help="x axis end (default: the last epoch of our runs)")
+    commands["plot"] = _cmd_plot
+
+    p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
+                       description="3D trajectories of gripper, object and goal per episode, "
+                                   "success, clusters, failed goals, centroids and the learning "
+                                   "curve (entity paths: see hercs/view.py).")
+    p.add_argument("path", metavar="PATH", help="episodes.mcap or a run directory")
+    p.add_argument("--save", metavar="OUT.rrd", help="write an .rrd file instead of a viewer")
+    p.add_argument("--episodes", metavar="SELECTION",
+                   help="episode ids: '0:100', '5,7,9', '0:2000:10', 'last:20', 'all' "
+                        "(default: every n-th, at most 200)")
+    p.add_argument("--web", action="store_true",
+                   help="serve the web viewer (http://localhost:9090) until Ctrl-C")
+    p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer port (9090)")
+    p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
+    commands["view"] = _cmd_view
     return parser, commands
 
 
@@ -155,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    if args.command in NO_CONFIG_COMMANDS:
+        return commands[args.command](args, None)
     try:
         config = resolve_config(args)
     except ConfigError as exc:

@@ -1,0 +1,320 @@
+"""Learning curves and milestone tables from run directories (`hercs plot`), optionally next
+to the authors' published per-seed results (`docs/reference/authors_success_rates.csv`).
+
+Everything except `plot_figure` is a pure function over numbers, so the tests pin the curves
+and the table without drawing.
+
+Table rule (the one that reproduces DESIGN §5 from the authors' CSV exactly):
+
+* seeds are aggregated over the epochs that *every* seed of the group reached (a seed that
+  stopped at epoch 125 cuts the group at 125, so "success at epoch 200" is "–");
+* the smoothed curve is the trailing 10-epoch moving average of the seed mean, the mean of
+  epochs max(1, e-9)..e;
+* "epoch at 0.5 / 0.9" is the first epoch whose moving average *exceeds* the threshold,
+  numbered from 0 as in the authors' (OpenAI baselines) logs, i.e. the number of epochs
+  completed before it. Counting from 1 or accepting equality would give DESIGN §5 + 1
+  (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
+* "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from hercs.errors import HercsError
+
+REFERENCE_CSV = (Path(__file__).resolve().parents[1] / "docs" / "reference"
+                 / "authors_success_rates.csv")
+
+TASK_TITLES: dict[str, str] = {
+    "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",
+    "slide": "FetchSlide",
+}
+METHOD_ORDER: tuple[str, ...] = ("her", "her-cs", "her-ebp", "her-ebp-cs")
+METHOD_LABELS: dict[str, str] = {
+    "her": "HER", "her-cs": "HER-CS", "her-ebp": "HER-EBP", "her-ebp-cs": "HER-EBP-CS",
+}
+METHOD_COLORS: dict[str, str] = {
+    "her": "tab:blue", "her-cs": "tab:red", "her-ebp": "tab:green", "her-ebp-cs": "tab:orange",
+}
+WINDOW = 10
+THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
+AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
+_EPS = 1e-9  # "exceeds": float noise around an exact tie (e.g. 25/50) does not count
+
+# Figure geometry: the PNG is exactly (PANEL_W * panels) x PANEL_H inches at DPI.
+PANEL_W, PANEL_H, DPI = 5.0, 4.0, 100
+
+
+class PlotError(HercsError):
+    """A run directory or reference file cannot be read; the message names it."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One seed's test success rate per epoch."""
+
+    task: str  # display name, e.g. "FetchPush"
+    method: str
+    seed: int
+    epochs: np.ndarray  # int, increasing
+    success: np.ndarray  # float, same length
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Aggregate:
+    """Seed statistics per epoch, over the epochs every seed reached."""
+
+    epochs: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    n_seeds: int
+
+
+@dataclass(frozen=True)
+class Milestones:
+    crossing: dict[float, int | None] = field(default_factory=dict)
+    at: dict[int, float | None] = field(default_factory=dict)
+    n_seeds: int = 0
+    n_epochs: int = 0
+    final: float | None = None  # the moving average at the last common epoch
+
+
+# ---------------------------------------------------------------------------------- loading
+
+def task_title(name: str) -> str:
+    return TASK_TITLES.get(name, name)
+
+
+def _curve(task: str, method: str, seed: int, points: dict[int, float], source: str) -> Curve:
+    epochs = np.array(sorted(points), dtype=int)
+    return Curve(task, method, seed, epochs, np.array([points[e] for e in epochs], dtype=float),
+                 source)
+
+
+def load_run(run_dir: str | Path) -> Curve:
+    """`config.yaml` (task.name, run.method, run.seed) and `metrics.csv` (epoch, success_rate)
+    of one run directory. A repeated epoch keeps its last row."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise PlotError(f"{run_dir}: not a run directory")
+    config_path, metrics_path = run_dir / "config.yaml", run_dir / "metrics.csv"
+    for path in (config_path, metrics_path):
+        if not path.is_file():
+            raise PlotError(f"{run_dir}: no {path.name} in this run directory")
+    try:
+        config = yaml.safe_load(config_path.read_text()) or {}
+        task, method = config["task"]["name"], config["run"]["method"]
+        seed = int(config["run"]["seed"])
+    except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+        raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
+                        ) from exc
+    points: dict[int, float] = {}
+    with metrics_path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        missing = {"epoch", "success_rate"} - set(reader.fieldnames or ())
+        if missing:
+            raise PlotError(f"{metrics_path}: missing column(s) {sorted(missing)}")
+        for line, row in enumerate(reader, start=2):
+            try:
+                points[int(row["epoch"])] = float(row["success_rate"])
+            except (TypeError, ValueError) as exc:
+                raise PlotError(f"{metrics_path}:{line}: bad epoch/success_rate") from exc
+    if not points:
+        raise PlotError(f"{metrics_path}: no epochs yet")
+    return _curve(task_title(task), method, seed, points, str(run_dir))
+
+
+def load_reference(path: str | Path = REFERENCE_CSV) -> list[Curve]:
+    """The authors' curves: columns task, method, seed, epoch, success_rate."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlotError(f"{path}: reference CSV not found")
+    series: dict[tuple[str, str, int], dict[int, float]] = {}
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            key = (row["task"], row["method"], int(row["seed"]))
+            series.setdefault(key, {})[int(row["epoch"])] = float(row["success_rate"])
+    return [_curve(t, m, s, pts, str(path)) for (t, m, s), pts in sorted(series.items())]
+
+
+def group(curves: Iterable[Curve]) -> dict[str, dict[str, list[Curve]]]:
+    """task → method → seeds, methods in the paper's order (unknown ones last)."""
+    out: dict[str, dict[str, list[Curve]]] = {}
+    for c in curves:
+        out.setdefault(c.task, {}).setdefault(c.method, []).append(c)
+    rank = {m: i for i, m in enumerate(METHOD_ORDER)}
+    return {t: dict(sorted(ms.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
+            for t, ms in out.items()}
+
+
+# ------------------------------------------------------------------------------ arithmetic
+
+def aggregate(curves: Sequence[Curve]) -> Aggregate:
+    """Mean, min and max across seeds at each epoch that every seed reached."""
+    if not curves:
+        raise ValueError("aggregate needs at least one curve")
+    common = set(curves[0].epochs.tolist())
+    for c in curves[1:]:
+        common &= set(c.epochs.tolist())
+    epochs = np.array(sorted(common), dtype=int)
+    stack = np.array([[dict(zip(c.epochs.tolist(), c.success.tolist(), strict=True))[e]
+                       for e in epochs] for c in curves], dtype=float).reshape(len(curves), -1)
+    return Aggregate(epochs, stack.mean(axis=0), stack.min(axis=0), stack.max(axis=0),
+                     len(curves))
+
+
+def moving_average(epochs: np.ndarray, values: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """Trailing mean at each epoch e over the available epochs in [e - window + 1, e]."""
+    epochs, values = np.asarray(epochs), np.asarray(values, dtype=float)
+    return np.array([values[(epochs > e - window) & (epochs <= e)].mean() for e in epochs])
+
+
+def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
+               at_epochs: Sequence[int] = AT_EPOCHS, window: int = WINDOW) -> Milestones:
+    """DESIGN §5's numbers for one aggregated method (see the module docstring for the rule)."""
+    ma = moving_average(agg.epochs, agg.mean, window)
+    crossing: dict[float, int | None] = {}
+    for t in thresholds:
+        hit = np.nonzero(ma > t + _EPS)[0]
+        crossing[t] = int(agg.epochs[hit[0]]) - 1 if len(hit) else None
+    lookup = dict(zip(agg.epochs.tolist(), ma.tolist(), strict=True))
+    return Milestones(crossing, {e: lookup.get(e) for e in at_epochs}, agg.n_seeds,
+                      len(agg.epochs), float(ma[-1]) if len(ma) else None)
+
+
+def _fmt_rate(v: float | None) -> str:
+    if v is None or math.isnan(v):
+        return "–"
+    text = f"{v:.2f}"
+    return text[1:] if text.startswith("0") else text
+
+
+def markdown_table(task: str, rows: Sequence[tuple[str, Milestones]]) -> str:
+    """One task's milestone table; `rows` are (label, milestones)."""
+    if not rows:
+        return ""
+    first = rows[0][1]
+    th, at = list(first.crossing), list(first.at)
+    head = (["method", "seeds", "epochs"] + [f"epoch at {t:g}" for t in th]
+            + [f"success at {e}" for e in at] + ["success at end"])
+    lines = [f"### {task}", "", "| " + " | ".join(head) + " |",
+             "|" + "---|" * len(head)]
+    for label, m in rows:
+        cells = [label, str(m.n_seeds), str(m.n_epochs)]
+        cells += ["–" if m.crossing[t] is None else str(m.crossing[t]) for t in th]
+        cells += [_fmt_rate(m.at[e]) for e in at] + [_fmt_rate(m.final)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+TABLE_NOTE = (
+    f"Seed mean over the epochs every seed reached, {WINDOW}-epoch trailing moving average. "
+    "'epoch at x': first epoch whose average exceeds x, counted from 0 (epochs completed "
+    "before it, as in the authors' logs and DESIGN §5); 'success at n': the average after "
+    "the n-th epoch ('end': the last epoch); '–': never / run too short.\n"
+)
+
+
+def tables(ours: dict[str, dict[str, list[Curve]]],
+           reference: dict[str, dict[str, list[Curve]]] | None = None) -> str:
+    """Markdown for every task in `ours`, authors' rows beside ours when given."""
+    parts = []
+    for task, methods in ours.items():
+        ref = (reference or {}).get(task, {})
+        rows: list[tuple[str, Milestones]] = []
+        for method in sorted(set(methods) | set(ref), key=_method_rank):
+            label = METHOD_LABELS.get(method, method)
+            if method in methods:
+                rows.append((label + (" (ours)" if reference is not None else ""),
+                             milestones(aggregate(methods[method]))))
+            if method in ref:
+                rows.append((label + " (authors)", milestones(aggregate(ref[method]))))
+        parts.append(markdown_table(task, rows))
+    return "\n".join(parts) + ("\n" + TABLE_NOTE if parts else "")
+
+
+def _method_rank(method: str) -> tuple[int, str]:
+    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
+
+
+# ---------------------------------------------------------------------------------- figure
+
+def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
+                reference: dict[str, dict[str, list[Curve]]] | None = None,
+                xmax: int | None = None) -> Path:
+    """One panel per task: per method the seed mean with a min–max band (ours solid, the
+    authors' dashed; the authors' band is drawn for the methods we ran, the other methods'
+    reference means are thin dashed lines). The x axis spans our epochs unless `xmax` is
+    given."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(ours)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(PANEL_W * len(tasks), PANEL_H), dpi=DPI,
+                             squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        ref = (reference or {}).get(task, {})
+        right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
+        for method in sorted(set(ours[task]) | set(ref), key=_method_rank):
+            color = METHOD_COLORS.get(method)
+            label = METHOD_LABELS.get(method, method)
+            if method in ref:
+                a = aggregate(ref[method])
+                keep = a.epochs <= right
+                mine = method in ours[task]  # the authors' band only where it compares to ours
+                if mine:
+                    ax.fill_between(a.epochs[keep], a.low[keep], a.high[keep], color=color,
+                                    alpha=0.12, linewidth=0, hatch="///", edgecolor=color)
+                ax.plot(a.epochs[keep], a.mean[keep], "--", color=color,
+                        linewidth=1.4 if mine else 1.0, alpha=0.9 if mine else 0.6,
+                        label=f"{label} (authors, {a.n_seeds} seeds)")
+            if method in ours[task]:
+                a = aggregate(ours[task][method])
+                ax.fill_between(a.epochs, a.low, a.high, color=color, alpha=0.25, linewidth=0)
+                ax.plot(a.epochs, a.mean, "-", color=color, linewidth=2.0, zorder=3,
+                        marker="o" if len(a.epochs) <= 30 else None, markersize=3,
+                        label=f"{label} ({a.n_seeds} seed{'s' if a.n_seeds != 1 else ''})")
+        ax.set_title(task)
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("success rate")
+        ax.set_xlim(1 if right > 1 else 0, right)
+        ax.set_ylim(-0.01, 1.01)  # curves at exactly 0 or 1 stay visible
+        ax.set_yticks(np.linspace(0.0, 1.0, 6))
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8, framealpha=0.9)
+    fig.tight_layout()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=DPI)
+    plt.close(fig)
+    return output
+
+
+# ------------------------------------------------------------------------------------- CLI
+
+def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
+             table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
+             xmax: int | None = None) -> int:
+    """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`)."""
+    ours = group(load_run(d) for d in run_dirs)
+    ref = group(load_reference(reference_csv)) if reference else None
+    path = plot_figure(ours, output, ref, xmax)
+    text = tables(ours, ref)
+    print(text, end="")
+    if table:
+        Path(table).write_text(text)
+        print(f"wrote {table}")
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,519 @@
+"""`hercs view`: a Rerun recording of a run's episode log (DESIGN §6).
+
+Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
+`episodes.mcap`) with `replay_service.episode_log`, and `metrics.csv` when it sits beside the
+log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
+the web viewer (`--web`).
+
+Timelines
+    episode   the episode id (sequence). Every per-episode entity, the failed goals and the
+              centroids are on it.
+    step      the observation index t = 0..T within an episode (sequence). Only the 3D
+              trajectories are on it: at step t every selected episode shows its path up to t,
+              so all selected episodes replay side by side.
+    epoch     the training epoch (sequence): the learning curves.
+
+Entity paths
+    world                                 static: right-handed, z up (MuJoCo world, metres)
+    world/episodes/<id:06d>/gripper       LineStrips3D: gripper path obs[:t+1, 0:3]
+    world/episodes/<id:06d>/object        LineStrips3D: object path obs[:t+1, 3:6]
+                                          (push, pick, slide; absent for reach)
+    world/episodes/<id:06d>/goal          Points3D: desired goal g_t (1.2 cm); green if the
+                                          episode succeeded, red if not
+    world/failed_goals                    Points3D on `episode`: desired goals g_T of every
+                                          failed episode logged up to this one (all episodes
+                                          of the log, not only the selected ones), coloured by
+                                          their cluster under the model current at that time
+    world/centroids                       Points3D on `episode`: the k-means centroids, logged
+                                          when a refit lands (labels c0..c{k-1})
+    episodes/success                      Scalars on `episode`: 1 success, 0 failure (all
+                                          episodes)
+    episodes/final_distance               Scalars on `episode`: ‖ag_T − g_T‖ (metres)
+    episodes/cluster                      Scalars on `episode`: cluster index of ag_T (−1 before
+                                          the first cluster model)
+    log/episodes                          TextLog on `episode`: one line per selected episode
+                                          (success, distance, cluster, actor, policy version)
+    log/cluster_models                    TextLog on `episode`: one line per cluster model
+    curves/<column>                       Scalars on `epoch` (and on `episode` at each epoch's
+                                          last episode, from the `episodes` column): every
+                                          numeric column of
+                                          metrics.csv (success_rate, env_steps_per_s,
+                                          updates_per_s, replay_size, policy_lag, losses, …);
+                                          without metrics.csv, success_rate and
+                                          mean_final_distance from the log's EvalResults
+    curves/cluster_sizes, curves/cluster_share
+                                          Scalars on `epoch`: one series per cluster
+
+Colours: a trajectory's colour is its cluster's (grey before the first cluster model; the
+gripper path is the same colour, translucent). A centroid and the failed goals of its cluster
+share that colour.
+
+An episode failed if ‖ag_T − g_T‖ > the task's threshold (0.05 m); ag is the object (the
+gripper for reach). Its cluster is the nearest centroid of the latest cluster model logged
+before it (models are logged in order, interleaved with the episodes).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hercs.clustering import assign_clusters
+from hercs.errors import HercsError
+from hercs.tasks import task_spec
+from proto import hercs_pb2 as pb
+from proto.codec import msg_to_array
+from replay_service.episode_log import (
+    LIVE_NAME,
+    TOPIC_CLUSTER_MODEL,
+    TOPIC_EPISODES,
+    read_eval_results,
+    read_messages,
+    segment_paths,
+)
+from replay_service.scene import TASKS_WITH_OBJECT
+
+DEFAULT_MAX_EPISODES = 200
+"""Without --episodes, every n-th episode so that at most this many are drawn (plus the last)."""
+
+APP_ID = "hercs"
+
+# tab10: one colour per cluster (index modulo 10).
+PALETTE = np.array([
+    [31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
+    [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207],
+], dtype=np.uint8)
+UNCLUSTERED = (170, 170, 170)
+SUCCESS_RGBA = (30, 200, 60, 160)
+FAILURE_RGBA = (220, 30, 30, 160)
+
+GRIPPER_RADIUS = 0.002
+OBJECT_RADIUS = 0.004
+CENTROID_RADIUS = 0.02
+FAILED_GOAL_RADIUS = 0.006
+GOAL_RADIUS = 0.012
+
+
+class ViewError(HercsError):
+    """The log cannot be shown as asked; the message says what to change."""
+
+
+# --------------------------------------------------------------------------------------------
+# Episode selection
+
+
+def parse_selection(text: str) -> list[tuple[str, int | None, int | None, int]]:
+    """Parse `--episodes`: comma-separated items, each one of
+
+        N          the episode with id N
+        A:B        ids A ≤ id < B (either bound may be omitted)
+        A:B:S      every S-th id from A (S ≥ 1)
+        last:N     the last N episodes of the log
+        all        every episode
+
+    Returns a list of ("ids", start, stop, step) and ("last", None, None, n) items.
+    Raises ValueError with a message naming the bad item.
+    """
+    items: list[tuple[str, int | None, int | None, int]] = []
+    for raw in text.split(","):
+        item = raw.strip()
+        try:
+            if not item:
+                raise ValueError("empty item")
+            if item == "all":
+                items.append(("ids", None, None, 1))
+            elif item.startswith("last:"):
+                n = int(item[5:])
+                if n < 1:
+                    raise ValueError("N must be ≥ 1")
+                items.append(("last", None, None, n))
+            elif ":" in item:
+                parts = item.split(":")
+                if len(parts) > 3:
+                    raise ValueError("too many ':'")
+                start = int(parts[0]) if parts[0] else None
+                stop = int(parts[1]) if parts[1] else None
+                step = int(parts[2]) if len(parts) == 3 and parts[2] else 1
+                if step < 1 or (start is not None and start < 0) or (stop is not None
+                                                                      and stop < 0):
+                    raise ValueError("bounds must be ≥ 0 and the step ≥ 1")
+                items.append(("ids", start, stop, step))
+            else:
+                n = int(item)
+                if n < 0:
+                    raise ValueError("ids are ≥ 0")
+                items.append(("ids", n, n + 1, 1))
+        except ValueError as exc:
+            raise ValueError(
+                f"--episodes: bad item {item!r} ({exc}); use ids and ranges like '0:100', "
+                "'5,7,9', '0:2000:10', 'last:20' or 'all'") from None
+    return items
+
+
+def select_episodes(text: str | None, ids: Sequence[int], *,
+                    max_default: int = DEFAULT_MAX_EPISODES) -> list[int]:
+    """The episode ids to draw, in log order. `text` is the `--episodes` value; None means
+    every n-th episode so that at most `max_default` are drawn, always including the last."""
+    if text is None:
+        if len(ids) <= max_default:
+            return list(ids)
+        stride = math.ceil(len(ids) / max_default)
+        chosen = set(ids[::stride])
+        chosen.add(ids[-1])
+        return [i for i in ids if i in chosen]
+    chosen = set()
+    for kind, start, stop, step in parse_selection(text):
+        if kind == "last":
+            chosen.update(ids[-step:])
+            continue
+        lo = 0 if start is None else start
+        for i in ids:
+            if i >= lo and (stop is None or i < stop) and (i - lo) % step == 0:
+                chosen.add(i)
+    return [i for i in ids if i in chosen]
+
+
+# --------------------------------------------------------------------------------------------
+# Reading the log
+
+
+@dataclass
+class EpisodeSummary:
+    episode_id: int
+    success: bool
+    final_distance: float
+    cluster: int
+    desired_goal: np.ndarray  # g_T, (3,)
+    actor_id: str
+    seq: int
+    policy_version: int
+    gripper: np.ndarray  # (T+1, 3)
+    obj: np.ndarray | None  # (T+1, 3)
+    goal: np.ndarray  # (T+1, 3): g, with g[T-1] repeated for o_T
+
+
+@dataclass
+class LoggedModel:
+    at_episode: int  # the id of the first episode it applies to
+    version: int
+    centroids: np.ndarray
+    fitted_on: int
+    failed_goals_seen: int
+
+
+@dataclass
+class RunLog:
+    task: str = ""
+    threshold: float = 0.05
+    episodes: list[EpisodeSummary] = field(default_factory=list)
+    models: list[LoggedModel] = field(default_factory=list)
+
+
+def resolve_log_path(path: str | os.PathLike[str]) -> Path:
+    """Check that `path` is an episode log file or a run directory holding one."""
+    p = Path(path)
+    if not p.exists():
+        raise ViewError(f"{p}: no such file or directory; give an episodes.mcap file or a run "
+                        "directory (e.g. runs/<run>/)")
+    if p.is_dir() and not segment_paths(p):
+        raise ViewError(f"{p} holds no episode log ({LIVE_NAME} or episodes.NNN.mcap); is it "
+                        "a run directory?")
+    return p
+
+
+def read_run_log(path: Path) -> RunLog:
+    """One pass over the log: per episode its positions, success and cluster (under the latest
+    cluster model logged before it)."""
+    run = RunLog()
+    centroids: np.ndarray | None = None
+    next_id = 0
+    spec = None
+    for message in read_messages(path, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
+        if message.topic == TOPIC_CLUSTER_MODEL:
+            model = message.decode_as(pb.ClusterModel)
+            centroids = msg_to_array(model.centroids, where="ClusterModel.centroids")
+            run.models.append(LoggedModel(next_id, int(model.version), centroids,
+                                          int(model.fitted_on), int(model.failed_goals_seen)))
+            continue
+        msg = message.decode_as(pb.Episode)
+        if spec is None:
+            spec = task_spec(msg.task)
+            run.task, run.threshold = spec.name, spec.distance_threshold
+        obs = msg_to_array(msg.obs, where="Episode.obs")
+        ag = msg_to_array(msg.ag, where="Episode.ag")
+        g = msg_to_array(msg.g, where="Episode.g")
+        distance = float(np.linalg.norm(ag[-1] - g[-1]))
+        cluster = -1 if centroids is None else int(assign_clusters(ag[-1:], centroids)[0])
+        run.episodes.append(EpisodeSummary(
+            episode_id=message.sequence, success=distance <= spec.distance_threshold,
+            final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
+            actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
+            gripper=np.asarray(obs[:, 0:3], np.float32),
+            obj=np.asarray(obs[:, 3:6], np.float32) if spec.name in TASKS_WITH_OBJECT else None,
+            goal=np.concatenate([g, g[-1:]]).astype(np.float32)))
+        next_id = message.sequence + 1
+    return run
+
+
+def read_metrics(path: Path) -> dict[str, list[str]]:
+    """metrics.csv as columns of strings ({} if absent)."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return {}
+    return {key: [row.get(key) or "" for row in rows] for key in rows[0]}
+
+
+# --------------------------------------------------------------------------------------------
+# Logging
+
+
+def cluster_colors(clusters: np.ndarray, alpha: int = 255) -> np.ndarray:
+    """(N, 4) uint8 RGBA: the palette colour of each cluster index, grey for −1."""
+    clusters = np.asarray(clusters, dtype=np.int64)
+    rgb = np.where((clusters < 0)[:, None], np.array(UNCLUSTERED, np.uint8),
+                   PALETTE[np.maximum(clusters, 0) % len(PALETTE)])
+    return np.concatenate([rgb, np.full((len(clusters), 1), alpha, np.uint8)], axis=1)
+
+
+def _growing_strips(rr, rec, entity: str, episode_id: int, path: np.ndarray,
+                    color: np.ndarray, radius: float) -> None:
+    n = len(path)
+    rec.send_columns(
+        entity,
+        indexes=[rr.TimeColumn("step", sequence=np.arange(n)),
+                 rr.TimeColumn("episode", sequence=np.full(n, episode_id))],
+        columns=rr.LineStrips3D.columns(strips=[path[:t + 1] for t in range(n)],
+                                        colors=np.repeat(color[None], n, axis=0),
+                                        radii=np.full(n, radius, np.float32)),
+    )
+
+
+def log_episode(rr, rec, ep: EpisodeSummary) -> None:
+    base = f"world/episodes/{ep.episode_id:06d}"
+    color = cluster_colors(np.array([ep.cluster]))[0]
+    if ep.obj is not None:
+        _growing_strips(rr, rec, f"{base}/object", ep.episode_id, ep.obj, color, OBJECT_RADIUS)
+        gripper_color = color.copy()
+        gripper_color[3] = 110
+    else:
+        gripper_color = color
+    _growing_strips(rr, rec, f"{base}/gripper", ep.episode_id, ep.gripper, gripper_color,
+                    GRIPPER_RADIUS)
+    n = len(ep.goal)
+    rec.send_columns(
+        f"{base}/goal",
+        indexes=[rr.TimeColumn("step", sequence=np.arange(n)),
+                 rr.TimeColumn("episode", sequence=np.full(n, ep.episode_id))],
+        columns=rr.Points3D.columns(
+            positions=ep.goal,
+            colors=np.repeat(np.array([SUCCESS_RGBA if ep.success else FAILURE_RGBA],
+                                      np.uint8), n, axis=0),
+            radii=np.full(n, GOAL_RADIUS, np.float32)),
+    )
+    rec.set_time("episode", sequence=ep.episode_id)
+    outcome = "success" if ep.success else "FAILED"
+    cluster = "-" if ep.cluster < 0 else str(ep.cluster)
+    rec.log("log/episodes", rr.TextLog(
+        f"episode {ep.episode_id}: {outcome}, |ag_T - g_T| = {ep.final_distance:.3f} m, "
+        f"cluster {cluster}, actor {ep.actor_id} seq {ep.seq}, policy v{ep.policy_version}",
+        level=rr.TextLogLevel.INFO if ep.success else rr.TextLogLevel.WARN))
+
+
+def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeSummary]) -> None:
+    ids = rr.TimeColumn("episode", sequence=[e.episode_id for e in episodes])
+    for name, values in (("success", [float(e.success) for e in episodes]),
+                         ("final_distance", [e.final_distance for e in episodes]),
+                         ("cluster", [float(e.cluster) for e in episodes])):
+        style = (rr.SeriesLines(names=name) if name == "final_distance"
+                 else rr.SeriesPoints(names=name, marker_sizes=1.5))
+        rec.log(f"episodes/{name}", style, static=True)
+        rec.send_columns(f"episodes/{name}", indexes=[ids],
+                         columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
+
+
+def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
+    """Centroids at each refit; the accumulated failed goals at each refit and each selected
+    episode (so that scrubbing the `episode` timeline shows them grow)."""
+    failed_ids = np.array([e.episode_id for e in run.episodes if not e.success], np.int64)
+    failed_goals = np.array([e.desired_goal for e in run.episodes if not e.success],
+                            np.float32).reshape(-1, 3)
+    for model in run.models:
+        rec.set_time("episode", sequence=model.at_episode)
+        k = len(model.centroids)
+        rec.log("world/centroids", rr.Points3D(
+            model.centroids, colors=cluster_colors(np.arange(k)),
+            radii=np.full(k, CENTROID_RADIUS, np.float32),
+            labels=[f"c{i}" for i in range(k)]))
+        rec.log("log/cluster_models", rr.TextLog(
+            f"cluster model v{model.version}: k={k}, fitted on {model.fitted_on} failed goals "
+            f"({model.failed_goals_seen} seen), applies from episode {model.at_episode}"))
+    model_starts = np.array([m.at_episode for m in run.models], np.int64)
+    times = sorted(set(selected) | {m.at_episode for m in run.models})
+    for t in times:
+        goals = failed_goals[failed_ids <= t]
+        current = np.searchsorted(model_starts, t, side="right") - 1
+        if current >= 0 and len(goals):
+            colors = cluster_colors(assign_clusters(goals, run.models[current].centroids), 200)
+        else:
+            colors = cluster_colors(np.full(len(goals), -1), 200)
+        rec.set_time("episode", sequence=t)
+        rec.log("world/failed_goals", rr.Points3D(
+            goals, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
+
+
+def _floats(values: Sequence[str]) -> np.ndarray | None:
+    try:
+        return np.array([float(v) if v != "" else np.nan for v in values], np.float64)
+    except ValueError:
+        return None
+
+
+def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[str]:
+    """Learning curves on the `epoch` timeline; returns the entity paths logged."""
+    logged: list[str] = []
+    if metrics and "epoch" in metrics:
+        epochs = _floats(metrics["epoch"])
+        if epochs is None or np.isnan(epochs).any():
+            return logged
+        indexes = [rr.TimeColumn("epoch", sequence=epochs.astype(np.int64))]
+        done = _floats(metrics.get("episodes", []))
+        if done is not None and len(done) == len(epochs) and not np.isnan(done).any():
+            # also on `episode`, at the last episode of each epoch: next to the trajectories
+            indexes.append(rr.TimeColumn("episode", sequence=done.astype(np.int64) - 1))
+        for name, values in metrics.items():
+            if name == "epoch":
+                continue
+            numbers = _floats(values)
+            if numbers is not None:
+                if np.isnan(numbers).all():
+                    continue
+                rec.log(f"curves/{name}", rr.SeriesLines(names=name), static=True)
+                rec.send_columns(f"curves/{name}", indexes=indexes,
+                                 columns=rr.Scalars.columns(scalars=numbers))
+                logged.append(f"curves/{name}")
+            elif any(";" in v for v in values):  # per-cluster lists, e.g. "31;23;32"
+                for epoch, value in zip(epochs.astype(np.int64), values, strict=True):
+                    parts = _floats(value.split(";")) if value else None
+                    if parts is None:
+                        continue
+                    rec.set_time("epoch", sequence=int(epoch))
+                    rec.log(f"curves/{name}", rr.Scalars(parts))
+                logged.append(f"curves/{name}")
+        return logged
+    results = list(read_eval_results(log_path))  # no metrics.csv: the evaluator's results
+    if results:
+        index = rr.TimeColumn("epoch", sequence=[int(r.epoch) for r in results])
+        for name in ("success_rate", "mean_final_distance"):
+            rec.log(f"curves/{name}", rr.SeriesLines(names=name), static=True)
+            rec.send_columns(f"curves/{name}", indexes=[index], columns=rr.Scalars.columns(
+                scalars=[float(getattr(r, name)) for r in results]))
+            logged.append(f"curves/{name}")
+    return logged
+
+
+def blueprint():
+    """The default layout: the 3D scene large, the curves, per-episode scalars and the text
+    logs beside it, the `episode` timeline selected."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="episodes (3D)"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="curves", name="success rate",
+                                   contents=["curves/success_rate"]),
+                rrb.TimeSeriesView(origin="curves", name="throughput",
+                                   contents=["curves/env_steps_per_s", "curves/updates_per_s"]),
+                rrb.TimeSeriesView(origin="episodes", name="episodes",
+                                   contents=["episodes/final_distance"]),
+                rrb.Tabs(rrb.TimeSeriesView(origin="curves", name="all curves"),
+                         rrb.TimeSeriesView(origin="episodes", name="success, cluster",
+                                            contents=["episodes/success", "episodes/cluster"])),
+                rrb.TextLogView(origin="log", name="log"),
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="episode"),
+        collapse_panels=False,
+    )
+
+
+def build_recording(rr, rec, run: RunLog, selected: Sequence[int],
+                    metrics: dict[str, list[str]], log_path: Path) -> None:
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    by_id = {e.episode_id: e for e in run.episodes}
+    for episode_id in selected:
+        log_episode(rr, rec, by_id[episode_id])
+    log_episode_scalars(rr, rec, run.episodes)
+    log_clusters(rr, rec, run, selected)
+    log_curves(rr, rec, metrics, log_path)
+
+
+# --------------------------------------------------------------------------------------------
+# Entry point
+
+
+def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
+             web: bool = False, web_port: int | None = None, open_browser: bool = True) -> int:
+    """`hercs view`: 0 on success, 2 on a bad path or selection (message on stderr)."""
+    try:
+        log_path = resolve_log_path(path)
+        if episodes is not None:
+            parse_selection(episodes)  # fail before reading the log
+        t0 = time.perf_counter()
+        run = read_run_log(log_path)
+        if not run.episodes:
+            raise ViewError(f"{log_path}: the log holds no episode")
+        ids = [e.episode_id for e in run.episodes]
+        selected = select_episodes(episodes, ids)
+        if not selected:
+            raise ViewError(f"--episodes {episodes!r} selects none of the {len(ids)} episodes "
+                            f"(ids {ids[0]}..{ids[-1]})")
+    except (ViewError, ValueError) as exc:
+        print(f"hercs view: {exc}", file=sys.stderr)
+        return 2
+    run_dir = log_path if log_path.is_dir() else log_path.parent
+    metrics = read_metrics(run_dir / "metrics.csv")
+
+    import rerun as rr  # imported here: `hercs --help` stays fast
+
+    rec = rr.RecordingStream(APP_ID)
+    rec.send_recording_name(f"{run_dir.name} ({run.task})")
+    layout = blueprint()
+    if save:
+        rec.save(save, default_blueprint=layout)
+    elif web:
+        url = rec.serve_grpc(default_blueprint=layout)
+        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
+    else:
+        rerun_exe = Path(sys.executable).parent / "rerun"
+        rr.spawn(recording=rec, default_blueprint=layout,
+                 executable_path=str(rerun_exe) if rerun_exe.exists() else None)
+    build_recording(rr, rec, run, selected, metrics, log_path)
+    rec.flush()
+    print(f"hercs view: {len(selected)} of {len(ids)} episodes, {len(run.models)} cluster "
+          f"models, {len(next(iter(metrics.values()), []))} epochs of metrics "
+          f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    if save:
+        rec.disconnect()
+        print(f"wrote {save}")
+    elif web:
+        port = 9090 if web_port is None else web_port
+        print(f"serving the web viewer at http://localhost:{port}/?url={url} (Ctrl-C stops)")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0

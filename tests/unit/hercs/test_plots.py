@@ -1,0 +1,180 @@
+"""`hercs plot`: loading run folders, seed aggregation, the milestone table (pinned by hand and
+against DESIGN §5 from the authors' CSV), the figure file and the CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from hercs import plots
+from hercs.cli import main
+
+# Hand-made curves. her: seed 1 succeeds from epoch 5, seed 2 from epoch 7 (15 epochs each).
+# her-cs: seeds of different lengths (8 and 6 epochs) -> aggregated over the 6 common epochs.
+CURVES: dict[tuple[str, int], list[float]] = {
+    ("her", 1): [0.0] * 4 + [1.0] * 11,
+    ("her", 2): [0.0] * 6 + [1.0] * 9,
+    ("her-cs", 1): [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.0, 1.0],
+    ("her-cs", 2): [0.0, 0.0, 0.2, 0.4, 0.6, 0.8],
+}
+
+
+def _write_run(root: Path, method: str, seed: int, success: list[float],
+               task: str = "push") -> Path:
+    run = root / f"{task}-{method}-s{seed}"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump(
+        {"run": {"method": method, "seed": seed, "name": run.name}, "task": {"name": task}}))
+    lines = ["epoch,env_steps,success_rate,wall_s"]
+    lines += [f"{e},{e * 10000},{s},{e * 1.5}" for e, s in enumerate(success, start=1)]
+    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    return run
+
+
+@pytest.fixture
+def run_dirs(tmp_path: Path) -> list[Path]:
+    return [_write_run(tmp_path, m, s, c) for (m, s), c in CURVES.items()]
+
+
+def test_load_run_reads_config_and_metrics(run_dirs: list[Path]) -> None:
+    c = plots.load_run(run_dirs[0])
+    assert (c.task, c.method, c.seed) == ("FetchPush", "her", 1)
+    assert c.epochs.tolist() == list(range(1, 16))
+    assert c.success.tolist() == CURVES[("her", 1)]
+
+
+def test_aggregation_mean_min_max_over_common_epochs(run_dirs: list[Path]) -> None:
+    groups = plots.group(plots.load_run(d) for d in run_dirs)
+    assert list(groups) == ["FetchPush"]
+    assert list(groups["FetchPush"]) == ["her", "her-cs"]
+    her = plots.aggregate(groups["FetchPush"]["her"])
+    assert her.n_seeds == 2
+    assert her.epochs.tolist() == list(range(1, 16))
+    assert her.mean.tolist() == [0, 0, 0, 0, 0.5, 0.5] + [1.0] * 9
+    assert her.low.tolist() == [0.0] * 6 + [1.0] * 9
+    assert her.high.tolist() == [0.0] * 4 + [1.0] * 11
+    cs = plots.aggregate(groups["FetchPush"]["her-cs"])
+    assert cs.epochs.tolist() == [1, 2, 3, 4, 5, 6]  # seed 2 stopped at 6
+    assert cs.mean == pytest.approx([0.0, 0.1, 0.3, 0.5, 0.7, 0.9])
+    assert cs.low == pytest.approx([0.0, 0.0, 0.2, 0.4, 0.6, 0.8])
+    assert cs.high == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+
+
+def test_moving_average_is_trailing_over_available_epochs() -> None:
+    mean = np.array([0, 0, 0, 0, 0.5, 0.5] + [1.0] * 9)
+    ma = plots.moving_average(np.arange(1, 16), mean)
+    # epoch e: mean of epochs max(1, e-9)..e
+    expected = [0, 0, 0, 0, 0.5 / 5, 1 / 6, 2 / 7, 3 / 8, 4 / 9, 5 / 10,
+                6 / 10, 7 / 10, 8 / 10, 9 / 10, 9.5 / 10]
+    assert ma == pytest.approx(expected)
+
+
+def test_milestones_by_hand(run_dirs: list[Path]) -> None:
+    groups = plots.group(plots.load_run(d) for d in run_dirs)["FetchPush"]
+    her = plots.milestones(plots.aggregate(groups["her"]), at_epochs=(5, 10, 15, 50))
+    # MA = 0.5 exactly at epoch 10 (a tie does not count), 0.6 at 11 -> "epoch at 0.5" = 10
+    # (epochs completed before the first epoch that exceeds it); MA 0.9 at 14, 0.95 at 15 -> 14.
+    assert her.crossing == {0.5: 10, 0.9: 14}
+    assert her.at[5] == pytest.approx(0.1)
+    assert her.at[10] == pytest.approx(0.5)
+    assert her.at[15] == pytest.approx(0.95)
+    assert her.at[50] is None
+    assert (her.n_seeds, her.n_epochs) == (2, 15)
+    assert her.final == pytest.approx(0.95)
+    cs = plots.milestones(plots.aggregate(groups["her-cs"]))
+    assert cs.crossing == {0.5: None, 0.9: None}
+    assert cs.at == {50: None, 100: None, 200: None}
+    assert cs.final == pytest.approx(2.5 / 6)
+
+
+def test_table_text_by_hand(run_dirs: list[Path]) -> None:
+    text = plots.tables(plots.group(plots.load_run(d) for d in run_dirs))
+    assert "### FetchPush" in text
+    assert "| HER | 2 | 15 | 10 | 14 | – | – | – | .95 |" in text
+    assert "| HER-CS | 2 | 6 | – | – | – | – | – | .42 |" in text
+
+
+# DESIGN §5, row by row: (epoch at 0.5, epoch at 0.9, success at 50, 100, 200).
+DESIGN_5 = {
+    ("FetchPush", "her"): (55, 95, .41, .90, .99),
+    ("FetchPush", "her-cs"): (43, 61, .70, .98, None),
+    ("FetchPush", "her-ebp"): (23, 34, .97, 1.0, None),
+    ("FetchPush", "her-ebp-cs"): (22, 31, .99, .99, None),
+    ("FetchPickAndPlace", "her"): (62, 186, .39, .71, .89),
+    ("FetchPickAndPlace", "her-cs"): (59, 94, .40, .93, .95),
+    ("FetchPickAndPlace", "her-ebp"): (44, 97, .58, .90, .93),
+    ("FetchPickAndPlace", "her-ebp-cs"): (40, 71, .67, .96, .95),
+    ("FetchSlide", "her"): (127, None, .36, .47, .56),
+    ("FetchSlide", "her-cs"): (92, None, .38, .51, .57),
+}
+
+
+def test_authors_csv_reproduces_design_section_5() -> None:
+    ref = plots.group(plots.load_reference(plots.REFERENCE_CSV))
+    assert set(ref) == {"FetchPush", "FetchPickAndPlace", "FetchSlide"}
+    for (task, method), (e5, e9, s50, s100, s200) in DESIGN_5.items():
+        m = plots.milestones(plots.aggregate(ref[task][method]))
+        got = (m.crossing[0.5], m.crossing[0.9],
+               *(None if m.at[e] is None else round(m.at[e], 2) for e in (50, 100, 200)))
+        assert got == (e5, e9, s50, s100, s200), (task, method)
+        assert m.n_seeds == 5
+    # The table cells as printed (ties like .985 -> ".98" as DESIGN has them).
+    text = plots.tables(ref)
+    assert "| HER | 5 | 200 | 55 | 95 | .41 | .90 | .99 |" in text
+    assert "| HER-CS | 5 | 125 | 43 | 61 | .70 | .98 | – |" in text  # one seed stops at 125
+    assert "| HER-EBP | 5 | 100 | 23 | 34 | .97 | 1.00 | – |" in text
+    assert "| HER-EBP-CS | 5 | 200 | 40 | 71 | .67 | .96 | .95 |" in text
+
+
+def test_design_rule_details_pinned() -> None:
+    """Why the rule is 'first epoch that exceeds, counted from 0': Push HER's moving average is
+    exactly 0.5 at its 55th epoch and §5 says 55; counting from 1 would give 56 and 96."""
+    ref = plots.group(plots.load_reference(plots.REFERENCE_CSV))
+    agg = plots.aggregate(ref["FetchPush"]["her"])
+    ma = plots.moving_average(agg.epochs, agg.mean)
+    assert ma[54] == pytest.approx(0.5) and ma[53] < 0.5 and ma[55] > 0.5
+    first_over_09 = int(agg.epochs[np.nonzero(ma > 0.9)[0][0]])
+    assert first_over_09 == 96  # reported as 95
+    # Seeds are cut to their common epochs: with the mean over the seeds available at each
+    # epoch Push HER-CS would have a value at 200, but §5 has "–".
+    assert plots.aggregate(ref["FetchPush"]["her-cs"]).epochs[-1] == 125
+
+
+def test_figure_is_a_non_blank_png_of_the_expected_size(run_dirs: list[Path],
+                                                        tmp_path: Path) -> None:
+    import matplotlib.image as mpimg
+
+    ours = plots.group(plots.load_run(d) for d in run_dirs)
+    ours.update(plots.group([plots.load_run(_write_run(tmp_path, "her", 3, [0.1, 0.3],
+                                                       task="slide"))]))
+    out = plots.plot_figure(ours, tmp_path / "fig.png",
+                            plots.group(plots.load_reference(plots.REFERENCE_CSV)))
+    img = mpimg.imread(out)
+    h, w = int(plots.PANEL_H * plots.DPI), int(plots.PANEL_W * plots.DPI)
+    assert img.shape == (h, 2 * w, 4)  # two panels: FetchPush, FetchSlide
+    assert img[..., :3].var() > 1e-3
+
+
+def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
+    run = _write_run(tmp_path, "her", 1, [0.0])
+    (run / "metrics.csv").unlink()
+    with pytest.raises(plots.PlotError, match=rf"{run}.*metrics\.csv"):
+        plots.load_run(run)
+    assert main(["plot", str(run), "-o", str(tmp_path / "f.png")]) == 1
+    err = capsys.readouterr().err
+    assert str(run) in err and "metrics.csv" in err
+
+
+def test_cli_plot_writes_figure_and_table(run_dirs: list[Path], tmp_path: Path,
+                                          capsys) -> None:
+    out, table = tmp_path / "out" / "fig.png", tmp_path / "table.md"
+    argv = ["plot", *map(str, run_dirs), "-o", str(out), "--reference", "--table", str(table)]
+    assert main(argv) == 0
+    assert out.is_file() and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out
+    assert "| HER (ours) | 2 | 15 | 10 | 14 |" in printed
+    assert "| HER (authors) | 5 | 200 | 55 | 95 |" in printed
+    assert table.read_text() in printed
