@@ -83,6 +83,13 @@ class Normalizer:
             "std": self.std.copy(),
         }
 
+    def with_state(self, state: Mapping[str, np.ndarray | float | int]) -> Normalizer:
+        """A new normaliser of the same size and settings holding `state`; self is untouched,
+        so callers can validate several normalisers before adopting any."""
+        fresh = Normalizer(self.size, eps=self.eps, clip_range=self.clip_range)
+        fresh.load_state_dict(state)
+        return fresh
+
     def load_state_dict(self, state: Mapping[str, np.ndarray | float | int]) -> None:
         """Adopt statistics produced by another normaliser's `state_dict` (e.g. off the wire).
 

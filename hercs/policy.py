@@ -89,12 +89,7 @@ class Policy:
         version: int,
     ) -> None:
         """Adopt broadcast weights. All parts are validated first; on error nothing changes."""
-        o_norm = Normalizer(self.spec.obs_dim, eps=self.o_norm.eps,
-                            clip_range=self.o_norm.clip_range)
-        g_norm = Normalizer(self.spec.goal_dim, eps=self.g_norm.eps,
-                            clip_range=self.g_norm.clip_range)
-        o_norm.load_state_dict(o_stats)
-        g_norm.load_state_dict(g_stats)
+        o_norm, g_norm = self.o_norm.with_state(o_stats), self.g_norm.with_state(g_stats)
         load_arrays(self.actor, dict(actor_params))
         self.o_norm, self.g_norm = o_norm, g_norm
         self.version = int(version)

@@ -86,12 +86,7 @@ class DDPGLearner:
         self, o_state: Mapping[str, np.ndarray], g_state: Mapping[str, np.ndarray]
     ) -> None:
         """Adopt the replay's normaliser statistics (`Normalizer.state_dict()` form)."""
-        o_norm = Normalizer(self.spec.obs_dim, eps=self.o_norm.eps,
-                            clip_range=self.o_norm.clip_range)
-        g_norm = Normalizer(self.spec.goal_dim, eps=self.g_norm.eps,
-                            clip_range=self.g_norm.clip_range)
-        o_norm.load_state_dict(o_state)
-        g_norm.load_state_dict(g_state)
+        o_norm, g_norm = self.o_norm.with_state(o_state), self.g_norm.with_state(g_state)
         self.o_norm, self.g_norm = o_norm, g_norm
 
     def update(self, batch: Mapping[str, np.ndarray]) -> dict[str, float]:

@@ -26,12 +26,15 @@ from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.codec import arrays_to_named, msg_to_array, stats_to_msg
 from proto.keys import RunKeys
-from tests.integration.services import sigterm_exits_cleanly, start_service, wait_for
+from tests.integration.services import (
+    WAIT_S,
+    sigterm_exits_cleanly,
+    start_service,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 
-WAIT_S = 15.0
-STOP_WITHIN_S = 5.0
 
 OpenClient = Callable[[], Transport]
 
