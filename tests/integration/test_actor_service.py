@@ -24,7 +24,7 @@ from hercs.policy import Policy
 from hercs.transport import PendingReply, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import arrays_to_named, msg_to_array, stats_to_msg
+from proto.codec import msg_to_array, weights_to_msg
 from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,
@@ -60,11 +60,8 @@ def local_config(endpoint: str) -> HercsConfig:
 
 def weights_msg(policy: Policy, *, version: int) -> bytes:
     w = policy.weights()
-    return pb.Weights(
-        schema_version=SCHEMA_VERSION, version=version, epoch=1, evaluate=False,
-        actor_params=arrays_to_named(w.actor), o_stats=stats_to_msg(w.o_stats),
-        g_stats=stats_to_msg(w.g_stats),
-    ).SerializeToString()
+    return weights_to_msg(version=version, actor_params=w.actor, o_stats=w.o_stats,
+                          g_stats=w.g_stats, epoch=1, evaluate=False).SerializeToString()
 
 
 class FakeReplay:

@@ -18,9 +18,8 @@ import pytest
 from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
 from hercs.transport import Transport
-from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import arrays_to_named, stats_to_msg
+from proto.codec import weights_to_msg
 from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,
@@ -48,11 +47,8 @@ def tiny_config(endpoint: str) -> HercsConfig:
 def weights_msg(policy: Policy, *, version: int, epoch: int, evaluate: bool) -> bytes:
     """A `Weights` message as the learner broadcasts it."""
     w = policy.weights()
-    return pb.Weights(
-        schema_version=SCHEMA_VERSION, version=version, epoch=epoch, evaluate=evaluate,
-        actor_params=arrays_to_named(w.actor), o_stats=stats_to_msg(w.o_stats),
-        g_stats=stats_to_msg(w.g_stats),
-    ).SerializeToString()
+    return weights_to_msg(version=version, actor_params=w.actor, o_stats=w.o_stats,
+                          g_stats=w.g_stats, epoch=epoch, evaluate=evaluate).SerializeToString()
 
 
 def test_evaluator_answers_every_eval_epoch_and_nothing_else(
