@@ -1,0 +1,308 @@
+"""Sample efficiency against the paper: a grid of tasks × methods × seeds through `hercs up`.
+
+    python bench/sample_efficiency.py --tasks push --methods her her-cs --seeds 3
+
+Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`,
+under `--run-dir` (default `runs/sample_efficiency`). The grid is resumable: a run whose
+`bench_done.json` exists is skipped; a run folder without it (the bench was stopped while the
+run trained) is moved aside to `<run-dir>/_unfinished/` and trained again from scratch, since
+a learner cannot resume from the middle of a run. Runs go `--jobs` at a time (default: one
+per core, since each run is bound by its learner's one torch thread), each with its own
+router port. Cells run seed-major, so that every method has the same number of finished seeds
+as early as possible.
+
+When the grid is done (or with `--report-only`), `hercs plot --reference` draws one figure per
+task and `docs/results/<task>.md` puts our milestone table next to the authors' (DESIGN §5),
+with the figure, the command, date, commit and machine.
+
+`--quick` is the CI mode: a tiny grid (default Reach, 1 epoch of 2 cycles) into a temporary
+folder, checking that the whole path — launch, resume, plot, report — still works.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a checkout
+    sys.path.insert(0, str(REPO))
+
+from hercs.config import METHODS  # noqa: E402
+from hercs.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
+from hercs.tasks import TASKS  # noqa: E402
+
+DONE_FILE = "bench_done.json"
+UNFINISHED_DIR = "_unfinished"
+LOG_DIR = "_logs"
+QUICK_OVERRIDES = ("training.cycles_per_epoch=2", "training.episodes_per_cycle=2",
+                   "training.minibatches_per_cycle=2", "training.eval_episodes=2")
+"""A run that exercises every part (rollouts, inserts, sampling, updates, eval) in seconds."""
+
+
+@dataclass(frozen=True)
+class GridRun:
+    """One cell of the grid."""
+
+    task: str
+    method: str
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}-{self.method}-s{self.seed}"
+
+
+def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int]) -> list[GridRun]:
+    """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
+    return [GridRun(t, m, s) for s in seeds for t in tasks for m in methods]
+
+
+def is_done(run_dir: Path) -> bool:
+    return (run_dir / DONE_FILE).is_file()
+
+
+def set_aside(run_dir: Path, root: Path) -> Path:
+    """Move an unfinished run out of the way (kept, not deleted: its logs say why it stopped)."""
+    dest_root = root / UNFINISHED_DIR
+    dest_root.mkdir(parents=True, exist_ok=True)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    dest = dest_root / f"{run_dir.name}-{stamp}"
+    run_dir.rename(dest)
+    return dest
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
+               overrides: Sequence[str]) -> list[str]:
+    cmd = [sys.executable, "-m", "hercs.cli", "up", "--task", cell.task, "--method",
+           cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run", cell.name,
+           "--run-dir", str(run_root), "--actors", str(actors),
+           "--listen", f"tcp/127.0.0.1:{port}"]
+    for item in overrides:
+        cmd += ["--set", item]
+    return cmd
+
+
+@dataclass
+class _Running:
+    cell: GridRun
+    proc: subprocess.Popen[bytes]
+    log: object
+    started: float
+
+
+def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,
+             overrides: Sequence[str]) -> list[tuple[GridRun, int]]:
+    """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
+
+    A run that exits 0 gets `bench_done.json` (command, wall time, epochs); one that fails is
+    reported and left in place (the next invocation sets it aside and tries again)."""
+    run_root.mkdir(parents=True, exist_ok=True)
+    (run_root / LOG_DIR).mkdir(exist_ok=True)
+    todo: list[GridRun] = []
+    for cell in cells:
+        run_dir = run_root / cell.name
+        if is_done(run_dir):
+            print(f"[skip] {cell.name}: finished earlier", flush=True)
+            continue
+        if run_dir.exists():
+            print(f"[redo] {cell.name}: unfinished, moved to {set_aside(run_dir, run_root)}",
+                  flush=True)
+        todo.append(cell)
+
+    results: list[tuple[GridRun, int]] = []
+    running: list[_Running] = []
+    commit = git_commit()  # the code the runs train with (the report may be written later)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    try:
+        while todo or running:
+            while todo and len(running) < jobs:
+                cell = todo.pop(0)
+                cmd = up_command(cell, epochs=epochs, run_root=run_root, port=free_port(),
+                                 actors=actors, overrides=overrides)
+                log = open(run_root / LOG_DIR / f"{cell.name}.log", "wb")  # noqa: SIM115
+                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                        cwd=REPO)
+                running.append(_Running(cell, proc, log, time.monotonic()))
+                print(f"[start] {cell.name}: {' '.join(cmd[1:])}", flush=True)
+            # Wait for any one child; polling at 1 s costs nothing next to runs of minutes.
+            finished = [r for r in running if r.proc.poll() is not None]
+            if not finished:
+                time.sleep(1.0)
+                continue
+            for r in finished:
+                running.remove(r)
+                r.log.close()  # type: ignore[attr-defined]
+                code = int(r.proc.returncode)
+                wall = time.monotonic() - r.started
+                results.append((r.cell, code))
+                if code == 0:
+                    record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
+                              "epochs": epochs, "wall_s": round(wall, 1), "commit": commit,
+                              "command": " ".join(r.proc.args[1:]),  # type: ignore[index]
+                              "finished": datetime.now(UTC).isoformat(timespec="seconds")}
+                    (run_root / r.cell.name / DONE_FILE).write_text(json.dumps(record, indent=2))
+                    print(f"[done] {r.cell.name}: {wall / 60:.1f} min", flush=True)
+                else:
+                    print(f"[fail] {r.cell.name}: exit {code} after {wall:.0f} s; log "
+                          f"{run_root / LOG_DIR / (r.cell.name + '.log')}", flush=True)
+    except KeyboardInterrupt:
+        print("interrupted: stopping the running runs (they will be redone next time)",
+              flush=True)
+        for r in running:
+            r.proc.terminate()
+        for r in running:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                r.proc.wait(60)
+        raise
+    return results
+
+
+# ------------------------------------------------------------------------------- report
+
+def machine_description() -> str:
+    model = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    mem = ""
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        kib = int(Path("/proc/meminfo").read_text().split("\n")[0].split()[1])
+        mem = f", {kib / 2**20:.0f} GiB RAM"
+    return (f"{os.cpu_count()} cores ({model or platform.processor() or 'unknown CPU'}){mem}, "
+            f"{platform.system()} {platform.release()}, Python {platform.python_version()}, "
+            "CPU only")
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, check=True,
+                             capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=REPO, capture_output=True, text=True).stdout.strip()
+        return out + (" (with uncommitted changes)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, command: str,
+                  reference_csv: Path | None = None) -> list[Path]:
+    """Per task: `<out>/<task>.png` and `<out>/<task>.md` from the finished runs."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ref_kwargs = {} if reference_csv is None else {"path": reference_csv}
+    reference = group(load_reference(**ref_kwargs))
+    written = []
+    for task in dict.fromkeys(c.task for c in cells):
+        done = [c for c in cells if c.task == task and is_done(run_root / c.name)]
+        if not done:
+            print(f"[report] {task}: no finished run yet", flush=True)
+            continue
+        curves = [load_run(run_root / c.name) for c in done]
+        ours = group(curves)
+        title = next(iter(ours))
+        figure = plot_figure(ours, out_dir / f"{task}.png", reference)
+        walls = [json.loads((run_root / c.name / DONE_FILE).read_text()) for c in done]
+        missing = [c.name for c in cells if c.task == task and c not in done]
+        lines = [
+            f"# Sample efficiency: {title}", "",
+            f"Our runs (solid, min–max band over seeds) against the authors' published "
+            f"per-seed results (dashed; DESIGN §5, `docs/reference/`).", "",
+            f"![{title}]({figure.name})", "",
+            tables(ours, {title: reference.get(title, {})}).rstrip("\n"), "",
+            "## How these were made", "",
+            f"- command: `{command}`",
+            f"- date: {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}",
+            "- commit: " + ", ".join(sorted({str(w.get("commit", "unknown")) for w in walls})),
+            f"- machine: {machine_description()}",
+            "- runs: " + ", ".join(
+                f"{w['method']} s{w['seed']} ({w['epochs']} epochs, {w['wall_s'] / 60:.0f} min)"
+                for w in walls),
+        ]
+        if missing:
+            lines.append("- not finished yet: " + ", ".join(missing))
+        md = out_dir / f"{task}.md"
+        md.write_text("\n".join(lines) + "\n")
+        written += [md, figure]
+        print(f"[report] wrote {md} and {figure}", flush=True)
+    return written
+
+
+# ---------------------------------------------------------------------------------- CLI
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", nargs="+", choices=sorted(TASKS), default=None,
+                   help="tasks (default: push; reach with --quick)")
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=["her", "her-cs"])
+    p.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="epochs per run (default 100; 1 with --quick)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="runs at once (default: one per core)")
+    p.add_argument("--actors", type=int, default=1, help="actors per run (default 1)")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="SECTION.FIELD=VALUE", help="config override for every run")
+    p.add_argument("--run-dir", default=None,
+                   help="where runs go (default runs/sample_efficiency; a temp dir with --quick)")
+    p.add_argument("--out", default=None,
+                   help="report folder (default docs/results; the run dir with --quick)")
+    p.add_argument("--report-only", action="store_true",
+                   help="train nothing: report the runs finished so far")
+    p.add_argument("--quick", action="store_true",
+                   help="CI mode: tiny runs in a temporary folder (seconds per run)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.seeds < 1:
+        print("sample_efficiency: --seeds must be at least 1", file=sys.stderr)
+        return 2
+    if args.jobs is not None and args.jobs < 1:
+        print("sample_efficiency: --jobs must be at least 1", file=sys.stderr)
+        return 2
+    tasks = args.tasks or (["reach"] if args.quick else ["push"])
+    epochs = args.epochs or (1 if args.quick else 100)
+    overrides = list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
+    tmp = tempfile.mkdtemp(prefix="hercs-se-") if args.quick and not args.run_dir else None
+    run_root = Path(args.run_dir or tmp or REPO / "runs" / "sample_efficiency").resolve()
+    out_dir = Path(args.out or (run_root / "results" if args.quick else REPO / "docs/results"))
+    jobs = args.jobs or max(1, os.cpu_count() or 1)
+    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)))
+    command = "python bench/sample_efficiency.py " + " ".join(
+        a for a in (argv if argv is not None else sys.argv[1:]))
+    print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "
+          f"{args.seeds} seeds), {epochs} epochs each, {jobs} at a time, in {run_root}",
+          flush=True)
+    failed = 0
+    if not args.report_only:
+        results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,
+                           actors=args.actors, overrides=overrides)
+        failed = sum(code != 0 for _, code in results)
+    write_reports(cells, run_root, out_dir, command=command.strip())
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
