@@ -225,8 +225,8 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
         missing = [c.name for c in cells if c.task == task and c not in done]
         lines = [
             f"# Sample efficiency: {title}", "",
-            f"Our runs (solid, min–max band over seeds) against the authors' published "
-            f"per-seed results (dashed; DESIGN §5, `docs/reference/`).", "",
+            "Our runs (solid, min–max band over seeds) against the authors' published "
+            "per-seed results (dashed; DESIGN §5, `docs/reference/`).", "",
             f"![{title}]({figure.name})", "",
             tables(ours, {title: reference.get(title, {})}).rstrip("\n"), "",
             "## How these were made", "",
