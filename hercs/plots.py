@@ -260,6 +260,7 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     tasks = list(ours)
     fig, axes = plt.subplots(1, len(tasks), figsize=(PANEL_W * len(tasks), PANEL_H), dpi=DPI,
@@ -290,6 +291,7 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         ax.set_xlabel("epoch")
         ax.set_ylabel("success rate")
         ax.set_xlim(1 if right > 1 else 0, right)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # epochs are whole numbers
         ax.set_ylim(-0.01, 1.01)  # curves at exactly 0 or 1 stay visible
         ax.set_yticks(np.linspace(0.0, 1.0, 6))
         ax.grid(True, alpha=0.3)
