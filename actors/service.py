@@ -23,14 +23,12 @@ Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`,
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
 import time
 
 import numpy as np
 import torch
-import yaml
 
 from actors.inserter import Inserter
 from actors.rollout import RolloutWorker
@@ -39,7 +37,7 @@ from hercs.envs import make_env
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import generator, int_seed
-from hercs.service import ServiceRuntime, WarnOncePerMinute, fetch_run_config, setup_logging
+from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
 from hercs.tasks import TaskSpec
 from hercs.transport import TransportError
 from proto import hercs_pb2 as pb
@@ -53,8 +51,6 @@ INSERT_QUEUE = 2
 STOP_FLUSH_S = 3.0
 """On stop, queued inserts get this long to be acked before they are given up."""
 METRICS_EVERY_EPISODES = 10
-CONFIG_RETRY_MAX_S = 2.0
-_CONFIG_LOG_EVERY_S = 10.0
 
 
 # --------------------------------------------------------------------------- weights
@@ -109,44 +105,6 @@ class LatestWeights:
         with self._lock:
             weights, self._pending = self._pending, None
         return weights
-
-
-# --------------------------------------------------------------------------- config
-
-
-def join_run(runtime: ServiceRuntime, local: HercsConfig) -> HercsConfig | None:
-    """The run's resolved config from its replay, with `local`'s transport section.
-
-    Retries (backoff up to `CONFIG_RETRY_MAX_S`) until the replay answers; None if
-    `runtime.stop` is set first. A config this version of hercs cannot read raises
-    `ConfigError` (retrying would not help).
-    """
-    run = local.run.name
-    delay = 0.1
-    start = time.monotonic()
-    next_log = start
-    while not runtime.stop.is_set():
-        try:
-            remote = fetch_run_config(runtime.transport, run)
-        except TransportError as exc:  # no replay yet, restarting, or a timeout: retry
-            now = time.monotonic()
-            if now >= next_log:
-                log.info("waiting for run %r's replay to serve its config (%.0f s so far): %s",
-                         run, now - start, exc)
-                next_log = now + _CONFIG_LOG_EVERY_S
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"run {run!r}: the replay served a config that is not YAML "
-                              f"({exc})") from None
-        else:
-            if remote.run.name != run:
-                log.warning("run %r's replay serves a config named %r; keeping %r (the keys "
-                            "this process uses)", run, remote.run.name, run)
-            return dataclasses.replace(
-                remote, run=dataclasses.replace(remote.run, name=run), transport=local.transport
-            )
-        runtime.stop.wait(delay)
-        delay = min(delay * 2.0, CONFIG_RETRY_MAX_S)
-    return None
 
 
 # --------------------------------------------------------------------------- the actor

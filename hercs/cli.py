@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import yaml
 
@@ -48,6 +49,40 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh endpoint for the router to listen on (repeatable)")
 
 
+def add_rerun_arguments(parser: argparse.ArgumentParser) -> None:
+    """The live view's options (`hercs up`, `hercs live`); they set the `view` section."""
+    group = parser.add_argument_group("live view (Rerun)")
+    group.add_argument("--rerun", nargs="?", const="spawn", metavar="URL",
+                       help="stream metrics, episodes and clusters to Rerun while training "
+                            "runs: without URL a local viewer is started (port 9876); with "
+                            "URL (e.g. rerun+http://HOST:9876/proxy, or a port) a running "
+                            "viewer is used")
+    group.add_argument("--rerun-save", metavar="FILE.rrd",
+                       help="write the live recording to this file (no viewer unless --rerun "
+                            "is given too): for machines without a display")
+    group.add_argument("--rerun-every", type=int, metavar="N",
+                       help="draw the 3D trajectory of every N-th episode (default 20, 0 = "
+                            "none)")
+
+
+def rerun_overrides(args: argparse.Namespace) -> list[str]:
+    """`view.*` overrides for --rerun / --rerun-save / --rerun-every (absent flags: none)."""
+    viewer = getattr(args, "rerun", None)
+    save = getattr(args, "rerun_save", None)
+    every = getattr(args, "rerun_every", None)
+    overrides = []
+    if viewer is not None or save is not None:
+        overrides.append("view.live=true")
+        if viewer is not None and viewer.isdigit():  # a bare port: a viewer on this host
+            viewer = f"rerun+http://127.0.0.1:{viewer}/proxy"
+        overrides.append(f"view.viewer={viewer if viewer is not None else 'none'}")
+    if save is not None:
+        overrides.append(f"view.save={Path(save).absolute()}")
+    if every is not None:
+        overrides.append(f"view.episode_every={every}")
+    return overrides
+
+
 def resolve_config(args: argparse.Namespace) -> HercsConfig:
     config = load_yaml(args.config) if args.config else HercsConfig()
     overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
@@ -57,7 +92,7 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         if endpoints:
             listed = yaml.safe_dump(endpoints, default_flow_style=True).strip()
             overrides.append(f"transport.{flag}={listed}")
-    return apply_overrides(config, overrides + list(args.overrides))
+    return apply_overrides(config, overrides + rerun_overrides(args) + list(args.overrides))
 
 
 def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -94,6 +129,8 @@ SERVICES: dict[str, tuple[str, str]] = {
     "learner": ("learner.service", "run the DDPG learner (updates, weights, epochs)"),
     "actor": ("actors.service", "run a rollout actor (join a run with --connect and --run)"),
     "evaluator": ("actors.evaluator", "run the evaluator (deterministic test episodes)"),
+    "live": ("hercs.live_view", "stream a run to Rerun while it trains (what `hercs up "
+                                "--rerun` starts; join a run with --connect and --run)"),
 }
 
 
@@ -146,6 +183,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
 
     p = sub.add_parser("config", help="print (or save) the fully resolved configuration")
     add_config_arguments(p)
+    add_rerun_arguments(p)
     p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
     commands["config"] = _cmd_config
 
@@ -154,9 +192,11 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    "learner, evaluator and --actors actors; Ctrl-C stops the run",
         description="Start a whole run locally. The router is embedded and listens on --listen "
                     "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
-                    "connect to it on this host, so --connect is ignored.",
+                    "connect to it on this host, so --connect is ignored. --rerun adds the "
+                    "live view (hercs/live_view.py), which training never waits for.",
     )
     add_config_arguments(p)
+    add_rerun_arguments(p)
     commands["up"] = _cmd_up
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
@@ -167,6 +207,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     for name, (module, help_text) in SERVICES.items():
         p = sub.add_parser(name, help=help_text)
         add_config_arguments(p)
+        if name == "live":
+            add_rerun_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
         commands[name] = _service_command(module)
 

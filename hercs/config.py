@@ -266,6 +266,35 @@ class TransportConfig:
                        endpoint, "be a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
 
 
+VIEWER_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
+
+
+@dataclass
+class ViewConfig:
+    live: bool = False
+    """`hercs up` also starts the live view (`hercs live`): metrics, episodes and clusters
+    streamed to Rerun while training runs, with the entity paths of `hercs view` [DESIGN]."""
+    episode_every: int = 20
+    """The live view draws the 3D trajectory of every episode whose id is a multiple of this
+    (fetched from the replay); 0 = none. Scalars and failed goals cover every episode."""
+    viewer: str = "spawn"
+    """Where the live view streams: 'spawn' (a local Rerun viewer started by rerun-sdk on port
+    9876, or the one already listening there), 'none', or a viewer's gRPC URL such as
+    'rerun+http://HOST:9876/proxy'."""
+    save: str = ""
+    """Also write the live recording to this .rrd file ('' = no file), e.g. on a machine
+    without a display."""
+
+    def __post_init__(self) -> None:
+        _check(self.episode_every >= 0, "view.episode_every", self.episode_every, "be >= 0")
+        _check(self.viewer in ("spawn", "none")
+               or (self.viewer.startswith(VIEWER_SCHEMES) and self.viewer.endswith("/proxy")),
+               "view.viewer", self.viewer,
+               "be 'spawn', 'none' or a Rerun gRPC URL like rerun+http://HOST:9876/proxy")
+        _check(self.save == "" or self.save.endswith(".rrd"), "view.save", self.save,
+               "be '' or a path ending in .rrd")
+
+
 @dataclass
 class HercsConfig:
     run: RunConfig = field(default_factory=RunConfig)
@@ -278,6 +307,7 @@ class HercsConfig:
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     transport: TransportConfig = field(default_factory=TransportConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
 
     def __post_init__(self) -> None:
         spec = self.task.spec

@@ -15,6 +15,9 @@ What `run_up` does, in order:
    each child's stdout and stderr to `logs/<id>.log`: the replay first (ids `replay-0`), and
    once its liveliness token is up the clusterer, learner, evaluator (`<role>-0`) and
    `actor.num_actors` actors (`actor-0` … `actor-<N-1>`). Children connect as Zenoh clients.
+   With `view.live` (`--rerun`, `--rerun-save`) the live view `live-0` (hercs/live_view.py)
+   starts right after the replay, and the others once its token is up (so that it sees the
+   first episode) or after `LIVE_READY_TIMEOUT_S` without it.
 5. Prints one progress line per epoch (`Progress`), and logs remote processes (e.g. actors
    started with `hercs actor --connect … --run …`) joining and leaving.
 6. Ends when:
@@ -22,9 +25,12 @@ What `run_up` does, in order:
      epoch's progress line, stops the others, prints the run directory, returns 0;
    - any other child exits, or the learner exits non-zero: prints the role, id, exit code and
      the last lines of its log, stops the others, returns 1;
+   - except an optional child (`OPTIONAL_ROLES`: the live view): its exit is reported the same
+     way as a warning, it is not restarted, and training goes on without it (a live view can
+     be started again by hand: `hercs live --connect … --run …`);
    - SIGINT (Ctrl-C) / SIGTERM / SIGHUP: stops everything, returns 128 + signal number.
 
-Stopping goes stage by stage — actors, then evaluator/learner/clusterer, then the replay last
+Stopping goes stage by stage — actors, then evaluator/learner/clusterer/live, then the replay last
 (so that every episode in flight can still be acked and logged) — with SIGTERM to each child's
 process group, a bounded wait (`stop_timeout_s`), then SIGKILL. A second Ctrl-C skips the
 waits and kills at once.
@@ -68,13 +74,17 @@ from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
 from proto.validation import parse_message
 
-START_ORDER = ("replay", "clusterer", "learner", "evaluator", "actor")
-"""Roles in start order; the replay alone first (it serves the config and the insert queryable)."""
-STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer"), ("replay",))
+START_ORDER = ("replay", "live", "clusterer", "learner", "evaluator", "actor")
+"""Roles in start order; the replay alone first (it serves the config and the insert queryable),
+then the live view if enabled (before any episode is made)."""
+STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("replay",))
 """Roles stopped together, stage after stage; the replay last."""
+OPTIONAL_ROLES = frozenset({"live"})
+"""Roles whose exit does not end the run: watching training must never stop it."""
 
 STOP_TIMEOUT_S = 10.0
 READY_TIMEOUT_S = 120.0
+LIVE_READY_TIMEOUT_S = 30.0
 FINAL_PROGRESS_TIMEOUT_S = 5.0
 LOG_TAIL_LINES = 20
 _POLL_S = 1.0
@@ -107,8 +117,9 @@ def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
 
 
 def plan_children(config: HercsConfig) -> list[ChildSpec]:
-    """Every child of a run, in start order."""
-    specs = [ChildSpec(role, f"{role}-0") for role in START_ORDER if role != "actor"]
+    """Every child of a run, in start order (the live view only with `view.live`)."""
+    roles = [r for r in START_ORDER if r != "actor" and (r != "live" or config.view.live)]
+    specs = [ChildSpec(role, f"{role}-0") for role in roles]
     specs += [ChildSpec("actor", f"actor-{i}") for i in range(config.actor.num_actors)]
     return specs
 
@@ -347,13 +358,24 @@ class _Launcher:
         return child
 
     def _report_exit(self, child: _Child, code: int) -> None:
+        goes_on = "; training goes on without it" if child.spec.role in OPTIONAL_ROLES else ""
         lines = [f"hercs up: {child.spec.role} {child.spec.ident} exited unexpectedly "
-                 f"({_describe_exit(code)}); last lines of {child.log_path}:"]
+                 f"({_describe_exit(code)}){goes_on}; last lines of {child.log_path}:"]
         lines += [f"  | {line}" for line in _tail(child.log_path, LOG_TAIL_LINES)]
         self.say("\n".join(lines), error=True)
 
+    def _reap_optional(self) -> None:
+        """Report optional children that exited, once; they never end the run."""
+        for child in self.children:
+            if child.spec.role in OPTIONAL_ROLES and not child.expected_exit:
+                code = child.proc.poll()
+                if code is not None:
+                    child.expected_exit = True
+                    self._report_exit(child, code)
+
     def check_children(self) -> int | None:
         """None while all is well; 0 once the learner is done; 1 if a child failed."""
+        self._reap_optional()
         exited = [(c, c.proc.poll()) for c in self.children if not c.expected_exit]
         exited = [(c, code) for c, code in exited if code is not None]
         for child, code in exited:
@@ -379,6 +401,7 @@ class _Launcher:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or self.signals.stop_requested:
                 return False
+            self._reap_optional()
             if any(c.proc.poll() is not None for c in self.children if not c.expected_exit):
                 return False
             self.signals.wait(min(remaining, _POLL_S))
@@ -399,7 +422,21 @@ class _Launcher:
                      f"(no liveliness token {replay_key}); see {self.children[0].log_path}",
                      error=True)
             return 1
-        for spec in specs[1:]:
+        rest = specs[1:]
+        if rest and rest[0].role == "live":
+            live = self.start(rest.pop(0))
+            live_key = self.keys.alive(live.spec.role, live.spec.ident)
+            if not self.wait_until(lambda: live_key in self.alive or live.expected_exit,
+                                   LIVE_READY_TIMEOUT_S):
+                if self.signals.stop_requested:
+                    return self._interrupted()
+                status = self.check_children()
+                if status is not None:
+                    return status
+                if not live.expected_exit:
+                    self.say(f"hercs up: {live.spec} is not up after {LIVE_READY_TIMEOUT_S:g} s; "
+                             f"starting the run anyway (see {live.log_path})", error=True)
+        for spec in rest:
             self.start(spec)
         self.say(f"hercs up: run {self.config.run.name} is running "
                  f"({self.config.training.epochs} epochs); Ctrl-C to stop")

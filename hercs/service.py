@@ -6,6 +6,7 @@ metrics publishing and rate-limited warnings. A service's `run(config)` builds a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import signal
@@ -20,7 +21,7 @@ import yaml
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError
-from hercs.transport import Transport
+from hercs.transport import Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
@@ -28,6 +29,8 @@ from proto.keys import RunKeys
 log = logging.getLogger(__name__)
 
 CONFIG_REQUEST_TIMEOUT_S = 10.0
+CONFIG_RETRY_MAX_S = 2.0
+_CONFIG_LOG_EVERY_S = 10.0
 
 
 def default_ident() -> str:
@@ -119,3 +122,40 @@ def fetch_run_config(transport: Transport, run: str, *,
     that were given only `--connect` and `--run`)."""
     raw = transport.request(RunKeys(run).config, b"", timeout_s=timeout_s)
     return HercsConfig.from_dict(yaml.safe_load(raw.decode()))
+
+
+def join_run(runtime: ServiceRuntime, local: HercsConfig, *,
+             keep: tuple[str, ...] = ("transport",)) -> HercsConfig | None:
+    """The run's resolved config from its replay, with `local`'s `keep` sections (how this
+    process reaches the router, and e.g. the live view's own `view` section).
+
+    Retries (backoff up to `CONFIG_RETRY_MAX_S`) until the replay answers; None if
+    `runtime.stop` is set first. A config this version of hercs cannot read raises
+    `ConfigError` (retrying would not help).
+    """
+    run = local.run.name
+    delay = 0.1
+    start = time.monotonic()
+    next_log = start
+    while not runtime.stop.is_set():
+        try:
+            remote = fetch_run_config(runtime.transport, run)
+        except TransportError as exc:  # no replay yet, restarting, or a timeout: retry
+            now = time.monotonic()
+            if now >= next_log:
+                log.info("waiting for run %r's replay to serve its config (%.0f s so far): %s",
+                         run, now - start, exc)
+                next_log = now + _CONFIG_LOG_EVERY_S
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"run {run!r}: the replay served a config that is not YAML "
+                              f"({exc})") from None
+        else:
+            if remote.run.name != run:
+                log.warning("run %r's replay serves a config named %r; keeping %r (the keys "
+                            "this process uses)", run, remote.run.name, run)
+            kept = {name: getattr(local, name) for name in keep}
+            return dataclasses.replace(
+                remote, run=dataclasses.replace(remote.run, name=run), **kept)
+        runtime.stop.wait(delay)
+        delay = min(delay * 2.0, CONFIG_RETRY_MAX_S)
+    return None

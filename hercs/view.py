@@ -5,6 +5,9 @@ Reads `episodes.mcap` (a single segment, or a run directory: its numbered segmen
 log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
 the web viewer (`--web`).
 
+The live view (`hercs up --rerun`, hercs/live_view.py) logs the same entities on the same
+timelines with the logging functions below while a run trains.
+
 Timelines
     episode   the episode id (sequence). Every per-episode entity, the failed goals and the
               centroids are on it.
@@ -68,7 +71,7 @@ import numpy as np
 
 from hercs.clustering import assign_clusters
 from hercs.errors import HercsError
-from hercs.tasks import task_spec
+from hercs.tasks import TaskSpec, task_spec
 from proto import hercs_pb2 as pb
 from proto.codec import msg_to_array
 from replay_service.episode_log import (
@@ -186,15 +189,24 @@ def select_episodes(text: str | None, ids: Sequence[int], *,
 
 
 @dataclass
-class EpisodeSummary:
+class EpisodeOutcome:
+    """What every episode contributes (the per-episode scalars and the failed goals); the
+    live view has it from the replay's EpisodeHeader alone."""
+
     episode_id: int
-    success: bool
+    success: bool  # ‖ag_T − g_T‖ ≤ the task's threshold
     final_distance: float
-    cluster: int
+    cluster: int  # of ag_T under the cluster model current at insert; −1 before the first
     desired_goal: np.ndarray  # g_T, (3,)
     actor_id: str
     seq: int
     policy_version: int
+
+
+@dataclass
+class EpisodeSummary(EpisodeOutcome):
+    """An outcome plus the positions drawn in 3D (selected episodes)."""
+
     gripper: np.ndarray  # (T+1, 3)
     obj: np.ndarray | None  # (T+1, 3)
     goal: np.ndarray  # (T+1, 3): g, with g[T-1] repeated for o_T
@@ -229,6 +241,23 @@ def resolve_log_path(path: str | os.PathLike[str]) -> Path:
     return p
 
 
+def summarize_episode(msg: pb.Episode, *, episode_id: int, spec: TaskSpec,
+                      cluster: int) -> EpisodeSummary:
+    """An Episode message as drawn: positions from obs (gripper 0:3, object 3:6 for the tasks
+    with an object), success from ‖ag_T − g_T‖ against the task's threshold."""
+    obs = msg_to_array(msg.obs, where="Episode.obs")
+    ag = msg_to_array(msg.ag, where="Episode.ag")
+    g = msg_to_array(msg.g, where="Episode.g")
+    distance = float(np.linalg.norm(ag[-1] - g[-1]))
+    return EpisodeSummary(
+        episode_id=episode_id, success=distance <= spec.distance_threshold,
+        final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
+        actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
+        gripper=np.asarray(obs[:, 0:3], np.float32),
+        obj=np.asarray(obs[:, 3:6], np.float32) if spec.name in TASKS_WITH_OBJECT else None,
+        goal=np.concatenate([g, g[-1:]]).astype(np.float32))
+
+
 def read_run_log(path: Path) -> RunLog:
     """One pass over the log: per episode its positions, success and cluster (under the latest
     cluster model logged before it)."""
@@ -247,18 +276,12 @@ def read_run_log(path: Path) -> RunLog:
         if spec is None:
             spec = task_spec(msg.task)
             run.task, run.threshold = spec.name, spec.distance_threshold
-        obs = msg_to_array(msg.obs, where="Episode.obs")
-        ag = msg_to_array(msg.ag, where="Episode.ag")
-        g = msg_to_array(msg.g, where="Episode.g")
-        distance = float(np.linalg.norm(ag[-1] - g[-1]))
-        cluster = -1 if centroids is None else int(assign_clusters(ag[-1:], centroids)[0])
-        run.episodes.append(EpisodeSummary(
-            episode_id=message.sequence, success=distance <= spec.distance_threshold,
-            final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
-            actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
-            gripper=np.asarray(obs[:, 0:3], np.float32),
-            obj=np.asarray(obs[:, 3:6], np.float32) if spec.name in TASKS_WITH_OBJECT else None,
-            goal=np.concatenate([g, g[-1:]]).astype(np.float32)))
+        cluster = -1
+        if centroids is not None:
+            ag_final = msg_to_array(msg.ag, where="Episode.ag")[-1:]
+            cluster = int(assign_clusters(ag_final, centroids)[0])
+        run.episodes.append(summarize_episode(msg, episode_id=message.sequence, spec=spec,
+                                              cluster=cluster))
         next_id = message.sequence + 1
     return run
 
@@ -330,16 +353,46 @@ def log_episode(rr, rec, ep: EpisodeSummary) -> None:
         level=rr.TextLogLevel.INFO if ep.success else rr.TextLogLevel.WARN))
 
 
-def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeSummary]) -> None:
+def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeOutcome], *,
+                        styles: bool = True) -> None:
+    """`episodes/success`, `episodes/final_distance`, `episodes/cluster` on `episode`, one
+    row per episode; `styles=False` skips the static series styles (logged once is enough)."""
     ids = rr.TimeColumn("episode", sequence=[e.episode_id for e in episodes])
     for name, values in (("success", [float(e.success) for e in episodes]),
                          ("final_distance", [e.final_distance for e in episodes]),
                          ("cluster", [float(e.cluster) for e in episodes])):
-        style = (rr.SeriesLines(names=name) if name == "final_distance"
-                 else rr.SeriesPoints(names=name, marker_sizes=1.5))
-        rec.log(f"episodes/{name}", style, static=True)
+        if styles:
+            style = (rr.SeriesLines(names=name) if name == "final_distance"
+                     else rr.SeriesPoints(names=name, marker_sizes=1.5))
+            rec.log(f"episodes/{name}", style, static=True)
         rec.send_columns(f"episodes/{name}", indexes=[ids],
                          columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
+
+
+def log_centroids(rr, rec, model: LoggedModel) -> None:
+    """`world/centroids` and a `log/cluster_models` line at the model's first episode."""
+    rec.set_time("episode", sequence=model.at_episode)
+    k = len(model.centroids)
+    rec.log("world/centroids", rr.Points3D(
+        model.centroids, colors=cluster_colors(np.arange(k)),
+        radii=np.full(k, CENTROID_RADIUS, np.float32),
+        labels=[f"c{i}" for i in range(k)]))
+    rec.log("log/cluster_models", rr.TextLog(
+        f"cluster model v{model.version}: k={k}, fitted on {model.fitted_on} failed goals "
+        f"({model.failed_goals_seen} seen), applies from episode {model.at_episode}"))
+
+
+def log_failed_goals(rr, rec, *, at_episode: int, goals: np.ndarray,
+                     centroids: np.ndarray | None) -> None:
+    """`world/failed_goals` at `at_episode`: `goals` (N, 3) coloured by their nearest centroid
+    (grey without a model)."""
+    if centroids is not None and len(goals):
+        colors = cluster_colors(assign_clusters(goals, centroids), 200)
+    else:
+        colors = cluster_colors(np.full(len(goals), -1), 200)
+    rec.set_time("episode", sequence=at_episode)
+    rec.log("world/failed_goals", rr.Points3D(
+        goals, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
 
 
 def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
@@ -349,27 +402,13 @@ def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
     failed_goals = np.array([e.desired_goal for e in run.episodes if not e.success],
                             np.float32).reshape(-1, 3)
     for model in run.models:
-        rec.set_time("episode", sequence=model.at_episode)
-        k = len(model.centroids)
-        rec.log("world/centroids", rr.Points3D(
-            model.centroids, colors=cluster_colors(np.arange(k)),
-            radii=np.full(k, CENTROID_RADIUS, np.float32),
-            labels=[f"c{i}" for i in range(k)]))
-        rec.log("log/cluster_models", rr.TextLog(
-            f"cluster model v{model.version}: k={k}, fitted on {model.fitted_on} failed goals "
-            f"({model.failed_goals_seen} seen), applies from episode {model.at_episode}"))
+        log_centroids(rr, rec, model)
     model_starts = np.array([m.at_episode for m in run.models], np.int64)
     times = sorted(set(selected) | {m.at_episode for m in run.models})
     for t in times:
-        goals = failed_goals[failed_ids <= t]
         current = np.searchsorted(model_starts, t, side="right") - 1
-        if current >= 0 and len(goals):
-            colors = cluster_colors(assign_clusters(goals, run.models[current].centroids), 200)
-        else:
-            colors = cluster_colors(np.full(len(goals), -1), 200)
-        rec.set_time("episode", sequence=t)
-        rec.log("world/failed_goals", rr.Points3D(
-            goals, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
+        log_failed_goals(rr, rec, at_episode=t, goals=failed_goals[failed_ids <= t],
+                         centroids=run.models[current].centroids if current >= 0 else None)
 
 
 def _floats(values: Sequence[str]) -> np.ndarray | None:
@@ -377,6 +416,13 @@ def _floats(values: Sequence[str]) -> np.ndarray | None:
         return np.array([float(v) if v != "" else np.nan for v in values], np.float64)
     except ValueError:
         return None
+
+
+def declare_curve(rr, rec, name: str) -> str:
+    """Log the static series style of `curves/<name>` and return that entity path."""
+    entity = f"curves/{name}"
+    rec.log(entity, rr.SeriesLines(names=name), static=True)
+    return entity
 
 
 def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[str]:
@@ -398,10 +444,10 @@ def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[s
             if numbers is not None:
                 if np.isnan(numbers).all():
                     continue
-                rec.log(f"curves/{name}", rr.SeriesLines(names=name), static=True)
-                rec.send_columns(f"curves/{name}", indexes=indexes,
+                entity = declare_curve(rr, rec, name)
+                rec.send_columns(entity, indexes=indexes,
                                  columns=rr.Scalars.columns(scalars=numbers))
-                logged.append(f"curves/{name}")
+                logged.append(entity)
             elif any(";" in v for v in values):  # per-cluster lists, e.g. "31;23;32"
                 for epoch, value in zip(epochs.astype(np.int64), values, strict=True):
                     parts = _floats(value.split(";")) if value else None
@@ -415,11 +461,18 @@ def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[s
     if results:
         index = rr.TimeColumn("epoch", sequence=[int(r.epoch) for r in results])
         for name in ("success_rate", "mean_final_distance"):
-            rec.log(f"curves/{name}", rr.SeriesLines(names=name), static=True)
-            rec.send_columns(f"curves/{name}", indexes=[index], columns=rr.Scalars.columns(
+            entity = declare_curve(rr, rec, name)
+            rec.send_columns(entity, indexes=[index], columns=rr.Scalars.columns(
                 scalars=[float(getattr(r, name)) for r in results]))
-            logged.append(f"curves/{name}")
+            logged.append(entity)
     return logged
+
+
+def rerun_executable() -> str | None:
+    """The `rerun` beside this interpreter (the pinned rerun-sdk's), else None: rerun-sdk then
+    looks for one on PATH."""
+    rerun_exe = Path(sys.executable).parent / "rerun"
+    return str(rerun_exe) if rerun_exe.exists() else None
 
 
 def blueprint():
@@ -497,9 +550,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         url = rec.serve_grpc(default_blueprint=layout)
         rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
     else:
-        rerun_exe = Path(sys.executable).parent / "rerun"
-        rr.spawn(recording=rec, default_blueprint=layout,
-                 executable_path=str(rerun_exe) if rerun_exe.exists() else None)
+        rr.spawn(recording=rec, default_blueprint=layout, executable_path=rerun_executable())
     build_recording(rr, rec, run, selected, metrics, log_path)
     rec.flush()
     print(f"hercs view: {len(selected)} of {len(ids)} episodes, {len(run.models)} cluster "

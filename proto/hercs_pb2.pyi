@@ -102,6 +102,14 @@ class EpisodeHeader(_message.Message):
     policy_version: int
     def __init__(self, schema_version: _Optional[int] = ..., episode_id: _Optional[int] = ..., actor_id: _Optional[str] = ..., seq: _Optional[int] = ..., success: _Optional[bool] = ..., final_achieved_goal: _Optional[_Union[Array, _Mapping]] = ..., desired_goal: _Optional[_Union[Array, _Mapping]] = ..., energy: _Optional[float] = ..., cluster: _Optional[int] = ..., policy_version: _Optional[int] = ...) -> None: ...
 
+class EpisodeRequest(_message.Message):
+    __slots__ = ("schema_version", "episode_id")
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    EPISODE_ID_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    episode_id: int
+    def __init__(self, schema_version: _Optional[int] = ..., episode_id: _Optional[int] = ...) -> None: ...
+
 class SampleRequest(_message.Message):
     __slots__ = ("schema_version", "run", "learner_id", "request_id", "num_minibatches", "batch_size", "weights_version")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]

@@ -31,6 +31,11 @@ class RunKeys:
         return self._key("replay/inserted")
 
     @property
+    def episode(self) -> str:
+        """Queryable: `EpisodeRequest` → the stored `Episode` with that id (the live view)."""
+        return self._key("replay/episode")
+
+    @property
     def status(self) -> str:
         return self._key("replay/status")
 

@@ -35,6 +35,9 @@ class RejectReason(StrEnum):
     BAD_LENGTH = "bad_length"
     NON_FINITE = "non_finite"
     BAD_VALUE = "bad_value"
+    UNKNOWN_EPISODE = "unknown_episode"
+    """An `EpisodeRequest` for an id the replay does not hold (never inserted, or overwritten
+    by the ring): a miss, not bad input, so it is not counted in `ReplayStatus.rejects`."""
 
 
 class Rejection(NamedTuple):

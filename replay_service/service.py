@@ -7,6 +7,10 @@ Queries (served on our own worker threads, never inside Zenoh callbacks):
   on `replay/inserted`. When the limiter holds inserts the query is parked and answered later.
 - `replay/sample` (SampleRequest → Batch): parked until the limiter admits it.
 - `config`: the run's resolved config as YAML (remote actors start from it).
+- `replay/episode` (EpisodeRequest → Episode): one stored episode by id, as inserted (the live
+  view draws every n-th episode's trajectory from it). An id never inserted or already
+  overwritten by the ring gets the error reply `unknown_episode` (a miss, not counted as a
+  reject); a malformed request is a reject like any other.
 Subscriptions: `cluster/model` (latest, so a restarted replay gets the current model at once)
 and `eval/result` (logged). `replay/status` is put about once a second.
 
@@ -40,6 +44,7 @@ from proto import hercs_pb2 as pb
 from proto.codec import (
     MINIBATCH_FIELDS,
     array_to_msg,
+    episode_to_msg,
     minibatch_to_msg,
     msg_to_array,
     msg_to_episode,
@@ -110,6 +115,8 @@ class ReplayService:
         self.inserted_pub = transport.publisher(keys.inserted, block=True)
         self.status_pub = transport.publisher(keys.status)
         transport.serve(keys.config, lambda _: self._config_yaml)
+        transport.serve(keys.episode, self._on_episode_request,
+                        on_error=self._on_episode_request_error)
         transport.subscribe(keys.cluster_model, self._on_cluster_model, latest=True)
         transport.subscribe(keys.eval_result, self._on_eval_result)
         transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject)
@@ -182,6 +189,31 @@ class ReplayService:
         return pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id=episode.actor_id,
                             seq=episode.seq, episode_id=episode_id,
                             duplicate=duplicate).SerializeToString()
+
+    # -- stored episodes (the live view) ---------------------------------------------------
+    def _on_episode_request(self, payload: bytes) -> bytes:
+        request = parse_message(payload, pb.EpisodeRequest,
+                                max_bytes=self.config.replay.max_message_bytes)
+        episode_id = int(request.episode_id)
+        with self.lock:
+            store = self.core.store
+            episode = store.episode(episode_id)
+            first, end = store.num_inserted - store.size, store.num_inserted
+        if episode is None:
+            why = "not inserted yet" if episode_id >= end else "overwritten by newer episodes"
+            held = f"ids {first}..{end - 1}" if end > first else "no episode yet"
+            raise InvalidMessage(
+                RejectReason.UNKNOWN_EPISODE,
+                f"EpisodeRequest.episode_id {episode_id}: not stored ({why}; the replay holds "
+                f"{held})")
+        return episode_to_msg(episode, run=self.config.run.name,
+                              task=self.spec.name).SerializeToString()
+
+    def _on_episode_request_error(self, exc: Exception) -> None:
+        if isinstance(exc, InvalidMessage) and exc.reason == RejectReason.UNKNOWN_EPISODE:
+            log.debug("episode request: %s", exc)
+            return
+        self._on_reject(exc)
 
     # -- samples ---------------------------------------------------------------------------
     def _on_sample(self, pending: PendingReply) -> None:

@@ -230,6 +230,19 @@ class EpisodeStore:
             return None
         return episode_id % self._capacity
 
+    def episode(self, episode_id: int) -> EpisodeData | None:
+        """A copy of the stored episode `episode_id` as it was inserted, or None if it was
+        never inserted or has been overwritten (a copy: the slot may be reused later)."""
+        slot = self.slot_of(episode_id)
+        if slot is None:
+            return None
+        return EpisodeData(
+            obs=self._obs[slot].copy(), ag=self._ag[slot].copy(), g=self._g[slot].copy(),
+            actions=self._actions[slot].copy(), actor_id=str(self._actor_id[slot]),
+            seq=int(self._seq[slot]), success=bool(self._success[slot]),
+            policy_version=int(self._policy_version[slot]),
+        )
+
     # ------------------------------------------------------------------ checkpoint
 
     def state_dict(self) -> dict[str, Any]:

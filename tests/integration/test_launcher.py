@@ -400,6 +400,43 @@ def test_a_child_exiting_early_is_reported_and_stops_the_run(up, ident: str, beh
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
 
+def test_the_live_view_starts_after_the_replay_and_its_exit_never_ends_the_run(
+        up, tmp_path: Path) -> None:
+    saved = tmp_path / "live.rrd"
+    launcher = up({"live-0": "crash", "learner-0": "epochs:2"}, "--run", "watched",
+                  "--epochs", "2", "--rerun-save", str(saved))
+
+    assert launcher.finish() == 0, launcher.err
+    assert list(launcher.child_pids) == ["replay-0", "live-0", "clusterer-0", "learner-0",
+                                         "evaluator-0", "actor-0"]
+    report = "\n".join(launcher.err)
+    assert ("hercs up: live live-0 exited unexpectedly (exit code 3); training goes on without "
+            "it; last lines of") in report
+    assert "  | boom: the stand-in failed on purpose" in report
+    assert [line.split()[1] for line in launcher.out if line.startswith("epoch")] == ["1/2",
+                                                                                      "2/2"]
+    config = load_yaml(tmp_path / "runs" / "watched" / "config.yaml")
+    assert (config.view.live, config.view.viewer, config.view.save) == (True, "none", str(saved))
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_the_live_view_is_stopped_with_the_learner_stage(up) -> None:
+    launcher = up({}, "--run", "livestop", "--rerun", "rerun+http://127.0.0.1:1/proxy")
+    launcher.wait_for_line(r"run livestop is running")
+    pids = launcher.child_pids
+    assert "live-0" in pids
+    wait_for(lambda: {i for e, i in read_events(up.events) if e == "start"} == set(pids),
+             WAIT_S, "every child to start")
+
+    launcher.proc.send_signal(signal.SIGTERM)
+    assert launcher.finish() == 128 + signal.SIGTERM
+    order = [i for e, i in read_events(up.events) if e == "stop"]
+    stage = {"actor-0": 0, "evaluator-0": 1, "learner-0": 1, "clusterer-0": 1, "live-0": 1,
+             "replay-0": 2}
+    assert sorted(order) == sorted(stage)
+    assert [stage[i] for i in order] == sorted(stage[i] for i in order), order
+
+
 def test_sigkilled_launcher_leaves_no_orphans(up) -> None:
     launcher = up({}, "--run", "orphans", "--actors", "2")
     launcher.wait_for_line(r"run orphans is running")

@@ -173,3 +173,41 @@ def test_acked_episodes_survive_sigkill(tmp_path: Path, endpoint: str, router: T
         assert st.size_episodes == len(acked) + 1
     finally:
         assert proc.stop() == 0, proc.log_text()[-3000:]
+
+
+def test_episode_queryable_serves_stored_episodes_and_rejects_unknown_ids(
+        tmp_path: Path, endpoint: str, router: Transport, open_client) -> None:
+    # Push episodes have T = 50: a 150-transition buffer holds 3 episodes, so the 4th insert
+    # overwrites episode 0.
+    config, path = make_test_config(tmp_path, endpoint, [
+        "task.name=push", "run.method=her", "replay.buffer_transitions=150"])
+    spec = config.task.spec
+    proc = ServiceProcess("replay", path, "replay", tmp_path)
+    try:
+        client = open_client()
+        sent = [episode_msg(spec, seq) for seq in range(4)]
+        assert [insert(client, msg).episode_id for msg in sent] == [0, 1, 2, 3]
+
+        def get(episode_id: int) -> pb.Episode:
+            request = pb.EpisodeRequest(schema_version=SCHEMA_VERSION, episode_id=episode_id)
+            return pb.Episode.FromString(client.request(
+                KEYS.episode, request.SerializeToString(), timeout_s=TIMEOUT))
+
+        got = get(2)
+        assert got == sent[2], "the stored episode comes back as it was inserted"
+        for episode_id, why in ((0, "overwritten by newer episodes"), (9, "not inserted yet")):
+            with pytest.raises(RemoteError) as err:
+                get(episode_id)
+            assert err.value.reason == "unknown_episode"
+            assert err.value.detail == (f"EpisodeRequest.episode_id {episode_id}: not stored "
+                                        f"({why}; the replay holds ids 1..3)")
+        with pytest.raises(RemoteError) as err:
+            client.request(KEYS.episode, b"\xff\xfe garbage", timeout_s=TIMEOUT)
+        assert err.value.reason == "undecodable"
+
+        assert insert(client, episode_msg(spec, 4)).episode_id == 4, "still serving inserts"
+        assert get(4) == episode_msg(spec, 4)
+        # a malformed request is a reject; asking for an id the ring no longer holds is not
+        assert dict(status(client).rejects) == {"undecodable": 1}
+    finally:
+        assert proc.stop() == 0, proc.log_text()[-3000:]

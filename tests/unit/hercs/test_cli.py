@@ -2,7 +2,9 @@
 
 import subprocess
 import sys
+from pathlib import Path
 
+import pytest
 import yaml
 
 from hercs.cli import main
@@ -27,3 +29,31 @@ def test_console_script_help_lists_commands() -> None:
     out = subprocess.run([sys.executable, "-m", "hercs.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
     assert "config" in out
+
+
+@pytest.mark.parametrize(
+    ("flags", "view"),
+    [([], {"live": False, "episode_every": 20, "viewer": "spawn", "save": ""}),
+     (["--rerun"], {"live": True, "episode_every": 20, "viewer": "spawn", "save": ""}),
+     (["--rerun", "9877", "--rerun-every", "5"],
+      {"live": True, "episode_every": 5, "viewer": "rerun+http://127.0.0.1:9877/proxy",
+       "save": ""}),
+     (["--rerun", "rerun+https://lab:9876/proxy", "--rerun-save", "out/live.rrd"],
+      {"live": True, "episode_every": 20, "viewer": "rerun+https://lab:9876/proxy",
+       "save": "CWD/out/live.rrd"}),
+     (["--rerun-save", "live.rrd"],
+      {"live": True, "episode_every": 20, "viewer": "none", "save": "CWD/live.rrd"})],
+    ids=["off", "spawn", "port", "url-and-file", "file-only"],
+)
+def test_rerun_flags_set_the_view_section(flags: list[str], view: dict, tmp_path: Path,
+                                          monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["config", *flags]) == 0
+    resolved = yaml.safe_load(capsys.readouterr().out)["view"]
+    assert resolved == {k: v.replace("CWD", str(tmp_path)) if isinstance(v, str) else v
+                        for k, v in view.items()}
+
+
+def test_a_bad_rerun_url_exits_2_with_the_value_named(capsys) -> None:
+    assert main(["config", "--rerun", "http://lab:9876"]) == 2
+    assert "view.viewer: got 'http://lab:9876'" in capsys.readouterr().err

@@ -55,9 +55,13 @@ def test_overrides_are_typed() -> None:
         ("run.name=a/b", "run.name: got 'a/b'"),
         ("transport.connect=[localhost]", "transport.connect: got 'localhost'"),
         ("energy.clip_energy=-1", "energy.clip_energy: got -1.0, must be > 0"),
+        ("view.episode_every=-1", "view.episode_every: got -1, must be >= 0"),
+        ("view.viewer=http://host:9876", "view.viewer: got 'http://host:9876', must be 'spawn'"),
+        ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "fgb", "unknown-field",
-         "unknown-section", "no-section", "run-name", "endpoint", "clip-energy"],
+         "unknown-section", "no-section", "run-name", "endpoint", "clip-energy",
+         "view-every", "view-url", "view-save"],
 )
 def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:
     with pytest.raises(ConfigError) as err:

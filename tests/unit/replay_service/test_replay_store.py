@@ -59,6 +59,24 @@ def test_ring_overwrites_oldest_and_keeps_slot_equal_id_mod_capacity() -> None:
     assert [store.slot_of(i) for i in range(8)] == [None] * 4 + [1, 2, 0, None]
 
 
+def test_episode_by_id_is_a_copy_of_what_was_inserted_until_overwritten() -> None:
+    store = EpisodeStore(capacity_episodes=3, spec=SPEC)
+    episodes = [_episode(i) for i in range(5)]
+    for ep in episodes:
+        store.insert(ep, energy=1.0, cluster=2)
+
+    got = store.episode(3)
+    assert got is not None
+    for name in ("obs", "ag", "g", "actions"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(episodes[3], name))
+    assert (got.actor_id, got.seq, got.success, got.policy_version) == (
+        episodes[3].actor_id, 3, episodes[3].success, episodes[3].policy_version)
+    got.obs[:] = 0  # a copy: the stored episode is untouched
+    np.testing.assert_array_equal(store.episode(3).obs, episodes[3].obs)
+    assert [store.episode(i) is None for i in range(6)] == [True, True, False, False, False,
+                                                              True]
+
+
 @pytest.mark.parametrize(
     ("field", "shape"),
     [

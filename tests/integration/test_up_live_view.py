@@ -1,0 +1,117 @@
+"""`hercs up --rerun URL --rerun-save FILE.rrd` end to end, with the real services and a real
+Rerun gRPC server standing in for the viewer: the run finishes as without a live view, the
+.rrd verifies and holds what `hercs view` shows for the same run, and the viewer got the
+stream too."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from rerun.chunk import RrdReader
+
+from hercs.view import read_run_log
+from tests.integration.test_launcher import Launcher, free_endpoint, free_tcp_port, process_alive
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+RERUN = Path(sys.executable).parent / "rerun"
+EVERY = 10
+
+
+def _rerun_binary() -> str:
+    """The rerun executable itself (`.venv/bin/rerun` is a Python wrapper that forks it)."""
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).parent / "rerun")
+
+
+def _wait_for_port(port: int, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with socket.socket() as sock:
+            if sock.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        assert time.monotonic() < deadline, f"nothing listens on port {port}"
+        time.sleep(0.1)
+
+
+def _entities(listing: str) -> set[str]:
+    """Entity paths in `rerun rrd print` output (" - /path - " per chunk)."""
+    return {"/" + line.split(" - /", 1)[1].split(" - ", 1)[0]
+            for line in listing.splitlines() if " - /" in line}
+
+
+def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
+    port = free_tcp_port()
+    viewer = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
+                               "--save", str(tmp_path / "received.rrd")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    saved = tmp_path / "live.rrd"
+    launcher = None
+    try:
+        _wait_for_port(port)
+        launcher = Launcher(
+            [sys.executable, "-m", "hercs.cli", "up", "--task", "reach", "--method", "her-cs",
+             "--epochs", "1", "--run", "live", "--run-dir", str(tmp_path / "runs"),
+             "--listen", free_endpoint(), "--rerun", str(port), "--rerun-save", str(saved),
+             "--rerun-every", str(EVERY),
+             "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2",
+             "--set", "training.episodes_per_cycle=2", "--set", "training.minibatches_per_cycle=2",
+             "--set", "cluster.fgb_size=8", "--set", "cluster.k=2"],
+            cwd=tmp_path)
+        assert launcher.finish(timeout_s=180) == 0, "\n".join(launcher.out + launcher.err)
+        assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+    finally:
+        if launcher is not None:
+            launcher.kill()
+        viewer.send_signal(signal.SIGINT)  # the stand-in viewer ends its file
+        try:
+            viewer.wait(10)
+        except subprocess.TimeoutExpired:
+            viewer.kill()
+            viewer.wait()
+
+    run_dir = tmp_path / "runs" / "live"
+    assert list(launcher.child_pids)[:2] == ["replay-0", "live-0"]
+    assert "exited unexpectedly" not in "\n".join(launcher.err)
+    live_log = (run_dir / "logs" / "live-0.log").read_text()
+    assert "live view done" in live_log and "Traceback" not in live_log, live_log
+
+    verified = subprocess.run([str(RERUN), "rrd", "verify", str(saved)], capture_output=True,
+                              text=True, timeout=120)
+    assert verified.returncode == 0, verified.stderr
+    printed = subprocess.run([str(RERUN), "rrd", "print", str(saved)], capture_output=True,
+                             text=True, timeout=120, check=True).stdout
+    entities = _entities(printed)
+    run = read_run_log(run_dir)  # what `hercs view` reads: every acked episode and model
+    assert run.episodes and run.models, "the tiny run should insert episodes and fit a model"
+    expected = {"/world", "/curves/success_rate", "/curves/env_steps_per_s", "/episodes/success",
+                "/episodes/final_distance", "/episodes/cluster", "/world/failed_goals",
+                "/world/centroids", "/log/cluster_models", "/log/episodes"}
+    drawn = [e.episode_id for e in run.episodes if e.episode_id % EVERY == 0]
+    expected |= {f"/world/episodes/{i:06d}/{part}" for i in drawn for part in ("gripper",
+                                                                                "goal")}
+    assert expected <= entities, sorted(expected - entities)
+    assert {e for e in entities if e.startswith("/world/episodes/")} == {
+        f"/world/episodes/{i:06d}/{part}" for i in drawn for part in ("gripper", "goal")}
+    assert "/world/episodes/000000/object" not in entities  # reach has no object
+
+    # every stored episode got its scalars, with the success `hercs view` computes
+    success = {}
+    for chunk in RrdReader(saved).stream():
+        if chunk.entity_path == "/episodes/success" and not chunk.is_static:
+            table = chunk.to_record_batch().select(["episode", "Scalars:scalars"]).to_pylist()
+            success.update({r["episode"]: r["Scalars:scalars"][0] for r in table})
+    assert success == {e.episode_id: float(e.success) for e in run.episodes}
+
+    # the viewer (a gRPC server saving what it receives) got the same stream
+    received = subprocess.run([str(RERUN), "rrd", "print", str(tmp_path / "received.rrd")],
+                              capture_output=True, text=True, timeout=120).stdout
+    assert {"/episodes/success", "/curves/success_rate", "/world/episodes/000000/gripper"} <= (
+        _entities(received))
