@@ -68,8 +68,10 @@ METRICS_COLUMNS = [
     "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
     "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
     "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
-    "actor_loss", "q_mean",
+    "actor_loss", "q_mean", "batch_wait_s",
 ]
+"""`batch_wait_s` (written by the learner service): seconds of the epoch the update loop
+waited for a batch, i.e. sampling and transport that prefetch did not hide."""
 
 
 class LearnerLoop:

@@ -18,6 +18,7 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -101,13 +102,22 @@ class Prefetcher:
                     continue
 
     def get(self) -> SampleBatch | None:
-        """The next batch, or None once the service is stopping."""
-        while not self.runtime.stop.is_set():
-            try:
-                return self.batches.get(timeout=0.5)
-            except queue.Empty:
-                continue
-        return None
+        """The next batch, or None once the service is stopping. Time spent waiting for one
+        adds to `waiting_s`: the update loop idles then, so it is what prefetch failed to hide."""
+        try:
+            return self.batches.get_nowait()
+        except queue.Empty:
+            pass
+        started = time.monotonic()
+        try:
+            while not self.runtime.stop.is_set():
+                try:
+                    return self.batches.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+            return None
+        finally:
+            self.waiting_s += time.monotonic() - started
 
 
 class Latest:
@@ -141,6 +151,7 @@ class LearnerService:
                                    seed=config.run.seed)
         self.loop = LearnerLoop(config=config, learner=self.learner)
         self.metrics = MetricsCsv(run_dir / "metrics.csv")
+        self.batch_wait_s: dict[int, float] = {}  # epoch -> seconds the updates waited
         (run_dir / "checkpoints").mkdir(exist_ok=True)
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
         self.status = Latest()
@@ -193,6 +204,7 @@ class LearnerService:
                                         replay_status=self.status.get())
             if row is None:
                 continue
+            row["batch_wait_s"] = round(self.batch_wait_s.pop(int(row["epoch"]), 0.0), 3)
             self.metrics.write(row)
             values = {k: v for k, v in row.items() if isinstance(v, int | float)}
             values["epochs"] = self.config.training.epochs
@@ -205,6 +217,7 @@ class LearnerService:
         self.publish_weights(evaluate=False, epoch=0)
         prefetcher = Prefetcher(runtime=self.runtime, config=self.config,
                                 version=lambda: self.loop.version)
+        waited_before = 0.0
         while not self.loop.done and not stop.is_set():
             batch = prefetcher.get()
             if batch is None:
@@ -213,6 +226,8 @@ class LearnerService:
             self.publish_weights(evaluate=result.epoch_ended is not None,
                                  epoch=result.epoch_ended or self.loop.epoch)
             if result.epoch_ended is not None:
+                self.batch_wait_s[result.epoch_ended] = prefetcher.waiting_s - waited_before
+                waited_before = prefetcher.waiting_s
                 self.checkpoint()
             self.record_evals(block=False)
         if stop.is_set():

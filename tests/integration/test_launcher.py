@@ -11,6 +11,7 @@ contents or a Zenoh event, with a timeout.
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import queue
@@ -478,5 +479,9 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
                             r"replay \d+  lag [-\d.]+", line) for line in epochs), epochs
     assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
     assert load_yaml(run_dir / "config.yaml").run.name == "e2e"
-    assert len((run_dir / "metrics.csv").read_text().splitlines()) == 3
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    # The updates' wait for batches is accounted per epoch, within the epoch's wall time.
+    walls = [float(rows[0]["wall_s"]), float(rows[1]["wall_s"]) - float(rows[0]["wall_s"])]
+    assert all(0.0 <= float(r["batch_wait_s"]) <= w for r, w in zip(rows, walls, strict=True))
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]

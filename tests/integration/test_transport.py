@@ -408,3 +408,27 @@ def test_transport_close_undeclares_everything_and_stops_threads_promptly(
     assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", False)
     with pytest.raises(TransportTimeout):  # its queryables are gone
         holder.request(f"{RUN}/replay/sample", b"x", timeout_s=0.3)
+
+
+def _rss_shmem_kib() -> int:
+    for line in open("/proc/self/status"):  # noqa: SIM115 (procfs, read once)
+        if line.startswith("RssShmem:"):
+            return int(line.split()[1])
+    raise AssertionError("no RssShmem in /proc/self/status")
+
+
+def test_senders_that_come_and_go_leave_no_shared_memory_behind(
+        open_client: OpenClient) -> None:
+    """Zenoh's shared-memory transport (off in our sessions) maps a 16 MiB pool per local
+    sender of messages over 3 KiB and keeps it after the sender closes; a long-lived replay
+    with restarting actors would grow without bound."""
+    server = open_client()
+    server.serve(f"{RUN}/shm", _echo)
+    before = _rss_shmem_kib()
+    for _ in range(4):
+        client = open_client()
+        payload = bytes(256 * 1024)
+        assert client.request(f"{RUN}/shm", payload, timeout_s=WAIT_S) == b"echo:" + payload
+        client.close()
+    grown_mib = (_rss_shmem_kib() - before) / 1024
+    assert grown_mib < 8, f"shared memory grew by {grown_mib:.0f} MiB for 4 short-lived senders"
