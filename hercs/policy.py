@@ -16,10 +16,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from hercs.config import DDPGConfig
-from hercs.networks import Actor, load_arrays, preprocess, to_arrays
+from hercs.networks import Actor, NumpyActor, load_arrays, preprocess, to_arrays
 from hercs.normalizer import Normalizer
 from hercs.tasks import TaskSpec
 
@@ -48,6 +47,7 @@ class Policy:
         self.config = config
         self.actor = Actor(spec=spec, config=config, seed=seed)
         self.actor.eval()
+        self._mu = NumpyActor(self.actor)
         self.o_norm = Normalizer(spec.obs_dim, eps=config.norm_eps, clip_range=config.norm_clip)
         self.g_norm = Normalizer(spec.goal_dim, eps=config.norm_eps, clip_range=config.norm_clip)
         self.version = INITIAL_VERSION
@@ -70,8 +70,7 @@ class Policy:
         o2 = np.atleast_2d(np.asarray(o, dtype=np.float64))
         g2 = np.atleast_2d(np.asarray(g, dtype=np.float64))
         x = preprocess(o2, g2, self.o_norm, self.g_norm, self.config.clip_obs)
-        with torch.no_grad():
-            a = self.actor(torch.from_numpy(x)).numpy().astype(np.float64)
+        a = self._mu(x).astype(np.float64)
         if explore:
             if rng is None:
                 raise ValueError("Policy.act: explore=True needs an rng (np.random.Generator)")
@@ -91,6 +90,7 @@ class Policy:
         """Adopt broadcast weights. All parts are validated first; on error nothing changes."""
         o_norm, g_norm = self.o_norm.with_state(o_stats), self.g_norm.with_state(g_stats)
         load_arrays(self.actor, dict(actor_params))
+        self._mu = NumpyActor(self.actor)
         self.o_norm, self.g_norm = o_norm, g_norm
         self.version = int(version)
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from hercs.config import DDPGConfig
+from hercs.networks import preprocess
 from hercs.normalizer import Normalizer
 from hercs.policy import INITIAL_VERSION, Policy
 from hercs.tasks import TaskSpec, task_spec
@@ -24,10 +25,11 @@ def _spec(max_action: float) -> TaskSpec:
 def _constant_policy(spec: TaskSpec, config: DDPGConfig, value: float) -> Policy:
     """A policy whose μ outputs `value` in every dimension, whatever the input."""
     policy = Policy(spec=spec, config=config, seed=0)
-    last = policy.actor.net[-1]
-    with torch.no_grad():
-        last.weight.zero_()
-        last.bias.fill_(float(np.arctanh(value / spec.max_action)))
+    weights = policy.weights()
+    last = max(int(name.split(".")[1]) for name in weights.actor)  # net.<i>.weight
+    weights.actor[f"net.{last}.weight"][:] = 0.0
+    weights.actor[f"net.{last}.bias"][:] = np.arctanh(value / spec.max_action)
+    policy.load(weights)
     return policy
 
 
@@ -79,7 +81,7 @@ def test_random_action_fraction_is_random_eps(max_action: float) -> None:
     policy = _constant_policy(spec, config, mu)
     o, g = _inputs(spec, N)
     a = policy.act(o, g, explore=True, rng=np.random.default_rng(11))
-    kept = np.all(a == np.float32(mu), axis=1)
+    kept = np.all(np.abs(a - mu) < 1e-5, axis=1)  # μ to float32 rounding
     assert abs((1 - kept.mean()) - 0.3) < 0.015
     replaced = a[~kept]
     assert np.all(np.abs(replaced) <= max_action)
@@ -144,3 +146,25 @@ def test_load_weights_rejects_wrong_shapes_and_changes_nothing() -> None:
         policy.load_weights(w.actor, other_stats.state_dict(), w.g_stats, 5)
     assert policy.version == INITIAL_VERSION
     np.testing.assert_array_equal(policy.act(o, g, explore=False), before)
+
+
+def test_numpy_forward_matches_the_torch_actor_before_and_after_new_weights() -> None:
+    """Acting evaluates μ with numpy (hercs.networks.NumpyActor); it must be the same μ as the
+    torch Actor the learner trains, including right after a weights broadcast."""
+    spec = task_spec("push")
+    policy = Policy(spec=spec, config=DDPGConfig(), seed=3)
+    o, g = _inputs(spec, 64)
+
+    def torch_mu(p: Policy) -> np.ndarray:
+        x = preprocess(o, g, p.o_norm, p.g_norm, p.config.clip_obs)
+        with torch.no_grad():
+            return p.actor(torch.from_numpy(x)).numpy()
+
+    np.testing.assert_allclose(policy.act(o, g, explore=False), torch_mu(policy), atol=1e-6)
+    other = Policy(spec=spec, config=DDPGConfig(), seed=4).weights()
+    other.version = 7
+    policy.load(other)
+    acted = policy.act(o, g, explore=False)
+    np.testing.assert_allclose(acted, torch_mu(policy), atol=1e-6)
+    assert np.abs(acted - Policy(spec=spec, config=DDPGConfig(), seed=3).act(
+        o, g, explore=False)).max() > 1e-2  # the new weights are in use
