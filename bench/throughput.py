@@ -684,9 +684,10 @@ def own_rss_mib(memory: dict[str, float]) -> float:
 
     Zenoh 1.x enables its shared-memory transport optimisation by default: every local session
     that sends messages above 3 KiB (Episodes, Batches) allocates a 16 MiB pool, and a receiver
-    maps the senders' pools, so the replay's VmRSS grows by up to 16 MiB per local peer that
+    maps the senders' pools, so the replay's VmRSS grew by up to 16 MiB per local peer that
     ever sent it a large message — pages owned and counted by the sender too, independent of
-    what the replay stores.
+    what the replay stores. Our sessions now turn it off (hercs/transport.py), so RssShmem
+    should be ~0; it stays subtracted in case a deployment turns it back on.
     """
     return memory["VmRSS"] - memory["RssShmem"]
 
@@ -1341,8 +1342,9 @@ NOTES = [
     "after it served the `her` sample requests, minus the same just after start (empty store; "
     "`np.zeros` commits pages only when written). RssShmem is left out because it holds Zenoh's "
     "shared-memory pools (on by default in Zenoh 1.x: 16 MiB per local session that sends "
-    "messages above 3 KiB), which the replay maps from its senders: shared pages that grow "
-    "with the number of local peers, not with the data stored. Raw bytes = stored episodes × "
+    "messages above 3 KiB; off in hercs sessions since this benchmark found them), which the "
+    "replay maps from its senders: shared pages that grow with the number of local peers, not "
+    "with the data stored. Raw bytes = stored episodes × "
     "the bytes of one episode in the store's arrays (obs, ag, g, actions and the metadata "
     "columns). The phase-by-phase memory of the replay is in `details`.",
 ]
