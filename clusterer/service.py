@@ -37,8 +37,8 @@ from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
 from hercs.transport import TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, msg_to_array
-from proto.validation import RejectReason, parse_message
+from proto.codec import array_to_msg
+from proto.validation import header_goals, parse_message
 
 log = logging.getLogger(__name__)
 
@@ -54,19 +54,7 @@ def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[np.ndarray, np.ndar
     a missing or misshapen vector, or NaN/Inf.
     """
     msg = parse_message(raw, pb.EpisodeHeader, max_bytes=_HEADER_MAX_BYTES)
-    out = []
-    for field in ("final_achieved_goal", "desired_goal"):
-        where = f"EpisodeHeader.{field}"
-        if not msg.HasField(field):
-            raise InvalidMessage(RejectReason.MISSING_FIELD, f"{where} is missing")
-        value = msg_to_array(getattr(msg, field), where=where)
-        if value.shape != (goal_dim,):
-            raise InvalidMessage(RejectReason.BAD_SHAPE,
-                                 f"{where}: shape {value.shape}, expected ({goal_dim},)")
-        if not np.all(np.isfinite(value)):
-            raise InvalidMessage(RejectReason.NON_FINITE, f"{where}: non-finite {value!r}")
-        out.append(value.astype(np.float64))
-    return out[0], out[1]
+    return header_goals(msg, goal_dim=goal_dim)
 
 
 def model_to_msg(model: ClusterModel, *, failed_goals_seen: int) -> pb.ClusterModel:

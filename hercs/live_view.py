@@ -77,7 +77,13 @@ from hercs.view import (
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.codec import msg_to_array
-from proto.validation import RejectReason, parse_message, validate_centroids, validate_episode
+from proto.validation import (
+    RejectReason,
+    header_goals,
+    parse_message,
+    validate_centroids,
+    validate_episode,
+)
 
 log = logging.getLogger("hercs.live")
 
@@ -103,22 +109,11 @@ def header_outcome(header: pb.EpisodeHeader, spec: TaskSpec) -> EpisodeOutcome:
     """An `EpisodeHeader` as `hercs view` summarises an episode: success = ‖ag_T − g_T‖ within
     the task's threshold. Raises `InvalidMessage` for a missing, misshapen or non-finite goal,
     or a cluster below −1."""
-    goals = []
-    for field in ("final_achieved_goal", "desired_goal"):
-        where = f"EpisodeHeader.{field}"
-        if not header.HasField(field):
-            raise InvalidMessage(RejectReason.MISSING_FIELD, f"{where} is missing")
-        value = msg_to_array(getattr(header, field), where=where)
-        if value.shape != (spec.goal_dim,):
-            raise InvalidMessage(RejectReason.BAD_SHAPE,
-                                 f"{where}: shape {value.shape}, expected ({spec.goal_dim},)")
-        if not np.isfinite(value).all():
-            raise InvalidMessage(RejectReason.NON_FINITE, f"{where}: non-finite {value!r}")
-        goals.append(value.astype(np.float32))
+    final_ag, desired_goal = (v.astype(np.float32)
+                              for v in header_goals(header, goal_dim=spec.goal_dim))
     if header.cluster < -1:
         raise InvalidMessage(RejectReason.BAD_VALUE,
                              f"EpisodeHeader.cluster {header.cluster}, must be >= -1")
-    final_ag, desired_goal = goals
     distance = float(np.linalg.norm(final_ag - desired_goal))
     return EpisodeOutcome(
         episode_id=int(header.episode_id), success=distance <= spec.distance_threshold,

@@ -158,3 +158,24 @@ def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> Re
     if not np.isfinite(centroids).all():
         return Rejection(RejectReason.NON_FINITE, "ClusterModel.centroids: non-finite values")
     return None
+
+
+def header_goals(msg: pb.EpisodeHeader, *, goal_dim: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(final achieved goal, desired goal) of an `EpisodeHeader`, float64 (goal_dim,) each.
+
+    Raises `InvalidMessage` for a missing or misshapen vector, or NaN/Inf; the detail names
+    the field.
+    """
+    out = []
+    for field in ("final_achieved_goal", "desired_goal"):
+        where = f"EpisodeHeader.{field}"
+        if not msg.HasField(field):
+            raise InvalidMessage(RejectReason.MISSING_FIELD, f"{where} is missing")
+        value = msg_to_array(getattr(msg, field), where=where)
+        if value.shape != (goal_dim,):
+            raise InvalidMessage(RejectReason.BAD_SHAPE,
+                                 f"{where}: shape {value.shape}, expected ({goal_dim},)")
+        if not np.all(np.isfinite(value)):
+            raise InvalidMessage(RejectReason.NON_FINITE, f"{where}: non-finite {value!r}")
+        out.append(value.astype(np.float64))
+    return out[0], out[1]

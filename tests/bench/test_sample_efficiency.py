@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -10,20 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.support import load_bench
+
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _load_bench():
-    spec = importlib.util.spec_from_file_location("bench_sample_efficiency",
-                                                  REPO / "bench" / "sample_efficiency.py")
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
-
-
-se = _load_bench()
+se = load_bench("sample_efficiency")
 
 
 def test_grid_is_seed_major_so_every_method_gets_its_seeds_together() -> None:

@@ -6,7 +6,6 @@ positive, with consistent ratios, in both the JSON and the markdown.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import subprocess
@@ -15,20 +14,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.support import load_bench
+
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _load_bench():
-    spec = importlib.util.spec_from_file_location("bench_throughput",
-                                                  REPO / "bench" / "throughput.py")
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
-
-
-tp = _load_bench()
+tp = load_bench("throughput")
 
 
 @pytest.mark.parametrize(("values", "q", "expected"), [

@@ -5,40 +5,21 @@ stream too."""
 
 from __future__ import annotations
 
-import signal
-import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from rerun.chunk import RrdReader
 
 from hercs.view import read_run_log
-from tests.integration.test_launcher import Launcher, free_endpoint, free_tcp_port, process_alive
+from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
+from tests.support import free_tcp_port, rerun_viewer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 RERUN = Path(sys.executable).parent / "rerun"
 EVERY = 10
-
-
-def _rerun_binary() -> str:
-    """The rerun executable itself (`.venv/bin/rerun` is a Python wrapper that forks it)."""
-    import rerun_cli
-
-    return str(Path(rerun_cli.__file__).parent / "rerun")
-
-
-def _wait_for_port(port: int, timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        with socket.socket() as sock:
-            if sock.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        assert time.monotonic() < deadline, f"nothing listens on port {port}"
-        time.sleep(0.1)
 
 
 def _entities(listing: str) -> set[str]:
@@ -49,13 +30,8 @@ def _entities(listing: str) -> set[str]:
 
 def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
     port = free_tcp_port()
-    viewer = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
-                               "--save", str(tmp_path / "received.rrd")],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     saved = tmp_path / "live.rrd"
-    launcher = None
-    try:
-        _wait_for_port(port)
+    with rerun_viewer(port, tmp_path / "received.rrd"):  # ends its file on exit
         launcher = Launcher(
             [sys.executable, "-m", "hercs.cli", "up", "--task", "reach", "--method", "her-cs",
              "--epochs", "1", "--run", "live", "--run-dir", str(tmp_path / "runs"),
@@ -65,17 +41,11 @@ def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
              "--set", "training.episodes_per_cycle=2", "--set", "training.minibatches_per_cycle=2",
              "--set", "cluster.fgb_size=8", "--set", "cluster.k=2"],
             cwd=tmp_path)
-        assert launcher.finish(timeout_s=180) == 0, "\n".join(launcher.out + launcher.err)
-        assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
-    finally:
-        if launcher is not None:
-            launcher.kill()
-        viewer.send_signal(signal.SIGINT)  # the stand-in viewer ends its file
         try:
-            viewer.wait(10)
-        except subprocess.TimeoutExpired:
-            viewer.kill()
-            viewer.wait()
+            assert launcher.finish(timeout_s=180) == 0, "\n".join(launcher.out + launcher.err)
+            assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+        finally:
+            launcher.kill()
 
     run_dir = tmp_path / "runs" / "live"
     assert list(launcher.child_pids)[:2] == ["replay-0", "live-0"]

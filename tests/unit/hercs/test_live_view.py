@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -29,6 +28,7 @@ from proto import hercs_pb2 as pb
 from proto.codec import array_to_msg, episode_to_msg
 from proto.schema import SCHEMA_VERSION
 from replay_service.episode_log import EpisodeLogWriter
+from tests.support import free_tcp_port, rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"
 SPEC = task_spec("push")
@@ -255,37 +255,11 @@ def test_episode_every_zero_draws_no_trajectory(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- a viewer going away
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _wait_for_port(port: int, timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        with socket.socket() as sock:
-            if sock.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        assert time.monotonic() < deadline, f"nothing listens on port {port}"
-        time.sleep(0.1)
-
-
-def _rerun_binary() -> str:
-    import rerun_cli
-
-    return str(Path(rerun_cli.__file__).parent / "rerun")
-
-
 def test_a_viewer_that_goes_away_is_reported_once_and_the_file_keeps_growing(
         tmp_path: Path, caplog) -> None:
-    port = _free_port()
+    port = free_tcp_port()
     url = f"rerun+http://127.0.0.1:{port}/proxy"
-    viewer = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
-                               "--save", str(tmp_path / "received.rrd")],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        _wait_for_port(port)
+    with rerun_viewer(port, tmp_path / "received.rrd") as viewer:
         saved = tmp_path / "live.rrd"
         rec = rr.RecordingStream("hercs")
         rec.set_sinks(rr.GrpcSink(url), rr.FileSink(saved))
@@ -313,10 +287,6 @@ def test_a_viewer_that_goes_away_is_reported_once_and_the_file_keeps_growing(
         assert len(warnings) == 1 and "cannot be reached or went away" in warnings[0], warnings
         assert not health.ok and health.errors >= 1
         rec.disconnect()
-    finally:
-        if viewer.poll() is None:
-            viewer.kill()
-            viewer.wait(10)
     verify(saved)
     success = rrd_rows(saved)["/episodes/success"]
     assert sorted(r["episode"] for r in success if "episode" in r) == list(range(6))

@@ -1,0 +1,72 @@
+"""Helpers shared by tests of different folders: free ports, a real Rerun viewer stand-in,
+and loading the benchmark scripts (which are files, not a package)."""
+
+from __future__ import annotations
+
+import importlib.util
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import ModuleType
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def wait_for_port(port: int, timeout_s: float = 20.0) -> None:
+    """Until something accepts connections on 127.0.0.1:port (a server we just started)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with socket.socket() as sock:
+            if sock.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        assert time.monotonic() < deadline, f"nothing listens on port {port}"
+        time.sleep(0.1)
+
+
+def rerun_binary() -> str:
+    """The rerun executable itself (`.venv/bin/rerun` is a Python wrapper that forks it, so
+    signals sent to the wrapper would not reach the viewer)."""
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).parent / "rerun")
+
+
+@contextmanager
+def rerun_viewer(port: int, received: Path) -> Iterator[subprocess.Popen[bytes]]:
+    """A real Rerun gRPC server on `port` standing in for a viewer, saving what it receives
+    to `received`; on exit it is asked to end its file (SIGINT), killed if it hangs."""
+    viewer = subprocess.Popen([rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
+                               "--save", str(received)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for_port(port)
+        yield viewer
+    finally:
+        if viewer.poll() is None:
+            viewer.send_signal(signal.SIGINT)
+            try:
+                viewer.wait(10)
+            except subprocess.TimeoutExpired:
+                viewer.kill()
+                viewer.wait()
+
+
+def load_bench(name: str) -> ModuleType:
+    """`bench/<name>.py` as a module."""
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", REPO / "bench" / f"{name}.py")
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
+    spec.loader.exec_module(module)
+    return module
