@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.support import load_bench
@@ -83,3 +84,27 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert "[start] reach-her-s1" not in second.stdout
     assert len(list((tmp_path / "runs" / se.UNFINISHED_DIR).iterdir())) == 1
     assert se.is_done(tmp_path / "runs" / "reach-her-cs-s1")
+
+    # bench/sampler_mix.py reads a real run's log back: one row per epoch mark
+    mix = subprocess.run([sys.executable, str(REPO / "bench" / "sampler_mix.py"),
+                          str(tmp_path / "runs" / "reach-her-cs-s1"), "--every-epochs", "1",
+                          "--minibatches", "4"], capture_output=True, text=True, timeout=120)
+    assert mix.returncode == 0, mix.stderr
+    rows = [line for line in mix.stdout.splitlines() if line.startswith("| 1 |")]
+    assert len(rows) == 1, mix.stdout
+    # no cluster model yet in so short a run: both samplers draw uniformly, spread ≈ 1
+    spread = [float(x) for x in rows[0].rstrip(" |").rsplit("|", 1)[1].split("/")]
+    assert all(0.9 < x < 1.1 for x in spread), rows[0]
+
+
+sm = load_bench("sampler_mix")
+
+
+def test_effective_share_is_one_for_an_even_draw_and_small_for_a_repeated_one() -> None:
+    size, n = 10, 100
+    # every episode drawn equally often: Σc² = n²/size, so (Σc)²/Σc² = size; a uniform
+    # random draw expects n²/(n + n(n−1)/size) = 10000/1090 distinct-equivalents
+    even = np.repeat(np.arange(size), n // size)
+    assert sm.effective_share(even, size) == pytest.approx(size / (10000 / 1090))
+    # one episode drawn n times: one distinct-equivalent
+    assert sm.effective_share(np.zeros(n, np.int64), size) == pytest.approx(1 / (10000 / 1090))
