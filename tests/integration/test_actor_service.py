@@ -140,7 +140,7 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     assert (first.actor_id, first.run, first.task) == ("a0", RUN, "reach"), "the run's config"
     assert tuple(msg_to_array(first.obs).shape) == (51, served.task.spec.obs_dim)
 
-    learner = side.publisher(keys.weights, latest=True)
+    learner = side.publisher(keys.weights, latest=True, block=True)  # as the learner
     learner.put(b"\x08\x01 not a Weights message")  # ignored, the actor carries on
     policy = Policy(spec=served.task.spec, config=served.ddpg, seed=11)
     learner.put(weights_msg(policy, version=7))

@@ -64,7 +64,7 @@ def test_evaluator_answers_every_eval_epoch_and_nothing_else(
     metrics: queue.Queue[dict[str, float]] = queue.Queue()
     learner.subscribe(keys.metrics("evaluator"),
                       lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
-    weights = learner.publisher(keys.weights, latest=True)
+    weights = learner.publisher(keys.weights, latest=True, block=True)  # as the learner
     policy = Policy(spec=config.task.spec, config=config.ddpg, seed=3)
 
     procs.append(start_service("evaluator", config, "e0", tmp_path))
