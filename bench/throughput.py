@@ -729,9 +729,26 @@ class Alternation:
     def system_rates(self, samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
         """(wall-clock rate, rate per CPU second) of the system from (time, cumulative
         count) samples of its progress."""
-        slices = [[(t, c) for t, c in samples if a <= t <= b] for a, b in self.windows]
         work = work_in_windows(samples, self.windows)
-        return pooled_rate(slices), work / sum(self.system_cpu_s)
+        return pooled_rate(self._slices(samples)), work / sum(self.system_cpu_s)
+
+    def _slices(self, samples: Sequence[tuple[float, float]]) -> list[list[tuple[float, float]]]:
+        return [[(t, c) for t, c in samples if a <= t <= b] for a, b in self.windows]
+
+    def by_slice(self, samples: Sequence[tuple[float, float]], *, system: str,
+                 reference: str) -> dict[str, list[float | None]]:
+        """Per-slice rates and CPU shares of both sides, for the JSON details; keys are
+        `<side>_<unit>_per_s_by_slice` and `<side>_cpu_share_by_slice` with `system` and
+        `reference` naming the sides (e.g. "actor_steps", "raw_steps")."""
+        return {
+            f"{reference}_per_s_by_slice": [w / sec for w, sec, _ in self.reference],
+            f"{system}_per_s_by_slice": [pooled_rate([x]) if len(x) > 1 else None
+                                         for x in self._slices(samples)],
+            f"{system.rsplit('_', 1)[0]}_cpu_share_by_slice": [
+                c / (b - a) for c, (a, b) in zip(self.system_cpu_s, self.windows, strict=True)],
+            f"{reference.rsplit('_', 1)[0]}_cpu_share_by_slice": [
+                c / sec for _, sec, c in self.reference],
+        }
 
 
 class Bench:
@@ -927,13 +944,7 @@ class Bench:
         say(f"env steps/s: actor {ours:,.0f}, raw {reference:,.0f}; per CPU-second: actor "
             f"{ours_cpu:,.0f}, raw {reference_cpu:,.0f}")
         self.details["env"] = {
-            "raw_steps_per_s_by_slice": [w / sec for w, sec, _ in turns.reference],
-            "actor_steps_per_s_by_slice": [
-                pooled_rate([x]) if len(x) > 1 else None
-                for x in ([(t, c) for t, c in acked if a <= t <= b] for a, b in turns.windows)],
-            "actor_cpu_share_by_slice": [c / (b - a) for c, (a, b)
-                                         in zip(turns.system_cpu_s, turns.windows, strict=True)],
-            "raw_cpu_share_by_slice": [c / sec for _, sec, c in turns.reference],
+            **turns.by_slice(acked, system="actor_steps", reference="raw_steps"),
             "slice_s": p.env_slice_s, "rounds": p.env_rounds,
             "actor_policy": "initial weights (no learner runs in this phase); the same "
                             "network, so the same inference cost as a trained one",
@@ -1023,15 +1034,7 @@ class Bench:
         say(f"updates/s: learner service {ours:.1f}, in process {reference_rate:.1f}; per "
             f"CPU-second: service {ours_cpu:.1f}, in process {reference_cpu:.1f}")
         self.details["learner"] = {
-            "reference_updates_per_s_by_slice": [w / sec for w, sec, _ in turns.reference],
-            "service_updates_per_s_by_slice": [
-                pooled_rate([x]) if len(x) > 1 else None
-                for x in ([(t, c) for t, c in progress if a <= t <= b]
-                          for a, b in turns.windows)],
-            "service_cpu_share_by_slice": [c / (b - a) for c, (a, b)
-                                           in zip(turns.system_cpu_s, turns.windows,
-                                                  strict=True)],
-            "reference_cpu_share_by_slice": [c / sec for _, sec, c in turns.reference],
+            **turns.by_slice(progress, system="service_updates", reference="reference_updates"),
             "slice_s": p.learner_slice_s, "rounds": p.learner_rounds,
             "minibatches_per_cycle": p.minibatches_per_cycle, "batch_size": 256,
             "torch_threads": 1,
