@@ -6,7 +6,7 @@ Contract (DESIGN §3, "Insert is at-least-once"):
   `internal` reply or a malformed ack is retried with the *same bytes*, so the same
   `(actor_id, seq)`, after an exponential backoff (0.1 s doubling to 2 s): the replay
   deduplicates, so a retry of an insert that was in fact stored is acked `duplicate=True`.
-- A reply whose reason is a validation reason (`proto.validation.RejectReason`: wrong shape,
+- A reply whose reason is a validation reason (`hercs.validation.RejectReason`: wrong shape,
   NaN, wrong task, …) can never succeed: the episode is dropped, counted and logged (once per
   reason per minute).
 - Episodes are delivered one at a time, in `seq` order.
@@ -36,8 +36,8 @@ from dataclasses import dataclass
 from hercs.errors import InvalidMessage
 from hercs.service import WarnOncePerMinute
 from hercs.transport import RemoteError, TransportError, TransportTimeout
+from hercs.validation import RejectReason, parse_message
 from proto import hercs_pb2 as pb
-from proto.validation import RejectReason, parse_message
 
 log = logging.getLogger(__name__)
 

@@ -32,6 +32,7 @@ import torch
 
 from actors.inserter import Inserter
 from actors.rollout import RolloutWorker
+from hercs.codec import episode_to_msg, msg_to_weight_arrays
 from hercs.config import HercsConfig
 from hercs.envs import make_env
 from hercs.errors import ConfigError, InvalidMessage
@@ -40,9 +41,8 @@ from hercs.seeding import generator, int_seed
 from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
 from hercs.tasks import TaskSpec
 from hercs.transport import TransportError
+from hercs.validation import RejectReason, parse_message
 from proto import hercs_pb2 as pb
-from proto.codec import episode_to_msg, msg_to_weight_arrays
-from proto.validation import RejectReason, parse_message
 
 log = logging.getLogger(__name__)
 

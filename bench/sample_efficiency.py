@@ -40,8 +40,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a checkout
     sys.path.insert(0, str(REPO))
 
+from apps.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
 from hercs.config import METHODS  # noqa: E402
-from hercs.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
 
 DONE_FILE = "bench_done.json"
@@ -92,7 +92,7 @@ def free_port() -> int:
 
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
                overrides: Sequence[str]) -> list[str]:
-    cmd = [sys.executable, "-m", "hercs.cli", "up", "--task", cell.task, "--method",
+    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
            cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run", cell.name,
            "--run-dir", str(run_root), "--actors", str(actors),
            "--listen", f"tcp/127.0.0.1:{port}"]

@@ -28,15 +28,15 @@ if str(REPO) not in sys.path:  # `python bench/sampler_mix.py` from a checkout
     sys.path.insert(0, str(REPO))
 
 from hercs.clustering import ClusterModel  # noqa: E402
+from hercs.codec import msg_to_array, msg_to_episode  # noqa: E402
 from hercs.config import apply_overrides, load_yaml  # noqa: E402
-from proto import hercs_pb2 as pb  # noqa: E402
-from proto.codec import msg_to_array, msg_to_episode  # noqa: E402
-from replay_service.core import ReplayCore  # noqa: E402
-from replay_service.episode_log import (  # noqa: E402
+from hercs.runlog.episode_log import (  # noqa: E402
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,
 )
+from proto import hercs_pb2 as pb  # noqa: E402
+from replay_service.core import ReplayCore  # noqa: E402
 from replay_service.samplers import make_sampler  # noqa: E402
 
 BATCH = 256

@@ -12,7 +12,7 @@ throughput pairs in short alternating slices (the system's process is paused wit
 while the reference runs), and the ratio is what the target is about.
 
 Figures (the system is real: an embedded Zenoh router on a free loopback port, and
-`python -m hercs.cli <role>` child processes connected to it):
+`python -m apps.cli <role>` child processes connected to it):
 
 1. **Env steps/s.** ours: one `hercs actor` (policy inference, exploration noise, acked
    inserts over Zenoh) counted at the replay — acked episodes × T per second from the
@@ -362,21 +362,21 @@ QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=
 
 import torch  # noqa: E402
 
+from apps.router import open_router  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
+from hercs.codec import MINIBATCH_FIELDS, array_to_msg, episode_to_msg  # noqa: E402
 from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
 from hercs.envs import make_env  # noqa: E402
 from hercs.episode import EpisodeData, random_episode  # noqa: E402
-from hercs.router import open_router  # noqa: E402
 from hercs.seeding import generator, int_seed  # noqa: E402
 from hercs.tasks import TaskSpec  # noqa: E402
 from hercs.transport import Transport  # noqa: E402
+from hercs.validation import parse_message  # noqa: E402
 from learner.ddpg import DDPGLearner  # noqa: E402
 from learner.loop import LearnerLoop, SampleBatch  # noqa: E402
 from proto import SCHEMA_VERSION  # noqa: E402
 from proto import hercs_pb2 as pb  # noqa: E402
-from proto.codec import MINIBATCH_FIELDS, array_to_msg, episode_to_msg  # noqa: E402
 from proto.keys import RunKeys  # noqa: E402
-from proto.validation import parse_message  # noqa: E402
 from replay_service.core import ReplayCore  # noqa: E402
 from replay_service.store import EpisodeStore  # noqa: E402
 
@@ -435,7 +435,7 @@ def _pdeathsig_preexec() -> Callable[[], None] | None:
 
 
 class Child:
-    """`python -m hercs.cli <role> --config FILE --id ID` in its own process group."""
+    """`python -m apps.cli <role> --config FILE --id ID` in its own process group."""
 
     def __init__(self, *, role: str, ident: str, config_path: Path, log_dir: Path) -> None:
         self.role = role
@@ -444,7 +444,7 @@ class Child:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         with self.log_path.open("ab") as log:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "hercs.cli", role, "--config", str(config_path),
+                [sys.executable, "-m", "apps.cli", role, "--config", str(config_path),
                  "--id", ident],
                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
                 cwd=REPO, close_fds=True, process_group=0, preexec_fn=_pdeathsig_preexec())
@@ -1325,7 +1325,7 @@ NOTES = [
     "Per CPU-second rows divide the same work by the CPU time used for it (/proc/<pid>/stat "
     "of the system's process, all threads; `time.thread_time()` of the reference loop): on a "
     "loaded machine they show the cost per step or update without the scheduling noise.",
-    "Every service is a real process (`python -m hercs.cli <role> --config … --id …`) connected "
+    "Every service is a real process (`python -m apps.cli <role> --config … --id …`) connected "
     "as a client to a Zenoh router embedded in the benchmark process on a free loopback port.",
     "Env steps/s of the actor are counted where they become useful: acked episodes on "
     "`replay/inserted`, (n − 1) episodes × 50 steps over the time between the first and the "

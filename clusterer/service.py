@@ -31,14 +31,14 @@ import numpy as np
 
 from clusterer.core import Clusterer
 from hercs.clustering import ClusterModel
+from hercs.codec import array_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
 from hercs.transport import TransportError
+from hercs.validation import header_goals, parse_message
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg
-from proto.validation import header_goals, parse_message
 
 log = logging.getLogger(__name__)
 

@@ -26,16 +26,16 @@ from typing import Any
 import numpy as np
 import torch
 
+from hercs.codec import msg_to_minibatch, msg_to_stats, weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
 from hercs.transport import RemoteError, TransportError, TransportTimeout
+from hercs.validation import parse_message
 from learner.ddpg import DDPGLearner
 from learner.loop import LearnerLoop, MetricsCsv, SampleBatch
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import msg_to_minibatch, msg_to_stats, weights_to_msg
-from proto.validation import parse_message
 
 log = logging.getLogger("hercs.learner")
 

@@ -33,15 +33,7 @@ import numpy as np
 import yaml
 
 from hercs.clustering import ClusterModel
-from hercs.config import HercsConfig, save_yaml
-from hercs.episode import EpisodeData
-from hercs.errors import InvalidMessage
-from hercs.seeding import generator
-from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
-from hercs.transport import PendingReply
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.codec import (
+from hercs.codec import (
     MINIBATCH_FIELDS,
     array_to_msg,
     episode_to_msg,
@@ -50,15 +42,23 @@ from proto.codec import (
     msg_to_episode,
     stats_to_msg,
 )
-from proto.validation import (
+from hercs.config import HercsConfig, save_yaml
+from hercs.episode import EpisodeData
+from hercs.errors import InvalidMessage
+from hercs.runlog.episode_log import EpisodeLog
+from hercs.seeding import generator
+from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
+from hercs.transport import PendingReply
+from hercs.validation import (
     RejectReason,
     parse_message,
     validate_centroids,
     validate_episode,
     validate_sample_request,
 )
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
-from replay_service.episode_log import EpisodeLog
 from replay_service.rate_limiter import SampleToInsertRatio
 
 log = logging.getLogger("hercs.replay")

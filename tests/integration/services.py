@@ -38,7 +38,7 @@ class ServiceProcess:
         self._log = open(self.log_path, "wb")  # noqa: SIM115 (closed in stop())
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hercs.cli", service, "--config", str(config_path),
+            [sys.executable, "-m", "apps.cli", service, "--config", str(config_path),
              "--id", ident], stdout=self._log, stderr=subprocess.STDOUT, env=env)
 
     def log_text(self) -> str:
@@ -69,7 +69,7 @@ def start_service(role: str, config: HercsConfig, ident: str, tmp_path: Path) ->
     save_yaml(config, path)
     with (tmp_path / f"{role}.log").open("w") as log:  # the child keeps its own copy
         return subprocess.Popen(
-            [sys.executable, "-m", "hercs.cli", role, "--config", str(path), "--id", ident],
+            [sys.executable, "-m", "apps.cli", role, "--config", str(path), "--id", ident],
             stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "HERCS_LOG": "INFO"},
         )
 

@@ -19,12 +19,12 @@ import pytest
 import yaml
 
 from actors.inserter import Inserter
+from hercs.codec import msg_to_array, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
 from hercs.transport import PendingReply, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import msg_to_array, weights_to_msg
 from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import yaml
 
-from hercs.cli import SERVICES, build_parser, resolve_config
+from apps.cli import SERVICES, build_parser, resolve_config
 from hercs.config import HercsConfig
 
 pytestmark = pytest.mark.integration

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hercs.codec import weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
 from hercs.transport import Transport
 from proto import hercs_pb2 as pb
-from proto.codec import weights_to_msg
 from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,

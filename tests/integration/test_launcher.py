@@ -1,4 +1,4 @@
-"""`hercs up` (hercs.launcher): run directory, start order, progress lines, failure reports,
+"""`hercs up` (apps.launcher): run directory, start order, progress lines, failure reports,
 shutdown order and no orphan processes — with real processes and a real embedded router.
 
 Most tests inject stand-in children (a small script per service that joins the run over
@@ -30,14 +30,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.cli import build_parser, main, resolve_config
-from hercs.config import HercsConfig, load_yaml
-from hercs.launcher import (
+from apps.cli import build_parser, main, resolve_config
+from apps.launcher import (
     Progress,
     plan_children,
     resolve_run,
     service_command,
 )
+from hercs.config import HercsConfig, load_yaml
 from hercs.transport import Transport
 from proto.keys import RunKeys
 
@@ -106,8 +106,8 @@ while True:
 # Runs `hercs up` (argv after the first four) with the stand-ins as children.
 DRIVER = r'''
 import sys
-from hercs.cli import build_parser, resolve_config
-from hercs.launcher import run_up
+from apps.cli import build_parser, resolve_config
+from apps.launcher import run_up
 standin, events, behaviours, stop_timeout = sys.argv[1:5]
 args = build_parser()[0].parse_args(["up", *sys.argv[5:]])
 
@@ -293,7 +293,7 @@ def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: P
     parser, commands = build_parser()
     for spec in specs:
         argv = service_command(spec, tmp_path / "config.yaml")
-        assert argv[:3] == [sys.executable, "-m", "hercs.cli"]
+        assert argv[:3] == [sys.executable, "-m", "apps.cli"]
         args = parser.parse_args(argv[3:])
         assert (args.command, args.ident, args.config) == (spec.role, spec.ident,
                                                            str(tmp_path / "config.yaml"))
@@ -313,7 +313,7 @@ def test_up_fails_clearly_when_the_router_port_is_taken(tmp_path: Path) -> None:
         holder.bind(("127.0.0.1", port))
         holder.listen()
         done = subprocess.run(
-            [sys.executable, "-m", "hercs.cli", "up", "--run", "x", "--run-dir",
+            [sys.executable, "-m", "apps.cli", "up", "--run", "x", "--run-dir",
              str(tmp_path), "--listen", f"tcp/127.0.0.1:{port}"],
             capture_output=True, text=True, timeout=WAIT_S, cwd=REPO)
     assert done.returncode == 1
@@ -462,7 +462,7 @@ SERVICE_MODULES = ("replay_service.service", "clusterer.service", "learner.servi
                     reason="a service module is not written yet")
 def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     launcher = Launcher(
-        [sys.executable, "-m", "hercs.cli", "up", "--task", "reach", "--epochs", "2",
+        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", "2",
          "--actors", "2", "--run", "e2e", "--run-dir", str(tmp_path / "runs"),
          "--listen", free_endpoint(), "--set", "training.cycles_per_epoch=2",
          "--set", "training.eval_episodes=2"],

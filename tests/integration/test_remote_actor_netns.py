@@ -24,13 +24,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from apps.router import open_router
 from hercs.config import HercsConfig, apply_overrides
-from hercs.router import open_router
 from hercs.transport import PendingReply, Transport
+from hercs.validation import parse_message
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
-from proto.validation import parse_message
 
 pytestmark = pytest.mark.integration
 
@@ -170,7 +170,7 @@ def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
     transport.serve_deferred(keys.insert, ack)
     transport.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
     log = tmp_path / "actor.log"
-    actor = in_netns(netns, [sys.executable, "-m", "hercs.cli", "actor", "--connect", endpoint,
+    actor = in_netns(netns, [sys.executable, "-m", "apps.cli", "actor", "--connect", endpoint,
                              "--run", run, "--id", "far-actor"], log)
     try:
         assert get(alive, "the actor's liveliness token") == (keys.alive("actor", "far-actor"),

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
+from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
 from hercs.transport import RemoteError, Transport
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, episode_to_msg
 from proto.keys import RunKeys
 from tests.integration.services import ServiceProcess, make_test_config
 

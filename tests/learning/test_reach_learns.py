@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from replay_service.episode_log import read_cluster_models, read_episodes
+from hercs.runlog.episode_log import read_cluster_models, read_episodes
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]
@@ -38,7 +38,7 @@ def _hercs_pids() -> set[int]:
             cmdline = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"hercs.cli" in b" ".join(cmdline) and int(entry.name) != os.getpid():
+        if b"apps.cli" in b" ".join(cmdline) and int(entry.name) != os.getpid():
             pids.add(int(entry.name))
     return pids
 
@@ -48,7 +48,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
     endpoint = free_endpoint()
     before = _hercs_pids()
-    cmd = [sys.executable, "-m", "hercs.cli", "up", "--task", "reach", "--method", "her-cs",
+    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--actors", "2", "--epochs", str(EPOCHS), "--seed", "1", "--run", "reach-learns",
            "--run-dir", str(root), "--listen", endpoint, "--connect", endpoint,
            "--set", f"training.cycles_per_epoch={CYCLES}",

@@ -1,6 +1,6 @@
 """`hercs live`: a run streamed to Rerun while it trains (DESIGN §6), `hercs up --rerun`.
 
-The recording has the entity paths and timelines of `hercs view` (see hercs/view.py, whose
+The recording has the entity paths and timelines of `hercs view` (see apps/view.py, whose
 logging functions this module calls), so the live view of a run and an offline view of its
 episode log look alike. What each message becomes:
 
@@ -56,12 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.config import HercsConfig
-from hercs.errors import ConfigError, InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
-from hercs.tasks import TaskSpec
-from hercs.transport import RemoteError, TransportError
-from hercs.view import (
+from apps.view import (
     APP_ID,
     EpisodeOutcome,
     LoggedModel,
@@ -74,16 +69,21 @@ from hercs.view import (
     rerun_executable,
     summarize_episode,
 )
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.codec import msg_to_array
-from proto.validation import (
+from hercs.codec import msg_to_array
+from hercs.config import HercsConfig
+from hercs.errors import ConfigError, InvalidMessage
+from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
+from hercs.tasks import TaskSpec
+from hercs.transport import RemoteError, TransportError
+from hercs.validation import (
     RejectReason,
     header_goals,
     parse_message,
     validate_centroids,
     validate_episode,
 )
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
 
 log = logging.getLogger("hercs.live")
 

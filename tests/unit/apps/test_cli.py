@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.cli import main
+from apps.cli import main
 
 
 def test_config_command_resolves_shortcuts_and_overrides(capsys) -> None:
@@ -26,7 +26,7 @@ def test_bad_config_value_exits_2_with_field_named(capsys) -> None:
 
 
 def test_console_script_help_lists_commands() -> None:
-    out = subprocess.run([sys.executable, "-m", "hercs.cli", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "apps.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
     assert "config" in out
 

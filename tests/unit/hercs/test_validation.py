@@ -5,12 +5,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, episode_to_msg
-from proto.validation import (
+from hercs.validation import (
     RejectReason,
     decode_episode,
     parse_message,
@@ -18,6 +17,7 @@ from proto.validation import (
     validate_episode,
     validate_sample_request,
 )
+from proto import hercs_pb2 as pb
 
 SPEC = task_spec("push")
 MAX = 1 << 20

@@ -1,11 +1,11 @@
 """`hercs view`: a Rerun recording of a run's episode log (DESIGN §6).
 
 Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
-`episodes.mcap`) with `replay_service.episode_log`, and `metrics.csv` when it sits beside the
+`episodes.mcap`) with `hercs.runlog.episode_log`, and `metrics.csv` when it sits beside the
 log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
 the web viewer (`--web`).
 
-The live view (`hercs up --rerun`, hercs/live_view.py) logs the same entities on the same
+The live view (`hercs up --rerun`, apps/live_view.py) logs the same entities on the same
 timelines with the logging functions below while a run trains.
 
 Timelines
@@ -70,11 +70,9 @@ from pathlib import Path
 import numpy as np
 
 from hercs.clustering import assign_clusters
+from hercs.codec import msg_to_array
 from hercs.errors import HercsError
-from hercs.tasks import TaskSpec, task_spec
-from proto import hercs_pb2 as pb
-from proto.codec import msg_to_array
-from replay_service.episode_log import (
+from hercs.runlog.episode_log import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -82,7 +80,9 @@ from replay_service.episode_log import (
     read_messages,
     segment_paths,
 )
-from replay_service.scene import TASKS_WITH_OBJECT
+from hercs.runlog.scene import TASKS_WITH_OBJECT
+from hercs.tasks import TaskSpec, task_spec
+from proto import hercs_pb2 as pb
 
 DEFAULT_MAX_EPISODES = 200
 """Without --episodes, every n-th episode so that at most this many are drawn (plus the last)."""

@@ -18,16 +18,16 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from hercs.cli import main
+from apps.cli import main
+from apps.live_view import LiveRecorder, ViewerHealth, header_outcome
 from hercs.clustering import assign_clusters
+from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.live_view import LiveRecorder, ViewerHealth, header_outcome
+from hercs.runlog.episode_log import EpisodeLogWriter
 from hercs.tasks import task_spec
 from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, episode_to_msg
 from proto.schema import SCHEMA_VERSION
-from replay_service.episode_log import EpisodeLogWriter
 from tests.support import free_tcp_port, rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"

@@ -14,11 +14,11 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 from google.protobuf.message import DecodeError, Message
 
+from hercs.codec import msg_to_array, msg_to_episode
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import InvalidMessage
 from hercs.tasks import TaskSpec
 from proto import hercs_pb2 as pb
-from proto.codec import msg_to_array, msg_to_episode
 from proto.schema import SCHEMA_VERSION
 
 

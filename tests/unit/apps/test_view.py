@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.cli import main
+from apps.cli import main
+from apps.view import parse_selection, select_episodes
+from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
+from hercs.runlog.episode_log import EpisodeLogWriter
 from hercs.tasks import task_spec
-from hercs.view import parse_selection, select_episodes
 from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, episode_to_msg
 from proto.schema import SCHEMA_VERSION
-from replay_service.episode_log import EpisodeLogWriter
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -73,7 +73,7 @@ def test_bad_selection_exits_2(tmp_path: Path, capsys) -> None:
 def test_view_saves_a_valid_rrd_with_the_documented_entities(tmp_path: Path) -> None:
     _write_run(tmp_path)
     out = tmp_path / "out.rrd"
-    result = subprocess.run([sys.executable, "-m", "hercs.cli", "view", str(tmp_path),
+    result = subprocess.run([sys.executable, "-m", "apps.cli", "view", str(tmp_path),
                              "--save", str(out), "--episodes", "0,1,10:12"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr

@@ -11,11 +11,11 @@ What `run_up` does, in order:
    anything is written.
 3. Writes `runs/<run>/config.yaml` (the full resolved config, which every child reads with
    `--config`) and `runs/<run>/logs/`.
-4. Starts the services as child processes, `python -m hercs.cli <role> --config … --id …`,
+4. Starts the services as child processes, `python -m apps.cli <role> --config … --id …`,
    each child's stdout and stderr to `logs/<id>.log`: the replay first (ids `replay-0`), and
    once its liveliness token is up the clusterer, learner, evaluator (`<role>-0`) and
    `actor.num_actors` actors (`actor-0` … `actor-<N-1>`). Children connect as Zenoh clients.
-   With `view.live` (`--rerun`, `--rerun-save`) the live view `live-0` (hercs/live_view.py)
+   With `view.live` (`--rerun`, `--rerun-save`) the live view `live-0` (apps/live_view.py)
    starts right after the replay, and the others once its token is up (so that it sees the
    first episode) or after `LIVE_READY_TIMEOUT_S` without it.
 5. Prints one progress line per epoch (`Progress`), and logs remote processes (e.g. actors
@@ -67,12 +67,13 @@ from datetime import datetime
 from pathlib import Path
 from typing import IO
 
+from apps.router import RouterListenError, open_router
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
-from hercs.router import RouterListenError, StopSignals, open_router
+from hercs.signals import StopSignals
+from hercs.validation import parse_message
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
-from proto.validation import parse_message
 
 START_ORDER = ("replay", "live", "clusterer", "learner", "evaluator", "actor")
 """Roles in start order; the replay alone first (it serves the config and the insert queryable),
@@ -111,8 +112,8 @@ CommandFactory = Callable[[ChildSpec, Path], list[str]]
 
 
 def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
-    """The real child: `python -m hercs.cli <role> --config <config.yaml> --id <ident>`."""
-    return [sys.executable, "-m", "hercs.cli", spec.role, "--config", str(config_path),
+    """The real child: `python -m apps.cli <role> --config <config.yaml> --id <ident>`."""
+    return [sys.executable, "-m", "apps.cli", spec.role, "--config", str(config_path),
             "--id", spec.ident]
 
 

@@ -19,11 +19,9 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
-from proto.codec import array_to_msg, msg_to_array
-from replay_service import scene
-from replay_service.episode_log import (
+from hercs.codec import array_to_msg, msg_to_array
+from hercs.runlog import scene
+from hercs.runlog.episode_log import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
@@ -39,6 +37,8 @@ from replay_service.episode_log import (
     seal_segment,
     segment_paths,
 )
+from hercs.tasks import task_spec
+from proto import hercs_pb2 as pb
 
 CHILD = Path(__file__).with_name("episode_log_child.py")
 RERUN = Path(sys.executable).with_name("rerun")

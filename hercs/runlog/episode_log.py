@@ -8,7 +8,7 @@ Contents (protobuf, schemas embedded):
     /scene/points    foxglove.PointCloud  the same as coloured points (Rerun, Foxglove)
 plus one metadata record `hercs.episode_log` {run, task, schema_version} at the start.
 
-Timeline: log_time is synthetic (see `replay_service.scene`): episode k's observations sit at
+Timeline: log_time is synthetic (see `hercs.runlog.scene`): episode k's observations sit at
 k·span + t·40 ms, span = (T+2)·40 ms, so episodes never overlap; its Episode message sits at
 k·span. A ClusterModel or EvalResult sits in the gap after the last episode written by this
 writer (0 before the first). publish_time of Episode, ClusterModel and EvalResult is the
@@ -83,12 +83,12 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 from zstandard import ZstdError
 
+from hercs.codec import msg_to_array
 from hercs.errors import HercsError
+from hercs.runlog import scene
 from hercs.tasks import task_spec
 from proto import hercs_pb2 as pb
-from proto.codec import msg_to_array
 from proto.schema import SCHEMA_VERSION
-from replay_service import scene
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ _FOOTER_PREFIX = struct.Struct("<BQQQ")  # what the summary CRC covers of the fo
 M = TypeVar("M", bound=Message)
 
 if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, not at an ack
-    raise ImportError("replay_service.episode_log needs mcap.writer.Writer.flush() "
+    raise ImportError("hercs.runlog.episode_log needs mcap.writer.Writer.flush() "
                       "(mcap >= 1.6); upgrade the mcap package")
 
 

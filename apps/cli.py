@@ -110,13 +110,13 @@ Command = Callable[[argparse.Namespace, HercsConfig], int]
 
 
 def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
-    from hercs.launcher import run_up
+    from apps.launcher import run_up
 
     return run_up(config)
 
 
 def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
-    from hercs.router import run_router
+    from apps.router import run_router
 
     return run_router(config)
 
@@ -129,7 +129,7 @@ SERVICES: dict[str, tuple[str, str]] = {
     "learner": ("learner.service", "run the DDPG learner (updates, weights, epochs)"),
     "actor": ("actors.service", "run a rollout actor (join a run with --connect and --run)"),
     "evaluator": ("actors.evaluator", "run the evaluator (deterministic test episodes)"),
-    "live": ("hercs.live_view", "stream a run to Rerun while it trains (what `hercs up "
+    "live": ("apps.live_view", "stream a run to Rerun while it trains (what `hercs up "
                                 "--rerun` starts; join a run with --connect and --run)"),
 }
 
@@ -150,8 +150,8 @@ def _service_command(module: str) -> Command:
 
 
 def _cmd_plot(args: argparse.Namespace, config: HercsConfig | None) -> int:
+    from apps.plots import run_plot
     from hercs.errors import HercsError
-    from hercs.plots import run_plot
 
     try:
         return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
@@ -166,7 +166,7 @@ NO_CONFIG_COMMANDS = {"plot", "view"}
 
 
 def _cmd_view(args: argparse.Namespace, config: HercsConfig | None) -> int:
-    from hercs.view import run_view
+    from apps.view import run_view
 
     return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
                     web_port=args.web_port, open_browser=not args.no_browser)
@@ -193,7 +193,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         description="Start a whole run locally. The router is embedded and listens on --listen "
                     "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
                     "connect to it on this host, so --connect is ignored. --rerun adds the "
-                    "live view (hercs/live_view.py), which training never waits for.",
+                    "live view (apps/live_view.py), which training never waits for.",
     )
     add_config_arguments(p)
     add_rerun_arguments(p)
@@ -228,7 +228,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
                        description="3D trajectories of gripper, object and goal per episode, "
                                    "success, clusters, failed goals, centroids and the learning "
-                                   "curve (entity paths: see hercs/view.py).")
+                                   "curve (entity paths: see apps/view.py).")
     p.add_argument("path", metavar="PATH", help="episodes.mcap or a run directory")
     p.add_argument("--save", metavar="OUT.rrd", help="write an .rrd file instead of a viewer")
     p.add_argument("--episodes", metavar="SELECTION",

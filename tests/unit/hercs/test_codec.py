@@ -3,12 +3,7 @@
 import numpy as np
 import pytest
 
-from hercs.episode import random_episode
-from hercs.errors import InvalidMessage
-from hercs.tasks import task_spec
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.codec import (
+from hercs.codec import (
     array_to_msg,
     arrays_to_named,
     episode_to_msg,
@@ -20,6 +15,11 @@ from proto.codec import (
     named_to_arrays,
     stats_to_msg,
 )
+from hercs.episode import random_episode
+from hercs.errors import InvalidMessage
+from hercs.tasks import task_spec
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
 
 
 @pytest.mark.parametrize(
@@ -151,7 +151,7 @@ def test_every_message_round_trips(msg) -> None:
 
 
 def test_weights_round_trip() -> None:
-    from proto.codec import msg_to_weight_arrays, weights_to_msg
+    from hercs.codec import msg_to_weight_arrays, weights_to_msg
 
     params = {"fc.weight": np.ones((2, 3), np.float32)}
     stats = {"sum": np.ones(3), "sumsq": np.ones(3), "count": 4.0, "mean": np.ones(3),
