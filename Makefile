@@ -26,12 +26,14 @@ install: $(STAMP)
 run: $(STAMP)
 	$(VENV)/bin/hercs up --task reach --method her-cs --epochs 3 --actors 2
 
-test: $(STAMP)
-	$(VENV)/bin/ruff check .
+test: lint
 	$(PY) -m pytest -q tests
 
+# ruff, the layer contracts (import-linter, see pyproject.toml) and the type check.
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy
 
 # Regenerate proto/hercs_pb2.py(.pyi) from proto/hercs.proto with the pinned grpcio-tools.
 proto: $(STAMP)

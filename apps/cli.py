@@ -149,7 +149,7 @@ def _service_command(module: str) -> Command:
     return command
 
 
-def _cmd_plot(args: argparse.Namespace, config: HercsConfig | None) -> int:
+def _cmd_plot(args: argparse.Namespace) -> int:
     from apps.plots import run_plot
     from hercs.errors import HercsError
 
@@ -161,11 +161,9 @@ def _cmd_plot(args: argparse.Namespace, config: HercsConfig | None) -> int:
         return 1
 
 
-# Commands that read existing run directories and need no config.
-NO_CONFIG_COMMANDS = {"plot", "view"}
 
 
-def _cmd_view(args: argparse.Namespace, config: HercsConfig | None) -> int:
+def _cmd_view(args: argparse.Namespace) -> int:
     from apps.view import run_view
 
     return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
@@ -223,7 +221,6 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
     p.add_argument("--xmax", type=int, metavar="EPOCH",
                    help="x axis end (default: the last epoch of our runs)")
-    commands["plot"] = _cmd_plot
 
     p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
                        description="3D trajectories of gripper, object and goal per episode, "
@@ -238,8 +235,12 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    help="serve the web viewer (http://localhost:9090) until Ctrl-C")
     p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer port (9090)")
     p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
-    commands["view"] = _cmd_view
     return parser, commands
+
+
+# Commands that read existing run directories and need no config.
+NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "plot": _cmd_plot, "view": _cmd_view}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -249,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     if args.command in NO_CONFIG_COMMANDS:
-        return commands[args.command](args, None)
+        return NO_CONFIG_COMMANDS[args.command](args)
     try:
         config = resolve_config(args)
     except ConfigError as exc:

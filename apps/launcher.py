@@ -377,8 +377,8 @@ class _Launcher:
     def check_children(self) -> int | None:
         """None while all is well; 0 once the learner is done; 1 if a child failed."""
         self._reap_optional()
-        exited = [(c, c.proc.poll()) for c in self.children if not c.expected_exit]
-        exited = [(c, code) for c, code in exited if code is not None]
+        exited = [(c, code) for c in self.children
+                  if not c.expected_exit and (code := c.proc.poll()) is not None]
         for child, code in exited:
             if child.spec.role == "learner" and code == 0:
                 child.expected_exit = True

@@ -7,12 +7,13 @@ becomes a numpy array.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
+from hercs.normalizer import NormalizerState
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
@@ -61,9 +62,9 @@ def arrays_to_named(params: Mapping[str, np.ndarray]) -> list[pb.NamedArray]:
     return [pb.NamedArray(name=name, array=array_to_msg(value)) for name, value in params.items()]
 
 
-def named_to_arrays(items: list[pb.NamedArray] | object, *, where: str) -> dict[str, np.ndarray]:
+def named_to_arrays(items: Iterable[pb.NamedArray], *, where: str) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
-    for item in items:  # type: ignore[attr-defined]
+    for item in items:
         if item.name in out:
             raise InvalidMessage(BAD_ARRAY, f"{where}: duplicate array name {item.name!r}")
         out[item.name] = msg_to_array(item.array, where=f"{where}[{item.name}]")
@@ -112,8 +113,8 @@ def stats_to_msg(state: Mapping[str, np.ndarray | float]) -> pb.NormalizerStats:
     return msg
 
 
-def msg_to_stats(msg: pb.NormalizerStats, *, where: str) -> dict[str, np.ndarray | float]:
-    state: dict[str, np.ndarray | float] = {"count": float(msg.count)}
+def msg_to_stats(msg: pb.NormalizerStats, *, where: str) -> NormalizerState:
+    state: NormalizerState = {"count": float(msg.count)}
     for name in NORMALIZER_ARRAYS:
         state[name] = msg_to_array(getattr(msg, name), where=f"{where}.{name}")
     return state
@@ -147,7 +148,7 @@ def weights_to_msg(*, version: int, actor_params: Mapping[str, np.ndarray],
 
 def msg_to_weight_arrays(
     msg: pb.Weights,
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | float], dict[str, np.ndarray | float]]:
+) -> tuple[dict[str, np.ndarray], NormalizerState, NormalizerState]:
     """(actor params, o stats, g stats) of a Weights message; names and shapes are checked by
     whoever loads them into a network."""
     return (named_to_arrays(msg.actor_params, where="Weights.actor_params"),

@@ -28,6 +28,12 @@ STAT_KEYS = ("sum", "sumsq", "count", "mean", "std")
 """Keys of a normaliser state dict, in wire order."""
 
 
+NormalizerState = dict[str, np.ndarray | float]
+"""One normaliser's statistics {sum, sumsq, count, mean, std}: what `Normalizer.state_dict`
+returns, what `Weights` and `Batch` messages carry (hercs.codec) and what `load_state_dict`
+takes. `count` is a 0-d array from `state_dict` and a float off the wire; both load."""
+
+
 class Normalizer:
     """Running statistics over vectors of length `size`; see the module docstring."""
 
@@ -73,7 +79,7 @@ class Normalizer:
         out = np.clip((v - self.mean) / self.std, -self.clip_range, self.clip_range)
         return out.astype(np.float32)
 
-    def state_dict(self) -> dict[str, np.ndarray]:
+    def state_dict(self) -> NormalizerState:
         """The five statistics as float64 arrays (count as a 0-d array); copies."""
         return {
             "sum": self.sum.copy(),
@@ -83,14 +89,14 @@ class Normalizer:
             "std": self.std.copy(),
         }
 
-    def with_state(self, state: Mapping[str, np.ndarray | float | int]) -> Normalizer:
+    def with_state(self, state: Mapping[str, np.ndarray | float]) -> Normalizer:
         """A new normaliser of the same size and settings holding `state`; self is untouched,
         so callers can validate several normalisers before adopting any."""
         fresh = Normalizer(self.size, eps=self.eps, clip_range=self.clip_range)
         fresh.load_state_dict(state)
         return fresh
 
-    def load_state_dict(self, state: Mapping[str, np.ndarray | float | int]) -> None:
+    def load_state_dict(self, state: Mapping[str, np.ndarray | float]) -> None:
         """Adopt statistics produced by another normaliser's `state_dict` (e.g. off the wire).
 
         All five keys are required; vectors must have shape (size,), everything must be finite,

@@ -19,7 +19,7 @@ import numpy as np
 
 from hercs.config import DDPGConfig
 from hercs.networks import Actor, NumpyActor, load_arrays, preprocess, to_arrays
-from hercs.normalizer import Normalizer
+from hercs.normalizer import Normalizer, NormalizerState
 from hercs.tasks import TaskSpec
 
 INITIAL_VERSION = -1
@@ -33,9 +33,9 @@ class PolicyWeights:
     version: int
     actor: dict[str, np.ndarray]
     """Actor parameters by state-dict name, float32."""
-    o_stats: dict[str, np.ndarray]
+    o_stats: NormalizerState
     """Observation normaliser `state_dict()` (sum, sumsq, count, mean, std)."""
-    g_stats: dict[str, np.ndarray]
+    g_stats: NormalizerState
     """Goal normaliser `state_dict()`."""
 
 
@@ -83,8 +83,8 @@ class Policy:
     def load_weights(
         self,
         actor_params: Mapping[str, np.ndarray],
-        o_stats: Mapping[str, np.ndarray],
-        g_stats: Mapping[str, np.ndarray],
+        o_stats: Mapping[str, np.ndarray | float],
+        g_stats: Mapping[str, np.ndarray | float],
         version: int,
     ) -> None:
         """Adopt broadcast weights. All parts are validated first; on error nothing changes."""

@@ -247,7 +247,7 @@ class PendingReply:
 
     def __init__(self, query: zenoh.Query, reply_key: str,
                  on_done: Callable[[PendingReply], None]) -> None:
-        self._query = query
+        self._query: zenoh.Query | None = query
         self._key = reply_key
         self._lock = threading.Lock()
         self._done = False
@@ -277,6 +277,7 @@ class PendingReply:
                 return False
             self._done = True
             query, self._query = self._query, None
+            assert query is not None, "a query is held until its one answer"
             try:
                 send(query)
             except Exception as exc:  # the session closed meanwhile, or a payload of bad type
@@ -463,6 +464,8 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
             if ok is not None:
                 return ok.payload.to_bytes()
             err = reply.err
+            if err is None:  # a reply is either ok or err
+                continue
             text = err.payload.to_bytes().decode("utf-8", errors="replace")
             if str(err.encoding) == ERROR_ENCODING:
                 reason, _, detail = text.partition(": ")
@@ -491,7 +494,9 @@ def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> b
             lambda status: matched.set() if status.matching else None  # only flips an Event
         )
         try:
-            return querier.matching_status.matching or matched.wait(timeout_s)
+            # zenoh's stub types matching_status as bool; it is a MatchingStatus at run time
+            status = querier.matching_status
+            return status.matching or matched.wait(timeout_s)  # type: ignore[attr-defined]
         finally:
             _undeclare(listener)
     finally:

@@ -31,7 +31,7 @@ import torch
 
 from hercs.config import DDPGConfig
 from hercs.networks import Actor, Critic, preprocess, to_arrays
-from hercs.normalizer import Normalizer
+from hercs.normalizer import Normalizer, NormalizerState
 from hercs.policy import PolicyWeights
 from hercs.seeding import int_seed
 from hercs.tasks import TaskSpec
@@ -83,7 +83,7 @@ class DDPGLearner:
         """Polyak updates done (one per cycle)."""
 
     def set_normalizer_state(
-        self, o_state: Mapping[str, np.ndarray], g_state: Mapping[str, np.ndarray]
+        self, o_state: Mapping[str, np.ndarray | float], g_state: Mapping[str, np.ndarray | float]
     ) -> None:
         """Adopt the replay's normaliser statistics (`Normalizer.state_dict()` form)."""
         o_norm, g_norm = self.o_norm.with_state(o_state), self.g_norm.with_state(g_state)
@@ -148,7 +148,7 @@ class DDPGLearner:
         """μ's parameters as float32 numpy arrays, for the `Weights` broadcast."""
         return to_arrays(self.actor)
 
-    def normalizer_state(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         """(o_state, g_state) the learner currently uses, to broadcast with the weights."""
         return self.o_norm.state_dict(), self.g_norm.state_dict()
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from hercs.config import HercsConfig
+from hercs.normalizer import NormalizerState
 from learner.ddpg import DDPGLearner
 
 
@@ -29,8 +30,8 @@ class SampleBatch:
     """What one Batch reply carries, decoded."""
 
     minibatches: list[dict[str, np.ndarray]]
-    o_stats: dict[str, Any]
-    g_stats: dict[str, Any]
+    o_stats: NormalizerState
+    g_stats: NormalizerState
     cluster_model_version: int = 0
     cluster_draws: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     inserts: int = 0

@@ -25,7 +25,7 @@ import numpy as np
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
-from hercs.normalizer import Normalizer
+from hercs.normalizer import Normalizer, NormalizerState
 from replay_service.energy import trajectory_energy
 from replay_service.her import TransitionBatch, normalizer_sample, relabel
 from replay_service.samplers import make_sampler
@@ -142,7 +142,7 @@ class ReplayCore:
         self.cluster_draws_total += draws
         return SampleResult(out, draws)
 
-    def normalizer_state(self) -> tuple[dict[str, Any], dict[str, Any]]:
+    def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         return self.o_norm.state_dict(), self.g_norm.state_dict()
 
     # -- checkpoint ------------------------------------------------------------------------

@@ -162,10 +162,10 @@ def scene_updates(positions: EpisodePositions, times_ns: Sequence[int], *,
 _POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                          ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")])
 _POINT_FIELDS = [
-    PackedElementField(name=name, offset=_POINT_DTYPE.fields[name][1],
+    PackedElementField(name=name, offset=field[1],
                        type=PackedElementField.FLOAT32 if name in "xyz"
                        else PackedElementField.UINT8)
-    for name in _POINT_DTYPE.names
+    for name, field in (_POINT_DTYPE.fields or {}).items()
 ]
 
 
