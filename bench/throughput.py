@@ -364,7 +364,7 @@ import torch  # noqa: E402
 
 from apps.router import open_router  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
-from hercs.codec import MINIBATCH_FIELDS, array_to_msg, episode_to_msg  # noqa: E402
+from hercs.codec import array_to_msg, episode_to_msg  # noqa: E402
 from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
 from hercs.envs import make_env  # noqa: E402
 from hercs.episode import EpisodeData, random_episode  # noqa: E402
@@ -997,8 +997,7 @@ class Bench:
             result = core.sample(self.plan.minibatches_per_cycle, config.ddpg.batch_size)
             o_stats, g_stats = core.normalizer_state()
             out.append(SampleBatch(
-                minibatches=[{n: getattr(mb, n) for n in MINIBATCH_FIELDS}
-                             for mb in result.minibatches],
+                minibatches=result.minibatches,
                 o_stats=o_stats, g_stats=g_stats))
         return out
 

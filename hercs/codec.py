@@ -11,6 +11,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.normalizer import NormalizerState
@@ -120,19 +121,17 @@ def msg_to_stats(msg: pb.NormalizerStats, *, where: str) -> NormalizerState:
     return state
 
 
-MINIBATCH_FIELDS = ("o", "o2", "ag", "ag2", "g", "u", "r")
-
-
-def minibatch_to_msg(batch: Mapping[str, np.ndarray]) -> pb.Minibatch:
+def minibatch_to_msg(batch: TransitionBatch) -> pb.Minibatch:
     msg = pb.Minibatch()
-    for name in MINIBATCH_FIELDS:
-        array_to_msg(np.asarray(batch[name], dtype=np.float32), out=getattr(msg, name))
+    for name, value in zip(TRANSITION_FIELDS, batch, strict=True):
+        array_to_msg(np.asarray(value, dtype=np.float32), out=getattr(msg, name))
     return msg
 
 
-def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> dict[str, np.ndarray]:
-    return {name: msg_to_array(getattr(msg, name), where=f"{where}.{name}")
-            for name in MINIBATCH_FIELDS}
+def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> TransitionBatch:
+    """Arrays as sent; shapes are checked by the learner against its task."""
+    return TransitionBatch(*(msg_to_array(getattr(msg, name), where=f"{where}.{name}")
+                             for name in TRANSITION_FIELDS))
 
 
 def weights_to_msg(*, version: int, actor_params: Mapping[str, np.ndarray],

@@ -3,6 +3,6 @@
 `learner.ddpg` is the pure core (no Zenoh); the service module wraps it.
 """
 
-from learner.ddpg import BATCH_KEYS, DDPGLearner, critic_target
+from learner.ddpg import DDPGLearner, critic_target
 
-__all__ = ["BATCH_KEYS", "DDPGLearner", "critic_target"]
+__all__ = ["DDPGLearner", "critic_target"]

@@ -29,16 +29,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.networks import Actor, Critic, preprocess, to_arrays
 from hercs.normalizer import Normalizer, NormalizerState
 from hercs.policy import PolicyWeights
 from hercs.seeding import int_seed
 from hercs.tasks import TaskSpec
-
-BATCH_KEYS = ("o", "g", "u", "r", "o2")
-"""Arrays of one minibatch: o (B, obs_dim), g (B, goal_dim), u (B, action_dim), r (B,) or
-(B, 1), o2 (B, obs_dim). Extra keys are ignored."""
 
 
 def critic_target(
@@ -89,8 +86,8 @@ class DDPGLearner:
         o_norm, g_norm = self.o_norm.with_state(o_state), self.g_norm.with_state(g_state)
         self.o_norm, self.g_norm = o_norm, g_norm
 
-    def update(self, batch: Mapping[str, np.ndarray]) -> dict[str, float]:
-        """One DDPG step on a minibatch (see `BATCH_KEYS`); returns losses and means."""
+    def update(self, batch: TransitionBatch) -> dict[str, float]:
+        """One DDPG step on a minibatch; returns losses and means."""
         o, g, u, r, o2 = self._check_batch(batch)
         cfg, max_action = self.config, self.spec.max_action
 
@@ -191,14 +188,11 @@ class DDPGLearner:
         self.updates = int(state["updates"])
         self.target_updates = int(state["target_updates"])
 
-    def _check_batch(self, batch: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    def _check_batch(self, batch: TransitionBatch) -> tuple[np.ndarray, ...]:
         """Arrays as float32 with shapes checked; r reshaped to (B, 1) so that y broadcasts
         row-wise (a (B,) r plus a (B, 1) Q' would silently broadcast to (B, B))."""
-        missing = [k for k in BATCH_KEYS if k not in batch]
-        if missing:
-            raise ValueError(f"DDPGLearner.update: batch lacks {missing}; needs {BATCH_KEYS}")
         spec = self.spec
-        o, g, u, r, o2 = (np.asarray(batch[k], dtype=np.float32) for k in BATCH_KEYS)
+        o, g, u, r, o2 = (np.asarray(value, dtype=np.float32) for value in batch)
         b = o.shape[0] if o.ndim == 2 else -1
         want = {"o": (b, spec.obs_dim), "g": (b, spec.goal_dim), "u": (b, spec.action_dim),
                 "o2": (b, spec.obs_dim)}

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from hercs.batch import TransitionBatch
 from hercs.config import HercsConfig
 from hercs.normalizer import NormalizerState
 from learner.ddpg import DDPGLearner
@@ -29,7 +30,7 @@ from learner.ddpg import DDPGLearner
 class SampleBatch:
     """What one Batch reply carries, decoded."""
 
-    minibatches: list[dict[str, np.ndarray]]
+    minibatches: list[TransitionBatch]
     o_stats: NormalizerState
     g_stats: NormalizerState
     cluster_model_version: int = 0

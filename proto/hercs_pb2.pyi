@@ -129,22 +129,18 @@ class SampleRequest(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., learner_id: _Optional[str] = ..., request_id: _Optional[int] = ..., num_minibatches: _Optional[int] = ..., batch_size: _Optional[int] = ..., weights_version: _Optional[int] = ...) -> None: ...
 
 class Minibatch(_message.Message):
-    __slots__ = ("o", "o2", "ag", "ag2", "g", "u", "r")
+    __slots__ = ("o", "o2", "g", "u", "r")
     O_FIELD_NUMBER: _ClassVar[int]
     O2_FIELD_NUMBER: _ClassVar[int]
-    AG_FIELD_NUMBER: _ClassVar[int]
-    AG2_FIELD_NUMBER: _ClassVar[int]
     G_FIELD_NUMBER: _ClassVar[int]
     U_FIELD_NUMBER: _ClassVar[int]
     R_FIELD_NUMBER: _ClassVar[int]
     o: Array
     o2: Array
-    ag: Array
-    ag2: Array
     g: Array
     u: Array
     r: Array
-    def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., ag: _Optional[_Union[Array, _Mapping]] = ..., ag2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
+    def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
     __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag")

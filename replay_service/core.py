@@ -22,12 +22,13 @@ from typing import Any
 
 import numpy as np
 
+from hercs.batch import TransitionBatch
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.normalizer import Normalizer, NormalizerState
 from replay_service.energy import trajectory_energy
-from replay_service.her import TransitionBatch, normalizer_sample, relabel
+from replay_service.her import normalizer_sample, relabel
 from replay_service.samplers import make_sampler
 from replay_service.store import EpisodeStore
 
@@ -137,7 +138,7 @@ class ReplayCore:
             slots, info = self.sampler.sample(self.store, batch_size, self.rng)
             draws += info.cluster_counts
             out.append(relabel(self.store, slots, future_p=self.config.her.future_p,
-                               reward_fn=self.spec.compute_reward, rng=self.rng))
+                               reward_fn=self.spec.compute_reward, rng=self.rng).transitions)
         self.samples += num_minibatches
         self.cluster_draws_total += draws
         return SampleResult(out, draws)

@@ -14,8 +14,9 @@ the same draws in the same order (the reference uses the global np.random; we ta
 `env.unwrapped.compute_reward`; the replay never holds an environment.
 
 `future_t` can be T because ag has T+1 entries (ag_T is the achieved goal after the last
-action). Transitions are (o_t, o_{t+1}, ag_t, ag_{t+1}, g_t, u_t). Which *episodes* go into
-the batch is the samplers' job (replay_service.samplers); this module takes their slots.
+action). Transitions are `hercs.batch.TransitionBatch` (o_t, g, u_t, r_t, o_{t+1}). Which
+*episodes* go into the batch is the samplers' job (replay_service.samplers); this module takes
+their slots.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from hercs.batch import TransitionBatch
 from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
 
@@ -59,25 +61,14 @@ class HERIndices:
 
 
 @dataclass(frozen=True)
-class TransitionBatch:
-    """B relabelled transitions (float32) plus the draws that made them (for tests/metrics)."""
+class RelabelledBatch:
+    """One minibatch and the draws that made it (tests and analyses read the draws; only
+    `transitions` leaves the replay)."""
 
-    o: np.ndarray
-    o2: np.ndarray
-    ag: np.ndarray
-    ag2: np.ndarray
-    g: np.ndarray
-    u: np.ndarray
-    r: np.ndarray
-    """(B,) float32."""
+    transitions: TransitionBatch
     episode_idxs: np.ndarray
-    t: np.ndarray
-    future_t: np.ndarray
-    her_mask: np.ndarray
-
-    @property
-    def batch_size(self) -> int:
-        return int(self.r.shape[0])
+    """(B,) store slots, as given."""
+    draw: HERIndices
 
 
 def _f32(x: np.ndarray) -> np.ndarray:
@@ -101,7 +92,7 @@ def relabel(
     future_p: float,
     reward_fn: RewardFn,
     rng: np.random.Generator,
-) -> TransitionBatch:
+) -> RelabelledBatch:
     """One HER minibatch from the episodes in `episode_idxs` (slots, repeats allowed)."""
     episode_idxs = np.asarray(episode_idxs, dtype=np.int64)
     ag_all = arrays.ag
@@ -122,19 +113,9 @@ def relabel(
     g[draw.her_mask] = ag_all[ep[draw.her_mask], draw.future_t[draw.her_mask]]
     ag2 = ag_all[ep, t + 1]
     r = np.asarray(reward_fn(ag2, g), dtype=np.float32).reshape(episode_idxs.size)
-    return TransitionBatch(
-        o=_f32(obs[ep, t]),
-        o2=_f32(obs[ep, t + 1]),
-        ag=_f32(ag_all[ep, t]),
-        ag2=_f32(ag2),
-        g=_f32(g),
-        u=_f32(arrays.actions[ep, t]),
-        r=r,
-        episode_idxs=ep,
-        t=draw.t,
-        future_t=draw.future_t,
-        her_mask=draw.her_mask,
-    )
+    transitions = TransitionBatch(o=_f32(obs[ep, t]), g=_f32(g), u=_f32(arrays.actions[ep, t]),
+                                  r=r, o2=_f32(obs[ep, t + 1]))
+    return RelabelledBatch(transitions=transitions, episode_idxs=ep, draw=draw)
 
 
 def normalizer_sample(

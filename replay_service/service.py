@@ -34,7 +34,6 @@ import yaml
 
 from hercs.clustering import ClusterModel
 from hercs.codec import (
-    MINIBATCH_FIELDS,
     array_to_msg,
     episode_to_msg,
     minibatch_to_msg,
@@ -238,8 +237,7 @@ class ReplayService:
         lag = float(np.mean(self.recent_lags)) if self.recent_lags else 0.0
         batch = pb.Batch(
             schema_version=SCHEMA_VERSION, request_id=request.request_id,
-            minibatches=[minibatch_to_msg({name: getattr(mb, name) for name in MINIBATCH_FIELDS})
-                         for mb in result.minibatches],
+            minibatches=[minibatch_to_msg(mb) for mb in result.minibatches],
             o_stats=stats_to_msg(o_state), g_stats=stats_to_msg(g_state),
             cluster_model_version=0 if model is None else model.version,
             cluster_draws=[int(c) for c in result.cluster_draws],

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.codec import (
     array_to_msg,
     arrays_to_named,
@@ -103,13 +104,15 @@ def test_named_arrays_round_trip_and_duplicates() -> None:
 
 def test_minibatch_round_trip() -> None:
     rng = np.random.default_rng(2)
-    batch = {"o": rng.random((8, 25)), "o2": rng.random((8, 25)), "ag": rng.random((8, 3)),
-             "ag2": rng.random((8, 3)), "g": rng.random((8, 3)), "u": rng.random((8, 4)),
-             "r": -rng.integers(0, 2, 8)}
-    back = msg_to_minibatch(pb.Minibatch.FromString(minibatch_to_msg(batch).SerializeToString()))
-    for name, value in batch.items():
-        np.testing.assert_array_equal(back[name], value.astype(np.float32))
-        assert back[name].dtype == np.float32
+    batch = TransitionBatch(o=rng.random((8, 25)), g=rng.random((8, 3)), u=rng.random((8, 4)),
+                            r=-rng.integers(0, 2, 8), o2=rng.random((8, 25)))
+    msg = minibatch_to_msg(batch)
+    assert {f.name for f, _ in msg.ListFields()} == set(TRANSITION_FIELDS)
+    back = msg_to_minibatch(pb.Minibatch.FromString(msg.SerializeToString()))
+    assert isinstance(back, TransitionBatch)
+    for name, value, got in zip(TRANSITION_FIELDS, batch, back, strict=True):
+        np.testing.assert_array_equal(got, value.astype(np.float32), err_msg=name)
+        assert got.dtype == np.float32
 
 
 def _sample_of_each_message() -> list:

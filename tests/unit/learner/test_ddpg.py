@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.networks import Actor, Critic, preprocess
 from hercs.normalizer import Normalizer
@@ -21,16 +22,16 @@ SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=32)  # fast nets where the width does not matter
 
 
-def _batch(spec: TaskSpec, b: int, seed: int) -> dict[str, np.ndarray]:
+def _batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:
     rng = np.random.default_rng(seed)
-    return {
-        "o": rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
-        "g": rng.normal(size=(b, spec.goal_dim)).astype(np.float32),
-        "u": rng.uniform(-spec.max_action, spec.max_action,
-                         size=(b, spec.action_dim)).astype(np.float32),
-        "r": -(rng.random(b) < 0.7).astype(np.float32),
-        "o2": rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
-    }
+    return TransitionBatch(
+        o=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
+        g=rng.normal(size=(b, spec.goal_dim)).astype(np.float32),
+        u=rng.uniform(-spec.max_action, spec.max_action,
+                      size=(b, spec.action_dim)).astype(np.float32),
+        r=-(rng.random(b) < 0.7).astype(np.float32),
+        o2=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
+    )
 
 
 def _params(module: torch.nn.Module) -> list[torch.Tensor]:
@@ -74,7 +75,7 @@ def test_critic_target_is_clipped_to_minus_one_over_one_minus_gamma_and_zero(
 
     # the update regresses Q onto the same (clipped) target
     metrics = learner.update(_batch(SPEC, b, seed=1))
-    batch_r = _batch(SPEC, b, seed=1)["r"]
+    batch_r = _batch(SPEC, b, seed=1).r
     want_mean = {"zero": 0.0, "floor": -1.0 / (1.0 - config.gamma),
                  "unclipped": float(np.mean(batch_r + config.gamma * bias))}[expected]
     assert metrics["y_mean"] == pytest.approx(want_mean, rel=1e-5)
@@ -84,7 +85,7 @@ def test_reward_of_shape_b_is_not_broadcast_to_b_by_b() -> None:
     learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     twin = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     batch = _batch(SPEC, 8, seed=2)
-    column = dict(batch, r=batch["r"].reshape(8, 1))
+    column = batch._replace(r=batch.r.reshape(8, 1))
     assert learner.update(batch) == twin.update(column)
 
 
@@ -162,8 +163,8 @@ def test_update_uses_the_adopted_normalizer_state() -> None:
     a = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     b = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     o_norm, g_norm = Normalizer(SPEC.obs_dim), Normalizer(SPEC.goal_dim)
-    o_norm.update(batch["o"] * 4 + 2)
-    g_norm.update(batch["g"] + 1)
+    o_norm.update(batch.o * 4 + 2)
+    g_norm.update(batch.g + 1)
     o_norm.recompute_stats()
     g_norm.recompute_stats()
     b.set_normalizer_state(o_norm.state_dict(), g_norm.state_dict())
@@ -175,7 +176,7 @@ def test_update_uses_the_adopted_normalizer_state() -> None:
 def test_state_dict_round_trip_reproduces_training() -> None:
     src = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     o_norm = Normalizer(SPEC.obs_dim)
-    o_norm.update(_batch(SPEC, 64, seed=8)["o"])
+    o_norm.update(_batch(SPEC, 64, seed=8).o)
     o_norm.recompute_stats()
     src.set_normalizer_state(o_norm.state_dict(), Normalizer(SPEC.goal_dim).state_dict())
     for i in range(3):
@@ -220,15 +221,15 @@ def test_policy_weights_broadcast_reproduces_the_learners_actor() -> None:
     learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     o_norm, g_norm = Normalizer(SPEC.obs_dim), Normalizer(SPEC.goal_dim)
     batch = _batch(SPEC, 32, seed=9)
-    o_norm.update(batch["o"] * 2)
+    o_norm.update(batch.o * 2)
     o_norm.recompute_stats()
     learner.set_normalizer_state(o_norm.state_dict(), g_norm.state_dict())
     learner.update(batch)
     w = learner.policy_weights(version=3)
     policy = Policy(spec=SPEC, config=SMALL, seed=99)
     policy.load(w)
-    a = policy.act(batch["o"], batch["g"], explore=False)
-    x = preprocess(batch["o"], batch["g"], learner.o_norm, learner.g_norm, SMALL.clip_obs)
+    a = policy.act(batch.o, batch.g, explore=False)
+    x = preprocess(batch.o, batch.g, learner.o_norm, learner.g_norm, SMALL.clip_obs)
     with torch.no_grad():
         want = learner.actor(torch.from_numpy(x)).numpy()
     np.testing.assert_allclose(a, want, rtol=1e-6, atol=1e-7)
@@ -239,16 +240,12 @@ def test_policy_weights_broadcast_reproduces_the_learners_actor() -> None:
     ("key", "value", "match"),
     [("u", np.zeros((32, 3), np.float32), "'u'"),
      ("r", np.zeros(31, np.float32), "'r'"),
-     ("o2", None, "o2")],
-    ids=["wrong-action-dim", "short-reward", "missing-o2"],
+     ("o2", np.zeros((32, 5), np.float32), "'o2'")],
+    ids=["wrong-action-dim", "short-reward", "narrow-o2"],
 )
-def test_update_rejects_malformed_batches(key: str, value: np.ndarray | None, match: str) -> None:
+def test_update_rejects_malformed_batches(key: str, value: np.ndarray, match: str) -> None:
     learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
-    batch = _batch(SPEC, 32, seed=0)
-    if value is None:
-        del batch[key]
-    else:
-        batch[key] = value
+    batch = _batch(SPEC, 32, seed=0)._replace(**{key: value})
     with pytest.raises(ValueError, match=match):
         learner.update(batch)
     assert learner.updates == 0

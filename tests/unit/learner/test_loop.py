@@ -26,8 +26,7 @@ def batches(cfg: HercsConfig, n: int) -> list[SampleBatch]:
         result = core.sample(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
         o_state, g_state = core.normalizer_state()
         out.append(SampleBatch(
-            minibatches=[{k: getattr(mb, k) for k in ("o", "o2", "ag", "ag2", "g", "u", "r")}
-                         for mb in result.minibatches],
+            minibatches=result.minibatches,
             o_stats=o_state, g_stats=g_state, cluster_draws=result.cluster_draws,
             inserts=core.inserts, env_steps=core.env_steps, policy_lag=1.5))
     return out

@@ -7,6 +7,7 @@ import gymnasium_robotics
 import numpy as np
 import pytest
 
+from hercs.batch import TRANSITION_FIELDS
 from hercs.config import HERConfig
 from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
@@ -50,7 +51,7 @@ def test_relabel_fraction_is_future_p(store: EpisodeStore, replay_k: int) -> Non
     rng = np.random.default_rng(0)
     idxs = rng.integers(0, store.size, 100_000)
     batch = relabel(store, idxs, future_p=future_p, reward_fn=SPEC.compute_reward, rng=rng)
-    assert abs(batch.her_mask.mean() - future_p) < 0.01
+    assert abs(batch.draw.her_mask.mean() - future_p) < 0.01
 
 
 def test_timestep_and_future_index_ranges() -> None:
@@ -68,23 +69,25 @@ def test_timestep_and_future_index_ranges() -> None:
 
 
 def test_batch_gathers_the_right_transition(store: EpisodeStore) -> None:
-    """o, o2, ag, ag2, u come from (episode, t) and (episode, t+1); g is ag[future_t] where
-    relabelled and the episode's own goal elsewhere; the store is left unchanged."""
+    """o, u come from (episode, t), o2 from (episode, t+1); g is ag[future_t] where relabelled
+    and the episode's own goal elsewhere; r = compute_reward(ag[t+1], g); the store is left
+    unchanged."""
     g_before = store.g.copy()
     rng = np.random.default_rng(2)
     idxs = rng.integers(0, store.size, 4096)
-    b = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward, rng=rng)
-    ep, t, m = b.episode_idxs, b.t, b.her_mask
+    relabelled = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward,
+                         rng=rng)
+    b, draw = relabelled.transitions, relabelled.draw
+    ep, t, m = relabelled.episode_idxs, draw.t, draw.her_mask
     np.testing.assert_array_equal(ep, idxs)
     np.testing.assert_array_equal(b.o, store.obs[ep, t])
     np.testing.assert_array_equal(b.o2, store.obs[ep, t + 1])
-    np.testing.assert_array_equal(b.ag, store.ag[ep, t])
-    np.testing.assert_array_equal(b.ag2, store.ag[ep, t + 1])
     np.testing.assert_array_equal(b.u, store.actions[ep, t])
-    np.testing.assert_array_equal(b.g[m], store.ag[ep[m], b.future_t[m]])
+    np.testing.assert_array_equal(b.g[m], store.ag[ep[m], draw.future_t[m]])
     np.testing.assert_array_equal(b.g[~m], store.g[ep[~m], t[~m]])
+    np.testing.assert_array_equal(b.r, fetch_reward(store.ag[ep, t + 1], b.g))
     np.testing.assert_array_equal(store.g, g_before)
-    for name in ("o", "o2", "ag", "ag2", "g", "u", "r"):
+    for name in TRANSITION_FIELDS:
         assert getattr(b, name).dtype == np.float32, name
     assert b.r.shape == (4096,) and b.batch_size == 4096
 
@@ -97,13 +100,16 @@ def test_rewards_match_the_real_env_compute_reward(store: EpisodeStore) -> None:
     try:
         rng = np.random.default_rng(3)
         idxs = rng.integers(0, store.size, 4096)
-        b = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward, rng=rng)
-        env_r = env.unwrapped.compute_reward(b.ag2, b.g, None)
+        relabelled = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward,
+                             rng=rng)
+        b = relabelled.transitions
+        ag2 = store.ag[relabelled.episode_idxs, relabelled.draw.t + 1]
+        env_r = env.unwrapped.compute_reward(ag2, b.g, None)
     finally:
         env.close()
     assert 0.05 < np.mean(b.r == 0) < 0.95
     np.testing.assert_array_equal(b.r, env_r)
-    np.testing.assert_array_equal(b.r, fetch_reward(b.ag2, b.g))
+    np.testing.assert_array_equal(b.r, fetch_reward(ag2, b.g))
 
 
 def test_relabel_refuses_out_of_range_slots(store: EpisodeStore) -> None:
