@@ -32,13 +32,13 @@ import numpy as np
 import torch
 
 from actors.rollout import RolloutWorker
-from actors.service import WeightsDecoder
+from actors.weights import WeightsDecoder
 from hercs.config import HercsConfig
 from hercs.envs import make_env
-from hercs.errors import ConfigError, InvalidMessage
+from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import int_seed
-from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
+from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.tasks import goal_distance
 from hercs.transport import Publisher, TransportError
 from proto import SCHEMA_VERSION
@@ -207,16 +207,13 @@ class EvaluatorService:
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs evaluator`: evaluate every epoch-end policy until SIGTERM/SIGINT."""
-    setup_logging("evaluator")
     torch.set_num_threads(1)
+    return service_main(role="evaluator", config=config, ident=ident, body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    service = EvaluatorService(runtime=runtime, config=runtime.config)
     try:
-        runtime = ServiceRuntime(config=config, role="evaluator", ident=ident)
-    except ConfigError as exc:
-        log.error("hercs evaluator: %s", exc)
-        return 2
-    with runtime:
-        service = EvaluatorService(runtime=runtime, config=config)
-        try:
-            return service.run()
-        finally:
-            service.worker.close()
+        return service.run()
+    finally:
+        service.worker.close()

@@ -32,17 +32,15 @@ import torch
 
 from actors.inserter import Inserter
 from actors.rollout import RolloutWorker
-from hercs.codec import episode_to_msg, msg_to_weight_arrays
+from actors.weights import WeightsDecoder
+from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig
 from hercs.envs import make_env
-from hercs.errors import ConfigError, InvalidMessage
+from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import generator, int_seed
-from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
-from hercs.tasks import TaskSpec
+from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, service_main
 from hercs.transport import TransportError
-from hercs.validation import RejectReason, parse_message
-from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 
@@ -54,35 +52,6 @@ METRICS_EVERY_EPISODES = 10
 
 
 # --------------------------------------------------------------------------- weights
-
-
-class WeightsDecoder:
-    """Bytes from `keys.weights` → `pb.Weights` (`parse`) → checked `PolicyWeights` (`decode`);
-    both raise `InvalidMessage`.
-
-    Beyond the schema and array codec, `decode` loads the weights into a scratch `Policy` of
-    this task's sizes (names, shapes, finiteness, positive std), so the `PolicyWeights` it
-    returns always loads. Use from one thread.
-    """
-
-    def __init__(self, *, spec: TaskSpec, config: HercsConfig) -> None:
-        self._scratch = Policy(spec=spec, config=config.ddpg, seed=0)
-        self._max_bytes = config.replay.max_message_bytes
-
-    def parse(self, raw: bytes) -> pb.Weights:
-        """Schema only (size, protobuf, schema_version): enough to read `evaluate`/`epoch`."""
-        return parse_message(raw, pb.Weights, max_bytes=self._max_bytes)
-
-    def decode(self, msg: pb.Weights) -> PolicyWeights:
-        actor, o_stats, g_stats = msg_to_weight_arrays(msg)
-        weights = PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
-                                g_stats=g_stats)
-        try:
-            self._scratch.load(weights)
-        except ValueError as exc:
-            raise InvalidMessage(RejectReason.BAD_VALUE,
-                                 f"Weights version {msg.version}: {exc}") from None
-        return weights
 
 
 class LatestWeights:
@@ -223,26 +192,17 @@ class ActorService:
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs actor`: join `config.run.name` and collect episodes until SIGTERM/SIGINT."""
-    setup_logging("actor")
     torch.set_num_threads(1)
+    return service_main(role="actor", config=config, ident=ident, body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    joined = join_run(runtime, runtime.config)  # the run's config, served by its replay
+    if joined is None:  # stopped first
+        return 0
+    service = ActorService(runtime=runtime, config=joined)
     try:
-        runtime = ServiceRuntime(config=config, role="actor", ident=ident)
-    except ConfigError as exc:
-        log.error("hercs actor: %s", exc)
-        return 2
-    service: ActorService | None = None
-    try:
-        try:
-            joined = join_run(runtime, config)
-        except ConfigError as exc:
-            log.error("actor %s: cannot use run %r's config: %s", runtime.ident,
-                      config.run.name, exc)
-            return 2
-        if joined is None:
-            return 0
-        service = ActorService(runtime=runtime, config=joined)
         return service.run()
     finally:
         runtime.close()  # also ends an insert still in flight after the flush deadline
-        if service is not None:
-            service.close()
+        service.close()

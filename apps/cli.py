@@ -13,8 +13,9 @@ from pathlib import Path
 
 import yaml
 
-from hercs.config import METHODS, HercsConfig, apply_overrides, load_yaml
+from hercs.config import HercsConfig, apply_overrides, load_yaml
 from hercs.errors import ConfigError
+from hercs.methods import METHODS
 from hercs.tasks import TASKS
 
 # Shortcut flags and the config field each one sets.
@@ -37,7 +38,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                        metavar="SECTION.FIELD=VALUE",
                        help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
     group.add_argument("--task", choices=sorted(TASKS), help="task preset (Fetch*-v4)")
-    group.add_argument("--method", choices=METHODS, help="sampling method")
+    group.add_argument("--method", choices=list(METHODS), help="sampling method")
     group.add_argument("--seed", type=int, help="root seed")
     group.add_argument("--epochs", type=int, help="training epochs")
     group.add_argument("--run", help="run name (Zenoh key prefix and folder name)")
@@ -138,13 +139,7 @@ def _service_command(module: str) -> Command:
     def command(args: argparse.Namespace, config: HercsConfig) -> int:
         from importlib import import_module
 
-        from hercs.transport import ConnectAborted
-
-        try:
-            return int(import_module(module).run(config, ident=args.ident))
-        except ConnectAborted as exc:  # stopped before the router was ever reached
-            print(f"hercs {args.command}: {exc}", file=sys.stderr)
-            return 0
+        return int(import_module(module).run(config, ident=args.ident))
 
     return command
 

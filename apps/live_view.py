@@ -72,7 +72,7 @@ from apps.view import (
 from hercs.codec import msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, setup_logging
+from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError
 from hercs.validation import (
@@ -106,8 +106,8 @@ _NOT_CURVES = frozenset({"epoch", "epochs"})
 
 
 def header_outcome(header: pb.EpisodeHeader, spec: TaskSpec) -> EpisodeOutcome:
-    """An `EpisodeHeader` as `hercs view` summarises an episode: success = ‖ag_T − g_T‖ within
-    the task's threshold. Raises `InvalidMessage` for a missing, misshapen or non-finite goal,
+    """An `EpisodeHeader` as `hercs view` summarises an episode: success by the task's rule
+    (`TaskSpec.is_success`). Raises `InvalidMessage` for a missing, misshapen or non-finite goal,
     or a cluster below −1."""
     final_ag, desired_goal = (v.astype(np.float32)
                               for v in header_goals(header, goal_dim=spec.goal_dim))
@@ -116,7 +116,8 @@ def header_outcome(header: pb.EpisodeHeader, spec: TaskSpec) -> EpisodeOutcome:
                              f"EpisodeHeader.cluster {header.cluster}, must be >= -1")
     distance = float(np.linalg.norm(final_ag - desired_goal))
     return EpisodeOutcome(
-        episode_id=int(header.episode_id), success=distance <= spec.distance_threshold,
+        episode_id=int(header.episode_id),
+        success=bool(spec.is_success(final_ag, desired_goal)),
         final_distance=distance, cluster=int(header.cluster), desired_goal=desired_goal,
         actor_id=header.actor_id, seq=int(header.seq), policy_version=int(header.policy_version))
 
@@ -491,30 +492,18 @@ class LiveViewService:
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs live`: stream `config.run.name` to Rerun until SIGTERM/SIGINT. The run's config
     comes from its replay (as for a remote actor); the local `view` section is kept."""
-    setup_logging("live")
-    try:
-        runtime = ServiceRuntime(config=config, role="live", ident=ident)
-    except ConfigError as exc:
-        log.error("hercs live: %s", exc)
-        return 2
-    rec = None
-    try:
-        inbox = Inbox(runtime)  # before anything slow: headers from now on are kept
-        try:
-            joined = join_run(runtime, config, keep=("transport", "view"))
-        except ConfigError as exc:
-            log.error("live %s: cannot use run %r's config: %s", runtime.ident,
-                      config.run.name, exc)
-            return 2
-        if joined is None:
-            return 0
-        import rerun as rr  # imported here: `hercs --help` stays fast
+    return service_main(role="live", config=config, ident=ident, body=_work)
 
-        try:
-            rec = open_recording(rr, joined)
-        except ConfigError as exc:
-            log.error("hercs live: %s", exc)
-            return 2
+
+def _work(runtime: ServiceRuntime) -> int:
+    inbox = Inbox(runtime)  # before anything slow: headers from now on are kept
+    joined = join_run(runtime, runtime.config, keep=("transport", "view"))
+    if joined is None:  # stopped first
+        return 0
+    import rerun as rr  # imported here: `hercs --help` stays fast
+
+    rec = open_recording(rr, joined)
+    try:
         recorder = LiveRecorder(rr, rec, spec=joined.task.spec, k=joined.cluster.k,
                                 episode_every=joined.view.episode_every)
         log.info("live view of run %s (%s, %s): viewer %s%s, trajectories of the episode ids "
@@ -526,5 +515,4 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
                                recorder=recorder).run()
     finally:
         runtime.close()
-        if rec is not None:
-            close_recording(rec)
+        close_recording(rec)

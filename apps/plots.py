@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from hercs.errors import HercsError
+from hercs.methods import METHODS
 
 REFERENCE_CSV = (Path(__file__).resolve().parents[1] / "docs" / "reference"
                  / "authors_success_rates.csv")
@@ -37,10 +38,8 @@ TASK_TITLES: dict[str, str] = {
     "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",
     "slide": "FetchSlide",
 }
-METHOD_ORDER: tuple[str, ...] = ("her", "her-cs", "her-ebp", "her-ebp-cs")
-METHOD_LABELS: dict[str, str] = {
-    "her": "HER", "her-cs": "HER-CS", "her-ebp": "HER-EBP", "her-ebp-cs": "HER-EBP-CS",
-}
+METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
+METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
 METHOD_COLORS: dict[str, str] = {
     "her": "tab:blue", "her-cs": "tab:red", "her-ebp": "tab:green", "her-ebp-cs": "tab:orange",
 }

@@ -41,7 +41,7 @@ if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a chec
     sys.path.insert(0, str(REPO))
 
 from apps.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
-from hercs.config import METHODS  # noqa: E402
+from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
 
 DONE_FILE = "bench_done.json"
@@ -254,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", nargs="+", choices=sorted(TASKS), default=None,
                    help="tasks (default: push; reach with --quick)")
-    p.add_argument("--methods", nargs="+", choices=METHODS, default=["her", "her-cs"])
+    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=["her", "her-cs"])
     p.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per run (default 100; 1 with --quick)")

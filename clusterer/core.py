@@ -1,6 +1,7 @@
 """The clusterer's pure core: classify episodes, keep the failed goals, refit k-means.
 
-Per observed episode (DESIGN §4): the episode failed if ‖ag_T − g‖ > failure_threshold; a
+Per observed episode (DESIGN §4): the episode failed if it did not succeed by the task's rule
+(`TaskSpec.is_success`: ‖ag_T − g‖ below the Fetch radius, 5 cm); a
 failed episode's desired goal g goes into the failed-goal buffer, a successful one is only
 counted. When the buffer has been entirely replaced since the last fit, k-means (k clusters)
 is refitted and a new `ClusterModel` returned for publication. Refit `v` is seeded with
@@ -19,15 +20,17 @@ from clusterer.kmeans import fit_cluster_model
 from hercs.clustering import ClusterModel
 from hercs.config import ClusterConfig
 from hercs.seeding import int_seed
+from hercs.tasks import TaskSpec
 
 
 class Clusterer:
     """Turns a stream of (final achieved goal, desired goal) pairs into cluster models."""
 
-    def __init__(self, *, config: ClusterConfig, seed: int, goal_dim: int = 3) -> None:
+    def __init__(self, *, config: ClusterConfig, seed: int, spec: TaskSpec) -> None:
         self.config = config
         self.seed = int(seed)
-        self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=goal_dim)
+        self.spec = spec
+        self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=spec.goal_dim)
         self.inserts_seen = 0
         """Episodes observed (successes and failures)."""
         self.failures_seen = 0
@@ -47,7 +50,7 @@ class Clusterer:
         if not (np.all(np.isfinite(final_ag)) and np.all(np.isfinite(desired_goal))):
             raise ValueError("Clusterer.observe: final_ag or desired_goal holds NaN or Inf")
         self.inserts_seen += 1
-        if np.linalg.norm(final_ag - desired_goal) <= self.config.failure_threshold:
+        if self.spec.is_success(final_ag, desired_goal):
             return None
         self.failures_seen += 1
         self.fgb.add(desired_goal)

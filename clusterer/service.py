@@ -33,8 +33,8 @@ from clusterer.core import Clusterer
 from hercs.clustering import ClusterModel
 from hercs.codec import array_to_msg
 from hercs.config import HercsConfig
-from hercs.errors import ConfigError, InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
+from hercs.errors import InvalidMessage
+from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import TransportError
 from hercs.validation import header_goals, parse_message
 from proto import SCHEMA_VERSION
@@ -75,7 +75,8 @@ class ClustererService:
         self.config = config
         self.goal_dim = config.task.spec.goal_dim
         self.fits = config.run.uses_clusters
-        self.core = Clusterer(config=config.cluster, seed=config.run.seed, goal_dim=self.goal_dim)
+        self.core = Clusterer(config=config.cluster, seed=config.run.seed,
+                              spec=config.task.spec)
         self.episodes_seen = 0
         self.failures_seen = 0
         self.refits = 0
@@ -105,9 +106,8 @@ class ClustererService:
         """One stored episode; the new model if it triggered a refit (cluster methods only)."""
         self.episodes_seen += 1
         if not self.fits:
-            failed = goal_distance_exceeds(final_ag, desired_goal,
-                                           self.config.cluster.failure_threshold)
-            self.failures_seen += int(failed)
+            self.failures_seen += int(not self.config.task.spec.is_success(final_ag,
+                                                                            desired_goal))
             return None
         model = self.core.observe(final_ag=final_ag, desired_goal=desired_goal)
         self.failures_seen = self.core.failures_seen
@@ -162,19 +162,8 @@ class ClustererService:
             self._warn.warn("metrics", f"could not publish metrics: {exc}")
 
 
-def goal_distance_exceeds(final_ag: np.ndarray, desired_goal: np.ndarray,
-                          threshold: float) -> bool:
-    """The failure test of `Clusterer.observe`: ‖ag_T − g‖ > threshold."""
-    return bool(np.linalg.norm(final_ag - desired_goal) > threshold)
-
-
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs clusterer`: cluster the run's failed goals until SIGTERM/SIGINT."""
-    setup_logging("clusterer")
-    try:
-        runtime = ServiceRuntime(config=config, role="clusterer", ident=ident)
-    except ConfigError as exc:
-        log.error("hercs clusterer: %s", exc)
-        return 2
-    with runtime:
-        return ClustererService(runtime=runtime, config=config).run()
+    return service_main(role="clusterer", config=config, ident=ident,
+                        body=lambda runtime: ClustererService(runtime=runtime,
+                                                              config=runtime.config).run())

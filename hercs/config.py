@@ -13,6 +13,7 @@ every construction runs `__post_init__` validation, whose messages name the fiel
 from __future__ import annotations
 
 import dataclasses
+import logging
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,9 +22,10 @@ from typing import Any
 import yaml
 
 from hercs.errors import ConfigError
+from hercs.methods import METHODS, Method
 from hercs.tasks import TASKS, TaskSpec, task_spec
 
-METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
+log = logging.getLogger(__name__)
 
 
 def _check(cond: bool, where: str, value: object, must: str) -> None:
@@ -62,12 +64,13 @@ class RunConfig:
         )
 
     @property
-    def uses_clusters(self) -> bool:
-        return self.method.endswith("-cs")
+    def spec(self) -> Method:
+        """What `method` does (hercs.methods)."""
+        return METHODS[self.method]
 
     @property
-    def uses_energy(self) -> bool:
-        return "ebp" in self.method
+    def uses_clusters(self) -> bool:
+        return self.spec.cluster_balanced
 
 
 @dataclass
@@ -150,8 +153,6 @@ class ClusterConfig:
     fgb_size: int = 150
     """Failed-goal buffer capacity; a refit happens each time it has been entirely replaced
     [HER-CS]."""
-    failure_threshold: float = 0.05
-    """An episode failed if ‖ag_T − g‖ > this at its last step (the Fetch success radius)."""
     small_cluster_repeat: int = 4
     """A cluster with fewer than share/repeat episodes contributes each member ~repeat times
     and fills the rest of its share uniformly [HER-CS]."""
@@ -161,7 +162,6 @@ class ClusterConfig:
     def __post_init__(self) -> None:
         _check(self.k >= 1, "cluster.k", self.k, "be >= 1")
         _check(self.fgb_size >= self.k, "cluster.fgb_size", self.fgb_size, f"be >= k={self.k}")
-        _positive("cluster.failure_threshold", self.failure_threshold)
         _check(self.small_cluster_repeat >= 1, "cluster.small_cluster_repeat",
                self.small_cluster_repeat, "be >= 1")
         _check(self.kmeans_n_init >= 1, "cluster.kmeans_n_init", self.kmeans_n_init, "be >= 1")
@@ -228,6 +228,9 @@ class ReplayConfig:
     """Disable the rate limiter: inserts and samples never wait [DESIGN]."""
     max_message_bytes: int = 8 * 1024 * 1024
     """Larger wire messages are rejected as oversized [DESIGN]."""
+    sample_timeout_s: float = 600.0
+    """How long the learner waits for one Batch (the rate limiter may hold its request while
+    actors catch up) before it asks again; the replay drops a request parked longer [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.buffer_transitions >= 1, "replay.buffer_transitions",
@@ -238,6 +241,7 @@ class ReplayConfig:
                self.rate_tolerance_updates, "be >= 0")
         _check(self.max_message_bytes >= 1024, "replay.max_message_bytes",
                self.max_message_bytes, "be >= 1024")
+        _positive("replay.sample_timeout_s", self.sample_timeout_s)
 
 
 @dataclass
@@ -326,12 +330,23 @@ class HercsConfig:
         return _build(cls, data, "")
 
 
+RETIRED_KEYS: dict[str, str] = {
+    "cluster.failure_threshold": "an episode fails when it does not succeed by the task's own "
+                                 "rule (TaskSpec.is_success)",
+}
+"""Keys that configs saved by earlier versions hold and this version ignores (with a log line),
+so that old runs stay readable; any other unknown key is refused."""
+
+
 def _build(cls: type, data: Any, where: str) -> Any:
     """Build dataclass `cls` from a mapping, refusing unknown keys and wrong types."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where or 'config'}: got {data!r}, must be a mapping")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
+    for key in [k for k in data if f"{where}.{k}" in RETIRED_KEYS]:
+        log.info("config: ignoring %s.%s (%s)", where, key, RETIRED_KEYS[f"{where}.{key}"])
+        data = {k: v for k, v in data.items() if k != key}
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(

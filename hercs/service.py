@@ -1,7 +1,9 @@
-"""What every service process shares: its Zenoh transport, liveliness token, stop-on-signal,
-metrics publishing and rate-limited warnings. A service's `run(config)` builds a
-`ServiceRuntime`, declares its own entities through `runtime.transport` and loops until
-`runtime.stop` is set.
+"""What every service process shares: the one entry protocol (`service_main`), its Zenoh
+transport, liveliness token, stop event, metrics publishing and rate-limited warnings.
+
+A service's `run(config, *, ident)` is `service_main(role=…, config=…, ident=…, body=…)`;
+`body(runtime)` declares the service's entities through `runtime.transport`, works until
+`runtime.stop` is set and returns the exit status.
 """
 
 from __future__ import annotations
@@ -9,19 +11,18 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import signal
 import socket
 import threading
 import time
 import uuid
-from collections.abc import Mapping
-from types import FrameType
+from collections.abc import Callable, Mapping
 
 import yaml
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError
-from hercs.transport import Transport, TransportError
+from hercs.signals import StopSignals
+from hercs.transport import ConnectAborted, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
@@ -70,34 +71,35 @@ class WarnOncePerMinute:
         self._log.warning("%s%s", message, suffix)
 
 
+EXIT_OK = 0
+EXIT_FAILED = 1
+"""The service failed: an unexpected exception (logged with its traceback) or a fault it
+reports itself."""
+EXIT_CONFIG = 2
+"""The configuration cannot be used (`ConfigError`): retrying the same command will not help."""
+
+
 class ServiceRuntime:
-    """One service process: transport (client of the router), liveliness token, stop event."""
+    """One service process: transport (client of the router), liveliness token, stop event.
+
+    `stop` is set by `service_main` when a stop signal arrives; every wait of the service
+    watches it, the wait for the router included (it then raises `ConnectAborted`).
+    """
 
     def __init__(self, *, config: HercsConfig, role: str, ident: str | None = None,
-                 install_signals: bool = True) -> None:
+                 stop: threading.Event | None = None) -> None:
         if not config.run.name:
             raise ConfigError("run.name: got '', a service needs the run's name (--run RUN)")
         self.config = config
         self.role = role
         self.ident = ident or default_ident()
         self.keys = RunKeys(config.run.name)
-        self.stop = threading.Event()
-        if install_signals:
-            self._install_signals()
-        # A SIGTERM while the router is still unreachable ends the wait (ConnectAborted).
+        self.stop = stop if stop is not None else threading.Event()
         self.transport = Transport.open(mode="client", connect=config.transport.connect,
                                         stop=self.stop)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0
-
-    def _install_signals(self) -> None:
-        def on_signal(signum: int, frame: FrameType | None) -> None:
-            log.info("%s %s: got signal %d, stopping", self.role, self.ident, signum)
-            self.stop.set()
-
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, on_signal)
 
     def publish_metrics(self, values: Mapping[str, float], step: int | None = None) -> None:
         self._metrics_step = self._metrics_step + 1 if step is None else step
@@ -114,6 +116,59 @@ class ServiceRuntime:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+ServiceBody = Callable[[ServiceRuntime], int]
+"""A service's work: runs until `runtime.stop` is set (or the work is done); returns the exit
+status."""
+
+
+def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
+                 ident: str | None = None) -> int:
+    """The entry protocol every service process (`hercs <role>`) follows; returns its exit
+    status. Call it on the main thread.
+
+    - Logging is set up for `role`.
+    - SIGINT and SIGTERM are caught with `StopSignals`: the handler only records the signal
+      and the main thread, woken, sets `runtime.stop` (setting an Event inside a handler can
+      deadlock on the Event's own lock).
+    - The runtime is opened and `body` runs on a worker thread, so that a stop signal also
+      ends the wait for an unreachable router (exit 0: nothing had started).
+    - Exit status: what `body` returns; `EXIT_CONFIG` (2) for a `ConfigError`, from the
+      runtime (e.g. no run name) or from `body`; `EXIT_FAILED` (1) for any other exception,
+      logged with its traceback. The runtime is closed in every case.
+    """
+    setup_logging(role)
+    stop = threading.Event()
+    status: list[int] = []
+
+    with StopSignals() as signals:
+        def work() -> None:
+            try:
+                with ServiceRuntime(config=config, role=role, ident=ident,
+                                    stop=stop) as runtime:
+                    status.append(int(body(runtime)))
+            except ConfigError as exc:
+                log.error("hercs %s: invalid configuration: %s", role, exc)
+                status.append(EXIT_CONFIG)
+            except ConnectAborted as exc:  # stopped before the router was ever reached
+                log.info("hercs %s: %s", role, exc)
+                status.append(EXIT_OK)
+            except Exception:
+                log.exception("hercs %s: failed", role)
+                status.append(EXIT_FAILED)
+            finally:
+                signals.wake()
+
+        worker = threading.Thread(target=work, name=f"{role}-main", daemon=True)
+        worker.start()
+        while worker.is_alive() and not signals.stop_requested:
+            signals.wait(None)  # a wake() sent before this wait is still pending: no race
+        if signals.stop_requested:
+            log.info("%s: got signal %d, stopping", role, signals.received[0])
+            stop.set()
+        worker.join()
+    return status[0] if status else EXIT_FAILED
 
 
 def fetch_run_config(transport: Transport, run: str, *,

@@ -29,7 +29,7 @@ import torch
 from hercs.codec import msg_to_minibatch, msg_to_stats, weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
+from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import parse_message
 from learner.ddpg import DDPGLearner
@@ -39,8 +39,6 @@ from proto import hercs_pb2 as pb
 
 log = logging.getLogger("hercs.learner")
 
-SAMPLE_TIMEOUT_S = 600.0
-"""A sample request may be held by the rate limiter while actors catch up; wait long."""
 PREFETCH_DEPTH = 2
 EVAL_WAIT_S = 600.0
 MAX_BATCH_BYTES = 1 << 30
@@ -86,7 +84,7 @@ class Prefetcher:
             try:
                 raw = self.runtime.transport.request(
                     self.runtime.keys.sample, request.SerializeToString(),
-                    timeout_s=SAMPLE_TIMEOUT_S)
+                    timeout_s=self.config.replay.sample_timeout_s)
                 batch = decode_batch(raw)
             except (TransportTimeout, RemoteError, TransportError, InvalidMessage) as exc:
                 if stop.is_set():
@@ -240,15 +238,18 @@ class LearnerService:
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
-    setup_logging("learner")
+    """`hercs learner`: train for `training.epochs` epochs, then exit 0."""
     torch.set_num_threads(1)
+    return service_main(role="learner", config=config, ident=ident or "learner", body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    config = runtime.config
     run_dir = Path(config.run.run_dir) / config.run.name
     run_dir.mkdir(parents=True, exist_ok=True)
-    with ServiceRuntime(config=config, role="learner", ident=ident or "learner") as runtime:
-        service = LearnerService(config=config, runtime=runtime, run_dir=run_dir)
-        try:
-            status = service.run()
-        finally:
-            runtime.stop.set()
-            service.close()
-    return status
+    service = LearnerService(config=config, runtime=runtime, run_dir=run_dir)
+    try:
+        return service.run()
+    finally:
+        runtime.stop.set()
+        service.close()

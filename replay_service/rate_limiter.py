@@ -82,6 +82,19 @@ class SampleToInsertRatio:
             return False
         return self.free_run or self.surplus - num_minibatches >= self.min_surplus
 
+    def max_admissible_sample(self) -> float:
+        """The largest request admitted whatever the history: inserts stop once d would pass
+        d_max, so d always gets above d_max − ρ, and a request of n is admitted at d when
+        d − n ≥ d_min; hence n ≤ 2E − ρ (unbounded in free run)."""
+        if self.free_run:
+            return float("inf")
+        return 2 * self.error_buffer - self.samples_per_insert
+
+    def could_ever_sample(self, num_minibatches: int) -> bool:
+        """False for a request that would wait forever (and, first in line, hold every later
+        request behind it)."""
+        return num_minibatches <= self.max_admissible_sample()
+
     def record_insert(self) -> None:
         self.inserts += 1
 

@@ -1,35 +1,38 @@
-"""`hercs replay`: the replay service process, a thin shell around `ReplayCore`.
+"""`hercs replay`: the replay service process, a thin Zenoh shell around `ReplayTable`.
+
+It decodes and validates each query, hands it to the table with a waiter that answers the
+query (now or, when the rate limiter holds it, later), and encodes what the waiter is given.
+Every decision (dedup, parking, admission order, expiry, durable logging before the ack) is
+the table's (`replay_service.table`).
 
 Queries (served on our own worker threads, never inside Zenoh callbacks):
-- `replay/insert` (Episode → InsertAck): decoded and validated; a retry of a stored
-  (actor_id, seq) is acked at once as a duplicate; otherwise, when the rate limiter admits it,
-  the episode is appended durably to the MCAP log, stored, acked, and its `EpisodeHeader` put
-  on `replay/inserted`. When the limiter holds inserts the query is parked and answered later.
-- `replay/sample` (SampleRequest → Batch): parked until the limiter admits it.
+- `replay/insert` (Episode → InsertAck): validated against the task, then `table.insert`; a
+  stored episode's `EpisodeHeader` is put on `replay/inserted` after its ack. A call parked
+  longer than the actor's `actor.insert_timeout_s` is answered `expired` (the actor retries).
+- `replay/sample` (SampleRequest → Batch): validated, then `table.sample`; a request the
+  limiter could never admit is refused (`bad_value`); one parked longer than the learner's
+  `replay.sample_timeout_s` is answered `expired`.
 - `config`: the run's resolved config as YAML (remote actors start from it).
 - `replay/episode` (EpisodeRequest → Episode): one stored episode by id, as inserted (the live
   view draws every n-th episode's trajectory from it). An id never inserted or already
   overwritten by the ring gets the error reply `unknown_episode` (a miss, not counted as a
   reject); a malformed request is a reject like any other.
 Subscriptions: `cluster/model` (latest, so a restarted replay gets the current model at once)
-and `eval/result` (logged). `replay/status` is put about once a second.
+and `eval/result` (logged). `replay/status` is put about once a second, and parked calls past
+their deadline are expired at the same pace.
 
-All state changes happen under one lock; after each insert or sample the parked queries of
-the other side are retried, oldest first (FIFO per side).
-
-On start the episode log of the run directory is replayed into the core, so nothing acked is
+On start the episode log of the run directory is replayed into the table, so nothing acked is
 lost across a restart; the rate limiter restarts balanced at the recovered size.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
-from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Generic, TypeVar
 
-import numpy as np
 import yaml
 
 from hercs.clustering import ClusterModel
@@ -42,11 +45,10 @@ from hercs.codec import (
     stats_to_msg,
 )
 from hercs.config import HercsConfig, save_yaml
-from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.runlog.episode_log import EpisodeLog
 from hercs.seeding import generator
-from hercs.service import ServiceRuntime, WarnOncePerMinute, setup_logging
+from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply
 from hercs.validation import (
     RejectReason,
@@ -58,56 +60,57 @@ from hercs.validation import (
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
-from replay_service.rate_limiter import SampleToInsertRatio
+from replay_service.table import ReplayTable, SampleCall, Sampled, SampleRefused, Stored
 
 log = logging.getLogger("hercs.replay")
 
 STATUS_PERIOD_S = 1.0
 MAX_MINIBATCHES_PER_REQUEST = 400
 MAX_BATCH_SIZE = 8192
-POLICY_LAG_WINDOW = 64
-"""Recent episodes whose policy lag is averaged into each Batch's `policy_lag`."""
+
+R = TypeVar("R")
 
 
 @dataclass
-class _ParkedInsert:
-    pending: PendingReply
-    msg: pb.Episode
-    episode: EpisodeData
+class _QueryWaiter(Generic[R]):
+    """Answers one deferred Zenoh query for the table."""
 
-
-@dataclass
-class _ParkedSample:
     pending: PendingReply
-    request: pb.SampleRequest
+    encode: Callable[[R], bytes]
+
+    def done(self, result: R) -> None:
+        self.pending.reply(self.encode(result))
+
+    def fail(self, reason: str, detail: str) -> None:
+        self.pending.reply_error(reason, detail)
 
 
 class ReplayService:
-    """The replay's process-side state: core, limiter, log and parked queries."""
+    """The replay's process side: decode, call the table, encode, reply."""
 
     def __init__(self, *, config: HercsConfig, runtime: ServiceRuntime, run_dir: Path) -> None:
         self.config = config
         self.runtime = runtime
         self.spec = config.task.spec
-        self.core = ReplayCore(config=config, rng=generator(config.run.seed, "replay"))
-        self.limiter = SampleToInsertRatio(
-            samples_per_insert=config.training.updates_per_episode,
-            min_size_to_sample=config.replay.min_episodes_to_sample,
-            error_buffer=config.replay.rate_tolerance_updates,
-            max_request=config.training.minibatches_per_cycle,
-            free_run=config.replay.free_run,
-        )
-        self.lock = threading.Lock()
-        self.parked_inserts: deque[_ParkedInsert] = deque()
-        self.parked_samples: deque[_ParkedSample] = deque()
-        # Policy lag of an episode = the learner's newest weights version when the episode
-        # arrives (known from its latest SampleRequest) minus the version the actor used.
-        self.learner_version = 0
-        self.recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self.warn = WarnOncePerMinute(log)
         self.log, recovered = EpisodeLog.open(run_dir, run=config.run.name,
                                               task=self.spec.name)
-        self._recover(recovered)
+        self.table = ReplayTable(
+            config=config, core=ReplayCore(config=config, rng=generator(config.run.seed,
+                                                                       "replay")),
+            log=self.log)
+        count = 0
+
+        def episodes():
+            nonlocal count
+            for episode_id, msg in recovered:
+                count += 1
+                yield episode_id, msg_to_episode(msg)
+
+        for logged, stored in self.table.recover(episodes()):
+            log.warning("recovered episode logged as id %d was stored as %d", logged, stored)
+        if count:
+            log.info("recovered %d acked episodes from the episode log", count)
         self._config_yaml = yaml.safe_dump(config.to_dict(), sort_keys=False).encode()
 
         keys, transport = runtime.keys, runtime.transport
@@ -121,26 +124,10 @@ class ReplayService:
         transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject)
         transport.serve_deferred(keys.sample, self._on_sample, on_error=self._on_reject)
 
-    # -- start-up --------------------------------------------------------------------------
-    def _recover(self, recovered) -> None:
-        count = 0
-        for episode_id, msg in recovered:
-            result = self.core.insert(msg_to_episode(msg))
-            if result.episode_id != episode_id:
-                log.warning("recovered episode logged as id %d was stored as %d", episode_id,
-                            result.episode_id)
-            count += 1
-        if count:
-            # Restart balanced: as if the learner had used every recovered episode.
-            self.limiter.inserts = count
-            self.limiter.samples = int(count * self.limiter.samples_per_insert)
-            log.info("recovered %d acked episodes from the episode log", count)
-
     # -- inserts ---------------------------------------------------------------------------
     def _on_reject(self, exc: Exception) -> None:
         reason = exc.reason if isinstance(exc, InvalidMessage) else "internal"
-        with self.lock:
-            self.core.count_reject(reason)
+        self.table.count_reject(reason)
         self.warn.warn(f"reject:{reason}", f"rejected a message: {exc}")
 
     def _on_insert(self, pending: PendingReply) -> None:
@@ -149,55 +136,32 @@ class ReplayService:
         rejection = validate_episode(msg, self.spec, run=self.config.run.name)
         if rejection is not None:
             raise rejection.error()
-        episode = msg_to_episode(msg)
-        with self.lock:
-            known = self.core.lookup(episode.actor_id, episode.seq)
-            if known is not None:
-                self.core.duplicates += 1
-                pending.reply(self._ack(episode, known, duplicate=True))
-                return
-            self.parked_inserts.append(_ParkedInsert(pending, msg, episode))
-            self._drain()
+        self.table.insert(msg_to_episode(msg), record=msg,
+                          waiter=_QueryWaiter(pending, self._acked),
+                          timeout_s=self.config.actor.insert_timeout_s)
 
-    def _store(self, item: _ParkedInsert) -> None:
-        """Log durably, store, ack, announce. Caller holds the lock."""
-        episode = item.episode
-        known = self.core.lookup(episode.actor_id, episode.seq)
-        if known is not None:  # a retry parked beside its first attempt
-            self.core.duplicates += 1
-            item.pending.reply(self._ack(episode, known, duplicate=True))
-            return
-        episode_id = self.core.store.num_inserted
-        self.log.append_episode(item.msg, episode_id=episode_id)
-        result = self.core.insert(episode)
-        assert result.episode_id == episode_id, "log and store disagree on episode ids"
-        self.limiter.record_insert()
-        self.recent_lags.append(self.learner_version - episode.policy_version)
-        item.pending.reply(self._ack(episode, episode_id, duplicate=False))
-        header = pb.EpisodeHeader(
-            schema_version=SCHEMA_VERSION, episode_id=episode_id, actor_id=episode.actor_id,
-            seq=episode.seq, success=episode.success,
-            final_achieved_goal=array_to_msg(episode.ag[-1]),
-            desired_goal=array_to_msg(episode.g[-1]), energy=result.energy,
-            cluster=result.cluster, policy_version=episode.policy_version,
-        )
-        self.inserted_pub.put(header.SerializeToString())
-
-    @staticmethod
-    def _ack(episode: EpisodeData, episode_id: int, *, duplicate: bool) -> bytes:
+    def _acked(self, stored: Stored) -> bytes:
+        """The ack's bytes; a newly stored episode is also announced on `replay/inserted`."""
+        episode = stored.episode
+        if not stored.duplicate:
+            header = pb.EpisodeHeader(
+                schema_version=SCHEMA_VERSION, episode_id=stored.episode_id,
+                actor_id=episode.actor_id, seq=episode.seq, success=episode.success,
+                final_achieved_goal=array_to_msg(episode.ag[-1]),
+                desired_goal=array_to_msg(episode.g[-1]), energy=stored.energy,
+                cluster=stored.cluster, policy_version=episode.policy_version,
+            )
+            self.inserted_pub.put(header.SerializeToString())
         return pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id=episode.actor_id,
-                            seq=episode.seq, episode_id=episode_id,
-                            duplicate=duplicate).SerializeToString()
+                            seq=episode.seq, episode_id=stored.episode_id,
+                            duplicate=stored.duplicate).SerializeToString()
 
     # -- stored episodes (the live view) ---------------------------------------------------
     def _on_episode_request(self, payload: bytes) -> bytes:
         request = parse_message(payload, pb.EpisodeRequest,
                                 max_bytes=self.config.replay.max_message_bytes)
         episode_id = int(request.episode_id)
-        with self.lock:
-            store = self.core.store
-            episode = store.episode(episode_id)
-            first, end = store.num_inserted - store.size, store.num_inserted
+        episode, first, end = self.table.stored_episode(episode_id)
         if episode is None:
             why = "not inserted yet" if episode_id >= end else "overwritten by newer episodes"
             held = f"ids {first}..{end - 1}" if end > first else "no episode yet"
@@ -223,45 +187,15 @@ class ReplayService:
             max_batch_size=MAX_BATCH_SIZE)
         if rejection is not None:
             raise rejection.error()
-        with self.lock:
-            self.parked_samples.append(_ParkedSample(pending, request))
-            self._drain()
-
-    def _serve_sample(self, item: _ParkedSample) -> None:
-        request = item.request
-        self.learner_version = max(self.learner_version, int(request.weights_version))
-        result = self.core.sample(int(request.num_minibatches), int(request.batch_size))
-        self.limiter.record_sample(int(request.num_minibatches))
-        o_state, g_state = self.core.normalizer_state()
-        model = self.core.cluster_model
-        lag = float(np.mean(self.recent_lags)) if self.recent_lags else 0.0
-        batch = pb.Batch(
-            schema_version=SCHEMA_VERSION, request_id=request.request_id,
-            minibatches=[minibatch_to_msg(mb) for mb in result.minibatches],
-            o_stats=stats_to_msg(o_state), g_stats=stats_to_msg(g_state),
-            cluster_model_version=0 if model is None else model.version,
-            cluster_draws=[int(c) for c in result.cluster_draws],
-            inserts=self.core.inserts, env_steps=self.core.env_steps, policy_lag=lag,
-        )
-        item.pending.reply(batch.SerializeToString())
-
-    # -- the rate limiter's queue ----------------------------------------------------------
-    def _drain(self) -> None:
-        """Serve parked queries, oldest first per side, while the limiter admits them.
-
-        Caller holds the lock. Alternating sides until neither can move keeps the order fair;
-        it terminates because each step consumes one parked query.
-        """
-        progressed = True
-        while progressed:
-            progressed = False
-            while self.parked_inserts and self.limiter.can_insert():
-                self._store(self.parked_inserts.popleft())
-                progressed = True
-            while self.parked_samples and self.limiter.can_sample(
-                    int(self.parked_samples[0].request.num_minibatches)):
-                self._serve_sample(self.parked_samples.popleft())
-                progressed = True
+        call = SampleCall(num_minibatches=int(request.num_minibatches),
+                          batch_size=int(request.batch_size),
+                          weights_version=int(request.weights_version),
+                          request_id=int(request.request_id))
+        try:
+            self.table.sample(call, waiter=_QueryWaiter(pending, _batch_bytes),
+                              timeout_s=self.config.replay.sample_timeout_s)
+        except SampleRefused as exc:
+            raise InvalidMessage(RejectReason.BAD_VALUE, str(exc)) from None
 
     # -- cluster model and eval results ----------------------------------------------------
     def _on_cluster_model(self, key: str, payload: bytes) -> None:
@@ -276,15 +210,14 @@ class ReplayService:
                                  centroids=msg_to_array(msg.centroids).copy(),
                                  n_goals=int(msg.fitted_on),
                                  inserts_seen=int(msg.failed_goals_seen))
+            adopted = self.table.adopt_cluster_model(model, msg)
         except (InvalidMessage, ValueError) as exc:
             reason = exc.reason if isinstance(exc, InvalidMessage) else RejectReason.BAD_VALUE
             self._on_reject(InvalidMessage(str(reason), f"ClusterModel: {exc}"))
             return
-        with self.lock:
-            if self.core.set_cluster_model(model):
-                self.log.append_cluster_model(msg)
-                log.info("cluster model v%d adopted; cluster sizes %s", model.version,
-                         self.core.cluster_sizes().tolist())
+        if adopted:
+            log.info("cluster model v%d adopted; cluster sizes %s", model.version,
+                     self.table.cluster_sizes())
 
     def _on_eval_result(self, key: str, payload: bytes) -> None:
         try:
@@ -293,44 +226,61 @@ class ReplayService:
         except InvalidMessage as exc:
             self._on_reject(exc)
             return
-        with self.lock:
-            self.log.append_eval_result(msg)
+        self.table.log_eval_result(msg)
 
     # -- status ----------------------------------------------------------------------------
     def status(self) -> pb.ReplayStatus:
-        with self.lock:
-            core = self.core
-            model = core.cluster_model
-            return pb.ReplayStatus(
-                schema_version=SCHEMA_VERSION, size_episodes=core.store.size,
-                size_transitions=core.store.num_transitions, inserts=core.inserts,
-                duplicates=core.duplicates, samples=core.samples,
-                rate_limiter=self.limiter.describe(inserts_waiting=len(self.parked_inserts),
-                                                   samples_waiting=len(self.parked_samples)),
-                rejects=dict(core.rejects),
-                cluster_sizes=[int(c) for c in core.cluster_sizes()],
-                cluster_model_version=0 if model is None else model.version,
-            )
+        st = self.table.status()
+        return pb.ReplayStatus(
+            schema_version=SCHEMA_VERSION, size_episodes=st.size_episodes,
+            size_transitions=st.size_transitions, inserts=st.inserts,
+            duplicates=st.duplicates, samples=st.samples, rate_limiter=st.rate_limiter,
+            rejects=st.rejects, cluster_sizes=st.cluster_sizes,
+            cluster_model_version=st.cluster_model_version,
+        )
+
+    def tick(self) -> None:
+        """Once a second: expire parked calls past their deadline, put the status."""
+        expired = self.table.expire()
+        if expired:
+            self.warn.warn("expired", f"{expired} parked call(s) outlived their caller's "
+                                      "timeout and were dropped (the callers retry)")
+        self.status_pub.put(self.status().SerializeToString())
 
     def close(self) -> None:
-        with self.lock:
-            self.log.close()
+        self.log.close()
+
+
+def _batch_bytes(sampled: Sampled) -> bytes:
+    call, result = sampled.call, sampled.result
+    return pb.Batch(
+        schema_version=SCHEMA_VERSION, request_id=call.request_id,
+        minibatches=[minibatch_to_msg(mb) for mb in result.minibatches],
+        o_stats=stats_to_msg(sampled.o_state), g_stats=stats_to_msg(sampled.g_state),
+        cluster_model_version=sampled.cluster_model_version,
+        cluster_draws=[int(c) for c in result.cluster_draws],
+        inserts=sampled.inserts, env_steps=sampled.env_steps, policy_lag=sampled.policy_lag,
+    ).SerializeToString()
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
-    setup_logging("replay")
+    """`hercs replay`: serve the run's replay until SIGTERM/SIGINT."""
+    return service_main(role="replay", config=config, ident=ident or "replay", body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    config = runtime.config
     run_dir = Path(config.run.run_dir) / config.run.name
     run_dir.mkdir(parents=True, exist_ok=True)
     if not (run_dir / "config.yaml").exists():  # `hercs up` writes it; compose runs do not
         save_yaml(config, run_dir / "config.yaml")
-    with ServiceRuntime(config=config, role="replay", ident=ident or "replay") as runtime:
-        service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
-        log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
-                 config.task.name, config.run.method, config.capacity_episodes)
-        try:
-            while not runtime.stop.wait(STATUS_PERIOD_S):
-                service.status_pub.put(service.status().SerializeToString())
-        finally:
-            runtime.transport.close()  # answers parked queries `unavailable` first
-            service.close()
+    service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
+    log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
+             config.task.name, config.run.method, config.capacity_episodes)
+    try:
+        while not runtime.stop.wait(STATUS_PERIOD_S):
+            service.tick()
+    finally:
+        runtime.transport.close()  # answers parked queries `unavailable` first
+        service.close()
     return 0

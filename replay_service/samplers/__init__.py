@@ -1,11 +1,10 @@
-"""Episode samplers, one strategy per module, and the method → sampler table."""
+"""Episode samplers, one strategy per module, and the one that serves each method."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError
+from hercs.methods import METHODS
 from replay_service.samplers.base import EpisodeSampler, SampleInfo, SampleSource
 from replay_service.samplers.cluster_balanced import ClusterBalancedSampler
 from replay_service.samplers.energy import EnergySampler
@@ -13,7 +12,6 @@ from replay_service.samplers.energy_cluster import EnergyClusterSampler
 from replay_service.samplers.uniform import UniformSampler
 
 __all__ = [
-    "SAMPLERS",
     "ClusterBalancedSampler",
     "EnergyClusterSampler",
     "EnergySampler",
@@ -24,27 +22,20 @@ __all__ = [
     "make_sampler",
 ]
 
-SAMPLERS: dict[str, Callable[[HercsConfig], EpisodeSampler]] = {
-    # keys = hercs.config.METHODS (a unit test holds them equal)
-    "her": lambda c: UniformSampler(num_clusters=c.cluster.k),
-    "her-cs": lambda c: ClusterBalancedSampler(
-        c.cluster.k, small_cluster_repeat=c.cluster.small_cluster_repeat
-    ),
-    "her-ebp": lambda c: EnergySampler(epsilon=c.energy.epsilon, num_clusters=c.cluster.k),
-    "her-ebp-cs": lambda c: EnergyClusterSampler(
-        c.cluster.k,
-        epsilon=c.energy.epsilon,
-        small_cluster_repeat=c.cluster.small_cluster_repeat,
-    ),
-}
-
 
 def make_sampler(method: str, config: HercsConfig) -> EpisodeSampler:
-    """The episode sampler of `method` (her, her-cs, her-ebp, her-ebp-cs), built from config."""
+    """The episode sampler of `method` (hercs.methods: cluster-balanced and/or
+    energy-prioritised), built from config."""
     try:
-        factory = SAMPLERS[method]
+        spec = METHODS[method]
     except KeyError:
         raise ConfigError(
-            f"run.method: got {method!r}, must be one of {sorted(SAMPLERS)}"
-        ) from None
-    return factory(config)
+            f"run.method: got {method!r}, must be one of {list(METHODS)}") from None
+    k, repeat, eps = config.cluster.k, config.cluster.small_cluster_repeat, config.energy.epsilon
+    if spec.cluster_balanced and spec.energy_prioritised:
+        return EnergyClusterSampler(k, epsilon=eps, small_cluster_repeat=repeat)
+    if spec.cluster_balanced:
+        return ClusterBalancedSampler(k, small_cluster_repeat=repeat)
+    if spec.energy_prioritised:
+        return EnergySampler(epsilon=eps, num_clusters=k)
+    return UniformSampler(num_clusters=k)

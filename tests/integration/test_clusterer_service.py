@@ -75,7 +75,7 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     assert inserted.wait_for_subscribers(WAIT_S), "the clusterer never subscribed"
 
     rng = np.random.default_rng(0)
-    expected = Clusterer(config=config.cluster, seed=config.run.seed)
+    expected = Clusterer(config=config.cluster, seed=config.run.seed, spec=config.task.spec)
     expected_model = None
 
     def publish(ag: np.ndarray, g: np.ndarray, seq: int) -> None:

@@ -8,6 +8,9 @@ import pytest
 
 from clusterer.core import Clusterer
 from hercs.config import ClusterConfig
+from hercs.tasks import task_spec
+
+PUSH = task_spec("push")
 
 
 def _episodes(n: int, seed: int, p_fail: float) -> list[tuple[np.ndarray, np.ndarray, bool]]:
@@ -23,7 +26,7 @@ def _episodes(n: int, seed: int, p_fail: float) -> list[tuple[np.ndarray, np.nda
 
 
 def test_models_exactly_every_fgb_size_failures_never_counting_successes() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=1)
+    clusterer = Clusterer(config=ClusterConfig(), seed=1, spec=PUSH)
     fails = 0
     models = []
     for ag, g, failed in _episodes(1200, seed=0, p_fail=0.5):
@@ -41,17 +44,18 @@ def test_models_exactly_every_fgb_size_failures_never_counting_successes() -> No
     assert clusterer.model is models[-1][1]
 
 
-@pytest.mark.parametrize(("distance", "fails"), [(0.049, False), (0.05, False), (0.051, True)],
+@pytest.mark.parametrize(("distance", "fails"), [(0.049, False), (0.05, True), (0.051, True)],
                          ids=["inside", "on-threshold", "outside"])
-def test_failure_is_distance_above_threshold(distance: float, fails: bool) -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=0)
+def test_failure_is_not_success_by_the_tasks_rule(distance: float, fails: bool) -> None:
+    """The env's `is_success` is d < 0.05: an episode ending exactly on the radius failed."""
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
     g = np.zeros(3)  # so that ‖ag − g‖ is exactly `distance`
     clusterer.observe(final_ag=np.array([0.0, distance, 0.0]), desired_goal=g)
     assert len(clusterer.fgb) == int(fails)
 
 
 def test_failed_goal_stored_is_the_desired_goal_not_the_achieved_one() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=0)
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
     g = np.array([1.3, 0.7, 0.42])
     clusterer.observe(final_ag=g + 0.3, desired_goal=g)
     np.testing.assert_allclose(clusterer.fgb.goals()[0], g, rtol=1e-6)
@@ -60,14 +64,14 @@ def test_failed_goal_stored_is_the_desired_goal_not_the_achieved_one() -> None:
 def test_same_seed_same_models_and_state_round_trip() -> None:
     config = ClusterConfig(k=4, fgb_size=40)
     episodes = _episodes(300, seed=5, p_fail=0.6)
-    a, b = Clusterer(config=config, seed=3), Clusterer(config=config, seed=3)
+    a, b = Clusterer(config=config, seed=3, spec=PUSH), Clusterer(config=config, seed=3, spec=PUSH)
     half = len(episodes) // 2
     for ag, g, _ in episodes[:half]:
         ma, mb = a.observe(final_ag=ag, desired_goal=g), b.observe(final_ag=ag, desired_goal=g)
         assert (ma is None) == (mb is None)
         if ma is not None:
             np.testing.assert_array_equal(ma.centroids, mb.centroids)
-    restored = Clusterer(config=config, seed=999)
+    restored = Clusterer(config=config, seed=999, spec=PUSH)
     restored.load_state_dict(a.state_dict())
     assert restored.model is not None and restored.model.version == a.model.version
     for ag, g, _ in episodes[half:]:
@@ -80,7 +84,7 @@ def test_same_seed_same_models_and_state_round_trip() -> None:
 
 
 def test_rejects_non_finite_input() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=0)
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
     with pytest.raises(ValueError, match="NaN"):
         clusterer.observe(final_ag=np.array([np.nan, 0, 0]), desired_goal=np.zeros(3))
     assert clusterer.inserts_seen == 0

@@ -23,8 +23,8 @@ def test_defaults_are_the_paper_reference_values() -> None:
             c.training.eval_episodes) == (50, 4, 40, 200, 20)
     assert c.training.updates_per_episode == 10.0
     assert c.replay.buffer_transitions == 1_000_000 and c.capacity_episodes == 20_000
-    assert (c.cluster.k, c.cluster.fgb_size, c.cluster.failure_threshold,
-            c.cluster.small_cluster_repeat) == (8, 150, 0.05, 4)
+    assert (c.cluster.k, c.cluster.fgb_size, c.cluster.small_cluster_repeat) == (8, 150, 4)
+    assert c.task.spec.distance_threshold == 0.05, "success and failure: the Fetch radius"
     assert c.energy.clip_energy == 0.5 and (c.energy.delta_t, c.energy.gravity) == (0.04, 9.81)
 
 

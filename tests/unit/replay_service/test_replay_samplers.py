@@ -13,12 +13,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hercs.config import METHODS, HercsConfig
+from hercs.config import HercsConfig
 from hercs.episode import random_episode
 from hercs.errors import ConfigError, SamplingError
+from hercs.methods import METHODS
 from hercs.tasks import task_spec
 from replay_service.samplers import (
-    SAMPLERS,
     ClusterBalancedSampler,
     EnergyClusterSampler,
     EnergySampler,
@@ -288,7 +288,14 @@ def test_make_sampler_maps_methods_with_config_values(method: str, cls: type) ->
     assert getattr(sampler, "k", 5) == 5
     assert getattr(sampler, "small_cluster_repeat", 3) == 3
     assert getattr(sampler, "epsilon", 1e-3) == 1e-3
-    assert set(SAMPLERS) == set(METHODS)
+
+
+def test_every_method_has_a_sampler_of_its_kind() -> None:
+    kinds = {(True, True): EnergyClusterSampler, (True, False): ClusterBalancedSampler,
+             (False, True): EnergySampler, (False, False): UniformSampler}
+    for name, method in METHODS.items():
+        sampler = make_sampler(name, HercsConfig())
+        assert type(sampler) is kinds[method.cluster_balanced, method.energy_prioritised], name
 
 
 def test_make_sampler_refuses_unknown_method() -> None:

@@ -1,0 +1,366 @@
+"""The replay table: everything the replay service decides, with no transport (Reverb's
+`Table` is the model).
+
+`ReplayTable` owns the `ReplayCore` (store, sampler, normalisers, cluster model, counters),
+the sample-to-insert rate limiter, the queues of parked insert and sample calls, the
+deduplication of retries, the durable log and the policy-lag bookkeeping. The Zenoh shell
+(`replay_service.service`) decodes a query, calls `insert` or `sample` with a `Waiter` that
+answers that query, and encodes what the waiter is handed; unit tests drive this object
+directly, with plain waiters and a fake clock.
+
+Admission rules (every public method takes the table's lock, so calls from several threads
+are serialised):
+- `insert`: a retry of a stored (actor_id, seq) is answered at once as a duplicate; a retry of
+  a parked one joins that parked call (both are answered when it is stored); anything else is
+  parked. Then the queues are drained.
+- `sample`: a request the limiter could never admit (more minibatches than its window holds)
+  is refused at once (`SampleRefused`); anything else is parked, then the queues are drained.
+- drain: alternating sides, each oldest first, while the limiter admits the oldest call of
+  that side. An admitted insert is appended to the log (durable: fsynced) *before* it is
+  stored and acknowledged, so nothing acknowledged is lost by a crash. This terminates: every
+  step removes one parked call.
+  If the append fails the call is answered `log_failed` and nothing is stored.
+- `expire`: parked calls whose deadline has passed are answered `expired` and dropped; their
+  client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
+- `recover`: the episodes of the log go into the store without being logged again; the
+  limiter restarts balanced at the recovered count (as if the learner had used them all).
+
+Waiters are called under the lock: they must only hand their answer over (a Zenoh deferred
+reply queues bytes) and never call back into the table.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Generic, Protocol, TypeVar
+
+import numpy as np
+
+from hercs.clustering import ClusterModel
+from hercs.config import HercsConfig
+from hercs.episode import EpisodeData
+from hercs.normalizer import NormalizerState
+from proto import hercs_pb2 as pb
+from replay_service.core import ReplayCore, SampleResult
+from replay_service.rate_limiter import SampleToInsertRatio
+
+POLICY_LAG_WINDOW = 64
+"""Recent episodes whose policy lag is averaged into each `Sampled.policy_lag`."""
+EXPIRED = "expired"
+"""Reason given to a parked call dropped by `expire`."""
+LOG_FAILED = "log_failed"
+"""Reason given to an insert whose log append failed (disk full, I/O error): it was neither
+stored nor acknowledged, and the actor retries it."""
+
+T_contra = TypeVar("T_contra", contravariant=True)
+T = TypeVar("T")
+
+
+class Waiter(Protocol[T_contra]):
+    """How the table answers one call, now or later, exactly once."""
+
+    def done(self, result: T_contra) -> None: ...
+
+    def fail(self, reason: str, detail: str) -> None: ...
+
+
+class EpisodeLogSink(Protocol):
+    """The durable log the table writes before it acknowledges (hercs.runlog's writer)."""
+
+    def append_episode(self, msg: pb.Episode, *, episode_id: int) -> None: ...
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None: ...
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None: ...
+
+
+@dataclass(frozen=True)
+class Stored:
+    """The answer to an insert."""
+
+    episode: EpisodeData
+    episode_id: int
+    duplicate: bool
+    energy: float = 0.0
+    cluster: int = -1
+
+
+@dataclass(frozen=True)
+class SampleCall:
+    """A learner's request, decoded."""
+
+    num_minibatches: int
+    batch_size: int
+    weights_version: int = 0
+    request_id: int = 0
+
+
+@dataclass(frozen=True)
+class Sampled:
+    """The answer to a sample call: the minibatches and what the learner adopts with them."""
+
+    call: SampleCall
+    result: SampleResult
+    o_state: NormalizerState
+    g_state: NormalizerState
+    cluster_model_version: int
+    inserts: int
+    env_steps: int
+    policy_lag: float
+
+
+class SampleRefused(ValueError):
+    """A sample call the rate limiter could never admit; nothing was parked."""
+
+
+@dataclass
+class _Parked(Generic[T]):
+    waiters: list[Waiter[T]]
+    deadline: float | None
+
+
+@dataclass
+class _ParkedInsert(_Parked[Stored]):
+    episode: EpisodeData = field(kw_only=True)
+    record: pb.Episode = field(kw_only=True)
+
+
+@dataclass
+class _ParkedSample(_Parked[Sampled]):
+    call: SampleCall = field(kw_only=True)
+
+
+P = TypeVar("P", bound=_Parked)
+
+
+def _take_expired(queue: deque[P], now: float) -> list[P]:
+    """Remove and return the calls past their deadline; the others keep their order."""
+    gone = [item for item in queue if item.deadline is not None and item.deadline <= now]
+    if gone:
+        keep = [item for item in queue if item.deadline is None or item.deadline > now]
+        queue.clear()
+        queue.extend(keep)
+    return gone
+
+
+@dataclass(frozen=True)
+class TableStatus:
+    """A consistent snapshot for `ReplayStatus`."""
+
+    size_episodes: int
+    size_transitions: int
+    inserts: int
+    duplicates: int
+    samples: int
+    rate_limiter: str
+    rejects: dict[str, int]
+    cluster_sizes: list[int]
+    cluster_model_version: int
+    inserts_waiting: int
+    samples_waiting: int
+
+
+class ReplayTable:
+    def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.config = config
+        self.core = core
+        self.log = log
+        self.clock = clock
+        self.limiter = SampleToInsertRatio(
+            samples_per_insert=config.training.updates_per_episode,
+            min_size_to_sample=config.replay.min_episodes_to_sample,
+            error_buffer=config.replay.rate_tolerance_updates,
+            max_request=config.training.minibatches_per_cycle,
+            free_run=config.replay.free_run,
+        )
+        self._lock = threading.Lock()
+        self._inserts: deque[_ParkedInsert] = deque()
+        self._samples: deque[_ParkedSample] = deque()
+        self._parked_keys: dict[tuple[str, int], _ParkedInsert] = {}
+        # Policy lag of an episode = the learner's newest weights version when the episode
+        # is stored (known from its latest sample call) minus the version the actor used.
+        self._learner_version = 0
+        self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self.log_failures = 0
+        """Inserts refused because their log append failed."""
+
+    # -- start-up --------------------------------------------------------------------------
+    def recover(self, episodes: Iterable[tuple[int, EpisodeData]]) -> list[tuple[int, int]]:
+        """Store the log's episodes (not logged again) and restart the limiter balanced.
+
+        Returns (logged id, stored id) pairs that disagree (a log written by another buffer
+        size); empty when the log and the store agree, which is the normal case."""
+        mismatched = []
+        with self._lock:
+            count = 0
+            for episode_id, episode in episodes:
+                stored = self.core.insert(episode)
+                if stored.episode_id != episode_id:
+                    mismatched.append((episode_id, stored.episode_id))
+                count += 1
+            if count:
+                self.limiter.inserts = count
+                self.limiter.samples = int(count * self.limiter.samples_per_insert)
+        return mismatched
+
+    # -- inserts ---------------------------------------------------------------------------
+    def insert(self, episode: EpisodeData, *, record: pb.Episode, waiter: Waiter[Stored],
+               timeout_s: float | None = None) -> None:
+        """Store `episode` when the limiter admits it, then `waiter.done(Stored)`.
+
+        `record` is what goes into the log (the message as received). `timeout_s`: the
+        caller's own timeout; a call still parked after it is answered `expired`.
+        """
+        key = (episode.actor_id, int(episode.seq))
+        with self._lock:
+            known = self.core.lookup(*key)
+            if known is not None:
+                self.core.duplicates += 1
+                waiter.done(Stored(episode, known, duplicate=True))
+                return
+            parked = self._parked_keys.get(key)
+            if parked is not None:  # a retry of a call still waiting: answer both together
+                parked.waiters.append(waiter)
+                parked.deadline = self._deadline(timeout_s)
+                return
+            item = _ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
+                                 record=record)
+            self._inserts.append(item)
+            self._parked_keys[key] = item
+            self._drain()
+
+    def _store(self, item: _ParkedInsert) -> None:
+        episode = item.episode
+        del self._parked_keys[(episode.actor_id, int(episode.seq))]
+        episode_id = self.core.store.num_inserted
+        try:
+            self.log.append_episode(item.record, episode_id=episode_id)  # durable before ack
+        except Exception as exc:
+            self.log_failures += 1
+            for waiter in item.waiters:
+                waiter.fail(LOG_FAILED, f"episode not logged, so not stored: {exc}")
+            return
+        result = self.core.insert(episode)
+        assert result.episode_id == episode_id, "log and store disagree on episode ids"
+        self.limiter.record_insert()
+        self._recent_lags.append(self._learner_version - episode.policy_version)
+        stored = Stored(episode, episode_id, duplicate=False, energy=result.energy,
+                        cluster=result.cluster)
+        for i, waiter in enumerate(item.waiters):
+            if i:  # the retries that joined the first call
+                self.core.duplicates += 1
+            waiter.done(stored if i == 0 else Stored(episode, episode_id, duplicate=True))
+
+    # -- samples ---------------------------------------------------------------------------
+    def sample(self, call: SampleCall, *, waiter: Waiter[Sampled],
+               timeout_s: float | None = None) -> None:
+        """Draw `call.num_minibatches` minibatches when the limiter admits them, then
+        `waiter.done(Sampled)`. Raises `SampleRefused` (nothing parked) for a call no state of
+        the limiter could ever admit."""
+        if not self.limiter.could_ever_sample(call.num_minibatches):
+            raise SampleRefused(
+                f"SampleRequest.num_minibatches {call.num_minibatches}: the rate limiter "
+                f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
+                "request (replay.rate_tolerance_updates sets its window); ask for fewer")
+        with self._lock:
+            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call))
+            self._drain()
+
+    def _serve(self, item: _ParkedSample) -> None:
+        call = item.call
+        self._learner_version = max(self._learner_version, call.weights_version)
+        result = self.core.sample(call.num_minibatches, call.batch_size)
+        self.limiter.record_sample(call.num_minibatches)
+        o_state, g_state = self.core.normalizer_state()
+        model = self.core.cluster_model
+        sampled = Sampled(
+            call=call, result=result, o_state=o_state, g_state=g_state,
+            cluster_model_version=0 if model is None else model.version,
+            inserts=self.core.inserts, env_steps=self.core.env_steps,
+            policy_lag=float(np.mean(self._recent_lags)) if self._recent_lags else 0.0)
+        for waiter in item.waiters:
+            waiter.done(sampled)
+
+    # -- the rate limiter's queues ---------------------------------------------------------
+    def _drain(self) -> None:
+        """Serve parked calls, oldest first per side, while the limiter admits them."""
+        progressed = True
+        while progressed:
+            progressed = False
+            while self._inserts and self.limiter.can_insert():
+                self._store(self._inserts.popleft())
+                progressed = True
+            while self._samples and self.limiter.can_sample(
+                    self._samples[0].call.num_minibatches):
+                self._serve(self._samples.popleft())
+                progressed = True
+
+    def _deadline(self, timeout_s: float | None) -> float | None:
+        return None if timeout_s is None else self.clock() + timeout_s
+
+    def expire(self) -> int:
+        """Answer `expired` to every parked call past its deadline and drop it; returns how
+        many calls were dropped. The order of the calls that stay is unchanged."""
+        now = self.clock()
+        with self._lock:
+            inserts, samples = _take_expired(self._inserts, now), _take_expired(self._samples, now)
+            for item in inserts:
+                del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
+            expired: list[_Parked[Any]] = [*inserts, *samples]
+            for parked in expired:
+                for waiter in parked.waiters:
+                    waiter.fail(EXPIRED, "the rate limiter held this call past its caller's "
+                                         "timeout; the caller retries")
+            if inserts or samples:
+                self._drain()  # a dropped head of a queue may have held admissible calls
+        return len(inserts) + len(samples)
+
+    # -- cluster model, eval results, stored episodes ---------------------------------------
+    def adopt_cluster_model(self, model: ClusterModel, record: pb.ClusterModel) -> bool:
+        """Adopt a newer model (relabelling the store) and log it; False if not newer.
+        Raises ValueError for a model of the wrong k (nothing changes)."""
+        with self._lock:
+            if not self.core.set_cluster_model(model):
+                return False
+            self.log.append_cluster_model(record)
+            return True
+
+    def log_eval_result(self, record: pb.EvalResult) -> None:
+        with self._lock:
+            self.log.append_eval_result(record)
+
+    def stored_episode(self, episode_id: int) -> tuple[EpisodeData | None, int, int]:
+        """(the episode or None, first stored id, one past the last id)."""
+        with self._lock:
+            store = self.core.store
+            return (store.episode(episode_id), store.num_inserted - store.size,
+                    store.num_inserted)
+
+    def count_reject(self, reason: str) -> None:
+        with self._lock:
+            self.core.count_reject(reason)
+
+    def cluster_sizes(self) -> list[int]:
+        with self._lock:
+            return [int(c) for c in self.core.cluster_sizes()]
+
+    def status(self) -> TableStatus:
+        with self._lock:
+            core = self.core
+            model = core.cluster_model
+            waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
+            return TableStatus(
+                size_episodes=core.store.size, size_transitions=core.store.num_transitions,
+                inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
+                rate_limiter=self.limiter.describe(inserts_waiting=waiting_inserts,
+                                                   samples_waiting=waiting_samples),
+                rejects=dict(core.rejects),
+                cluster_sizes=[int(c) for c in core.cluster_sizes()],
+                cluster_model_version=0 if model is None else model.version,
+                inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
+            )
