@@ -120,13 +120,15 @@ def validate_episode(
     return None
 
 
-def decode_episode(raw: bytes, spec: TaskSpec, *, run: str | None, max_bytes: int) -> EpisodeData:
-    """Raw bytes from `replay/insert` to a checked episode, or `InvalidMessage`."""
+def decode_episode(raw: bytes, spec: TaskSpec, *, run: str | None,
+                   max_bytes: int) -> tuple[pb.Episode, EpisodeData]:
+    """Raw bytes from `replay/insert` to the message (what the log keeps) and a checked
+    episode, or `InvalidMessage`."""
     msg = parse_message(raw, pb.Episode, max_bytes=max_bytes)
     rejection = validate_episode(msg, spec, run=run)
     if rejection is not None:
         raise rejection.error()
-    return msg_to_episode(msg)
+    return msg, msg_to_episode(msg)
 
 
 def validate_sample_request(msg: pb.SampleRequest, *, run: str | None,

@@ -173,10 +173,10 @@ class LearnerService:
             self.warn.warn("status", f"ignored a ReplayStatus: {exc}")
 
     def publish_weights(self, *, evaluate: bool, epoch: int) -> None:
-        o_state, g_state = self.learner.normalizer_state()
-        msg = weights_to_msg(version=self.loop.version,
-                             actor_params=self.learner.actor_weights(), o_stats=o_state,
-                             g_stats=g_state, epoch=epoch, evaluate=evaluate)
+        weights = self.learner.policy_weights(self.loop.version)
+        msg = weights_to_msg(version=weights.version, actor_params=weights.actor,
+                             o_stats=weights.o_stats, g_stats=weights.g_stats, epoch=epoch,
+                             evaluate=evaluate)
         self.weights_pub.put(msg.SerializeToString())
 
     def checkpoint(self) -> None:

@@ -52,9 +52,9 @@ from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply
 from hercs.validation import (
     RejectReason,
+    decode_episode,
     parse_message,
     validate_centroids,
-    validate_episode,
     validate_sample_request,
 )
 from proto import SCHEMA_VERSION
@@ -131,12 +131,9 @@ class ReplayService:
         self.warn.warn(f"reject:{reason}", f"rejected a message: {exc}")
 
     def _on_insert(self, pending: PendingReply) -> None:
-        msg = parse_message(pending.payload, pb.Episode,
-                            max_bytes=self.config.replay.max_message_bytes)
-        rejection = validate_episode(msg, self.spec, run=self.config.run.name)
-        if rejection is not None:
-            raise rejection.error()
-        self.table.insert(msg_to_episode(msg), record=msg,
+        msg, episode = decode_episode(pending.payload, self.spec, run=self.config.run.name,
+                                      max_bytes=self.config.replay.max_message_bytes)
+        self.table.insert(episode, record=msg,
                           waiter=_QueryWaiter(pending, self._acked),
                           timeout_s=self.config.actor.insert_timeout_s)
 

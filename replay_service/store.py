@@ -154,16 +154,6 @@ class EpisodeStore:
             )
         self._cluster[: self._size] = labels
 
-    def set_cluster(self, slot: int, label: int) -> None:
-        """Relabel the episode in `slot` (a valid slot, 0 <= slot < size)."""
-        if not 0 <= slot < self._size:
-            raise ConfigError(
-                f"EpisodeStore.set_cluster: slot {slot!r} is not a valid slot (size {self._size})"
-            )
-        if label < UNASSIGNED:
-            raise ConfigError(f"EpisodeStore.set_cluster: got label {label!r}, must be >= -1")
-        self._cluster[slot] = label
-
     # ------------------------------------------------------------------ views of valid slots
 
     def _view(self, arr: np.ndarray) -> np.ndarray:

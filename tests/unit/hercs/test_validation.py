@@ -29,7 +29,9 @@ def good_message() -> pb.Episode:
 
 
 def test_good_episode_decodes() -> None:
-    episode = decode_episode(good_message().SerializeToString(), SPEC, run="run1", max_bytes=MAX)
+    msg, episode = decode_episode(good_message().SerializeToString(), SPEC, run="run1",
+                                  max_bytes=MAX)
+    assert msg == good_message()
     assert episode.obs.shape == (51, 25) and episode.actor_id == "actor-0"
 
 

@@ -114,14 +114,11 @@ def test_set_clusters_relabels_all_and_validates() -> None:
     for i in range(3):
         store.insert(_episode(i))
     store.set_clusters(np.array([2, 0, 7]))
-    store.set_cluster(1, 5)
-    np.testing.assert_array_equal(store.cluster, [2, 5, 7])
+    np.testing.assert_array_equal(store.cluster, [2, 0, 7])
 
     with pytest.raises(ConfigError, match=r"shape \(2,\), expected \(3,\)"):
         store.set_clusters(np.array([1, 1]))
-    with pytest.raises(ConfigError, match="slot 3"):
-        store.set_cluster(3, 0)
-    np.testing.assert_array_equal(store.cluster, [2, 5, 7])
+    np.testing.assert_array_equal(store.cluster, [2, 0, 7])
 
 
 def test_views_are_read_only_prefixes() -> None:
