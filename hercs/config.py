@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,25 @@ from hercs.methods import METHODS, Method
 from hercs.tasks import TASKS, TaskSpec, task_spec
 
 log = logging.getLogger(__name__)
+
+RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+"""A run name: never '.', '..', hidden, absolute or nested, and ASCII only."""
+ENDPOINT = re.compile(r"(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                      r":(?P<port>[0-9]{1,5})(?:#.*)?")
+"""A Zenoh locator this project uses: protocol/host:port (an IPv6 host in brackets)."""
+
+
+def endpoint_problem(endpoint: object) -> str | None:
+    """Why `endpoint` is not a usable Zenoh endpoint, or None."""
+    if not isinstance(endpoint, str):
+        return "be a string"
+    match = ENDPOINT.fullmatch(endpoint)
+    if match is None:
+        return ("be a Zenoh endpoint PROTOCOL/HOST:PORT, e.g. 'tcp/127.0.0.1:7447' or "
+                "'tls/learner.lab:7447' (protocols: tcp, udp, tls, quic, ws)")
+    if not 0 <= int(match["port"]) <= 65535:
+        return "have a port in 0..65535"
+    return None
 
 
 def _check(cond: bool, where: str, value: object, must: str) -> None:
@@ -57,10 +77,11 @@ class RunConfig:
         _check(self.method in METHODS, "run.method", self.method, f"be one of {list(METHODS)}")
         _check(self.seed >= 0, "run.seed", self.seed, "be >= 0")
         _check(
-            all(c.isalnum() or c in "-_." for c in self.name),
+            not self.name or RUN_NAME.fullmatch(self.name) is not None,
             "run.name",
             self.name,
-            "contain only letters, digits, '-', '_' or '.' (it is a Zenoh key chunk)",
+            "be one safe path segment: a letter or digit, then up to 99 letters, digits, '-', "
+            "'_' or '.' (it names a folder under run.run_dir and a Zenoh key chunk)",
         )
 
     @property
@@ -266,8 +287,8 @@ class TransportConfig:
     def __post_init__(self) -> None:
         for name in ("listen", "connect"):
             for endpoint in getattr(self, name):
-                _check(isinstance(endpoint, str) and "/" in endpoint, f"transport.{name}",
-                       endpoint, "be a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
+                problem = endpoint_problem(endpoint)
+                _check(problem is None, f"transport.{name}", endpoint, problem or "")
 
 
 VIEWER_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")

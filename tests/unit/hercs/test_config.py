@@ -53,14 +53,19 @@ def test_overrides_are_typed() -> None:
         ("nosuch.x=1", "unknown section 'nosuch'"),
         ("gamma=0.9", "must look like section.field=value"),
         ("run.name=a/b", "run.name: got 'a/b'"),
+        ("run.name=..", "run.name: got '..', must be one safe path segment"),
+        ("run.name=.hidden", "run.name: got '.hidden'"),
         ("transport.connect=[localhost]", "transport.connect: got 'localhost'"),
+        ("transport.listen=[tcp/0.0.0.0:70000]", "must have a port in 0..65535"),
+        ("transport.connect=[tcp:7447]", "must be a Zenoh endpoint PROTOCOL/HOST:PORT"),
         ("energy.clip_energy=-1", "energy.clip_energy: got -1.0, must be > 0"),
         ("view.episode_every=-1", "view.episode_every: got -1, must be >= 0"),
         ("view.viewer=http://host:9876", "view.viewer: got 'http://host:9876', must be 'spawn'"),
         ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "fgb", "unknown-field",
-         "unknown-section", "no-section", "run-name", "endpoint", "clip-energy",
+         "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
+         "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy",
          "view-every", "view-url", "view-save"],
 )
 def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:
@@ -86,3 +91,14 @@ def test_partial_yaml_keeps_defaults_and_rejects_unknown(tmp_path: Path) -> None
     (tmp_path / "c.yaml").write_text("- not a mapping\n")
     with pytest.raises(ConfigError, match="must hold a mapping"):
         load_yaml(tmp_path / "c.yaml")
+
+
+def test_a_saved_config_with_a_retired_key_still_loads(tmp_path: Path) -> None:
+    """Configs written before `cluster.failure_threshold` was retired (the failure rule is the
+    task's own) load, and the key is dropped; other unknown keys are still refused."""
+    data = HercsConfig().to_dict()
+    data["cluster"]["failure_threshold"] = 0.05
+    assert HercsConfig.from_dict(data) == HercsConfig()
+    data["cluster"]["no_such_key"] = 1
+    with pytest.raises(ConfigError, match="no_such_key"):
+        HercsConfig.from_dict(data)
