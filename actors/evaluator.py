@@ -6,7 +6,10 @@ What `run` does:
   appended to a FIFO of evaluation requests, so an epoch's policy is never lost to newer
   non-eval weights arriving while another epoch is evaluated; requests run oldest first (the
   newest epoch last). A version already queued or evaluated is skipped (the late-joiner cache
-  may repeat it). `evaluate=False` weights are ignored.
+  may repeat it). `evaluate=False` weights are ignored. The learner asks again on
+  `eval/request` for an evaluation whose result it has not received (lost during a router
+  restart, or asked before a resume): a request already answered gets its cached result
+  again, one never seen is evaluated.
 - for each request: loads it into its own `Policy`, runs `training.eval_episodes` episodes
   with `explore=False` in its own env (seeded once, `int_seed(seed, "evaluator")`, so each
   evaluation sees fresh goals from one reproducible stream) and publishes
@@ -46,6 +49,7 @@ from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 
+RESULTS_KEPT = 64
 SUBSCRIBER_WAIT_S = 30.0
 """How long a result waits for a matching subscriber before it is published anyway."""
 _POLL_S = 0.25
@@ -56,37 +60,47 @@ class EvalRequest:
     epoch: int
     weights: PolicyWeights
 
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.epoch, self.weights.version)
+
 
 class EvalQueue:
-    """FIFO of evaluation requests filled by the subscription thread.
+    """FIFO of evaluation requests filled by the subscription threads.
 
-    A request equal (epoch, version) to the last one queued is skipped: the late-joiner cache
-    can hand over again the Weights just received. Requests are never dropped otherwise (a
-    learner restarted without its checkpoint may reuse versions, and must still be evaluated).
+    A request whose (epoch, weights version) is already queued or being evaluated is skipped:
+    the late-joiner cache, and the learner asking again for an overdue evaluation, can hand
+    over the same Weights twice. A request for one already evaluated is queued: the evaluator
+    then publishes its cached result again (the first one was lost).
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._items: collections.deque[EvalRequest] = collections.deque()
-        self._last: tuple[int, int] | None = None
+        self._open: set[tuple[int, int]] = set()
 
     def put(self, request: EvalRequest) -> bool:
-        """Queue `request`; False (and nothing queued) if it repeats the last one."""
-        key = (request.epoch, request.weights.version)
+        """Queue `request`; False (and nothing queued) if it is queued or in progress."""
+        key = request.key
         with self._cond:
-            if key == self._last:
+            if key in self._open:
                 return False
-            self._last = key
+            self._open.add(key)
             self._items.append(request)
             self._cond.notify_all()
         return True
 
     def get(self, timeout_s: float) -> EvalRequest | None:
-        """The oldest request, waiting up to `timeout_s`; None if none came."""
+        """The oldest request, waiting up to `timeout_s`; None if none came. Call `done` with
+        it when its result is published."""
         with self._cond:
             if not self._items:
                 self._cond.wait(timeout_s)
             return self._items.popleft() if self._items else None
+
+    def done(self, request: EvalRequest) -> None:
+        with self._cond:
+            self._open.discard(request.key)
 
     def __len__(self) -> int:
         with self._cond:
@@ -113,7 +127,11 @@ class EvaluatorService:
         self._decoder = WeightsDecoder(spec=self.spec, config=config)
         keys = runtime.keys
         self._results: Publisher = runtime.transport.publisher(keys.eval_result, block=True)
+        self.published: collections.OrderedDict[tuple[int, int], pb.EvalResult] = (
+            collections.OrderedDict())
+        """The newest results by (epoch, weights version), to answer a repeated request."""
         runtime.transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=64)
+        runtime.transport.subscribe(keys.eval_request, self._on_weights, capacity=16)
 
     def _on_weights(self, key: str, raw: bytes) -> None:
         """Subscription thread: keep eval requests, skip the rest; quick (no evaluation here)."""
@@ -175,11 +193,22 @@ class EvaluatorService:
             request = self.requests.get(_POLL_S)
             if request is None:
                 continue
+            cached = self.published.get(request.key)
+            if cached is not None:
+                log.info("epoch %d (weights version %d) asked for again: publishing its result "
+                         "again", request.epoch, request.weights.version)
+                self._publish(cached)
+                self.requests.done(request)
+                continue
             start = time.monotonic()
             result = self.evaluate(request)
             if result is None:
                 break
             self._publish(result)
+            self.requests.done(request)
+            self.published[request.key] = result
+            while len(self.published) > RESULTS_KEPT:
+                self.published.popitem(last=False)
             self.evaluations += 1
             self.last_success_rate = result.success_rate
             elapsed = time.monotonic() - start

@@ -34,7 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hercs.errors import InvalidMessage
-from hercs.service import WarnOncePerMinute
+from hercs.service import WarnOncePerMinute, start_supervised
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import RejectReason, parse_message
 from proto import hercs_pb2 as pb
@@ -82,7 +82,10 @@ class Inserter:
         capacity: int = 2,
         backoff_min_s: float = BACKOFF_MIN_S,
         backoff_max_s: float = BACKOFF_MAX_S,
+        on_crash: Callable[[str, BaseException], None] | None = None,
     ) -> None:
+        """`on_crash(thread name, exc)` hears of an unexpected exception that ended the sender
+        thread (e.g. `ServiceRuntime.crashed`); without it the exception is only logged."""
         if capacity < 1:
             raise ValueError(f"Inserter capacity: got {capacity}, must be >= 1")
         if not 0 < backoff_min_s <= backoff_max_s:
@@ -98,9 +101,8 @@ class Inserter:
         self._closing = False
         self._abort = threading.Event()
         self._warn = WarnOncePerMinute(log)
-        self._thread = threading.Thread(target=self._run, name=f"hercs-inserter-{actor_id}",
-                                         daemon=True)
-        self._thread.start()
+        self._thread = start_supervised(self._run, name=f"hercs-inserter-{actor_id}",
+                                        on_crash=on_crash or (lambda name, exc: None))
 
     @property
     def queued(self) -> int:

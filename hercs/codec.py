@@ -7,6 +7,7 @@ becomes a numpy array.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -19,6 +20,9 @@ from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
 WIRE_DTYPES = frozenset({"float32", "float64", "int32", "int64", "uint8", "bool"})
+MAX_NDIM = 8
+MAX_DIM = 2**31 - 1
+"""Bounds on a wire array's shape; nothing this project sends comes near them."""
 
 # Reject reasons raised by the codec itself (validation.RejectReason holds the full list).
 BAD_ARRAY = "bad_array"
@@ -45,18 +49,27 @@ def msg_to_array(msg: pb.Array, *, where: str = "array") -> np.ndarray:
             BAD_DTYPE, f"{where}: dtype {msg.dtype!r} is not one of {sorted(WIRE_DTYPES)}"
         )
     shape = tuple(int(d) for d in msg.shape)
+    if len(shape) > MAX_NDIM:
+        raise InvalidMessage(BAD_ARRAY, f"{where}: {len(shape)} dimensions, at most {MAX_NDIM}")
     if any(d < 0 for d in shape):
         raise InvalidMessage(BAD_ARRAY, f"{where}: negative dimension in shape {shape}")
+    if any(d > MAX_DIM for d in shape):
+        raise InvalidMessage(BAD_ARRAY, f"{where}: dimension above {MAX_DIM} in shape {shape}")
     dtype = np.dtype(msg.dtype).newbyteorder("<")
-    expected = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    # Python integers: a product of wire dimensions cannot wrap around (np.prod would).
+    expected = math.prod(shape) * dtype.itemsize
     if len(msg.data) != expected:
         raise InvalidMessage(
             BAD_ARRAY,
             f"{where}: {len(msg.data)} data bytes for shape {shape} {msg.dtype}, "
             f"expected {expected}",
         )
-    return np.frombuffer(msg.data, dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="),
-                                                                       copy=False)
+    try:
+        flat = np.frombuffer(msg.data, dtype=dtype).reshape(shape)
+    except ValueError as exc:  # e.g. an empty array whose other dimensions overflow numpy
+        raise InvalidMessage(BAD_ARRAY, f"{where}: shape {shape} is not an array numpy can "
+                                        f"hold ({exc})") from None
+    return flat.astype(dtype.newbyteorder("="), copy=False)
 
 
 def arrays_to_named(params: Mapping[str, np.ndarray]) -> list[pb.NamedArray]:

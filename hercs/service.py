@@ -79,6 +79,23 @@ EXIT_CONFIG = 2
 """The configuration cannot be used (`ConfigError`): retrying the same command will not help."""
 
 
+def start_supervised(target: Callable[[], None], *, name: str,
+                     on_crash: Callable[[str, BaseException], None]) -> threading.Thread:
+    """A daemon thread running `target`; an exception escaping it is logged with its
+    traceback and handed to `on_crash(name, exc)` (e.g. `ServiceRuntime.crashed`)."""
+
+    def run() -> None:
+        try:
+            target()
+        except BaseException as exc:
+            log.exception("thread %s died", name)
+            on_crash(name, exc)
+
+    thread = threading.Thread(target=run, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
 class ServiceRuntime:
     """One service process: transport (client of the router), liveliness token, stop event.
 
@@ -95,11 +112,24 @@ class ServiceRuntime:
         self.ident = ident or default_ident()
         self.keys = RunKeys(config.run.name)
         self.stop = stop if stop is not None else threading.Event()
+        self.failed: str | None = None
+        """Why the service must exit non-zero although its body returned (a dead thread)."""
         self.transport = Transport.open(mode="client", connect=config.transport.connect,
                                         stop=self.stop)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0
+
+    def start_thread(self, target: Callable[[], None], *, name: str) -> threading.Thread:
+        """Run `target` on a daemon thread that may not die silently: an exception is logged,
+        recorded in `failed` and stops the service, which then exits non-zero (the launcher
+        sees it and restarts it) instead of running on with a part missing."""
+        return start_supervised(target, name=name, on_crash=self.crashed)
+
+    def crashed(self, name: str, exc: BaseException) -> None:
+        """A part of this service died: stop, and make the exit status say so."""
+        self.failed = self.failed or f"thread {name} died: {type(exc).__name__}: {exc}"
+        self.stop.set()
 
     def publish_metrics(self, values: Mapping[str, float], step: int | None = None) -> None:
         self._metrics_step = self._metrics_step + 1 if step is None else step
@@ -136,7 +166,9 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
       ends the wait for an unreachable router (exit 0: nothing had started).
     - Exit status: what `body` returns; `EXIT_CONFIG` (2) for a `ConfigError`, from the
       runtime (e.g. no run name) or from `body`; `EXIT_FAILED` (1) for any other exception,
-      logged with its traceback. The runtime is closed in every case.
+      logged with its traceback, and for a supervised thread that died
+      (`runtime.start_thread`) even if `body` then returned 0. The runtime is closed in
+      every case.
     """
     setup_logging(role)
     stop = threading.Event()
@@ -147,7 +179,12 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
             try:
                 with ServiceRuntime(config=config, role=role, ident=ident,
                                     stop=stop) as runtime:
-                    status.append(int(body(runtime)))
+                    code = int(body(runtime))
+                    if runtime.failed is not None:
+                        log.error("hercs %s: %s; exiting with status %d", role, runtime.failed,
+                                  EXIT_FAILED)
+                        code = code or EXIT_FAILED
+                    status.append(code)
             except ConfigError as exc:
                 log.error("hercs %s: invalid configuration: %s", role, exc)
                 status.append(EXIT_CONFIG)

@@ -14,7 +14,8 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 from google.protobuf.message import DecodeError, Message
 
-from hercs.codec import msg_to_array, msg_to_episode
+from hercs.batch import TRANSITION_FIELDS, TransitionBatch
+from hercs.codec import msg_to_array, msg_to_episode, msg_to_minibatch
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import InvalidMessage
 from hercs.tasks import TaskSpec
@@ -73,9 +74,10 @@ def parse_message(raw: bytes, cls: type[M], *, max_bytes: int) -> M:
     return msg
 
 
-def _array_rejection(field: str, msg: pb.Array, shape: tuple[int, ...],
+def _array_rejection(where: str, msg: pb.Array, shape: tuple[int, ...],
                      length_axis: bool) -> Rejection | None:
-    where = f"Episode.{field}"
+    """Why a float32 array of exactly `shape`, all finite, is not what `msg` holds (None if
+    it is). `length_axis`: a mismatch only in the first axis is `bad_length`."""
     if not msg.dtype and not msg.data and not msg.shape:
         return Rejection(RejectReason.MISSING_FIELD, f"{where} is missing")
     if msg.dtype != "float32":
@@ -114,7 +116,8 @@ def validate_episode(
     if not msg.actor_id:
         return Rejection(RejectReason.MISSING_FIELD, "Episode.actor_id is empty")
     for field, shape in expected_shapes(spec).items():
-        rejection = _array_rejection(field, getattr(msg, field), shape, length_axis=True)
+        rejection = _array_rejection(f"Episode.{field}", getattr(msg, field), shape,
+                                     length_axis=True)
         if rejection is not None:
             return rejection
     return None
@@ -145,6 +148,21 @@ def validate_sample_request(msg: pb.SampleRequest, *, run: str | None,
                          f"SampleRequest.batch_size {msg.batch_size}, "
                          f"must be in [1, {max_batch_size}]")
     return None
+
+
+def decode_minibatch(msg: pb.Minibatch, spec: TaskSpec, *, batch_size: int,
+                     where: str = "Minibatch") -> TransitionBatch:
+    """A `Minibatch` as the learner takes it: every field float32 of the task's shape with
+    `batch_size` rows, all finite; else `InvalidMessage` naming the field."""
+    shapes = {"o": (batch_size, spec.obs_dim), "g": (batch_size, spec.goal_dim),
+              "u": (batch_size, spec.action_dim), "r": (batch_size,),
+              "o2": (batch_size, spec.obs_dim)}
+    for name in TRANSITION_FIELDS:
+        rejection = _array_rejection(f"{where}.{name}", getattr(msg, name), shapes[name],
+                                     length_axis=False)
+        if rejection is not None:
+            raise rejection.error()
+    return msg_to_minibatch(msg, where=where)
 
 
 def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> Rejection | None:

@@ -13,6 +13,8 @@ directly with locally built batches.
 from __future__ import annotations
 
 import csv
+import dataclasses
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,10 +72,11 @@ METRICS_COLUMNS = [
     "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
     "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
     "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
-    "actor_loss", "q_mean", "batch_wait_s",
+    "actor_loss", "q_mean", "batch_wait_s", "bad_batches",
 ]
 """`batch_wait_s` (written by the learner service): seconds of the epoch the update loop
-waited for a batch, i.e. sampling and transport that prefetch did not hide."""
+waited for a batch, i.e. sampling and transport that prefetch did not hide. `bad_batches`: Batch
+replies skipped so far because they failed validation."""
 
 
 class LearnerLoop:
@@ -99,6 +102,29 @@ class LearnerLoop:
     @property
     def done(self) -> bool:
         return self.epoch >= self.config.training.epochs
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the loop stands, taken at an epoch end (what a resumed learner continues
+        from); the learner's own state is `DDPGLearner.state_dict()`."""
+        return {
+            "cycle": self.cycle, "version": self.version, "epoch": self.epoch,
+            "wall_s": self.clock() - self._start,
+            "epoch_start_steps": self._epoch_start_steps,
+            "epoch_start_updates": self._epoch_start_updates,
+            "pending": {e: dataclasses.asdict(s) for e, s in self.pending.items()},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from `state_dict()`: counters, the run's wall time so far, and the
+        epochs still waiting for their evaluation."""
+        self.cycle, self.version, self.epoch = (int(state[k]) for k in ("cycle", "version",
+                                                                        "epoch"))
+        now = self.clock()
+        self._start = now - float(state["wall_s"])
+        self._epoch_start = now
+        self._epoch_start_steps = int(state["epoch_start_steps"])
+        self._epoch_start_updates = int(state["epoch_start_updates"])
+        self.pending = {int(e): EpochSnapshot(**s) for e, s in state["pending"].items()}
 
     def step(self, batch: SampleBatch) -> CycleResult:
         """One cycle: adopt the replay's normaliser stats, update on every minibatch, update
@@ -169,14 +195,49 @@ class LearnerLoop:
         }
 
 
+def recorded_epochs(path: Path) -> list[int]:
+    """The epochs that metrics.csv holds rows for, in file order (empty if no file)."""
+    if not path.exists():
+        return []
+    with path.open(newline="") as f:
+        return [int(row["epoch"]) for row in csv.DictReader(f) if row.get("epoch")]
+
+
+def truncate_metrics(path: Path, *, through_epoch: int) -> list[int]:
+    """Drop the rows of epochs after `through_epoch` (a resumed learner trains them again),
+    rewriting the file atomically; returns the epochs dropped."""
+    if not path.exists():
+        return []
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        fields = reader.fieldnames or METRICS_COLUMNS
+        rows = list(reader)
+    keep = [r for r in rows if r.get("epoch") and int(r["epoch"]) <= through_epoch]
+    dropped = [int(r["epoch"]) for r in rows if r not in keep and r.get("epoch")]
+    if dropped or len(keep) != len(rows):
+        tmp = path.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(keep)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    return dropped
+
+
 class MetricsCsv:
     """runs/<run>/metrics.csv, one row per evaluated epoch, flushed per row."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         new = not path.exists() or path.stat().st_size == 0
+        fields = METRICS_COLUMNS
+        if not new:  # a resumed run keeps its file's columns (older runs may have fewer)
+            with path.open(newline="") as f:
+                fields = next(csv.reader(f), []) or METRICS_COLUMNS
         self._file = open(path, "a", newline="")  # noqa: SIM115 (closed in close())
-        self._writer = csv.DictWriter(self._file, fieldnames=METRICS_COLUMNS)
+        self._writer = csv.DictWriter(self._file, fieldnames=fields, extrasaction="ignore")
         if new:
             self._writer.writeheader()
             self._file.flush()

@@ -15,10 +15,11 @@ It exits 0 after the last epoch's evaluation is recorded.
 from __future__ import annotations
 
 import logging
-import os
+import math
 import queue
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,14 +27,23 @@ from typing import Any
 import numpy as np
 import torch
 
-from hercs.codec import msg_to_minibatch, msg_to_stats, weights_to_msg
+from hercs.codec import msg_to_stats, weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
+from hercs.normalizer import Normalizer
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
+from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError, TransportTimeout
-from hercs.validation import parse_message
+from hercs.validation import RejectReason, decode_minibatch, parse_message
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.ddpg import DDPGLearner
-from learner.loop import LearnerLoop, MetricsCsv, SampleBatch
+from learner.loop import (
+    LearnerLoop,
+    MetricsCsv,
+    SampleBatch,
+    recorded_epochs,
+    truncate_metrics,
+)
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 
@@ -41,19 +51,45 @@ log = logging.getLogger("hercs.learner")
 
 PREFETCH_DEPTH = 2
 EVAL_WAIT_S = 600.0
+"""How long the last epoch's evaluation may take before the learner gives up (exit 1)."""
+EVAL_RESEND_S = 60.0
+"""An epoch's evaluation not back after this long is asked for again (`eval/request`)."""
+_POLL_S = 0.5
 MAX_BATCH_BYTES = 1 << 30
 
 
-def decode_batch(raw: bytes) -> SampleBatch:
+def decode_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
+                 num_minibatches: int) -> SampleBatch:
+    """A `Batch` reply checked before any update sees it: the minibatches asked for, each of
+    the task's shapes, float32 and finite (`decode_minibatch`), normaliser statistics that a
+    normaliser of the task's sizes accepts, and `k` cluster draws (or none). Raises
+    `InvalidMessage` naming what is wrong."""
     msg = parse_message(raw, pb.Batch, max_bytes=MAX_BATCH_BYTES)
+    if len(msg.minibatches) != num_minibatches:
+        raise InvalidMessage(RejectReason.BAD_LENGTH,
+                             f"Batch: {len(msg.minibatches)} minibatches, asked for "
+                             f"{num_minibatches}")
+    minibatches = [decode_minibatch(mb, spec, batch_size=batch_size,
+                                    where=f"Batch.minibatches[{i}]")
+                   for i, mb in enumerate(msg.minibatches)]
+    o_stats = msg_to_stats(msg.o_stats, where="Batch.o_stats")
+    g_stats = msg_to_stats(msg.g_stats, where="Batch.g_stats")
+    for stats, size, where in ((o_stats, spec.obs_dim, "Batch.o_stats"),
+                               (g_stats, spec.goal_dim, "Batch.g_stats")):
+        try:
+            Normalizer(size).load_state_dict(stats)
+        except ValueError as exc:
+            raise InvalidMessage(RejectReason.BAD_VALUE, f"{where}: {exc}") from None
+    if len(msg.cluster_draws) not in (0, k):
+        raise InvalidMessage(RejectReason.BAD_LENGTH,
+                             f"Batch.cluster_draws: {len(msg.cluster_draws)} values, expected "
+                             f"{k} (cluster.k) or none")
     return SampleBatch(
-        minibatches=[msg_to_minibatch(mb, where=f"Batch.minibatches[{i}]")
-                     for i, mb in enumerate(msg.minibatches)],
-        o_stats=msg_to_stats(msg.o_stats, where="Batch.o_stats"),
-        g_stats=msg_to_stats(msg.g_stats, where="Batch.g_stats"),
+        minibatches=minibatches, o_stats=o_stats, g_stats=g_stats,
         cluster_model_version=int(msg.cluster_model_version),
         cluster_draws=np.asarray(msg.cluster_draws, np.int64),
-        inserts=int(msg.inserts), env_steps=int(msg.env_steps), policy_lag=float(msg.policy_lag),
+        inserts=int(msg.inserts), env_steps=int(msg.env_steps),
+        policy_lag=float(msg.policy_lag) if math.isfinite(msg.policy_lag) else 0.0,
     )
 
 
@@ -69,8 +105,9 @@ class Prefetcher:
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
         self.waiting_s = 0.0
-        self._thread = threading.Thread(target=self._run, name="prefetch", daemon=True)
-        self._thread.start()
+        self.bad_batches: Counter[str] = Counter()
+        """Batch replies skipped because they failed validation, by reason."""
+        self._thread = runtime.start_thread(self._run, name="prefetch")
 
     def _run(self) -> None:
         stop = self.runtime.stop
@@ -85,8 +122,14 @@ class Prefetcher:
                 raw = self.runtime.transport.request(
                     self.runtime.keys.sample, request.SerializeToString(),
                     timeout_s=self.config.replay.sample_timeout_s)
-                batch = decode_batch(raw)
-            except (TransportTimeout, RemoteError, TransportError, InvalidMessage) as exc:
+                batch = decode_batch(raw, spec=self.config.task.spec, k=self.config.cluster.k,
+                                     batch_size=self.config.ddpg.batch_size,
+                                     num_minibatches=self.config.training.minibatches_per_cycle)
+            except InvalidMessage as exc:  # a reply no update may see: counted, skipped
+                self.bad_batches[exc.reason] += 1
+                self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")
+                continue
+            except (TransportTimeout, RemoteError, TransportError) as exc:
                 if stop.is_set():
                     return
                 self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
@@ -141,24 +184,82 @@ def _status_dict(msg: pb.ReplayStatus) -> dict[str, Any]:
 
 
 class LearnerService:
+    """The learner's process side around `LearnerLoop`.
+
+    Resume: if `checkpoints/learner.pt` exists the learner continues from it (the end of the
+    last checkpointed epoch): DDPG state, counters, weights version, the run's wall time and
+    the epochs waiting for evaluation; `metrics.csv` keeps its rows up to that epoch (rows of
+    later epochs, possible only after a failed checkpoint write, are dropped: those epochs are
+    trained again) and a pending epoch that already has its row is not evaluated again.
+
+    Evaluation requests: each epoch end broadcasts the weights with `evaluate=True`. An epoch
+    whose `EvalResult` has not come after `EVAL_RESEND_S` (lost while the router restarted,
+    an evaluator that died, or a resume) is asked for again on `eval/request` with the same
+    weights; the evaluator answers from its cache or evaluates. After `EVAL_WAIT_S` in all the
+    run ends with status 1. Every wait watches the stop event.
+    """
+
     def __init__(self, *, config: HercsConfig, runtime: ServiceRuntime, run_dir: Path) -> None:
         self.config = config
         self.runtime = runtime
         self.run_dir = run_dir
+        self.checkpoints = run_dir / "checkpoints"
         self.learner = DDPGLearner(spec=config.task.spec, config=config.ddpg,
                                    seed=config.run.seed)
         self.loop = LearnerLoop(config=config, learner=self.learner)
-        self.metrics = MetricsCsv(run_dir / "metrics.csv")
         self.batch_wait_s: dict[int, float] = {}  # epoch -> seconds the updates waited
-        (run_dir / "checkpoints").mkdir(exist_ok=True)
+        self.eval_requests: dict[int, bytes] = {}  # pending epoch -> its Weights message
+        self._eval_asked: dict[int, float] = {}  # pending epoch -> when it was last asked for
+        self.resumed_from: int | None = None
+        self.prefetcher_bad: Counter[str] = Counter()
+        self._resume()
+        self.metrics = MetricsCsv(run_dir / "metrics.csv")
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
         self.status = Latest()
         self.warn = WarnOncePerMinute(log)
         keys, transport = runtime.keys, runtime.transport
         self.weights_pub = transport.publisher(keys.weights, latest=True, block=True)
+        self.eval_request_pub = transport.publisher(keys.eval_request, block=True)
+        self.progress_pub = transport.publisher(keys.progress, latest=True, block=True)
         transport.subscribe(keys.eval_result, self._on_eval)
         transport.subscribe(keys.status, self._on_status, drop_oldest=True, capacity=4)
 
+    # -- resume ------------------------------------------------------------------------------
+    def _resume(self) -> None:
+        state = load_checkpoint(self.checkpoints)
+        metrics_path = self.run_dir / "metrics.csv"
+        if state is None:
+            dropped = truncate_metrics(metrics_path, through_epoch=0)
+            if dropped:
+                log.warning("no checkpoint: metrics.csv rows of epochs %s dropped (retrained)",
+                            dropped)
+            return
+        self.learner.load_state_dict(state["learner"])
+        self.loop.load_state_dict(state["loop"])
+        torch.set_rng_state(state["torch_rng"])
+        epoch = self.loop.epoch
+        dropped = truncate_metrics(metrics_path, through_epoch=epoch)
+        recorded = set(recorded_epochs(metrics_path))
+        for pending in [e for e in self.loop.pending if e in recorded]:
+            del self.loop.pending[pending]  # its row was written after the checkpoint
+        self.eval_requests = {int(e): bytes(raw) for e, raw in state["eval_requests"].items()
+                              if int(e) in self.loop.pending}
+        self._eval_asked = dict.fromkeys(self.eval_requests, -math.inf)  # ask again at once
+        self.resumed_from = epoch
+        log.info("resumed from the checkpoint of epoch %d (weights version %d, %d updates)%s%s",
+                 epoch, self.loop.version, self.learner.updates,
+                 f"; metrics rows of epochs {dropped} dropped (retrained)" if dropped else "",
+                 f"; epochs {sorted(self.loop.pending)} still to be evaluated"
+                 if self.loop.pending else "")
+
+    def checkpoint(self) -> None:
+        save_checkpoint(self.checkpoints, {
+            "learner": self.learner.state_dict(), "loop": self.loop.state_dict(),
+            "torch_rng": torch.get_rng_state(), "eval_requests": dict(self.eval_requests),
+            "config": self.config.to_dict(),
+        })
+
+    # -- subscriptions -----------------------------------------------------------------------
     def _on_eval(self, key: str, payload: bytes) -> None:
         try:
             self.evals.put(parse_message(payload, pb.EvalResult, max_bytes=1 << 20))
@@ -172,49 +273,87 @@ class LearnerService:
         except InvalidMessage as exc:
             self.warn.warn("status", f"ignored a ReplayStatus: {exc}")
 
+    # -- broadcasts --------------------------------------------------------------------------
     def publish_weights(self, *, evaluate: bool, epoch: int) -> None:
         weights = self.learner.policy_weights(self.loop.version)
-        msg = weights_to_msg(version=weights.version, actor_params=weights.actor,
+        raw = weights_to_msg(version=weights.version, actor_params=weights.actor,
                              o_stats=weights.o_stats, g_stats=weights.g_stats, epoch=epoch,
-                             evaluate=evaluate)
-        self.weights_pub.put(msg.SerializeToString())
+                             evaluate=evaluate).SerializeToString()
+        if evaluate:
+            self.eval_requests[epoch] = raw
+            self._eval_asked[epoch] = time.monotonic()
+        self.weights_pub.put(raw)
 
-    def checkpoint(self) -> None:
-        path = self.run_dir / "checkpoints" / "learner.pt"
-        tmp = path.with_suffix(".pt.tmp")
-        torch.save({"learner": self.learner.state_dict(), "version": self.loop.version,
-                    "epoch": self.loop.epoch, "cycle": self.loop.cycle}, tmp)
-        os.replace(tmp, path)
+    def publish_progress(self, *, finished: bool = False) -> None:
+        recorded = self.loop.epoch - len(self.loop.pending)
+        self.progress_pub.put(pb.RunProgress(
+            schema_version=SCHEMA_VERSION, epoch=max(recorded, 0),
+            epochs=self.config.training.epochs, finished=finished).SerializeToString())
 
+    def _ask_again(self) -> None:
+        """Ask once more for the evaluations overdue by `EVAL_RESEND_S`."""
+        now = time.monotonic()
+        for epoch in sorted(self.loop.pending):
+            raw = self.eval_requests.get(epoch)
+            if raw is not None and now - self._eval_asked.get(epoch, now) >= EVAL_RESEND_S:
+                log.info("no evaluation of epoch %d yet: asking again", epoch)
+                self.eval_request_pub.put(raw)
+                self._eval_asked[epoch] = now
+
+    # -- evaluation results ------------------------------------------------------------------
     def record_evals(self, *, block: bool) -> None:
-        """Write the rows of evaluated epochs; with block, wait for every pending epoch."""
-        while self.loop.pending:
+        """Write the rows of evaluated epochs; with block, wait (watching the stop event, asking
+        again for overdue evaluations) until every pending epoch is recorded or `EVAL_WAIT_S`
+        has passed."""
+        stop = self.runtime.stop
+        deadline = time.monotonic() + EVAL_WAIT_S
+        while self.loop.pending and not stop.is_set():
+            self._ask_again()
             try:
-                result = self.evals.get(timeout=EVAL_WAIT_S) if block else self.evals.get_nowait()
+                result = (self.evals.get(timeout=_POLL_S) if block
+                          else self.evals.get_nowait())
             except queue.Empty:
-                if block:
+                if not block:
+                    return
+                if time.monotonic() >= deadline:
                     log.error("no evaluation arrived for epoch(s) %s within %.0f s",
                               sorted(self.loop.pending), EVAL_WAIT_S)
-                return
-            row = self.loop.record_eval(epoch=int(result.epoch),
-                                        success_rate=float(result.success_rate),
-                                        mean_final_distance=float(result.mean_final_distance),
-                                        replay_status=self.status.get())
-            if row is None:
+                    return
                 continue
-            row["batch_wait_s"] = round(self.batch_wait_s.pop(int(row["epoch"]), 0.0), 3)
-            self.metrics.write(row)
-            values = {k: v for k, v in row.items() if isinstance(v, int | float)}
-            values["epochs"] = self.config.training.epochs
-            self.runtime.publish_metrics(values, step=int(row["epoch"]))
-            log.info("epoch %d: success %.2f, env steps %d, %.0f updates/s", row["epoch"],
-                     row["success_rate"], row["env_steps"], row["updates_per_s"])
+            self._record(result)
 
+    def _record(self, result: pb.EvalResult) -> None:
+        row = self.loop.record_eval(epoch=int(result.epoch),
+                                    success_rate=float(result.success_rate),
+                                    mean_final_distance=float(result.mean_final_distance),
+                                    replay_status=self.status.get())
+        if row is None:
+            return  # an epoch not pending: a repeated or stale answer
+        epoch = int(row["epoch"])
+        self.eval_requests.pop(epoch, None)
+        self._eval_asked.pop(epoch, None)
+        row["batch_wait_s"] = round(self.batch_wait_s.pop(epoch, 0.0), 3)
+        row["bad_batches"] = sum(self.prefetcher_bad.values())
+        self.metrics.write(row)
+        values = {k: v for k, v in row.items() if isinstance(v, int | float)}
+        values["epochs"] = self.config.training.epochs
+        self.runtime.publish_metrics(values, step=epoch)
+        self.publish_progress()
+        log.info("epoch %d: success %.2f, env steps %d, %.0f updates/s", epoch,
+                 row["success_rate"], row["env_steps"], row["updates_per_s"])
+
+    # -- the loop ----------------------------------------------------------------------------
     def run(self) -> int:
         stop = self.runtime.stop
-        self.publish_weights(evaluate=False, epoch=0)
+        if self.loop.done and not self.loop.pending:
+            log.info("this run's %d epochs are already done", self.config.training.epochs)
+            self.publish_progress(finished=True)
+            return 0
+        self.publish_weights(evaluate=False, epoch=self.loop.epoch)
+        self.publish_progress()
         prefetcher = Prefetcher(runtime=self.runtime, config=self.config,
                                 version=lambda: self.loop.version)
+        self.prefetcher_bad = prefetcher.bad_batches
         waited_before = 0.0
         while not self.loop.done and not stop.is_set():
             batch = prefetcher.get()
@@ -231,7 +370,12 @@ class LearnerService:
         if stop.is_set():
             return 0
         self.record_evals(block=True)
-        return 0 if not self.loop.pending else 1
+        if stop.is_set():
+            return 0
+        if self.loop.pending:
+            return 1
+        self.publish_progress(finished=True)
+        return 0
 
     def close(self) -> None:
         self.metrics.close()

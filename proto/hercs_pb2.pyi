@@ -273,3 +273,35 @@ class Reject(_message.Message):
     reason: str
     detail: str
     def __init__(self, schema_version: _Optional[int] = ..., reason: _Optional[str] = ..., detail: _Optional[str] = ...) -> None: ...
+
+class RunProgress(_message.Message):
+    __slots__ = ("schema_version", "epoch", "epochs", "finished")
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    EPOCH_FIELD_NUMBER: _ClassVar[int]
+    EPOCHS_FIELD_NUMBER: _ClassVar[int]
+    FINISHED_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    epoch: int
+    epochs: int
+    finished: bool
+    def __init__(self, schema_version: _Optional[int] = ..., epoch: _Optional[int] = ..., epochs: _Optional[int] = ..., finished: _Optional[bool] = ...) -> None: ...
+
+class ClustererStateRequest(_message.Message):
+    __slots__ = ("schema_version",)
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    def __init__(self, schema_version: _Optional[int] = ...) -> None: ...
+
+class ClustererState(_message.Message):
+    __slots__ = ("schema_version", "failed_goals", "failures_seen", "episodes_seen", "model_version")
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    FAILED_GOALS_FIELD_NUMBER: _ClassVar[int]
+    FAILURES_SEEN_FIELD_NUMBER: _ClassVar[int]
+    EPISODES_SEEN_FIELD_NUMBER: _ClassVar[int]
+    MODEL_VERSION_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    failed_goals: Array
+    failures_seen: int
+    episodes_seen: int
+    model_version: int
+    def __init__(self, schema_version: _Optional[int] = ..., failed_goals: _Optional[_Union[Array, _Mapping]] = ..., failures_seen: _Optional[int] = ..., episodes_seen: _Optional[int] = ..., model_version: _Optional[int] = ...) -> None: ...

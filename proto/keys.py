@@ -49,8 +49,26 @@ class RunKeys:
         return self._key("config")
 
     @property
+    def clusterer_state(self) -> str:
+        """Queryable (replay): `ClustererStateRequest` → `ClustererState`, so that a restarted
+        clusterer continues the run's failed-goal buffer and model versions."""
+        return self._key("replay/clusterer_state")
+
+    @property
+    def progress(self) -> str:
+        """The learner's `RunProgress` (latest kept): remote actors exit when it says
+        finished."""
+        return self._key("run/progress")
+
+    @property
     def weights(self) -> str:
         return self._key("weights")
+
+    @property
+    def eval_request(self) -> str:
+        """The learner asks again for an overdue evaluation: a `Weights` (evaluate=True) of an
+        epoch already broadcast on `weights`."""
+        return self._key("eval/request")
 
     @property
     def eval_result(self) -> str:

@@ -58,6 +58,29 @@ def test_array_with_wrong_byte_count_is_rejected() -> None:
     assert "Episode.obs" in err.value.detail and "24 data bytes" in err.value.detail
 
 
+@pytest.mark.parametrize(
+    ("shape", "data", "match"),
+    [([2**32, 2**32, 4], b"", "dimension above"),  # np.prod wraps to 0 bytes in int64
+     ([2**31 - 1, 2**31 - 1, 4, 4], b"\0" * 4, "does not match|expected"),
+     ([0, 2**31 - 1, 2**31 - 1, 2**31 - 1], b"", "numpy can"),  # 0 bytes, numpy overflows
+     ([0, 5], b"", None),  # a real empty array
+     ([1] * 9, b"\0" * 4, "9 dimensions"),
+     ([-1, 1], b"", "negative dimension")],
+    ids=["wraps-int64", "huge-product", "empty-with-huge-dims", "empty", "too-many-dims",
+         "negative"],
+)
+def test_shapes_that_overflow_or_abuse_the_decoder_are_rejected(shape: list[int], data: bytes,
+                                                               match: str | None) -> None:
+    msg = pb.Array(dtype="float32", shape=shape, data=data)
+    if match is None:
+        assert msg_to_array(msg).size == 0
+        return
+    with pytest.raises(InvalidMessage) as err:
+        msg_to_array(msg, where="Batch.minibatches[0].o")
+    assert err.value.reason == "bad_array"
+    assert "Batch.minibatches[0].o" in err.value.detail
+
+
 def test_unknown_dtype_is_rejected() -> None:
     msg = array_to_msg(np.zeros(2, dtype=np.float32))
     msg.dtype = "complex64"

@@ -2,11 +2,21 @@
 from a real ReplayCore (no transport)."""
 
 import numpy as np
+import pytest
+import torch
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.ddpg import DDPGLearner
-from learner.loop import METRICS_COLUMNS, LearnerLoop, MetricsCsv, SampleBatch
+from learner.loop import (
+    METRICS_COLUMNS,
+    LearnerLoop,
+    MetricsCsv,
+    SampleBatch,
+    recorded_epochs,
+    truncate_metrics,
+)
 from replay_service.core import ReplayCore
 
 
@@ -44,7 +54,8 @@ def test_epochs_versions_and_rows(tmp_path) -> None:
     row = loop.record_eval(epoch=1, success_rate=0.25, mean_final_distance=0.1,
                            replay_status={"size_transitions": 150, "cluster_sizes": [],
                                           "rejects": {"non_finite": 2}})
-    assert set(row) == set(METRICS_COLUMNS) - {"batch_wait_s"}  # the service adds that one
+    # the service adds those two
+    assert set(row) == set(METRICS_COLUMNS) - {"batch_wait_s", "bad_batches"}
     assert (row["epoch"], row["env_steps"], row["episodes"], row["updates"]) == (1, 150, 3, 6)
     assert row["weights_version"] == 3 and row["success_rate"] == 0.25
     assert row["rejects"] == "non_finite:2" and row["policy_lag"] == 1.5
@@ -56,3 +67,84 @@ def test_epochs_versions_and_rows(tmp_path) -> None:
     csv_file.close()
     lines = (tmp_path / "metrics.csv").read_text().splitlines()
     assert lines[0].split(",") == METRICS_COLUMNS and len(lines) == 2
+
+
+def test_a_resumed_loop_continues_exactly_where_the_checkpoint_was_taken(tmp_path) -> None:
+    """Train 2 epochs straight; or train 1, checkpoint (learner + loop + the checkpoint file),
+    build a fresh learner and loop from the file and train epoch 2 on the same batches: the
+    weights, versions, counters and pending epochs agree bit for bit."""
+    cfg = apply_overrides(config(), ["training.epochs=2"])
+    data = batches(cfg, 6)
+
+    def fresh() -> LearnerLoop:
+        return LearnerLoop(config=cfg, learner=DDPGLearner(spec=cfg.task.spec,
+                                                           config=cfg.ddpg, seed=0))
+
+    straight = fresh()
+    for b in data:
+        straight.step(b)
+
+    first = fresh()
+    for b in data[:3]:
+        first.step(b)
+    assert save_checkpoint(tmp_path, {"learner": first.learner.state_dict(),
+                                      "loop": first.state_dict()})
+    state = load_checkpoint(tmp_path)
+    assert state is not None
+    resumed = fresh()
+    resumed.learner.load_state_dict(state["learner"])
+    resumed.load_state_dict(state["loop"])
+    assert (resumed.epoch, resumed.cycle, resumed.version) == (1, 3, 3)
+    assert set(resumed.pending) == {1}, "epoch 1 still waits for its evaluation"
+    for b in data[3:]:
+        resumed.step(b)
+    assert (resumed.epoch, resumed.version, resumed.learner.updates) == (2, 6, 12)
+    for name, tensor in straight.learner.actor.state_dict().items():
+        assert torch.equal(tensor, resumed.learner.actor.state_dict()[name]), name
+    for name, tensor in straight.learner.critic_target.state_dict().items():
+        assert torch.equal(tensor, resumed.learner.critic_target.state_dict()[name]), name
+
+
+def test_checkpoint_write_failure_keeps_the_previous_one(tmp_path, monkeypatch) -> None:
+    assert save_checkpoint(tmp_path, {"learner": {}, "loop": {"epoch": 1}})
+
+    def full_disk(fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("learner.checkpoint.os.fsync", full_disk)
+    assert not save_checkpoint(tmp_path, {"learner": {}, "loop": {"epoch": 2}})
+    monkeypatch.undo()
+    state = load_checkpoint(tmp_path)
+    assert state is not None and state["loop"] == {"epoch": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.pt"], "no temp file left"
+
+
+def test_unreadable_checkpoint_is_refused_not_ignored(tmp_path) -> None:
+    (tmp_path / "learner.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=r"learner\.pt: not a readable learner checkpoint"):
+        load_checkpoint(tmp_path)
+    assert load_checkpoint(tmp_path / "none") is None
+
+
+def test_metrics_keep_rows_through_the_checkpoint_epoch(tmp_path) -> None:
+    path = tmp_path / "metrics.csv"
+    out = MetricsCsv(path)
+    for epoch in (1, 2, 3):
+        out.write({"epoch": epoch, "success_rate": epoch / 10})
+    out.close()
+    assert truncate_metrics(path, through_epoch=2) == [3]
+    assert recorded_epochs(path) == [1, 2]
+    again = MetricsCsv(path)  # reopened for appending: no second header
+    again.write({"epoch": 3, "success_rate": 0.9})
+    again.close()
+    assert recorded_epochs(path) == [1, 2, 3]
+    assert path.read_text().count("epoch,") == 1
+
+
+def test_metrics_of_an_older_run_keep_its_columns(tmp_path) -> None:
+    path = tmp_path / "metrics.csv"
+    path.write_text("epoch,success_rate\n1,0.5\n")
+    out = MetricsCsv(path)
+    out.write({"epoch": 2, "success_rate": 0.6, "bad_batches": 0})
+    out.close()
+    assert path.read_text().splitlines() == ["epoch,success_rate", "1,0.5", "2,0.6"]

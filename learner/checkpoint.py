@@ -1,0 +1,70 @@
+"""The learner's checkpoints: written atomically, the last good one kept.
+
+`runs/<run>/checkpoints/learner.pt` holds what a resumed learner needs to continue exactly at
+the end of the epoch it was taken at: the DDPG state (nets, targets, optimisers, normaliser
+statistics, update counters), the loop's counters (cycle, weights version, epoch, wall time,
+the epochs still waiting for their evaluation), torch's RNG state, and the serialised
+`Weights` of each epoch still waiting for its evaluation (to ask again).
+
+A write goes to `learner.pt.tmp`, is fsynced, then renamed over `learner.pt` (and the folder
+fsynced), so a crash or a full disk at any point leaves the previous checkpoint whole.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+log = logging.getLogger(__name__)
+
+LATEST = "learner.pt"
+
+
+def save_checkpoint(folder: Path, state: dict[str, Any], *, name: str = LATEST) -> bool:
+    """Write `state` atomically to `folder/name`; False (logged, the previous file kept) if the
+    write failed, e.g. on a full disk."""
+    path = folder / name
+    tmp = path.with_name(path.name + ".tmp")
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tmp.open("wb") as f:
+            f.write(buffer.getbuffer())
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        log.error("checkpoint %s not written (%s); the previous one is kept", path, exc)
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        return False
+    return True
+
+
+def load_checkpoint(folder: Path, *, name: str = LATEST) -> dict[str, Any] | None:
+    """The checkpoint in `folder/name`, or None if there is none. A file that does not load
+    raises `ValueError` naming it (a resumed run must not silently start over)."""
+    path = folder / name
+    if not path.exists():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable learner checkpoint ({exc}); move it away "
+                         "to start this run's learner from scratch") from None
+    if not isinstance(state, dict) or "learner" not in state or "loop" not in state:
+        raise ValueError(f"{path}: not a learner checkpoint of this version of hercs (no "
+                         "'learner'/'loop' state); move it away to start from scratch")
+    return state
