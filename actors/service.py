@@ -10,12 +10,16 @@ What `run` does, in order:
    against this task's networks); a bad one is logged once per minute and ignored, a good one
    replaces the slot's pending weights. The rollout loop adopts the newest at each episode
    start, and tags the episode with its version (`policy_version`, -1 before any Weights).
-3. Loops: one exploring episode, tagged `(actor_id=ident, seq=0,1,2,…)`, handed to the
+3. Loops: one exploring episode, tagged `(actor_id=<ident>@<incarnation>, seq=0,1,2,…)`
+   (the incarnation is the process's start time, so a restarted actor never reuses a pair
+   the replay has stored), handed to the
    `Inserter` (at-least-once, on its own thread; see `actors.inserter` for retries and
    backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
    Metrics every `METRICS_EVERY_EPISODES` episodes.
-4. On SIGTERM/SIGINT (`runtime.stop`): finishes the episode at hand, flushes queued inserts
-   for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the transport, returns 0.
+4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
+   finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
+   queued inserts for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the
+   transport, returns 0. A dead inserter thread stops the actor with status 1.
 
 Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
 `generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")`.
@@ -41,6 +45,8 @@ from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import generator, int_seed
 from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, service_main
 from hercs.transport import TransportError
+from hercs.validation import parse_message
+from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +55,17 @@ INSERT_QUEUE = 2
 STOP_FLUSH_S = 3.0
 """On stop, queued inserts get this long to be acked before they are given up."""
 METRICS_EVERY_EPISODES = 10
+
+
+def incarnation() -> str:
+    """This process's incarnation: its start time in milliseconds, base 36 (unique per
+    restart of an id on one host, ordered, short)."""
+    value, digits = time.time_ns() // 1_000_000, "0123456789abcdefghijklmnopqrstuvwxyz"
+    out = ""
+    while value:
+        value, rest = divmod(value, 36)
+        out = digits[rest] + out
+    return out or "0"
 
 
 # --------------------------------------------------------------------------- weights
@@ -90,6 +107,9 @@ class ActorService:
         self.runtime = runtime
         self.config = config
         self.ident = runtime.ident
+        self.actor_id = f"{self.ident}@{incarnation()}"
+        """Identity on the wire: this process's incarnation after the id, so that a restart
+        with the same `--id` starts new (actor_id, seq) pairs the replay has never seen."""
         self.spec = config.task.spec
         seed = config.run.seed
         self.policy = Policy(spec=self.spec, config=config.ddpg,
@@ -105,11 +125,14 @@ class ActorService:
         timeout_s = config.actor.insert_timeout_s
         self.inserter = Inserter(
             send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
-            actor_id=self.ident, capacity=INSERT_QUEUE,
+            actor_id=self.actor_id, capacity=INSERT_QUEUE, on_crash=runtime.crashed,
         )
         # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
         transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=4,
                             drop_oldest=True)
+        transport.subscribe(keys.progress, self._on_progress, latest=True, capacity=4,
+                            drop_oldest=True)
+        self.run_finished = threading.Event()
         self.episodes = 0
 
     def _on_weights(self, key: str, raw: bytes) -> None:
@@ -124,13 +147,27 @@ class ActorService:
             return
         self._weights.offer(weights)
 
+    def _on_progress(self, key: str, raw: bytes) -> None:
+        """The learner's `RunProgress`: once the run is finished this actor has no more use."""
+        try:
+            progress = parse_message(raw, pb.RunProgress,
+                                     max_bytes=self.config.replay.max_message_bytes)
+        except InvalidMessage as exc:
+            self._warn.warn(f"progress:{exc.reason}", f"ignored a RunProgress on {key}: {exc}")
+            return
+        if progress.finished and not self.run_finished.is_set():
+            log.info("actor %s: run %r finished (%d epochs); stopping", self.ident,
+                     self.config.run.name, progress.epochs)
+            self.run_finished.set()
+            self.runtime.stop.set()
+
     def _act(self, o: np.ndarray, g: np.ndarray) -> np.ndarray:
         return self.policy.act(o, g, explore=True, rng=self.rng)
 
     def run(self) -> int:
         config, stop = self.config, self.runtime.stop
-        log.info("actor %s: run %r, task %s, method %s", self.ident, config.run.name,
-                 self.spec.name, config.run.method)
+        log.info("actor %s (wire id %s): run %r, task %s, method %s", self.ident,
+                 self.actor_id, config.run.name, self.spec.name, config.run.method)
         window = (time.monotonic(), self.worker.env_steps)
         self.publish_metrics(steps_per_s=0.0)
         try:
@@ -139,7 +176,7 @@ class ActorService:
                 if newest is not None:
                     self.policy.load(newest)
                 episode = self.worker.run_episode(self._act)
-                episode.actor_id, episode.seq = self.ident, self.episodes
+                episode.actor_id, episode.seq = self.actor_id, self.episodes
                 episode.policy_version = self.policy.version
                 msg = episode_to_msg(episode, run=config.run.name, task=self.spec.name)
                 if not self.inserter.submit(self.episodes, msg.SerializeToString(), stop=stop):

@@ -36,6 +36,23 @@ class Clusterer:
         self.failures_seen = 0
         self.model: ClusterModel | None = None
         """Latest fitted model (None before the first fit); republished to late joiners."""
+        self.last_version = 0
+        """Version of the run's latest model, this process's or an earlier one's (`resume`)."""
+
+    def resume(self, *, failed_goals: np.ndarray, failures_seen: int, episodes_seen: int,
+               model_version: int) -> None:
+        """Continue a run an earlier clusterer process served: its newest failed goals refill
+        the buffer (oldest first), the counts continue, and the next model gets version
+        `model_version + 1`. If a model exists it was fitted on about these goals, so the
+        next fit waits for a buffer of new failures, as it would have."""
+        for goal in np.asarray(failed_goals, np.float64).reshape(-1, self.fgb.goal_dim):
+            self.fgb.add(goal)
+        if model_version > 0:
+            self.fgb.mark_fitted()
+        self.fgb.total_added = int(failures_seen)
+        self.failures_seen = int(failures_seen)
+        self.inserts_seen = int(episodes_seen)
+        self.last_version = int(model_version)
 
     def observe(self, *, final_ag: np.ndarray, desired_goal: np.ndarray) -> ClusterModel | None:
         """Account for one stored episode; return a new model if this episode triggered a refit.
@@ -59,7 +76,7 @@ class Clusterer:
         return self._refit()
 
     def _refit(self) -> ClusterModel:
-        version = 1 if self.model is None else self.model.version + 1
+        version = self.last_version + 1
         goals = self.fgb.goals()
         centroids = fit_cluster_model(
             goals,
@@ -70,6 +87,7 @@ class Clusterer:
         self.fgb.mark_fitted()
         self.model = ClusterModel(version=version, centroids=centroids, n_goals=len(goals),
                                   inserts_seen=self.inserts_seen)
+        self.last_version = version
         return self.model
 
     def state_dict(self) -> dict[str, Any]:
@@ -83,6 +101,7 @@ class Clusterer:
             "inserts_seen": self.inserts_seen,
             "failures_seen": self.failures_seen,
             "model": model,
+            "last_version": self.last_version,
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -93,3 +112,5 @@ class Clusterer:
         self.failures_seen = int(state["failures_seen"])
         model = state["model"]
         self.model = None if model is None else ClusterModel(**model)
+        self.last_version = int(state.get("last_version",
+                                          0 if self.model is None else self.model.version))

@@ -15,9 +15,12 @@ What `run` does:
   model: nobody would use it, and skipping k-means keeps a core free.
 - metrics (episodes seen, failed goals seen, refits, model version, rejects) about once per
   `METRICS_PERIOD_S` while headers arrive, and after each refit.
-- SIGTERM/SIGINT: the loop ends within `_POLL_S`, the transport closes, exit 0. The failed-goal
-  buffer is not persisted: a restarted clusterer starts a fresh buffer and counts versions from
-  1 again.
+- on start it asks the replay for `replay/clusterer_state` (retrying until the replay
+  answers): the newest failed goals, the failure and episode counts and the version of the
+  model the replay uses. A restarted clusterer thus refills its buffer, continues the counts
+  and numbers its next model after the run's latest (the replay ignores versions it has
+  seen); headers of episodes the snapshot already counted are skipped.
+- SIGTERM/SIGINT: the loop ends within `_POLL_S`, the transport closes, exit 0.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import numpy as np
 
 from clusterer.core import Clusterer
 from hercs.clustering import ClusterModel
-from hercs.codec import array_to_msg
+from hercs.codec import array_to_msg, msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
@@ -44,17 +47,19 @@ log = logging.getLogger(__name__)
 
 METRICS_PERIOD_S = 1.0
 _POLL_S = 0.25
+STATE_TIMEOUT_S = 10.0
 _HEADER_MAX_BYTES = 64 * 1024
 
 
-def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """`EpisodeHeader` bytes → (final achieved goal, desired goal), float64 (goal_dim,) each.
+def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[int, np.ndarray, np.ndarray]:
+    """`EpisodeHeader` bytes → (episode id, final achieved goal, desired goal), the goals
+    float64 (goal_dim,) each.
 
     Raises `InvalidMessage` (a `RejectReason`) for undecodable bytes, a wrong schema version,
     a missing or misshapen vector, or NaN/Inf.
     """
     msg = parse_message(raw, pb.EpisodeHeader, max_bytes=_HEADER_MAX_BYTES)
-    return header_goals(msg, goal_dim=goal_dim)
+    return (int(msg.episode_id), *header_goals(msg, goal_dim=goal_dim))
 
 
 def model_to_msg(model: ClusterModel, *, failed_goals_seen: int) -> pb.ClusterModel:
@@ -84,7 +89,9 @@ class ClustererService:
         """Headers skipped, by reason (written by the subscription thread)."""
         self._rejected_lock = threading.Lock()
         self._warn = WarnOncePerMinute(log)
-        self._inbox: queue.SimpleQueue[tuple[np.ndarray, np.ndarray]] = queue.SimpleQueue()
+        self._inbox: queue.SimpleQueue[tuple[int, np.ndarray, np.ndarray]] = queue.SimpleQueue()
+        self._counted_below = 0
+        """Episode ids below this are in the replay's snapshot (`resume_from_replay`)."""
         keys, transport = runtime.keys, runtime.transport
         self._models = (transport.publisher(keys.cluster_model, latest=True, block=True)
                         if self.fits else None)
@@ -93,14 +100,14 @@ class ClustererService:
     def _on_header(self, key: str, raw: bytes) -> None:
         """Subscription thread: check and hand over; never fits (SimpleQueue.put never blocks)."""
         try:
-            pair = decode_header(raw, goal_dim=self.goal_dim)
+            item = decode_header(raw, goal_dim=self.goal_dim)
         except InvalidMessage as exc:
             with self._rejected_lock:
                 self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
             self._warn.warn(f"header:{exc.reason}",
                             f"skipped an EpisodeHeader on {key}: {exc}")
             return
-        self._inbox.put(pair)
+        self._inbox.put(item)
 
     def observe(self, final_ag: np.ndarray, desired_goal: np.ndarray) -> ClusterModel | None:
         """One stored episode; the new model if it triggered a refit (cluster methods only)."""
@@ -119,15 +126,19 @@ class ClustererService:
                  self.config.run.name, self.config.run.method,
                  "fitting" if self.fits else "counting only", self.config.cluster.fgb_size,
                  self.config.cluster.k)
+        if not self.resume_from_replay():
+            return 0  # stopped while the replay was away
         self.publish_metrics()
         next_metrics = time.monotonic() + METRICS_PERIOD_S
         dirty = False
         while not stop.is_set():
             try:
-                final_ag, desired_goal = self._inbox.get(timeout=_POLL_S)
+                episode_id, final_ag, desired_goal = self._inbox.get(timeout=_POLL_S)
             except queue.Empty:
                 model = None
             else:
+                if episode_id < self._counted_below:
+                    continue  # in the replay's snapshot already
                 dirty = True
                 model = self.observe(final_ag, desired_goal)
             if model is not None and self._models is not None:
@@ -142,6 +153,41 @@ class ClustererService:
                 next_metrics, dirty = now + METRICS_PERIOD_S, False
         self.publish_metrics()
         return 0
+
+    def resume_from_replay(self) -> bool:
+        """Continue the run where it stands: ask the replay (retrying while it is away) for
+        the newest failed goals, the counts and the version of its cluster model. A fresh run
+        gets an empty snapshot. False if stopped first."""
+        stop, keys = self.runtime.stop, self.runtime.keys
+        request = pb.ClustererStateRequest(schema_version=SCHEMA_VERSION).SerializeToString()
+        delay = 0.2
+        while not stop.is_set():
+            try:
+                raw = self.runtime.transport.request(keys.clusterer_state, request,
+                                                     timeout_s=STATE_TIMEOUT_S)
+                state = parse_message(raw, pb.ClustererState, max_bytes=1 << 20)
+                goals = msg_to_array(state.failed_goals, where="ClustererState.failed_goals")
+                if goals.ndim != 2 or goals.shape[1] != self.goal_dim or len(goals) > \
+                        self.config.cluster.fgb_size or not np.isfinite(goals).all():
+                    raise InvalidMessage("bad_shape", f"ClustererState.failed_goals: shape "
+                                                      f"{goals.shape} or values unusable")
+            except (TransportError, InvalidMessage) as exc:
+                self._warn.warn("state", f"waiting for the replay's clusterer state: {exc}")
+                stop.wait(delay)
+                delay = min(delay * 2, 2.0)
+                continue
+            self.core.resume(failed_goals=goals, failures_seen=int(state.failures_seen),
+                             episodes_seen=int(state.episodes_seen),
+                             model_version=int(state.model_version))
+            self._counted_below = int(state.episodes_seen)
+            self.episodes_seen, self.failures_seen = (int(state.episodes_seen),
+                                                      int(state.failures_seen))
+            if state.episodes_seen:
+                log.info("continuing run %r: %d failed goals of %d episodes, next model "
+                         "version %d", self.config.run.name, state.failures_seen,
+                         state.episodes_seen, state.model_version + 1)
+            return True
+        return False
 
     def publish_metrics(self) -> None:
         model = self.core.model

@@ -16,7 +16,7 @@ Invariants:
 
 from __future__ import annotations
 
-from collections import Counter, OrderedDict
+from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,6 +68,11 @@ class ReplayCore:
         self.env_steps = 0
         self.rejects: Counter[str] = Counter()
         self.cluster_draws_total = np.zeros(config.cluster.k, np.int64)
+        self.failures = 0
+        """Inserted episodes that failed (not `TaskSpec.is_success` at their last step)."""
+        self.recent_failed_goals: deque[np.ndarray] = deque(maxlen=config.cluster.fgb_size)
+        """Desired goals of the newest failed episodes, oldest first: what a restarted
+        clusterer refills its failed-goal buffer with."""
 
     # -- inserts ---------------------------------------------------------------------------
     def lookup(self, actor_id: str, seq: int) -> int | None:
@@ -91,6 +96,9 @@ class ReplayCore:
         episode_id = self.store.insert(episode, energy=energy, cluster=cluster)
         self._remember(key, episode_id)
         self._update_normalizers(episode)
+        if not self.spec.is_success(episode.ag[-1], episode.g[-1]):
+            self.failures += 1
+            self.recent_failed_goals.append(np.array(episode.g[-1], np.float32))
         self.inserts += 1
         self.env_steps += self.spec.episode_steps
         return InsertResult(episode_id, False, energy, cluster)
@@ -158,7 +166,9 @@ class ReplayCore:
                 "n_goals": model.n_goals, "inserts_seen": model.inserts_seen},
             "seen": list(self._seen.items()),
             "counters": {"inserts": self.inserts, "duplicates": self.duplicates,
-                         "samples": self.samples, "env_steps": self.env_steps},
+                         "samples": self.samples, "env_steps": self.env_steps,
+                         "failures": self.failures},
+            "recent_failed_goals": [g.copy() for g in self.recent_failed_goals],
             "rejects": dict(self.rejects),
             "cluster_draws_total": self.cluster_draws_total.copy(),
             "rng": self.rng.bit_generator.state,
@@ -174,5 +184,8 @@ class ReplayCore:
         for name, value in state["counters"].items():
             setattr(self, name, int(value))
         self.rejects = Counter(state["rejects"])
+        self.recent_failed_goals.clear()
+        self.recent_failed_goals.extend(np.asarray(g, np.float32)
+                                        for g in state.get("recent_failed_goals", []))
         self.cluster_draws_total = np.asarray(state["cluster_draws_total"], np.int64).copy()
         self.rng.bit_generator.state = state["rng"]

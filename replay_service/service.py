@@ -13,6 +13,9 @@ Queries (served on our own worker threads, never inside Zenoh callbacks):
   limiter could never admit is refused (`bad_value`); one parked longer than the learner's
   `replay.sample_timeout_s` is answered `expired`.
 - `config`: the run's resolved config as YAML (remote actors start from it).
+- `replay/clusterer_state` (ClustererStateRequest → ClustererState): the newest failed goals
+  (up to `cluster.fgb_size`), failure and episode counts and the adopted model's version, so
+  that a restarted clusterer continues the run.
 - `replay/episode` (EpisodeRequest → Episode): one stored episode by id, as inserted (the live
   view draws every n-th episode's trajectory from it). An id never inserted or already
   overwritten by the ring gets the error reply `unknown_episode` (a miss, not counted as a
@@ -22,7 +25,8 @@ and `eval/result` (logged). `replay/status` is put about once a second, and park
 their deadline are expired at the same pace.
 
 On start the episode log of the run directory is replayed into the table, so nothing acked is
-lost across a restart; the rate limiter restarts balanced at the recovered size.
+lost across a restart; the rate limiter restarts balanced at the recovered size, and the last
+logged cluster model is adopted again.
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
-from hercs.runlog.episode_log import EpisodeLog
+from hercs.runlog.episode_log import EpisodeLog, read_cluster_models
 from hercs.seeding import generator
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply
@@ -111,6 +115,7 @@ class ReplayService:
             log.warning("recovered episode logged as id %d was stored as %d", logged, stored)
         if count:
             log.info("recovered %d acked episodes from the episode log", count)
+            self._restore_cluster_model(run_dir)
         self._config_yaml = yaml.safe_dump(config.to_dict(), sort_keys=False).encode()
 
         keys, transport = runtime.keys, runtime.transport
@@ -119,10 +124,27 @@ class ReplayService:
         transport.serve(keys.config, lambda _: self._config_yaml)
         transport.serve(keys.episode, self._on_episode_request,
                         on_error=self._on_episode_request_error)
+        transport.serve(keys.clusterer_state, self._on_clusterer_state, on_error=self._on_reject)
         transport.subscribe(keys.cluster_model, self._on_cluster_model, latest=True)
         transport.subscribe(keys.eval_result, self._on_eval_result)
         transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject)
         transport.serve_deferred(keys.sample, self._on_sample, on_error=self._on_reject)
+
+    def _restore_cluster_model(self, run_dir: Path) -> None:
+        """The last cluster model of the log, so that a restarted replay samples by clusters
+        at once even if no clusterer republishes its model."""
+        last = None
+        for last in read_cluster_models(run_dir):  # noqa: B007 (the last one is wanted)
+            pass
+        if last is None:
+            return
+        try:
+            model = self._cluster_model(last)
+        except InvalidMessage as exc:
+            log.warning("the log's last cluster model is not usable (%s); waiting for one", exc)
+            return
+        if self.table.adopt_cluster_model(model, None):
+            log.info("cluster model v%d restored from the episode log", model.version)
 
     # -- inserts ---------------------------------------------------------------------------
     def _on_reject(self, exc: Exception) -> None:
@@ -199,14 +221,7 @@ class ReplayService:
         try:
             msg = parse_message(payload, pb.ClusterModel,
                                 max_bytes=self.config.replay.max_message_bytes)
-            rejection = validate_centroids(msg, k=self.config.cluster.k,
-                                           goal_dim=self.spec.goal_dim)
-            if rejection is not None:
-                raise rejection.error()
-            model = ClusterModel(version=int(msg.version),
-                                 centroids=msg_to_array(msg.centroids).copy(),
-                                 n_goals=int(msg.fitted_on),
-                                 inserts_seen=int(msg.failed_goals_seen))
+            model = self._cluster_model(msg)
             adopted = self.table.adopt_cluster_model(model, msg)
         except (InvalidMessage, ValueError) as exc:
             reason = exc.reason if isinstance(exc, InvalidMessage) else RejectReason.BAD_VALUE
@@ -215,6 +230,22 @@ class ReplayService:
         if adopted:
             log.info("cluster model v%d adopted; cluster sizes %s", model.version,
                      self.table.cluster_sizes())
+
+    def _cluster_model(self, msg: pb.ClusterModel) -> ClusterModel:
+        rejection = validate_centroids(msg, k=self.config.cluster.k, goal_dim=self.spec.goal_dim)
+        if rejection is not None:
+            raise rejection.error()
+        return ClusterModel(version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
+                            n_goals=int(msg.fitted_on), inserts_seen=int(msg.failed_goals_seen))
+
+    def _on_clusterer_state(self, payload: bytes) -> bytes:
+        parse_message(payload, pb.ClustererStateRequest,
+                      max_bytes=self.config.replay.max_message_bytes)
+        snap = self.table.clusterer_state()
+        return pb.ClustererState(
+            schema_version=SCHEMA_VERSION, failed_goals=array_to_msg(snap.failed_goals),
+            failures_seen=snap.failures_seen, episodes_seen=snap.episodes_seen,
+            model_version=snap.model_version).SerializeToString()
 
     def _on_eval_result(self, key: str, payload: bytes) -> None:
         try:

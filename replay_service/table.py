@@ -148,6 +148,15 @@ def _take_expired(queue: deque[P], now: float) -> list[P]:
 
 
 @dataclass(frozen=True)
+class ClustererSnapshot:
+    failed_goals: np.ndarray
+    """(n, goal_dim) float32, n ≤ cluster.fgb_size, oldest first."""
+    failures_seen: int
+    episodes_seen: int
+    model_version: int
+
+
+@dataclass(frozen=True)
 class TableStatus:
     """A consistent snapshot for `ReplayStatus`."""
 
@@ -321,14 +330,27 @@ class ReplayTable:
         return len(inserts) + len(samples)
 
     # -- cluster model, eval results, stored episodes ---------------------------------------
-    def adopt_cluster_model(self, model: ClusterModel, record: pb.ClusterModel) -> bool:
-        """Adopt a newer model (relabelling the store) and log it; False if not newer.
-        Raises ValueError for a model of the wrong k (nothing changes)."""
+    def adopt_cluster_model(self, model: ClusterModel, record: pb.ClusterModel | None) -> bool:
+        """Adopt a newer model (relabelling the store) and log `record` (None: it is already
+        in the log, e.g. recovered from it); False if not newer. Raises ValueError for a model
+        of the wrong k (nothing changes)."""
         with self._lock:
             if not self.core.set_cluster_model(model):
                 return False
-            self.log.append_cluster_model(record)
+            if record is not None:
+                self.log.append_cluster_model(record)
             return True
+
+    def clusterer_state(self) -> ClustererSnapshot:
+        """What a (re)started clusterer continues from."""
+        with self._lock:
+            core = self.core
+            goals = (np.stack(list(core.recent_failed_goals)) if core.recent_failed_goals
+                     else np.zeros((0, core.spec.goal_dim), np.float32))
+            model = core.cluster_model
+            return ClustererSnapshot(failed_goals=goals, failures_seen=core.failures,
+                                     episodes_seen=core.inserts,
+                                     model_version=0 if model is None else model.version)
 
     def log_eval_result(self, record: pb.EvalResult) -> None:
         with self._lock:

@@ -137,7 +137,9 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
         pass
     assert {e.policy_version for e in episodes} == {-1}
     first = episodes[0]
-    assert (first.actor_id, first.run, first.task) == ("a0", RUN, "reach"), "the run's config"
+    assert (first.run, first.task) == (RUN, "reach"), "the run's config"
+    assert first.actor_id.startswith("a0@"), "the id plus this process's incarnation"
+    assert {e.actor_id for e in episodes} == {first.actor_id}
     assert tuple(msg_to_array(first.obs).shape) == (51, served.task.spec.obs_dim)
 
     learner = side.publisher(keys.weights, latest=True, block=True)  # as the learner
@@ -161,6 +163,27 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     assert replay.attempts[1] == replay.attempts[2] == 2, "same (actor, seq) retried once"
     assert replay.attempts[3] == 1, "a validation reject is not retried"
     assert [e.seq for e in episodes] == sorted(e.seq for e in episodes)
+
+
+def test_a_remote_actor_exits_by_itself_when_the_learner_says_the_run_is_finished(
+    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+) -> None:
+    served = run_config(endpoint)
+    keys = RunKeys(RUN)
+    side = open_client()
+    side.serve(keys.config, lambda _: yaml.safe_dump(served.to_dict()).encode())
+    replay = FakeReplay(side, keys)
+    procs.append(start_service("actor", local_config(endpoint), "a1", tmp_path))
+    replay.acked.get(timeout=WAIT_S)  # it is rolling out
+    progress = side.publisher(keys.progress, latest=True, block=True)  # as the learner
+    progress.put(pb.RunProgress(schema_version=SCHEMA_VERSION, epoch=2, epochs=3,
+                                finished=False).SerializeToString())
+    progress.put(b"garbage is ignored")
+    replay.acked.get(timeout=WAIT_S)  # still rolling out: the run is not finished
+    assert procs[0].poll() is None
+    progress.put(pb.RunProgress(schema_version=SCHEMA_VERSION, epoch=3, epochs=3,
+                                finished=True).SerializeToString())
+    assert procs[0].wait(timeout=WAIT_S) == 0
 
 
 def test_inserter_backpressure_then_gives_up_unacked_episodes_at_close() -> None:

@@ -54,6 +54,22 @@ def header(ag: np.ndarray, g: np.ndarray, *, seq: int) -> bytes:
     ).SerializeToString()
 
 
+def serve_state(replay: Transport, keys: RunKeys, *, goals: np.ndarray | None = None,
+                failures: int = 0, episodes: int = 0, model_version: int = 0) -> list[bytes]:
+    """Answer `replay/clusterer_state` as the replay does; returns the requests received."""
+    requests: list[bytes] = []
+    goals = np.zeros((0, 3), np.float32) if goals is None else goals.astype(np.float32)
+
+    def answer(payload: bytes) -> bytes:
+        requests.append(payload)
+        return pb.ClustererState(schema_version=SCHEMA_VERSION, failed_goals=array_to_msg(goals),
+                                 failures_seen=failures, episodes_seen=episodes,
+                                 model_version=model_version).SerializeToString()
+
+    replay.serve(keys.clusterer_state, answer)
+    return requests
+
+
 def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
 ) -> None:
@@ -69,6 +85,7 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     replay.subscribe(keys.metrics("clusterer"),
                      lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
     inserted = replay.publisher(keys.inserted, block=True)
+    serve_state(replay, keys)  # a fresh run: nothing to continue
 
     procs.append(start_service("clusterer", config, "c0", tmp_path))
     wait_for(alive, lambda c: c == (keys.alive("clusterer", "c0"), True), "the clusterer")
@@ -126,3 +143,41 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     assert models.empty()
 
     sigterm_exits_cleanly(procs[0], alive, keys.alive("clusterer", "c0"))
+
+
+def test_a_restarted_clusterer_continues_the_runs_buffer_counts_and_versions(
+    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+) -> None:
+    """The replay's snapshot says: 60 episodes, 40 failures, model v7 in use, and the newest
+    16 failed goals. The restarted clusterer refills its buffer with them, skips headers the
+    snapshot counted, and its first model, 16 new failures later, is v8."""
+    config = tiny_config(endpoint)
+    keys = RunKeys(config.run.name)
+    replay = open_client()
+    models: queue.Queue[pb.ClusterModel] = queue.Queue()
+    replay.subscribe(keys.cluster_model,
+                     lambda key, raw: models.put(pb.ClusterModel.FromString(raw)), latest=True)
+    inserted = replay.publisher(keys.inserted, block=True)
+    rng = np.random.default_rng(1)
+    old_goals = rng.uniform(-1, 1, (16, 3))
+    requests = serve_state(replay, keys, goals=old_goals, failures=40, episodes=60,
+                           model_version=7)
+    procs.append(start_service("clusterer", config, "c1", tmp_path))
+    assert inserted.wait_for_subscribers(WAIT_S)
+    for episode_id in range(50, 60):  # already in the snapshot: not counted again
+        g = rng.uniform(-1, 1, 3)
+        inserted.put(header(g + 1.0, g, seq=episode_id))
+    expected = Clusterer(config=config.cluster, seed=config.run.seed, spec=config.task.spec)
+    expected.resume(failed_goals=old_goals, failures_seen=40, episodes_seen=60, model_version=7)
+    model = None
+    for episode_id in range(60, 76):
+        g = rng.uniform(-1, 1, 3)
+        inserted.put(header(g + 1.0, g, seq=episode_id))
+        model = expected.observe(final_ag=(g + 1.0).astype(np.float32),
+                                 desired_goal=g.astype(np.float32)) or model
+    got = models.get(timeout=WAIT_S)
+    assert requests, "it asked the replay where the run stands"
+    assert model is not None and (got.version, model.version) == (8, 8)
+    assert (got.fitted_on, got.failed_goals_seen) == (16, 56)
+    np.testing.assert_allclose(msg_to_array(got.centroids), model.centroids, rtol=0, atol=1e-6)
+    assert models.empty()

@@ -282,3 +282,23 @@ def test_recovery_restarts_the_limiter_balanced_and_dedups_retries() -> None:
     assert retry.results[0].duplicate and retry.results[0].episode_id == 3
     stored = h.insert(10)
     assert isinstance(stored.results[0], Stored) and stored.results[0].episode_id == 10
+
+
+def test_clusterer_snapshot_holds_the_newest_failed_goals_and_the_counts() -> None:
+    h = make("cluster.fgb_size=8", "cluster.k=2", "replay.free_run=true")
+    goals = []
+    for seq in range(20):
+        episode = h.episode(seq)
+        if seq % 4 == 0:  # a success: the last achieved goal on the desired goal
+            episode.ag[-1] = episode.g[-1]
+        else:
+            goals.append(episode.g[-1].copy())
+        h.table.insert(episode, record=pb.Episode(), waiter=Recorder(str(seq), h.journal))
+    snap = h.table.clusterer_state()
+    assert (snap.episodes_seen, snap.failures_seen, snap.model_version) == (20, 15, 0)
+    np.testing.assert_array_equal(snap.failed_goals, np.array(goals[-8:], np.float32))
+    # a restarted replay rebuilds the same snapshot from its log
+    again = make("cluster.fgb_size=8", "cluster.k=2")
+    again.table.recover([(i, ep) for i, ep in enumerate(
+        h.table.core.store.episode(i) for i in range(20))])
+    np.testing.assert_array_equal(again.table.clusterer_state().failed_goals, snap.failed_goals)
