@@ -84,8 +84,34 @@ def rerun_overrides(args: argparse.Namespace) -> list[str]:
     return overrides
 
 
+RESUME_FIXED = ("config", "task", "method", "seed", "run", "run_dir")
+"""Flags `--resume` refuses: a resumed run keeps its saved config's task, method, seed and
+name (what it may change: --epochs, --actors, --listen, --rerun…, --set)."""
+
+
+def resume_config(args: argparse.Namespace) -> HercsConfig:
+    """The saved config of the run folder `--resume` names, with run.name/run_dir set from
+    the folder's path."""
+    given = [f"--{flag.replace('_', '-')}" for flag in RESUME_FIXED
+             if getattr(args, flag, None) is not None]
+    if given:
+        raise ConfigError(f"--resume continues a run with its saved config; {', '.join(given)} "
+                          "cannot change it (--epochs, --actors, --listen and --set can)")
+    run_dir = Path(args.resume)
+    saved = run_dir / "config.yaml"
+    if not saved.is_file():
+        raise ConfigError(f"--resume {args.resume}: no config.yaml there; give the folder of a "
+                          "run that `hercs up` started (runs/RUN)")
+    config = load_yaml(saved)
+    return apply_overrides(config, [f"run.name={run_dir.resolve().name}",
+                                    f"run.run_dir={run_dir.resolve().parent}"])
+
+
 def resolve_config(args: argparse.Namespace) -> HercsConfig:
-    config = load_yaml(args.config) if args.config else HercsConfig()
+    if getattr(args, "resume", None):
+        config = resume_config(args)
+    else:
+        config = load_yaml(args.config) if args.config else HercsConfig()
     overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
                  if getattr(args, flag, None) is not None]
     for flag in ("connect", "listen"):
@@ -113,7 +139,7 @@ Command = Callable[[argparse.Namespace, HercsConfig], int]
 def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
     from apps.launcher import run_up
 
-    return run_up(config)
+    return run_up(config, resume=bool(args.resume))
 
 
 def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -190,6 +216,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     )
     add_config_arguments(p)
     add_rerun_arguments(p)
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help="continue the run in RUN_DIR (e.g. runs/push-her-cs-s1-…) where it "
+                        "stopped: the replay reloads its log, the learner its checkpoint, the "
+                        "clusterer asks the replay; metrics.csv goes on from the last epoch")
     commands["up"] = _cmd_up
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "

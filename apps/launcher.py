@@ -6,6 +6,8 @@ What `run_up` does, in order:
    points the children's `transport.connect` at the embedded router (every `listen` endpoint,
    with a wildcard host 0.0.0.0 / [::] replaced by loopback). Refuses a run directory that
    already holds files (exit 2): a replay would load the old episode log into the new run.
+   With `resume` (`hercs up --resume runs/RUN`) it is the other way round: the folder must
+   hold a run, and every service continues it.
 2. Opens the router, embedded in this process (a router-mode `Transport` on
    `transport.listen`); a taken port fails at once with a clear message (exit 1), before
    anything is written.
@@ -24,7 +26,12 @@ What `run_up` does, in order:
    - the learner exits 0 (its last epoch is done): waits up to a few seconds for the last
      epoch's progress line, stops the others, prints the run directory, returns 0;
    - any other child exits, or the learner exits non-zero: prints the role, id, exit code and
-     the last lines of its log, stops the others, returns 1;
+     the last lines of its log and starts it again after a back-off (1 s doubling to 30 s),
+     counted in the progress line (`restarts N`). Every service continues where the run
+     stands (the replay reloads its log, the learner its checkpoint, the clusterer asks the
+     replay, an actor comes back under a new incarnation). A child that dies more often than
+     `launch.max_restarts` (without `HEALTHY_S` of uptime in between) ends the run: the others
+     are stopped and the status is 1;
    - except an optional child (`OPTIONAL_ROLES`: the live view): its exit is reported the same
      way as a warning, it is not restarted, and training goes on without it (a live view can
      be started again by hand: `hercs live --connect … --run …`);
@@ -82,6 +89,11 @@ STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("repl
 """Roles stopped together, stage after stage; the replay last."""
 OPTIONAL_ROLES = frozenset({"live"})
 """Roles whose exit does not end the run: watching training must never stop it."""
+MAX_BACKOFF_S = 30.0
+"""Restart delays double from `launch.restart_backoff_s` up to this."""
+HEALTHY_S = 300.0
+"""A child that ran this long before dying has its restart count reset (it was not
+crash-looping)."""
 
 STOP_TIMEOUT_S = 10.0
 READY_TIMEOUT_S = 120.0
@@ -170,6 +182,8 @@ class Progress:
         self._pending: dict[int, dict[str, float]] = {}
         self._success: dict[int, float] = {}
         self._replay_size: float | None = None
+        self.restarts = 0
+        """Children restarted so far (shown on the line when not 0)."""
 
     def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
         if not service.startswith("learner/") or "epoch" not in values:
@@ -211,7 +225,8 @@ class Progress:
         return (f"epoch {epoch}/{total}  success {_fmt(success, '.2f')}  "
                 f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
                 f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
-                f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}")
+                f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
+                + (f"  restarts {self.restarts}" if self.restarts else ""))
 
 
 def _pdeathsig_preexec() -> Callable[[], None] | None:
@@ -263,6 +278,9 @@ class _Child:
     proc: subprocess.Popen[bytes]
     log_path: Path
     expected_exit: bool = False
+    started: float = field(default_factory=time.monotonic)
+    restarts: int = 0
+    """Restarts of this spec so far (carried over to the new child)."""
 
     def signal(self, sig: int) -> None:
         """Signal the child's whole process group (it leads it), so helpers it forked go too."""
@@ -282,6 +300,9 @@ class _Launcher:
     err: IO[str]
     children: list[_Child] = field(default_factory=list)
     alive: set[str] = field(default_factory=set)
+    restarts_total: int = 0
+    scheduled: list[tuple[float, ChildSpec, int]] = field(default_factory=list)
+    """Restarts waiting for their back-off: (when, spec, restarts so far)."""
 
     def __post_init__(self) -> None:
         self.keys = RunKeys(self.config.run.name)
@@ -343,7 +364,7 @@ class _Launcher:
 
     # ------------------------------------------------------------------ processes
 
-    def start(self, spec: ChildSpec) -> _Child:
+    def start(self, spec: ChildSpec, *, restarts: int = 0) -> _Child:
         config_path = self.run_dir / "config.yaml"
         log_path = self.run_dir / "logs" / spec.log_name
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -353,13 +374,15 @@ class _Launcher:
                 stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
                 env=env, close_fds=True, process_group=0, preexec_fn=_pdeathsig_preexec(),
             )
-        child = _Child(spec, proc, log_path)
+        child = _Child(spec, proc, log_path, restarts=restarts)
+        self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]
         self.children.append(child)
-        self.say(f"hercs up: started {spec} (pid {proc.pid}), log {log_path}")
+        again = f" again (restart {restarts})" if restarts else ""
+        self.say(f"hercs up: started {spec}{again} (pid {proc.pid}), log {log_path}")
         return child
 
-    def _report_exit(self, child: _Child, code: int) -> None:
-        goes_on = "; training goes on without it" if child.spec.role in OPTIONAL_ROLES else ""
+    def _report_exit(self, child: _Child, code: int, *, then: str = "") -> None:
+        goes_on = "; training goes on without it" if child.spec.role in OPTIONAL_ROLES else then
         lines = [f"hercs up: {child.spec.role} {child.spec.ident} exited unexpectedly "
                  f"({_describe_exit(code)}){goes_on}; last lines of {child.log_path}:"]
         lines += [f"  | {line}" for line in _tail(child.log_path, LOG_TAIL_LINES)]
@@ -375,7 +398,8 @@ class _Launcher:
                     self._report_exit(child, code)
 
     def check_children(self) -> int | None:
-        """None while all is well; 0 once the learner is done; 1 if a child failed."""
+        """None while all is well (children that died are scheduled for a restart); 0 once
+        the learner is done; 1 if a child died more often than `launch.max_restarts`."""
         self._reap_optional()
         exited = [(c, code) for c in self.children
                   if not c.expected_exit and (code := c.proc.poll()) is not None]
@@ -383,10 +407,31 @@ class _Launcher:
             if child.spec.role == "learner" and code == 0:
                 child.expected_exit = True
                 return 0
+        failed = False
         for child, code in exited:
             child.expected_exit = True
-            self._report_exit(child, code)
-        return 1 if exited else None
+            restarts = 0 if time.monotonic() - child.started >= HEALTHY_S else child.restarts
+            limit = self.config.launch.max_restarts
+            if restarts >= limit:
+                self._report_exit(child, code, then=f"; it was restarted {restarts} times "
+                                                    "already, so the run stops")
+                failed = True
+                continue
+            delay = min(self.config.launch.restart_backoff_s * 2 ** restarts, MAX_BACKOFF_S)
+            self._report_exit(child, code, then=f"; restarting it in {delay:g} s "
+                                                f"({restarts + 1} of at most {limit})")
+            self.scheduled.append((time.monotonic() + delay, child.spec, restarts + 1))
+        return 1 if failed else None
+
+    def restart_due(self) -> None:
+        """Start the children whose restart back-off has passed."""
+        now = time.monotonic()
+        due = [item for item in self.scheduled if item[0] <= now]
+        self.scheduled = [item for item in self.scheduled if item[0] > now]
+        for _, spec, restarts in due:
+            self.start(spec, restarts=restarts)
+            self.restarts_total += 1
+            self.progress.restarts = self.restarts_total
 
     def _interrupted(self) -> int:
         sig = self.signals.received[0]
@@ -451,6 +496,7 @@ class _Launcher:
                 return 0
             if status is not None:
                 return status
+            self.restart_due()
             self.signals.wait(_POLL_S)
 
     def stop_all(self) -> None:
@@ -489,10 +535,12 @@ def run_up(
     ready_timeout_s: float = READY_TIMEOUT_S,
     out: IO[str] | None = None,
     err: IO[str] | None = None,
+    resume: bool = False,
 ) -> int:
     """Run a whole experiment locally (see the module docstring); returns the exit status:
-    0 done, 1 a service failed or the router could not listen, 2 the run directory is taken,
-    128 + n after signal n. Must be called on the main thread."""
+    0 done, 1 a service failed or the router could not listen, 2 the run directory is taken
+    (or, with `resume`, holds no run), 128 + n after signal n. Must be called on the main
+    thread."""
     out = out or sys.stdout
     err = err or sys.stderr
     if threading.current_thread() is not threading.main_thread():
@@ -500,7 +548,11 @@ def run_up(
                            "PR_SET_PDEATHSIG fires when the forking thread exits)")
     config = resolve_run(config)
     run_dir = Path(config.run.run_dir) / config.run.name
-    if run_dir.exists() and any(run_dir.iterdir()):
+    if resume and not (run_dir / "config.yaml").is_file():
+        print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
+              flush=True)
+        return 2
+    if not resume and run_dir.exists() and any(run_dir.iterdir()):
         print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
               "(or leave it empty for a fresh name), or move that directory away",
               file=err, flush=True)
@@ -521,8 +573,8 @@ def run_up(
         try:
             (run_dir / "logs").mkdir(parents=True, exist_ok=True)
             save_yaml(config, run_dir / "config.yaml")
-            launcher.say(f"hercs up: run {config.run.name}, directory {run_dir}, router on "
-                         f"{list(config.transport.listen)}")
+            launcher.say(f"hercs up: {'resuming ' if resume else ''}run {config.run.name}, "
+                         f"directory {run_dir}, router on {list(config.transport.listen)}")
             router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
             router.subscribe(launcher.keys.eval_result, launcher.on_eval)
             router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)

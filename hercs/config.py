@@ -278,6 +278,19 @@ class ActorConfig:
 
 
 @dataclass
+class LaunchConfig:
+    max_restarts: int = 5
+    """How often `hercs up` starts a child that died again before it gives the run up (the live
+    view is never restarted); a child that ran 5 minutes has its count reset [DESIGN]."""
+    restart_backoff_s: float = 1.0
+    """Delay before the first restart of a child; it doubles with each restart, up to 30 s."""
+
+    def __post_init__(self) -> None:
+        _check(self.max_restarts >= 0, "launch.max_restarts", self.max_restarts, "be >= 0")
+        _positive("launch.restart_backoff_s", self.restart_backoff_s)
+
+
+@dataclass
 class TransportConfig:
     listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     """Endpoints the router listens on (`hercs up`, `hercs router`)."""
@@ -331,6 +344,7 @@ class HercsConfig:
     training: TrainingConfig = field(default_factory=TrainingConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
+    launch: LaunchConfig = field(default_factory=LaunchConfig)
     transport: TransportConfig = field(default_factory=TransportConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
 

@@ -81,6 +81,10 @@ record("start")
 if behaviour == "crash":
     print("boom: the stand-in failed on purpose", file=sys.stderr, flush=True)
     os._exit(3)
+if behaviour == "crash-once" and not os.path.exists(f"{events}.crashed.{ident}"):
+    open(f"{events}.crashed.{ident}", "w").close()
+    print("boom: the stand-in failed once on purpose", file=sys.stderr, flush=True)
+    os._exit(3)
 if behaviour == "exit0":
     os._exit(0)
 if behaviour.startswith("epochs:"):
@@ -169,13 +173,13 @@ class Launcher:
     def wait_for_line(self, pattern: str, timeout_s: float = WAIT_S) -> str:
         deadline = time.monotonic() + timeout_s
         regex = re.compile(pattern)
-        seen = 0
         while True:
+            # every line each time: stdout and stderr grow separately, so an index into
+            # their concatenation would skip a stdout line that follows stderr ones
             lines = self.out + self.err
-            for line in lines[seen:]:
+            for line in lines:
                 if regex.search(line):
                     return line
-            seen = len(lines)
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; "
@@ -387,18 +391,45 @@ def test_stop_signal_stops_every_child_in_order(up, tmp_path: Path, signum: int)
     [("actor-1", "crash", "exit code 3"), ("clusterer-0", "exit0", "exit code 0")],
     ids=["actor-crashes", "clusterer-exits-0-early"],
 )
-def test_a_child_exiting_early_is_reported_and_stops_the_run(up, ident: str, behaviour: str,
-                                                             why: str) -> None:
-    launcher = up({ident: behaviour}, "--run", "broken", "--actors", "2")
+def test_a_child_exiting_more_often_than_allowed_is_reported_and_stops_the_run(
+        up, ident: str, behaviour: str, why: str) -> None:
+    launcher = up({ident: behaviour}, "--run", "broken", "--actors", "2",
+                  "--set", "launch.max_restarts=1", "--set", "launch.restart_backoff_s=0.05")
 
     assert launcher.finish() == 1
     role = ident.rpartition("-")[0]
     report = "\n".join(launcher.err)
-    assert f"hercs up: {role} {ident} exited unexpectedly ({why}); last lines of" in report
+    assert (f"hercs up: {role} {ident} exited unexpectedly ({why}); restarting it in 0.05 s "
+            "(1 of at most 1); last lines of") in report
+    assert f"started {role} {ident} again (restart 1)" in "\n".join(launcher.out)
+    assert (f"hercs up: {role} {ident} exited unexpectedly ({why}); it was restarted 1 times "
+            "already, so the run stops; last lines of") in report
     if behaviour == "crash":
         assert "  | boom: the stand-in failed on purpose" in report
     assert "run broken stopped" in report
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_a_child_that_dies_is_restarted_and_the_run_goes_on(up, tmp_path: Path) -> None:
+    launcher = up({"actor-1": "crash-once"}, "--run", "bumpy", "--actors", "2",
+                  "--set", "launch.restart_backoff_s=0.05")
+    launcher.wait_for_line(r"started actor actor-1 again \(restart 1\)")
+    wait_for(lambda: [e for e in read_events(up.events) if e == ("start", "actor-1")] ==
+             [("start", "actor-1")] * 2, WAIT_S, "the restarted actor to join")
+    launcher.proc.send_signal(signal.SIGTERM)
+    assert launcher.finish() == 128 + signal.SIGTERM, "the run went on until stopped"
+    report = "\n".join(launcher.err)
+    assert "hercs up: actor actor-1 exited unexpectedly (exit code 3); restarting it" in report
+    assert "  | boom: the stand-in failed once on purpose" in report
+    starts = [ident for what, ident in read_events(up.events) if what == "start"]
+    assert starts.count("actor-1") == 2 and starts.count("actor-0") == 1
+
+
+def test_progress_line_counts_restarts() -> None:
+    progress = Progress(total_epochs=2)
+    progress.restarts = 3
+    assert progress.on_metrics("learner/l", {"epoch": 1, "success_rate": 0.5}) == [
+        "epoch 1/2  success 0.50  env - steps/s  upd -/s  replay -  lag -  restarts 3"]
 
 
 def test_the_live_view_starts_after_the_replay_and_its_exit_never_ends_the_run(
