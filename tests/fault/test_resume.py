@@ -1,0 +1,117 @@
+"""A run survives a process dying, and resumes after every process died: real `hercs up`
+runs of FetchReach (tiny epochs) with real services, killed with SIGKILL.
+
+Every wait is on a launcher output line, a file's contents or a process exit, with a timeout.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
+
+pytestmark = pytest.mark.integration
+
+EPOCHS = 4
+RUN_S = 240.0
+
+
+def up_argv(tmp_path: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", str(EPOCHS),
+            "--actors", "2", "--run-dir", str(tmp_path / "runs"), "--listen", free_endpoint(),
+            "--set", "training.cycles_per_epoch=3", "--set", "training.eval_episodes=2",
+            "--set", "launch.restart_backoff_s=0.2", *extra]
+
+
+def epochs_recorded(run_dir: Path) -> list[int]:
+    with (run_dir / "metrics.csv").open(newline="") as f:
+        return [int(row["epoch"]) for row in csv.DictReader(f)]
+
+
+def log_text(run_dir: Path, ident: str) -> str:
+    return (run_dir / "logs" / f"{ident}.log").read_text(errors="replace")
+
+
+def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path: Path) -> None:
+    launcher = Launcher(up_argv(tmp_path, "--run", "bumpy"), cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "bumpy"
+    try:
+        launcher.wait_for_line(r"^epoch 2/4", timeout_s=RUN_S)
+        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)",
+                               timeout_s=60)
+        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
+    learner_log = log_text(run_dir, "learner-0")
+    assert "resumed from the checkpoint of epoch" in learner_log
+    report = "\n".join(launcher.err)
+    assert "learner learner-0 exited unexpectedly (killed by SIGKILL); restarting it" in report
+    assert any(line.startswith("epoch 4/4") and line.endswith("restarts 1")
+               for line in launcher.out), launcher.out
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> None:
+    launcher = Launcher(up_argv(tmp_path, "--run", "actorless"), cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "actorless"
+    try:
+        launcher.wait_for_line(r"^epoch 1/4", timeout_s=RUN_S)
+        os.kill(launcher.child_pids["actor-1"], signal.SIGKILL)
+        launcher.wait_for_line(r"started actor actor-1 again \(restart 1\)", timeout_s=60)
+        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    wire_ids = [line.split("wire id ")[1].split(")")[0]
+                for line in log_text(run_dir, "actor-1").splitlines() if "wire id" in line]
+    assert len(wire_ids) == 2 and wire_ids[0] != wire_ids[1], wire_ids
+    assert all(i.startswith("actor-1@") for i in wire_ids)
+
+
+def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path: Path) -> None:
+    """SIGKILL of the launcher kills every child (PR_SET_PDEATHSIG): nothing is left
+    running. `hercs up --resume` then finishes the run: every epoch recorded once, the
+    replay's episodes recovered from the log."""
+    run_dir = tmp_path / "runs" / "phoenix"
+    first = Launcher(up_argv(tmp_path, "--run", "phoenix"), cwd=tmp_path)
+    try:
+        first.wait_for_line(r"^epoch 2/4", timeout_s=RUN_S)
+        pids = first.child_pids
+        first.proc.kill()
+        first.proc.wait()
+        assert _wait_all_gone(pids.values()), "children outlived the launcher"
+    finally:
+        first.kill()
+    recorded_before = epochs_recorded(run_dir)
+    assert recorded_before[:2] == [1, 2]
+
+    again = Launcher([sys.executable, "-m", "apps.cli", "up", "--resume", str(run_dir),
+                      "--listen", free_endpoint()], cwd=tmp_path)
+    try:
+        assert again.finish(timeout_s=RUN_S) == 0, "\n".join(again.out + again.err)
+    finally:
+        again.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    assert any("resuming run phoenix" in line for line in again.out)
+    replay_log = log_text(run_dir, "replay-0")
+    assert "recovered" in replay_log and "acked episodes from the episode log" in replay_log
+    assert "resumed from the checkpoint of epoch" in log_text(run_dir, "learner-0")
+
+
+def _wait_all_gone(pids, timeout_s: float = 20.0) -> bool:
+    """True once none of `pids` runs (they are the launcher's children: poll /proc)."""
+    deadline = time.monotonic() + timeout_s
+    while any(process_alive(pid) for pid in pids):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
