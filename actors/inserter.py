@@ -1,6 +1,6 @@
 """At-least-once delivery of an actor's episodes to the replay, on its own sender thread.
 
-Contract (DESIGN §3, "Insert is at-least-once"):
+Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
 - An episode stays with the `Inserter` until an `InsertAck` naming its `(actor_id, seq)`
   arrives. A timeout, an `unavailable` reply (the replay is restarting or shutting down), an
   `internal` reply or a malformed ack is retried with the *same bytes*, so the same

@@ -1,5 +1,5 @@
 """The `hercs` command line. Every command resolves one `HercsConfig` the same way:
-defaults (DESIGN §4) ← `--config FILE.yaml` ← shortcut flags (`--task`, `--method`, …) ←
+defaults (docs/DESIGN.md §4) ← `--config FILE.yaml` ← shortcut flags (`--task`, `--method`, …) ←
 `--set section.field=value` (repeatable). Bad values exit with status 2 and a message naming
 the field.
 """

@@ -1,4 +1,4 @@
-"""`hercs up`: one whole run on one machine (DESIGN §1, §6).
+"""`hercs up`: one whole run on one machine (docs/DESIGN.md §1, §6).
 
 What `run_up` does, in order:
 

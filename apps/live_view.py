@@ -1,4 +1,4 @@
-"""`hercs live`: a run streamed to Rerun while it trains (DESIGN §6), `hercs up --rerun`.
+"""`hercs live`: a run streamed to Rerun while it trains (docs/DESIGN.md §6), `hercs up --rerun`.
 
 The recording has the entity paths and timelines of `hercs view` (see apps/view.py, whose
 logging functions this module calls), so the live view of a run and an offline view of its

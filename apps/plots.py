@@ -4,7 +4,7 @@ to the authors' published per-seed results (`docs/reference/authors_success_rate
 Everything except `plot_figure` is a pure function over numbers, so the tests pin the curves
 and the table without drawing.
 
-Table rule (the one that reproduces DESIGN §5 from the authors' CSV exactly):
+Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exactly):
 
 * seeds are aggregated over the epochs that *every* seed of the group reached (a seed that
   stopped at epoch 125 cuts the group at 125, so "success at epoch 200" is "–");
@@ -12,7 +12,7 @@ Table rule (the one that reproduces DESIGN §5 from the authors' CSV exactly):
   epochs max(1, e-9)..e;
 * "epoch at 0.5 / 0.9" is the first epoch whose moving average *exceeds* the threshold,
   numbered from 0 as in the authors' (OpenAI baselines) logs, i.e. the number of epochs
-  completed before it. Counting from 1 or accepting equality would give DESIGN §5 + 1
+  completed before it. Counting from 1 or accepting equality would give docs/DESIGN.md §5 + 1
   (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
 * "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
 """
@@ -180,7 +180,7 @@ def moving_average(epochs: np.ndarray, values: np.ndarray, window: int = WINDOW)
 
 def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
                at_epochs: Sequence[int] = AT_EPOCHS, window: int = WINDOW) -> Milestones:
-    """DESIGN §5's numbers for one aggregated method (see the module docstring for the rule)."""
+    """docs/DESIGN.md §5's numbers for one aggregated method (rule: module docstring)."""
     ma = moving_average(agg.epochs, agg.mean, window)
     crossing: dict[float, int | None] = {}
     for t in thresholds:
@@ -219,7 +219,7 @@ def markdown_table(task: str, rows: Sequence[tuple[str, Milestones]]) -> str:
 TABLE_NOTE = (
     f"Seed mean over the epochs every seed reached, {WINDOW}-epoch trailing moving average. "
     "'epoch at x': first epoch whose average exceeds x, counted from 0 (epochs completed "
-    "before it, as in the authors' logs and DESIGN §5); 'success at n': the average after "
+    "before it, as in the authors' logs and docs/DESIGN.md §5); 'success at n': the average after "
     "the n-th epoch ('end': the last epoch); '–': never / run too short.\n"
 )
 

@@ -1,4 +1,4 @@
-"""`hercs view`: a Rerun recording of a run's episode log (DESIGN §6).
+"""`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
 
 Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
 `episodes.mcap`) with `hercs.runlog.episode_log`, and `metrics.csv` when it sits beside the

@@ -12,7 +12,7 @@ router port. Cells run seed-major, so that every method has the same number of f
 as early as possible.
 
 When the grid is done (or with `--report-only`), `hercs plot --reference` draws one figure per
-task and `docs/results/<task>.md` puts our milestone table next to the authors' (DESIGN §5),
+task and `docs/results/<task>.md` puts our milestone table next to the authors' (docs/DESIGN.md §5),
 with the figure, the command, date, commit and machine.
 
 `--quick` is the CI mode: a tiny grid (default Reach, 1 epoch of 2 cycles) into a temporary
@@ -226,7 +226,7 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
         lines = [
             f"# Sample efficiency: {title}", "",
             "Our runs (solid, min–max band over seeds) against the authors' published "
-            "per-seed results (dashed; DESIGN §5, `docs/reference/`).", "",
+            "per-seed results (dashed; docs/DESIGN.md §5, `docs/reference/`).", "",
             f"![{title}]({figure.name})", "",
             tables(ours, {title: reference.get(title, {})}).rstrip("\n"), "",
             "## How these were made", "",

@@ -1,8 +1,8 @@
 """The failed-goal buffer (FGB) of HER-CS: a ring of the most recent failed desired goals.
 
-Refit rule (DESIGN §4, the paper's "when the FGB is filled with entirely new FGs"): a refit is
-due once `capacity` failed goals have been added since the last fit. The first time this holds
-is when the ring first fills; after each `mark_fitted()` the count restarts, so with
+Refit rule (docs/DESIGN.md §4, the paper's "when the FGB is filled with entirely new FGs"):
+a refit is due once `capacity` failed goals have been added since the last fit. The first
+time this holds is when the ring first fills; after each `mark_fitted()` the count restarts, so with
 capacity 150 the fits happen at the 150th, 300th, 450th, … failed goal — each fit sees a
 buffer none of whose goals the previous fit saw.
 

@@ -1,6 +1,6 @@
 """Task specifications for the gymnasium-robotics Fetch environments, and their reward.
 
-The replay never holds an environment (STYLE §4): everything it needs about a task, the
+The replay never holds an environment (docs/DESIGN.md §10): everything it needs about a task, the
 array shapes and the vectorised reward, lives here. `fetch_reward` is tested to agree with
 `env.unwrapped.compute_reward` on real environments.
 """

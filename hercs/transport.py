@@ -1,4 +1,6 @@
-"""The one Zenoh layer every hercs process uses (DESIGN §3); services never touch zenoh config.
+"""The one Zenoh layer every hercs process uses (docs/DESIGN.md §3).
+
+Services never touch zenoh config.
 
 What it guarantees, and the Zenoh 1.x facts it rests on (verified on eclipse-zenoh 1.10.2):
 

@@ -1,4 +1,4 @@
-"""Zenoh key expressions, all under `hercs/<run>/` (DESIGN §3)."""
+"""Zenoh key expressions, all under `hercs/<run>/` (docs/DESIGN.md §3)."""
 
 from __future__ import annotations
 

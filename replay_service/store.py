@@ -12,7 +12,7 @@ Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer comm
 as slots are written. The store is not thread-safe: the service serialises calls.
 
 Deviation from the reference HER buffer: once full, the reference overwrites *random* slots;
-this ring overwrites the oldest episode (DESIGN §2 "ring"), which also makes ids and slots
+this ring overwrites the oldest episode (docs/DESIGN.md §2 "ring"), which also makes ids and slots
 recoverable from the episode log.
 """
 

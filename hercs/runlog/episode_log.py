@@ -14,7 +14,7 @@ k·span. A ClusterModel or EvalResult sits in the gap after the last episode wri
 writer (0 before the first). publish_time of Episode, ClusterModel and EvalResult is the
 wall-clock time of the append (ns since the Unix epoch); scene messages repeat their log_time.
 
-Durability (DESIGN §3, "durable before ack"): an append writes its messages as one zstd
+Durability (docs/DESIGN.md §3, "durable before ack"): an append writes its messages as one zstd
 chunk (mcap 1.6 `Writer.flush()` closes the chunk and writes it and its message indexes), then
 `os.fsync`s the file; the replay acks only after the append returns. `append_many` is the
 group commit: several episodes, one chunk, one fsync. An episode whose chunk reached the disk

@@ -1,5 +1,5 @@
 """`hercs plot`: loading run folders, seed aggregation, the milestone table (pinned by hand and
-against DESIGN §5 from the authors' CSV), the figure file and the CLI."""
+against docs/DESIGN.md §5 from the authors' CSV), the figure file and the CLI."""
 
 from __future__ import annotations
 
@@ -97,7 +97,7 @@ def test_table_text_by_hand(run_dirs: list[Path]) -> None:
     assert "| HER-CS | 2 | 6 | – | – | – | – | – | .42 |" in text
 
 
-# DESIGN §5, row by row: (epoch at 0.5, epoch at 0.9, success at 50, 100, 200).
+# docs/DESIGN.md §5, row by row: (epoch at 0.5, epoch at 0.9, success at 50, 100, 200).
 DESIGN_5 = {
     ("FetchPush", "her"): (55, 95, .41, .90, .99),
     ("FetchPush", "her-cs"): (43, 61, .70, .98, None),

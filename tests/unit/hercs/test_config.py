@@ -1,4 +1,4 @@
-"""Config defaults equal DESIGN §4; overrides and YAML round trip; bad values name the field."""
+"""Defaults equal docs/DESIGN.md §4; overrides and YAML round trip; bad values name the field."""
 
 from pathlib import Path
 
