@@ -407,6 +407,12 @@ class _Launcher:
             if child.spec.role == "learner" and code == 0:
                 child.expected_exit = True
                 return 0
+        # An actor exits 0 only when it leaves on purpose: the learner announced the run
+        # finished (usually a moment before the learner itself exits). Not a failure.
+        for child, code in exited:
+            if child.spec.role == "actor" and code == 0:
+                child.expected_exit = True
+        exited = [(c, code) for c, code in exited if not c.expected_exit]
         failed = False
         for child, code in exited:
             child.expected_exit = True

@@ -928,7 +928,8 @@ class Bench:
         actor = self.start("actor", ACTOR_ID)
 
         def is_ours(actor_id: str) -> bool:
-            return actor_id == ACTOR_ID
+            # The wire id is `<ident>@<incarnation>` (actors/service.py).
+            return actor_id.partition("@")[0] == ACTOR_ID
 
         try:
             self.headers.wait_count(is_ours, p.actor_warmup_episodes, timeout_s=READY_TIMEOUT_S,
