@@ -173,6 +173,7 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
     setup_logging(role)
     stop = threading.Event()
     status: list[int] = []
+    done = threading.Event()
 
     with StopSignals() as signals:
         def work() -> None:
@@ -195,12 +196,16 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
                 log.exception("hercs %s: failed", role)
                 status.append(EXIT_FAILED)
             finally:
+                done.set()  # before the wake-up: the main thread re-checks it after each one
                 signals.wake()
 
         worker = threading.Thread(target=work, name=f"{role}-main", daemon=True)
         worker.start()
-        while worker.is_alive() and not signals.stop_requested:
-            signals.wait(None)  # a wake() sent before this wait is still pending: no race
+        # Not `worker.is_alive()`: the worker is still alive for a moment after its wake(),
+        # and a wait entered then would never return. `done` is set before the wake(), and a
+        # wake() sent before a wait is still pending in the socket, so there is no race.
+        while not done.is_set() and not signals.stop_requested:
+            signals.wait(None)
         if signals.stop_requested:
             log.info("%s: got signal %d, stopping", role, signals.received[0])
             stop.set()
