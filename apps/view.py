@@ -1,7 +1,7 @@
 """`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
 
 Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
-`episodes.mcap`) with `hercs.runlog.episode_log`, and `metrics.csv` when it sits beside the
+`episodes.mcap`) with `hercs.runlog`, and `metrics.csv` when it sits beside the
 log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
 the web viewer (`--web`).
 
@@ -72,7 +72,7 @@ import numpy as np
 from hercs.clustering import assign_clusters
 from hercs.codec import msg_to_array
 from hercs.errors import HercsError
-from hercs.runlog.episode_log import (
+from hercs.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,

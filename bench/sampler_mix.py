@@ -30,7 +30,7 @@ if str(REPO) not in sys.path:  # `python bench/sampler_mix.py` from a checkout
 from hercs.clustering import ClusterModel  # noqa: E402
 from hercs.codec import msg_to_array, msg_to_episode  # noqa: E402
 from hercs.config import apply_overrides, load_yaml  # noqa: E402
-from hercs.runlog.episode_log import (  # noqa: E402
+from hercs.runlog import (  # noqa: E402
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,

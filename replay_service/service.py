@@ -50,7 +50,7 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
-from hercs.runlog.episode_log import EpisodeLog, read_cluster_models
+from hercs.runlog import EpisodeLog, read_cluster_models
 from hercs.seeding import generator
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hercs.runlog.episode_log import read_cluster_models, read_episodes
+from hercs.runlog import read_cluster_models, read_episodes
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]

@@ -24,7 +24,7 @@ from hercs.clustering import assign_clusters
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.runlog.episode_log import EpisodeLogWriter
+from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION

@@ -13,7 +13,7 @@ from apps.cli import main
 from apps.view import parse_selection, select_episodes
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
-from hercs.runlog.episode_log import EpisodeLogWriter
+from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION

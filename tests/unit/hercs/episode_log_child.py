@@ -38,7 +38,7 @@ def make_episode(i: int, task: str) -> pb.Episode:
 
 
 def main(path: str, task: str, max_file_bytes: int | None) -> None:
-    from hercs.runlog.episode_log import EpisodeLogError, EpisodeLogWriter
+    from hercs.runlog import EpisodeLogError, EpisodeLogWriter
 
     if max_file_bytes is not None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails: EFBIG

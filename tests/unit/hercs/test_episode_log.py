@@ -20,8 +20,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from hercs.codec import array_to_msg, msg_to_array
-from hercs.runlog import scene
-from hercs.runlog.episode_log import (
+from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
@@ -34,6 +33,7 @@ from hercs.runlog.episode_log import (
     read_episodes,
     read_eval_results,
     scan_segment,
+    scene,
     seal_segment,
     segment_paths,
 )

@@ -1,0 +1,42 @@
+"""The run log: `runs/<run>/episodes.mcap` and its sealed segments, written by the replay and
+read by the views and benchmarks.
+
+- `format`: topics, file names, constants and `EpisodeLogError`;
+- `writer`: `EpisodeLogWriter`, appends that are durable (fsync) before the replay acks;
+- `reader`: messages back from a segment or a run directory, tolerant of a torn tail;
+- `segments`: sealing a killed writer's file and `EpisodeLog.open`, the recovery on restart;
+- `scene`: the Foxglove scene messages logged with each episode.
+
+The names below are the package's public interface; import them from `hercs.runlog`.
+"""
+
+from hercs.runlog.format import (
+    LIVE_NAME,
+    MAX_SEQUENCE,
+    METADATA_NAME,
+    TOPIC_CLUSTER_MODEL,
+    TOPIC_EPISODES,
+    TOPIC_EVAL_RESULT,
+    TOPIC_SCENE,
+    TOPIC_SCENE_POINTS,
+    EpisodeLogError,
+)
+from hercs.runlog.reader import (
+    LoggedMessage,
+    SegmentScan,
+    read_cluster_models,
+    read_episodes,
+    read_eval_results,
+    read_messages,
+    scan_segment,
+    segment_paths,
+)
+from hercs.runlog.segments import EpisodeLog, seal_segment
+from hercs.runlog.writer import EpisodeLogWriter
+
+__all__ = [
+    "LIVE_NAME", "MAX_SEQUENCE", "METADATA_NAME", "TOPIC_CLUSTER_MODEL", "TOPIC_EPISODES",
+    "TOPIC_EVAL_RESULT", "TOPIC_SCENE", "TOPIC_SCENE_POINTS", "EpisodeLog", "EpisodeLogError",
+    "EpisodeLogWriter", "LoggedMessage", "SegmentScan", "read_cluster_models", "read_episodes",
+    "read_eval_results", "read_messages", "scan_segment", "seal_segment", "segment_paths",
+]

@@ -1,0 +1,82 @@
+"""The run log's format, shared by its writer (the replay) and its readers (views, bench).
+
+Contents (protobuf, schemas embedded):
+    /episodes        hercs.Episode        MCAP message sequence = episode id (uint32)
+    /cluster_model   hercs.ClusterModel   sequence = model version
+    /eval_result     hercs.EvalResult     sequence = epoch
+    /scene           foxglove.SceneUpdate gripper, object, goal per observation (Foxglove)
+    /scene/points    foxglove.PointCloud  the same as coloured points (Rerun, Foxglove)
+plus one metadata record `hercs.episode_log` {run, task, schema_version} at the start.
+
+Timeline: log_time is synthetic (see `hercs.runlog.scene`): episode k's observations sit at
+k·span + t·40 ms, span = (T+2)·40 ms, so episodes never overlap; its Episode message sits at
+k·span. A ClusterModel or EvalResult sits in the gap after the last episode written by this
+writer (0 before the first). publish_time of Episode, ClusterModel and EvalResult is the
+wall-clock time of the append (ns since the Unix epoch); scene messages repeat their log_time.
+
+The log is split by job: this module (topics, constants, the error), `writer` (appends that
+are durable before an ack), `reader` (messages back, tolerant of a torn tail) and `segments`
+(the run directory's segments across restarts: sealing and recovery).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+from pathlib import Path
+
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf.message import Message
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from zstandard import ZstdError
+
+from hercs.errors import HercsError
+from proto import hercs_pb2 as pb
+
+TOPIC_EPISODES = "/episodes"
+TOPIC_CLUSTER_MODEL = "/cluster_model"
+TOPIC_EVAL_RESULT = "/eval_result"
+TOPIC_SCENE = "/scene"
+TOPIC_SCENE_POINTS = "/scene/points"
+
+LIVE_NAME = "episodes.mcap"
+SEGMENT_RE = re.compile(r"^episodes\.(\d+)\.mcap$")
+METADATA_NAME = "hercs.episode_log"
+MAX_SEQUENCE = 2**32 - 1
+"""MCAP's message sequence is a uint32: the largest episode id the log can hold."""
+
+CHUNK_BYTES = 8 * 2**20
+"""Size cap of a chunk; in practice each append's flush closes the chunk well before it."""
+
+DECODABLE: dict[str, type[Message]] = {
+    cls.DESCRIPTOR.full_name: cls
+    for cls in (pb.Episode, pb.ClusterModel, pb.EvalResult, SceneUpdate, PointCloud)
+}
+RECORD_HEADER = struct.Struct("<BQ")
+UNREADABLE_CHUNK = (McapError, ValueError, struct.error, ZstdError)
+"""What mcap raises on a chunk that fails its CRC (a ValueError) or does not decompress."""
+FOOTER_RECORD_BYTES = RECORD_HEADER.size + 20
+OPCODES = frozenset(Opcode)
+FOOTER_PREFIX = struct.Struct("<BQQQ")  # what the summary CRC covers of the footer
+
+
+class EpisodeLogError(HercsError):
+    """The episode log cannot be written or read as asked; the message says which file and
+    what the caller should do."""
+
+
+def u32(value: int, what: str) -> int:
+    if not 0 <= value <= MAX_SEQUENCE:
+        raise ValueError(f"{what}={value} does not fit the uint32 MCAP sequence")
+    return int(value)
+
+
+def fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -1,0 +1,311 @@
+"""Reading the run log back: messages of one segment or of a whole run directory, in file
+order, tolerant of a writer that was killed.
+
+Crash recovery: a killed writer leaves a file with no summary or footer and possibly a torn
+last record. mcap 1.6 does not read such a file: `make_reader` on a seekable file reads the
+footer first and raises (EndOfFile, struct.error or RecordLengthLimitExceeded, depending on
+where the cut is) before yielding anything; `StreamReader` / `NonSeekingReader` yield the
+complete records and then raise one of those same errors at the tail. This module therefore
+walks the top-level records itself: a record whose 9-byte header or body extends past the end
+of the file, or whose opcode is no MCAP opcode, is the torn tail and ends the scan quietly;
+complete chunks are decoded with mcap's own record classes and their CRC checked. A chunk
+that fails its CRC or does not decompress is the torn tail too, unless an intact chunk
+follows it: then the file is damaged in the middle and `EpisodeLogError` is raised rather
+than silently dropping acked data.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import os
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, TypeVar
+
+from google.protobuf.message import DecodeError, Message
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, ChunkIndex, Metadata, MetadataIndex, Schema
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
+from mcap.writer import MCAP0_MAGIC
+
+from hercs.runlog.format import (
+    DECODABLE,
+    LIVE_NAME,
+    OPCODES,
+    RECORD_HEADER,
+    SEGMENT_RE,
+    TOPIC_CLUSTER_MODEL,
+    TOPIC_EPISODES,
+    TOPIC_EVAL_RESULT,
+    UNREADABLE_CHUNK,
+    EpisodeLogError,
+)
+from proto import hercs_pb2 as pb
+
+log = logging.getLogger(__name__)
+
+M = TypeVar("M", bound=Message)
+
+
+@dataclass
+class LoggedMessage:
+    """One message read back from the log; `decode()` parses it with the project's class."""
+
+    topic: str
+    schema_name: str
+    sequence: int
+    log_time_ns: int
+    publish_time_ns: int
+    data: bytes
+
+    def decode(self) -> Message:
+        """Parse with the class the schema names (hercs or Foxglove messages)."""
+        cls = DECODABLE.get(self.schema_name)
+        if cls is None:
+            raise EpisodeLogError(f"{self.topic}: no decoder for schema {self.schema_name!r}; "
+                                  f"known: {sorted(DECODABLE)}")
+        return self.decode_as(cls)
+
+    def decode_as(self, cls: type[M]) -> M:
+        if self.schema_name != cls.DESCRIPTOR.full_name:
+            raise EpisodeLogError(f"{self.topic} message {self.sequence} has schema "
+                                  f"{self.schema_name!r}, not {cls.DESCRIPTOR.full_name!r}")
+        msg = cls()
+        try:
+            msg.ParseFromString(self.data)
+        except DecodeError as exc:
+            raise EpisodeLogError(f"{self.topic} message {self.sequence} does not parse as "
+                                  f"{self.schema_name}: {exc}") from None
+        return msg
+
+
+@dataclass
+class SegmentScan:
+    """What a full read of one segment found."""
+
+    path: Path
+    size: int = 0
+    finished: bool = False
+    """Footer and closing magic present: the writer called close() (or the file was sealed)."""
+    valid_end: int = 0
+    """Offset just past the last complete, intact data-section record."""
+    messages: int | None = 0
+    """Messages read (None: not counted, the file was found finished and left unread)."""
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes after `valid_end` that are not a complete record (0 for a finished file)."""
+        return 0 if self.finished else self.size - self.valid_end
+
+
+@dataclass
+class IndexParts:
+    """What a summary needs, gathered while scanning a segment's intact records."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
+    channel_message_counts: dict[int, int] = field(default_factory=dict)
+    start_time: int | None = None
+    end_time: int = 0
+
+
+class SegmentReader:
+    """Reads one MCAP segment's messages in file order, stopping quietly at a torn tail, and
+    gathers what `seal_segment` needs to write the segment's summary."""
+
+    def __init__(self, path: Path, *, metadata_only: bool = False) -> None:
+        self.scan = SegmentScan(path=path)
+        self.parts = IndexParts()
+        self._metadata_only = metadata_only
+        self.reached_data = False
+        """A chunk was found (a metadata-only read stops there)."""
+        self._chunk_channels: set[int] = set()  # channels with messages in the last chunk
+
+    def messages(self) -> Iterator[LoggedMessage]:
+        scan = self.scan
+        with open(scan.path, "rb") as f:
+            scan.size = os.fstat(f.fileno()).st_size
+            magic = f.read(len(MCAP0_MAGIC))
+            if magic != MCAP0_MAGIC:
+                if len(magic) < len(MCAP0_MAGIC) and MCAP0_MAGIC.startswith(magic):
+                    return  # killed before the magic was complete: an empty log
+                raise EpisodeLogError(f"{scan.path} is not an MCAP file (starts with {magic!r})")
+            scan.valid_end = len(MCAP0_MAGIC)
+            yield from self._records(f)
+        self._close_chunk_index()
+
+    def _records(self, f: IO[bytes]) -> Iterator[LoggedMessage]:
+        scan = self.scan
+        pos = scan.valid_end
+        bad_chunk_at: int | None = None
+        data_ended = False
+        while True:
+            header = f.read(RECORD_HEADER.size)
+            if len(header) < RECORD_HEADER.size:
+                return  # end of file, or a torn record header
+            opcode, length = RECORD_HEADER.unpack(header)
+            if opcode not in OPCODES or length > scan.size - pos - RECORD_HEADER.size:
+                return  # torn record (body past the end of the file) or bytes that are no record
+            body = f.read(length)
+            end = pos + RECORD_HEADER.size + length
+            if opcode == Opcode.FOOTER:
+                scan.finished = bad_chunk_at is None and f.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC
+                return
+            if opcode != Opcode.MESSAGE_INDEX:
+                self._close_chunk_index()
+            records: list[Any] = []
+            if opcode == Opcode.DATA_END:
+                data_ended = True  # the summary repeats schemas and channels: skip it
+            elif data_ended or (bad_chunk_at is not None and opcode != Opcode.CHUNK):
+                pass
+            elif opcode == Opcode.CHUNK:
+                self.reached_data = True
+                if self._metadata_only:
+                    return
+                try:
+                    chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+                    records = breakup_chunk(chunk, validate_crc=True)
+                except UNREADABLE_CHUNK as exc:
+                    if bad_chunk_at is None:
+                        log.warning("%s: chunk at offset %d is unreadable (%s); treating it as "
+                                    "the torn tail", scan.path, pos, exc)
+                        bad_chunk_at = pos
+                else:
+                    if bad_chunk_at is not None:
+                        raise EpisodeLogError(
+                            f"{scan.path}: the chunk at offset {bad_chunk_at} is corrupt but "
+                            f"an intact chunk follows at {pos}: the file is damaged in the "
+                            "middle, not torn at the end; nothing is recovered from it. Keep "
+                            "the file for inspection and restore it from a copy")
+                    self.parts.chunk_indexes.append(ChunkIndex(
+                        message_start_time=chunk.message_start_time,
+                        message_end_time=chunk.message_end_time, chunk_start_offset=pos,
+                        chunk_length=end - pos, message_index_offsets={},
+                        message_index_length=0, compression=chunk.compression,
+                        compressed_size=len(chunk.data),
+                        uncompressed_size=chunk.uncompressed_size))
+            elif opcode == Opcode.MESSAGE_INDEX:
+                self._add_message_index(body, pos, end)
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+                records = [_read_record(opcode, body, length)]
+            elif opcode == Opcode.METADATA:
+                meta = Metadata.read(ReadDataStream(io.BytesIO(body)))
+                scan.metadata[meta.name] = dict(meta.metadata)
+                self.parts.metadata_indexes.append(
+                    MetadataIndex(offset=pos, length=end - pos, name=meta.name))
+            pos = end
+            if bad_chunk_at is None and not data_ended:
+                scan.valid_end = end
+            for record in records:
+                if isinstance(record, Schema):
+                    self.parts.schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    self.parts.channels[record.id] = record
+                elif isinstance(record, McapMessage):
+                    yield self._message(record)
+
+    def _add_message_index(self, body: bytes, pos: int, end: int) -> None:
+        """Message indexes follow their chunk; kept only if they cover all its channels."""
+        if not self.parts.chunk_indexes or len(body) < 2:
+            return
+        index = self.parts.chunk_indexes[-1]
+        (channel_id,) = struct.unpack_from("<H", body)
+        index.message_index_offsets[channel_id] = pos
+        index.message_index_length += end - pos
+
+    def _close_chunk_index(self) -> None:
+        """A chunk's message indexes are usable only if all were written before a kill."""
+        if self.parts.chunk_indexes:
+            index = self.parts.chunk_indexes[-1]
+            if set(index.message_index_offsets) != self._chunk_channels:
+                index.message_index_offsets, index.message_index_length = {}, 0
+        self._chunk_channels = set()
+
+    def _message(self, record: McapMessage) -> LoggedMessage:
+        parts = self.parts
+        channel = parts.channels.get(record.channel_id)
+        if channel is None:
+            raise EpisodeLogError(f"{self.scan.path}: message on unknown channel "
+                                  f"{record.channel_id}; the file is damaged")
+        schema = parts.schemas.get(channel.schema_id)
+        self.scan.messages = (self.scan.messages or 0) + 1
+        self._chunk_channels.add(record.channel_id)
+        parts.channel_message_counts[record.channel_id] = (
+            parts.channel_message_counts.get(record.channel_id, 0) + 1)
+        parts.start_time = (record.log_time if parts.start_time is None
+                            else min(parts.start_time, record.log_time))
+        parts.end_time = max(parts.end_time, record.log_time)
+        return LoggedMessage(topic=channel.topic, schema_name=schema.name if schema else "",
+                             sequence=record.sequence, log_time_ns=record.log_time,
+                             publish_time_ns=record.publish_time, data=record.data)
+
+
+def _read_record(opcode: int, body: bytes, length: int) -> Any:
+    stream = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.SCHEMA:
+        return Schema.read(stream)
+    if opcode == Opcode.CHANNEL:
+        return Channel.read(stream)
+    return McapMessage.read(stream, length)
+
+
+def scan_segment(path: str | os.PathLike[str]) -> SegmentScan:
+    """Read a whole segment and report whether it is finished and where its valid data ends."""
+    reader = SegmentReader(Path(path))
+    for _ in reader.messages():
+        pass
+    return reader.scan
+
+
+def segment_paths(run_dir: str | os.PathLike[str]) -> list[Path]:
+    """The run's segments in order of writing: episodes.000.mcap, …, then episodes.mcap."""
+    run_dir = Path(run_dir)
+    numbered = sorted(
+        (int(m.group(1)), p) for p in run_dir.iterdir()
+        if (m := SEGMENT_RE.match(p.name)) is not None
+    ) if run_dir.is_dir() else []
+    paths = [p for _, p in numbered]
+    if (run_dir / LIVE_NAME).exists():
+        paths.append(run_dir / LIVE_NAME)
+    return paths
+
+
+def _paths(path: str | os.PathLike[str]) -> list[Path]:
+    path = Path(path)
+    return segment_paths(path) if path.is_dir() else [path]
+
+
+def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
+                  ) -> Iterator[LoggedMessage]:
+    """Messages of a segment file, or of every segment of a run directory, in file order.
+
+    Works on a file whose writer was killed: stops at the last complete record."""
+    wanted = None if topics is None else set(topics)
+    for segment in _paths(path):
+        for message in SegmentReader(segment).messages():
+            if wanted is None or message.topic in wanted:
+                yield message
+
+
+def read_episodes(path: str | os.PathLike[str]) -> Iterator[tuple[int, pb.Episode]]:
+    """(episode_id, Episode) in the order logged, from a segment or a run directory."""
+    for message in read_messages(path, [TOPIC_EPISODES]):
+        yield message.sequence, message.decode_as(pb.Episode)
+
+
+def read_cluster_models(path: str | os.PathLike[str]) -> Iterator[pb.ClusterModel]:
+    for message in read_messages(path, [TOPIC_CLUSTER_MODEL]):
+        yield message.decode_as(pb.ClusterModel)
+
+
+def read_eval_results(path: str | os.PathLike[str]) -> Iterator[pb.EvalResult]:
+    for message in read_messages(path, [TOPIC_EVAL_RESULT]):
+        yield message.decode_as(pb.EvalResult)

@@ -1,0 +1,253 @@
+"""Appending to the run log: `EpisodeLogWriter`, one MCAP segment whose every append is
+on disk when it returns.
+
+Durability (docs/DESIGN.md §3, "durable before ack"): an append writes its messages as one zstd
+chunk (mcap 1.6 `Writer.flush()` closes the chunk and writes it and its message indexes), then
+`os.fsync`s the file; the replay acks only after the append returns. `append_many` is the
+group commit: several episodes, one chunk, one fsync. An episode whose chunk reached the disk
+but whose append never returned (killed between write and ack) is recovered too: delivery is
+at-least-once and the replay deduplicates on (actor_id, seq).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import IO, NamedTuple
+
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf.message import Message
+from mcap.well_known import MessageEncoding
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType
+from mcap.writer import Writer as McapWriter
+from mcap_protobuf.schema import register_schema
+
+from hercs.codec import msg_to_array
+from hercs.runlog import scene
+from hercs.runlog.format import (
+    CHUNK_BYTES,
+    MAX_SEQUENCE,
+    METADATA_NAME,
+    TOPIC_CLUSTER_MODEL,
+    TOPIC_EPISODES,
+    TOPIC_EVAL_RESULT,
+    TOPIC_SCENE,
+    TOPIC_SCENE_POINTS,
+    EpisodeLogError,
+    fsync_dir,
+    u32,
+)
+from hercs.tasks import task_spec
+from proto import hercs_pb2 as pb
+from proto.schema import SCHEMA_VERSION
+
+log = logging.getLogger(__name__)
+
+if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, not at an ack
+    raise ImportError("hercs.runlog.writer needs mcap.writer.Writer.flush() "
+                      "(mcap >= 1.6); upgrade the mcap package")
+
+
+class _PreparedEpisode(NamedTuple):
+    episode_id: int
+    msg: pb.Episode
+    updates: list[SceneUpdate]
+    clouds: list[PointCloud]
+    times_ns: list[int]
+
+
+class EpisodeLogWriter:
+    """Appends episodes (with their Foxglove scene), cluster models and eval results to a new
+    MCAP file; every append is on disk (fsync) when it returns.
+
+    Thread-safe: appends are serialised by a lock. If an append raises after it started
+    writing, the file may end in a torn record: the writer refuses further appends (reopen the
+    log with `EpisodeLog.open`, which recovers everything appended before). Invalid input
+    (bad arrays, an episode id not above the last one) raises before anything is written and
+    leaves the writer usable.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, run: str, task: str,
+                 compression: CompressionType = CompressionType.ZSTD) -> None:
+        self.path = Path(path)
+        self.run = run
+        self.task = task
+        self._spec = task_spec(task)
+        self._lock = threading.Lock()
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._last_episode_id: int | None = None
+        self._state = "open"
+        try:
+            self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 (closed in close())
+        except FileExistsError:
+            raise EpisodeLogError(
+                f"{self.path} already exists; an episode log is never overwritten. Use "
+                "EpisodeLog.open(run_dir) to recover it and continue in a new segment"
+            ) from None
+        self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES, compression=compression)
+        self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
+        self._mcap.add_metadata(METADATA_NAME, {"run": run, "task": task,
+                                                "schema_version": str(SCHEMA_VERSION)})
+        self._sync()
+        fsync_dir(self.path.parent)
+
+    @property
+    def last_episode_id(self) -> int | None:
+        return self._last_episode_id
+
+    def append_episode(self, msg: pb.Episode, *, episode_id: int,
+                       log_time_ns: int | None = None) -> None:
+        """Log one episode and its per-step scene; durable when this returns.
+
+        `log_time_ns` is the wall-clock time of the insert (default now), stored as the
+        messages' publish_time; their log_time is the synthetic timeline (module docstring).
+        """
+        self.append_many([(episode_id, msg)], log_time_ns=log_time_ns)
+
+    def append_many(self, episodes: Sequence[tuple[int, pb.Episode]], *,
+                    log_time_ns: int | None = None) -> None:
+        """Group commit: log `(episode_id, Episode)` pairs, ids strictly increasing, as one
+        chunk with one fsync; all are durable when this returns, none may be acked before."""
+        wall = time.time_ns() if log_time_ns is None else int(log_time_ns)
+        with self._lock:
+            self._check_writable()
+            prepared = self._prepare(episodes)
+            self._write_durably(record for episode in prepared
+                                for record in self._episode_records(episode, wall))
+            if prepared:
+                self._last_episode_id = prepared[-1].episode_id
+
+    def append_cluster_model(self, msg: pb.ClusterModel, *, log_time_ns: int | None = None
+                             ) -> None:
+        """Log a cluster model (sequence = its version); durable when this returns."""
+        self._append_other(TOPIC_CLUSTER_MODEL, msg, u32(msg.version, "ClusterModel.version"),
+                           log_time_ns)
+
+    def append_eval_result(self, msg: pb.EvalResult, *, log_time_ns: int | None = None) -> None:
+        """Log an evaluation result (sequence = its epoch); durable when this returns."""
+        self._append_other(TOPIC_EVAL_RESULT, msg, u32(msg.epoch, "EvalResult.epoch"),
+                           log_time_ns)
+
+    def close(self) -> None:
+        """Write the summary (index, statistics) and footer, fsync and close. Idempotent. A
+        writer that failed mid-append is closed without a footer (recovery seals it)."""
+        with self._lock:
+            if self._state == "closed":
+                return
+            failed, self._state = self._state == "failed", "closed"
+            if failed:
+                try:
+                    self._file.close()  # may retry the write that failed
+                except OSError as exc:
+                    log.warning("%s: closing after a failed append: %s", self.path, exc)
+                return
+            try:
+                self._mcap.finish()
+                self._file.flush()
+                os.fsync(self._file.fileno())
+            finally:
+                self._file.close()
+
+    def __enter__(self) -> EpisodeLogWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------------
+
+    def _check_writable(self) -> None:
+        if self._state == "closed":
+            raise EpisodeLogError(f"{self.path}: append after close(); nothing was written")
+        if self._state == "failed":
+            raise EpisodeLogError(
+                f"{self.path}: an earlier append failed while writing, so the file may end in "
+                "a torn record; nothing more is appended. Reopen with EpisodeLog.open(run_dir)")
+
+    def _prepare(self, episodes: Sequence[tuple[int, pb.Episode]]) -> list[_PreparedEpisode]:
+        """Check ids and build every message before the first byte is written."""
+        T = self._spec.episode_steps
+        prepared = []
+        last = self._last_episode_id
+        for episode_id, msg in episodes:
+            episode_id = int(episode_id)
+            if not 0 <= episode_id <= MAX_SEQUENCE:
+                raise ValueError(f"episode_id={episode_id}: must be in [0, {MAX_SEQUENCE}] "
+                                 "(it is stored as the uint32 MCAP message sequence)")
+            if last is not None and episode_id <= last:
+                raise ValueError(f"episode_id={episode_id}: ids must increase, the last logged "
+                                 f"id is {last}; nothing was written")
+            if (msg.run, msg.task) != (self.run, self.task):
+                raise ValueError(f"episode_id={episode_id}: Episode of run {msg.run!r} task "
+                                 f"{msg.task!r} in the log of run {self.run!r} task "
+                                 f"{self.task!r}; nothing was written")
+            last = episode_id
+            obs = msg_to_array(msg.obs, where="Episode.obs")
+            positions = scene.episode_positions(
+                obs, msg_to_array(msg.ag, where="Episode.ag"),
+                msg_to_array(msg.g, where="Episode.g"), self._spec)
+            times = scene.step_times_ns(episode_id, len(obs), T)
+            labels = {"episode_id": str(episode_id), "actor_id": msg.actor_id,
+                      "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
+            updates = scene.scene_updates(positions, times,
+                                          goal_diameter=2 * self._spec.distance_threshold,
+                                          labels=labels)
+            prepared.append(_PreparedEpisode(episode_id, msg, updates,
+                                             scene.point_clouds(positions, times), times))
+        return prepared
+
+    def _episode_records(self, episode: _PreparedEpisode, wall: int
+                         ) -> Iterator[tuple[str, Message, int, int, int]]:
+        """(topic, message, log_time, publish_time, sequence) of one episode, in time order."""
+        start = scene.episode_start_ns(episode.episode_id, self._spec.episode_steps)
+        yield TOPIC_EPISODES, episode.msg, start, wall, episode.episode_id
+        for update, cloud, t in zip(episode.updates, episode.clouds, episode.times_ns,
+                                    strict=True):
+            yield TOPIC_SCENE, update, t, t, episode.episode_id
+            yield TOPIC_SCENE_POINTS, cloud, t, t, episode.episode_id
+
+    def _append_other(self, topic: str, msg: Message, sequence: int,
+                      log_time_ns: int | None) -> None:
+        wall = time.time_ns() if log_time_ns is None else int(log_time_ns)
+        with self._lock:
+            self._check_writable()
+            self._write_durably([(topic, msg, self._gap_time_ns(), wall, sequence)])
+
+    def _gap_time_ns(self) -> int:
+        """The empty slot after the last episode written here: between it and the next one."""
+        if self._last_episode_id is None:
+            return 0
+        return (scene.episode_start_ns(self._last_episode_id + 1, self._spec.episode_steps)
+                - scene.STEP_NS)
+
+    def _write_durably(self, records: Iterable[tuple[str, Message, int, int, int]]) -> None:
+        try:
+            for topic, msg, log_time, publish_time, sequence in records:
+                self._mcap.add_message(channel_id=self._channel(topic, msg), log_time=log_time,
+                                       data=msg.SerializeToString(),
+                                       publish_time=publish_time, sequence=sequence)
+            self._sync()
+        except BaseException:
+            self._state = "failed"
+            raise
+
+    def _channel(self, topic: str, msg: Message) -> int:
+        channel_id = self._channels.get(topic)
+        if channel_id is None:
+            name = msg.DESCRIPTOR.full_name
+            schema_id = self._schemas.get(name)
+            if schema_id is None:
+                schema_id = self._schemas[name] = register_schema(self._mcap, type(msg))
+            channel_id = self._channels[topic] = self._mcap.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id)
+        return channel_id
+
+    def _sync(self) -> None:
+        self._mcap.flush()  # closes the chunk, writes it and flushes the Python buffer
+        os.fsync(self._file.fileno())
