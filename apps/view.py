@@ -80,7 +80,6 @@ from hercs.runlog import (
     read_messages,
     segment_paths,
 )
-from hercs.runlog.scene import TASKS_WITH_OBJECT
 from hercs.tasks import TaskSpec, task_spec
 from proto import hercs_pb2 as pb
 
@@ -244,17 +243,17 @@ def resolve_log_path(path: str | os.PathLike[str]) -> Path:
 def summarize_episode(msg: pb.Episode, *, episode_id: int, spec: TaskSpec,
                       cluster: int) -> EpisodeSummary:
     """An Episode message as drawn: positions from obs (gripper 0:3, object 3:6 for the tasks
-    with an object), success from ‖ag_T − g_T‖ against the task's threshold."""
+    with an object), success by the task's rule (`TaskSpec.is_success`)."""
     obs = msg_to_array(msg.obs, where="Episode.obs")
     ag = msg_to_array(msg.ag, where="Episode.ag")
     g = msg_to_array(msg.g, where="Episode.g")
     distance = float(np.linalg.norm(ag[-1] - g[-1]))
     return EpisodeSummary(
-        episode_id=episode_id, success=distance <= spec.distance_threshold,
+        episode_id=episode_id, success=bool(spec.is_success(ag[-1], g[-1])),
         final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
         actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
         gripper=np.asarray(obs[:, 0:3], np.float32),
-        obj=np.asarray(obs[:, 3:6], np.float32) if spec.name in TASKS_WITH_OBJECT else None,
+        obj=np.asarray(obs[:, 3:6], np.float32) if spec.has_object else None,
         goal=np.concatenate([g, g[-1:]]).astype(np.float32))
 
 

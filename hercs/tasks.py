@@ -26,6 +26,8 @@ class TaskSpec:
     episode_steps: int = 50
     max_action: float = 1.0
     distance_threshold: float = 0.05
+    has_object: bool = True
+    """The observation carries an object's position at obs[3:6] (all but Reach)."""
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
         return fetch_reward(achieved_goal, desired_goal, self.distance_threshold)
@@ -36,7 +38,8 @@ class TaskSpec:
 
 
 TASKS: dict[str, TaskSpec] = {
-    "reach": TaskSpec(name="reach", env_id="FetchReach-v4", obs_dim=10),
+    "reach": TaskSpec(name="reach", env_id="FetchReach-v4", obs_dim=10,
+                      has_object=False),
     "push": TaskSpec(name="push", env_id="FetchPush-v4", obs_dim=25),
     "pick": TaskSpec(name="pick", env_id="FetchPickAndPlace-v4", obs_dim=25),
     "slide": TaskSpec(name="slide", env_id="FetchSlide-v4", obs_dim=25),

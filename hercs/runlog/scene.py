@@ -44,7 +44,6 @@ STEP_NS = 40_000_000
 """Time between two observations: the Fetch control period, 0.04 s."""
 
 FRAME_ID = "world"
-TASKS_WITH_OBJECT = frozenset({"push", "pick", "slide"})
 
 GRIPPER_DIAMETER = 0.04
 OBJECT_SIZE = 0.05  # the Fetch object is a 5 cm cube
@@ -89,7 +88,7 @@ def episode_positions(obs: np.ndarray, ag: np.ndarray, g: np.ndarray,
     if len(g) == 0:
         raise ValueError("an episode with no steps has no goal to show")
     goal = np.concatenate([g, g[-1:]], axis=0).astype(np.float32, copy=False)
-    obj = obs[:, 3:6] if spec.name in TASKS_WITH_OBJECT else None
+    obj = obs[:, 3:6] if spec.has_object else None
     return EpisodePositions(
         gripper=np.asarray(obs[:, 0:3], dtype=np.float32),
         obj=None if obj is None else np.asarray(obj, dtype=np.float32),

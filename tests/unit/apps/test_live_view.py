@@ -86,7 +86,7 @@ def test_header_outcome_is_the_offline_summary_of_the_episode() -> None:
     assert (outcome.episode_id, outcome.cluster, outcome.actor_id, outcome.seq) == (7, 2,
                                                                                   "actor-0", 1)
     assert outcome.final_distance == pytest.approx(float(np.linalg.norm(ep.ag[-1] - ep.g[-1])))
-    assert outcome.success is (outcome.final_distance <= SPEC.distance_threshold)
+    assert outcome.success is (outcome.final_distance < SPEC.distance_threshold)
     np.testing.assert_array_equal(outcome.desired_goal, ep.g[-1])
     ag = ep.ag.copy()
     ag[-1] = ep.g[-1] + np.array([0.049, 0.0, 0.0], np.float32)

@@ -21,6 +21,7 @@ def test_spec_matches_env_and_reward_agrees(name: str) -> None:
         assert env.action_space.shape == (spec.action_dim,)
         assert env.spec.max_episode_steps == spec.episode_steps
         assert env.unwrapped.distance_threshold == spec.distance_threshold
+        assert env.unwrapped.has_object == spec.has_object
         rng = np.random.default_rng(3)
         ag = rng.normal(scale=0.05, size=(4096, 3))
         g = ag + rng.normal(scale=0.04, size=(4096, 3))
