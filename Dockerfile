@@ -17,6 +17,7 @@ COPY actors actors
 COPY learner learner
 COPY replay_service replay_service
 COPY clusterer clusterer
+COPY apps apps
 RUN pip install .
 
 # Run directories go to /runs (a volume in docker-compose.yml).
