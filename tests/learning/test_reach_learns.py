@@ -112,7 +112,9 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
     assert ids == list(range(len(ids))), "episode ids are contiguous across the log"
     # The last row counts inserts when its epoch ended; actors keep inserting until stopped.
     assert len(seen) >= int(rows(run_dir)[-1]["episodes"])
-    assert {msg_actor for msg_actor, _ in seen} == {"actor-0", "actor-1"}
+    # wire ids are <ident>@<incarnation>: two actors, each one process for the whole run
+    assert {actor.partition("@")[0] for actor, _ in seen} == {"actor-0", "actor-1"}
+    assert len({actor for actor, _ in seen}) == 2, "no actor was restarted in a clean run"
     assert max(versions) >= EPOCHS * CYCLES - 5, "actors act with recent weights"
     saved = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert saved["run"]["method"] == "her-cs" and saved["training"]["cycles_per_epoch"] == CYCLES
