@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import re
 import typing
 from dataclasses import dataclass, field
@@ -296,12 +297,19 @@ class TransportConfig:
     """Endpoints the router listens on (`hercs up`, `hercs router`)."""
     connect: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     """Endpoints clients connect to; they retry until the router is up."""
+    wait_s: float = 0.0
+    """How long a client waits for its router, and an actor or live view for its run's
+    replay, before it exits with status 3 saying what it waited for and which runs the router
+    knows. 0 waits for ever (a log line every 10 s says what for): actors may be started
+    before the run."""
 
     def __post_init__(self) -> None:
         for name in ("listen", "connect"):
             for endpoint in getattr(self, name):
                 problem = endpoint_problem(endpoint)
                 _check(problem is None, f"transport.{name}", endpoint, problem or "")
+        _check(math.isfinite(self.wait_s) and self.wait_s >= 0, "transport.wait_s",
+               self.wait_s, "be a finite number >= 0 (0: wait for ever)")
 
 
 VIEWER_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")

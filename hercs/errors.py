@@ -26,3 +26,8 @@ class InvalidMessage(HercsError):
 
 class SamplingError(HercsError):
     """A batch could not be drawn (e.g. the replay is empty); the request is answered with this."""
+
+
+class Unreachable(HercsError):
+    """A client gave up waiting (`transport.wait_s`) for its router or its run; the message
+    says what it waited for and, when the router answered, which runs it knows."""

@@ -20,12 +20,12 @@ from collections.abc import Callable, Mapping
 import yaml
 
 from hercs.config import HercsConfig
-from hercs.errors import ConfigError
+from hercs.errors import ConfigError, Unreachable
 from hercs.signals import StopSignals
 from hercs.transport import ConnectAborted, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
+from proto.keys import ROOT, RunKeys
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,8 @@ EXIT_FAILED = 1
 reports itself."""
 EXIT_CONFIG = 2
 """The configuration cannot be used (`ConfigError`): retrying the same command will not help."""
+EXIT_UNREACHABLE = 3
+"""The router, or the run's replay, did not answer within `transport.wait_s` (`Unreachable`)."""
 
 
 def start_supervised(target: Callable[[], None], *, name: str,
@@ -115,6 +117,7 @@ class ServiceRuntime:
         self.failed: str | None = None
         """Why the service must exit non-zero although its body returned (a dead thread)."""
         self.transport = Transport.open(mode="client", connect=config.transport.connect,
+                                        connect_timeout_s=config.transport.wait_s or None,
                                         stop=self.stop)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
@@ -165,7 +168,8 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
     - The runtime is opened and `body` runs on a worker thread, so that a stop signal also
       ends the wait for an unreachable router (exit 0: nothing had started).
     - Exit status: what `body` returns; `EXIT_CONFIG` (2) for a `ConfigError`, from the
-      runtime (e.g. no run name) or from `body`; `EXIT_FAILED` (1) for any other exception,
+      runtime (e.g. no run name) or from `body`; `EXIT_UNREACHABLE` (3) when the router or
+      the run did not answer within `transport.wait_s`; `EXIT_FAILED` (1) for any other exception,
       logged with its traceback, and for a supervised thread that died
       (`runtime.start_thread`) even if `body` then returned 0. The runtime is closed in
       every case.
@@ -189,6 +193,9 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
             except ConfigError as exc:
                 log.error("hercs %s: invalid configuration: %s", role, exc)
                 status.append(EXIT_CONFIG)
+            except Unreachable as exc:
+                log.error("hercs %s: %s", role, exc)
+                status.append(EXIT_UNREACHABLE)
             except ConnectAborted as exc:  # stopped before the router was ever reached
                 log.info("hercs %s: %s", role, exc)
                 status.append(EXIT_OK)
@@ -221,27 +228,57 @@ def fetch_run_config(transport: Transport, run: str, *,
     return HercsConfig.from_dict(yaml.safe_load(raw.decode()))
 
 
+class RunUnreachable(Unreachable):
+    """The router answered but no replay of the run served its config within
+    `transport.wait_s`."""
+
+
+def known_runs(transport: Transport) -> list[str]:
+    """The runs whose replay is alive on this router now (from their liveliness tokens)."""
+    runs = set()
+    for key in transport.alive_keys(f"{ROOT}/*/alive/replay/*"):
+        parts = key.split("/")
+        if len(parts) == 5:
+            runs.add(parts[1])
+    return sorted(runs)
+
+
+def _runs_text(runs: list[str]) -> str:
+    return (f"runs with a replay on this router: {', '.join(runs)}" if runs
+            else "no run has a replay on this router")
+
+
 def join_run(runtime: ServiceRuntime, local: HercsConfig, *,
              keep: tuple[str, ...] = ("transport",)) -> HercsConfig | None:
     """The run's resolved config from its replay, with `local`'s `keep` sections (how this
     process reaches the router, and e.g. the live view's own `view` section).
 
-    Retries (backoff up to `CONFIG_RETRY_MAX_S`) until the replay answers; None if
-    `runtime.stop` is set first. A config this version of hercs cannot read raises
-    `ConfigError` (retrying would not help).
+    Retries (backoff up to `CONFIG_RETRY_MAX_S`) until the replay answers, logging every 10 s
+    what it waits for and which runs the router knows; None if `runtime.stop` is set first.
+    Raises `RunUnreachable` after `transport.wait_s` (0: never), and `ConfigError` for a
+    config this version of hercs cannot read (retrying would not help).
     """
     run = local.run.name
+    wait_s = local.transport.wait_s
     delay = 0.1
     start = time.monotonic()
     next_log = start
     while not runtime.stop.is_set():
+        timeout_s = CONFIG_REQUEST_TIMEOUT_S
+        if wait_s:
+            timeout_s = max(0.1, min(timeout_s, start + wait_s - time.monotonic()))
         try:
-            remote = fetch_run_config(runtime.transport, run)
+            remote = fetch_run_config(runtime.transport, run, timeout_s=timeout_s)
         except TransportError as exc:  # no replay yet, restarting, or a timeout: retry
             now = time.monotonic()
+            if wait_s and now - start >= wait_s:
+                raise RunUnreachable(
+                    f"run {run!r}: no replay served its config within transport.wait_s = "
+                    f"{wait_s:g} s ({_runs_text(known_runs(runtime.transport))}); check "
+                    "--run, or start the run first") from None
             if now >= next_log:
-                log.info("waiting for run %r's replay to serve its config (%.0f s so far): %s",
-                         run, now - start, exc)
+                log.info("waiting for run %r's replay to serve its config (%.0f s so far; %s): "
+                         "%s", run, now - start, _runs_text(known_runs(runtime.transport)), exc)
                 next_log = now + _CONFIG_LOG_EVERY_S
         except (yaml.YAMLError, UnicodeDecodeError) as exc:
             raise ConfigError(f"run {run!r}: the replay served a config that is not YAML "

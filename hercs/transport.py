@@ -66,7 +66,7 @@ from typing import Any, Literal
 import zenoh
 import zenoh.ext as zext
 
-from hercs.errors import ConfigError, HercsError, InvalidMessage
+from hercs.errors import ConfigError, HercsError, InvalidMessage, Unreachable
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,10 @@ class TransportTimeout(TransportError):
                          "may retry")
         self.key = key
         self.timeout_s = timeout_s
+
+
+class RouterUnreachable(TransportError, Unreachable):
+    """No router answered at the `connect` endpoints within the client's `connect_timeout_s`."""
 
 
 class RemoteError(TransportError):
@@ -211,9 +215,10 @@ def open_session(
             now = time.monotonic()
             waited = now - start
             if connect_timeout_s is not None and waited >= connect_timeout_s:
-                raise TransportError(
+                raise RouterUnreachable(
                     f"no Zenoh router reachable at {list(connect)} after {waited:.1f} s "
-                    f"(last error: {exc}); is `hercs up` or `hercs router` running?"
+                    f"(last error: {exc}); is `hercs up` or `hercs router` running, and is "
+                    "the endpoint (host, port, tcp/tls) the one it listens on?"
                 ) from None
             if now >= next_log:
                 log.info("waiting for a Zenoh router at %s (%.0f s so far); retrying until "
@@ -682,6 +687,19 @@ def watch_alive(session: zenoh.Session, key_expr: str,
     return Subscription(entity, dispatch, name=key_expr)
 
 
+def alive_keys(session: zenoh.Session, key_expr: str, *, timeout_s: float = 2.0) -> list[str]:
+    """The keys of the liveliness tokens matching `key_expr` that the router knows now (a
+    snapshot for messages to people, e.g. which runs exist; watchers use `watch_alive`)."""
+    keys: set[str] = set()
+    try:
+        for reply in session.liveliness().get(key_expr, timeout=timeout_s):
+            if reply.ok is not None:
+                keys.add(str(reply.ok.key_expr))
+    except zenoh.ZError as exc:  # the session closed meanwhile: report what was seen
+        log.debug("liveliness get on %r ended: %s", key_expr, exc)
+    return sorted(keys)
+
+
 # --------------------------------------------------------------------------- the owner
 
 
@@ -753,6 +771,9 @@ class Transport:
 
     def watch_alive(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Subscription:
         return self._own(watch_alive, key_expr, on_change)
+
+    def alive_keys(self, key_expr: str, *, timeout_s: float = 2.0) -> list[str]:
+        return alive_keys(self.session, key_expr, timeout_s=timeout_s)
 
     def close(self) -> None:
         """Undeclare everything, stop our threads and close the session; idempotent."""
