@@ -50,7 +50,7 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
-from hercs.runlog import EpisodeLog, read_cluster_models
+from hercs.runlog import EpisodeLogError, RecoveringLogWriter, read_cluster_models
 from hercs.seeding import generator
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply
@@ -97,8 +97,8 @@ class ReplayService:
         self.runtime = runtime
         self.spec = config.task.spec
         self.warn = WarnOncePerMinute(log)
-        self.log, recovered = EpisodeLog.open(run_dir, run=config.run.name,
-                                              task=self.spec.name)
+        self.log, recovered = RecoveringLogWriter.open(run_dir, run=config.run.name,
+                                                       task=self.spec.name)
         self.table = ReplayTable(
             config=config, core=ReplayCore(config=config, rng=generator(config.run.seed,
                                                                        "replay")),
@@ -223,6 +223,10 @@ class ReplayService:
                                 max_bytes=self.config.replay.max_message_bytes)
             model = self._cluster_model(msg)
             adopted = self.table.adopt_cluster_model(model, msg)
+        except EpisodeLogError as exc:  # adopted, not logged: a restart re-adopts an older one
+            self.warn.warn("log:cluster_model", f"cluster model v{msg.version} adopted but not "
+                           f"logged: {exc}")
+            return
         except (InvalidMessage, ValueError) as exc:
             reason = exc.reason if isinstance(exc, InvalidMessage) else RejectReason.BAD_VALUE
             self._on_reject(InvalidMessage(str(reason), f"ClusterModel: {exc}"))
@@ -254,7 +258,11 @@ class ReplayService:
         except InvalidMessage as exc:
             self._on_reject(exc)
             return
-        self.table.log_eval_result(msg)
+        try:
+            self.table.log_eval_result(msg)
+        except EpisodeLogError as exc:  # metrics.csv (the learner's) still gets the row
+            self.warn.warn("log:eval_result", f"eval result of epoch {msg.epoch} not logged: "
+                           f"{exc}")
 
     # -- status ----------------------------------------------------------------------------
     def status(self) -> pb.ReplayStatus:

@@ -5,6 +5,7 @@ read by the views and benchmarks.
 - `writer`: `EpisodeLogWriter`, appends that are durable (fsync) before the replay acks;
 - `reader`: messages back from a segment or a run directory, tolerant of a torn tail;
 - `segments`: sealing a killed writer's file and `EpisodeLog.open`, the recovery on restart;
+- `recovering`: `RecoveringLogWriter`, the replay's writer that outlives a full disk;
 - `scene`: the Foxglove scene messages logged with each episode.
 
 The names below are the package's public interface; import them from `hercs.runlog`.
@@ -31,12 +32,14 @@ from hercs.runlog.reader import (
     scan_segment,
     segment_paths,
 )
+from hercs.runlog.recovering import RecoveringLogWriter
 from hercs.runlog.segments import EpisodeLog, seal_segment
 from hercs.runlog.writer import EpisodeLogWriter
 
 __all__ = [
     "LIVE_NAME", "MAX_SEQUENCE", "METADATA_NAME", "TOPIC_CLUSTER_MODEL", "TOPIC_EPISODES",
     "TOPIC_EVAL_RESULT", "TOPIC_SCENE", "TOPIC_SCENE_POINTS", "EpisodeLog", "EpisodeLogError",
-    "EpisodeLogWriter", "LoggedMessage", "SegmentScan", "read_cluster_models", "read_episodes",
-    "read_eval_results", "read_messages", "scan_segment", "seal_segment", "segment_paths",
+    "EpisodeLogWriter", "LoggedMessage", "RecoveringLogWriter", "SegmentScan",
+    "read_cluster_models", "read_episodes", "read_eval_results", "read_messages", "scan_segment",
+    "seal_segment", "segment_paths",
 ]

@@ -35,7 +35,14 @@ from hercs.runlog.format import (
     EpisodeLogError,
     fsync_dir,
 )
-from hercs.runlog.reader import IndexParts, SegmentReader, SegmentScan, read_episodes, segment_paths
+from hercs.runlog.reader import (
+    IndexParts,
+    SegmentReader,
+    SegmentScan,
+    read_episodes,
+    scan_segment,
+    segment_paths,
+)
 from hercs.runlog.writer import EpisodeLogWriter
 from proto import hercs_pb2 as pb
 
@@ -167,27 +174,42 @@ class EpisodeLog:
         iterator may be consumed while the writer appends. Consume it before assigning new
         episode ids (they must exceed the last recovered one).
         """
+        sealed = cls.retire(run_dir, run=run, task=task)
+        writer = EpisodeLogWriter(cls(run_dir).live_path, run=run, task=task)
+        return writer, cls.recovered(sealed)
+
+    @classmethod
+    def retire(cls, run_dir: str | os.PathLike[str], *, run: str, task: str) -> list[Path]:
+        """Everything `open` does before it starts the new live segment: check every
+        segment's run and task, seal and number the previous live segment, seal numbered
+        segments that an earlier full disk left unsealed. Returns the segments, in order.
+
+        Needs no free space to succeed: a segment that cannot be sealed now (a full disk)
+        keeps its torn tail, which every reader tolerates, and is sealed by a later call.
+        """
         log_dir = cls(run_dir)
         log_dir.run_dir.mkdir(parents=True, exist_ok=True)
         for segment in log_dir.segments():  # before changing anything
             _check_metadata(segment, run=run, task=task)
+        for segment in log_dir.segments():
+            if segment.name != LIVE_NAME and not _is_finished(segment):
+                _seal_if_space(segment)
         live = log_dir.live_path
         if live.exists():
             cls._retire_live(live)
-        sealed = log_dir.segments()
-        writer = EpisodeLogWriter(live, run=run, task=task)
+        return log_dir.segments()
 
-        def recovered() -> Iterator[tuple[int, pb.Episode]]:
-            for segment in sealed:
-                yield from read_episodes(segment)
-
-        return writer, recovered()
+    @staticmethod
+    def recovered(segments: list[Path]) -> Iterator[tuple[int, pb.Episode]]:
+        """The (episode_id, Episode) pairs of `segments`, in order, read lazily."""
+        for segment in segments:
+            yield from read_episodes(segment)
 
     @staticmethod
     def _retire_live(live: Path) -> None:
         """Seal the previous live segment and give it the next segment number; a segment with
         no message at all (killed before its first append) is deleted instead."""
-        scan = seal_segment(live)
+        scan = _seal_if_space(live)
         if scan.messages == 0:
             live.unlink()
         else:
@@ -195,3 +217,13 @@ class EpisodeLog:
                        if (m := SEGMENT_RE.match(p.name)) is not None]
             os.rename(live, live.parent / f"episodes.{max(numbers, default=-1) + 1:03d}.mcap")
         fsync_dir(live.parent)
+
+
+def _seal_if_space(path: Path) -> SegmentScan:
+    """`seal_segment`, or only a scan when the disk has no room for the summary."""
+    try:
+        return seal_segment(path)
+    except OSError as exc:
+        log.warning("%s: cannot seal it now (%s); it keeps a torn tail, which readers skip, "
+                    "until the log is opened again with free space", path, exc)
+        return scan_segment(path)

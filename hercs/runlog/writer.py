@@ -11,6 +11,7 @@ at-least-once and the replay deduplicates on (actor_id, seq).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -83,6 +84,7 @@ class EpisodeLogWriter:
         self._schemas: dict[str, int] = {}
         self._last_episode_id: int | None = None
         self._state = "open"
+        self._durable_end = 0
         try:
             self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 (closed in close())
         except FileExistsError:
@@ -90,12 +92,31 @@ class EpisodeLogWriter:
                 f"{self.path} already exists; an episode log is never overwritten. Use "
                 "EpisodeLog.open(run_dir) to recover it and continue in a new segment"
             ) from None
-        self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES, compression=compression)
-        self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
-        self._mcap.add_metadata(METADATA_NAME, {"run": run, "task": task,
-                                                "schema_version": str(SCHEMA_VERSION)})
-        self._sync()
-        fsync_dir(self.path.parent)
+        try:
+            self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES,
+                                    compression=compression)
+            self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
+            self._mcap.add_metadata(METADATA_NAME, {"run": run, "task": task,
+                                                    "schema_version": str(SCHEMA_VERSION)})
+            self._sync()
+            fsync_dir(self.path.parent)
+        except BaseException:  # e.g. a full disk: the next EpisodeLog.open removes the stub
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise
+
+    @property
+    def failed(self) -> bool:
+        """An append failed while writing: nothing more can be appended to this file."""
+        return self._state == "failed"
+
+    @property
+    def durable_end(self) -> int:
+        """File offset just past the last append that returned. After a failed append the
+        bytes beyond it belong to no acked message, even a complete chunk that reached the
+        disk before a later write failed: cutting them keeps the log equal to what was acked
+        (`RecoveringLogWriter` does, so that the failed episode's id can be used again)."""
+        return self._durable_end
 
     @property
     def last_episode_id(self) -> int | None:
@@ -151,8 +172,13 @@ class EpisodeLogWriter:
                 self._mcap.finish()
                 self._file.flush()
                 os.fsync(self._file.fileno())
+            except OSError as exc:  # e.g. a full disk: every append is already on disk
+                log.warning("%s: could not write the summary and footer (%s); every append "
+                            "is on disk, and the next EpisodeLog.open seals the file",
+                            self.path, exc)
             finally:
-                self._file.close()
+                with contextlib.suppress(OSError):
+                    self._file.close()
 
     def __enter__(self) -> EpisodeLogWriter:
         return self
@@ -251,3 +277,4 @@ class EpisodeLogWriter:
     def _sync(self) -> None:
         self._mcap.flush()  # closes the chunk, writes it and flushes the Python buffer
         os.fsync(self._file.fileno())
+        self._durable_end = self._file.tell()

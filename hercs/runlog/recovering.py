@@ -1,0 +1,156 @@
+"""A run-log writer that outlives a full disk: `RecoveringLogWriter`.
+
+An `EpisodeLogWriter` whose append failed part way (no space left, an I/O error) may end in a
+torn record, so it refuses every later append. The replay must not stay unable to log (and
+so unable to ack) once space returns, nor crash when it stops or restarts while the disk is
+still full. This writer holds the current `EpisodeLogWriter` and, on the first append after a
+failure (at most once per `retry_s`), cuts the torn segment back to the end of the last
+append that returned (a chunk of the failed append may have reached the disk; it was never
+acked, and its episode id will be given to the next episode), retires it
+(`EpisodeLog.retire`: sealed if there is room, numbered either way) and continues in a new
+live segment. Until that works
+every append raises `EpisodeLogError` at once, saying since when and why: the replay refuses
+the insert (`log_failed`) and the actor retries it later. Nothing is acked that is not on disk.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from hercs.runlog.format import EpisodeLogError
+from hercs.runlog.segments import EpisodeLog
+from hercs.runlog.writer import EpisodeLogWriter
+from proto import hercs_pb2 as pb
+
+log = logging.getLogger(__name__)
+
+RETRY_S = 1.0
+"""How often appends try to start a new segment while the log is failed."""
+
+
+class RecoveringLogWriter:
+    """The replay's log sink (`append_episode`, `append_cluster_model`, `append_eval_result`,
+    `close`); thread-safe. Open it with `RecoveringLogWriter.open`."""
+
+    def __init__(self, run_dir: Path, *, run: str, task: str, retry_s: float = RETRY_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.run_dir = run_dir
+        self.run = run
+        self.task = task
+        self.retry_s = retry_s
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._writer: EpisodeLogWriter | None = None
+        self._failed_since: float | None = None
+        self._error = ""
+        self._next_try = 0.0
+        self._closed = False
+        self.recoveries = 0
+        """New segments started after a failure."""
+
+    @classmethod
+    def open(cls, run_dir: str | os.PathLike[str], *, run: str, task: str,
+             retry_s: float = RETRY_S, clock: Callable[[], float] = time.monotonic
+             ) -> tuple[RecoveringLogWriter, Iterator[tuple[int, pb.Episode]]]:
+        """Like `EpisodeLog.open`, but a disk too full to start the new segment is not an
+        error: the recovered episodes are returned all the same, and appends fail (and retry)
+        until there is room."""
+        self = cls(Path(run_dir), run=run, task=task, retry_s=retry_s, clock=clock)
+        sealed = EpisodeLog.retire(self.run_dir, run=run, task=task)
+        try:
+            self._writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=run,
+                                            task=task)
+        except OSError as exc:
+            self._fail(exc)
+        return self, EpisodeLog.recovered(sealed)
+
+    @property
+    def failed(self) -> bool:
+        """Appends are refused until a new segment can be started."""
+        with self._lock:
+            return self._failed_since is not None
+
+    def append_episode(self, msg: pb.Episode, *, episode_id: int) -> None:
+        self._append(lambda writer: writer.append_episode(msg, episode_id=episode_id))
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None:
+        self._append(lambda writer: writer.append_cluster_model(msg))
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None:
+        self._append(lambda writer: writer.append_eval_result(msg))
+
+    def close(self) -> None:
+        """Close the live segment; never raises for a full disk (every append is on disk
+        already; the next open seals what could not be sealed now). Idempotent."""
+        with self._lock:
+            self._closed = True
+            writer, self._writer = self._writer, None
+        if writer is not None:
+            writer.close()
+
+    def __enter__(self) -> RecoveringLogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------------
+    def _append(self, append: Callable[[EpisodeLogWriter], None]) -> None:
+        with self._lock:
+            writer = self._usable_writer()
+            try:
+                append(writer)
+            except Exception as exc:
+                if writer.failed:  # torn: the next append after retry_s starts a new segment
+                    self._fail(exc)
+                raise
+
+    def _usable_writer(self) -> EpisodeLogWriter:
+        if self._closed:
+            raise EpisodeLogError(f"{self.run_dir}: append after close(); nothing was written")
+        if self._failed_since is None and self._writer is not None:
+            return self._writer
+        now = self._clock()
+        if now < self._next_try:
+            raise EpisodeLogError(
+                f"{self.run_dir}: the episode log cannot be written since "
+                f"{now - (self._failed_since or now):.1f} s ({self._error}); nothing was "
+                f"written, a new segment is tried every {self.retry_s:g} s")
+        self._next_try = now + self.retry_s
+        old, self._writer = self._writer, None
+        try:
+            if old is not None:
+                was_failed = old.failed
+                old.close()  # a failed writer closes without writing
+                if was_failed and old.durable_end > 0:
+                    # the failed append's bytes, complete or not, were never acked: cut them,
+                    # so the id the caller gives the next episode is not in the log already
+                    os.truncate(old.path, old.durable_end)
+            EpisodeLog.retire(self.run_dir, run=self.run, task=self.task)
+            writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
+                                      task=self.task)
+        except OSError as exc:
+            self._fail(exc)
+            raise EpisodeLogError(f"{self.run_dir}: cannot start a new log segment ({exc}); "
+                                  "nothing was written") from None
+        down = now - (self._failed_since or now)
+        log.warning("%s: episode log writable again after %.1f s; continuing in a new segment",
+                    self.run_dir, down)
+        self._writer, self._failed_since, self._error = writer, None, ""
+        self.recoveries += 1
+        return writer
+
+    def _fail(self, exc: BaseException) -> None:
+        now = self._clock()
+        if self._failed_since is None:
+            self._failed_since = now
+            self._next_try = now + self.retry_s
+            log.error("%s: episode log write failed (%s); inserts are refused until a new "
+                      "segment can be started (tried every %g s)", self.run_dir, exc,
+                      self.retry_s)
+        self._error = f"{type(exc).__name__}: {exc}"
