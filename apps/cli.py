@@ -48,6 +48,17 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)")
     group.add_argument("--listen", action="append", metavar="ENDPOINT",
                        help="Zenoh endpoint for the router to listen on (repeatable)")
+    sec = parser.add_argument_group(
+        "security (docs/SECURITY.md; `hercs certs DIR` makes certificates)")
+    sec.add_argument("--tls-dir", metavar="DIR", help="what `hercs certs DIR` made: "
+                     "DIR/ca.pem, and DIR/<role>.pem + .key for each process (hercs up)")
+    sec.add_argument("--tls-ca", metavar="CA.pem", help="the CA that signed every certificate "
+                     "of the run (mutual TLS; endpoints become tls/HOST:PORT)")
+    sec.add_argument("--tls-cert", metavar="CERT.pem", help="this process's certificate (the "
+                     "router's, or a client's whose common name is its role)")
+    sec.add_argument("--tls-key", metavar="KEY.pem", help="the private key of --tls-cert")
+    sec.add_argument("--credentials", metavar="FILE", help="user:password lines (router: all "
+                     "users; a client: its own line, user = its role)")
 
 
 def add_rerun_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,6 +125,16 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         config = load_yaml(args.config) if args.config else HercsConfig()
     overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
                  if getattr(args, flag, None) is not None]
+    tls_dir = getattr(args, "tls_dir", None)
+    if tls_dir is not None:
+        base = Path(tls_dir).absolute()
+        overrides += [f"security.tls_ca={base / 'ca.pem'}",
+                      f"security.tls_cert={base / '{role}.pem'}",
+                      f"security.tls_key={base / '{role}.key'}"]
+    for flag in ("tls_ca", "tls_cert", "tls_key", "credentials"):
+        path = getattr(args, flag, None)
+        if path is not None:  # absolute: children and a resumed run may start elsewhere
+            overrides.append(f"security.{flag}={Path(path).absolute()}")
     for flag in ("connect", "listen"):
         endpoints = getattr(args, flag, None)
         if endpoints:
@@ -260,12 +281,35 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    help="serve the web viewer (http://localhost:9090) until Ctrl-C")
     p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer port (9090)")
     p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
+
+    p = sub.add_parser("certs", help="make a CA and the certificates of a secured run",
+                       description="Writes DIR/ca.pem (+ ca.key), DIR/router.pem (+ .key) and "
+                                   "DIR/<role>.pem (+ .key) for every role; then run "
+                                   "`hercs up --tls-dir DIR --listen tls/0.0.0.0:7447`. See "
+                                   "docs/SECURITY.md.")
+    p.add_argument("out", metavar="DIR", help="folder to write into (files are never "
+                   "overwritten)")
+    p.add_argument("--host", dest="hosts", action="append", default=[], metavar="NAME",
+                   help="a name or address clients use to reach the router (repeatable; "
+                        "localhost and 127.0.0.1 are always included)")
+    p.add_argument("--credentials", action="store_true",
+                   help="also write credentials.txt: a random password per role")
     return parser, commands
 
 
-# Commands that read existing run directories and need no config.
+def _cmd_certs(args: argparse.Namespace) -> int:
+    from apps.certs import run_certs
+
+    try:
+        return run_certs(args.out, hosts=args.hosts, credentials=args.credentials)
+    except ConfigError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+
+
+# Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
-    "plot": _cmd_plot, "view": _cmd_view}
+    "plot": _cmd_plot, "view": _cmd_view, "certs": _cmd_certs}
 
 
 def main(argv: list[str] | None = None) -> int:

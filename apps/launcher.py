@@ -76,7 +76,7 @@ from typing import IO
 
 from apps.router import RouterListenError, open_router
 from hercs.config import HercsConfig, save_yaml
-from hercs.errors import InvalidMessage
+from hercs.errors import ConfigError, InvalidMessage
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
 from proto import hercs_pb2 as pb
@@ -568,7 +568,10 @@ def run_up(
                           wake_on=(signal.SIGCHLD,))
     with signals:
         try:
-            router = open_router(config.transport.listen)
+            router = open_router(config.transport.listen, config.security)
+        except ConfigError as exc:
+            print(f"hercs up: {exc}", file=err, flush=True)
+            return 2
         except RouterListenError as exc:
             print(f"hercs up: {exc}", file=err, flush=True)
             return 1

@@ -9,7 +9,9 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from hercs.config import HercsConfig
+from hercs.config import HercsConfig, SecurityConfig
+from hercs.errors import ConfigError
+from hercs.security import listen_problem, zenoh_settings
 from hercs.signals import StopSignals
 from hercs.transport import Transport, TransportError
 from proto.keys import ROOT
@@ -21,15 +23,24 @@ class RouterListenError(TransportError):
     """The router could not listen on an endpoint; nothing was started."""
 
 
-def open_router(listen: Sequence[str]) -> Transport:
-    """A router-mode `Transport` listening on `listen`.
+def open_router(listen: Sequence[str],
+                security: SecurityConfig | None = None) -> Transport:
+    """A router-mode `Transport` listening on `listen`, authenticating clients and applying
+    access control as `security` says (`hercs.security`).
 
-    Raises `RouterListenError` with what to do next when an endpoint cannot be bound (most
-    often: the port is taken by another `hercs up` or `hercs router`).
+    Raises `ConfigError` for a listen address other hosts can reach without TLS (unless
+    `security.allow_insecure`) or unusable certificates, and `RouterListenError` with what to
+    do next when an endpoint cannot be bound (most often: the port is taken by another
+    `hercs up` or `hercs router`).
     """
     endpoints = list(listen)
+    security = security or SecurityConfig()
+    problem = listen_problem(security, endpoints)
+    if problem is not None:
+        raise ConfigError(problem)
+    settings = zenoh_settings(security, mode="router", role=None, endpoints=endpoints)
     try:
-        return Transport.open(mode="router", listen=endpoints)
+        return Transport.open(mode="router", listen=endpoints, settings=settings)
     except TransportError as exc:
         text = str(exc)
         if "Address already in use" in text:
@@ -57,13 +68,17 @@ def alive_label(key: str) -> str:
 def run_router(config: HercsConfig) -> int:
     """Route until SIGINT/SIGTERM; logs every hercs process that joins or leaves any run.
 
-    Returns 0 after a signal, 1 if it cannot listen. Must run on the main thread (signals).
+    Returns 0 after a signal, 1 if it cannot listen, 2 for an unusable security set-up (e.g.
+    a non-loopback address without TLS). Must run on the main thread (signals).
     """
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s router %(levelname)s %(message)s")
     with StopSignals() as signals:
         try:
-            router = open_router(config.transport.listen)
+            router = open_router(config.transport.listen, config.security)
+        except ConfigError as exc:
+            print(f"hercs router: {exc}", file=sys.stderr, flush=True)
+            return 2
         except RouterListenError as exc:
             print(f"hercs router: {exc}", file=sys.stderr, flush=True)
             return 1

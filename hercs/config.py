@@ -49,6 +49,14 @@ def endpoint_problem(endpoint: object) -> str | None:
     return None
 
 
+def endpoint_parts(endpoint: str) -> tuple[str, str, int]:
+    """(protocol, host, port) of a valid endpoint (`endpoint_problem` is None)."""
+    match = ENDPOINT.fullmatch(endpoint)
+    if match is None:
+        raise ConfigError(f"endpoint {endpoint!r}: {endpoint_problem(endpoint)}")
+    return match["proto"], match["host"], int(match["port"])
+
+
 def _check(cond: bool, where: str, value: object, must: str) -> None:
     if not cond:
         raise ConfigError(f"{where}: got {value!r}, must {must}")
@@ -312,6 +320,28 @@ class TransportConfig:
                self.wait_s, "be a finite number >= 0 (0: wait for ever)")
 
 
+@dataclass
+class SecurityConfig:
+    """Authentication and access control of the Zenoh network (hercs.security,
+    docs/SECURITY.md). Paths are resolved against the working directory at start-up."""
+
+    tls_ca: str = ""
+    """The CA certificate (PEM) that signed the router's and every client's certificate."""
+    tls_cert: str = ""
+    """This process's certificate (PEM): the router's (its SAN lists the addresses clients
+    use) or a client's (common name = its role: actor, replay, learner, ...). `{role}` in the
+    path is replaced by the process's role (`router` for the router)."""
+    tls_key: str = ""
+    """The private key of `tls_cert` (`{role}` replaced likewise)."""
+    credentials: str = ""
+    """A file of `user:password` lines: the router's dictionary, or a client's own line (the
+    user is its role)."""
+    access_control: bool = True
+    """With TLS or credentials, the router allows each role only its own keys."""
+    allow_insecure: bool = False
+    """Let a router listen on a non-loopback address without TLS (a network you trust)."""
+
+
 VIEWER_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
 
 
@@ -354,6 +384,7 @@ class HercsConfig:
     actor: ActorConfig = field(default_factory=ActorConfig)
     launch: LaunchConfig = field(default_factory=LaunchConfig)
     transport: TransportConfig = field(default_factory=TransportConfig)
+    security: SecurityConfig = field(default_factory=SecurityConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
 
     def __post_init__(self) -> None:

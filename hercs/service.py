@@ -21,6 +21,7 @@ import yaml
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, Unreachable
+from hercs.security import zenoh_settings
 from hercs.signals import StopSignals
 from hercs.transport import ConnectAborted, Transport, TransportError
 from proto import SCHEMA_VERSION
@@ -116,9 +117,11 @@ class ServiceRuntime:
         self.stop = stop if stop is not None else threading.Event()
         self.failed: str | None = None
         """Why the service must exit non-zero although its body returned (a dead thread)."""
+        settings = zenoh_settings(config.security, mode="client", role=role,
+                                  endpoints=config.transport.connect)
         self.transport = Transport.open(mode="client", connect=config.transport.connect,
                                         connect_timeout_s=config.transport.wait_s or None,
-                                        stop=self.stop)
+                                        stop=self.stop, settings=settings)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0
@@ -249,7 +252,7 @@ def _runs_text(runs: list[str]) -> str:
 
 
 def join_run(runtime: ServiceRuntime, local: HercsConfig, *,
-             keep: tuple[str, ...] = ("transport",)) -> HercsConfig | None:
+             keep: tuple[str, ...] = ("transport", "security")) -> HercsConfig | None:
     """The run's resolved config from its replay, with `local`'s `keep` sections (how this
     process reaches the router, and e.g. the live view's own `view` section).
 

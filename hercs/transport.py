@@ -60,7 +60,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import zenoh
@@ -139,7 +139,7 @@ def _init_zenoh_log() -> None:
 
 
 def _zenoh_config(mode: Mode, connect: Sequence[str], listen: Sequence[str],
-                  *, connect_window_ms: int) -> zenoh.Config:
+                  *, connect_window_ms: int, extra: Mapping[str, Any]) -> zenoh.Config:
     config = zenoh.Config()
     settings: dict[str, Any] = {
         "mode": mode,
@@ -162,11 +162,13 @@ def _zenoh_config(mode: Mode, connect: Sequence[str], listen: Sequence[str],
     else:
         settings["connect/timeout_ms"] = connect_window_ms
         settings["connect/exit_on_failure"] = True
+    settings.update(extra)  # security: TLS, credentials, access control (hercs.security)
     for key, value in settings.items():
         try:
             config.insert_json5(key, json.dumps(value))
         except zenoh.ZError as exc:
-            raise ConfigError(f"transport: zenoh refused {key}={value!r} ({exc})") from None
+            shown = "***" if "password" in key else value
+            raise ConfigError(f"transport: zenoh refused {key}={shown!r} ({exc})") from None
     return config
 
 
@@ -177,6 +179,7 @@ def open_session(
     listen: Sequence[str] = (),
     connect_timeout_s: float | None = None,
     stop: threading.Event | None = None,
+    settings: Mapping[str, Any] | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session with multicast scouting off and only the given endpoints.
 
@@ -193,8 +196,13 @@ def open_session(
     if mode == "client" and not connect:
         raise ConfigError("transport.connect: got [], a client needs at least one endpoint")
     _init_zenoh_log()
+    extra = dict(settings or {})
+    secured = any(k.startswith(("transport/link/tls", "transport/auth")) for k in extra)
+    hint = ("; this client's certificate or credentials may be refused (see docs/SECURITY.md)"
+            if secured else "; a router that requires TLS or credentials refuses clients "
+            "without them (see docs/SECURITY.md)")
     if mode == "router" or not connect:
-        config = _zenoh_config(mode, connect, listen, connect_window_ms=0)
+        config = _zenoh_config(mode, connect, listen, connect_window_ms=0, extra=extra)
         try:
             return zenoh.open(config)
         except zenoh.ZError as exc:
@@ -207,7 +215,8 @@ def open_session(
         window = _CONNECT_WINDOW_S
         if connect_timeout_s is not None:
             window = min(window, max(connect_timeout_s - (time.monotonic() - start), 0.001))
-        config = _zenoh_config(mode, connect, listen, connect_window_ms=max(int(window * 1000), 1))
+        config = _zenoh_config(mode, connect, listen,
+                               connect_window_ms=max(int(window * 1000), 1), extra=extra)
         attempt = time.monotonic()
         try:
             session = zenoh.open(config)
@@ -218,11 +227,11 @@ def open_session(
                 raise RouterUnreachable(
                     f"no Zenoh router reachable at {list(connect)} after {waited:.1f} s "
                     f"(last error: {exc}); is `hercs up` or `hercs router` running, and is "
-                    "the endpoint (host, port, tcp/tls) the one it listens on?"
+                    f"the endpoint (host, port, tcp/tls) the one it listens on{hint}?"
                 ) from None
             if now >= next_log:
                 log.info("waiting for a Zenoh router at %s (%.0f s so far); retrying until "
-                         "it is up", list(connect), waited)
+                         "it is up%s", list(connect), waited, hint)
                 next_log = now + _WAIT_LOG_EVERY_S
             # An attempt that failed early (e.g. a name that does not resolve) must not spin;
             # a stop request (SIGTERM while waiting for the router) ends the wait at once.
@@ -737,9 +746,12 @@ class Transport:
     @classmethod
     def open(cls, *, mode: Mode, connect: Sequence[str] = (), listen: Sequence[str] = (),
              connect_timeout_s: float | None = None,
-             stop: threading.Event | None = None) -> Transport:
+             stop: threading.Event | None = None,
+             settings: Mapping[str, Any] | None = None) -> Transport:
+        """`settings`: extra Zenoh config entries (`hercs.security.zenoh_settings`)."""
         return cls(open_session(mode=mode, connect=connect, listen=listen,
-                                connect_timeout_s=connect_timeout_s, stop=stop))
+                                connect_timeout_s=connect_timeout_s, stop=stop,
+                                settings=settings))
 
     def _own(self, declare: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         with self._lock:
