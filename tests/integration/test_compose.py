@@ -18,11 +18,13 @@ import yaml
 
 from apps.cli import SERVICES, build_parser, resolve_config
 from hercs.config import HercsConfig
+from hercs.security import listen_problem
 
 pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[2]
-ROUTER = "tcp/router:7447"
+ROUTER = "tls/router:7447"
+SECRETS = "/run/secrets"
 ROLES = {"router", "replay", "clusterer", "learner", "evaluator", "actor"}
 
 _VAR = re.compile(r"\$\$|\$\{(\w+)(?::?-([^}]*))?\}|\$(\w+)")
@@ -82,8 +84,21 @@ def test_every_service_runs_a_valid_hercs_command(env: dict[str, str],
 
     args, config = parse_command("router", services["router"]["command"])
     assert args.command == "router"
-    assert config.transport.listen == ["tcp/0.0.0.0:7447"]
+    assert config.transport.listen == ["tls/0.0.0.0:7447"]
     assert "7447:7447" in services["router"].get("ports", [])
+    # the published port is secured: mutual TLS with the certificates mounted as secrets
+    assert listen_problem(config.security, config.transport.listen) is None
+    declared = load_compose(env)["secrets"]
+    for name in sorted(ROLES):
+        _, config = parse_command(name, services[name]["command"])
+        sec = config.security
+        assert (sec.tls_ca, sec.tls_cert, sec.tls_key) == (
+            f"{SECRETS}/ca.pem", f"{SECRETS}/{{role}}.pem", f"{SECRETS}/{{role}}.key"), name
+        mounted = {item["target"]: item["source"] for item in services[name]["secrets"]}
+        assert mounted == {"ca.pem": "ca", f"{name}.pem": f"{name}_cert",
+                           f"{name}.key": f"{name}_key"}, f"{name} gets only its own key"
+        for source in mounted.values():
+            assert declared[source]["file"].startswith(env.get("HERCS_CERTS", "./certs"))
 
     for name in sorted(ROLES - {"router"}):
         service = services[name]
