@@ -234,11 +234,21 @@ class TrainingConfig:
     """DDPG updates per cycle [HER-py]; updates per episode = this / episodes_per_cycle."""
     eval_episodes: int = 20
     """Deterministic test episodes after each epoch [HER-CS paper]."""
+    eval_resend_s: float = 60.0
+    """An epoch's evaluation not back after this long is asked for again (`eval/request`):
+    its weights or its result may have been lost while the router restarted."""
+    eval_wait_s: float = 600.0
+    """How long the learner waits for the last epochs' evaluations before it gives up
+    (exit 1)."""
 
     def __post_init__(self) -> None:
         for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
                      "minibatches_per_cycle", "eval_episodes"):
             _check(getattr(self, name) >= 1, f"training.{name}", getattr(self, name), "be >= 1")
+        for name in ("eval_resend_s", "eval_wait_s"):
+            value = getattr(self, name)
+            _check(math.isfinite(value) and value > 0, f"training.{name}", value,
+                   "be a finite number > 0")
 
     @property
     def updates_per_episode(self) -> float:

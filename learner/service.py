@@ -34,7 +34,13 @@ from hercs.normalizer import Normalizer
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError, TransportTimeout
-from hercs.validation import RejectReason, decode_minibatch, parse_message
+from hercs.validation import (
+    MAX_INT64,
+    RejectReason,
+    decode_minibatch,
+    parse_message,
+    validate_eval_result,
+)
 from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.ddpg import DDPGLearner
 from learner.loop import (
@@ -50,10 +56,6 @@ from proto import hercs_pb2 as pb
 log = logging.getLogger("hercs.learner")
 
 PREFETCH_DEPTH = 2
-EVAL_WAIT_S = 600.0
-"""How long the last epoch's evaluation may take before the learner gives up (exit 1)."""
-EVAL_RESEND_S = 60.0
-"""An epoch's evaluation not back after this long is asked for again (`eval/request`)."""
 _POLL_S = 0.5
 MAX_BATCH_BYTES = 1 << 30
 
@@ -84,6 +86,10 @@ def decode_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         raise InvalidMessage(RejectReason.BAD_LENGTH,
                              f"Batch.cluster_draws: {len(msg.cluster_draws)} values, expected "
                              f"{k} (cluster.k) or none")
+    if any(d > MAX_INT64 for d in msg.cluster_draws):  # they are summed in an int64 array
+        raise InvalidMessage(RejectReason.BAD_VALUE,
+                             f"Batch.cluster_draws: {list(msg.cluster_draws)} holds a value "
+                             f"above {MAX_INT64}")
     return SampleBatch(
         minibatches=minibatches, o_stats=o_stats, g_stats=g_stats,
         cluster_model_version=int(msg.cluster_model_version),
@@ -193,9 +199,10 @@ class LearnerService:
     trained again) and a pending epoch that already has its row is not evaluated again.
 
     Evaluation requests: each epoch end broadcasts the weights with `evaluate=True`. An epoch
-    whose `EvalResult` has not come after `EVAL_RESEND_S` (lost while the router restarted,
-    an evaluator that died, or a resume) is asked for again on `eval/request` with the same
-    weights; the evaluator answers from its cache or evaluates. After `EVAL_WAIT_S` in all the
+    whose `EvalResult` has not come after `training.eval_resend_s` (lost while the router
+    restarted, an evaluator that died, or a resume) is asked for again on `eval/request` with
+    the same weights; the evaluator answers from its cache or evaluates. After
+    `training.eval_wait_s` in all the
     run ends with status 1. Every wait watches the stop event.
     """
 
@@ -262,9 +269,14 @@ class LearnerService:
     # -- subscriptions -----------------------------------------------------------------------
     def _on_eval(self, key: str, payload: bytes) -> None:
         try:
-            self.evals.put(parse_message(payload, pb.EvalResult, max_bytes=1 << 20))
+            msg = parse_message(payload, pb.EvalResult, max_bytes=1 << 20)
+            rejection = validate_eval_result(msg)
+            if rejection is not None:
+                raise rejection.error()
         except InvalidMessage as exc:
             self.warn.warn("eval", f"ignored an EvalResult: {exc}")
+            return
+        self.evals.put(msg)
 
     def _on_status(self, key: str, payload: bytes) -> None:
         try:
@@ -291,11 +303,12 @@ class LearnerService:
             epochs=self.config.training.epochs, finished=finished).SerializeToString())
 
     def _ask_again(self) -> None:
-        """Ask once more for the evaluations overdue by `EVAL_RESEND_S`."""
+        """Ask once more for the evaluations overdue by `training.eval_resend_s`."""
         now = time.monotonic()
         for epoch in sorted(self.loop.pending):
             raw = self.eval_requests.get(epoch)
-            if raw is not None and now - self._eval_asked.get(epoch, now) >= EVAL_RESEND_S:
+            overdue = now - self._eval_asked.get(epoch, now)
+            if raw is not None and overdue >= self.config.training.eval_resend_s:
                 log.info("no evaluation of epoch %d yet: asking again", epoch)
                 self.eval_request_pub.put(raw)
                 self._eval_asked[epoch] = now
@@ -303,10 +316,11 @@ class LearnerService:
     # -- evaluation results ------------------------------------------------------------------
     def record_evals(self, *, block: bool) -> None:
         """Write the rows of evaluated epochs; with block, wait (watching the stop event, asking
-        again for overdue evaluations) until every pending epoch is recorded or `EVAL_WAIT_S`
-        has passed."""
+        again for overdue evaluations) until every pending epoch is recorded or
+        `training.eval_wait_s` has passed."""
         stop = self.runtime.stop
-        deadline = time.monotonic() + EVAL_WAIT_S
+        wait_s = self.config.training.eval_wait_s
+        deadline = time.monotonic() + wait_s
         while self.loop.pending and not stop.is_set():
             self._ask_again()
             try:
@@ -317,12 +331,18 @@ class LearnerService:
                     return
                 if time.monotonic() >= deadline:
                     log.error("no evaluation arrived for epoch(s) %s within %.0f s",
-                              sorted(self.loop.pending), EVAL_WAIT_S)
+                              sorted(self.loop.pending), wait_s)
                     return
                 continue
             self._record(result)
 
     def _record(self, result: pb.EvalResult) -> None:
+        snapshot = self.loop.pending.get(int(result.epoch))
+        if snapshot is not None and snapshot.version != result.weights_version:
+            self.warn.warn("eval:version", f"ignored an EvalResult of epoch {result.epoch}: it "
+                           f"evaluated weights version {result.weights_version}, the epoch "
+                           f"ended at version {snapshot.version}")
+            return
         row = self.loop.record_eval(epoch=int(result.epoch),
                                     success_rate=float(result.success_rate),
                                     mean_final_distance=float(result.mean_final_distance),
