@@ -32,6 +32,14 @@ class RolloutWorker:
         self._actions = np.empty(shapes["actions"], np.float32)
         self.env_steps = 0
 
+    def skip(self, episodes: int) -> None:
+        """Advance the stream of initial states and goals by `episodes` episodes without
+        running them (a Fetch env draws from its generator only on reset), e.g. to evaluate on
+        the goals the evaluator used for a later epoch."""
+        for _ in range(episodes):
+            self.env.reset(seed=self._seed)
+            self._seed = None
+
     def run_episode(self, act: ActFn) -> EpisodeData:
         obs, _ = self.env.reset(seed=self._seed)
         self._seed = None

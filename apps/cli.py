@@ -282,6 +282,20 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer port (9090)")
     p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
 
+    p = sub.add_parser("eval", help="evaluate a run's trained policy; record a video",
+                       description="Loads a checkpoint (no service needed), runs deterministic "
+                                   "episodes and reports success and final distance; --video "
+                                   "records them (MuJoCo offscreen: EGL, else OSMesa). Example: "
+                                   "hercs eval runs/RUN --video policy.mp4")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder (runs/RUN)")
+    p.add_argument("--checkpoint", metavar="NAME", help="best (default when kept), latest, "
+                   "epoch-N, or a file")
+    p.add_argument("--episodes", type=int, default=20, help="episodes to run (default 20)")
+    p.add_argument("--seed", type=int, help="draw goals from this seed (default: the goals "
+                   "the run's evaluator used for that epoch)")
+    p.add_argument("--video", metavar="OUT.mp4", help="record the episodes (25 fps)")
+    p.add_argument("--rerun-save", metavar="OUT.rrd", help="record the camera images in Rerun")
+
     p = sub.add_parser("certs", help="make a CA and the certificates of a secured run",
                        description="Writes DIR/ca.pem (+ ca.key), DIR/router.pem (+ .key) and "
                                    "DIR/<role>.pem (+ .key) for every role; then run "
@@ -297,6 +311,13 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     return parser, commands
 
 
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from apps.policy_eval import run_eval
+
+    return run_eval(args.run_dir, checkpoint=args.checkpoint, episodes=args.episodes,
+                    seed=args.seed, video=args.video, rerun_save=args.rerun_save)
+
+
 def _cmd_certs(args: argparse.Namespace) -> int:
     from apps.certs import run_certs
 
@@ -309,7 +330,7 @@ def _cmd_certs(args: argparse.Namespace) -> int:
 
 # Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
-    "plot": _cmd_plot, "view": _cmd_view, "certs": _cmd_certs}
+    "plot": _cmd_plot, "view": _cmd_view, "certs": _cmd_certs, "eval": _cmd_eval}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -237,6 +237,9 @@ class TrainingConfig:
     eval_resend_s: float = 60.0
     """An epoch's evaluation not back after this long is asked for again (`eval/request`):
     its weights or its result may have been lost while the router restarted."""
+    checkpoint_every: int = 10
+    """Keep the policy of every n-th epoch as `checkpoints/epoch-NNNN.pt` (0: none), besides
+    `learner.pt` (latest, to resume) and `best.pt` (highest evaluation success)."""
     eval_wait_s: float = 600.0
     """How long the learner waits for the last epochs' evaluations before it gives up
     (exit 1)."""
@@ -245,6 +248,8 @@ class TrainingConfig:
         for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
                      "minibatches_per_cycle", "eval_episodes"):
             _check(getattr(self, name) >= 1, f"training.{name}", getattr(self, name), "be >= 1")
+        _check(self.checkpoint_every >= 0, "training.checkpoint_every", self.checkpoint_every,
+               "be >= 0 (0: no periodic policy files)")
         for name in ("eval_resend_s", "eval_wait_s"):
             value = getattr(self, name)
             _check(math.isfinite(value) and value > 0, f"training.{name}", value,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import gymnasium as gym
 
@@ -11,8 +12,11 @@ from hercs.tasks import TaskSpec
 _registered = False
 
 
-def make_env(spec: TaskSpec) -> gym.Env:
-    """A fresh Fetch env for `spec`. Seed it through the first `reset(seed=...)`."""
+def make_env(spec: TaskSpec, *, render_mode: str | None = None,
+             size: tuple[int, int] | None = None) -> gym.Env:
+    """A fresh Fetch env for `spec`. Seed it through the first `reset(seed=...)`. With
+    `render_mode='rgb_array'`, `render()` returns frames of `size` (width, height); rendering
+    does not change the dynamics or the env's random stream."""
     global _registered
     if not _registered:
         with warnings.catch_warnings():
@@ -22,4 +26,9 @@ def make_env(spec: TaskSpec) -> gym.Env:
             gym.register_envs(gymnasium_robotics)
         _registered = True
     # The passive env checker only re-validates spaces on every step; it costs throughput.
-    return gym.make(spec.env_id, disable_env_checker=True)
+    kwargs: dict[str, Any] = {}
+    if render_mode is not None:
+        kwargs["render_mode"] = render_mode
+    if size is not None:
+        kwargs["width"], kwargs["height"] = size
+    return gym.make(spec.env_id, disable_env_checker=True, **kwargs)

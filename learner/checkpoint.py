@@ -24,6 +24,13 @@ import torch
 log = logging.getLogger(__name__)
 
 LATEST = "learner.pt"
+BEST = "best.pt"
+"""The policy of the epoch with the highest evaluation success so far (the first on ties)."""
+
+
+def epoch_file(epoch: int) -> str:
+    """The name of the policy file kept every `training.checkpoint_every` epochs."""
+    return f"epoch-{epoch:04d}.pt"
 
 
 def save_checkpoint(folder: Path, state: dict[str, Any], *, name: str = LATEST) -> bool:
@@ -67,4 +74,27 @@ def load_checkpoint(folder: Path, *, name: str = LATEST) -> dict[str, Any] | Non
     if not isinstance(state, dict) or "learner" not in state or "loop" not in state:
         raise ValueError(f"{path}: not a learner checkpoint of this version of hercs (no "
                          "'learner'/'loop' state); move it away to start from scratch")
+    return state
+
+
+def save_policy(folder: Path, name: str, *, weights: bytes, epoch: int, success_rate: float,
+                config: dict[str, Any]) -> bool:
+    """A policy file: the serialised `Weights` an epoch's evaluation used (actor and
+    normalisers), its epoch and success, and the run's config; what `hercs eval` loads."""
+    return save_checkpoint(folder, {"policy": bytes(weights), "epoch": int(epoch),
+                                    "success_rate": float(success_rate), "config": config},
+                           name=name)
+
+
+def load_policy_file(path: Path) -> dict[str, Any] | None:
+    """A `save_policy` file, or None if there is none. A file that does not load raises
+    `ValueError` naming it."""
+    if not path.exists():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable policy file ({exc})") from None
+    if not isinstance(state, dict) or "policy" not in state:
+        raise ValueError(f"{path}: not a policy file of this version of hercs (no 'policy')")
     return state

@@ -41,7 +41,14 @@ from hercs.validation import (
     parse_message,
     validate_eval_result,
 )
-from learner.checkpoint import load_checkpoint, save_checkpoint
+from learner.checkpoint import (
+    BEST,
+    epoch_file,
+    load_checkpoint,
+    load_policy_file,
+    save_checkpoint,
+    save_policy,
+)
 from learner.ddpg import DDPGLearner
 from learner.loop import (
     LearnerLoop,
@@ -220,6 +227,8 @@ class LearnerService:
         self.resumed_from: int | None = None
         self.prefetcher_bad: Counter[str] = Counter()
         self._resume()
+        best = load_policy_file(self.checkpoints / BEST)
+        self.best_success: float | None = None if best is None else float(best["success_rate"])
         self.metrics = MetricsCsv(run_dir / "metrics.csv")
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
         self.status = Latest()
@@ -350,8 +359,10 @@ class LearnerService:
         if row is None:
             return  # an epoch not pending: a repeated or stale answer
         epoch = int(row["epoch"])
-        self.eval_requests.pop(epoch, None)
+        raw = self.eval_requests.pop(epoch, None)
         self._eval_asked.pop(epoch, None)
+        if raw is not None:
+            self._keep_policy(epoch, raw, float(row["success_rate"]))
         row["batch_wait_s"] = round(self.batch_wait_s.pop(epoch, 0.0), 3)
         row["bad_batches"] = sum(self.prefetcher_bad.values())
         self.metrics.write(row)
@@ -361,6 +372,19 @@ class LearnerService:
         self.publish_progress()
         log.info("epoch %d: success %.2f, env steps %d, %.0f updates/s", epoch,
                  row["success_rate"], row["env_steps"], row["updates_per_s"])
+
+    def _keep_policy(self, epoch: int, weights: bytes, success_rate: float) -> None:
+        """`best.pt` when this epoch beats every earlier one; `epoch-NNNN.pt` every
+        `training.checkpoint_every` epochs."""
+        every = self.config.training.checkpoint_every
+        names = [epoch_file(epoch)] if every and epoch % every == 0 else []
+        if self.best_success is None or success_rate > self.best_success:
+            names.append(BEST)
+        for name in names:
+            kept = save_policy(self.checkpoints, name, weights=weights, epoch=epoch,
+                               success_rate=success_rate, config=self.config.to_dict())
+            if kept and name == BEST:
+                self.best_success = success_rate
 
     # -- the loop ----------------------------------------------------------------------------
     def run(self) -> int:

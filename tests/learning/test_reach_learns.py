@@ -53,7 +53,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
            "--run-dir", str(root), "--listen", endpoint, "--connect", endpoint,
            "--set", f"training.cycles_per_epoch={CYCLES}",
            "--set", f"cluster.k={K}", "--set", "cluster.fgb_size=40",
-           "--set", "training.eval_episodes=20"]
+           "--set", "training.eval_episodes=20", "--set", "training.checkpoint_every=3"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     path = root / "reach-learns"
     logs = "\n".join(f"== {p.name}\n{p.read_text()[-2000:]}"
@@ -118,3 +118,45 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
     assert max(versions) >= EPOCHS * CYCLES - 5, "actors act with recent weights"
     saved = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert saved["run"]["method"] == "her-cs" and saved["training"]["cycles_per_epoch"] == CYCLES
+
+
+# -- the trained policy, used without any service (`hercs eval`) ----------------------------
+
+
+@pytest.mark.parametrize("checkpoint", ["latest", "best", "epoch-3"])
+def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: str) -> None:
+    """The kept policy, on the goals the run's evaluator used for its epoch, scores exactly
+    the success and final distance in metrics.csv."""
+    from apps.policy_eval import evaluate, load_policy
+
+    policy = load_policy(run_dir, checkpoint)
+    recorded = {int(r["epoch"]): r for r in rows(run_dir)}
+    expected_epoch = {"latest": EPOCHS, "epoch-3": 3,
+                      "best": max(recorded, key=lambda e: (float(recorded[e]["success_rate"]),
+                                                           -e))}[checkpoint]
+    assert policy.epoch == expected_epoch
+    summary = evaluate(policy, episodes=20)
+    row = recorded[policy.epoch]
+    assert summary.success_rate == pytest.approx(float(row["success_rate"]), abs=1e-9)
+    assert summary.mean_final_distance == pytest.approx(float(row["mean_final_distance"]),
+                                                        rel=1e-5)
+
+
+def test_eval_records_a_video_of_every_step(run_dir: Path, tmp_path: Path) -> None:
+    from apps.policy_eval import EvalError, choose_gl
+
+    try:
+        choose_gl()
+    except EvalError as exc:
+        pytest.skip(f"no offscreen OpenGL on this machine: {exc}")
+    import imageio_ffmpeg
+
+    video = tmp_path / "policy.mp4"
+    done = subprocess.run([sys.executable, "-m", "apps.cli", "eval", str(run_dir),
+                           "--episodes", "2", "--video", str(video)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(video))
+    assert frames == 2 * 51, "T + 1 = 51 frames per episode: the start and every step"
+    assert seconds == pytest.approx(frames / 25, abs=0.1)
+    assert "102 frames at 25 fps" in done.stdout
