@@ -12,6 +12,17 @@ from hercs.tasks import TaskSpec
 _registered = False
 
 
+def _drop_adroit_notice() -> None:
+    """gymnasium-robotics 1.4.2 prints, on import, a notice about the Adroit hand tasks'
+    rewards (from the `farama_notifications` table) to every process's stderr; hercs uses only
+    the Fetch tasks, so the entry is removed before the import reads it."""
+    try:
+        import farama_notifications
+    except ImportError:
+        return
+    farama_notifications.notifications.pop("gymnasium_robotics", None)
+
+
 def make_env(spec: TaskSpec, *, render_mode: str | None = None,
              size: tuple[int, int] | None = None) -> gym.Env:
     """A fresh Fetch env for `spec`. Seed it through the first `reset(seed=...)`. With
@@ -21,6 +32,7 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
     if not _registered:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            _drop_adroit_notice()
             import gymnasium_robotics
 
             gym.register_envs(gymnasium_robotics)
