@@ -168,6 +168,22 @@ def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def _duration(seconds: float) -> str:
+    """1h02m, 3m20s or 45s."""
+    seconds = max(round(seconds), 0)
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
+
+
+FIRST_LINE_S = 5.0
+"""The first progress line comes this long after the run starts (before epoch 1 ends)."""
+INTERIM_EVERY_S = 60.0
+"""While an epoch runs, a progress line at least this often."""
+
+
 class Progress:
     """Turns the learner's per-epoch `Metrics` (and `EvalResult`s) into one line per epoch.
 
@@ -176,7 +192,8 @@ class Progress:
     arrive (or `flush()`); each epoch is printed once.
     """
 
-    def __init__(self, total_epochs: int) -> None:
+    def __init__(self, total_epochs: int, *,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.total_epochs = total_epochs
         self.last_printed = 0
         self._pending: dict[int, dict[str, float]] = {}
@@ -184,6 +201,28 @@ class Progress:
         self._replay_size: float | None = None
         self.restarts = 0
         """Children restarted so far (shown on the line when not 0)."""
+        self.actors: int | None = None
+        """Actors whose liveliness token the router sees (local and remote)."""
+        self._clock = clock
+        self.started = clock()
+        self.last_line_at: float | None = None
+        self._first_epoch: int | None = None  # the first epoch this launcher saw (resume)
+
+    def interim(self) -> str | None:
+        """A line for an epoch still running: the first `FIRST_LINE_S` after start (so a
+        user sees the run is alive long before epoch 1 ends), then whenever no line was
+        printed for `INTERIM_EVERY_S`; None otherwise."""
+        now = self._clock()
+        quiet_since = self.last_line_at if self.last_line_at is not None else (
+            self.started - INTERIM_EVERY_S + FIRST_LINE_S)
+        if now - quiet_since < INTERIM_EVERY_S:
+            return None
+        self.last_line_at = now
+        epoch = self.last_printed + 1
+        return (f"epoch {epoch}/{self.total_epochs} running  {_duration(now - self.started)} "
+                f"since start  replay {_fmt(self._replay_size, '.0f')} episodes"
+                + (f"  actors {self.actors}" if self.actors is not None else "")
+                + (f"  restarts {self.restarts}" if self.restarts else ""))
 
     def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
         if not service.startswith("learner/") or "epoch" not in values:
@@ -219,13 +258,21 @@ class Progress:
         return lines
 
     def _line(self, epoch: int, values: Mapping[str, float]) -> str:
+        now = self._clock()
         total = int(values.get("epochs", self.total_epochs))
         success = values.get("success_rate", self._success.get(epoch))
         replay = values.get("replay_size", self._replay_size)
+        if self._first_epoch is None:
+            self._first_epoch = epoch
+        done_here = epoch - self._first_epoch + 1  # epochs this launcher watched end
+        eta = (now - self.started) / done_here * (total - epoch) if done_here > 0 else None
+        self.last_line_at = now
         return (f"epoch {epoch}/{total}  success {_fmt(success, '.2f')}  "
                 f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
                 f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
                 f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
+                + (f"  actors {self.actors}" if self.actors is not None else "")
+                + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
                 + (f"  restarts {self.restarts}" if self.restarts else ""))
 
 
@@ -357,6 +404,8 @@ class _Launcher:
 
     def on_alive(self, key: str, alive: bool) -> None:
         (self.alive.add if alive else self.alive.discard)(key)
+        actor_prefix = self.keys.prefix + "/alive/actor/"
+        self.progress.actors = sum(1 for k in list(self.alive) if k.startswith(actor_prefix))
         if key not in self._ours:
             role_ident = key.removeprefix(self.keys.prefix + "/alive/").replace("/", " ", 1)
             self.say(f"hercs up: remote {role_ident} {'joined' if alive else 'left'}")
@@ -503,6 +552,10 @@ class _Launcher:
             if status is not None:
                 return status
             self.restart_due()
+            with self._print_lock:
+                line = self.progress.interim()
+                if line is not None:
+                    self.say(line)
             self.signals.wait(_POLL_S)
 
     def stop_all(self) -> None:

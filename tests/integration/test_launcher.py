@@ -241,30 +241,60 @@ def read_events(path: Path) -> list[tuple[str, str]]:
 # --------------------------------------------------------------------------- pure parts
 
 
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
 def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
-    progress = Progress(total_epochs=10)
+    clock = Clock()
+    progress = Progress(total_epochs=10, clock=clock)
     base = {"env_steps_per_s": 1234.4, "updates_per_s": 456.2, "replay_size": 6000,
             "policy_lag": 1.23}
 
+    clock.now += 100  # the first epoch seen (3: a resumed run) took 100 s: 7 more, 700 s
     assert progress.on_metrics("learner/learner-0", {**base, "epoch": 3,
                                                      "success_rate": 0.45}) == [
-        "epoch 3/10  success 0.45  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2"]
+        "epoch 3/10  success 0.45  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2  "
+        "eta 11m40s"]
     assert progress.on_metrics("learner/learner-0", {**base, "epoch": 3}) == []  # duplicate
     assert progress.on_metrics("actor/actor-0", {"epoch": 4}) == []  # not the learner
     # no success yet: the line waits for its EvalResult...
     assert progress.on_metrics("learner/learner-0", {**base, "epoch": 4}) == []
+    progress.actors = 2
+    clock.now += 100
     assert progress.on_eval(4, 0.5) == [
-        "epoch 4/10  success 0.50  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2"]
+        "epoch 4/10  success 0.50  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2  "
+        "actors 2  eta 10m00s"]
     # ...or for the next epoch's metrics, or the final flush
     progress.on_replay_size(7000)
+    progress.actors = None
     assert progress.on_metrics("learner/learner-0", {"epoch": 5}) == []
     assert progress.on_metrics("learner/learner-0", {"epoch": 6, "success_rate": 1.0}) == [
-        "epoch 5/10  success -  env - steps/s  upd -/s  replay 7000  lag -",
-        "epoch 6/10  success 1.00  env - steps/s  upd -/s  replay 7000  lag -"]
+        "epoch 5/10  success -  env - steps/s  upd -/s  replay 7000  lag -  eta 5m33s",
+        "epoch 6/10  success 1.00  env - steps/s  upd -/s  replay 7000  lag -  eta 3m20s"]
     assert progress.on_metrics("learner/learner-0", {"epoch": 7, "epochs": 8}) == []
     assert progress.flush() == [
-        "epoch 7/8  success -  env - steps/s  upd -/s  replay 7000  lag -"]
+        "epoch 7/8  success -  env - steps/s  upd -/s  replay 7000  lag -  eta 40s"]
     assert progress.last_printed == 7
+
+
+def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
+    clock = Clock()
+    progress = Progress(total_epochs=200, clock=clock)
+    assert progress.interim() is None
+    clock.now += 5  # FIRST_LINE_S
+    progress.on_replay_size(12)
+    progress.actors = 3
+    assert progress.interim() == (
+        "epoch 1/200 running  5s since start  replay 12 episodes  actors 3")
+    clock.now += 59
+    assert progress.interim() is None, "then at most once a minute"
+    clock.now += 1
+    assert progress.interim() is not None
 
 
 @pytest.mark.parametrize(
@@ -426,10 +456,12 @@ def test_a_child_that_dies_is_restarted_and_the_run_goes_on(up, tmp_path: Path) 
 
 
 def test_progress_line_counts_restarts() -> None:
-    progress = Progress(total_epochs=2)
+    clock = Clock()
+    progress = Progress(total_epochs=2, clock=clock)
     progress.restarts = 3
+    clock.now += 30
     assert progress.on_metrics("learner/l", {"epoch": 1, "success_rate": 0.5}) == [
-        "epoch 1/2  success 0.50  env - steps/s  upd -/s  replay -  lag -  restarts 3"]
+        "epoch 1/2  success 0.50  env - steps/s  upd -/s  replay -  lag -  eta 30s  restarts 3"]
 
 
 def test_the_live_view_starts_after_the_replay_and_its_exit_never_ends_the_run(
