@@ -125,6 +125,8 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         config = load_yaml(args.config) if args.config else HercsConfig()
     overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
                  if getattr(args, flag, None) is not None]
+    if getattr(args, "tensorboard", False):
+        overrides.append("run.tensorboard=true")
     tls_dir = getattr(args, "tls_dir", None)
     if tls_dir is not None:
         base = Path(tls_dir).absolute()
@@ -237,6 +239,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     )
     add_config_arguments(p)
     add_rerun_arguments(p)
+    p.add_argument("--tensorboard", action="store_true",
+                   help="also write TensorBoard event files to RUN/tensorboard/ (the scalars "
+                        "of metrics.csv; view with `tensorboard --logdir runs/`)")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue the run in RUN_DIR (e.g. runs/push-her-cs-s1-…) where it "
                         "stopped: the replay reloads its log, the learner its checkpoint, the "

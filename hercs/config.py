@@ -81,6 +81,9 @@ class RunConfig:
     """Run name (key prefix hercs/<name>/ and folder runs/<name>); empty = derived at start."""
     run_dir: str = "runs"
     """Parent folder of run directories."""
+    tensorboard: bool = False
+    """The learner also writes TensorBoard event files to runs/<name>/tensorboard/: the
+    scalars of metrics.csv per epoch (`hercs up --tensorboard`)."""
 
     def __post_init__(self) -> None:
         _check(self.method in METHODS, "run.method", self.method, f"be one of {list(METHODS)}")

@@ -57,6 +57,7 @@ from learner.loop import (
     recorded_epochs,
     truncate_metrics,
 )
+from learner.tensorboard import TensorBoardScalars
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 
@@ -230,6 +231,9 @@ class LearnerService:
         best = load_policy_file(self.checkpoints / BEST)
         self.best_success: float | None = None if best is None else float(best["success_rate"])
         self.metrics = MetricsCsv(run_dir / "metrics.csv")
+        self.tensorboard = (TensorBoardScalars(run_dir / "tensorboard",
+                                               after_epoch=self.loop.epoch)
+                            if config.run.tensorboard else None)
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
         self.status = Latest()
         self.warn = WarnOncePerMinute(log)
@@ -366,6 +370,8 @@ class LearnerService:
         row["batch_wait_s"] = round(self.batch_wait_s.pop(epoch, 0.0), 3)
         row["bad_batches"] = sum(self.prefetcher_bad.values())
         self.metrics.write(row)
+        if self.tensorboard is not None:
+            self.tensorboard.write(row)
         values = {k: v for k, v in row.items() if isinstance(v, int | float)}
         values["epochs"] = self.config.training.epochs
         self.runtime.publish_metrics(values, step=epoch)
@@ -423,6 +429,8 @@ class LearnerService:
 
     def close(self) -> None:
         self.metrics.close()
+        if self.tensorboard is not None:
+            self.tensorboard.close()
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
