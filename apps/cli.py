@@ -30,24 +30,57 @@ SHORTCUTS: dict[str, str] = {
 }
 
 
-def add_config_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options every command shares for building its config."""
+RUN_FLAGS = ("task", "method", "seed", "epochs", "run", "run_dir", "actors")
+"""The flags that shape a run; `FLAGS_OF` says which command takes which."""
+
+FLAGS_OF: dict[str, tuple[str, ...]] = {
+    "config": (*RUN_FLAGS, "connect", "listen", "security"),
+    "up": (*RUN_FLAGS, "listen", "security"),
+    "router": ("listen", "security"),
+    "replay": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
+    "clusterer": ("task", "method", "seed", "epochs", "run", "run_dir", "connect",
+                  "security"),
+    "learner": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
+    "evaluator": ("task", "method", "seed", "epochs", "run", "run_dir", "connect",
+                  "security"),
+    # actors and the live view take everything else from the run's replay
+    "actor": ("run", "connect", "security"),
+    "live": ("run", "connect", "security"),
+}
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
+    """--config and --set, plus the shortcuts `command` uses (`FLAGS_OF`)."""
+    flags = FLAGS_OF[command]
     group = parser.add_argument_group("configuration")
     group.add_argument("--config", metavar="FILE", help="YAML config (partial is fine)")
     group.add_argument("--set", dest="overrides", action="append", default=[],
                        metavar="SECTION.FIELD=VALUE",
                        help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
-    group.add_argument("--task", choices=sorted(TASKS), help="task preset (Fetch*-v4)")
-    group.add_argument("--method", choices=list(METHODS), help="sampling method")
-    group.add_argument("--seed", type=int, help="root seed")
-    group.add_argument("--epochs", type=int, help="training epochs")
-    group.add_argument("--run", help="run name (Zenoh key prefix and folder name)")
-    group.add_argument("--run-dir", help="parent folder of run directories")
-    group.add_argument("--actors", type=int, help="rollout actors to start")
-    group.add_argument("--connect", action="append", metavar="ENDPOINT",
-                       help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)")
-    group.add_argument("--listen", action="append", metavar="ENDPOINT",
-                       help="Zenoh endpoint for the router to listen on (repeatable)")
+    helps = {
+        "task": dict(choices=sorted(TASKS), help="task preset (Fetch*-v4)"),
+        "method": dict(choices=list(METHODS), help="sampling method"),
+        "seed": dict(type=int, help="root seed"),
+        "epochs": dict(type=int, help="training epochs"),
+        "run": dict(help="run name (Zenoh key prefix and folder name)"),
+        "run_dir": dict(help="parent folder of run directories"),
+        "actors": dict(type=int, help="rollout actors to start"),
+    }
+    for flag in RUN_FLAGS:
+        if flag in flags:
+            group.add_argument(f"--{flag.replace('_', '-')}", **helps[flag])  # type: ignore[arg-type]
+    if "connect" in flags:
+        group.add_argument("--connect", action="append", metavar="ENDPOINT",
+                           help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 "
+                                "(repeatable)")
+    if "listen" in flags:
+        group.add_argument("--listen", action="append", metavar="ENDPOINT",
+                           help="Zenoh endpoint for the router to listen on (repeatable)")
+    if "security" in flags:
+        add_security_arguments(parser)
+
+
+def add_security_arguments(parser: argparse.ArgumentParser) -> None:
     sec = parser.add_argument_group(
         "security (docs/SECURITY.md; `hercs certs DIR` makes certificates)")
     sec.add_argument("--tls-dir", metavar="DIR", help="what `hercs certs DIR` made: "
@@ -173,6 +206,15 @@ def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
 
 # Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
 # when used, so `hercs --help` stays fast.
+SERVICE_EXAMPLES = {
+    "replay": "hercs replay --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "clusterer": "hercs clusterer --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "learner": "hercs learner --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "evaluator": "hercs evaluator --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "actor": "hercs actor --connect tcp/LEARNER_HOST:7447 --run myrun",
+    "live": "hercs live --connect tcp/LEARNER_HOST:7447 --run myrun --rerun",
+}
+
 SERVICES: dict[str, tuple[str, str]] = {
     "replay": ("replay_service.service", "run the replay service (episode store, HER, samplers)"),
     "clusterer": ("clusterer.service", "run the clusterer (failed goals, k-means refits)"),
@@ -202,7 +244,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
                         xmax=args.xmax)
     except HercsError as exc:
         print(f"hercs plot: {exc}", file=sys.stderr)
-        return 1
+        return 2
 
 
 
@@ -224,7 +266,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     commands: dict[str, Command] = {}
 
     p = sub.add_parser("config", help="print (or save) the fully resolved configuration")
-    add_config_arguments(p)
+    add_config_arguments(p, "config")
     add_rerun_arguments(p)
     p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
     commands["config"] = _cmd_config
@@ -234,10 +276,11 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    "learner, evaluator and --actors actors; Ctrl-C stops the run",
         description="Start a whole run locally. The router is embedded and listens on --listen "
                     "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
-                    "connect to it on this host, so --connect is ignored. --rerun adds the "
-                    "live view (apps/live_view.py), which training never waits for.",
+                    "connect to it on this host. --rerun adds the "
+                    "live view (apps/live_view.py), which training never waits for. Example: "
+                    "hercs up --task push --method her-cs --epochs 50 --seed 1",
     )
-    add_config_arguments(p)
+    add_config_arguments(p, "up")
     add_rerun_arguments(p)
     p.add_argument("--tensorboard", action="store_true",
                    help="also write TensorBoard event files to RUN/tensorboard/ (the scalars "
@@ -249,13 +292,19 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     commands["up"] = _cmd_up
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
-                                      "tcp/0.0.0.0:7447) until Ctrl-C")
-    add_config_arguments(p)
+                                      "tcp/0.0.0.0:7447) until Ctrl-C",
+                       description="Route one or more runs' traffic; logs every hercs process "
+                                   "that joins or leaves. Example: hercs router --tls-dir certs "
+                                   "--listen tls/0.0.0.0:7447")
+    add_config_arguments(p, "router")
     commands["router"] = _cmd_router
 
     for name, (module, help_text) in SERVICES.items():
-        p = sub.add_parser(name, help=help_text)
-        add_config_arguments(p)
+        p = sub.add_parser(name, help=help_text,
+                           description=f"{help_text[0].upper()}{help_text[1:]}: one process of "
+                                       "a run, what `hercs up` and docker-compose.yml start. "
+                                       f"Example: {SERVICE_EXAMPLES[name]}")
+        add_config_arguments(p, name)
         if name == "live":
             add_rerun_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")

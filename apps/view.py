@@ -76,6 +76,7 @@ from hercs.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
+    EpisodeLogError,
     read_eval_results,
     read_messages,
     segment_paths,
@@ -532,7 +533,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         if not selected:
             raise ViewError(f"--episodes {episodes!r} selects none of the {len(ids)} episodes "
                             f"(ids {ids[0]}..{ids[-1]})")
-    except (ViewError, ValueError) as exc:
+    except (ViewError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
     run_dir = log_path if log_path.is_dir() else log_path.parent

@@ -1,5 +1,6 @@
 """The CLI resolves one config and refuses bad flags with a message naming the field."""
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
@@ -7,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from apps.cli import main
+from apps.cli import build_parser, main
 
 
 def test_config_command_resolves_shortcuts_and_overrides(capsys) -> None:
@@ -57,3 +58,24 @@ def test_rerun_flags_set_the_view_section(flags: list[str], view: dict, tmp_path
 def test_a_bad_rerun_url_exits_2_with_the_value_named(capsys) -> None:
     assert main(["config", "--rerun", "http://lab:9876"]) == 2
     assert "view.viewer: got 'http://lab:9876'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("command", "absent", "present"), [
+    ("router", ["--task", "--actors", "--connect", "--epochs"], ["--listen", "--tls-dir"]),
+    ("actor", ["--task", "--actors", "--listen", "--method"], ["--run", "--connect", "--id"]),
+    ("learner", ["--actors", "--listen"], ["--task", "--run", "--connect"]),
+    ("up", ["--connect"], ["--actors", "--listen", "--resume", "--tensorboard"]),
+])
+def test_each_command_offers_only_its_own_flags(command: str, absent: list[str],
+                                               present: list[str]) -> None:
+    parser, _ = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    help_text = sub.choices[command].format_help()
+    assert "Example: hercs" in help_text, "a description with an example"
+    for flag in absent:
+        assert f"{flag} " not in help_text, f"hercs {command} lists {flag}"
+    for flag in present:
+        assert flag in help_text
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args([command, absent[0], "x"])
+    assert exc.value.code == 2
