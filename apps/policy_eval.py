@@ -23,6 +23,7 @@ import logging
 import os
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -137,9 +138,11 @@ def choose_gl() -> str:
     probe = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
     errors = []
     for backend in GL_BACKENDS:
-        done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                              env={**os.environ, "MUJOCO_GL": backend, "PYOPENGL_PLATFORM":
-                                   backend}, timeout=120)
+        with tempfile.TemporaryDirectory() as scratch:  # MuJoCo logs failures to its cwd
+            done = subprocess.run([sys.executable, "-c", probe], capture_output=True,
+                                  text=True, cwd=scratch, timeout=120,
+                                  env={**os.environ, "MUJOCO_GL": backend,
+                                       "PYOPENGL_PLATFORM": backend})
         if done.returncode == 0:
             return backend
         errors.append(f"{backend}: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
