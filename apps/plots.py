@@ -15,12 +15,18 @@ Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exa
   completed before it. Counting from 1 or accepting equality would give docs/DESIGN.md §5 + 1
   (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
 * "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
+
+Figure rule: each method's 10-epoch moving average of the seed mean (solid), its raw seed
+mean faint behind it, and the min–max band; every run is drawn to its own end (at each epoch,
+over the seeds that reached it). Runs with the same task, method and seed are one seed (the
+longest is kept, with a note on stderr).
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -146,10 +152,26 @@ def load_reference(path: str | Path = REFERENCE_CSV) -> list[Curve]:
     return [_curve(t, m, s, pts, str(path)) for (t, m, s), pts in sorted(series.items())]
 
 
-def group(curves: Iterable[Curve]) -> dict[str, dict[str, list[Curve]]]:
-    """task → method → seeds, methods in the paper's order (unknown ones last)."""
-    out: dict[str, dict[str, list[Curve]]] = {}
+def group(curves: Iterable[Curve], notes: list[str] | None = None
+          ) -> dict[str, dict[str, list[Curve]]]:
+    """task → method → one curve per seed, methods in the paper's order (unknown ones last).
+
+    Runs of the same task, method and seed are one seed, not several: the one with the most
+    epochs is kept (a note in `notes` names the others)."""
+    by_seed: dict[tuple[str, str, int], Curve] = {}
     for c in curves:
+        key = (c.task, c.method, c.seed)
+        kept = by_seed.get(key)
+        if kept is not None:
+            longer, other = (c, kept) if len(c.epochs) > len(kept.epochs) else (kept, c)
+            if notes is not None:
+                notes.append(f"{other.source or 'a run'} has the same task, method and seed "
+                             f"({c.task}, {c.method}, seed {c.seed}) as {longer.source}: "
+                             "counted once, with the longer run")
+            c = longer
+        by_seed[key] = c
+    out: dict[str, dict[str, list[Curve]]] = {}
+    for c in by_seed.values():
         out.setdefault(c.task, {}).setdefault(c.method, []).append(c)
     rank = {m: i for i, m in enumerate(METHOD_ORDER)}
     return {t: dict(sorted(ms.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
@@ -158,18 +180,20 @@ def group(curves: Iterable[Curve]) -> dict[str, dict[str, list[Curve]]]:
 
 # ------------------------------------------------------------------------------ arithmetic
 
-def aggregate(curves: Sequence[Curve]) -> Aggregate:
-    """Mean, min and max across seeds at each epoch that every seed reached."""
+def aggregate(curves: Sequence[Curve], *, every_seed: bool = True) -> Aggregate:
+    """Mean, min and max across seeds at each epoch that every seed reached (the table's
+    rule), or with `every_seed=False` at each epoch any seed reached, over the seeds that
+    reached it (the figure: each run is drawn to its end)."""
     if not curves:
         raise ValueError("aggregate needs at least one curve")
-    common = set(curves[0].epochs.tolist())
-    for c in curves[1:]:
-        common &= set(c.epochs.tolist())
-    epochs = np.array(sorted(common), dtype=int)
-    stack = np.array([[dict(zip(c.epochs.tolist(), c.success.tolist(), strict=True))[e]
-                       for e in epochs] for c in curves], dtype=float).reshape(len(curves), -1)
-    return Aggregate(epochs, stack.mean(axis=0), stack.min(axis=0), stack.max(axis=0),
-                     len(curves))
+    tables = [dict(zip(c.epochs.tolist(), c.success.tolist(), strict=True)) for c in curves]
+    epoch_sets = [set(t) for t in tables]
+    chosen = set.intersection(*epoch_sets) if every_seed else set.union(*epoch_sets)
+    epochs = np.array(sorted(chosen), dtype=int)
+    rows = [[t[e] for t in tables if e in t] for e in epochs]
+    return Aggregate(epochs, np.array([np.mean(r) for r in rows], dtype=float).reshape(-1),
+                     np.array([min(r) for r in rows], dtype=float).reshape(-1),
+                     np.array([max(r) for r in rows], dtype=float).reshape(-1), len(curves))
 
 
 def moving_average(epochs: np.ndarray, values: np.ndarray, window: int = WINDOW) -> np.ndarray:
@@ -281,11 +305,14 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
                         linewidth=1.4 if mine else 1.0, alpha=0.9 if mine else 0.6,
                         label=f"{label} (authors, {a.n_seeds} seeds)")
             if method in ours[task]:
-                a = aggregate(ours[task][method])
-                ax.fill_between(a.epochs, a.low, a.high, color=color, alpha=0.25, linewidth=0)
-                ax.plot(a.epochs, a.mean, "-", color=color, linewidth=2.0, zorder=3,
-                        marker="o" if len(a.epochs) <= 30 else None, markersize=3,
-                        label=f"{label} ({a.n_seeds} seed{'s' if a.n_seeds != 1 else ''})")
+                a = aggregate(ours[task][method], every_seed=False)
+                ax.fill_between(a.epochs, a.low, a.high, color=color, alpha=0.18, linewidth=0)
+                ax.plot(a.epochs, a.mean, "o-" if len(a.epochs) <= 30 else "-", color=color,
+                        linewidth=0.8, alpha=0.35, markersize=2.5, zorder=2)  # raw seed mean
+                ax.plot(a.epochs, moving_average(a.epochs, a.mean), "-", color=color,
+                        linewidth=2.0, zorder=3,
+                        label=f"{label} ({a.n_seeds} seed{'s' if a.n_seeds != 1 else ''}, "
+                              f"{WINDOW}-epoch mean)")
         ax.set_title(task)
         ax.set_xlabel("epoch")
         ax.set_ylabel("success rate")
@@ -309,8 +336,16 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
              table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
              xmax: int | None = None) -> int:
     """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`)."""
-    ours = group(load_run(d) for d in run_dirs)
+    notes: list[str] = []
+    ours = group((load_run(d) for d in run_dirs), notes)
     ref = group(load_reference(reference_csv)) if reference else None
+    if ref is not None:
+        missing = sorted(set(ours) - set(ref))
+        if missing:
+            notes.append(f"--reference: the authors published no curves for {', '.join(missing)}"
+                         f" (they did for {', '.join(sorted(ref))}); drawn without them")
+    for note in notes:
+        print(f"hercs plot: {note}", file=sys.stderr)
     path = plot_figure(ours, output, ref, xmax)
     text = tables(ours, ref)
     print(text, end="")

@@ -163,7 +163,7 @@ def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
     (run / "metrics.csv").unlink()
     with pytest.raises(plots.PlotError, match=rf"{run}.*metrics\.csv"):
         plots.load_run(run)
-    assert main(["plot", str(run), "-o", str(tmp_path / "f.png")]) == 1
+    assert main(["plot", str(run), "-o", str(tmp_path / "f.png")]) == 2  # a bad path
     err = capsys.readouterr().err
     assert str(run) in err and "metrics.csv" in err
 
@@ -178,3 +178,29 @@ def test_cli_plot_writes_figure_and_table(run_dirs: list[Path], tmp_path: Path,
     assert "| HER (ours) | 2 | 15 | 10 | 14 |" in printed
     assert "| HER (authors) | 5 | 200 | 55 | 95 |" in printed
     assert table.read_text() in printed
+
+
+def test_runs_of_one_seed_count_once_and_each_run_is_drawn_to_its_end(tmp_path: Path,
+                                                                      capsys) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    short = plots.load_run(_write_run(tmp_path / "a", "her", 1, [0.1, 0.2]))
+    long = plots.load_run(_write_run(tmp_path / "b", "her", 1, [0.1, 0.2, 0.3, 0.4]))
+    other = plots.load_run(_write_run(tmp_path, "her", 2, [0.5, 0.6, 0.7]))
+    notes: list[str] = []
+    groups = plots.group([short, long, other], notes)
+    seeds = groups["FetchPush"]["her"]
+    assert sorted((c.seed, len(c.epochs)) for c in seeds) == [(1, 4), (2, 3)]
+    assert len(notes) == 1 and "counted once, with the longer run" in notes[0]
+    table = plots.aggregate(seeds)  # the table: epochs every seed reached
+    assert table.epochs.tolist() == [1, 2, 3] and table.n_seeds == 2
+    drawn = plots.aggregate(seeds, every_seed=False)  # the figure: to each run's end
+    assert drawn.epochs.tolist() == [1, 2, 3, 4]
+    assert drawn.mean.tolist() == pytest.approx([0.3, 0.4, 0.5, 0.4])
+
+
+def test_reference_for_a_task_without_authors_data_says_so(tmp_path: Path, capsys) -> None:
+    run = _write_run(tmp_path, "her", 1, [0.0, 0.5], task="reach")
+    assert main(["plot", str(run), "-o", str(tmp_path / "f.png"), "--reference"]) == 0
+    err = capsys.readouterr().err
+    assert "--reference: the authors published no curves for FetchReach" in err
