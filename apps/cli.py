@@ -253,7 +253,8 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from apps.view import run_view
 
     return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
-                    web_port=args.web_port, open_browser=not args.no_browser)
+                    web_port=args.web_port, grpc_port=args.grpc_port,
+                    open_browser=not args.no_browser)
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
@@ -333,7 +334,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                         "(default: every n-th, at most 200)")
     p.add_argument("--web", action="store_true",
                    help="serve the web viewer (http://localhost:9090) until Ctrl-C")
-    p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer port (9090)")
+    p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer's HTTP port "
+                   "(9090)")
+    p.add_argument("--grpc-port", type=int, metavar="PORT", help="with --web: the port the "
+                   "recording is served on to the viewer (9876)")
     p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
 
     p = sub.add_parser("eval", help="evaluate a run's trained policy; record a video",

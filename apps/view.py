@@ -63,7 +63,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -517,10 +517,26 @@ def build_recording(rr, rec, run: RunLog, selected: Sequence[int],
 # Entry point
 
 
+def headless_problem(env: Mapping[str, str]) -> str | None:
+    """Why a native viewer window cannot open here (no display), or None."""
+    if sys.platform.startswith("linux") and not (env.get("DISPLAY") or
+                                                 env.get("WAYLAND_DISPLAY")):
+        return ("no display here (neither DISPLAY nor WAYLAND_DISPLAY is set), so no viewer "
+                "window can open: write a recording with --save RUN.rrd (open it elsewhere "
+                "with `rerun RUN.rrd`), or serve the web viewer with --web and open its URL")
+    return None
+
+
 def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
-             web: bool = False, web_port: int | None = None, open_browser: bool = True) -> int:
-    """`hercs view`: 0 on success, 2 on a bad path or selection (message on stderr)."""
+             web: bool = False, web_port: int | None = None, grpc_port: int | None = None,
+             open_browser: bool = True) -> int:
+    """`hercs view`: 0 on success, 2 on a bad path or selection, or a viewer that cannot
+    open (message on stderr)."""
     try:
+        if not (save or web):
+            problem = headless_problem(os.environ)
+            if problem is not None:
+                raise ViewError(problem)
         log_path = resolve_log_path(path)
         if episodes is not None:
             parse_selection(episodes)  # fail before reading the log
@@ -547,7 +563,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
     if save:
         rec.save(save, default_blueprint=layout)
     elif web:
-        url = rec.serve_grpc(default_blueprint=layout)
+        url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=layout)
         rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
     else:
         rr.spawn(recording=rec, default_blueprint=layout, executable_path=rerun_executable())

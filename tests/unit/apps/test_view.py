@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from apps.view import parse_selection, select_episodes
+from apps.view import headless_problem, parse_selection, run_view, select_episodes
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
 from hercs.runlog import EpisodeLogWriter
@@ -90,3 +90,15 @@ def test_view_saves_a_valid_rrd_with_the_documented_entities(tmp_path: Path) -> 
         assert f" - {entity} - " in printed, entity
     assert "/world/episodes/000005/" not in printed  # not selected
     assert "/curves/rejects" not in printed  # an empty column
+
+
+def test_without_a_display_the_viewer_is_not_spawned_and_the_user_is_told_why(
+        tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    assert run_view(str(tmp_path)) == 2  # before reading anything: no hang, no spawn
+    err = capsys.readouterr().err
+    assert "no display here" in err and "--save" in err and "--web" in err
+    assert headless_problem({"DISPLAY": ":0"}) is None
+    assert headless_problem({"WAYLAND_DISPLAY": "wayland-0"}) is None
