@@ -5,8 +5,8 @@
 Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`,
 under `--run-dir` (default `runs/sample_efficiency`). The grid is resumable: a run whose
 `bench_done.json` exists is skipped; a run folder without it (the bench was stopped while the
-run trained) is moved aside to `<run-dir>/_unfinished/` and trained again from scratch, since
-a learner cannot resume from the middle of a run. Runs go `--jobs` at a time (default: one
+run trained) is continued with `hercs up --resume` from its last checkpoint (a folder with no
+saved config is moved aside to `<run-dir>/_unfinished/`). Runs go `--jobs` at a time (default: one
 per core, since each run is bound by its learner's one torch thread), each with its own
 router port. Cells run seed-major, so that every method has the same number of finished seeds
 as early as possible.
@@ -90,12 +90,22 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def can_resume(run_dir: Path) -> bool:
+    """An unfinished run `hercs up --resume` can continue: it saved its config."""
+    return (run_dir / "config.yaml").is_file()
+
+
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
-               overrides: Sequence[str]) -> list[str]:
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
-           cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run", cell.name,
-           "--run-dir", str(run_root), "--actors", str(actors),
-           "--listen", f"tcp/127.0.0.1:{port}"]
+               overrides: Sequence[str], resume: bool = False) -> list[str]:
+    if resume:  # task, method, seed and name come from the run's saved config
+        cmd = [sys.executable, "-m", "apps.cli", "up", "--resume", str(run_root / cell.name),
+               "--epochs", str(epochs), "--actors", str(actors),
+               "--listen", f"tcp/127.0.0.1:{port}"]
+    else:
+        cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
+               cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
+               cell.name, "--run-dir", str(run_root), "--actors", str(actors),
+               "--listen", f"tcp/127.0.0.1:{port}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -113,19 +123,24 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
              overrides: Sequence[str]) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
-    A run that exits 0 gets `bench_done.json` (command, wall time, epochs); one that fails is
-    reported and left in place (the next invocation sets it aside and tries again)."""
+    A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs);
+    one that fails or is interrupted is left in place and the next invocation continues it
+    with `hercs up --resume` (its epochs already trained are kept)."""
     run_root.mkdir(parents=True, exist_ok=True)
     (run_root / LOG_DIR).mkdir(exist_ok=True)
     todo: list[GridRun] = []
+    resumed: set[GridRun] = set()
     for cell in cells:
         run_dir = run_root / cell.name
         if is_done(run_dir):
             print(f"[skip] {cell.name}: finished earlier", flush=True)
             continue
-        if run_dir.exists():
-            print(f"[redo] {cell.name}: unfinished, moved to {set_aside(run_dir, run_root)}",
-                  flush=True)
+        if can_resume(run_dir):
+            print(f"[resume] {cell.name}: unfinished, continued where it stopped", flush=True)
+            resumed.add(cell)
+        elif run_dir.exists():
+            print(f"[redo] {cell.name}: never started, moved to "
+                  f"{set_aside(run_dir, run_root)}", flush=True)
         todo.append(cell)
 
     results: list[tuple[GridRun, int]] = []
@@ -137,7 +152,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
             while todo and len(running) < jobs:
                 cell = todo.pop(0)
                 cmd = up_command(cell, epochs=epochs, run_root=run_root, port=free_port(),
-                                 actors=actors, overrides=overrides)
+                                 actors=actors, overrides=overrides, resume=cell in resumed)
                 log = open(run_root / LOG_DIR / f"{cell.name}.log", "wb")  # noqa: SIM115
                 proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                                         cwd=REPO)
@@ -157,6 +172,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 if code == 0:
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
                               "epochs": epochs, "wall_s": round(wall, 1), "commit": commit,
+                              "resumed": r.cell in resumed,
                               "command": " ".join(r.proc.args[1:]),  # type: ignore[index]
                               "finished": datetime.now(UTC).isoformat(timespec="seconds")}
                     (run_root / r.cell.name / DONE_FILE).write_text(json.dumps(record, indent=2))
@@ -165,7 +181,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                     print(f"[fail] {r.cell.name}: exit {code} after {wall:.0f} s; log "
                           f"{run_root / LOG_DIR / (r.cell.name + '.log')}", flush=True)
     except KeyboardInterrupt:
-        print("interrupted: stopping the running runs (they will be redone next time)",
+        print("interrupted: stopping the running runs (they will be resumed next time)",
               flush=True)
         for r in running:
             r.proc.terminate()

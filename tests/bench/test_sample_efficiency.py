@@ -57,8 +57,9 @@ def test_bad_grid_arguments_are_refused(capsys: pytest.CaptureFixture[str]) -> N
 @pytest.mark.integration
 @pytest.mark.slow
 def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
-    """Two real 1-epoch runs through `hercs up`; a second call skips them and redoes an
-    unfinished one; the report holds the table with our rows beside the authors'."""
+    """Two real 1-epoch runs through `hercs up`; a second call skips the finished one and
+    resumes the unfinished one; the report holds the table with our rows beside the
+    authors'."""
     cmd = [sys.executable, str(REPO / "bench" / "sample_efficiency.py"), "--quick",
            "--methods", "her", "her-cs", "--seeds", "1", "--run-dir", str(tmp_path / "runs"),
            "--out", str(tmp_path / "results")]
@@ -75,15 +76,19 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert "| HER-CS (ours) | 1 | 1 |" in report
     assert (tmp_path / "results" / "reach.png").stat().st_size > 10_000
 
-    # Resume: the finished runs are skipped; an interrupted one is moved aside and redone.
+    # Resume: a finished run is skipped; one stopped before it was marked done is continued
+    # with `hercs up --resume` (its epoch kept, not retrained); a folder that never got a
+    # config is moved aside and started again.
     (tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).unlink()
     second = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert second.returncode == 0, second.stdout + second.stderr
     assert "[skip] reach-her-s1" in second.stdout
-    assert "[redo] reach-her-cs-s1" in second.stdout
+    assert "[resume] reach-her-cs-s1" in second.stdout
     assert "[start] reach-her-s1" not in second.stdout
-    assert len(list((tmp_path / "runs" / se.UNFINISHED_DIR).iterdir())) == 1
-    assert se.is_done(tmp_path / "runs" / "reach-her-cs-s1")
+    done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).read_text())
+    assert done["resumed"] is True and "--resume" in done["command"]
+    rows = (tmp_path / "runs" / "reach-her-cs-s1" / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
     # bench/sampler_mix.py reads a real run's log back: one row per epoch mark
     mix = subprocess.run([sys.executable, str(REPO / "bench" / "sampler_mix.py"),
