@@ -8,7 +8,7 @@ from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.tasks import TaskSpec
-from hercs.validation import RejectReason, parse_message
+from hercs.validation import MAX_INT64, RejectReason, parse_message
 from proto import hercs_pb2 as pb
 
 
@@ -30,6 +30,9 @@ class WeightsDecoder:
         return parse_message(raw, pb.Weights, max_bytes=self._max_bytes)
 
     def decode(self, msg: pb.Weights) -> PolicyWeights:
+        if msg.version > MAX_INT64:  # episodes carry it as their int64 policy_version
+            raise InvalidMessage(RejectReason.BAD_VALUE,
+                                 f"Weights version {msg.version} is above {MAX_INT64}")
         actor, o_stats, g_stats = msg_to_weight_arrays(msg)
         weights = PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
                                 g_stats=g_stats)

@@ -8,6 +8,7 @@ the error reply.
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from typing import NamedTuple, TypeVar
 
@@ -50,6 +51,10 @@ class Rejection(NamedTuple):
 
 
 M = TypeVar("M", bound=Message)
+
+MAX_INT64 = 2**63 - 1
+"""Counters that travel as uint64 but are kept as int64 (numpy arrays, int64 message fields)
+must not exceed this."""
 
 
 def parse_message(raw: bytes, cls: type[M], *, max_bytes: int) -> M:
@@ -115,6 +120,9 @@ def validate_episode(
                          f"Episode.task {msg.task!r}: this replay serves task {spec.name!r}")
     if not msg.actor_id:
         return Rejection(RejectReason.MISSING_FIELD, "Episode.actor_id is empty")
+    if msg.seq > MAX_INT64:  # the store keeps seq in an int64 array
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"Episode.seq {msg.seq} is above {MAX_INT64} (2**63 - 1)")
     for field, shape in expected_shapes(spec).items():
         rejection = _array_rejection(f"Episode.{field}", getattr(msg, field), shape,
                                      length_axis=True)
@@ -177,6 +185,25 @@ def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> Re
                          f"expected {(k, goal_dim)}")
     if not np.isfinite(centroids).all():
         return Rejection(RejectReason.NON_FINITE, "ClusterModel.centroids: non-finite values")
+    return None
+
+
+def validate_eval_result(msg: pb.EvalResult) -> Rejection | None:
+    """Check an `EvalResult` before it is logged or recorded: at least one episode, a finite
+    success rate in [0, 1] and a finite, non-negative mean final distance."""
+    if msg.episodes < 1:
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"EvalResult.episodes {msg.episodes}, must be >= 1")
+    for name in ("success_rate", "mean_final_distance"):
+        if not math.isfinite(getattr(msg, name)):
+            return Rejection(RejectReason.NON_FINITE,
+                             f"EvalResult.{name} {getattr(msg, name)!r} is not finite")
+    if not 0.0 <= msg.success_rate <= 1.0:
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"EvalResult.success_rate {msg.success_rate!r}, must be in [0, 1]")
+    if msg.mean_final_distance < 0.0:
+        return Rejection(RejectReason.BAD_VALUE, f"EvalResult.mean_final_distance "
+                                                 f"{msg.mean_final_distance!r}, must be >= 0")
     return None
 
 

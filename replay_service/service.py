@@ -50,7 +50,12 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
-from hercs.runlog import EpisodeLogError, RecoveringLogWriter, read_cluster_models
+from hercs.runlog import (
+    MAX_SEQUENCE,
+    EpisodeLogError,
+    RecoveringLogWriter,
+    read_cluster_models,
+)
 from hercs.seeding import generator
 from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
 from hercs.transport import PendingReply
@@ -59,6 +64,7 @@ from hercs.validation import (
     decode_episode,
     parse_message,
     validate_centroids,
+    validate_eval_result,
     validate_sample_request,
 )
 from proto import SCHEMA_VERSION
@@ -239,6 +245,10 @@ class ReplayService:
         rejection = validate_centroids(msg, k=self.config.cluster.k, goal_dim=self.spec.goal_dim)
         if rejection is not None:
             raise rejection.error()
+        if msg.version > MAX_SEQUENCE:  # checked before adopting: the log could not hold it
+            raise InvalidMessage(RejectReason.BAD_VALUE,
+                                 f"ClusterModel.version {msg.version} is above {MAX_SEQUENCE}, "
+                                 "the largest the episode log holds")
         return ClusterModel(version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
                             n_goals=int(msg.fitted_on), inserts_seen=int(msg.failed_goals_seen))
 
@@ -255,6 +265,13 @@ class ReplayService:
         try:
             msg = parse_message(payload, pb.EvalResult,
                                 max_bytes=self.config.replay.max_message_bytes)
+            rejection = validate_eval_result(msg)
+            if rejection is not None:
+                raise rejection.error()
+            if msg.epoch > MAX_SEQUENCE:
+                raise InvalidMessage(RejectReason.BAD_VALUE,
+                                     f"EvalResult.epoch {msg.epoch} is above {MAX_SEQUENCE}, "
+                                     "the largest the episode log holds")
         except InvalidMessage as exc:
             self._on_reject(exc)
             return
