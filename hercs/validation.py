@@ -143,7 +143,10 @@ def decode_episode(raw: bytes, spec: TaskSpec, *, run: str | None,
 
 
 def validate_sample_request(msg: pb.SampleRequest, *, run: str | None,
-                            max_minibatches: int, max_batch_size: int) -> Rejection | None:
+                            max_minibatches: int, max_batch_size: int,
+                            max_rows: int | None = None) -> Rejection | None:
+    """A request the replay may serve; `max_rows` bounds minibatches × batch size, i.e. the
+    reply's size (each row is a few hundred bytes)."""
     if run is not None and msg.run != run:
         return Rejection(RejectReason.UNKNOWN_RUN,
                          f"SampleRequest.run {msg.run!r}: this replay serves run {run!r}")
@@ -155,6 +158,12 @@ def validate_sample_request(msg: pb.SampleRequest, *, run: str | None,
         return Rejection(RejectReason.BAD_VALUE,
                          f"SampleRequest.batch_size {msg.batch_size}, "
                          f"must be in [1, {max_batch_size}]")
+    rows = msg.num_minibatches * msg.batch_size
+    if max_rows is not None and rows > max_rows:
+        return Rejection(RejectReason.BAD_VALUE,
+                         f"SampleRequest of {msg.num_minibatches} minibatches × "
+                         f"{msg.batch_size} rows = {rows} rows, above the {max_rows} one reply "
+                         "may hold; ask for fewer minibatches per request")
     return None
 
 

@@ -77,6 +77,9 @@ log = logging.getLogger("hercs.replay")
 STATUS_PERIOD_S = 1.0
 MAX_MINIBATCHES_PER_REQUEST = 400
 MAX_BATCH_SIZE = 8192
+MAX_ROWS_PER_REQUEST = 1 << 18
+"""Transitions in one Batch reply: 262,144 rows, ~61 MB for the object tasks (the learner asks
+for 40 × 256 = 10,240). Without it one valid request could make the replay build GBs."""
 
 R = TypeVar("R")
 
@@ -209,7 +212,7 @@ class ReplayService:
                                 max_bytes=self.config.replay.max_message_bytes)
         rejection = validate_sample_request(
             request, run=self.config.run.name, max_minibatches=MAX_MINIBATCHES_PER_REQUEST,
-            max_batch_size=MAX_BATCH_SIZE)
+            max_batch_size=MAX_BATCH_SIZE, max_rows=MAX_ROWS_PER_REQUEST)
         if rejection is not None:
             raise rejection.error()
         call = SampleCall(num_minibatches=int(request.num_minibatches),

@@ -91,7 +91,11 @@ from learner.service import decode_batch
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
-from replay_service.service import MAX_BATCH_SIZE, MAX_MINIBATCHES_PER_REQUEST
+from replay_service.service import (
+    MAX_BATCH_SIZE,
+    MAX_MINIBATCHES_PER_REQUEST,
+    MAX_ROWS_PER_REQUEST,
+)
 from tests.integration.services import ServiceProcess
 from tests.support import free_tcp_port
 
@@ -797,7 +801,8 @@ def sample_verdict(raw: bytes) -> str:
         msg = parse_message(raw, pb.SampleRequest, max_bytes=MAX_BYTES)
         rejection = validate_sample_request(msg, run=RUN_R,
                                             max_minibatches=MAX_MINIBATCHES_PER_REQUEST,
-                                            max_batch_size=MAX_BATCH_SIZE)
+                                            max_batch_size=MAX_BATCH_SIZE,
+                                            max_rows=MAX_ROWS_PER_REQUEST)
         if rejection is not None:
             raise rejection.error()
 

@@ -126,12 +126,14 @@ def test_parse_message_checks_schema_of_any_type() -> None:
 
 @pytest.mark.parametrize(("minibatches", "batch_size", "ok"),
                          [(40, 256, True), (0, 256, False), (41, 256, False), (40, 0, False),
-                          (1, 5000, False)],
-                         ids=["ok", "zero-mb", "too-many-mb", "zero-batch", "huge-batch"])
+                          (1, 5000, False), (40, 4096, False), (25, 4096, True)],
+                         ids=["ok", "zero-mb", "too-many-mb", "zero-batch", "huge-batch",
+                              "reply-too-big", "reply-at-the-bound"])
 def test_sample_request_bounds(minibatches: int, batch_size: int, ok: bool) -> None:
     msg = pb.SampleRequest(schema_version=1, run="run1", num_minibatches=minibatches,
                            batch_size=batch_size)
-    rejection = validate_sample_request(msg, run="run1", max_minibatches=40, max_batch_size=4096)
+    rejection = validate_sample_request(msg, run="run1", max_minibatches=40, max_batch_size=4096,
+                                        max_rows=25 * 4096)
     assert (rejection is None) == ok
     if not ok:
         assert rejection.reason == RejectReason.BAD_VALUE
