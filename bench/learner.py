@@ -1,0 +1,182 @@
+"""The learner's update against its compute limit on this core (issue: learner at its limit).
+
+    python bench/learner.py            # ~1 min: FetchPush, B = 256, one torch thread
+    python bench/learner.py --quick    # CI: a few updates, every figure still computed
+
+Measured in one run, side by side (these machines are shared and noisy, so the figures that
+matter are ratios of things timed together):
+
+- the FLOPs of one `DDPGLearner.update` (forward and backward of actor and critic, the target
+  computation, Adam excluded: it is O(parameters), not O(batch)), counted by
+  `torch.utils.flop_counter.FlopCounterMode` on the real update;
+- the GEMM rate of this core for the update's shape class (B × 256 · 256 × 256) in fp32 and in
+  bf16, from `torch.mm` timed in the same process;
+- the update rate (updates per CPU-second of this thread), fp32 and bf16 autocast;
+- ratio = update rate ÷ (GEMM rate ÷ FLOPs per update): 1.0 would be an update that is
+  nothing but GEMMs at the core's speed.
+
+Writes docs/results/learner.{json,md} (or --out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `python bench/learner.py` from a checkout
+    sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from hercs.batch import TransitionBatch  # noqa: E402
+from hercs.config import DDPGConfig  # noqa: E402
+from hercs.tasks import task_spec  # noqa: E402
+from learner.ddpg import DDPGLearner  # noqa: E402
+
+
+def make_batch(spec, batch_size: int, rng: np.random.Generator) -> TransitionBatch:  # type: ignore[no-untyped-def]
+    return TransitionBatch(
+        o=rng.normal(size=(batch_size, spec.obs_dim)).astype(np.float32),
+        g=rng.normal(size=(batch_size, spec.goal_dim)).astype(np.float32),
+        u=rng.uniform(-1, 1, size=(batch_size, spec.action_dim)).astype(np.float32),
+        r=-(rng.uniform(size=batch_size) > 0.3).astype(np.float32),
+        o2=rng.normal(size=(batch_size, spec.obs_dim)).astype(np.float32))
+
+
+def update_flops(learner: DDPGLearner, batch: TransitionBatch) -> int:
+    """FLOPs torch counts in one real update (matmuls and convolutions; Adam is not)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter:
+        learner.update(batch)
+    return int(counter.get_total_flops())
+
+
+def cpu_seconds(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
+    """CPU time of this thread per call (the machine is shared: wall time would count others)."""
+    for _ in range(max(3, repeats // 10)):  # warm-up: oneDNN picks and caches its kernels
+        fn()
+    start = time.thread_time()
+    for _ in range(repeats):
+        fn()
+    return (time.thread_time() - start) / repeats
+
+
+def gemm_rate(batch_size: int, hidden: int, dtype: torch.dtype, repeats: int) -> float:
+    """FLOP/s of (batch_size × hidden) · (hidden × hidden) on this thread."""
+    a = torch.randn(batch_size, hidden, dtype=dtype)
+    b = torch.randn(hidden, hidden, dtype=dtype)
+    per_call = cpu_seconds(lambda: torch.mm(a, b), repeats)
+    return 2.0 * batch_size * hidden * hidden / per_call
+
+
+def update_rate(learner: DDPGLearner, batches: list[TransitionBatch], *, bf16: bool) -> float:
+    """Updates per CPU-second of this thread."""
+    it = iter(range(10**9))
+
+    def one() -> None:
+        batch = batches[next(it) % len(batches)]
+        if bf16:
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                learner.update(batch)
+        else:
+            learner.update(batch)
+
+    return 1.0 / cpu_seconds(one, len(batches))
+
+
+def cpu_features() -> str:
+    """The CPU model and the vector extensions that decide bf16 speed."""
+    model, flags = platform.processor() or "unknown CPU", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name") and model in ("", "unknown CPU", "x86_64"):
+                model = line.split(":", 1)[1].strip()
+            elif line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    wanted = ["avx2", "avx512f", "avx512_bf16", "amx_bf16"]
+    have = [f for f in wanted if f in flags]
+    missing = [f for f in wanted if f not in flags]
+    return f"{model}; has {', '.join(have) or 'none of'}; lacks {', '.join(missing) or '-'}"
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
+                              capture_output=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--task", default="push")
+    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--updates", type=int, default=400, help="timed updates per precision")
+    parser.add_argument("--out", type=Path, help="where learner.{json,md} go "
+                        "(default docs/results; not written with --quick unless given)")
+    parser.add_argument("--quick", action="store_true", help="CI: 10 updates, 200 GEMMs")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    updates = 10 if args.quick else args.updates
+    gemms = 200 if args.quick else 2000
+    spec, config = task_spec(args.task), DDPGConfig()
+    rng = np.random.default_rng(0)
+    learner = DDPGLearner(spec=spec, config=config, seed=0)
+    batches = [make_batch(spec, args.batch_size, rng) for _ in range(16)]
+    flops = update_flops(learner, batches[0])
+    results: dict[str, dict[str, float]] = {}
+    for name, dtype, bf16 in (("fp32", torch.float32, False), ("bf16", torch.bfloat16, True)):
+        gemm = gemm_rate(args.batch_size, config.hidden_size, dtype, gemms)
+        rate = update_rate(learner, batches * max(1, updates // len(batches)), bf16=bf16)
+        limit = gemm / flops
+        results[name] = {"gemm_gflops": gemm / 1e9, "updates_per_cpu_s": rate,
+                         "limit_updates_per_cpu_s": limit, "ratio_to_limit": rate / limit}
+    summary = {"task": args.task, "batch_size": args.batch_size, "gflop_per_update": flops / 1e9,
+               "threads": 1, "results": results, "commit": git_commit(),
+               "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+               "machine": f"{platform.node()} ({os.cpu_count()} cores)",
+               "cpu": cpu_features(), "quick": args.quick}
+    lines = [
+        "# The learner's update against this core's GEMM limit",
+        "",
+        f"`python bench/learner.py{' --quick' if args.quick else ''}` — {summary['date']}, "
+        f"commit {summary['commit']}, {summary['machine']}, one torch thread.",
+        "",
+        f"CPU: {summary['cpu']}. Without avx512_bf16 or AMX, bf16 matrix products have no "
+        "native kernel and run far below fp32: there bf16 cannot pay.",
+        "",
+        f"One {spec.env_id} update at B = {args.batch_size}: "
+        f"**{summary['gflop_per_update']:.3f} GFLOP** (torch's FLOP counter, Adam excluded).",
+        "",
+        "| precision | GEMM rate (GFLOP/s) | limit (updates/CPU-s) | measured (updates/CPU-s) "
+        "| ratio |",
+        "|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        lines.append(f"| {name} | {r['gemm_gflops']:.1f} | {r['limit_updates_per_cpu_s']:.1f} | "
+                     f"{r['updates_per_cpu_s']:.1f} | {r['ratio_to_limit']:.2f} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    out = args.out or (None if args.quick else REPO / "docs" / "results")
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "learner.json").write_text(json.dumps(summary, indent=2) + "\n")
+        (out / "learner.md").write_text(text)
+        print(f"wrote {out / 'learner.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
