@@ -5,17 +5,21 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint proto install clean
+.PHONY: run test lint proto install clean compose-test compose-clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
 
-# torch goes in first, pinned to the local CPU wheel: a later, unpinned resolution of torch
-# would pull several GB of CUDA packages. The project's own range (>=2.13,<2.14) is then
-# already satisfied.
+# torch goes in first, the CPU build from PyTorch's wheel index: PyPI's torch for Linux is
+# the CUDA build and pulls several GB of nvidia-* packages. With a GPU, pick a CUDA index:
+#   make test TORCH_INDEX=https://download.pytorch.org/whl/cu128
+# The project's own range (torch>=2.13,<2.14) is then already satisfied. PIP_TORCH_ARGS may
+# add e.g. --retries 0 where that index is unreachable and a local wheel serves (CI here).
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+PIP_TORCH_ARGS ?=
 $(STAMP): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
-	$(PIP) install --quiet torch==2.13.0
+	$(PIP) install --quiet torch==2.13.0 --index-url $(TORCH_INDEX) $(PIP_TORCH_ARGS)
 	$(PIP) install --quiet -e '.[dev]'
 	touch $(STAMP)
 
@@ -28,6 +32,17 @@ run: $(STAMP)
 
 test: lint
 	$(PY) -m pytest -q tests
+
+# docker-compose.yml for real: a private Docker engine (installed from Debian and started in its
+# own network namespace if none runs), an offline image build, a short FetchReach run with 4
+# actors, checks, teardown. Prints "SKIPPED: <reason>" and succeeds where no engine can run
+# (not root, no apt-get). Caches under /var/cache/hercs-ci (deploy/compose_test.sh).
+compose-test: $(STAMP)
+	bash deploy/compose_test.sh
+
+# Delete compose-test's caches (base image tarball, wheelhouse, the engine's data root).
+compose-clean:
+	bash deploy/compose_test.sh clean
 
 # ruff, the layer contracts (import-linter, see pyproject.toml) and the type check.
 lint: $(STAMP)

@@ -386,9 +386,28 @@ def _cmd_certs(args: argparse.Namespace) -> int:
         return 2
 
 
+def _needs_extras(command: Callable[[argparse.Namespace], int]
+                 ) -> Callable[[argparse.Namespace], int]:
+    """A command whose optional libraries (rerun-sdk, matplotlib, imageio-ffmpeg) may be absent,
+    as in the compose `services` image: say so instead of a traceback (exit 2)."""
+
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return command(args)
+        except ModuleNotFoundError as exc:
+            print(f"hercs {args.command}: needs the Python package {exc.name!r}, which this "
+                  "installation lacks (the compose `services` image leaves out the viewers: "
+                  "use the full image, `docker build -t hercs:full .`, or pip install it)",
+                  file=sys.stderr)
+            return 2
+
+    return run
+
+
 # Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
-    "plot": _cmd_plot, "view": _cmd_view, "certs": _cmd_certs, "eval": _cmd_eval}
+    "plot": _needs_extras(_cmd_plot), "view": _needs_extras(_cmd_view), "certs": _cmd_certs,
+    "eval": _needs_extras(_cmd_eval)}
 
 
 def main(argv: list[str] | None = None) -> int:
