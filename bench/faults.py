@@ -55,7 +55,7 @@ CHILD = {"replay": "replay-0", "learner": "learner-0", "clusterer": "clusterer-0
          "evaluator": "evaluator-0", "actor": "actor-1"}
 STARTED = re.compile(r"^hercs up: started \w+ (?P<ident>[\w-]+)(?P<again> again)?.*\(pid "
                      r"(?P<pid>\d+)\)")
-EPOCH = re.compile(r"^epoch (?P<epoch>\d+)/(?P<of>\d+)")
+EPOCH = re.compile(r"^epoch (?P<epoch>\d+)/(?P<of>\d+)  success")  # not the "running" lines
 
 
 @dataclass
@@ -179,7 +179,7 @@ def run_fault(fault: str, *, root: Path, epochs: int, cycles: int, kill_at: int,
     started = time.monotonic()
     up = Up(argv, root / f"{run}.out")
     notes: list[str] = []
-    up.wait_for(re.compile(rf"^epoch {kill_at}/"), timeout_s)
+    up.wait_for(re.compile(rf"^epoch {kill_at}/\d+  success"), timeout_s)
     if fault == "everything":
         up.kill_all()
         killed_at = time.monotonic()

@@ -43,7 +43,7 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     launcher = Launcher(up_argv(tmp_path, "--run", "bumpy"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "bumpy"
     try:
-        launcher.wait_for_line(r"^epoch 2/4", timeout_s=RUN_S)
+        launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
         os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
         launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)",
                                timeout_s=60)
@@ -64,7 +64,7 @@ def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> No
     launcher = Launcher(up_argv(tmp_path, "--run", "actorless"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "actorless"
     try:
-        launcher.wait_for_line(r"^epoch 1/4", timeout_s=RUN_S)
+        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
         os.kill(launcher.child_pids["actor-1"], signal.SIGKILL)
         launcher.wait_for_line(r"started actor actor-1 again \(restart 1\)", timeout_s=60)
         assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
@@ -84,7 +84,7 @@ def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path
     run_dir = tmp_path / "runs" / "phoenix"
     first = Launcher(up_argv(tmp_path, "--run", "phoenix"), cwd=tmp_path)
     try:
-        first.wait_for_line(r"^epoch 2/4", timeout_s=RUN_S)
+        first.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
         pids = first.child_pids
         first.proc.kill()
         first.proc.wait()

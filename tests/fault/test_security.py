@@ -192,6 +192,6 @@ def test_hercs_up_with_tls_passwords_and_access_control(certs: Path, tmp_path: P
            "--set", "cluster.fgb_size=8", "--set", "cluster.k=2"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "epoch 1/1" in done.stdout
+    assert "epoch 1/1  success" in done.stdout
     rows = (tmp_path / "secure" / "metrics.csv").read_text().splitlines()
     assert len(rows) == 2 and int(rows[1].split(",")[2]) > 0, "episodes were inserted"

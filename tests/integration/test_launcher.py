@@ -308,8 +308,7 @@ def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
 def test_resolve_run_names_the_run_and_points_children_at_the_router(listen: str,
                                                                      connect: str) -> None:
     config = resolve_config(build_parser()[0].parse_args(
-        ["up", "--task", "pick", "--method", "her-ebp", "--seed", "7", "--listen", listen,
-         "--connect", "tcp/10.9.9.9:1"]))
+        ["up", "--task", "pick", "--method", "her-ebp", "--seed", "7", "--listen", listen]))
     resolved = resolve_run(config, now=datetime(2025, 3, 4, 5, 6, 7))
     assert resolved.run.name == "pick-her-ebp-s7-20250304-050607"
     assert resolved.transport.connect == [connect]
@@ -365,7 +364,10 @@ def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:
     assert launcher.finish() == 0, launcher.err
     run_dir = tmp_path / "runs" / "done"
     assert launcher.out[-1] == f"hercs up: run done finished; run directory: {run_dir}"
-    assert [line for line in launcher.out if line.startswith("epoch")] == [
+    # actors connected and the ETA depend on timing: checked in the pure Progress tests
+    ended = [line for line in launcher.out
+             if line.startswith("epoch") and " running " not in line]
+    assert [re.sub(r"  actors \d+|  eta \S+", "", line) for line in ended] == [
         "epoch 1/2  success 0.10  env 1001 steps/s  upd 201/s  replay 100  lag 1.5",
         "epoch 2/2  success 0.20  env 1002 steps/s  upd 202/s  replay 200  lag 1.5",
     ]
@@ -477,8 +479,8 @@ def test_the_live_view_starts_after_the_replay_and_its_exit_never_ends_the_run(
     assert ("hercs up: live live-0 exited unexpectedly (exit code 3); training goes on without "
             "it; last lines of") in report
     assert "  | boom: the stand-in failed on purpose" in report
-    assert [line.split()[1] for line in launcher.out if line.startswith("epoch")] == ["1/2",
-                                                                                      "2/2"]
+    assert [line.split()[1] for line in launcher.out
+            if line.startswith("epoch") and " running " not in line] == ["1/2", "2/2"]
     config = load_yaml(tmp_path / "runs" / "watched" / "config.yaml")
     assert (config.view.live, config.view.viewer, config.view.save) == (True, "none", str(saved))
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
@@ -536,10 +538,12 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     finally:
         launcher.kill()
     run_dir = tmp_path / "runs" / "e2e"
-    epochs = [line for line in launcher.out if line.startswith("epoch")]
+    epochs = [line for line in launcher.out
+              if line.startswith("epoch") and " running " not in line]
     assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
     assert all(re.fullmatch(r"epoch \d/2  success \d\.\d\d  env \d+ steps/s  upd \d+/s  "
-                            r"replay \d+  lag [-\d.]+", line) for line in epochs), epochs
+                            r"replay \d+  lag [-\d.]+  actors \d+(  eta \S+)?", line)
+               for line in epochs), epochs
     assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
     assert load_yaml(run_dir / "config.yaml").run.name == "e2e"
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))

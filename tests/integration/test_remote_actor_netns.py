@@ -25,7 +25,7 @@ import pytest
 import yaml
 
 from apps.router import open_router
-from hercs.config import HercsConfig, apply_overrides
+from hercs.config import HercsConfig, SecurityConfig, apply_overrides
 from hercs.transport import PendingReply, Transport
 from hercs.validation import parse_message
 from proto import SCHEMA_VERSION
@@ -83,7 +83,9 @@ def router(netns: str) -> Iterator[tuple[Transport, str]]:
         sock.bind((HOST_IP, 0))
         port = sock.getsockname()[1]
     endpoint = f"tcp/{HOST_IP}:{port}"
-    transport = open_router([endpoint])
+    # a private veth pair nobody else reaches: plain TCP on purpose (the secured set-up is
+    # tests/fault/test_security.py); a non-loopback listen address needs the explicit opt-in
+    transport = open_router([endpoint], SecurityConfig(allow_insecure=True))
     yield transport, endpoint
     transport.close()
 

@@ -50,7 +50,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     before = _hercs_pids()
     cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--actors", "2", "--epochs", str(EPOCHS), "--seed", "1", "--run", "reach-learns",
-           "--run-dir", str(root), "--listen", endpoint, "--connect", endpoint,
+           "--run-dir", str(root), "--listen", endpoint,
            "--set", f"training.cycles_per_epoch={CYCLES}",
            "--set", f"cluster.k={K}", "--set", "cluster.fgb_size=40",
            "--set", "training.eval_episodes=20", "--set", "training.checkpoint_every=3"]
