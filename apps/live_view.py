@@ -497,7 +497,7 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
 
 def _work(runtime: ServiceRuntime) -> int:
     inbox = Inbox(runtime)  # before anything slow: headers from now on are kept
-    joined = join_run(runtime, runtime.config, keep=("transport", "view"))
+    joined = join_run(runtime, runtime.config, keep=("transport", "security", "view"))
     if joined is None:  # stopped first
         return 0
     import rerun as rr  # imported here: `hercs --help` stays fast
