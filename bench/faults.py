@@ -92,6 +92,8 @@ class Up:
     def __init__(self, argv: list[str], log_path: Path) -> None:
         self.lines: queue.Queue[tuple[float, str]] = queue.Queue()
         self.pids: dict[str, int] = {}
+        self.ended = False
+        """The output ended (the launcher exited); every later wait fails at once."""
         self.seen: list[tuple[float, str]] = []
         self._log = log_path.open("a")
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=self._log, text=True,
@@ -109,6 +111,9 @@ class Up:
     def wait_for(self, pattern: re.Pattern[str], timeout_s: float) -> tuple[float, re.Match[str]]:
         deadline = time.monotonic() + timeout_s
         while True:
+            if self.ended:
+                raise RuntimeError(f"hercs up ended (status {self.proc.wait()}) before a line "
+                                   f"matching {pattern.pattern!r}")
             try:
                 at, line = self.lines.get(timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
@@ -119,14 +124,13 @@ class Up:
                 self.pids[m["ident"]] = int(m["pid"])
             if m := pattern.match(line):
                 return at, m
-            if line == "" and self.proc.poll() is not None:
-                raise RuntimeError(f"hercs up ended (status {self.proc.returncode}) before a "
-                                   f"line matching {pattern.pattern!r}")
+            if line == "" and self.lines.empty():  # the end-of-output marker
+                self.ended = True
 
     def finish(self, timeout_s: float) -> int:
-        with_end = re.compile(r"^$")
+        never = re.compile(r"(?!)")  # read to the end of the output
         with contextlib.suppress(RuntimeError):
-            self.wait_for(with_end, timeout_s)
+            self.wait_for(never, timeout_s)
         status = self.proc.wait(timeout=timeout_s)
         self._log.close()
         return status
@@ -267,15 +271,16 @@ def main(argv: list[str] | None = None) -> int:
     faults, epochs, cycles = args.faults, args.epochs, args.cycles
     tmp = tempfile.TemporaryDirectory(prefix="hercs-faults-")
     out = args.out or (Path(tmp.name) if args.quick else REPO / "docs" / "results")
-    if args.quick:
-        faults, epochs, cycles = ["actor"], 3, 2
+    kill_at = args.kill_at
+    if args.quick:  # kill after epoch 1 of 3: an epoch must end after the restart
+        faults, epochs, cycles, kill_at = ["actor"], 3, 2, 1
     root = Path(tmp.name) / "runs"
     root.mkdir(parents=True)
     results = []
     for fault in faults:
         print(f"faults: {fault} …", flush=True)
         result = run_fault(fault, root=root, epochs=epochs, cycles=cycles,
-                           kill_at=min(args.kill_at, epochs - 1), timeout_s=args.timeout)
+                           kill_at=min(kill_at, epochs - 1), timeout_s=args.timeout)
         print(f"faults: {fault}: {'ok' if result.ok else 'FAILED'} {asdict(result)}", flush=True)
         results.append(result)
     command = "python bench/faults.py" + (" --quick" if args.quick else "")
