@@ -70,15 +70,17 @@ class EvalSummary:
 
 
 def _checkpoint_path(run_dir: Path, checkpoint: str | None) -> Path:
+    from learner.checkpoint import BEST, LATEST, epoch_file
+
     folder = run_dir / "checkpoints"
     if checkpoint is None:
-        return folder / "best.pt" if (folder / "best.pt").exists() else folder / "learner.pt"
+        return folder / BEST if (folder / BEST).exists() else folder / LATEST
     if checkpoint == "best":
-        return folder / "best.pt"
+        return folder / BEST
     if checkpoint == "latest":
-        return folder / "learner.pt"
+        return folder / LATEST
     if checkpoint.startswith("epoch-") and checkpoint[6:].isdigit():
-        return folder / f"epoch-{int(checkpoint[6:]):04d}.pt"
+        return folder / epoch_file(int(checkpoint[6:]))
     return Path(checkpoint)
 
 
@@ -199,21 +201,21 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
     if episodes < 1:
         print(f"hercs eval: --episodes {episodes}: must be >= 1", file=sys.stderr)
         return 2
+    closers: list[Any] = []
     try:
         render = video is not None or rerun_save is not None
         if render:
             os.environ["MUJOCO_GL"] = choose_gl()
         policy = load_policy(run_dir, checkpoint)
-        sinks = _sinks(video, rerun_save, policy)
+        sinks, closers = _sinks(video, rerun_save)
         summary = evaluate(policy, episodes=episodes, seed=seed, render=render,
                            on_frame=lambda n, t, rgb: [sink(n, t, rgb) for sink in sinks])
     except EvalError as exc:
         print(f"hercs eval: {exc}", file=sys.stderr)
         return 2
     finally:
-        for close in _closers:
+        for close in closers:
             close()
-        _closers.clear()
     spec = policy.config.task.spec
     print(f"hercs eval: {policy.config.run.name} ({spec.name}, {policy.config.run.method}), "
           f"policy of epoch {policy.epoch} from {policy.source.name}: success "
@@ -227,11 +229,10 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
     return 0
 
 
-_closers: list[Any] = []
-
-
-def _sinks(video: str | None, rerun_save: str | None, policy: LoadedPolicy) -> list[Any]:
-    sinks = []
+def _sinks(video: str | None, rerun_save: str | None) -> tuple[list[Any], list[Any]]:
+    """(frame sinks, their close functions) for --video and --rerun-save."""
+    sinks: list[Any] = []
+    closers: list[Any] = []
     if video:
         import imageio_ffmpeg
 
@@ -243,7 +244,7 @@ def _sinks(video: str | None, rerun_save: str | None, policy: LoadedPolicy) -> l
             writer.send(np.ascontiguousarray(rgb))
 
         sinks.append(to_video)
-        _closers.append(writer.close)
+        closers.append(writer.close)
     if rerun_save:
         import rerun as rr
 
@@ -258,5 +259,5 @@ def _sinks(video: str | None, rerun_save: str | None, policy: LoadedPolicy) -> l
             step_total[0] += 1
 
         sinks.append(to_rerun)
-        _closers.append(recording.flush)
-    return sinks
+        closers.append(recording.flush)
+    return sinks, closers
