@@ -330,8 +330,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("path", metavar="PATH", help="episodes.mcap or a run directory")
     p.add_argument("--save", metavar="OUT.rrd", help="write an .rrd file instead of a viewer")
     p.add_argument("--episodes", metavar="SELECTION",
-                   help="episode ids: '0:100', '5,7,9', '0:2000:10', 'last:20', 'all' "
-                        "(default: every n-th, at most 200)")
+                   help="episode ids: '0:100', '5,7,9', '0:2000:10', 'last:20', "
+                        "'spread:200' (every n-th, at most 200), 'all' (default: the last "
+                        "epoch's episodes)")
     p.add_argument("--web", action="store_true",
                    help="serve the web viewer (http://localhost:9090) until Ctrl-C")
     p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer's HTTP port "

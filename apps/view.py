@@ -71,6 +71,7 @@ import numpy as np
 
 from hercs.clustering import assign_clusters
 from hercs.codec import msg_to_array
+from hercs.config import load_yaml
 from hercs.errors import HercsError
 from hercs.runlog import (
     LIVE_NAME,
@@ -84,8 +85,9 @@ from hercs.runlog import (
 from hercs.tasks import TaskSpec, task_spec
 from proto import hercs_pb2 as pb
 
-DEFAULT_MAX_EPISODES = 200
-"""Without --episodes, every n-th episode so that at most this many are drawn (plus the last)."""
+FALLBACK_EPISODES_PER_EPOCH = 200
+"""Without --episodes the view draws the last epoch's episodes; this many when the run's
+config.yaml cannot tell how many an epoch has (the reference's 50 cycles × 4 episodes)."""
 
 APP_ID = "hercs"
 
@@ -120,9 +122,11 @@ def parse_selection(text: str) -> list[tuple[str, int | None, int | None, int]]:
         A:B        ids A ≤ id < B (either bound may be omitted)
         A:B:S      every S-th id from A (S ≥ 1)
         last:N     the last N episodes of the log
+        spread:N   every n-th episode so that at most N are drawn, plus the last one
         all        every episode
 
-    Returns a list of ("ids", start, stop, step) and ("last", None, None, n) items.
+    Returns a list of ("ids", start, stop, step), ("last", None, None, n) and
+    ("spread", None, None, n) items.
     Raises ValueError with a message naming the bad item.
     """
     items: list[tuple[str, int | None, int | None, int]] = []
@@ -133,11 +137,12 @@ def parse_selection(text: str) -> list[tuple[str, int | None, int | None, int]]:
                 raise ValueError("empty item")
             if item == "all":
                 items.append(("ids", None, None, 1))
-            elif item.startswith("last:"):
-                n = int(item[5:])
+            elif item.startswith(("last:", "spread:")):
+                kind, _, count = item.partition(":")
+                n = int(count)
                 if n < 1:
                     raise ValueError("N must be ≥ 1")
-                items.append(("last", None, None, n))
+                items.append((kind, None, None, n))
             elif ":" in item:
                 parts = item.split(":")
                 if len(parts) > 3:
@@ -157,25 +162,25 @@ def parse_selection(text: str) -> list[tuple[str, int | None, int | None, int]]:
         except ValueError as exc:
             raise ValueError(
                 f"--episodes: bad item {item!r} ({exc}); use ids and ranges like '0:100', "
-                "'5,7,9', '0:2000:10', 'last:20' or 'all'") from None
+                "'5,7,9', '0:2000:10', 'last:20', 'spread:200' or 'all'") from None
     return items
 
 
 def select_episodes(text: str | None, ids: Sequence[int], *,
-                    max_default: int = DEFAULT_MAX_EPISODES) -> list[int]:
-    """The episode ids to draw, in log order. `text` is the `--episodes` value; None means
-    every n-th episode so that at most `max_default` are drawn, always including the last."""
+                    last_epoch: int = FALLBACK_EPISODES_PER_EPOCH) -> list[int]:
+    """The episode ids to draw, in log order. `text` is the `--episodes` value; None means the
+    last epoch's episodes (`last_epoch` of them): a readable picture of where training is,
+    each trajectory coloured by the cluster model of its time."""
     if text is None:
-        if len(ids) <= max_default:
-            return list(ids)
-        stride = math.ceil(len(ids) / max_default)
-        chosen = set(ids[::stride])
-        chosen.add(ids[-1])
-        return [i for i in ids if i in chosen]
-    chosen = set()
+        return list(ids[-last_epoch:])
+    chosen: set[int] = set()
     for kind, start, stop, step in parse_selection(text):
         if kind == "last":
             chosen.update(ids[-step:])
+            continue
+        if kind == "spread":
+            chosen.update(ids[::math.ceil(len(ids) / step)] if ids else [])
+            chosen.update(ids[-1:])
             continue
         lo = 0 if start is None else start
         for i in ids:
@@ -201,6 +206,8 @@ class EpisodeOutcome:
     actor_id: str
     seq: int
     policy_version: int
+    # wall-clock time the replay logged it (ns since the epoch); 0 unknown (live view)
+    inserted_ns: int = field(default=0, kw_only=True)
 
 
 @dataclass
@@ -280,10 +287,26 @@ def read_run_log(path: Path) -> RunLog:
         if centroids is not None:
             ag_final = msg_to_array(msg.ag, where="Episode.ag")[-1:]
             cluster = int(assign_clusters(ag_final, centroids)[0])
-        run.episodes.append(summarize_episode(msg, episode_id=message.sequence, spec=spec,
-                                              cluster=cluster))
+        summary = summarize_episode(msg, episode_id=message.sequence, spec=spec,
+                                    cluster=cluster)
+        summary.inserted_ns = message.publish_time_ns
+        run.episodes.append(summary)
         next_id = message.sequence + 1
     return run
+
+
+def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
+    """How many episodes one epoch of the run has (cycles × episodes per cycle in its
+    config.yaml) and where that number comes from."""
+    config_path = run_dir / "config.yaml"
+    if config_path.is_file():
+        try:
+            training = load_yaml(config_path).training
+            return (training.cycles_per_epoch * training.episodes_per_cycle,
+                    f"one epoch, {config_path.name}")
+        except HercsError as exc:
+            return FALLBACK_EPISODES_PER_EPOCH, f"{config_path} unreadable: {exc}"
+    return FALLBACK_EPISODES_PER_EPOCH, "no config.yaml beside the log"
 
 
 def read_metrics(path: Path) -> dict[str, list[str]]:
@@ -356,8 +379,12 @@ def log_episode(rr, rec, ep: EpisodeSummary) -> None:
 def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeOutcome], *,
                         styles: bool = True) -> None:
     """`episodes/success`, `episodes/final_distance`, `episodes/cluster` on `episode`, one
-    row per episode; `styles=False` skips the static series styles (logged once is enough)."""
-    ids = rr.TimeColumn("episode", sequence=[e.episode_id for e in episodes])
+    row per episode, also on the wall-clock `time` timeline when every episode's insert time
+    is known; `styles=False` skips the static series styles (logged once is enough)."""
+    indexes = [rr.TimeColumn("episode", sequence=[e.episode_id for e in episodes])]
+    if episodes and all(e.inserted_ns > 0 for e in episodes):
+        indexes.append(rr.TimeColumn("time", timestamp=np.array(
+            [e.inserted_ns for e in episodes], dtype="datetime64[ns]")))
     for name, values in (("success", [float(e.success) for e in episodes]),
                          ("final_distance", [e.final_distance for e in episodes]),
                          ("cluster", [float(e.cluster) for e in episodes])):
@@ -365,7 +392,7 @@ def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeOutcome], *,
             style = (rr.SeriesLines(names=name) if name == "final_distance"
                      else rr.SeriesPoints(names=name, marker_sizes=1.5))
             rec.log(f"episodes/{name}", style, static=True)
-        rec.send_columns(f"episodes/{name}", indexes=[ids],
+        rec.send_columns(f"episodes/{name}", indexes=indexes,
                          columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
 
 
@@ -475,10 +502,11 @@ def rerun_executable() -> str | None:
     return str(rerun_exe) if rerun_exe.exists() else None
 
 
-def blueprint():
+def blueprint(selected: Sequence[int] = ()):
     """The default layout: the 3D scene large, the curves, per-episode scalars and the text
-    logs beside it, the `episode` timeline selected."""
+    logs beside it, the `episode` timeline active with the drawn episodes' span selected."""
     import rerun.blueprint as rrb
+    from rerun.blueprint.components import AbsoluteTimeRange
 
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -509,7 +537,8 @@ def blueprint():
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline="episode"),
+        rrb.TimePanel(timeline="episode", time_selection=AbsoluteTimeRange(
+            min=min(selected), max=max(selected)) if selected else None),
         collapse_panels=False,
     )
 
@@ -557,21 +586,22 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         if not run.episodes:
             raise ViewError(f"{log_path}: the log holds no episode")
         ids = [e.episode_id for e in run.episodes]
-        selected = select_episodes(episodes, ids)
+        run_dir = log_path if log_path.is_dir() else log_path.parent
+        per_epoch, per_epoch_source = episodes_per_epoch(run_dir)
+        selected = select_episodes(episodes, ids, last_epoch=per_epoch)
         if not selected:
             raise ViewError(f"--episodes {episodes!r} selects none of the {len(ids)} episodes "
                             f"(ids {ids[0]}..{ids[-1]})")
     except (ViewError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
-    run_dir = log_path if log_path.is_dir() else log_path.parent
     metrics = read_metrics(run_dir / "metrics.csv")
 
     import rerun as rr  # imported here: `hercs --help` stays fast
 
     rec = rr.RecordingStream(APP_ID)
     rec.send_recording_name(f"{run_dir.name} ({run.task})")
-    layout = blueprint()
+    layout = blueprint(selected)
     if save:
         rec.save(save, default_blueprint=layout)
     elif web:
@@ -581,6 +611,10 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         rr.spawn(recording=rec, default_blueprint=layout, executable_path=rerun_executable())
     build_recording(rr, rec, run, selected, metrics, log_path)
     rec.flush()
+    if episodes is None:
+        print(f"hercs view: drawing the last {len(selected)} episodes ({per_epoch_source}); "
+              "--episodes all draws the whole log, --episodes spread:200 a sample of it",
+              file=sys.stderr)
     print(f"hercs view: {len(selected)} of {len(ids)} episodes, {len(run.models)} cluster "
           f"models, {len(next(iter(metrics.values()), []))} epochs of metrics "
           f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)

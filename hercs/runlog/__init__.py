@@ -33,13 +33,13 @@ from hercs.runlog.reader import (
     segment_paths,
 )
 from hercs.runlog.recovering import RecoveringLogWriter
-from hercs.runlog.segments import EpisodeLog, seal_segment
+from hercs.runlog.segments import EpisodeLog, run_start_ns, seal_segment
 from hercs.runlog.writer import EpisodeLogWriter
 
 __all__ = [
     "LIVE_NAME", "MAX_SEQUENCE", "METADATA_NAME", "TOPIC_CLUSTER_MODEL", "TOPIC_EPISODES",
     "TOPIC_EVAL_RESULT", "TOPIC_SCENE", "TOPIC_SCENE_POINTS", "EpisodeLog", "EpisodeLogError",
     "EpisodeLogWriter", "LoggedMessage", "RecoveringLogWriter", "SegmentScan",
-    "read_cluster_models", "read_episodes", "read_eval_results", "read_messages", "scan_segment",
-    "seal_segment", "segment_paths",
+    "read_cluster_models", "read_episodes", "read_eval_results", "read_messages", "run_start_ns",
+    "scan_segment", "seal_segment", "segment_paths",
 ]

@@ -6,13 +6,18 @@ Contents (protobuf, schemas embedded):
     /eval_result     hercs.EvalResult     sequence = epoch
     /scene           foxglove.SceneUpdate gripper, object, goal per observation (Foxglove)
     /scene/points    foxglove.PointCloud  the same as coloured points (Rerun, Foxglove)
-plus one metadata record `hercs.episode_log` {run, task, schema_version} at the start.
+plus one metadata record `hercs.episode_log` {run, task, schema_version, start_time_ns} at the
+start.
 
-Timeline: log_time is synthetic (see `hercs.runlog.scene`): episode k's observations sit at
-k·span + t·40 ms, span = (T+2)·40 ms, so episodes never overlap; its Episode message sits at
-k·span. A ClusterModel or EvalResult sits in the gap after the last episode written by this
-writer (0 before the first). publish_time of Episode, ClusterModel and EvalResult is the
-wall-clock time of the append (ns since the Unix epoch); scene messages repeat their log_time.
+Timeline: log_time is synthetic (see `hercs.runlog.scene`) from the run's real start S
+(`start_time_ns`, ns since the Unix epoch, the same in every segment of a run): episode k's
+observations sit at S + k·span + t·40 ms, span = (T+2)·40 ms, so episodes never overlap and a
+viewer's clock starts at the day and hour the run started; its Episode message sits at
+S + k·span. A ClusterModel or EvalResult sits in the gap after the last episode written by
+this writer (S before the first). The synthetic clock runs ahead of the real one (an episode
+takes (T+2)·40 ms on it, well under that in a run): publish_time of Episode, ClusterModel and
+EvalResult is the real wall-clock time of the append; scene messages repeat their log_time.
+Logs written before `start_time_ns` existed start at 0 (1970 in a viewer).
 
 The log is split by job: this module (topics, constants, the error), `writer` (appends that
 are durable before an ack), `reader` (messages back, tolerant of a torn tail) and `segments`
@@ -45,6 +50,8 @@ TOPIC_SCENE_POINTS = "/scene/points"
 LIVE_NAME = "episodes.mcap"
 SEGMENT_RE = re.compile(r"^episodes\.(\d+)\.mcap$")
 METADATA_NAME = "hercs.episode_log"
+START_TIME_KEY = "start_time_ns"
+"""Metadata key: the run's start, the origin of the synthetic timeline (ns since the epoch)."""
 MAX_SEQUENCE = 2**32 - 1
 """MCAP's message sequence is a uint32: the largest episode id the log can hold."""
 

@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from hercs.runlog.format import EpisodeLogError
-from hercs.runlog.segments import EpisodeLog
+from hercs.runlog.segments import EpisodeLog, run_start_ns
 from hercs.runlog.writer import EpisodeLogWriter
 from proto import hercs_pb2 as pb
 
@@ -64,7 +64,7 @@ class RecoveringLogWriter:
         sealed = EpisodeLog.retire(self.run_dir, run=run, task=task)
         try:
             self._writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=run,
-                                            task=task)
+                                            task=task, start_time_ns=run_start_ns(sealed))
         except OSError as exc:
             self._fail(exc)
         return self, EpisodeLog.recovered(sealed)
@@ -131,9 +131,9 @@ class RecoveringLogWriter:
                     # the failed append's bytes, complete or not, were never acked: cut them,
                     # so the id the caller gives the next episode is not in the log already
                     os.truncate(old.path, old.durable_end)
-            EpisodeLog.retire(self.run_dir, run=self.run, task=self.task)
+            sealed = EpisodeLog.retire(self.run_dir, run=self.run, task=self.task)
             writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
-                                      task=self.task)
+                                      task=self.task, start_time_ns=run_start_ns(sealed))
         except OSError as exc:
             self._fail(exc)
             raise EpisodeLogError(f"{self.run_dir}: cannot start a new log segment ({exc}); "

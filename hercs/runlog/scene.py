@@ -17,7 +17,8 @@ is the gripper), goal = g (T rows; the final observation o_T shows the last goal
 Timeline (synthetic, so that episodes never overlap in a viewer): episode k occupies
 [k·span, k·span + T·40 ms] with span = (T + 2)·40 ms, i.e. its T+1 observations 40 ms apart
 (the Fetch control period, docs/DESIGN.md §4 Δt) and one empty 40 ms slot before episode k+1.
-Times are nanoseconds from 0, not wall-clock time.
+The functions here give offsets from 0; the writer adds the run's start time (ns since the
+Unix epoch, `hercs.runlog.format`), so a viewer's clock starts when the run started.
 """
 
 from __future__ import annotations

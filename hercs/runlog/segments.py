@@ -32,6 +32,7 @@ from hercs.runlog.format import (
     METADATA_NAME,
     RECORD_HEADER,
     SEGMENT_RE,
+    START_TIME_KEY,
     EpisodeLogError,
     fsync_dir,
 )
@@ -129,12 +130,29 @@ def _closing_bytes(parts: IndexParts, data_end_offset: int) -> bytes:
     return data_end + summary + builder.end() + MCAP0_MAGIC
 
 
-def _check_metadata(path: Path, *, run: str, task: str) -> None:
+def _read_metadata(path: Path) -> tuple[dict[str, str] | None, bool]:
+    """The segment's `hercs.episode_log` metadata (None if absent) and whether a chunk was
+    reached; stops at the first chunk (the writer puts the metadata before any)."""
     reader = SegmentReader(path, metadata_only=True)
     for _ in reader.messages():
         pass
-    meta = reader.scan.metadata.get(METADATA_NAME)
-    if meta is None and not reader.reached_data and path.name == LIVE_NAME:
+    return reader.scan.metadata.get(METADATA_NAME), reader.reached_data
+
+
+def run_start_ns(segments: list[Path]) -> int | None:
+    """The run's start time kept by its earliest segment that has one (ns since the Unix
+    epoch), for the next segment to continue the same timeline; 0 for a log written before
+    the start was kept (its timeline starts at 0), None for a run with no segment yet."""
+    for segment in segments:
+        meta, _ = _read_metadata(segment)
+        if meta is not None and meta.get(START_TIME_KEY, "").isdigit():
+            return int(meta[START_TIME_KEY])
+    return 0 if segments else None
+
+
+def _check_metadata(path: Path, *, run: str, task: str) -> None:
+    meta, reached_data = _read_metadata(path)
+    if meta is None and not reached_data and path.name == LIVE_NAME:
         return  # killed before its first fsync: the writer syncs metadata before any episode
     if meta is None:
         raise EpisodeLogError(f"{path} has no {METADATA_NAME!r} metadata: it is not a hercs "
@@ -175,7 +193,8 @@ class EpisodeLog:
         episode ids (they must exceed the last recovered one).
         """
         sealed = cls.retire(run_dir, run=run, task=task)
-        writer = EpisodeLogWriter(cls(run_dir).live_path, run=run, task=task)
+        writer = EpisodeLogWriter(cls(run_dir).live_path, run=run, task=task,
+                                  start_time_ns=run_start_ns(sealed))
         return writer, cls.recovered(sealed)
 
     @classmethod

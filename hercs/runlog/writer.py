@@ -34,6 +34,7 @@ from hercs.runlog.format import (
     CHUNK_BYTES,
     MAX_SEQUENCE,
     METADATA_NAME,
+    START_TIME_KEY,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
@@ -74,10 +75,17 @@ class EpisodeLogWriter:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, run: str, task: str,
+                 start_time_ns: int | None = None,
                  compression: CompressionType = CompressionType.ZSTD) -> None:
+        """`start_time_ns` is the run's start (ns since the Unix epoch; default now): the
+        origin of the synthetic timeline, kept in the metadata so that a later segment of the
+        same run continues it (`segments.run_start_ns`)."""
         self.path = Path(path)
         self.run = run
         self.task = task
+        self.start_time_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
+        if self.start_time_ns < 0:
+            raise ValueError(f"start_time_ns={start_time_ns}: must be >= 0")
         self._spec = task_spec(task)
         self._lock = threading.Lock()
         self._channels: dict[str, int] = {}
@@ -96,8 +104,9 @@ class EpisodeLogWriter:
             self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES,
                                     compression=compression)
             self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
-            self._mcap.add_metadata(METADATA_NAME, {"run": run, "task": task,
-                                                    "schema_version": str(SCHEMA_VERSION)})
+            self._mcap.add_metadata(METADATA_NAME, {
+                "run": run, "task": task, "schema_version": str(SCHEMA_VERSION),
+                START_TIME_KEY: str(self.start_time_ns)})
             self._sync()
             fsync_dir(self.path.parent)
         except BaseException:  # e.g. a full disk: the next EpisodeLog.open removes the stub
@@ -218,7 +227,8 @@ class EpisodeLogWriter:
             positions = scene.episode_positions(
                 obs, msg_to_array(msg.ag, where="Episode.ag"),
                 msg_to_array(msg.g, where="Episode.g"), self._spec)
-            times = scene.step_times_ns(episode_id, len(obs), T)
+            times = [self.start_time_ns + t
+                     for t in scene.step_times_ns(episode_id, len(obs), T)]
             labels = {"episode_id": str(episode_id), "actor_id": msg.actor_id,
                       "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
             updates = scene.scene_updates(positions, times,
@@ -231,7 +241,8 @@ class EpisodeLogWriter:
     def _episode_records(self, episode: _PreparedEpisode, wall: int
                          ) -> Iterator[tuple[str, Message, int, int, int]]:
         """(topic, message, log_time, publish_time, sequence) of one episode, in time order."""
-        start = scene.episode_start_ns(episode.episode_id, self._spec.episode_steps)
+        start = self.start_time_ns + scene.episode_start_ns(episode.episode_id,
+                                                            self._spec.episode_steps)
         yield TOPIC_EPISODES, episode.msg, start, wall, episode.episode_id
         for update, cloud, t in zip(episode.updates, episode.clouds, episode.times_ns,
                                     strict=True):
@@ -248,8 +259,9 @@ class EpisodeLogWriter:
     def _gap_time_ns(self) -> int:
         """The empty slot after the last episode written here: between it and the next one."""
         if self._last_episode_id is None:
-            return 0
-        return (scene.episode_start_ns(self._last_episode_id + 1, self._spec.episode_steps)
+            return self.start_time_ns
+        return (self.start_time_ns
+                + scene.episode_start_ns(self._last_episode_id + 1, self._spec.episode_steps)
                 - scene.STEP_NS)
 
     def _write_durably(self, records: Iterable[tuple[str, Message, int, int, int]]) -> None:

@@ -33,6 +33,7 @@ from tests.support import free_tcp_port, rerun_viewer
 RERUN = Path(sys.executable).parent / "rerun"
 SPEC = task_spec("push")
 _BOOKKEEPING = {"rerun.controls.RowId", "log_time", "log_tick"}
+_OFFLINE_ONLY = {"time"}  # the log's insert times; live, rerun's own log_time is that clock
 
 
 def rrd_rows(path: Path) -> dict[str, list[dict]]:
@@ -41,7 +42,7 @@ def rrd_rows(path: Path) -> dict[str, list[dict]]:
     rows: dict[str, list[dict]] = defaultdict(list)
     for chunk in RrdReader(path).stream():
         batch = chunk.to_record_batch()
-        names = [n for n in batch.schema.names if n not in _BOOKKEEPING]
+        names = [n for n in batch.schema.names if n not in _BOOKKEEPING | _OFFLINE_ONLY]
         rows[chunk.entity_path] += batch.select(names).to_pylist()
     return rows
 

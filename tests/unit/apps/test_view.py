@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ import pytest
 from apps.cli import main
 from apps.view import headless_problem, parse_selection, run_view, select_episodes
 from hercs.codec import array_to_msg, episode_to_msg
+from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
 from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
@@ -47,9 +49,11 @@ def test_selection_parser() -> None:
     assert select_episodes("10:20:5,last:1", ids) == [10, 15, 29]
     assert select_episodes("25:", ids) == [25, 26, 27, 28, 29]
     assert select_episodes("all", ids) == ids
-    assert select_episodes(None, ids) == ids
-    default = select_episodes(None, list(range(2024)), max_default=200)
-    assert len(default) <= 201 and default[0] == 0 and default[-1] == 2023
+    assert select_episodes(None, ids) == ids  # fewer than an epoch's episodes
+    assert select_episodes(None, list(range(2024)), last_epoch=200) == list(range(1824, 2024))
+    spread = select_episodes("spread:200", list(range(2024)))
+    assert len(spread) <= 201 and spread[0] == 0 and spread[-1] == 2023
+    assert spread[:3] == [0, 11, 22]  # stride ceil(2024 / 200)
     assert parse_selection("last:20") == [("last", None, None, 20)]
     for bad in ("x", "1:2:0", "last:0", "-3", "1,,2", "1:2:3:4"):
         with pytest.raises(ValueError, match="--episodes"):
@@ -102,3 +106,24 @@ def test_without_a_display_the_viewer_is_not_spawned_and_the_user_is_told_why(
     assert "no display here" in err and "--save" in err and "--web" in err
     assert headless_problem({"DISPLAY": ":0"}) is None
     assert headless_problem({"WAYLAND_DISPLAY": "wayland-0"}) is None
+
+
+def test_default_view_draws_the_last_epoch_on_the_runs_clock(tmp_path: Path) -> None:
+    """Without --episodes: the last epoch's episodes (cycles × episodes per cycle from the
+    run's config.yaml), and the per-episode scalars also on the wall-clock `time` timeline."""
+    _write_run(tmp_path)
+    config = apply_overrides(HercsConfig(), ["training.cycles_per_epoch=2",
+                                             "training.episodes_per_cycle=2"])
+    save_yaml(config, tmp_path / "config.yaml")
+    out = tmp_path / "default.rrd"
+    result = subprocess.run([sys.executable, "-m", "apps.cli", "view", str(tmp_path),
+                             "--save", str(out)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "drawing the last 4 episodes (one epoch, config.yaml)" in result.stderr
+    assert "4 of 12 episodes" in result.stderr
+    printed = subprocess.run([str(RERUN), "rrd", "print", "-vv", str(out)],
+                             capture_output=True, text=True, timeout=120, check=True).stdout
+    drawn = {int(m) for m in re.findall(r"/world/episodes/(\d{6})/gripper", printed)}
+    assert drawn == {8, 9, 10, 11}
+    # the episodes' insert times: the run's own clock (rrd print's column header)
+    assert re.search(r"index_name: time\s", printed) and "Timestamp(ns)" in printed

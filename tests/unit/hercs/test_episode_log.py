@@ -9,6 +9,7 @@ import struct
 import subprocess
 import sys
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,8 @@ from hercs.runlog import (
     read_cluster_models,
     read_episodes,
     read_eval_results,
+    read_messages,
+    run_start_ns,
     scan_segment,
     scene,
     seal_segment,
@@ -80,8 +83,9 @@ def write_log(path: Path, ids: range, task: str = "push"
 @pytest.mark.parametrize("task", ["push", "reach"])
 def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str) -> None:
     n, T = 9, task_spec(task).episode_steps
+    S = 1_795_000_000 * 10**9  # the run's start: every log_time is an offset from it
     path = tmp_path / "episodes.mcap"
-    with EpisodeLogWriter(path, run=RUN, task=task) as writer:
+    with EpisodeLogWriter(path, run=RUN, task=task, start_time_ns=S) as writer:
         for i in range(4):
             writer.append_episode(make_episode(i, task), episode_id=i, log_time_ns=1_000 + i)
         writer.append_cluster_model(cluster_model(), log_time_ns=5_000)
@@ -101,12 +105,12 @@ def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str)
     for message, decoded in episodes:
         assert_same_episode(pb.Episode.FromString(decoded.SerializeToString()),
                             make_episode(message.sequence, task))
-        assert message.log_time == scene.episode_start_ns(message.sequence, T)
+        assert message.log_time == S + scene.episode_start_ns(message.sequence, T)
     assert [m.publish_time for m, _ in episodes] == [1_000, 1_001, 1_002, 1_003] + [6_000] * 5
     [(model_msg, model)] = by_topic[TOPIC_CLUSTER_MODEL]
     assert model.SerializeToString() == cluster_model().SerializeToString()
     assert model_msg.sequence == 3 and model_msg.publish_time == 5_000
-    assert model_msg.log_time == scene.episode_start_ns(4, T) - scene.STEP_NS  # gap after ep 3
+    assert model_msg.log_time == S + scene.episode_start_ns(4, T) - scene.STEP_NS  # after ep 3
     [(_, result)] = by_topic[TOPIC_EVAL_RESULT]
     assert result.SerializeToString() == eval_result().SerializeToString()
 
@@ -114,7 +118,7 @@ def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str)
     episode = make_episode(6, task)
     obs, g = msg_to_array(episode.obs), msg_to_array(episode.g)
     steps = [(m, d) for m, d in by_topic[TOPIC_SCENE] if m.sequence == 6]
-    assert [m.log_time for m, _ in steps] == scene.step_times_ns(6, T + 1, T)
+    assert [m.log_time for m, _ in steps] == [S + t for t in scene.step_times_ns(6, T + 1, T)]
     for t in (0, 17, T):
         entities = {e.id: e for e in steps[t][1].entities}
         assert set(entities) == ({"gripper", "goal"} if task == "reach"
@@ -303,8 +307,11 @@ def test_a_write_failing_part_way_loses_no_acked_episode(tmp_path: Path,
 
 
 def test_restart_continues_in_a_new_segment(tmp_path: Path) -> None:
+    before = time.time_ns()
     writer, recovered = EpisodeLog.open(tmp_path, run=RUN, task="push")
     assert list(recovered) == []
+    start = writer.start_time_ns  # the run's real start: the first segment's creation
+    assert before <= start <= time.time_ns()
     live = tmp_path / "episodes.mcap"
     for i in range(6):
         size_before = live.stat().st_size
@@ -334,6 +341,11 @@ def test_restart_continues_in_a_new_segment(tmp_path: Path) -> None:
     for segment in segment_paths(tmp_path):
         with open(segment, "rb") as f:
             assert make_reader(f).get_summary() is not None, segment.name
+    # one timeline across the restarts, from the run's start (a viewer shows its real date)
+    assert run_start_ns(segment_paths(tmp_path)) == start
+    T = task_spec("push").episode_steps
+    assert [(m.sequence, m.log_time_ns) for m in read_messages(tmp_path, [TOPIC_EPISODES])] == [
+        (i, start + scene.episode_start_ns(i, T)) for i in range(11)]
 
 
 def test_open_drops_an_empty_killed_segment_and_refuses_another_runs_log(
@@ -372,3 +384,9 @@ def test_rerun_converts_and_verifies_closed_and_sealed_logs(tmp_path: Path) -> N
         printed = subprocess.run([RERUN, "rrd", "print", rrd], env=env, capture_output=True,
                                  text=True, check=True, timeout=60).stdout
         assert "/scene/points" in printed and "Points3D:positions" in printed
+    # Rerun's clock for the raw log starts at the run's real start, not at 1970
+    info = subprocess.run([RERUN, "mcap", "info", closed], env=env, capture_output=True,
+                          text=True, check=True, timeout=60).stdout
+    started = datetime.fromtimestamp(writer.start_time_ns // 10**9, UTC)
+    [start_line] = [line for line in info.splitlines() if line.strip().startswith("Start")]
+    assert started.strftime("%Y-%m-%dT%H:%M:%S") in start_line, info
