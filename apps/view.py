@@ -502,15 +502,21 @@ def rerun_executable() -> str | None:
     return str(rerun_exe) if rerun_exe.exists() else None
 
 
-def blueprint(selected: Sequence[int] = ()):
+def blueprint(selected: Sequence[int] = (), *, has_object: bool = False):
     """The default layout: the 3D scene large, the curves, per-episode scalars and the text
-    logs beside it, the `episode` timeline active with the drawn episodes' span selected."""
+    logs beside it, the `episode` timeline active with the drawn episodes' span selected.
+    With an object (push, pick, slide) the 3D view shows the object paths and leaves the
+    gripper paths out (one click in the blueprint panel brings them back): two hundred of each
+    hide the clusters' shapes."""
     import rerun.blueprint as rrb
     from rerun.blueprint.components import AbsoluteTimeRange
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="episodes (3D)"),
+            # one rule per path: Rerun's filters take `**` only at the end of a path
+            rrb.Spatial3DView(origin="world", name="episodes (3D)", contents=(
+                ["+ world/**", *(f"- world/episodes/{i:06d}/gripper" for i in selected)]
+                if has_object else "world/**")),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="curves", name="success rate",
                                    contents=["curves/success_rate"]),
@@ -601,7 +607,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
 
     rec = rr.RecordingStream(APP_ID)
     rec.send_recording_name(f"{run_dir.name} ({run.task})")
-    layout = blueprint(selected)
+    layout = blueprint(selected, has_object=task_spec(run.task).has_object)
     if save:
         rec.save(save, default_blueprint=layout)
     elif web:
