@@ -25,6 +25,7 @@ import numpy as np
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import ConfigError
 from hercs.tasks import TaskSpec
+from replay_service.sampling_index import SamplingIndex
 
 UNASSIGNED = -1
 """Cluster label of an episode that no cluster model has labelled yet."""
@@ -66,6 +67,7 @@ class EpisodeStore:
         self._policy_version = np.zeros(n, np.int64)
         self._size = 0
         self._next_id = 0
+        self._index = SamplingIndex(n)
 
     # ------------------------------------------------------------------ sizes
 
@@ -135,6 +137,7 @@ class EpisodeStore:
         self._energy[slot] = float(energy)
         self._cluster[slot] = int(cluster)
         self._policy_version[slot] = int(episode.policy_version)
+        self._index.put(slot, energy=float(energy), label=int(cluster))
         self._next_id += 1
         self._size = min(self._size + 1, self._capacity)
         return episode_id
@@ -153,6 +156,7 @@ class EpisodeStore:
                 ">= -1; labels unchanged"
             )
         self._cluster[: self._size] = labels
+        self._index.relabel(labels)
 
     # ------------------------------------------------------------------ views of valid slots
 
@@ -209,6 +213,12 @@ class EpisodeStore:
     def cluster(self) -> np.ndarray:
         """(size,) int32 cluster labels, -1 = unassigned."""
         return self._view(self._cluster)
+
+    @property
+    def sampling_index(self) -> SamplingIndex:
+        """Cluster members and energy sum trees over the stored slots, kept in step with
+        every insert, eviction and relabel (the samplers draw from it in O(batch))."""
+        return self._index
 
     @property
     def policy_version(self) -> np.ndarray:
@@ -280,3 +290,4 @@ class EpisodeStore:
         self._actor_id[:n] = [str(a) for a in state["actor_id"]]
         self._size = n
         self._next_id = next_id
+        self._index.rebuild(self._energy[:n], self._cluster[:n])

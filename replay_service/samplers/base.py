@@ -3,8 +3,9 @@
 A sampler chooses which *episodes* (store slots) go into a minibatch: HER's first sampling.
 It returns slot indices plus a `SampleInfo`, never data; timesteps and goal relabelling are
 replay_service.her's. Samplers hold no state between calls (so they have no
-``state_dict``): everything they use is read from the store at call time, and randomness comes
-from the injected generator.
+``state_dict``): everything they use is read from the store at call time — its
+`SamplingIndex` (replay_service.sampling_index), which the store keeps up to date, so a draw
+costs O(k + B log N) rather than O(N) — and randomness comes from the injected generator.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Protocol
 import numpy as np
 
 from hercs.errors import ConfigError, SamplingError
+from replay_service.sampling_index import SamplingIndex
 
 
 class SampleSource(Protocol):
@@ -26,6 +28,8 @@ class SampleSource(Protocol):
     def cluster(self) -> np.ndarray: ...  # (size,) int32, -1 = unassigned
     @property
     def energy(self) -> np.ndarray: ...  # (size,) float64 trajectory energies
+    @property
+    def sampling_index(self) -> SamplingIndex: ...
 
 
 @dataclass(frozen=True)
@@ -84,26 +88,3 @@ def make_info(
         whole_buffer_draws=int(whole_buffer_draws),
         balanced=balanced,
     )
-
-
-def cumulative(weights: np.ndarray) -> np.ndarray:
-    """[0, w_0, w_0+w_1, …]: length n+1, so segment [lo, hi) has mass C[hi] − C[lo]."""
-    out = np.empty(weights.size + 1, np.float64)
-    out[0] = 0.0
-    np.cumsum(weights, out=out[1:])
-    return out
-
-
-def draw_weighted(
-    cum: np.ndarray, lo: np.ndarray | int, hi: np.ndarray | int, size: int,
-    rng: np.random.Generator,
-) -> np.ndarray:
-    """`size` positions, each in its segment [lo, hi) with p ∝ weight (inverse CDF).
-
-    `cum` comes from `cumulative` over strictly positive weights, so every position has
-    p > 0; the clip only guards float rounding at a segment's upper end.
-    """
-    lo_mass, hi_mass = cum[lo], cum[hi]
-    target = lo_mass + rng.uniform(size=size) * (hi_mass - lo_mass)
-    pos = np.searchsorted(cum, target, side="right") - 1
-    return np.clip(pos, lo, np.asarray(hi) - 1).astype(np.int64)

@@ -25,7 +25,8 @@ Deviations from the reference, none of which changes a B=256, k=8 batch's distri
 - The output lists cluster shares first, then the fills (the reference interleaves fills);
   order within a minibatch does not matter, the timestep draw is independent per entry.
 
-Cost per call: one bincount and one int8/int16 radix argsort of the labels, then O(B) work.
+Cost per call: O(k + B) — the cluster sizes and member lists come from the store's
+`SamplingIndex`, kept up to date on insert, eviction and relabel.
 """
 
 from __future__ import annotations
@@ -36,16 +37,13 @@ import numpy as np
 
 from hercs.errors import ConfigError, SamplingError
 from replay_service.samplers.base import SampleInfo, SampleSource, check_request, make_info
+from replay_service.sampling_index import SamplingIndex
 
 
 @dataclass(frozen=True)
 class SharePlan:
-    """How many draws each cluster's members get, and where they sit in `order`."""
+    """How many draws each cluster's members get."""
 
-    order: np.ndarray
-    """(size,) slots sorted by label, unlabelled first; cluster c is order[starts[c]:+sizes[c]]."""
-    starts: np.ndarray
-    """(k,) int64."""
     sizes: np.ndarray
     """(k,) int64 members n_c."""
     member_draws: np.ndarray
@@ -55,29 +53,24 @@ class SharePlan:
 
 
 def plan_shares(
-    labels: np.ndarray, *, k: int, repeat: int, batch_size: int
+    index: SamplingIndex, *, k: int, repeat: int, batch_size: int
 ) -> SharePlan | None:
     """The share plan for one batch, or None if no episode has a cluster label yet."""
-    if labels.size and int(labels.max()) >= k:
+    if index.max_label >= k:
         raise SamplingError(
-            f"cluster label {int(labels.max())} >= k={k}: the store's labels come from a "
+            f"cluster label {index.max_label} >= k={k}: the store's labels come from a "
             "model with more clusters than the sampler's; no batch drawn"
         )
-    shifted = labels + 1  # 0 = unassigned, c+1 = cluster c
-    counts = np.bincount(shifted, minlength=k + 1)
-    if counts[1:].sum() == 0:
+    sizes = np.zeros(k, np.int64)
+    counts = index.counts
+    sizes[: min(k, counts.size)] = counts[:k]
+    if sizes.sum() == 0:
         return None
-    small_dtype = np.int8 if k < 127 else np.int16 if k < 32767 else np.int32
-    order = np.argsort(shifted.astype(small_dtype), kind="stable")
-    starts = np.cumsum(counts)[:-1].astype(np.int64)
-    sizes = counts[1:].astype(np.int64)
     share = batch_size // k
     small = sizes < share // repeat
     member_draws = np.where(small, repeat * sizes, share)
     member_draws[sizes == 0] = 0
     return SharePlan(
-        order=order,
-        starts=starts,
         sizes=sizes,
         member_draws=member_draws.astype(np.int64),
         fill=int(batch_size - member_draws.sum()),
@@ -96,7 +89,7 @@ def check_cluster_args(k: int, small_cluster_repeat: int) -> None:
 class ClusterBalancedSampler:
     """HER-CS: equal per-cluster shares with the reference's small/empty-cluster rule.
 
-    Stateless: the plan is rebuilt from `store.cluster` on every call.
+    Stateless: the plan is made from the store's current cluster sizes on every call.
     """
 
     def __init__(self, k: int, *, small_cluster_repeat: int = 4) -> None:
@@ -108,20 +101,23 @@ class ClusterBalancedSampler:
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
-        labels = store.cluster
-        plan = plan_shares(
-            labels, k=self.k, repeat=self.small_cluster_repeat, batch_size=batch_size
-        )
+        plan = plan_shares(store.sampling_index, k=self.k, repeat=self.small_cluster_repeat,
+                           batch_size=batch_size)
         if plan is None:
             idxs = rng.integers(0, store.size, batch_size)
             fill, balanced = batch_size, False
         else:
-            of_cluster = np.repeat(np.arange(self.k), plan.member_draws)
-            rank = rng.integers(0, plan.sizes[of_cluster])
-            members = plan.order[plan.starts[of_cluster] + rank]
-            fills = rng.integers(0, store.size, plan.fill)
-            idxs = np.concatenate([members, fills])
+            idxs = store.sampling_index.draw(share_rows(plan), rng)
             fill, balanced = plan.fill, True
         return idxs, make_info(
-            labels, idxs, num_clusters=self.k, whole_buffer_draws=fill, balanced=balanced
+            store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
+            balanced=balanced
         )
+
+
+def share_rows(plan: SharePlan) -> np.ndarray:
+    """The `SamplingIndex` row of each draw of a plan: cluster c's member draws (row c + 1)
+    first, then the whole-buffer fills (row 0)."""
+    k = plan.sizes.size
+    return np.concatenate([np.repeat(np.arange(1, k + 1), plan.member_draws),
+                           np.zeros(plan.fill, np.int64)])

@@ -16,10 +16,9 @@ from replay_service.samplers.base import (
     SampleSource,
     check_epsilon,
     check_request,
-    cumulative,
-    draw_weighted,
     make_info,
 )
+from replay_service.sampling_index import WHOLE_BUFFER
 
 
 class EnergySampler:
@@ -34,8 +33,8 @@ class EnergySampler:
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
-        cum = cumulative(store.energy + self.epsilon)
-        idxs = draw_weighted(cum, 0, store.size, batch_size, rng)
+        idxs = store.sampling_index.draw(np.full(batch_size, WHOLE_BUFFER), rng,
+                                         epsilon=self.epsilon)
         return idxs, make_info(
             store.cluster, idxs, num_clusters=self.num_clusters,
             whole_buffer_draws=batch_size, balanced=False,

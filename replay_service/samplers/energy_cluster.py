@@ -13,8 +13,8 @@ No public code combines the two; this is our definition. With w = trajectory ene
 So the expected count of episode i in cluster c per batch is
 member_draws_c · w_i / W_c + fill · w_i / W, with W_c and W the cluster and buffer masses.
 
-Implementation: one cumulative sum of w in cluster-sorted order serves every segment; each
-draw is an inverse-CDF lookup (searchsorted) inside its cluster's segment or the whole array.
+Implementation: the store's `SamplingIndex` keeps one energy sum tree per cluster and one over
+the buffer; the batch is one descent with each draw in its own tree (O(k + B log N)).
 Stateless.
 """
 
@@ -27,11 +27,10 @@ from replay_service.samplers.base import (
     SampleSource,
     check_epsilon,
     check_request,
-    cumulative,
-    draw_weighted,
     make_info,
 )
-from replay_service.samplers.cluster_balanced import check_cluster_args, plan_shares
+from replay_service.samplers.cluster_balanced import check_cluster_args, plan_shares, share_rows
+from replay_service.sampling_index import WHOLE_BUFFER
 
 
 class EnergyClusterSampler:
@@ -48,22 +47,17 @@ class EnergyClusterSampler:
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
-        labels = store.cluster
-        weights = store.energy + self.epsilon
-        plan = plan_shares(
-            labels, k=self.k, repeat=self.small_cluster_repeat, batch_size=batch_size
-        )
+        index = store.sampling_index
+        plan = plan_shares(index, k=self.k, repeat=self.small_cluster_repeat,
+                           batch_size=batch_size)
         if plan is None:
-            idxs = draw_weighted(cumulative(weights), 0, store.size, batch_size, rng)
+            rows = np.full(batch_size, WHOLE_BUFFER)
             fill, balanced = batch_size, False
         else:
-            cum = cumulative(weights[plan.order])
-            of_cluster = np.repeat(np.arange(self.k), plan.member_draws)
-            lo = plan.starts[of_cluster]
-            members = draw_weighted(cum, lo, lo + plan.sizes[of_cluster], lo.size, rng)
-            fills = draw_weighted(cum, 0, store.size, plan.fill, rng)
-            idxs = plan.order[np.concatenate([members, fills])]
+            rows = share_rows(plan)
             fill, balanced = plan.fill, True
+        idxs = index.draw(rows, rng, epsilon=self.epsilon)
         return idxs, make_info(
-            labels, idxs, num_clusters=self.k, whole_buffer_draws=fill, balanced=balanced
+            store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
+            balanced=balanced
         )
