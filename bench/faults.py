@@ -48,6 +48,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # `python bench/faults.py` from a checkout
     sys.path.insert(0, str(REPO))
 
+from bench.common import git_commit  # noqa: E402
 from hercs.runlog import read_episodes  # noqa: E402
 
 FAULTS = ("replay", "learner", "clusterer", "evaluator", "actor", "everything")
@@ -218,13 +219,6 @@ def run_fault(fault: str, *, root: Path, epochs: int, cycles: int, kill_at: int,
         median_epoch_s=round(statistics.median(durations), 2) if durations else None,
         wall_s=round(time.monotonic() - started, 1), notes=notes)
 
-
-def git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
-                              capture_output=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def report(results: list[FaultResult], *, command: str, quick: bool) -> str:

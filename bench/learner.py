@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -37,6 +36,7 @@ if str(REPO) not in sys.path:  # `python bench/learner.py` from a checkout
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from bench.common import git_commit  # noqa: E402
 from hercs.batch import TransitionBatch  # noqa: E402
 from hercs.config import DDPGConfig  # noqa: E402
 from hercs.tasks import task_spec  # noqa: E402
@@ -110,13 +110,6 @@ def cpu_features() -> str:
     missing = [f for f in wanted if f not in flags]
     return f"{model}; has {', '.join(have) or 'none of'}; lacks {', '.join(missing) or '-'}"
 
-
-def git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
-                              capture_output=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def main(argv: list[str] | None = None) -> int:

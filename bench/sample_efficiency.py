@@ -41,6 +41,7 @@ if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a chec
     sys.path.insert(0, str(REPO))
 
 from apps.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
+from bench.common import git_commit  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
 
@@ -209,16 +210,6 @@ def machine_description() -> str:
             f"{platform.system()} {platform.release()}, Python {platform.python_version()}, "
             "CPU only")
 
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, check=True,
-                             capture_output=True, text=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=REPO, capture_output=True, text=True).stdout.strip()
-        return out + (" (with uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, command: str,

@@ -363,6 +363,7 @@ QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=
 import torch  # noqa: E402
 
 from apps.router import open_router  # noqa: E402
+from bench.common import git_commit  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
 from hercs.codec import array_to_msg, episode_to_msg  # noqa: E402
 from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
@@ -1301,16 +1302,6 @@ def machine_description() -> dict[str, Any]:
             "python": platform.python_version(), "platform": platform.platform(),
             "versions": versions}
 
-
-def git_commit() -> str:
-    try:
-        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, check=True,
-                             capture_output=True, text=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=REPO,
-                               capture_output=True, text=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return sha + (" (with uncommitted changes)" if dirty else "")
 
 
 NOTES = [

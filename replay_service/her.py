@@ -75,6 +75,11 @@ def _f32(x: np.ndarray) -> np.ndarray:
     return x.astype(np.float32, copy=False)
 
 
+def _rows(per_episode: np.ndarray) -> np.ndarray:
+    """(N, S, dim) → (N·S, dim), a view when the array is contiguous (the store's are)."""
+    return per_episode.reshape(-1, per_episode.shape[-1])
+
+
 def her_indices(
     batch_size: int, horizon: int, *, future_p: float, rng: np.random.Generator
 ) -> HERIndices:
@@ -108,13 +113,20 @@ def relabel(
         )
     draw = her_indices(episode_idxs.size, horizon, future_p=future_p, rng=rng)
     ep, t = episode_idxs, draw.t
-    obs = arrays.obs
-    g = arrays.g[ep, t]  # fancy indexing copies, so the store is never written
-    g[draw.her_mask] = ag_all[ep[draw.her_mask], draw.future_t[draw.her_mask]]
-    ag2 = ag_all[ep, t + 1]
+    # Gathers as `take` on (episodes × steps, dim) views: half the cost of [ep, t] indexing.
+    # `take` copies, so the store is never written.
+    at_t = ep * (horizon + 1) + t  # row of (ep, t) in the T+1-step arrays (obs, ag)
+    obs = _rows(arrays.obs)
+    ag = _rows(ag_all)
+    g = _rows(arrays.g).take(ep * horizon + t, axis=0)
+    mask = draw.her_mask
+    g[mask] = ag.take(ep[mask] * (horizon + 1) + draw.future_t[mask], axis=0)
+    ag2 = ag.take(at_t + 1, axis=0)
     r = np.asarray(reward_fn(ag2, g), dtype=np.float32).reshape(episode_idxs.size)
-    transitions = TransitionBatch(o=_f32(obs[ep, t]), g=_f32(g), u=_f32(arrays.actions[ep, t]),
-                                  r=r, o2=_f32(obs[ep, t + 1]))
+    transitions = TransitionBatch(
+        o=_f32(obs.take(at_t, axis=0)), g=_f32(g),
+        u=_f32(_rows(arrays.actions).take(ep * horizon + t, axis=0)), r=r,
+        o2=_f32(obs.take(at_t + 1, axis=0)))
     return RelabelledBatch(transitions=transitions, episode_idxs=ep, draw=draw)
 
 

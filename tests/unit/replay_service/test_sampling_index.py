@@ -102,9 +102,25 @@ def test_all_zero_energy_draws_uniformly_and_never_a_stray_slot() -> None:
     index = SamplingIndex(7)
     for slot in range(5):
         index.put(slot, energy=0.0, label=0)
-    drawn = index.draw(np.full(50_000, 1), np.random.default_rng(0), epsilon=1e-6)
-    counts = np.bincount(drawn, minlength=7)
-    assert counts[5:].sum() == 0 and counts[:5].min() > 9_000
+    for row in (WHOLE_BUFFER, 1):
+        drawn = index.draw(np.full(50_000, row), np.random.default_rng(row), epsilon=1e-6)
+        counts = np.bincount(drawn, minlength=7)
+        assert counts[5:].sum() == 0 and counts[:5].min() > 9_000
+
+
+def test_a_write_invalidates_the_cached_sums() -> None:
+    """Draws reuse the sums until the next write; after it they follow the new energies."""
+    index = SamplingIndex(3)
+    index.put(0, energy=1.0, label=0)
+    index.put(1, energy=0.0, label=0)
+    rng = np.random.default_rng(0)
+    assert set(index.draw(np.ones(2000, np.int64), rng, epsilon=1e-9).tolist()) == {0}
+    index.put(2, energy=5.0, label=0)
+    drawn = np.bincount(index.draw(np.ones(60_000, np.int64), rng, epsilon=1e-9), minlength=3)
+    assert drawn[1] == 0 and abs(drawn[2] / drawn.sum() - 5 / 6) < 0.01
+    index.relabel(np.array([0, 0, 1]))
+    assert set(index.draw(np.ones(500, np.int64), rng, epsilon=1e-9).tolist()) == {0}
+    assert set(index.draw(np.full(500, 2), rng, epsilon=1e-9).tolist()) == {2}
 
 
 def test_bad_writes_and_empty_rows_are_refused() -> None:
