@@ -304,6 +304,22 @@ class ActorConfig:
         _positive("actor.insert_timeout_s", self.insert_timeout_s)
 
 
+LEARNER_DEVICES = ("auto", "cpu", "cuda")
+
+
+@dataclass
+class LearnerConfig:
+    device: str = "auto"
+    """Where the DDPG update runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu,
+    cuda or cuda:N. The paper's runs used the CPU; results do not depend on it beyond float
+    rounding."""
+
+    def __post_init__(self) -> None:
+        base, _, index = self.device.partition(":")
+        _check(base in LEARNER_DEVICES and (not index or (base == "cuda" and index.isdigit())),
+               "learner.device", self.device, "be auto, cpu, cuda or cuda:N")
+
+
 @dataclass
 class LaunchConfig:
     max_restarts: int = 5
@@ -400,6 +416,7 @@ class HercsConfig:
     training: TrainingConfig = field(default_factory=TrainingConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
     launch: LaunchConfig = field(default_factory=LaunchConfig)
     transport: TransportConfig = field(default_factory=TransportConfig)
     security: SecurityConfig = field(default_factory=SecurityConfig)

@@ -18,6 +18,13 @@ statistics it is sent (`set_normalizer_state`) and forwards them with the actor 
 
 Threads: this module never calls `torch.set_num_threads`; that process-wide choice belongs
 to the service (on the 2-core development machine, 1–2 threads for the learner).
+
+Device (`learner.device`, `resolve_device`): the networks are created and seeded on the CPU,
+so a run's initial weights do not depend on the device, then moved. A minibatch goes to the
+device as one pinned host copy per array (`non_blocking`, so the copy overlaps the previous
+step on a GPU); weights come back to the host only when asked for (`actor_weights`, once per
+cycle for the broadcast) and checkpoints are written with host tensors, so they load on any
+machine.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import torch
 
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
+from hercs.errors import ConfigError
 from hercs.networks import Actor, Critic, preprocess, to_arrays
 from hercs.normalizer import Normalizer, NormalizerState
 from hercs.policy import PolicyWeights
@@ -60,14 +68,48 @@ def critic_target(
     return y
 
 
+def resolve_device(name: str) -> torch.device:
+    """`learner.device` as a torch device: auto = the first CUDA GPU if torch sees one, else
+    the CPU. Asking for CUDA where there is none is a ConfigError that says so."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(
+                f"learner.device={name}: torch sees no CUDA device (torch "
+                f"{torch.__version__}, CUDA build {torch.version.cuda or 'none'}); use "
+                "learner.device=auto or cpu, or install a CUDA build of torch (README, "
+                "'GPU')")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ConfigError(f"learner.device={name}: only {torch.cuda.device_count()} "
+                              "CUDA device(s) visible")
+    return device
+
+
+def _to_host(value: Any) -> Any:
+    """A state-dict tree with every tensor copied to the CPU (checkpoints load anywhere)."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().to("cpu", copy=True)
+    if isinstance(value, Mapping):
+        return {key: _to_host(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_to_host(item) for item in value)
+    return copy.deepcopy(value)
+
+
 class DDPGLearner:
     """Actor, critic, their targets and optimisers; one `update` per minibatch."""
 
-    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int) -> None:
+    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
+                 device: str | torch.device = "cpu") -> None:
         self.spec = spec
         self.config = config
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
         self.actor = Actor(spec=spec, config=config, seed=int_seed(seed, "learner", "actor"))
         self.critic = Critic(spec=spec, config=config, seed=int_seed(seed, "learner", "critic"))
+        self.actor.to(self.device)
+        self.critic.to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.lr_actor)
@@ -92,10 +134,10 @@ class DDPGLearner:
         cfg, max_action = self.config, self.spec.max_action
 
         # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
-        s = torch.from_numpy(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
-        s2 = torch.from_numpy(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
-        u_t = torch.tensor(u)  # a copy: wire arrays are read-only views
-        r_t = torch.tensor(r)
+        s = self._on_device(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        s2 = self._on_device(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        u_t = self._on_device(np.array(u))  # a copy: wire arrays are read-only views
+        r_t = self._on_device(np.array(r))
 
         # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
         y = critic_target(
@@ -156,8 +198,9 @@ class DDPGLearner:
                              o_stats=o_state, g_stats=g_state)
 
     def state_dict(self) -> dict[str, Any]:
-        """Checkpoint: nets, targets, optimisers, normaliser stats, counters (deep copies)."""
-        return copy.deepcopy({
+        """Checkpoint: nets, targets, optimisers, normaliser stats, counters (copies, every
+        tensor on the CPU)."""
+        return _to_host({
             "actor": self.actor.state_dict(),
             "critic": self.critic.state_dict(),
             "actor_target": self.actor_target.state_dict(),
@@ -187,6 +230,14 @@ class DDPGLearner:
         self.critic_optim.load_state_dict(state["critic_optim"])
         self.updates = int(state["updates"])
         self.target_updates = int(state["target_updates"])
+
+    def _on_device(self, array: np.ndarray) -> torch.Tensor:
+        """A host array as a tensor on the learner's device: shared memory on the CPU; on a
+        GPU one pinned copy, sent without blocking the host."""
+        tensor = torch.from_numpy(array)
+        if self.device.type == "cpu":
+            return tensor
+        return tensor.pin_memory().to(self.device, non_blocking=True)
 
     def _check_batch(self, batch: TransitionBatch) -> tuple[np.ndarray, ...]:
         """Arrays as float32 with shapes checked; r reshaped to (B, 1) so that y broadcasts
