@@ -279,6 +279,12 @@ class ReplayConfig:
     sample_timeout_s: float = 600.0
     """How long the learner waits for one Batch (the rate limiter may hold its request while
     actors catch up) before it asks again; the replay drops a request parked longer [DESIGN]."""
+    insert_workers: int = 4
+    """Threads serving inserts: inserts that arrive while one group is being fsynced form the
+    next group (group commit), so several workers share fsyncs [DESIGN]."""
+    log_scene: bool = True
+    """Also log each episode's Foxglove scene (/scene, /scene/points), off the ack path
+    [DESIGN]; false keeps only the episodes, for the highest insert rates."""
 
     def __post_init__(self) -> None:
         _check(self.buffer_transitions >= 1, "replay.buffer_transitions",
@@ -290,6 +296,8 @@ class ReplayConfig:
         _check(self.max_message_bytes >= 1024, "replay.max_message_bytes",
                self.max_message_bytes, "be >= 1024")
         _positive("replay.sample_timeout_s", self.sample_timeout_s)
+        _check(self.insert_workers >= 1, "replay.insert_workers", self.insert_workers,
+               "be >= 1")
 
 
 @dataclass

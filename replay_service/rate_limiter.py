@@ -66,6 +66,9 @@ class SampleToInsertRatio:
         self.free_run = free_run
         self.inserts = 0
         self.samples = 0
+        self.pending_inserts = 0
+        """Admitted inserts not yet stored (their group is being logged): they count against
+        the insert bound at once, and towards samples only once stored."""
         center = self.samples_per_insert * self.min_size_to_sample
         self.min_surplus = center - self.error_buffer
         self.max_surplus = center + self.error_buffer
@@ -75,7 +78,9 @@ class SampleToInsertRatio:
         return self.samples_per_insert * self.inserts - self.samples
 
     def can_insert(self) -> bool:
-        return self.free_run or self.surplus + self.samples_per_insert <= self.max_surplus
+        pending = self.samples_per_insert * self.pending_inserts
+        return self.free_run or self.surplus + pending + self.samples_per_insert <= \
+            self.max_surplus
 
     def can_sample(self, num_minibatches: int) -> bool:
         if self.inserts < self.min_size_to_sample:
@@ -97,6 +102,24 @@ class SampleToInsertRatio:
 
     def record_insert(self) -> None:
         self.inserts += 1
+
+    def admit_insert(self) -> None:
+        """An insert was admitted; it is stored later (`store_admitted`) or
+        given up (`cancel_inserts`)."""
+        self.pending_inserts += 1
+
+    def store_admitted(self) -> None:
+        """An admitted insert is now stored."""
+        if self.pending_inserts < 1:
+            raise ValueError("store_admitted: no admitted insert is pending")
+        self.pending_inserts -= 1
+        self.inserts += 1
+
+    def cancel_inserts(self, count: int) -> None:
+        """Give up `count` admitted inserts that were never stored (their log append failed)."""
+        if not 0 <= count <= self.pending_inserts:
+            raise ValueError(f"cancel_inserts({count}): only {self.pending_inserts} pending")
+        self.pending_inserts -= count
 
     def record_sample(self, num_minibatches: int) -> None:
         self.samples += num_minibatches

@@ -107,7 +107,8 @@ class ReplayService:
         self.spec = config.task.spec
         self.warn = WarnOncePerMinute(log)
         self.log, recovered = RecoveringLogWriter.open(run_dir, run=config.run.name,
-                                                       task=self.spec.name)
+                                                       task=self.spec.name,
+                                                       scene=config.replay.log_scene)
         self.table = ReplayTable(
             config=config, core=ReplayCore(config=config, rng=generator(config.run.seed,
                                                                        "replay")),
@@ -136,7 +137,8 @@ class ReplayService:
         transport.serve(keys.clusterer_state, self._on_clusterer_state, on_error=self._on_reject)
         transport.subscribe(keys.cluster_model, self._on_cluster_model, latest=True)
         transport.subscribe(keys.eval_result, self._on_eval_result)
-        transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject)
+        transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject,
+                                 workers=config.replay.insert_workers)
         transport.serve_deferred(keys.sample, self._on_sample, on_error=self._on_reject)
 
     def _restore_cluster_model(self, run_dir: Path) -> None:

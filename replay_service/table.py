@@ -16,10 +16,18 @@ are serialised):
 - `sample`: a request the limiter could never admit (more minibatches than its window holds)
   is refused at once (`SampleRefused`); anything else is parked, then the queues are drained.
 - drain: alternating sides, each oldest first, while the limiter admits the oldest call of
-  that side. An admitted insert is appended to the log (durable: fsynced) *before* it is
-  stored and acknowledged, so nothing acknowledged is lost by a crash. This terminates: every
-  step removes one parked call.
-  If the append fails the call is answered `log_failed` and nothing is stored.
+  that side. An admitted sample is served at once; an admitted insert joins the next commit
+  group (the limiter counts it from then on). This terminates: every step removes one parked
+  call.
+- commit (group commit, the calling thread after it has released the table's lock): the
+  admitted inserts (counted by the limiter against the insert bound at once, towards samples
+  only once stored) are appended to the log as one group, one chunk and one fsync, *before*
+  they are stored and acknowledged, so nothing acknowledged is lost by a crash. The table's
+  lock is not held across the append, so samples are served meanwhile; one group is in flight
+  at a time (a commit lock), so log order, episode ids and store order agree. Inserts that
+  arrive while a group is in flight form the next group: the more concurrent inserters, the
+  more episodes share one fsync. If the append fails, every call of the group is answered
+  `log_failed`, nothing is stored and the limiter takes the inserts back.
 - `expire`: parked calls whose deadline has passed are answered `expired` and dropped; their
   client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
 - `recover`: the episodes of the log go into the store without being logged again; the
@@ -71,7 +79,7 @@ class Waiter(Protocol[T_contra]):
 class EpisodeLogSink(Protocol):
     """The durable log the table writes before it acknowledges (hercs.runlog's writer)."""
 
-    def append_episode(self, msg: pb.Episode, *, episode_id: int) -> None: ...
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None: ...
 
     def append_cluster_model(self, msg: pb.ClusterModel) -> None: ...
 
@@ -188,6 +196,10 @@ class ReplayTable:
             free_run=config.replay.free_run,
         )
         self._lock = threading.Lock()
+        self._commit_lock = threading.Lock()
+        """Held by the one thread whose group is being logged (taken before `_lock`)."""
+        self._ready: list[_ParkedInsert] = []
+        """Admitted inserts, in admission order, waiting for the next group commit."""
         self._inserts: deque[_ParkedInsert] = deque()
         self._samples: deque[_ParkedSample] = deque()
         self._parked_keys: dict[tuple[str, int], _ParkedInsert] = {}
@@ -242,21 +254,62 @@ class ReplayTable:
             self._inserts.append(item)
             self._parked_keys[key] = item
             self._drain()
+        self._commit()
 
-    def _store(self, item: _ParkedInsert) -> None:
-        episode = item.episode
-        del self._parked_keys[(episode.actor_id, int(episode.seq))]
-        episode_id = self.core.store.num_inserted
-        try:
-            self.log.append_episode(item.record, episode_id=episode_id)  # durable before ack
-        except Exception as exc:
-            self.log_failures += 1
+    def _commit(self) -> None:
+        """Log, store and acknowledge the admitted inserts, group by group, until none is left
+        (module docstring, "commit"). Called without the table's lock held.
+
+        Never waits for another thread's group: if one is in flight, that thread commits
+        what this one admitted (it looks at the ready list again after releasing the commit
+        lock), so a sample or insert worker returns at once."""
+        while True:
+            if not self._commit_lock.acquire(blocking=False):
+                return
+            try:
+                self._commit_groups()
+            finally:
+                self._commit_lock.release()
+            with self._lock:  # admitted while we held the commit lock, after our last look?
+                if not self._ready:
+                    return
+
+    def _commit_groups(self) -> None:
+        while True:
+            with self._lock:
+                group, self._ready = self._ready, []
+                if not group:
+                    return
+                first_id = self.core.store.num_inserted
+            records = [(first_id + i, item.record) for i, item in enumerate(group)]
+            try:
+                self.log.append_many(records)  # durable (fsync) before any ack
+                failure: Exception | None = None
+            except Exception as exc:
+                failure = exc
+            with self._lock:
+                if failure is None:
+                    for episode_id, item in zip(range(first_id, first_id + len(group)), group,
+                                                strict=True):
+                        self._store(item, episode_id)
+                else:
+                    self._refuse(group, failure)
+                self._drain()  # parked samples may wait for exactly these inserts
+
+    def _refuse(self, group: list[_ParkedInsert], exc: Exception) -> None:
+        self.limiter.cancel_inserts(len(group))
+        self.log_failures += len(group)
+        for item in group:
+            del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
             for waiter in item.waiters:
                 waiter.fail(LOG_FAILED, f"episode not logged, so not stored: {exc}")
-            return
+
+    def _store(self, item: _ParkedInsert, episode_id: int) -> None:
+        episode = item.episode
+        del self._parked_keys[(episode.actor_id, int(episode.seq))]
         result = self.core.insert(episode)
         assert result.episode_id == episode_id, "log and store disagree on episode ids"
-        self.limiter.record_insert()
+        self.limiter.store_admitted()
         self._recent_lags.append(self._learner_version - episode.policy_version)
         stored = Stored(episode, episode_id, duplicate=False, energy=result.energy,
                         cluster=result.cluster)
@@ -279,6 +332,7 @@ class ReplayTable:
         with self._lock:
             self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call))
             self._drain()
+        self._commit()  # the samples served may have admitted parked inserts
 
     def _serve(self, item: _ParkedSample) -> None:
         call = item.call
@@ -302,7 +356,8 @@ class ReplayTable:
         while progressed:
             progressed = False
             while self._inserts and self.limiter.can_insert():
-                self._store(self._inserts.popleft())
+                self._ready.append(self._inserts.popleft())
+                self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
                 progressed = True
             while self._samples and self.limiter.can_sample(
                     self._samples[0].call.num_minibatches):
@@ -327,6 +382,7 @@ class ReplayTable:
                                          "timeout; the caller retries")
             if inserts or samples:
                 self._drain()  # a dropped head of a queue may have held admissible calls
+        self._commit()
         return len(inserts) + len(samples)
 
     # -- cluster model, eval results, stored episodes ---------------------------------------

@@ -38,10 +38,11 @@ class RecoveringLogWriter:
     `close`); thread-safe. Open it with `RecoveringLogWriter.open`."""
 
     def __init__(self, run_dir: Path, *, run: str, task: str, retry_s: float = RETRY_S,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, scene: bool = True) -> None:
         self.run_dir = run_dir
         self.run = run
         self.task = task
+        self.scene = scene
         self.retry_s = retry_s
         self._clock = clock
         self._lock = threading.Lock()
@@ -55,16 +56,19 @@ class RecoveringLogWriter:
 
     @classmethod
     def open(cls, run_dir: str | os.PathLike[str], *, run: str, task: str,
-             retry_s: float = RETRY_S, clock: Callable[[], float] = time.monotonic
+             retry_s: float = RETRY_S, clock: Callable[[], float] = time.monotonic,
+             scene: bool = True
              ) -> tuple[RecoveringLogWriter, Iterator[tuple[int, pb.Episode]]]:
         """Like `EpisodeLog.open`, but a disk too full to start the new segment is not an
         error: the recovered episodes are returned all the same, and appends fail (and retry)
         until there is room."""
-        self = cls(Path(run_dir), run=run, task=task, retry_s=retry_s, clock=clock)
+        self = cls(Path(run_dir), run=run, task=task, retry_s=retry_s, clock=clock,
+                   scene=scene)
         sealed = EpisodeLog.retire(self.run_dir, run=run, task=task)
         try:
             self._writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=run,
-                                            task=task, start_time_ns=run_start_ns(sealed))
+                                            task=task, start_time_ns=run_start_ns(sealed),
+                                            scene=scene)
         except OSError as exc:
             self._fail(exc)
         return self, EpisodeLog.recovered(sealed)
@@ -77,6 +81,10 @@ class RecoveringLogWriter:
 
     def append_episode(self, msg: pb.Episode, *, episode_id: int) -> None:
         self._append(lambda writer: writer.append_episode(msg, episode_id=episode_id))
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
+        """Group commit: the episodes as one chunk with one fsync (`EpisodeLogWriter`)."""
+        self._append(lambda writer: writer.append_many(episodes))
 
     def append_cluster_model(self, msg: pb.ClusterModel) -> None:
         self._append(lambda writer: writer.append_cluster_model(msg))
@@ -133,7 +141,8 @@ class RecoveringLogWriter:
                     os.truncate(old.path, old.durable_end)
             sealed = EpisodeLog.retire(self.run_dir, run=self.run, task=self.task)
             writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
-                                      task=self.task, start_time_ns=run_start_ns(sealed))
+                                      task=self.task, start_time_ns=run_start_ns(sealed),
+                                      scene=self.scene)
         except OSError as exc:
             self._fail(exc)
             raise EpisodeLogError(f"{self.run_dir}: cannot start a new log segment ({exc}); "

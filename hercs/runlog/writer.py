@@ -7,6 +7,14 @@ chunk (mcap 1.6 `Writer.flush()` closes the chunk and writes it and its message 
 group commit: several episodes, one chunk, one fsync. An episode whose chunk reached the disk
 but whose append never returned (killed between write and ack) is recovered too: delivery is
 at-least-once and the replay deduplicates on (actor_id, seq).
+
+Scene messages (`/scene`, `/scene/points`: ~100 Foxglove messages per episode, derived from
+the Episode, about two thirds of an append's CPU) are off that path: a background thread
+builds them and writes them in their own chunks, without fsync, after their episodes. A crash
+can lose the scene of the last episodes, never an episode; `close()` writes every pending
+scene first. If the thread falls more than `SCENE_BACKLOG` episodes behind (inserts faster
+than scenes can be drawn), the newest episodes get no scene (counted in `scenes_dropped`,
+logged once a minute): memory stays bounded and inserts never wait for a drawing.
 """
 
 from __future__ import annotations
@@ -14,14 +22,13 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, NamedTuple
 
-from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.message import Message
 from mcap.well_known import MessageEncoding
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType
@@ -55,11 +62,14 @@ if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, 
                       "(mcap >= 1.6); upgrade the mcap package")
 
 
+SCENE_BACKLOG = 1024
+"""Episodes whose scene may wait to be written; beyond it new episodes get none."""
+
+
 class _PreparedEpisode(NamedTuple):
     episode_id: int
     msg: pb.Episode
-    updates: list[SceneUpdate]
-    clouds: list[PointCloud]
+    positions: scene.EpisodePositions
     times_ns: list[int]
 
 
@@ -75,7 +85,7 @@ class EpisodeLogWriter:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, run: str, task: str,
-                 start_time_ns: int | None = None,
+                 start_time_ns: int | None = None, scene: bool = True,
                  compression: CompressionType = CompressionType.ZSTD) -> None:
         """`start_time_ns` is the run's start (ns since the Unix epoch; default now): the
         origin of the synthetic timeline, kept in the metadata so that a later segment of the
@@ -93,6 +103,13 @@ class EpisodeLogWriter:
         self._last_episode_id: int | None = None
         self._state = "open"
         self._durable_end = 0
+        self._failure: BaseException | None = None
+        """What made the writer fail (an append's, or the scene thread's, write error)."""
+        self.scenes_dropped = 0
+        """Episodes logged without a scene because the scene thread was too far behind."""
+        self._scene_queue: queue.Queue[_PreparedEpisode | None] | None = None
+        self._scene_thread: threading.Thread | None = None
+        self._last_drop_warning = 0.0
         try:
             self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 (closed in close())
         except FileExistsError:
@@ -113,6 +130,11 @@ class EpisodeLogWriter:
             with contextlib.suppress(OSError):
                 self._file.close()
             raise
+        if scene:
+            self._scene_queue = queue.Queue(maxsize=SCENE_BACKLOG)
+            self._scene_thread = threading.Thread(target=self._write_scenes, daemon=True,
+                                                  name=f"scene-writer:{self.path.name}")
+            self._scene_thread.start()
 
     @property
     def failed(self) -> bool:
@@ -148,10 +170,21 @@ class EpisodeLogWriter:
         with self._lock:
             self._check_writable()
             prepared = self._prepare(episodes)
-            self._write_durably(record for episode in prepared
-                                for record in self._episode_records(episode, wall))
+            start = self.start_time_ns
+            self._write_durably(
+                (TOPIC_EPISODES, episode.msg,
+                 start + scene.episode_start_ns(episode.episode_id, self._spec.episode_steps),
+                 wall, episode.episode_id)
+                for episode in prepared)
             if prepared:
                 self._last_episode_id = prepared[-1].episode_id
+        for episode in prepared:
+            self._queue_scene(episode)
+
+    def flush_scenes(self) -> None:
+        """Return when every scene queued so far is written (tests, close)."""
+        if self._scene_queue is not None:
+            self._scene_queue.join()
 
     def append_cluster_model(self, msg: pb.ClusterModel, *, log_time_ns: int | None = None
                              ) -> None:
@@ -165,8 +198,13 @@ class EpisodeLogWriter:
                            log_time_ns)
 
     def close(self) -> None:
-        """Write the summary (index, statistics) and footer, fsync and close. Idempotent. A
-        writer that failed mid-append is closed without a footer (recovery seals it)."""
+        """Write the pending scenes, the summary (index, statistics) and footer, fsync and
+        close. Idempotent. A writer that failed mid-append is closed without a footer
+        (recovery seals it)."""
+        if self._scene_thread is not None and self._scene_queue is not None:
+            self._scene_queue.put(None)  # after every queued scene
+            self._scene_thread.join()
+            self._scene_thread = None
         with self._lock:
             if self._state == "closed":
                 return
@@ -202,12 +240,12 @@ class EpisodeLogWriter:
             raise EpisodeLogError(f"{self.path}: append after close(); nothing was written")
         if self._state == "failed":
             raise EpisodeLogError(
-                f"{self.path}: an earlier append failed while writing, so the file may end in "
-                "a torn record; nothing more is appended. Reopen with EpisodeLog.open(run_dir)")
+                f"{self.path}: an earlier write failed ({self._failure!r}), so the file may "
+                "end in a torn record; nothing more is appended. Reopen with "
+                "EpisodeLog.open(run_dir)") from self._failure
 
     def _prepare(self, episodes: Sequence[tuple[int, pb.Episode]]) -> list[_PreparedEpisode]:
-        """Check ids and build every message before the first byte is written."""
-        T = self._spec.episode_steps
+        """Check ids and arrays before the first byte is written."""
         prepared = []
         last = self._last_episode_id
         for episode_id, msg in episodes:
@@ -224,30 +262,63 @@ class EpisodeLogWriter:
                                  f"{self.task!r}; nothing was written")
             last = episode_id
             obs = msg_to_array(msg.obs, where="Episode.obs")
-            positions = scene.episode_positions(
+            positions = scene.episode_positions(  # checks the shapes now, not in the thread
                 obs, msg_to_array(msg.ag, where="Episode.ag"),
                 msg_to_array(msg.g, where="Episode.g"), self._spec)
-            times = [self.start_time_ns + t
-                     for t in scene.step_times_ns(episode_id, len(obs), T)]
-            labels = {"episode_id": str(episode_id), "actor_id": msg.actor_id,
-                      "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
-            updates = scene.scene_updates(positions, times,
-                                          goal_diameter=2 * self._spec.distance_threshold,
-                                          labels=labels)
-            prepared.append(_PreparedEpisode(episode_id, msg, updates,
-                                             scene.point_clouds(positions, times), times))
+            times = [self.start_time_ns + t for t in scene.step_times_ns(
+                episode_id, len(obs), self._spec.episode_steps)]
+            prepared.append(_PreparedEpisode(episode_id, msg, positions, times))
         return prepared
 
-    def _episode_records(self, episode: _PreparedEpisode, wall: int
-                         ) -> Iterator[tuple[str, Message, int, int, int]]:
-        """(topic, message, log_time, publish_time, sequence) of one episode, in time order."""
-        start = self.start_time_ns + scene.episode_start_ns(episode.episode_id,
-                                                            self._spec.episode_steps)
-        yield TOPIC_EPISODES, episode.msg, start, wall, episode.episode_id
-        for update, cloud, t in zip(episode.updates, episode.clouds, episode.times_ns,
+    def _scene_records(self, episode: _PreparedEpisode
+                       ) -> Iterator[tuple[str, Message, int, int, int]]:
+        """(topic, message, log_time, publish_time, sequence) of one episode's scene."""
+        positions, times, msg = episode.positions, episode.times_ns, episode.msg
+        labels = {"episode_id": str(episode.episode_id), "actor_id": msg.actor_id,
+                  "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
+        updates = scene.scene_updates(positions, times,
+                                      goal_diameter=2 * self._spec.distance_threshold,
+                                      labels=labels)
+        for update, cloud, t in zip(updates, scene.point_clouds(positions, times), times,
                                     strict=True):
             yield TOPIC_SCENE, update, t, t, episode.episode_id
             yield TOPIC_SCENE_POINTS, cloud, t, t, episode.episode_id
+
+    def _queue_scene(self, episode: _PreparedEpisode) -> None:
+        if self._scene_queue is None:
+            return
+        try:
+            self._scene_queue.put_nowait(episode)
+        except queue.Full:
+            self.scenes_dropped += 1
+            now = time.monotonic()
+            if now - self._last_drop_warning > 60.0:
+                self._last_drop_warning = now
+                log.warning("%s: episodes arrive faster than their scenes can be drawn; %d "
+                            "episodes so far logged without a scene (the episodes themselves "
+                            "are all logged)", self.path, self.scenes_dropped)
+
+    def _write_scenes(self) -> None:
+        """The scene thread: build each queued episode's scene and append it (no fsync)."""
+        assert self._scene_queue is not None
+        while True:
+            episode = self._scene_queue.get()
+            try:
+                if episode is None:
+                    return
+                # built and serialised outside the lock; only the chunk write holds it
+                records = [(topic, msg, log_time, publish_time, sequence,
+                            msg.SerializeToString())
+                           for topic, msg, log_time, publish_time, sequence
+                           in self._scene_records(episode)]
+                with self._lock:
+                    if self._state == "open":
+                        self._write_serialised(records, sync=False)
+            except Exception as exc:  # a failed write marks the writer failed; log and go on
+                log.warning("%s: scene of episode %s not written: %s", self.path,
+                            None if episode is None else episode.episode_id, exc)
+            finally:
+                self._scene_queue.task_done()
 
     def _append_other(self, topic: str, msg: Message, sequence: int,
                       log_time_ns: int | None) -> None:
@@ -265,14 +336,24 @@ class EpisodeLogWriter:
                 - scene.STEP_NS)
 
     def _write_durably(self, records: Iterable[tuple[str, Message, int, int, int]]) -> None:
+        self._write_serialised(((*record, record[1].SerializeToString()) for record in records),
+                               sync=True)
+
+    def _write_serialised(self, records: Iterable[tuple[str, Message, int, int, int, bytes]],
+                          *, sync: bool) -> None:
+        """Append `records` (with their serialised bytes) as one chunk; with `sync`, fsync
+        and move the durable end."""
         try:
-            for topic, msg, log_time, publish_time, sequence in records:
+            for topic, msg, log_time, publish_time, sequence, data in records:
                 self._mcap.add_message(channel_id=self._channel(topic, msg), log_time=log_time,
-                                       data=msg.SerializeToString(),
-                                       publish_time=publish_time, sequence=sequence)
-            self._sync()
-        except BaseException:
-            self._state = "failed"
+                                       data=data, publish_time=publish_time,
+                                       sequence=sequence)
+            if sync:
+                self._sync()
+            else:
+                self._mcap.flush()  # closes the chunk; the next sync makes it durable too
+        except BaseException as exc:
+            self._state, self._failure = "failed", exc
             raise
 
     def _channel(self, topic: str, msg: Message) -> int:

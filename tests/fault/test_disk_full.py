@@ -109,7 +109,10 @@ def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
         acked.append(i)
     ballast = fill(disk, leave=150_000)
     error = append_until_refused(writer, acked)
-    assert isinstance(error, OSError) and error.errno == errno.ENOSPC, error
+    # the episode append hit the full disk, or the scene thread did first (then the refusal
+    # carries its error as the cause)
+    cause = error if isinstance(error, OSError) else error.__cause__
+    assert isinstance(cause, OSError) and cause.errno == errno.ENOSPC, error
     assert len(acked) > 3 and writer.failed
 
     # While full: refused at once (no retry before retry_s), then retried and refused again.
@@ -119,7 +122,10 @@ def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
     fill(disk)
     with pytest.raises((EpisodeLogError, OSError)):
         writer.append_episode(episode(len(acked)), episode_id=len(acked))
-    assert writer.failed and writer.recoveries == 0
+    # cutting the torn tail may free room for a new segment's header, which then fills up
+    # at its first append: failed either way, and never an acked episode lost
+    assert writer.failed and writer.recoveries in (0, 1)
+    recoveries_while_full = writer.recoveries
     assert logged_ids(run_dir) == acked, "the torn segment still reads back every acked one"
 
     # Space returns: the next append after retry_s continues in a new segment.
@@ -129,7 +135,7 @@ def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
         i = len(acked)
         writer.append_episode(episode(i), episode_id=i)
         acked.append(i)
-    assert not writer.failed and writer.recoveries == 1
+    assert not writer.failed and writer.recoveries == recoveries_while_full + 1
     writer.close()
 
     assert logged_ids(run_dir) == acked

@@ -47,7 +47,7 @@ def main(path: str, task: str, max_file_bytes: int | None) -> None:
     for i in range(1_000_000):
         try:
             writer.append_episode(make_episode(i, task), episode_id=i)
-        except OSError as exc:
+        except (OSError, EpisodeLogError) as exc:  # the scene thread may hit the limit first
             print(f"failed {exc}", flush=True)
             try:
                 writer.append_episode(make_episode(i + 1, task), episode_id=i + 1)

@@ -68,14 +68,16 @@ def eval_result() -> pb.EvalResult:
                          success_rate=0.35, mean_final_distance=0.081)
 
 
-def write_log(path: Path, ids: range, task: str = "push"
+def write_log(path: Path, ids: range, task: str = "push", *, scene: bool = True
               ) -> tuple[EpisodeLogWriter, list[int]]:
     """Append episodes `ids` (not closed: as a killed writer leaves it); returns the writer
-    and the file size after each append."""
-    writer = EpisodeLogWriter(path, run=RUN, task=task)
+    and the file size after each append. `scene=False`: one chunk per episode (no scene
+    chunks between them), for the tests that count chunks."""
+    writer = EpisodeLogWriter(path, run=RUN, task=task, scene=scene)
     sizes = []
     for i in ids:
         writer.append_episode(make_episode(i, task), episode_id=i)
+        writer.flush_scenes()  # a kill-like cut must not race the scene thread's writes
         sizes.append(path.stat().st_size)
     return writer, sizes
 
@@ -149,6 +151,7 @@ def test_invalid_appends_write_nothing_and_leave_the_writer_usable(tmp_path: Pat
     path = tmp_path / "episodes.mcap"
     writer = EpisodeLogWriter(path, run=RUN, task="push")
     writer.append_episode(make_episode(0, "push"), episode_id=5)
+    writer.flush_scenes()  # episode 5's scene comes from the scene thread
     size = path.stat().st_size
     with pytest.raises(ValueError, match="ids must increase"):
         writer.append_many([(6, make_episode(1, "push")), (6, make_episode(2, "push"))])
@@ -185,7 +188,7 @@ def test_torn_tail_anywhere_yields_exactly_the_complete_chunks(tmp_path: Path) -
     acked one, since an append returns after its chunk and indexes are fsynced; the episode
     being written when the cut happened too, if its chunk made it) and never raises."""
     full = tmp_path / "full.mcap"
-    writer, sizes = write_log(full, range(4))
+    writer, sizes = write_log(full, range(4), scene=False)
     writer.close()  # appends the summary after the data: mcap's own index of the chunks
     with open(full, "rb") as f:
         chunk_ends = [c.chunk_start_offset + c.chunk_length
@@ -223,7 +226,7 @@ def test_torn_tail_anywhere_yields_exactly_the_complete_chunks(tmp_path: Path) -
 
 def test_garbage_and_corrupt_tails(tmp_path: Path) -> None:
     path = tmp_path / "episodes.mcap"
-    _, sizes = write_log(path, range(3))
+    _, sizes = write_log(path, range(3), scene=False)
     data = path.read_bytes()
     for tail in (bytes(4096), np.random.default_rng(3).bytes(4096)):
         path.write_bytes(data + tail)
@@ -316,6 +319,7 @@ def test_restart_continues_in_a_new_segment(tmp_path: Path) -> None:
     for i in range(6):
         size_before = live.stat().st_size
         writer.append_episode(make_episode(i, "push"), episode_id=i)
+        writer.flush_scenes()
     os.truncate(live, size_before + 500)  # crash inside episode 5's chunk: it was never acked
     del writer  # never closed, like a killed process
 

@@ -4,6 +4,7 @@ refusal of requests the limiter could never admit, recovery."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,12 +57,13 @@ class FakeLog:
     episodes: list[tuple[int, pb.Episode]] = field(default_factory=list)
     fail_next: int = 0
 
-    def append_episode(self, msg: pb.Episode, *, episode_id: int) -> None:
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
         if self.fail_next:
             self.fail_next -= 1
             raise OSError(28, "No space left on device")
-        self.episodes.append((episode_id, msg))
-        self.journal.append(f"log {episode_id}")
+        for episode_id, msg in episodes:
+            self.episodes.append((episode_id, msg))
+            self.journal.append(f"log {episode_id}")
 
     def append_cluster_model(self, msg: pb.ClusterModel) -> None:
         self.journal.append("log model")
@@ -139,7 +141,8 @@ def test_samples_wait_for_min_episodes_then_inserts_wait_for_samples() -> None:
     # one request of 8 brings d from 16 to 8: both held inserts go in, oldest first
     h.journal.clear()
     second = h.sample(8, "s2")
-    assert h.journal == ["done s2", "log 12", "done insert a/12", "log 13", "done insert a/13"]
+    # ... as one group: both logged (one append, one fsync) before either is acknowledged
+    assert h.journal == ["done s2", "log 12", "log 13", "done insert a/12", "done insert a/13"]
     assert second.results and all(w.results for w in more)
 
 
@@ -302,3 +305,52 @@ def test_clusterer_snapshot_holds_the_newest_failed_goals_and_the_counts() -> No
     again.table.recover([(i, ep) for i, ep in enumerate(
         h.table.core.store.episode(i) for i in range(20))])
     np.testing.assert_array_equal(again.table.clusterer_state().failed_goals, snap.failed_goals)
+
+
+class HeldLog(FakeLog):
+    """A log whose appends can be held open (an fsync that takes its time), from a test."""
+
+    def __init__(self, journal: list[str]) -> None:
+        super().__init__(journal)
+        self.groups: list[list[int]] = []
+        self.hold = threading.Event()  # set: the next append waits for `release`
+        self.entered = threading.Event()
+        self.release = threading.Event()
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
+        self.groups.append([episode_id for episode_id, _ in episodes])
+        if self.hold.is_set():
+            self.hold.clear()
+            self.entered.set()
+            assert self.release.wait(30), "the test never released the held append"
+        super().append_many(episodes)
+
+
+def test_inserts_arriving_during_an_append_share_the_next_group_and_samples_go_on() -> None:
+    """Group commit: while one append is held open (a slow fsync), the table's lock is free
+    (a sample is served, three more inserts are admitted and return at once without an ack),
+    and the three then go to the log as one group, each acked only after that append."""
+    config = apply_overrides(HercsConfig(), [*OVERRIDES, "replay.free_run=true"])
+    journal: list[str] = []
+    log = HeldLog(journal)
+    table = ReplayTable(config=config, core=ReplayCore(config=config,
+                                                       rng=np.random.default_rng(0)),
+                        log=log, clock=Clock())
+    h = Harness(table, log, Clock(), journal, config)
+    for seq in range(4):
+        h.insert(seq)
+    log.hold.set()
+    leader = threading.Thread(target=h.insert, args=(4,))
+    leader.start()
+    assert log.entered.wait(30)
+    followers = [h.insert(seq) for seq in (5, 6, 7)]  # return without waiting for the leader
+    sampled = h.sample(8, "during the append")
+    assert sampled.results and not any(w.results for w in followers)
+    assert table.status().size_episodes == 4  # episode 4 is not stored before its fsync
+    log.release.set()
+    leader.join(30)
+    assert not leader.is_alive()
+    assert log.groups[-2:] == [[4], [5, 6, 7]]
+    assert [w.results[0].episode_id for w in followers] == [5, 6, 7]
+    assert journal.index("log 7") < journal.index("done insert a/5")
+    assert table.status().size_episodes == 8
