@@ -1,0 +1,165 @@
+"""Acked inserts per second of the replay table with its real episode log, in process.
+
+    python bench/inserts.py [--quick] [--out docs/results/inserts]
+
+What the replay can acknowledge when inserts arrive from many hosts at once, without Zenoh
+or actors in the way: N threads (the replay's insert workers) each insert pre-built FetchPush
+episodes into one `ReplayTable` (free run, so the rate limiter never holds them) whose log is
+a real `RecoveringLogWriter` on this machine's disk (fsync on every commit). Variants, each
+for the same wall-clock window, in alternating rounds:
+
+- serial, scene on the ack path: 1 thread, and every append waits until its episode's scene
+  is written too (what the replay did before group commit);
+- serial: 1 thread, scenes written by the log's background thread;
+- group commit: `replay.insert_workers` (4) threads, scenes in the background;
+- group commit, no scene: the same with `replay.log_scene=false`.
+
+Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
+synthetic actor processes is `bench/throughput.py`'s insert phase. Writes OUT.json and OUT.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `python bench/inserts.py` from a checkout
+    sys.path.insert(0, str(REPO))
+
+from bench.common import git_commit  # noqa: E402
+from hercs.codec import episode_to_msg  # noqa: E402
+from hercs.config import HercsConfig, apply_overrides  # noqa: E402
+from hercs.episode import random_episode  # noqa: E402
+from hercs.runlog import RecoveringLogWriter  # noqa: E402
+from proto import hercs_pb2 as pb  # noqa: E402
+from replay_service.core import ReplayCore  # noqa: E402
+from replay_service.table import ReplayTable, Stored  # noqa: E402
+
+VARIANTS = {
+    "serial, scene on the ack path": (1, True, True),
+    "serial": (1, True, False),
+    "group commit": (4, True, False),
+    "group commit, no scene": (4, False, False),
+}
+"""name → (threads, log the scene, wait for the scene before the ack)."""
+
+
+class _Acked:
+    def __init__(self, counter: list[int], done: threading.Event) -> None:
+        self.counter, self.done_event = counter, done
+
+    def done(self, result: Stored) -> None:
+        self.counter[0] += 1
+        self.done_event.set()
+
+    def fail(self, reason: str, detail: str) -> None:
+        raise RuntimeError(f"insert refused: {reason}: {detail}")
+
+
+class _SceneOnAckPath:
+    """The log as before: an append returns only when its episodes' scenes are written."""
+
+    def __init__(self, log: RecoveringLogWriter) -> None:
+        self.log = log
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
+        self.log.append_many(episodes)
+        writer = self.log._writer  # the live segment's writer
+        if writer is not None:
+            writer.flush_scenes()
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None:
+        self.log.append_cluster_model(msg)
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None:
+        self.log.append_eval_result(msg)
+
+
+def measure(name: str, *, window_s: float, pool: list, workdir: Path) -> float:
+    threads, scene, scene_on_path = VARIANTS[name]
+    config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=bench",
+                                             "replay.free_run=true"])
+    run_dir = Path(tempfile.mkdtemp(dir=workdir))
+    log, _ = RecoveringLogWriter.open(run_dir, run="bench", task="push", scene=scene)
+    sink = _SceneOnAckPath(log) if scene_on_path else log
+    table = ReplayTable(config=config, core=ReplayCore(config=config,
+                                                       rng=np.random.default_rng(0)),
+                        log=sink)
+    acked = [0]
+    stop = threading.Event()
+
+    def worker(index: int) -> None:
+        seq = 0
+        while not stop.is_set():
+            data, msg = pool[seq % len(pool)]
+            episode = dataclasses.replace(data, actor_id=f"a{index}", seq=seq)
+            answered = threading.Event()
+            table.insert(episode, record=msg, waiter=_Acked(acked, answered))
+            answered.wait()  # one insert in flight per worker, as one actor's inserter
+            seq += 1
+
+    workers = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(threads)]
+    for thread in workers:
+        thread.start()
+    time.sleep(0.3)  # warm-up: files created, first chunks written
+    start, count = time.monotonic(), acked[0]
+    time.sleep(window_s)  # the measurement window itself
+    rate = (acked[0] - count) / (time.monotonic() - start)
+    stop.set()
+    for thread in workers:
+        thread.join(30)
+    log.close()
+    return rate
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="short windows, one round")
+    parser.add_argument("--out", default=str(REPO / "docs/results/inserts"))
+    args = parser.parse_args(argv)
+    window_s, rounds = (0.5, 1) if args.quick else (4.0, 3)
+    spec = apply_overrides(HercsConfig(), ["task.name=push"]).task.spec
+    rng = np.random.default_rng(0)
+    pool = []
+    for i in range(64):
+        episode = random_episode(spec, rng, seq=i)
+        pool.append((episode, episode_to_msg(episode, run="bench", task="push")))
+    rates: dict[str, list[float]] = {name: [] for name in VARIANTS}
+    with tempfile.TemporaryDirectory(dir=REPO) as workdir:  # the repository's disk
+        for _ in range(rounds):
+            for name in VARIANTS:
+                rates[name].append(measure(name, window_s=window_s, pool=pool,
+                                           workdir=Path(workdir)))
+    base = float(np.median(rates["serial, scene on the ack path"]))
+    results = {name: {"episodes_per_s": float(np.median(r)), "rounds": r,
+                      "ratio": float(np.median(r)) / base} for name, r in rates.items()}
+    command = "python bench/inserts.py" + (" --quick" if args.quick else "")
+    lines = ["# Replay inserts acked per second, in process", "",
+             f"`{command}` — git {git_commit()}; {rounds} round(s) of {window_s:g} s per "
+             "variant, median; FetchPush episodes, free run, log fsynced on this disk.", "",
+             "| variant | threads | acked episodes/s | ratio |", "|---|---|---|---|"]
+    for name, row in results.items():
+        lines.append(f"| {name} | {VARIANTS[name][0]} | {row['episodes_per_s']:.0f} | "
+                     f"{row['ratio']:.2f} |")
+    text = "\n".join(lines) + "\n"
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(
+        {"git": git_commit(), "window_s": window_s, "rounds": rounds, "results": results},
+        indent=2) + "\n")
+    out.with_suffix(".md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
