@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from hercs.config import HercsConfig, apply_overrides, load_yaml
+from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
 from hercs.tasks import TASKS
@@ -30,7 +30,7 @@ SHORTCUTS: dict[str, str] = {
 }
 
 
-RUN_FLAGS = ("task", "method", "seed", "epochs", "run", "run_dir", "actors")
+RUN_FLAGS = ("task", "method", "seed", "epochs", "run", "run_dir", "actors", "workers")
 """The flags that shape a run; `FLAGS_OF` says which command takes which."""
 
 FLAGS_OF: dict[str, tuple[str, ...]] = {
@@ -38,6 +38,7 @@ FLAGS_OF: dict[str, tuple[str, ...]] = {
     "up": (*RUN_FLAGS, "listen", "security"),
     "router": ("listen", "security"),
     "replay": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
+    # --workers shapes a run once, in the config `hercs up` saves: not a service flag
     "clusterer": ("task", "method", "seed", "epochs", "run", "run_dir", "connect",
                   "security"),
     "learner": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
@@ -65,6 +66,9 @@ def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
         "run": dict(help="run name (Zenoh key prefix and folder name)"),
         "run_dir": dict(help="parent folder of run directories"),
         "actors": dict(type=int, help="rollout actors to start"),
+        "workers": dict(type=int, metavar="N",
+                        help="the reference's N-worker setting: N× episodes per cycle, N× "
+                             "minibatch, N actors (docs/PERFORMANCE.md)"),
     }
     for flag in RUN_FLAGS:
         if flag in flags:
@@ -128,7 +132,7 @@ def rerun_overrides(args: argparse.Namespace) -> list[str]:
     return overrides
 
 
-RESUME_FIXED = ("config", "task", "method", "seed", "run", "run_dir")
+RESUME_FIXED = ("config", "task", "method", "seed", "run", "run_dir", "workers")
 """Flags `--resume` refuses: a resumed run keeps its saved config's task, method, seed and
 name (what it may change: --epochs, --actors, --listen, --rerun…, --set)."""
 
@@ -158,6 +162,12 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         config = load_yaml(args.config) if args.config else HercsConfig()
     overrides = [f"{field}={getattr(args, flag)}" for flag, field in SHORTCUTS.items()
                  if getattr(args, flag, None) is not None]
+    workers = getattr(args, "workers", None)
+    if workers is not None:  # scales the file's and the shortcuts' values; --set still wins
+        config = apply_overrides(config, overrides)
+        overrides = workers_overrides(config, workers)
+        if getattr(args, "actors", None) is not None:  # an explicit --actors wins
+            overrides.append(f"actor.num_actors={args.actors}")
     if getattr(args, "tensorboard", False):
         overrides.append("run.tensorboard=true")
     tls_dir = getattr(args, "tls_dir", None)

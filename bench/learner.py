@@ -94,6 +94,23 @@ def update_rate(learner: DDPGLearner, batches: list[TransitionBatch], *, bf16: b
     return 1.0 / cpu_seconds(one, len(batches))
 
 
+def workers_scaling(spec, config: DDPGConfig, workers: tuple[int, ...], *,  # type: ignore[no-untyped-def]
+                    updates: int, rounds: int) -> dict[int, float]:
+    """CPU ms per update at B = 256·N (the `--workers N` preset), N in `workers`, timed in
+    alternating rounds so that every size sees the same background load."""
+    rng = np.random.default_rng(1)
+    learners = {n: DDPGLearner(spec=spec, config=config, seed=0) for n in workers}
+    batches = {n: [make_batch(spec, config.batch_size * n, rng) for _ in range(4)]
+               for n in workers}
+    times: dict[int, list[float]] = {n: [] for n in workers}
+    for _ in range(rounds):
+        for n in workers:
+            it = iter(range(10**9))
+            times[n].append(1e3 * cpu_seconds(
+                lambda n=n, it=it: learners[n].update(batches[n][next(it) % 4]), updates))
+    return {n: float(np.median(t)) for n, t in times.items()}
+
+
 def cpu_features() -> str:
     """The CPU model and the vector extensions that decide bf16 speed."""
     model, flags = platform.processor() or "unknown CPU", set()
@@ -136,7 +153,10 @@ def main(argv: list[str] | None = None) -> int:
         limit = gemm / flops
         results[name] = {"gemm_gflops": gemm / 1e9, "updates_per_cpu_s": rate,
                          "limit_updates_per_cpu_s": limit, "ratio_to_limit": rate / limit}
+    scaling = workers_scaling(spec, config, (1, 2, 4, 8), updates=3 if args.quick else 20,
+                              rounds=1 if args.quick else 5)
     summary = {"task": args.task, "batch_size": args.batch_size, "gflop_per_update": flops / 1e9,
+               "workers_ms_per_update": scaling,
                "threads": 1, "results": results, "commit": git_commit(),
                "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                "machine": f"{platform.node()} ({os.cpu_count()} cores)",
@@ -160,6 +180,17 @@ def main(argv: list[str] | None = None) -> int:
     for name, r in results.items():
         lines.append(f"| {name} | {r['gemm_gflops']:.1f} | {r['limit_updates_per_cpu_s']:.1f} | "
                      f"{r['updates_per_cpu_s']:.1f} | {r['ratio_to_limit']:.2f} |")
+    lines += [
+        "",
+        "The `--workers N` preset (N× minibatch, what the reference's N MPI workers amount to): "
+        "CPU time of one update at B = 256·N on this core, alternating rounds.",
+        "",
+        "| N | B | ms per update | × N = 1 | per 256 transitions × N = 1 |",
+        "|---|---|---|---|---|",
+    ]
+    for n, ms in scaling.items():
+        lines.append(f"| {n} | {config.batch_size * n} | {ms:.1f} | {ms / scaling[1]:.2f} | "
+                     f"{ms / scaling[1] / n:.2f} |")
     text = "\n".join(lines) + "\n"
     print(text)
     out = args.out or (None if args.quick else REPO / "docs" / "results")

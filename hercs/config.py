@@ -557,6 +557,23 @@ def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
     return HercsConfig.from_dict(data)
 
 
+def workers_overrides(config: HercsConfig, workers: int) -> list[str]:
+    """The reference's N-worker setting as overrides of `config`: N× episodes per cycle, N×
+    the minibatch, N actors.
+
+    In the reference code each of N MPI workers collects its own episodes every cycle and runs
+    the cycle's updates on its own minibatch, and the gradients are averaged over the workers
+    before every Adam step: together, N× the episodes per cycle and (up to each worker
+    sampling from its own buffer) one update on N× the minibatch. The number of updates per
+    cycle, and so the updates per episode, is unchanged per worker: a learner that runs N×
+    larger updates as fast as it ran one (a GPU) can use N× the actors [DESIGN]."""
+    if workers < 1:
+        raise ConfigError(f"--workers: got {workers}, must be >= 1")
+    return [f"training.episodes_per_cycle={config.training.episodes_per_cycle * workers}",
+            f"ddpg.batch_size={config.ddpg.batch_size * workers}",
+            f"actor.num_actors={workers}"]
+
+
 def load_yaml(path: str | Path) -> HercsConfig:
     """Load a (possibly partial) config; missing fields keep their defaults."""
     try:

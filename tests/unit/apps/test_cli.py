@@ -79,3 +79,29 @@ def test_each_command_offers_only_its_own_flags(command: str, absent: list[str],
     with pytest.raises(SystemExit) as exc:
         parser.parse_args([command, absent[0], "x"])
     assert exc.value.code == 2
+
+
+def _resolved(capsys, *flags: str) -> dict:
+    assert main(["config", *flags]) == 0
+    return yaml.safe_load(capsys.readouterr().out)
+
+
+def test_workers_preset_scales_episodes_batch_and_actors(capsys, tmp_path: Path) -> None:
+    """--workers N: N× episodes per cycle and N× minibatch of whatever the config holds,
+    N actors; updates per cycle unchanged; an explicit --actors or --set still wins."""
+    one = _resolved(capsys)
+    four = _resolved(capsys, "--workers", "4")
+    assert four["training"]["episodes_per_cycle"] == 4 * one["training"]["episodes_per_cycle"]
+    assert four["ddpg"]["batch_size"] == 4 * one["ddpg"]["batch_size"] == 1024
+    assert four["actor"]["num_actors"] == 4
+    assert four["training"]["minibatches_per_cycle"] == one["training"]["minibatches_per_cycle"]
+    partial = tmp_path / "small.yaml"
+    partial.write_text("ddpg: {batch_size: 64}\n")
+    scaled = _resolved(capsys, "--config", str(partial), "--workers", "2", "--actors", "6",
+                       "--set", "training.episodes_per_cycle=3")
+    assert scaled["ddpg"]["batch_size"] == 128
+    assert scaled["actor"]["num_actors"] == 6 and scaled["training"]["episodes_per_cycle"] == 3
+    assert main(["config", "--workers", "0"]) == 2
+    assert "--workers: got 0" in capsys.readouterr().err
+    assert main(["up", "--resume", str(tmp_path), "--workers", "2"]) == 2
+    assert "--workers" in capsys.readouterr().err
