@@ -217,10 +217,23 @@ class EnergyConfig:
     """Weight of the kinetic energy [EBP]."""
     epsilon: float = 1e-6
     """Added to every trajectory energy so no episode has p = 0 [DESIGN]."""
+    temperature: float = 0.99
+    """p ∝ e^(1/(temperature + 0.01)) + ε, the reference's form: 0.99 makes the exponent 1
+    (p ∝ e + ε, docs/DESIGN.md §4); the reference's default temperature 1 gives 0.990 [EBP]."""
+    cluster_fill: str = "energy"
+    """HER-EBP-CS inside a cluster: draw its members by energy (`energy`, our definition) or
+    uniformly (`uniform`, HER-CS's draw with EBP only in the whole-buffer fills) [DESIGN]."""
 
     def __post_init__(self) -> None:
-        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon"):
+        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon", "temperature"):
             _positive(f"energy.{name}", getattr(self, name))
+        _check(self.cluster_fill in ("energy", "uniform"), "energy.cluster_fill",
+               self.cluster_fill, "be energy or uniform")
+
+    @property
+    def exponent(self) -> float:
+        """The power the trajectory energies are raised to before ε is added."""
+        return 1.0 / (self.temperature + 0.01)
         for name in ("w_potential", "w_kinetic"):
             _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
 

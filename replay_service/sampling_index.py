@@ -47,8 +47,9 @@ class SamplingIndex:
         self._label = np.full(self.capacity, -1, np.int64)
         self._energy = np.zeros(self.capacity, np.float64)
         self.size = 0
-        self._sums: dict[float, _RowSums] = {}
-        """The rows' cumulative energy + ε by ε; emptied by a write (the next draw recomputes)."""
+        self._sums: dict[tuple[float, float], _RowSums] = {}
+        """The rows' cumulative energy^exponent + ε by (ε, exponent); emptied by a write (the
+        next draw recomputes)."""
 
     # -- reads -------------------------------------------------------------------------------
 
@@ -69,9 +70,10 @@ class SamplingIndex:
         counts = np.concatenate([[self.size], self._counts])
         return np.where(rows < counts.size, counts[np.minimum(rows, counts.size - 1)], 0)
 
-    def energy_mass(self, rows: np.ndarray, *, epsilon: float = 0.0) -> np.ndarray:
-        """Σ (energy + epsilon) over each row."""
-        sums = self._row_sums(epsilon)
+    def energy_mass(self, rows: np.ndarray, *, epsilon: float = 0.0,
+                    exponent: float = 1.0) -> np.ndarray:
+        """Σ (energy^exponent + epsilon) over each row."""
+        sums = self._row_sums(epsilon, exponent)
         rows = np.asarray(rows, np.int64)
         return sums.cum[sums.start[rows + 1]] - sums.cum[sums.start[rows]]
 
@@ -84,10 +86,10 @@ class SamplingIndex:
     # -- draws -------------------------------------------------------------------------------
 
     def draw(self, rows: np.ndarray, rng: np.random.Generator, *,
-             epsilon: float | None = None) -> np.ndarray:
+             epsilon: float | None = None, exponent: float = 1.0) -> np.ndarray:
         """One slot per entry of `rows` (row 0: any stored slot, row c+1: a member of c):
-        uniform within the row, or with p ∝ energy + `epsilon` when `epsilon` is given.
-        Every row drawn from must be non-empty."""
+        uniform within the row, or with p ∝ energy^exponent + `epsilon` when `epsilon` is
+        given. Every row drawn from must be non-empty."""
         rows = np.asarray(rows, np.int64)
         n = self.row_sizes(rows)
         if rows.size and int(n.min()) < 1:
@@ -97,7 +99,7 @@ class SamplingIndex:
             return self._uniform(rows, n, rng)
         if not epsilon > 0:
             raise ConfigError(f"SamplingIndex.draw: epsilon {epsilon!r} must be > 0")
-        sums = self._row_sums(epsilon)
+        sums = self._row_sums(epsilon, exponent)
         first, end = sums.start[rows], sums.start[rows + 1]
         lo, hi = sums.cum[first], sums.cum[end]
         target = lo + rng.uniform(size=rows.size) * (hi - lo)
@@ -114,10 +116,10 @@ class SamplingIndex:
         cluster = np.maximum(rows - 1, 0)
         return np.where(rows == WHOLE_BUFFER, rank, self._members[cluster, rank])
 
-    def _row_sums(self, epsilon: float) -> _RowSums:
-        sums = self._sums.get(epsilon)
+    def _row_sums(self, epsilon: float, exponent: float) -> _RowSums:
+        sums = self._sums.get((epsilon, exponent))
         if sums is None:
-            sums = self._sums[epsilon] = _RowSums.of(self, epsilon)
+            sums = self._sums[(epsilon, exponent)] = _RowSums.of(self, epsilon, exponent)
         return sums
 
     # -- writes ------------------------------------------------------------------------------
@@ -210,10 +212,12 @@ class _RowSums:
         self.order, self.cum, self.start = order, cum, start
 
     @classmethod
-    def of(cls, index: SamplingIndex, epsilon: float) -> _RowSums:
+    def of(cls, index: SamplingIndex, epsilon: float, exponent: float) -> _RowSums:
         parts = [np.arange(index.size)] + [index._members[c, :n]
                                            for c, n in enumerate(index._counts)]
         order = np.concatenate(parts)
-        cum = np.concatenate([[0.0], np.cumsum(index._energy[order] + epsilon)])
+        energy = index._energy[order]
+        weight = (energy if exponent == 1.0 else np.power(energy, exponent)) + epsilon
+        cum = np.concatenate([[0.0], np.cumsum(weight)])
         start = np.concatenate([[0], np.cumsum([len(p) for p in parts])])
         return cls(order, cum, start)

@@ -32,10 +32,12 @@ def make_sampler(method: str, config: HercsConfig) -> EpisodeSampler:
         raise ConfigError(
             f"run.method: got {method!r}, must be one of {list(METHODS)}") from None
     k, repeat, eps = config.cluster.k, config.cluster.small_cluster_repeat, config.energy.epsilon
+    exponent = config.energy.exponent
     if spec.cluster_balanced and spec.energy_prioritised:
-        return EnergyClusterSampler(k, epsilon=eps, small_cluster_repeat=repeat)
+        return EnergyClusterSampler(k, epsilon=eps, small_cluster_repeat=repeat,
+                                    exponent=exponent, cluster_fill=config.energy.cluster_fill)
     if spec.cluster_balanced:
         return ClusterBalancedSampler(k, small_cluster_repeat=repeat)
     if spec.energy_prioritised:
-        return EnergySampler(epsilon=eps, num_clusters=k)
+        return EnergySampler(epsilon=eps, num_clusters=k, exponent=exponent)
     return UniformSampler(num_clusters=k)

@@ -24,9 +24,10 @@ from replay_service.sampling_index import WHOLE_BUFFER
 class EnergySampler:
     """p(slot) = (e_slot + ε) / Σ (e + ε). Stateless."""
 
-    def __init__(self, *, epsilon: float, num_clusters: int = 0) -> None:
+    def __init__(self, *, epsilon: float, num_clusters: int = 0, exponent: float = 1.0) -> None:
         check_epsilon(epsilon)
         self.epsilon = epsilon
+        self.exponent = exponent
         self.num_clusters = num_clusters
 
     def sample(
@@ -34,7 +35,7 @@ class EnergySampler:
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
         idxs = store.sampling_index.draw(np.full(batch_size, WHOLE_BUFFER), rng,
-                                         epsilon=self.epsilon)
+                                         epsilon=self.epsilon, exponent=self.exponent)
         return idxs, make_info(
             store.cluster, idxs, num_clusters=self.num_clusters,
             whole_buffer_draws=batch_size, balanced=False,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hercs.errors import ConfigError
 from replay_service.samplers.base import (
     SampleInfo,
     SampleSource,
@@ -36,11 +37,17 @@ from replay_service.sampling_index import WHOLE_BUFFER
 class EnergyClusterSampler:
     """HER-EBP-CS as defined in the module docstring."""
 
-    def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4) -> None:
+    def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4,
+                 exponent: float = 1.0, cluster_fill: str = "energy") -> None:
         check_cluster_args(k, small_cluster_repeat)
         check_epsilon(epsilon)
+        if cluster_fill not in ("energy", "uniform"):
+            raise ConfigError(f"energy.cluster_fill: got {cluster_fill!r}, must be energy or "
+                              "uniform")
         self.k = k
         self.epsilon = epsilon
+        self.exponent = exponent
+        self.cluster_fill = cluster_fill
         self.small_cluster_repeat = small_cluster_repeat
 
     def sample(
@@ -56,7 +63,14 @@ class EnergyClusterSampler:
         else:
             rows = share_rows(plan)
             fill, balanced = plan.fill, True
-        idxs = index.draw(rows, rng, epsilon=self.epsilon)
+        if balanced and self.cluster_fill == "uniform":  # members uniform, fills by energy
+            members = rows != WHOLE_BUFFER
+            idxs = np.empty(rows.size, np.int64)
+            idxs[members] = index.draw(rows[members], rng)
+            idxs[~members] = index.draw(rows[~members], rng, epsilon=self.epsilon,
+                                        exponent=self.exponent)
+        else:
+            idxs = index.draw(rows, rng, epsilon=self.epsilon, exponent=self.exponent)
         return idxs, make_info(
             store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
             balanced=balanced

@@ -229,6 +229,39 @@ def test_energy_cluster_before_any_model_is_energy_prioritised() -> None:
     assert not any(i.balanced for i in infos)
 
 
+def test_energy_temperature_raises_energies_to_the_reference_exponent() -> None:
+    """temperature T: p ∝ e^(1/(T+0.01)) + ε (the reference's form); T = 0.2 makes the
+    exponent 4.76, far from p ∝ e (checked not to fit)."""
+    energy = np.random.default_rng(12).uniform(0.05, 1.0, size=150)
+    store = _store(np.full(150, -1, np.int32), energy)
+    exponent = 1 / (0.2 + 0.01)
+    counts, _ = _draw_counts(EnergySampler(epsilon=EPS, exponent=exponent), store, 256, 800, 13)
+    p = (energy**exponent + EPS) / (energy**exponent + EPS).sum()
+    assert _chi2(counts, counts.sum() * p) < _chi2_9999(149)
+    linear = (energy + EPS) / (energy + EPS).sum()
+    assert _chi2(counts, counts.sum() * linear) > 2 * _chi2_9999(149)
+
+
+def test_energy_cluster_with_uniform_fill_draws_members_uniformly() -> None:
+    """energy.cluster_fill=uniform: HER-CS's draw inside each cluster, EBP only in the
+    whole-buffer fills: per-slot counts follow member_draws_c/n_c + fill·w_i/W."""
+    labels = _labels(PAPER_LIKE, seed=1)
+    energy = np.random.default_rng(8).uniform(0.05, 1.0, size=len(labels))
+    store = _store(labels, energy)
+    batches = 2000
+    sampler = EnergyClusterSampler(K, epsilon=EPS, cluster_fill="uniform")
+    counts, infos = _draw_counts(sampler, store, 256, batches, 14)
+    weights = energy + EPS
+    members_part, fill = _expected_per_batch(labels, np.ones(len(labels)), 256)
+    expected = members_part - fill / len(labels) + fill * weights / weights.sum()
+    assert _chi2(counts, batches * expected) < _chi2_9999(len(labels) - 1)
+    energy_within, _ = _expected_per_batch(labels, weights, 256)
+    assert _chi2(counts, batches * energy_within) > 2 * _chi2_9999(len(labels) - 1)
+    assert all(i.balanced and i.whole_buffer_draws == fill for i in infos)
+    with pytest.raises(ConfigError, match="energy.cluster_fill: got 'x'"):
+        EnergyClusterSampler(K, epsilon=EPS, cluster_fill="x")
+
+
 # ---------------------------------------------------------------------------- errors, factory
 
 
