@@ -258,7 +258,7 @@ def test_energy_cluster_with_uniform_fill_draws_members_uniformly() -> None:
     energy_within, _ = _expected_per_batch(labels, weights, 256)
     assert _chi2(counts, batches * energy_within) > 2 * _chi2_9999(len(labels) - 1)
     assert all(i.balanced and i.whole_buffer_draws == fill for i in infos)
-    with pytest.raises(ConfigError, match="energy.cluster_fill: got 'x'"):
+    with pytest.raises(ConfigError, match=r"energy\.cluster_fill: got 'x'"):
         EnergyClusterSampler(K, epsilon=EPS, cluster_fill="x")
 
 
