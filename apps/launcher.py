@@ -68,6 +68,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -203,6 +204,8 @@ class Progress:
         """Children restarted so far (shown on the line when not 0)."""
         self.actors: int | None = None
         """Actors whose liveliness token the router sees (local and remote)."""
+        self._episodes_by_actor: Counter[str] = Counter()
+        """Episodes stored per actor since the last epoch line (from replay/inserted)."""
         self._clock = clock
         self.started = clock()
         self.last_line_at: float | None = None
@@ -240,6 +243,23 @@ class Progress:
     def on_replay_size(self, size: float) -> None:
         self._replay_size = size
 
+    def on_inserted(self, actor_id: str) -> None:
+        """One more episode stored, from `actor_id` (its share shows on the next line)."""
+        self._episodes_by_actor[actor_id] += 1
+
+    def _actors_text(self) -> str:
+        """`  actors N`, with each actor's share of the episodes since the last line when
+        more than one actor contributed (in actor-id order), e.g. `  actors 2 (61/39 %)`."""
+        if self.actors is None:
+            return ""
+        counts = [n for _, n in sorted(self._episodes_by_actor.items())]
+        self._episodes_by_actor.clear()
+        if len(counts) < 2:
+            return f"  actors {self.actors}"
+        total = sum(counts)
+        shares = "/".join(f"{round(100 * n / total)}" for n in counts)
+        return f"  actors {self.actors} ({shares} %)"
+
     def flush(self) -> list[str]:
         """Every line still waiting, with `success -` where no result came."""
         return self._release(final=True)
@@ -271,7 +291,7 @@ class Progress:
                 f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
                 f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
                 f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
-                + (f"  actors {self.actors}" if self.actors is not None else "")
+                + self._actors_text()
                 + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
                 + (f"  restarts {self.restarts}" if self.restarts else ""))
 
@@ -401,6 +421,12 @@ class _Launcher:
         if isinstance(msg, pb.ReplayStatus):
             with self._print_lock:
                 self.progress.on_replay_size(msg.size_episodes)
+
+    def on_inserted(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.EpisodeHeader, "EpisodeHeader")
+        if isinstance(msg, pb.EpisodeHeader):
+            with self._print_lock:
+                self.progress.on_inserted(msg.actor_id)
 
     def on_alive(self, key: str, alive: bool) -> None:
         (self.alive.add if alive else self.alive.discard)(key)
@@ -640,6 +666,7 @@ def run_up(
             router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
             router.subscribe(launcher.keys.eval_result, launcher.on_eval)
             router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
+            router.subscribe(launcher.keys.inserted, launcher.on_inserted, drop_oldest=True)
             router.watch_alive(launcher.keys.all_alive, launcher.on_alive)
             status = launcher.run()
         finally:

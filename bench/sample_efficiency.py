@@ -11,6 +11,12 @@ per core, since each run is bound by its learner's one torch thread), each with 
 router port. Cells run seed-major, so that every method has the same number of finished seeds
 as early as possible.
 
+Committed runs: `--committed` (default `docs/results/runs/`) holds the small files of every
+finished run (`config.yaml`, `metrics.csv`, `bench_done.json`), copied there when a run ends so
+that they can be committed at once. A cell whose folder there has `bench_done.json` counts as
+done on any machine (the grid continues elsewhere), and the report reads a run from the run
+directory or, when it is not there, from the committed folder.
+
 When the grid is done (or with `--report-only`), `hercs plot --reference` draws one figure per
 task and `docs/results/<task>.md` puts our milestone table next to the authors' (docs/DESIGN.md §5),
 with the figure, the command, date, commit and machine.
@@ -26,6 +32,7 @@ import contextlib
 import json
 import os
 import platform
+import shutil
 import socket
 import subprocess
 import sys
@@ -120,8 +127,32 @@ class _Running:
     started: float
 
 
+COMMITTED = REPO / "docs" / "results" / "runs"
+SMALL_FILES = ("config.yaml", "metrics.csv", DONE_FILE)
+"""What is committed of a finished run (the episode log and checkpoints stay where it ran)."""
+
+
+def finished_folder(cell: GridRun, run_root: Path, committed: Path | None) -> Path | None:
+    """Where a finished run's files are: its run folder, else its committed copy, else None."""
+    for folder in (run_root / cell.name, None if committed is None else committed / cell.name):
+        if folder is not None and is_done(folder):
+            return folder
+    return None
+
+
+def copy_small_files(run_dir: Path, committed: Path) -> Path:
+    """Copy a finished run's small files into `committed/<run>/` (for `git add`)."""
+    target = committed / run_dir.name
+    target.mkdir(parents=True, exist_ok=True)
+    for name in SMALL_FILES:
+        if (run_dir / name).is_file():
+            shutil.copyfile(run_dir / name, target / name)
+    return target
+
+
 def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,
-             overrides: Sequence[str]) -> list[tuple[GridRun, int]]:
+             overrides: Sequence[str], committed: Path | None = None
+             ) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
     A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs);
@@ -135,6 +166,10 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
         run_dir = run_root / cell.name
         if is_done(run_dir):
             print(f"[skip] {cell.name}: finished earlier", flush=True)
+            continue
+        if committed is not None and is_done(committed / cell.name):
+            print(f"[skip] {cell.name}: finished and committed ({committed / cell.name})",
+                  flush=True)
             continue
         if can_resume(run_dir):
             print(f"[resume] {cell.name}: unfinished, continued where it stopped", flush=True)
@@ -178,6 +213,10 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "finished": datetime.now(UTC).isoformat(timespec="seconds")}
                     (run_root / r.cell.name / DONE_FILE).write_text(json.dumps(record, indent=2))
                     print(f"[done] {r.cell.name}: {wall / 60:.1f} min", flush=True)
+                    if committed is not None:
+                        copied = copy_small_files(run_root / r.cell.name, committed)
+                        print(f"[done] {r.cell.name}: small files in {copied} (commit them)",
+                              flush=True)
                 else:
                     print(f"[fail] {r.cell.name}: exit {code} after {wall:.0f} s; log "
                           f"{run_root / LOG_DIR / (r.cell.name + '.log')}", flush=True)
@@ -213,22 +252,24 @@ def machine_description() -> str:
 
 
 def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, command: str,
-                  reference_csv: Path | None = None) -> list[Path]:
+                  reference_csv: Path | None = None, committed: Path | None = None
+                  ) -> list[Path]:
     """Per task: `<out>/<task>.png` and `<out>/<task>.md` from the finished runs."""
     out_dir.mkdir(parents=True, exist_ok=True)
     ref_kwargs = {} if reference_csv is None else {"path": reference_csv}
     reference = group(load_reference(**ref_kwargs))
     written = []
     for task in dict.fromkeys(c.task for c in cells):
-        done = [c for c in cells if c.task == task and is_done(run_root / c.name)]
+        folders = {c: finished_folder(c, run_root, committed) for c in cells if c.task == task}
+        done = [c for c, folder in folders.items() if folder is not None]
         if not done:
             print(f"[report] {task}: no finished run yet", flush=True)
             continue
-        curves = [load_run(run_root / c.name) for c in done]
+        curves = [load_run(folders[c]) for c in done]  # type: ignore[arg-type]
         ours = group(curves)
         title = next(iter(ours))
         figure = plot_figure(ours, out_dir / f"{task}.png", reference)
-        walls = [json.loads((run_root / c.name / DONE_FILE).read_text()) for c in done]
+        walls = [json.loads((folders[c] / DONE_FILE).read_text()) for c in done]  # type: ignore[operator]
         missing = [c.name for c in cells if c.task == task and c not in done]
         lines = [
             f"# Sample efficiency: {title}", "",
@@ -274,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where runs go (default runs/sample_efficiency; a temp dir with --quick)")
     p.add_argument("--out", default=None,
                    help="report folder (default docs/results; the run dir with --quick)")
+    p.add_argument("--committed", default=None, metavar="DIR",
+                   help="finished runs' small files, committed (default docs/results/runs; "
+                        "none with --quick unless given)")
     p.add_argument("--report-only", action="store_true",
                    help="train nothing: report the runs finished so far")
     p.add_argument("--quick", action="store_true",
@@ -296,6 +340,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     run_root = Path(args.run_dir or tmp or REPO / "runs" / "sample_efficiency").resolve()
     out_dir = Path(args.out or (run_root / "results" if args.quick else REPO / "docs/results"))
     jobs = args.jobs or max(1, os.cpu_count() or 1)
+    committed = (Path(args.committed).resolve() if args.committed
+                 else None if args.quick else COMMITTED)
     cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)))
     command = "python bench/sample_efficiency.py " + " ".join(
         a for a in (argv if argv is not None else sys.argv[1:]))
@@ -305,9 +351,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     failed = 0
     if not args.report_only:
         results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,
-                           actors=args.actors, overrides=overrides)
+                           actors=args.actors, overrides=overrides, committed=committed)
         failed = sum(code != 0 for _, code in results)
-    write_reports(cells, run_root, out_dir, command=command.strip())
+    write_reports(cells, run_root, out_dir, command=command.strip(), committed=committed)
     return 1 if failed else 0
 
 

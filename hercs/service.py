@@ -82,6 +82,10 @@ EXIT_UNREACHABLE = 3
 """The router, or the run's replay, did not answer within `transport.wait_s` (`Unreachable`)."""
 
 
+THREAD_JOIN_S = 5.0
+"""How long a closing service waits for its own threads, in all."""
+
+
 def start_supervised(target: Callable[[], None], *, name: str,
                      on_crash: Callable[[str, BaseException], None]) -> threading.Thread:
     """A daemon thread running `target`; an exception escaping it is logged with its
@@ -125,12 +129,15 @@ class ServiceRuntime:
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0
+        self._threads: list[threading.Thread] = []
 
     def start_thread(self, target: Callable[[], None], *, name: str) -> threading.Thread:
         """Run `target` on a daemon thread that may not die silently: an exception is logged,
         recorded in `failed` and stops the service, which then exits non-zero (the launcher
         sees it and restarts it) instead of running on with a part missing."""
-        return start_supervised(target, name=name, on_crash=self.crashed)
+        thread = start_supervised(target, name=name, on_crash=self.crashed)
+        self._threads.append(thread)
+        return thread
 
     def crashed(self, name: str, exc: BaseException) -> None:
         """A part of this service died: stop, and make the exit status say so."""
@@ -145,7 +152,17 @@ class ServiceRuntime:
         self._metrics.put(msg.SerializeToString())
 
     def close(self) -> None:
-        self.transport.close()
+        """Stop the service's threads, close the transport, and wait (up to
+        `THREAD_JOIN_S` in all) for the threads to end, so that none is still inside a
+        Zenoh or torch call while the interpreter exits (a learner that had finished its
+        epochs once aborted at exit with its prefetch thread retrying on a closed session)."""
+        self.stop.set()
+        self.transport.close()  # ends the threads' pending requests and receives
+        deadline = time.monotonic() + THREAD_JOIN_S
+        for thread in self._threads:
+            thread.join(max(0.0, deadline - time.monotonic()))
+            if thread.is_alive():
+                log.warning("thread %s still running at exit", thread.name)
 
     def __enter__(self) -> ServiceRuntime:
         return self

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -62,7 +63,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     authors'."""
     cmd = [sys.executable, str(REPO / "bench" / "sample_efficiency.py"), "--quick",
            "--methods", "her", "her-cs", "--seeds", "1", "--run-dir", str(tmp_path / "runs"),
-           "--out", str(tmp_path / "results")]
+           "--out", str(tmp_path / "results"), "--committed", str(tmp_path / "committed")]
     first = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stdout + first.stderr
     for name in ("reach-her-s1", "reach-her-cs-s1"):
@@ -70,6 +71,11 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
         assert (done["task"], done["epochs"]) == ("reach", 1)
         rows = (tmp_path / "runs" / name / "metrics.csv").read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch
+        committed = tmp_path / "committed" / name  # the small files, ready to commit
+        assert sorted(p.name for p in committed.iterdir()) == [
+            "bench_done.json", "config.yaml", "metrics.csv"]
+        assert (committed / "metrics.csv").read_text() == (
+            tmp_path / "runs" / name / "metrics.csv").read_text()
 
     report = (tmp_path / "results" / "reach.md").read_text()
     assert "| HER (ours) | 1 | 1 |" in report
@@ -79,10 +85,15 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     # Resume: a finished run is skipped; one stopped before it was marked done is continued
     # with `hercs up --resume` (its epoch kept, not retrained); a folder that never got a
     # config is moved aside and started again.
-    (tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).unlink()
+    # A run whose folder is gone but whose small files are committed (another machine) is
+    # done: skipped, and reported from the committed copy.
+    (tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).unlink()  # as if interrupted,
+    shutil.rmtree(tmp_path / "committed" / "reach-her-cs-s1")  # so never committed either
+    shutil.rmtree(tmp_path / "runs" / "reach-her-s1")
     second = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert second.returncode == 0, second.stdout + second.stderr
-    assert "[skip] reach-her-s1" in second.stdout
+    assert "[skip] reach-her-s1: finished and committed" in second.stdout
+    assert "| HER (ours) | 1 | 1 |" in (tmp_path / "results" / "reach.md").read_text()
     assert "[resume] reach-her-cs-s1" in second.stdout
     assert "[start] reach-her-s1" not in second.stdout
     done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).read_text())

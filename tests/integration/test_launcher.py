@@ -282,6 +282,23 @@ def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
     assert progress.last_printed == 7
 
 
+def test_progress_line_shows_each_actors_share_of_the_epochs_episodes() -> None:
+    """With several actors, the epoch line gives each one's share of the episodes stored
+    since the previous line (actor-id order); one contributing actor: just the count."""
+    clock = Clock()
+    progress = Progress(total_epochs=3, clock=clock)
+    progress.actors = 3
+    for actor, n in (("actor-1", 30), ("actor-0", 60), ("remote-a", 10)):
+        for _ in range(n):
+            progress.on_inserted(actor)
+    clock.now += 10
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1})
+    assert "  actors 3 (60/30/10 %)  " in line
+    progress.on_inserted("actor-0")
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 2, "success_rate": 0.2})
+    assert "  actors 3  " in line and "%" not in line  # counted afresh for each line
+
+
 def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
     clock = Clock()
     progress = Progress(total_epochs=200, clock=clock)
