@@ -559,7 +559,8 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
               if line.startswith("epoch") and " running " not in line]
     assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
     assert all(re.fullmatch(r"epoch \d/2  success \d\.\d\d  env \d+ steps/s  upd \d+/s  "
-                            r"replay \d+  lag [-\d.]+  actors \d+(  eta \S+)?", line)
+                            r"replay \d+  lag [-\d.]+  actors \d+( \([\d/]+ %\))?(  eta \S+)?",
+                            line)
                for line in epochs), epochs
     assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
     assert load_yaml(run_dir / "config.yaml").run.name == "e2e"
