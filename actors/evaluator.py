@@ -41,9 +41,10 @@ from hercs.envs import make_env
 from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import int_seed
-from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
+from hercs.service import ServiceRuntime, service_main
 from hercs.tasks import goal_distance
 from hercs.transport import Publisher, TransportError
+from hercs.warn_once import WarnOncePerMinute
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 

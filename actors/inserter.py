@@ -34,9 +34,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hercs.errors import InvalidMessage
-from hercs.service import WarnOncePerMinute, start_supervised
+from hercs.service import start_supervised
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import RejectReason, parse_message
+from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)

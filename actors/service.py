@@ -43,9 +43,10 @@ from hercs.envs import make_env
 from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import generator, int_seed
-from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, service_main
+from hercs.service import ServiceRuntime, join_run, service_main
 from hercs.transport import TransportError
 from hercs.validation import parse_message
+from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)

@@ -72,7 +72,7 @@ from apps.view import (
 from hercs.codec import msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, join_run, service_main
+from hercs.service import ServiceRuntime, join_run, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError
 from hercs.validation import (
@@ -82,6 +82,7 @@ from hercs.validation import (
     validate_centroids,
     validate_episode,
 )
+from hercs.warn_once import WarnOncePerMinute
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 

@@ -302,8 +302,7 @@ def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
     if config_path.is_file():
         try:
             training = load_yaml(config_path).training
-            return (training.cycles_per_epoch * training.episodes_per_cycle,
-                    f"one epoch, {config_path.name}")
+            return training.episodes_per_epoch, f"one epoch, {config_path.name}"
         except HercsError as exc:
             return FALLBACK_EPISODES_PER_EPOCH, f"{config_path} unreadable: {exc}"
     return FALLBACK_EPISODES_PER_EPOCH, "no config.yaml beside the log"

@@ -70,7 +70,7 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
     """One row per checkpoint: epoch, buffer and per-sampler shares."""
     config = load_yaml(run_dir / "config.yaml")
     config = apply_overrides(config, ["run.method=her-cs"])  # keep cluster labels up to date
-    per_epoch = config.training.cycles_per_epoch * config.training.episodes_per_cycle
+    per_epoch = config.training.episodes_per_epoch
     core = ReplayCore(config=config, rng=np.random.default_rng(seed))
     rows = []
     next_mark = every_epochs * per_epoch

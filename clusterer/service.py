@@ -37,9 +37,10 @@ from hercs.clustering import ClusterModel
 from hercs.codec import array_to_msg, msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
-from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
+from hercs.service import ServiceRuntime, service_main
 from hercs.transport import TransportError
 from hercs.validation import header_goals, parse_message
+from hercs.warn_once import WarnOncePerMinute
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 

@@ -275,6 +275,10 @@ class TrainingConfig:
     def updates_per_episode(self) -> float:
         return self.minibatches_per_cycle / self.episodes_per_cycle
 
+    @property
+    def episodes_per_epoch(self) -> int:
+        return self.cycles_per_epoch * self.episodes_per_cycle
+
 
 @dataclass
 class ReplayConfig:

@@ -49,29 +49,6 @@ def setup_logging(role: str) -> None:
     )
 
 
-class WarnOncePerMinute:
-    """Logs a warning once per key per minute, counting the ones it held back."""
-
-    def __init__(self, logger: logging.Logger, period_s: float = 60.0) -> None:
-        self._log = logger
-        self._period = period_s
-        self._last: dict[str, float] = {}
-        self._held: dict[str, int] = {}
-        self._lock = threading.Lock()
-
-    def warn(self, key: str, message: str) -> None:
-        now = time.monotonic()
-        with self._lock:
-            last = self._last.get(key)
-            if last is not None and now - last < self._period:
-                self._held[key] = self._held.get(key, 0) + 1
-                return
-            held = self._held.pop(key, 0)
-            self._last[key] = now
-        suffix = f" ({held} more like it in the last minute)" if held else ""
-        self._log.warning("%s%s", message, suffix)
-
-
 EXIT_OK = 0
 EXIT_FAILED = 1
 """The service failed: an unexpected exception (logged with its traceback) or a fault it

@@ -31,7 +31,7 @@ from hercs.codec import msg_to_stats, weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
-from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
+from hercs.service import ServiceRuntime, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import (
@@ -41,6 +41,7 @@ from hercs.validation import (
     parse_message,
     validate_eval_result,
 )
+from hercs.warn_once import WarnOncePerMinute
 from learner.checkpoint import (
     BEST,
     epoch_file,

@@ -57,7 +57,7 @@ from hercs.runlog import (
     read_cluster_models,
 )
 from hercs.seeding import generator
-from hercs.service import ServiceRuntime, WarnOncePerMinute, service_main
+from hercs.service import ServiceRuntime, service_main
 from hercs.transport import PendingReply
 from hercs.validation import (
     RejectReason,
@@ -67,6 +67,7 @@ from hercs.validation import (
     validate_eval_result,
     validate_sample_request,
 )
+from hercs.warn_once import WarnOncePerMinute
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore

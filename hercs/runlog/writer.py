@@ -52,6 +52,7 @@ from hercs.runlog.format import (
     u32,
 )
 from hercs.tasks import task_spec
+from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
@@ -109,7 +110,7 @@ class EpisodeLogWriter:
         """Episodes logged without a scene because the scene thread was too far behind."""
         self._scene_queue: queue.Queue[_PreparedEpisode | None] | None = None
         self._scene_thread: threading.Thread | None = None
-        self._last_drop_warning = 0.0
+        self._warn = WarnOncePerMinute(log)
         try:
             self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 (closed in close())
         except FileExistsError:
@@ -271,8 +272,9 @@ class EpisodeLogWriter:
         return prepared
 
     def _scene_records(self, episode: _PreparedEpisode
-                       ) -> Iterator[tuple[str, Message, int, int, int]]:
-        """(topic, message, log_time, publish_time, sequence) of one episode's scene."""
+                       ) -> Iterator[tuple[str, Message, int, int, int, bytes]]:
+        """(topic, message, log_time, publish_time, sequence, serialised message) of one
+        episode's scene."""
         positions, times, msg = episode.positions, episode.times_ns, episode.msg
         labels = {"episode_id": str(episode.episode_id), "actor_id": msg.actor_id,
                   "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
@@ -281,8 +283,9 @@ class EpisodeLogWriter:
                                       labels=labels)
         for update, cloud, t in zip(updates, scene.point_clouds(positions, times), times,
                                     strict=True):
-            yield TOPIC_SCENE, update, t, t, episode.episode_id
-            yield TOPIC_SCENE_POINTS, cloud, t, t, episode.episode_id
+            yield TOPIC_SCENE, update, t, t, episode.episode_id, update.SerializeToString()
+            yield (TOPIC_SCENE_POINTS, cloud, t, t, episode.episode_id,
+                   cloud.SerializeToString())
 
     def _queue_scene(self, episode: _PreparedEpisode) -> None:
         if self._scene_queue is None:
@@ -291,12 +294,9 @@ class EpisodeLogWriter:
             self._scene_queue.put_nowait(episode)
         except queue.Full:
             self.scenes_dropped += 1
-            now = time.monotonic()
-            if now - self._last_drop_warning > 60.0:
-                self._last_drop_warning = now
-                log.warning("%s: episodes arrive faster than their scenes can be drawn; %d "
-                            "episodes so far logged without a scene (the episodes themselves "
-                            "are all logged)", self.path, self.scenes_dropped)
+            self._warn.warn("scenes dropped", f"{self.path}: episodes arrive faster than their "
+                            f"scenes can be drawn; {self.scenes_dropped} episodes so far logged "
+                            "without a scene (the episodes themselves are all logged)")
 
     def _write_scenes(self) -> None:
         """The scene thread: build each queued episode's scene and append it (no fsync)."""
@@ -307,10 +307,7 @@ class EpisodeLogWriter:
                 if episode is None:
                     return
                 # built and serialised outside the lock; only the chunk write holds it
-                records = [(topic, msg, log_time, publish_time, sequence,
-                            msg.SerializeToString())
-                           for topic, msg, log_time, publish_time, sequence
-                           in self._scene_records(episode)]
+                records = list(self._scene_records(episode))
                 with self._lock:
                     if self._state == "open":
                         self._write_serialised(records, sync=False)
