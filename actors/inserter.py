@@ -9,7 +9,11 @@ Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
 - A reply whose reason is a validation reason (`hercs.validation.RejectReason`: wrong shape,
   NaN, wrong task, …) can never succeed: the episode is dropped, counted and logged (once per
   reason per minute).
-- Episodes are delivered one at a time, in `seq` order.
+- A reply whose reason is a lockstep reason (`hercs.lockstep.LockstepReason`: acted with
+  weights too old, or its cycle already full) means the episode is well formed but not wanted:
+  it is dropped without a warning and counted `superseded`.
+- Episodes are delivered one at a time, in `seq` order. `last_outcome` says how the latest one
+  ended and, for an ack, the weights version the replay wants next (lockstep).
 
 Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight. The
 replay's rate limiter holds insert queries (answers them later) when learner updates lag the
@@ -34,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hercs.errors import InvalidMessage
+from hercs.lockstep import LockstepReason
 from hercs.service import start_supervised
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import RejectReason, parse_message
@@ -44,15 +49,29 @@ log = logging.getLogger(__name__)
 
 PERMANENT_REASONS = frozenset(reason.value for reason in RejectReason)
 """Error-reply reasons that mean the episode itself is bad: drop it, never retry."""
+LOCKSTEP_REASONS = frozenset(reason.value for reason in LockstepReason)
+"""Error-reply reasons that mean the lockstep schedule has no use for the episode."""
 
 BACKOFF_MIN_S = 0.1
 BACKOFF_MAX_S = 2.0
 _ACK_MAX_BYTES = 64 * 1024
 
 
+@dataclass(frozen=True)
+class Outcome:
+    """How one episode's delivery ended."""
+
+    seq: int
+    kind: str
+    """`acked`, `dropped`, `superseded` or `abandoned`."""
+    next_policy_version: int = 0
+    """From the ack: the oldest weights version the next episode may be acted with
+    (lockstep; 0 otherwise)."""
+
+
 @dataclass
 class InsertCounters:
-    """What happened to the submitted episodes (each ends in exactly one of the first four)."""
+    """What happened to the submitted episodes (each ends in exactly one of the first five)."""
 
     acked: int = 0
     """Acked by the replay (stored now or by an earlier attempt)."""
@@ -60,6 +79,8 @@ class InsertCounters:
     """Rejected for a validation reason; never retried."""
     abandoned: int = 0
     """Not acked when the inserter was closed."""
+    superseded: int = 0
+    """Refused by the lockstep schedule (weights too old, or the cycle already full)."""
     duplicates: int = 0
     """Acks with `duplicate=True` (a retry of an episode already stored), among `acked`."""
     retries: int = 0
@@ -100,6 +121,9 @@ class Inserter:
         self._queue: collections.deque[tuple[int, bytes]] = collections.deque()
         self._cond = threading.Condition()
         self._closing = False
+        self._busy = False
+        """An episode is being delivered (popped from the queue, outcome not yet known)."""
+        self.last_outcome: Outcome | None = None
         self._abort = threading.Event()
         self._warn = WarnOncePerMinute(log)
         self._thread = start_supervised(self._run, name=f"hercs-inserter-{actor_id}",
@@ -131,6 +155,16 @@ class Inserter:
         self.counters.blocked_s += time.monotonic() - start
         return True
 
+    def wait_idle(self, *, stop: threading.Event, poll_s: float = 0.2) -> bool:
+        """Wait until every submitted episode's delivery has ended (`last_outcome` is then
+        the latest one's); False if `stop` is set or the sender thread ends first."""
+        with self._cond:
+            while self._queue or self._busy:
+                if stop.is_set() or not self._thread.is_alive():
+                    return False
+                self._cond.wait(poll_s)
+        return True
+
     def close(self, *, timeout_s: float) -> None:
         """Stop taking episodes and flush the queue for at most `timeout_s`, then abort.
 
@@ -160,40 +194,51 @@ class Inserter:
                     self._queue.clear()
                     return
                 seq, payload = self._queue.popleft()
+                self._busy = True
                 self._cond.notify_all()  # a slot is free: wake a blocked submit
-            self._deliver(seq, payload)
+            outcome = self._deliver(seq, payload)
+            with self._cond:
+                self.last_outcome = outcome
+                self._busy = False
+                self._cond.notify_all()  # wake `wait_idle`
 
-    def _deliver(self, seq: int, payload: bytes) -> None:
+    def _deliver(self, seq: int, payload: bytes) -> Outcome:
         """Send until acked, dropped or aborted; counts the outcome."""
         c = self.counters
         delay, max_delay = self._backoff
         attempt = 0
+        abandoned = Outcome(seq, "abandoned")
         while True:
             if self._abort.is_set():
                 c.abandoned += 1
-                return
+                return abandoned
             try:
                 reply = self._send(payload)
             except TransportTimeout as exc:
                 kind, why = "timeout", str(exc)
             except RemoteError as exc:
+                if exc.reason in LOCKSTEP_REASONS:
+                    c.superseded += 1
+                    log.debug("episode (%s, seq %d) not wanted by the lockstep schedule: %s",
+                              self.actor_id, seq, exc.detail)
+                    return Outcome(seq, "superseded")
                 if exc.reason in PERMANENT_REASONS:
                     c.dropped += 1
                     self._warn.warn(f"rejected:{exc.reason}",
                                     f"replay rejected episode ({self.actor_id}, seq {seq}): "
                                     f"{exc.reason}: {exc.detail}; dropped, it cannot succeed")
-                    return
+                    return Outcome(seq, "dropped")
                 kind, why = f"remote:{exc.reason}", str(exc)
             except TransportError as exc:
                 kind, why = "transport", str(exc)
             else:
-                problem = self._check_ack(reply, seq, first_attempt=attempt == 0)
-                if problem is None:
-                    return
-                kind, why = "bad-ack", problem
+                ack = self._check_ack(reply, seq, first_attempt=attempt == 0)
+                if isinstance(ack, pb.InsertAck):
+                    return Outcome(seq, "acked", int(ack.next_policy_version))
+                kind, why = "bad-ack", ack
             if self._abort.is_set():
                 c.abandoned += 1
-                return
+                return abandoned
             attempt += 1
             c.retries += 1
             self._warn.warn(f"retry:{kind}",
@@ -201,11 +246,12 @@ class Inserter:
                             f"retrying the same episode in {delay:.1f} s (attempt {attempt + 1})")
             if self._abort.wait(delay):
                 c.abandoned += 1
-                return
+                return abandoned
             delay = min(delay * 2.0, max_delay)
 
-    def _check_ack(self, reply: bytes, seq: int, *, first_attempt: bool) -> str | None:
-        """None if `reply` acks (actor_id, seq) (and count it), else why not."""
+    def _check_ack(self, reply: bytes, seq: int, *,
+                   first_attempt: bool) -> pb.InsertAck | str:
+        """The ack if `reply` acks (actor_id, seq) (and count it), else why not."""
         try:
             ack = parse_message(reply, pb.InsertAck, max_bytes=_ACK_MAX_BYTES)
         except InvalidMessage as exc:
@@ -223,4 +269,4 @@ class Inserter:
                                 f"replay already holds ({self.actor_id}, seq {seq}) from an "
                                 "earlier process with this actor id; this episode was not "
                                 "stored. Give each actor process a fresh --id")
-        return None
+        return ack

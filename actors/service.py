@@ -16,6 +16,12 @@ What `run` does, in order:
    `Inserter` (at-least-once, on its own thread; see `actors.inserter` for retries and
    backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
    Metrics every `METRICS_EVERY_EPISODES` episodes.
+   In the lockstep schedule (`training.schedule`) the loop instead waits, before each episode,
+   for weights at least as new as the replay wants (none before the learner's first
+   broadcast), and after it for the insert's outcome: an ack says which version the next
+   episode needs (the next cycle's once this one is full); an episode the replay refuses as
+   stale or surplus (`hercs.lockstep.LockstepReason`) is dropped and the next waits for newer
+   weights.
 4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
    finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
    queued inserts for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the
@@ -80,12 +86,19 @@ class LatestWeights:
     """
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
         self._pending: PolicyWeights | None = None
 
     def offer(self, weights: PolicyWeights) -> None:
         with self._lock:
             self._pending = weights
+            self._lock.notify_all()
+
+    def wait(self, timeout_s: float) -> None:
+        """Return once weights are pending, or after `timeout_s`."""
+        with self._lock:
+            if self._pending is None:
+                self._lock.wait(timeout_s)
 
     def take(self) -> PolicyWeights | None:
         """The weights received since the last `take`, newest only; None if none."""
@@ -135,6 +148,9 @@ class ActorService:
                             drop_oldest=True)
         self.run_finished = threading.Event()
         self.episodes = 0
+        self.lockstep = config.training.schedule == "lockstep"
+        self.min_policy_version = 0
+        """Lockstep: the oldest weights version the next episode may be acted with."""
 
     def _on_weights(self, key: str, raw: bytes) -> None:
         """Subscription thread: decode, check, offer. Never touches the policy itself."""
@@ -173,9 +189,9 @@ class ActorService:
         self.publish_metrics(steps_per_s=0.0)
         try:
             while not stop.is_set():
-                newest = self._weights.take()
-                if newest is not None:
-                    self.policy.load(newest)
+                self._adopt_newest()
+                if self.lockstep and not self._await_weights():
+                    break
                 episode = self.worker.run_episode(self._act)
                 episode.actor_id, episode.seq = self.actor_id, self.episodes
                 episode.policy_version = self.policy.version
@@ -183,6 +199,8 @@ class ActorService:
                 if not self.inserter.submit(self.episodes, msg.SerializeToString(), stop=stop):
                     break  # stopped while the queue was full: this episode is not sent
                 self.episodes += 1
+                if self.lockstep and not self._await_outcome(episode.policy_version):
+                    break
                 if self.episodes % METRICS_EVERY_EPISODES == 0:
                     now = time.monotonic()
                     rate = (self.worker.env_steps - window[1]) / max(now - window[0], 1e-9)
@@ -196,11 +214,41 @@ class ActorService:
                  self.ident, self.episodes, c.acked, c.dropped, self.unacked)
         return 0
 
+    def _adopt_newest(self) -> None:
+        newest = self._weights.take()
+        if newest is not None:
+            self.policy.load(newest)
+
+    def _await_weights(self) -> bool:
+        """Lockstep: wait for weights of at least `min_policy_version`; False if stopped."""
+        stop = self.runtime.stop
+        while self.policy.version < self.min_policy_version:
+            if stop.is_set():
+                return False
+            self._weights.wait(0.5)
+            self._adopt_newest()
+        return not stop.is_set()
+
+    def _await_outcome(self, acted_with: int) -> bool:
+        """Lockstep: wait for the episode's insert to end; set the next episode's minimum
+        weights version from it. False if stopped."""
+        if not self.inserter.wait_idle(stop=self.runtime.stop):
+            return False
+        outcome = self.inserter.last_outcome
+        if outcome is not None and outcome.kind == "acked":
+            self.min_policy_version = max(self.min_policy_version, outcome.next_policy_version)
+        elif outcome is not None and outcome.kind == "superseded":
+            # only newer weights can make an episode wanted; a dropped (malformed) episode is
+            # replaced by another acted with the same weights, or its cycle never completes
+            self.min_policy_version = max(self.min_policy_version, acted_with + 1)
+        return True
+
     @property
     def unacked(self) -> int:
-        """Episodes submitted and neither acked nor dropped: queued, in flight or given up."""
+        """Episodes submitted and not acked, dropped or superseded: queued, in flight or
+        given up."""
         c = self.inserter.counters
-        return self.episodes - c.acked - c.dropped
+        return self.episodes - c.acked - c.dropped - c.superseded
 
     def publish_metrics(self, *, steps_per_s: float) -> None:
         c = self.inserter.counters
@@ -212,6 +260,7 @@ class ActorService:
                 "acked": c.acked,
                 "retries": c.retries,
                 "dropped": c.dropped,
+                "superseded": c.superseded,
                 "unacked": self.unacked,
                 "duplicates": c.duplicates,
                 "insert_blocked_s": c.blocked_s,

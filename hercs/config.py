@@ -238,6 +238,9 @@ class EnergyConfig:
             _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
 
 
+SCHEDULES = ("async", "lockstep")
+
+
 @dataclass
 class TrainingConfig:
     epochs: int = 200
@@ -259,8 +262,16 @@ class TrainingConfig:
     eval_wait_s: float = 600.0
     """How long the learner waits for the last epochs' evaluations before it gives up
     (exit 1)."""
+    schedule: str = "async"
+    """`async`: actors and learner run concurrently, the replay's rate limiter keeps
+    updates per episode within its window (a lab's many actors; data can be a few cycles
+    stale). `lockstep`: the reference's single-process alternation, exactly: cycle c's
+    episodes are acted with weights version c, then its updates see them (docs/DESIGN.md
+    §9.1) [DESIGN]."""
 
     def __post_init__(self) -> None:
+        _check(self.schedule in SCHEDULES, "training.schedule", self.schedule,
+               f"be one of {', '.join(SCHEDULES)}")
         for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
                      "minibatches_per_cycle", "eval_episodes"):
             _check(getattr(self, name) >= 1, f"training.{name}", getattr(self, name), "be >= 1")
@@ -451,6 +462,9 @@ class HercsConfig:
         spec = self.task.spec
         _check(self.replay.buffer_transitions >= spec.episode_steps, "replay.buffer_transitions",
                self.replay.buffer_transitions, f"hold at least one episode ({spec.episode_steps})")
+        _check(not (self.training.schedule == "lockstep" and self.replay.free_run),
+               "replay.free_run", self.replay.free_run,
+               "be false with training.schedule lockstep (lockstep admits by cycle)")
 
     @property
     def capacity_episodes(self) -> int:

@@ -40,6 +40,9 @@ class SampleBatch:
     inserts: int = 0
     env_steps: int = 0
     policy_lag: float = 0.0
+    """Against the lockstep schedule (`Batch.policy_lag`)."""
+    policy_lag_request: float = 0.0
+    """Against the learner's latest sample request (`Batch.policy_lag_request`)."""
 
 
 @dataclass
@@ -66,17 +69,21 @@ class EpochSnapshot:
     cluster_model_version: int
     cluster_share: list[float]
     losses: dict[str, float]
+    policy_lag_request: float = 0.0
 
 
 METRICS_COLUMNS = [
     "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
     "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
     "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
-    "actor_loss", "q_mean", "batch_wait_s", "bad_batches",
+    "actor_loss", "q_mean", "batch_wait_s", "bad_batches", "policy_lag_request",
 ]
 """`batch_wait_s` (written by the learner service): seconds of the epoch the update loop
 waited for a batch, i.e. sampling and transport that prefetch did not hide. `bad_batches`: Batch
-replies skipped so far because they failed validation."""
+replies skipped so far because they failed validation. `policy_lag`: mean over recent episodes
+of (their cycle in the lockstep schedule) − (the weights version they were acted with), 0 in
+lockstep; `policy_lag_request`: the same against the weights version of the learner's latest
+sample request when they were stored (the measure before the lockstep schedule existed)."""
 
 
 class LearnerLoop:
@@ -162,7 +169,7 @@ class LearnerLoop:
             env_steps_per_s=(batch.env_steps - self._epoch_start_steps) / elapsed,
             updates_per_s=(updates - self._epoch_start_updates) / elapsed,
             policy_lag=batch.policy_lag, cluster_model_version=batch.cluster_model_version,
-            cluster_share=share, losses=losses,
+            cluster_share=share, losses=losses, policy_lag_request=batch.policy_lag_request,
         )
         self._epoch_start, self._epoch_start_steps = now, batch.env_steps
         self._epoch_start_updates = updates
@@ -185,6 +192,7 @@ class LearnerLoop:
             "updates_per_s": round(snap.updates_per_s, 2),
             "replay_size": status.get("size_transitions", 0),
             "policy_lag": round(snap.policy_lag, 3), "weights_version": snap.version,
+            "policy_lag_request": round(snap.policy_lag_request, 3),
             "cluster_model_version": snap.cluster_model_version,
             "cluster_sizes": ";".join(str(c) for c in status.get("cluster_sizes", [])),
             "cluster_share": ";".join(f"{s:.4f}" for s in snap.cluster_share),

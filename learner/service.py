@@ -105,17 +105,25 @@ def decode_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         cluster_draws=np.asarray(msg.cluster_draws, np.int64),
         inserts=int(msg.inserts), env_steps=int(msg.env_steps),
         policy_lag=float(msg.policy_lag) if math.isfinite(msg.policy_lag) else 0.0,
+        policy_lag_request=(float(msg.policy_lag_request) if math.isfinite(msg.policy_lag_request)
+                            else 0.0),
     )
 
 
 class Prefetcher:
-    """Requests batches ahead of the update loop on its own thread."""
+    """Requests batches ahead of the update loop on its own thread.
+
+    In the lockstep schedule it asks for nothing ahead: cycle c's request (weights_version c)
+    is sent once the loop has reached version c (`cycle_done` wakes it), and the replay holds
+    it until cycle c's episodes are stored."""
 
     def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig,
                  version: Callable[[], int]) -> None:
         self.runtime = runtime
         self.config = config
         self.version = version
+        self.lockstep = config.training.schedule == "lockstep"
+        self._advanced = threading.Condition()
         self.batches: queue.Queue[SampleBatch] = queue.Queue(maxsize=PREFETCH_DEPTH)
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
@@ -124,15 +132,34 @@ class Prefetcher:
         """Batch replies skipped because they failed validation, by reason."""
         self._thread = runtime.start_thread(self._run, name="prefetch")
 
+    def cycle_done(self) -> None:
+        """The loop finished a cycle and broadcast its weights (lockstep's cue)."""
+        with self._advanced:
+            self._advanced.notify_all()
+
+    def _wait_for_version(self, wanted: int) -> bool:
+        """Lockstep: wait until the loop is at `wanted`; False if stopped first."""
+        stop = self.runtime.stop
+        with self._advanced:
+            while self.version() < wanted:
+                if stop.is_set():
+                    return False
+                self._advanced.wait(_POLL_S)
+        return not stop.is_set()
+
     def _run(self) -> None:
         stop = self.runtime.stop
+        wanted = self.version()  # lockstep: the cycle the next request is for
         while not stop.is_set():
+            if self.lockstep and not self._wait_for_version(wanted):
+                return
             self._request_id += 1
             request = pb.SampleRequest(
                 schema_version=SCHEMA_VERSION, run=self.config.run.name,
                 learner_id=self.runtime.ident, request_id=self._request_id,
                 num_minibatches=self.config.training.minibatches_per_cycle,
-                batch_size=self.config.ddpg.batch_size, weights_version=self.version())
+                batch_size=self.config.ddpg.batch_size,
+                weights_version=wanted if self.lockstep else self.version())
             try:
                 raw = self.runtime.transport.request(
                     self.runtime.keys.sample, request.SerializeToString(),
@@ -150,6 +177,7 @@ class Prefetcher:
                 self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
                 stop.wait(0.5)
                 continue
+            wanted += 1
             while not stop.is_set():
                 try:
                     self.batches.put(batch, timeout=0.5)
@@ -415,6 +443,7 @@ class LearnerService:
             result = self.loop.step(batch)
             self.publish_weights(evaluate=result.epoch_ended is not None,
                                  epoch=result.epoch_ended or self.loop.epoch)
+            prefetcher.cycle_done()
             if result.epoch_ended is not None:
                 self.batch_wait_s[result.epoch_ended] = prefetcher.waiting_s - waited_before
                 waited_before = prefetcher.waiting_s

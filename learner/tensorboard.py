@@ -21,7 +21,8 @@ GROUPS = {
     "critic_loss": "loss", "actor_loss": "loss", "q_mean": "loss",
     "env_steps_per_s": "throughput", "updates_per_s": "throughput",
     "batch_wait_s": "throughput",
-    "replay_size": "replay", "policy_lag": "replay", "weights_version": "replay",
+    "replay_size": "replay", "policy_lag": "replay", "policy_lag_request": "replay",
+    "weights_version": "replay",
     "cluster_model_version": "replay", "bad_batches": "replay",
 }
 

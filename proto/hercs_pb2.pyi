@@ -65,18 +65,20 @@ class Episode(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., actor_id: _Optional[str] = ..., seq: _Optional[int] = ..., task: _Optional[str] = ..., obs: _Optional[_Union[Array, _Mapping]] = ..., ag: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., actions: _Optional[_Union[Array, _Mapping]] = ..., success: _Optional[bool] = ..., policy_version: _Optional[int] = ...) -> None: ...
 
 class InsertAck(_message.Message):
-    __slots__ = ("schema_version", "actor_id", "seq", "episode_id", "duplicate")
+    __slots__ = ("schema_version", "actor_id", "seq", "episode_id", "duplicate", "next_policy_version")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     ACTOR_ID_FIELD_NUMBER: _ClassVar[int]
     SEQ_FIELD_NUMBER: _ClassVar[int]
     EPISODE_ID_FIELD_NUMBER: _ClassVar[int]
     DUPLICATE_FIELD_NUMBER: _ClassVar[int]
+    NEXT_POLICY_VERSION_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     actor_id: str
     seq: int
     episode_id: int
     duplicate: bool
-    def __init__(self, schema_version: _Optional[int] = ..., actor_id: _Optional[str] = ..., seq: _Optional[int] = ..., episode_id: _Optional[int] = ..., duplicate: _Optional[bool] = ...) -> None: ...
+    next_policy_version: int
+    def __init__(self, schema_version: _Optional[int] = ..., actor_id: _Optional[str] = ..., seq: _Optional[int] = ..., episode_id: _Optional[int] = ..., duplicate: _Optional[bool] = ..., next_policy_version: _Optional[int] = ...) -> None: ...
 
 class EpisodeHeader(_message.Message):
     __slots__ = ("schema_version", "episode_id", "actor_id", "seq", "success", "final_achieved_goal", "desired_goal", "energy", "cluster", "policy_version")
@@ -143,7 +145,7 @@ class Minibatch(_message.Message):
     def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
-    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag")
+    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag", "policy_lag_request")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
@@ -154,6 +156,7 @@ class Batch(_message.Message):
     INSERTS_FIELD_NUMBER: _ClassVar[int]
     ENV_STEPS_FIELD_NUMBER: _ClassVar[int]
     POLICY_LAG_FIELD_NUMBER: _ClassVar[int]
+    POLICY_LAG_REQUEST_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     request_id: int
     minibatches: _containers.RepeatedCompositeFieldContainer[Minibatch]
@@ -164,7 +167,8 @@ class Batch(_message.Message):
     inserts: int
     env_steps: int
     policy_lag: float
-    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ...) -> None: ...
+    policy_lag_request: float
+    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ..., policy_lag_request: _Optional[float] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
     __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failed_goals_seen")

@@ -185,7 +185,8 @@ class ReplayService:
             self.inserted_pub.put(header.SerializeToString())
         return pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id=episode.actor_id,
                             seq=episode.seq, episode_id=stored.episode_id,
-                            duplicate=stored.duplicate).SerializeToString()
+                            duplicate=stored.duplicate,
+                            next_policy_version=stored.next_policy_version).SerializeToString()
 
     # -- stored episodes (the live view) ---------------------------------------------------
     def _on_episode_request(self, payload: bytes) -> bytes:
@@ -319,6 +320,7 @@ def _batch_bytes(sampled: Sampled) -> bytes:
         cluster_model_version=sampled.cluster_model_version,
         cluster_draws=[int(c) for c in result.cluster_draws],
         inserts=sampled.inserts, env_steps=sampled.env_steps, policy_lag=sampled.policy_lag,
+        policy_lag_request=sampled.policy_lag_request,
     ).SerializeToString()
 
 

@@ -32,6 +32,10 @@ are serialised):
   client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
 - `recover`: the episodes of the log go into the store without being logged again; the
   limiter restarts balanced at the recovered count (as if the learner had used them all).
+- lockstep (`training.schedule: lockstep`): `LockstepGate` (replay_service.lockstep) decides
+  instead of the limiter's window: an insert it refuses is answered at once with its reason
+  (`stale_policy`, `cycle_full`) and counted as a reject; a sample waits for its cycle's
+  episodes and the cluster model due.
 
 Waiters are called under the lock: they must only hand their answer over (a Zenoh deferred
 reply queues bytes) and never call back into the table.
@@ -51,13 +55,19 @@ import numpy as np
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
+from hercs.lockstep import schedule_cycle
+from hercs.methods import METHODS
 from hercs.normalizer import NormalizerState
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore, SampleResult
+from replay_service.lockstep import LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
 
 POLICY_LAG_WINDOW = 64
-"""Recent episodes whose policy lag is averaged into each `Sampled.policy_lag`."""
+"""Recent episodes whose policy lags are averaged into each `Sampled`."""
+LOCKSTEP_CLUSTER_WAIT_S = 30.0
+"""Lockstep: how long a sample waits for a cluster model that is due before it is served with
+the model at hand (the clusterer may be restarting)."""
 EXPIRED = "expired"
 """Reason given to a parked call dropped by `expire`."""
 LOG_FAILED = "log_failed"
@@ -95,6 +105,9 @@ class Stored:
     duplicate: bool
     energy: float = 0.0
     cluster: int = -1
+    next_policy_version: int = 0
+    """Lockstep: the oldest weights version the actor's next episode may be acted with (0
+    otherwise)."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +132,11 @@ class Sampled:
     inserts: int
     env_steps: int
     policy_lag: float
+    """Mean over recent episodes of (their cycle in the lockstep schedule, `schedule_cycle`)
+    − (the weights version they were acted with): 0 in lockstep."""
+    policy_lag_request: float = 0.0
+    """Mean over recent episodes of (the weights version of the learner's latest sample
+    request when they were stored) − (the version they were acted with)."""
 
 
 class SampleRefused(ValueError):
@@ -140,6 +158,7 @@ class _ParkedInsert(_Parked[Stored]):
 @dataclass
 class _ParkedSample(_Parked[Sampled]):
     call: SampleCall = field(kw_only=True)
+    parked_at: float = field(kw_only=True, default=0.0)
 
 
 P = TypeVar("P", bound=_Parked)
@@ -188,12 +207,19 @@ class ReplayTable:
         self.core = core
         self.log = log
         self.clock = clock
-        self.limiter = SampleToInsertRatio(
+        lockstep = config.training.schedule == "lockstep"
+        self.gate = LockstepGate(
+            episodes_per_cycle=config.training.episodes_per_cycle,
+            fgb_size=(config.cluster.fgb_size if METHODS[config.run.method].cluster_balanced
+                      else None),
+            cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S) if lockstep else None
+        """Lockstep's admission rules; None in the asynchronous schedule."""
+        self.limiter = SampleToInsertRatio(  # in lockstep it only counts
             samples_per_insert=config.training.updates_per_episode,
             min_size_to_sample=config.replay.min_episodes_to_sample,
             error_buffer=config.replay.rate_tolerance_updates,
             max_request=config.training.minibatches_per_cycle,
-            free_run=config.replay.free_run,
+            free_run=config.replay.free_run or lockstep,
         )
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
@@ -207,6 +233,7 @@ class ReplayTable:
         # is stored (known from its latest sample call) minus the version the actor used.
         self._learner_version = 0
         self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self.log_failures = 0
         """Inserts refused because their log append failed."""
 
@@ -223,6 +250,8 @@ class ReplayTable:
                 stored = self.core.insert(episode)
                 if stored.episode_id != episode_id:
                     mismatched.append((episode_id, stored.episode_id))
+                if self.gate is not None:
+                    self.gate.recover([episode.policy_version])
                 count += 1
             if count:
                 self.limiter.inserts = count
@@ -249,6 +278,13 @@ class ReplayTable:
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
+            if self.gate is not None:
+                refusal = self.gate.refuse_insert(episode.policy_version)
+                if refusal is not None:
+                    self.core.count_reject(refusal[0])
+                    waiter.fail(*refusal)
+                    return
+                self.gate.admit(episode.policy_version)
             item = _ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
                                  record=record)
             self._inserts.append(item)
@@ -301,6 +337,8 @@ class ReplayTable:
         self.log_failures += len(group)
         for item in group:
             del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
+            if self.gate is not None:
+                self.gate.cancel(item.episode.policy_version)
             for waiter in item.waiters:
                 waiter.fail(LOG_FAILED, f"episode not logged, so not stored: {exc}")
 
@@ -311,8 +349,15 @@ class ReplayTable:
         assert result.episode_id == episode_id, "log and store disagree on episode ids"
         self.limiter.store_admitted()
         self._recent_lags.append(self._learner_version - episode.policy_version)
+        self._recent_schedule_lags.append(
+            schedule_cycle(episode_id, self.config.training.episodes_per_cycle)
+            - episode.policy_version)
+        next_version = 0
+        if self.gate is not None:
+            self.gate.store(episode.policy_version)
+            next_version = self.gate.next_policy_version(episode.policy_version)
         stored = Stored(episode, episode_id, duplicate=False, energy=result.energy,
-                        cluster=result.cluster)
+                        cluster=result.cluster, next_policy_version=next_version)
         for i, waiter in enumerate(item.waiters):
             if i:  # the retries that joined the first call
                 self.core.duplicates += 1
@@ -330,7 +375,8 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
-            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call))
+            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call,
+                                               parked_at=self.clock()))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
@@ -341,11 +387,14 @@ class ReplayTable:
         self.limiter.record_sample(call.num_minibatches)
         o_state, g_state = self.core.normalizer_state()
         model = self.core.cluster_model
+        if self.gate is not None:
+            self.gate.served(failures=self.core.failures, cluster_version=self._model_version())
         sampled = Sampled(
             call=call, result=result, o_state=o_state, g_state=g_state,
             cluster_model_version=0 if model is None else model.version,
             inserts=self.core.inserts, env_steps=self.core.env_steps,
-            policy_lag=float(np.mean(self._recent_lags)) if self._recent_lags else 0.0)
+            policy_lag=_mean(self._recent_schedule_lags),
+            policy_lag_request=_mean(self._recent_lags))
         for waiter in item.waiters:
             waiter.done(sampled)
 
@@ -359,10 +408,20 @@ class ReplayTable:
                 self._ready.append(self._inserts.popleft())
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
                 progressed = True
-            while self._samples and self.limiter.can_sample(
-                    self._samples[0].call.num_minibatches):
+            while self._samples and self._can_serve(self._samples[0]):
                 self._serve(self._samples.popleft())
                 progressed = True
+
+    def _can_serve(self, item: _ParkedSample) -> bool:
+        if self.gate is None:
+            return self.limiter.can_sample(item.call.num_minibatches)
+        return self.gate.can_sample(item.call.weights_version, failures=self.core.failures,
+                                    cluster_version=self._model_version(),
+                                    waited_s=self.clock() - item.parked_at)
+
+    def _model_version(self) -> int:
+        model = self.core.cluster_model
+        return 0 if model is None else model.version
 
     def _deadline(self, timeout_s: float | None) -> float | None:
         return None if timeout_s is None else self.clock() + timeout_s
@@ -380,8 +439,10 @@ class ReplayTable:
                 for waiter in parked.waiters:
                     waiter.fail(EXPIRED, "the rate limiter held this call past its caller's "
                                          "timeout; the caller retries")
-            if inserts or samples:
-                self._drain()  # a dropped head of a queue may have held admissible calls
+            if inserts or samples or self.gate is not None:
+                # A dropped head of a queue may have held admissible calls; in lockstep a
+                # sample may have waited long enough for a late cluster model.
+                self._drain()
         self._commit()
         return len(inserts) + len(samples)
 
@@ -395,7 +456,10 @@ class ReplayTable:
                 return False
             if record is not None:
                 self.log.append_cluster_model(record)
-            return True
+            if self.gate is not None:
+                self._drain()  # a lockstep sample may wait for exactly this model
+        self._commit()
+        return True
 
     def clusterer_state(self) -> ClustererSnapshot:
         """What a (re)started clusterer continues from."""
@@ -435,10 +499,15 @@ class ReplayTable:
             return TableStatus(
                 size_episodes=core.store.size, size_transitions=core.store.num_transitions,
                 inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
-                rate_limiter=self.limiter.describe(inserts_waiting=waiting_inserts,
-                                                   samples_waiting=waiting_samples),
+                rate_limiter=("lockstep" if self.gate is not None else
+                              self.limiter.describe(inserts_waiting=waiting_inserts,
+                                                    samples_waiting=waiting_samples)),
                 rejects=dict(core.rejects),
                 cluster_sizes=[int(c) for c in core.cluster_sizes()],
                 cluster_model_version=0 if model is None else model.version,
                 inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
             )
+
+
+def _mean(values: deque[int]) -> float:
+    return float(np.mean(values)) if values else 0.0

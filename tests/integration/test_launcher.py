@@ -38,6 +38,7 @@ from apps.launcher import (
     service_command,
 )
 from hercs.config import HercsConfig, load_yaml
+from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
 from proto.keys import RunKeys
 
@@ -570,3 +571,37 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     walls = [float(rows[0]["wall_s"]), float(rows[1]["wall_s"]) - float(rows[0]["wall_s"])]
     assert all(0.0 <= float(r["batch_wait_s"]) <= w for r, w in zip(rows, walls, strict=True))
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
+                    reason="a service module is not written yet")
+def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) -> None:
+    """`training.schedule=lockstep` with the real services, two actors and HER-CS refitting
+    every 8 failures: the episode log holds cycle after cycle of 4 episodes, episode i acted
+    with weights version i // 4 (the reference's schedule), and metrics.csv's policy lag
+    against that schedule is 0."""
+    launcher = Launcher(
+        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+         "--epochs", "2", "--actors", "2", "--run", "lockstep", "--run-dir",
+         str(tmp_path / "runs"), "--listen", free_endpoint(),
+         "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
+         "--set", "training.eval_episodes=2", "--set", "cluster.k=2",
+         "--set", "cluster.fgb_size=8"],
+        cwd=tmp_path,
+    )
+    try:
+        assert launcher.finish(timeout_s=120) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    run_dir = tmp_path / "runs" / "lockstep"
+    logged = list(read_episodes(run_dir))
+    assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
+    assert len(logged) >= 2 * 3 * 4, "every one of the 6 cycles had its 4 episodes"
+    versions = [int(msg.policy_version) for _, msg in logged]
+    assert versions == [i // 4 for i in range(len(logged))], versions
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert [float(r["policy_lag"]) for r in rows] == [0.0, 0.0]
+    assert [int(r["weights_version"]) for r in rows] == [3, 6]
+    assert any(msg.failed_goals_seen for msg in read_cluster_models(run_dir)), \
+        "the clusterer refitted during the run (the lockstep gate waited for its models)"

@@ -11,12 +11,15 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
+from hercs.lockstep import LockstepReason
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
 from replay_service.table import (
     EXPIRED,
+    LOCKSTEP_CLUSTER_WAIT_S,
     LOG_FAILED,
     ReplayTable,
     SampleCall,
@@ -256,7 +259,7 @@ def test_free_run_admits_everything() -> None:
     assert h.table.status().samples_waiting == 0
 
 
-def test_policy_lag_is_the_learners_version_at_store_minus_the_episodes() -> None:
+def test_policy_lags_against_the_learners_request_and_the_lockstep_schedule() -> None:
     h = make()
     for seq in range(4):
         h.insert(seq)
@@ -269,7 +272,10 @@ def test_policy_lag_is_the_learners_version_at_store_minus_the_episodes() -> Non
     assert isinstance(got, Sampled)
     # mean over the 8 stored: 4 random episodes (version −1) stored while the learner was at
     # 0 → lag 1 each; 4 at version 3 stored while it was at 5 → lag 2 each
-    assert got.policy_lag == pytest.approx(1.5)
+    assert got.policy_lag_request == pytest.approx(1.5)
+    # against the lockstep schedule (4 episodes per cycle): ids 0–3 belong to cycle 0 (lag
+    # 0 − (−1) = 1), ids 4–7 to cycle 1, acted with version 3 (lag 1 − 3 = −2)
+    assert got.policy_lag == pytest.approx(-0.5)
 
 
 def test_recovery_restarts_the_limiter_balanced_and_dedups_retries() -> None:
@@ -354,3 +360,94 @@ def test_inserts_arriving_during_an_append_share_the_next_group_and_samples_go_o
     assert [w.results[0].episode_id for w in followers] == [5, 6, 7]
     assert journal.index("log 7") < journal.index("done insert a/5")
     assert table.status().size_episodes == 8
+
+
+# ---------------------------------------------------------------------------------- lockstep
+
+def insert_acted(h: Harness, seq: int, version: int, actor: str = "a") -> Recorder:
+    episode = h.episode(seq, actor)
+    episode.policy_version = version
+    waiter = Recorder(f"insert {actor}/{seq}", h.journal)
+    h.table.insert(episode, record=pb.Episode(seq=seq), waiter=waiter)
+    return waiter
+
+
+def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> None:
+    """4 episodes per cycle, 8 minibatches per cycle: cycle c's request is served once four
+    episodes acted with version c are stored; a fifth of version c is `cycle_full`, one acted
+    with an older version than the learner asks for is `stale_policy`; each ack says which
+    version the actor's next episode needs; both lags are 0."""
+    h = make("training.schedule=lockstep")
+    early = insert_acted(h, 0, -1)  # acted before the learner's first broadcast
+    assert early.failures and early.failures[0][0] == LockstepReason.STALE_POLICY
+    request0 = h.sample(8, "cycle 0", version=0)
+    acks = [insert_acted(h, seq, 0) for seq in range(1, 5)]
+    assert [a.results[0].next_policy_version for a in acks] == [0, 0, 0, 1]
+    assert request0.results, "served once its cycle's four episodes are stored"
+    assert h.journal.index("done insert a/4") < h.journal.index("done cycle 0")
+    surplus = insert_acted(h, 5, 0, actor="b")
+    assert surplus.failures[0][0] == LockstepReason.CYCLE_FULL and not surplus.results
+    request1 = h.sample(8, "cycle 1", version=1)
+    late = insert_acted(h, 6, 0, actor="b")
+    assert late.failures[0][0] == LockstepReason.STALE_POLICY
+    for seq in range(7, 10):
+        insert_acted(h, seq, 1)
+    assert not request1.results, "three of cycle 1's four episodes are not enough"
+    insert_acted(h, 10, 1, actor="b")
+    got = request1.results[0]
+    assert isinstance(got, Sampled)
+    assert got.policy_lag == 0.0
+    # the older measure takes the learner's version from the requests served so far: cycle
+    # 1's episodes were stored before request 1 was served, so they count 0 − 1 = −1
+    assert got.policy_lag_request == pytest.approx(-0.5)
+    status = h.table.status()
+    assert (status.inserts, status.rate_limiter) == (8, "lockstep")
+    assert status.rejects == {"stale_policy": 2, "cycle_full": 1}
+
+
+def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> None:
+    """HER-CS refits at every fgb_size-th failure before the next update (as the reference's
+    single process): the cycle's request waits until a model of that version is adopted, or,
+    if the clusterer is late by more than LOCKSTEP_CLUSTER_WAIT_S, is served with the older
+    model and counted."""
+    h = make("training.schedule=lockstep", "run.method=her-cs", "cluster.k=2",
+             "cluster.fgb_size=4")
+    request = h.sample(8, "cycle 0", version=0)
+    for seq in range(4):
+        insert_acted(h, seq, 0)
+    failures = h.table.core.failures
+    assert failures == 4, "random Reach episodes fail: the test needs exactly one refit due"
+    assert not request.results, "model v1 is due at the 4th failure"
+    model = ClusterModel(version=1, centroids=np.zeros((2, 3), np.float32), n_goals=4,
+                         inserts_seen=4)
+    assert h.table.adopt_cluster_model(model, None)
+    assert request.results and request.results[0].cluster_model_version == 1
+    assert h.table.gate is not None and h.table.gate.late_cluster_models == 0
+
+    request1 = h.sample(8, "cycle 1", version=1)
+    for seq in range(4, 8):
+        insert_acted(h, seq, 1)  # the 8th failure: model v2 due, no clusterer answers
+    assert not request1.results
+    h.clock.now += LOCKSTEP_CLUSTER_WAIT_S
+    h.table.expire()  # the service's once-a-second tick
+    assert request1.results and request1.results[0].cluster_model_version == 1
+    assert h.table.gate.late_cluster_models == 1
+
+
+def test_lockstep_counts_survive_a_replay_restart() -> None:
+    """A restarted replay rebuilds the per-version counts from its log: a cycle complete
+    before the restart is served at once, and its version's surplus is still refused."""
+    h = make("training.schedule=lockstep")
+    recovered = []
+    for seq in range(6):
+        episode = h.episode(seq)
+        episode.policy_version = seq // 4  # cycle 0 complete, cycle 1 half
+        recovered.append((seq, episode))
+    assert h.table.recover(recovered) == []
+    assert h.sample(8, "cycle 0 again", version=0).results
+    assert insert_acted(h, 6, 0).failures[0][0] == LockstepReason.STALE_POLICY
+    request1 = h.sample(8, "cycle 1", version=1)
+    insert_acted(h, 7, 1)
+    assert not request1.results
+    insert_acted(h, 8, 1)
+    assert request1.results
