@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint proto install clean compose-test compose-clean
+.PHONY: run test lint proto install clean compose-test compose-clean figures
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -49,6 +49,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
+
+# Redraw the figures that are drawn from committed runs (tests/unit/apps/test_committed_results.py).
+figures: $(STAMP)
+	$(PY) -m apps.cli plot --figure 2 $$(ls -d docs/results/runs/*/) -o docs/results/fig2.png \
+		--table docs/results/fig2.md > /dev/null
 
 # Regenerate proto/hercs_pb2.py(.pyi) from proto/hercs.proto with the pinned grpcio-tools.
 proto: $(STAMP)

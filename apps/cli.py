@@ -251,7 +251,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
     try:
         return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
-                        xmax=args.xmax)
+                        xmax=args.xmax, figure=args.figure)
     except HercsError as exc:
         print(f"hercs plot: {exc}", file=sys.stderr)
         return 2
@@ -331,7 +331,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    help="overlay the authors' curves (docs/reference/authors_success_rates.csv)")
     p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
     p.add_argument("--xmax", type=int, metavar="EPOCH",
-                   help="x axis end (default: the last epoch of our runs)")
+                   help="x axis end (default: the last epoch of our runs; 200 with --figure 2)")
+    p.add_argument("--figure", type=int, choices=[2],
+                   help="the paper's figure layout: 2 = Fig. 2 (2x3 panels: HER vs HER-CS and "
+                        "HER-EBP vs HER-EBP-CS on Push, PickAndPlace, Slide; authors dashed)")
 
     p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
                        description="3D trajectories of gripper, object and goal per episode, "

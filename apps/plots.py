@@ -19,7 +19,9 @@ Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exa
 Figure rule: each method's 10-epoch moving average of the seed mean (solid), its raw seed
 mean faint behind it, and the min–max band; every run is drawn to its own end (at each epoch,
 over the seeds that reached it). Runs with the same task, method and seed are one seed (the
-longest is kept, with a note on stderr).
+longest is kept, with a note on stderr). A run trained in the lockstep schedule
+(`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so that it
+is compared with the asynchronous runs instead of averaged into them.
 """
 
 from __future__ import annotations
@@ -48,6 +50,10 @@ METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
 METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
 METHOD_COLORS: dict[str, str] = {
     "her": "tab:blue", "her-cs": "tab:red", "her-ebp": "tab:green", "her-ebp-cs": "tab:orange",
+}
+VARIANT_COLORS: dict[str, str] = {
+    "her/lockstep": "tab:cyan", "her-cs/lockstep": "tab:purple",
+    "her-ebp/lockstep": "tab:olive", "her-ebp-cs/lockstep": "tab:brown",
 }
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
@@ -100,6 +106,22 @@ def task_title(name: str) -> str:
     return TASK_TITLES.get(name, name)
 
 
+def method_key(method: str, schedule: str = "async") -> str:
+    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule."""
+    return method if schedule == "async" else f"{method}/{schedule}"
+
+
+def method_label(key: str) -> str:
+    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep"."""
+    method, _, variant = key.partition("/")
+    label = METHOD_LABELS.get(method, method)
+    return f"{label} {variant}" if variant else label
+
+
+def method_color(key: str) -> str | None:
+    return METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
+
+
 def _curve(task: str, method: str, seed: int, points: dict[int, float], source: str) -> Curve:
     epochs = np.array(sorted(points), dtype=int)
     return Curve(task, method, seed, epochs, np.array([points[e] for e in epochs], dtype=float),
@@ -120,6 +142,7 @@ def load_run(run_dir: str | Path) -> Curve:
         config = yaml.safe_load(config_path.read_text()) or {}
         task, method = config["task"]["name"], config["run"]["method"]
         seed = int(config["run"]["seed"])
+        method = method_key(method, (config.get("training") or {}).get("schedule", "async"))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc
@@ -173,8 +196,7 @@ def group(curves: Iterable[Curve], notes: list[str] | None = None
     out: dict[str, dict[str, list[Curve]]] = {}
     for c in by_seed.values():
         out.setdefault(c.task, {}).setdefault(c.method, []).append(c)
-    rank = {m: i for i, m in enumerate(METHOD_ORDER)}
-    return {t: dict(sorted(ms.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
+    return {t: dict(sorted(ms.items(), key=lambda kv: _method_rank(kv[0])))
             for t, ms in out.items()}
 
 
@@ -256,7 +278,7 @@ def tables(ours: dict[str, dict[str, list[Curve]]],
         ref = (reference or {}).get(task, {})
         rows: list[tuple[str, Milestones]] = []
         for method in sorted(set(methods) | set(ref), key=_method_rank):
-            label = METHOD_LABELS.get(method, method)
+            label = method_label(method)
             if method in methods:
                 rows.append((label + (" (ours)" if reference is not None else ""),
                              milestones(aggregate(methods[method]))))
@@ -266,8 +288,10 @@ def tables(ours: dict[str, dict[str, list[Curve]]],
     return "\n".join(parts) + ("\n" + TABLE_NOTE if parts else "")
 
 
-def _method_rank(method: str) -> tuple[int, str]:
-    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
+def _method_rank(key: str) -> tuple[int, str]:
+    """The paper's order; a variant right after its method."""
+    method = key.partition("/")[0]
+    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), key)
 
 
 # ---------------------------------------------------------------------------------- figure
@@ -292,8 +316,8 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         ref = (reference or {}).get(task, {})
         right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
         for method in sorted(set(ours[task]) | set(ref), key=_method_rank):
-            color = METHOD_COLORS.get(method)
-            label = METHOD_LABELS.get(method, method)
+            color = method_color(method)
+            label = method_label(method)
             if method in ref:
                 a = aggregate(ref[method])
                 keep = a.epochs <= right
@@ -330,14 +354,121 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
     return output
 
 
+# ---------------------------------------------------------------------------------- Fig. 2
+
+FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")
+FIG2_ROWS: tuple[tuple[str, str], ...] = (("her", "her-cs"), ("her-ebp", "her-ebp-cs"))
+FIG2_EPOCHS = 200
+
+
+def _fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
+               ref: dict[str, list[Curve]]) -> list[str]:
+    """The method keys of one panel: the pair's methods and their variants (lockstep)."""
+    keys = {k for k in (*ours, *ref) if k.partition("/")[0] in pair}
+    return sorted(keys, key=_method_rank)
+
+
+def fig2_text(ours: dict[str, dict[str, list[Curve]]],
+              reference: dict[str, dict[str, list[Curve]]]) -> str:
+    """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2."""
+    parts = [
+        "# Fig. 2: ours beside the authors'", "",
+        "Drawn by `hercs plot --figure 2` from the committed runs (docs/results/runs/). Rows "
+        "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
+        "FetchPickAndPlace, FetchSlide. Ours solid, the authors' dashed; both curves are the "
+        f"{WINDOW}-epoch trailing mean of the seed mean, and both bands the {WINDOW}-epoch "
+        "trailing mean of the per-epoch min and max over seeds (the paper smooths over 21 "
+        "epochs and pads short runs; we do neither). Ours: gymnasium-robotics Fetch*-v4 on "
+        "MuJoCo 3; the authors': gym Fetch*-v1 on mujoco-py (docs/DESIGN.md §9.6), so the "
+        "curves are compared, not matched.", "",
+    ]
+    for pair in FIG2_ROWS:
+        for task in FIG2_TASKS:
+            mine, ref = ours.get(task, {}), reference.get(task, {})
+            title = f"{task}: {' vs '.join(method_label(m) for m in pair)}"
+            rows: list[tuple[str, Milestones]] = []
+            for key in _fig2_keys(pair, mine, ref):
+                if key in mine:
+                    rows.append((method_label(key) + " (ours)", milestones(aggregate(mine[key]))))
+                if key in ref:
+                    rows.append((method_label(key) + " (authors)",
+                                 milestones(aggregate(ref[key]))))
+            parts.append(markdown_table(title, rows))
+            if not any(key.partition("/")[0] in pair for key in mine):
+                parts += ["No runs of ours yet.", ""]
+    return "\n".join(parts) + "\n" + TABLE_NOTE
+
+
+def _smoothed_band(a: Aggregate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (moving_average(a.epochs, a.mean), moving_average(a.epochs, a.low),
+            moving_average(a.epochs, a.high))
+
+
+def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
+              reference: dict[str, dict[str, list[Curve]]], output: str | Path,
+              xmax: int = FIG2_EPOCHS) -> Path:
+    """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
+                             figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
+                             dpi=DPI, squeeze=False)
+    for r, pair in enumerate(FIG2_ROWS):
+        for c, task in enumerate(FIG2_TASKS):
+            ax = axes[r][c]
+            mine, ref = ours.get(task, {}), reference.get(task, {})
+            for key in _fig2_keys(pair, mine, ref):
+                color = method_color(key)
+                label = method_label(key)
+                if key in ref:
+                    a = aggregate(ref[key])
+                    mean, low, high = _smoothed_band(a)
+                    ax.fill_between(a.epochs, low, high, color=color, alpha=0.08, linewidth=0)
+                    ax.plot(a.epochs, mean, "--", color=color, linewidth=1.3,
+                            label=f"{label} (authors, {a.n_seeds} seeds)")
+                if key in mine:
+                    a = aggregate(mine[key], every_seed=False)
+                    mean, low, high = _smoothed_band(a)
+                    ax.fill_between(a.epochs, low, high, color=color, alpha=0.22, linewidth=0)
+                    ax.plot(a.epochs, mean, "-", color=color, linewidth=2.0,
+                            label=f"{label} (ours, {a.n_seeds} seed"
+                                  f"{'s' if a.n_seeds != 1 else ''})")
+            if not any(key.partition("/")[0] in pair for key in mine):
+                ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
+                        ha="left", va="top", fontsize=10, color="0.4")
+            ax.set_title(f"{task}: {' vs '.join(method_label(m) for m in pair)}", fontsize=10)
+            ax.set_xlim(0, xmax)
+            ax.set_ylim(-0.01, 1.01)
+            ax.set_xlabel("epoch")
+            ax.set_ylabel("success rate")
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    fig.tight_layout()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=DPI)
+    plt.close(fig)
+    return output
+
+
 # ------------------------------------------------------------------------------------- CLI
 
 def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
              table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
-             xmax: int | None = None) -> int:
-    """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`)."""
+             xmax: int | None = None, figure: int | None = None) -> int:
+    """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`);
+    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours)."""
     notes: list[str] = []
     ours = group((load_run(d) for d in run_dirs), notes)
+    if figure == 2:
+        for note in notes:
+            print(f"hercs plot: {note}", file=sys.stderr)
+        return _write_outputs(plot_fig2(ours, group(load_reference(reference_csv)), output,
+                                        xmax or FIG2_EPOCHS),
+                              fig2_text(ours, group(load_reference(reference_csv))), table)
     ref = group(load_reference(reference_csv)) if reference else None
     if ref is not None:
         missing = sorted(set(ours) - set(ref))
@@ -346,8 +477,10 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
                          f" (they did for {', '.join(sorted(ref))}); drawn without them")
     for note in notes:
         print(f"hercs plot: {note}", file=sys.stderr)
-    path = plot_figure(ours, output, ref, xmax)
-    text = tables(ours, ref)
+    return _write_outputs(plot_figure(ours, output, ref, xmax), tables(ours, ref), table)
+
+
+def _write_outputs(path: Path, text: str, table: str | None) -> int:
     print(text, end="")
     if table:
         Path(table).write_text(text)

@@ -2,8 +2,9 @@
 
     python bench/sample_efficiency.py --tasks push --methods her her-cs --seeds 3
 
-Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`,
-under `--run-dir` (default `runs/sample_efficiency`). The grid is resumable: a run whose
+Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`
+(`T-M-lockstep-sS` with `--schedule lockstep`, the reference's schedule), under `--run-dir`
+(default `runs/sample_efficiency`). The grid is resumable: a run whose
 `bench_done.json` exists is skipped; a run folder without it (the bench was stopped while the
 run trained) is continued with `hercs up --resume` from its last checkpoint (a folder with no
 saved config is moved aside to `<run-dir>/_unfinished/`). Runs go `--jobs` at a time (default: one
@@ -47,8 +48,16 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a checkout
     sys.path.insert(0, str(REPO))
 
-from apps.plots import group, load_reference, load_run, plot_figure, tables  # noqa: E402
+from apps.plots import (  # noqa: E402
+    group,
+    load_reference,
+    load_run,
+    method_key,
+    plot_figure,
+    tables,
+)
 from bench.common import git_commit  # noqa: E402
+from hercs.config import SCHEDULES  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
 
@@ -67,15 +76,18 @@ class GridRun:
     task: str
     method: str
     seed: int
+    schedule: str = "async"
 
     @property
     def name(self) -> str:
-        return f"{self.task}-{self.method}-s{self.seed}"
+        variant = "" if self.schedule == "async" else f"-{self.schedule}"
+        return f"{self.task}-{self.method}{variant}-s{self.seed}"
 
 
-def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int]) -> list[GridRun]:
+def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
+              schedule: str = "async") -> list[GridRun]:
     """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
-    return [GridRun(t, m, s) for s in seeds for t in tasks for m in methods]
+    return [GridRun(t, m, s, schedule) for s in seeds for t in tasks for m in methods]
 
 
 def is_done(run_dir: Path) -> bool:
@@ -113,7 +125,7 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
         cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
                cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
                cell.name, "--run-dir", str(run_root), "--actors", str(actors),
-               "--listen", f"tcp/127.0.0.1:{port}"]
+               "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -207,7 +219,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 results.append((r.cell, code))
                 if code == 0:
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
-                              "epochs": epochs, "wall_s": round(wall, 1), "commit": commit,
+                              "schedule": r.cell.schedule, "epochs": epochs,
+                              "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
                               "command": " ".join(r.proc.args[1:]),  # type: ignore[index]
                               "finished": datetime.now(UTC).isoformat(timespec="seconds")}
@@ -283,7 +296,8 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "- commit: " + ", ".join(sorted({str(w.get("commit", "unknown")) for w in walls})),
             f"- machine: {machine_description()}",
             "- runs: " + ", ".join(
-                f"{w['method']} s{w['seed']} ({w['epochs']} epochs, {w['wall_s'] / 60:.0f} min)"
+                f"{method_key(w['method'], w.get('schedule', 'async'))} s{w['seed']} "
+                f"({w['epochs']} epochs, {w['wall_s'] / 60:.0f} min)"
                 for w in walls),
         ]
         if missing:
@@ -304,6 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tasks (default: push; reach with --quick)")
     p.add_argument("--methods", nargs="+", choices=list(METHODS), default=["her", "her-cs"])
     p.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
+    p.add_argument("--schedule", choices=SCHEDULES, default="async",
+                   help="training.schedule of every run (default async; lockstep runs are "
+                        "named T-M-lockstep-sS)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per run (default 100; 1 with --quick)")
     p.add_argument("--jobs", type=int, default=None,
@@ -342,7 +359,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = args.jobs or max(1, os.cpu_count() or 1)
     committed = (Path(args.committed).resolve() if args.committed
                  else None if args.quick else COMMITTED)
-    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)))
+    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule)
     command = "python bench/sample_efficiency.py " + " ".join(
         a for a in (argv if argv is not None else sys.argv[1:]))
     print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "

@@ -204,3 +204,45 @@ def test_reference_for_a_task_without_authors_data_says_so(tmp_path: Path, capsy
     assert main(["plot", str(run), "-o", str(tmp_path / "f.png"), "--reference"]) == 0
     err = capsys.readouterr().err
     assert "--reference: the authors published no curves for FetchReach" in err
+
+
+def _write_lockstep_run(root: Path, method: str, seed: int, success: list[float]) -> Path:
+    run = _write_run(root, f"{method}-lockstep", seed, success)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    config["run"]["method"] = method
+    config["training"] = {"schedule": "lockstep"}
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    return run
+
+
+def test_a_lockstep_run_is_its_own_method_next_to_the_asynchronous_one(tmp_path: Path) -> None:
+    runs = [_write_run(tmp_path, "her-cs", 1, [0.1, 0.3, 0.7]),
+            _write_lockstep_run(tmp_path, "her-cs", 1, [0.2, 0.6, 0.9])]
+    groups = plots.group(plots.load_run(r) for r in runs)
+    assert list(groups["FetchPush"]) == ["her-cs", "her-cs/lockstep"]
+    text = plots.tables(groups)
+    assert "| HER-CS | 1 | 3 | – | – |" in text  # ma 0.1, 0.2, 0.367: none past 0.5
+    assert "| HER-CS lockstep | 1 | 3 | 2 | – |" in text  # ma 0.2, 0.4, 0.567 → epoch 3 − 1
+
+
+def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -> None:
+    runs = [_write_run(tmp_path, "her-ebp", 1, [0.0] * 5 + [1.0] * 10),
+            _write_lockstep_run(tmp_path, "her-cs", 1, [0.0] * 3 + [1.0] * 12)]
+    out, table = tmp_path / "fig2.png", tmp_path / "fig2.md"
+    assert main(["plot", "--figure", "2", *map(str, runs), "-o", str(out), "--table",
+                 str(table)]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        assert image.size == (3 * plots.PANEL_W * plots.DPI, 2 * plots.PANEL_H * plots.DPI)
+    text = table.read_text()
+    titles = [line for line in text.splitlines() if line.startswith("### ")]
+    assert titles == [f"### {task}: {pair}"
+                      for pair in ("HER vs HER-CS", "HER-EBP vs HER-EBP-CS")
+                      for task in plots.FIG2_TASKS]
+    push_her = text.split("### FetchPush: HER vs HER-CS")[1].split("###")[0]
+    # trailing means (e − 3)/e pass .5 at epoch 7, .9 at epoch 13 (counted from 0: 6, 12)
+    assert "| HER-CS lockstep (ours) | 1 | 15 | 6 | 12 |" in push_her
+    assert "| HER (authors) | 5 | 200 | 55 | 95 |" in push_her
+    assert text.count("No runs of ours yet.") == 4  # Pick and Slide, both rows
+    assert text in capsys.readouterr().out

@@ -1,0 +1,24 @@
+"""The committed figures are what `hercs plot` computes from the committed runs: a run added
+under docs/results/runs/ without redrawing docs/results/fig2.md (`make figures`) fails here."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from apps import plots
+
+RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
+
+
+def committed_runs() -> list[Path]:
+    return sorted(p for p in (RESULTS / "runs").iterdir() if (p / "metrics.csv").is_file())
+
+
+def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() -> None:
+    runs = committed_runs()
+    assert runs, "docs/results/runs/ holds no run"
+    ours = plots.group(plots.load_run(run) for run in runs)
+    expected = plots.fig2_text(ours, plots.group(plots.load_reference()))
+    assert (RESULTS / "fig2.md").read_text() == expected, (
+        "docs/results/fig2.md is not what the committed runs give: run `make figures`")
+    assert (RESULTS / "fig2.png").stat().st_size > 10_000
