@@ -313,6 +313,10 @@ class ReplayConfig:
     log_scene: bool = True
     """Also log each episode's Foxglove scene (/scene, /scene/points), off the ack path
     [DESIGN]; false keeps only the episodes, for the highest insert rates."""
+    eviction: str = "fifo"
+    """Which episode a full buffer overwrites: `fifo` the oldest [DESIGN]; `random` a slot
+    drawn uniformly, as the reference does [HER-py] (reproducible: a hash of the run's seed
+    and the episode id, so a restarted replay rebuilds the same buffer from its log)."""
 
     def __post_init__(self) -> None:
         _check(self.buffer_transitions >= 1, "replay.buffer_transitions",
@@ -326,6 +330,8 @@ class ReplayConfig:
         _positive("replay.sample_timeout_s", self.sample_timeout_s)
         _check(self.insert_workers >= 1, "replay.insert_workers", self.insert_workers,
                "be >= 1")
+        _check(self.eviction in ("fifo", "random"), "replay.eviction", self.eviction,
+               "be fifo or random")
 
 
 @dataclass

@@ -27,6 +27,7 @@ from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.normalizer import Normalizer, NormalizerState
+from hercs.seeding import int_seed
 from replay_service.energy import trajectory_energy
 from replay_service.her import normalizer_sample, relabel
 from replay_service.samplers import make_sampler
@@ -54,7 +55,9 @@ class ReplayCore:
         self.config = config
         self.spec = config.task.spec
         self.rng = rng
-        self.store = EpisodeStore(capacity_episodes=config.capacity_episodes, spec=self.spec)
+        self.store = EpisodeStore(capacity_episodes=config.capacity_episodes, spec=self.spec,
+                                  eviction=config.replay.eviction,
+                                  eviction_seed=int_seed(config.run.seed, "replay", "eviction"))
         self.sampler = make_sampler(config.run.method, config)
         d = config.ddpg
         self.o_norm = Normalizer(self.spec.obs_dim, eps=d.norm_eps, clip_range=d.norm_clip)

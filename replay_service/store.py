@@ -1,8 +1,13 @@
-"""A preallocated FIFO ring of whole episodes, with per-episode metadata.
+"""A preallocated buffer of whole episodes, with per-episode metadata: a FIFO ring, or the
+reference's random overwrite once full.
 
 Invariants (enforced by `insert` and `load_state_dict`):
-- Episode ids are global and monotonic from 0: the n-th inserted episode has id n-1 and lives
-  in slot ``id % capacity_episodes`` until `capacity_episodes` later episodes overwrite it.
+- Episode ids are global and monotonic from 0: the n-th inserted episode has id n-1. Episode
+  `id < capacity_episodes` goes to slot `id`; a later one goes to `slot_for(id)`: with
+  `eviction="fifo"` slot ``id % capacity_episodes`` (the oldest episode leaves), with
+  `eviction="random"` a slot drawn uniformly by a hash of (eviction seed, id), as the
+  reference overwrites a random slot (`replay.eviction`). Either way the slot of an id is a
+  pure function of it, so replaying the episode log in id order rebuilds the same buffer.
 - Hence the valid slots are always the prefix ``[0, size)``; every array property returns a
   read-only view of that prefix (no copy), indexed by slot.
 - Every stored array has the task's shapes (`hercs.episode.expected_shapes`); a mismatch is
@@ -11,9 +16,8 @@ Invariants (enforced by `insert` and `load_state_dict`):
 Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
 as slots are written. The store is not thread-safe: the service serialises calls.
 
-Deviation from the reference HER buffer: once full, the reference overwrites *random* slots;
-this ring overwrites the oldest episode (docs/DESIGN.md §2 "ring"), which also makes ids and slots
-recoverable from the episode log.
+Deviation from the reference HER buffer by default: once full, the reference overwrites
+*random* slots; `fifo` (the default) overwrites the oldest episode (docs/DESIGN.md §9.2).
 """
 
 from __future__ import annotations
@@ -29,6 +33,16 @@ from replay_service.sampling_index import SamplingIndex
 
 UNASSIGNED = -1
 """Cluster label of an episode that no cluster model has labelled yet."""
+EVICTIONS = ("fifo", "random")
+_MASK64 = (1 << 64) - 1
+
+
+def _mix64(value: int) -> int:
+    """SplitMix64's finaliser: a 64-bit integer hash whose low bits are uniform."""
+    z = (value + 0x9E3779B97F4A7C15) & _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return z ^ (z >> 31)
 
 _ARRAY_FIELDS = ("obs", "ag", "g", "actions")
 _META_FIELDS = (
@@ -44,11 +58,17 @@ def _readonly(view: np.ndarray) -> np.ndarray:
 class EpisodeStore:
     """Ring buffer of `capacity_episodes` episodes of one task (see the module invariants)."""
 
-    def __init__(self, *, capacity_episodes: int, spec: TaskSpec) -> None:
+    def __init__(self, *, capacity_episodes: int, spec: TaskSpec, eviction: str = "fifo",
+                 eviction_seed: int = 0) -> None:
         if capacity_episodes < 1:
             raise ConfigError(
                 f"EpisodeStore capacity_episodes: got {capacity_episodes!r}, must be >= 1"
             )
+        if eviction not in EVICTIONS:
+            raise ConfigError(f"EpisodeStore eviction: got {eviction!r}, must be one of "
+                              f"{', '.join(EVICTIONS)}")
+        self._eviction = eviction
+        self._eviction_key = _mix64(int(eviction_seed) & _MASK64)
         self._spec = spec
         self._capacity = int(capacity_episodes)
         self._shapes = expected_shapes(spec)
@@ -94,12 +114,22 @@ class EpisodeStore:
         """Episodes ever inserted (= the id the next insert gets)."""
         return self._next_id
 
+    @property
+    def eviction(self) -> str:
+        return self._eviction
+
+    def slot_for(self, episode_id: int) -> int:
+        """The slot episode `episode_id` is (or was) written to (module invariants)."""
+        if episode_id < self._capacity or self._eviction == "fifo":
+            return episode_id % self._capacity
+        return _mix64(self._eviction_key ^ episode_id) % self._capacity
+
     # ------------------------------------------------------------------ writes
 
     def insert(
         self, episode: EpisodeData, *, energy: float = 0.0, cluster: int = UNASSIGNED
     ) -> int:
-        """Store `episode` in slot ``id % capacity`` (overwriting the oldest when full).
+        """Store `episode` in slot `slot_for(id)` (overwriting an episode when full).
 
         `energy` is the trajectory energy (replay_service.energy), `cluster` the episode's
         label under the current cluster model (-1 if there is none). Returns the episode id.
@@ -124,7 +154,7 @@ class EpisodeStore:
                 "the episode is not stored"
             )
         episode_id = self._next_id
-        slot = episode_id % self._capacity
+        slot = self.slot_for(episode_id)
         self._obs[slot] = arrays["obs"]
         self._ag[slot] = arrays["ag"]
         self._g[slot] = arrays["g"]
@@ -226,9 +256,10 @@ class EpisodeStore:
 
     def slot_of(self, episode_id: int) -> int | None:
         """The slot holding `episode_id`, or None if it was never inserted or was overwritten."""
-        if not self._next_id - self._size <= episode_id < self._next_id:
+        if not 0 <= episode_id < self._next_id:
             return None
-        return episode_id % self._capacity
+        slot = self.slot_for(episode_id)
+        return slot if int(self._episode_id[slot]) == episode_id else None
 
     def episode(self, episode_id: int) -> EpisodeData | None:
         """A copy of the stored episode `episode_id` as it was inserted, or None if it was
@@ -252,6 +283,7 @@ class EpisodeStore:
             "task": self._spec.name,
             "capacity_episodes": self._capacity,
             "next_id": self._next_id,
+            "eviction": self._eviction,
         }
         for name in (*_ARRAY_FIELDS, *_META_FIELDS):
             state[name] = getattr(self, f"_{name}")[:n].copy()
@@ -260,22 +292,27 @@ class EpisodeStore:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore from `state_dict()`; refuses a different task or capacity, or broken ids."""
-        if state["task"] != self._spec.name or state["capacity_episodes"] != self._capacity:
+        eviction = state.get("eviction", "fifo")
+        if (state["task"] != self._spec.name or state["capacity_episodes"] != self._capacity
+                or eviction != self._eviction):
             raise ConfigError(
                 f"EpisodeStore.load_state_dict: checkpoint is task {state['task']!r} with "
-                f"capacity {state['capacity_episodes']}, this store is task "
-                f"{self._spec.name!r} with capacity {self._capacity}; nothing loaded"
+                f"capacity {state['capacity_episodes']} and {eviction} eviction, this store is "
+                f"task {self._spec.name!r} with capacity {self._capacity} and "
+                f"{self._eviction} eviction; nothing loaded"
             )
         ids = np.asarray(state["episode_id"], np.int64)
         n, next_id = len(ids), int(state["next_id"])
-        expected = np.arange(next_id - n, next_id, dtype=np.int64)
-        if n > self._capacity or np.sort(ids).tolist() != expected.tolist() or np.any(
-            ids % self._capacity != np.arange(n)
-        ):
+        if (n > self._capacity or len(set(ids.tolist())) != n
+                or np.any((ids < 0) | (ids >= next_id))
+                or (n < self._capacity and ids.tolist() != list(range(n)))
+                or (self._eviction == "fifo"
+                    and sorted(ids.tolist()) != list(range(next_id - n, next_id)))
+                or any(self.slot_for(int(i)) != slot for slot, i in enumerate(ids))):
             raise ConfigError(
                 f"EpisodeStore.load_state_dict: episode ids {ids[:5].tolist()}... with "
-                f"next_id {next_id} break the ring invariant slot = id % {self._capacity}; "
-                "nothing loaded"
+                f"next_id {next_id} break the invariant slot = slot_for(id) ({self._eviction}"
+                f" eviction, capacity {self._capacity}); nothing loaded"
             )
         for name in (*_ARRAY_FIELDS, *_META_FIELDS):
             arr = np.asarray(state[name])

@@ -153,8 +153,54 @@ def test_load_state_dict_refuses_other_capacity_or_broken_ids() -> None:
     with pytest.raises(ConfigError, match=r"capacity 4.*capacity 5"):
         EpisodeStore(capacity_episodes=5, spec=SPEC).load_state_dict(state)
     broken = dict(state, episode_id=state["episode_id"][::-1].copy())
-    with pytest.raises(ConfigError, match="ring invariant"):
+    with pytest.raises(ConfigError, match="slot = slot_for"):
         EpisodeStore(capacity_episodes=4, spec=SPEC).load_state_dict(broken)
+
+
+def test_random_eviction_overwrites_uniformly_as_the_reference() -> None:
+    """Once full, each insert overwrites a uniformly drawn slot: after C more inserts into a
+    buffer of C, a fraction (1 − 1/C)^C ≈ e^−1 of the first C episodes is still there (FIFO
+    keeps none). Every id is found exactly where `slot_of` says, or reported gone."""
+    spec, capacity = task_spec("reach"), 1000
+    store = EpisodeStore(capacity_episodes=capacity, spec=spec, eviction="random",
+                         eviction_seed=7)
+    episode = random_episode(spec, np.random.default_rng(0))
+    for cluster in range(2 * capacity):
+        store.insert(episode, cluster=cluster % 5)
+    kept = int(np.count_nonzero(store.episode_id < capacity))
+    # binomial-like: mean C·e^−1 ≈ 368, sd ≈ 15; 5 sd either side
+    assert 290 < kept < 445, kept
+    held = set(store.episode_id.tolist())
+    assert len(held) == capacity
+    for episode_id in range(2 * capacity):
+        slot = store.slot_of(episode_id)
+        assert (slot is not None) == (episode_id in held)
+        assert slot is None or store.episode_id[slot] == episode_id
+    np.testing.assert_array_equal(store.sampling_index.counts,
+                                  np.bincount(store.cluster, minlength=5))
+
+
+def test_random_eviction_is_a_function_of_the_seed_and_survives_a_state_round_trip() -> None:
+    """The slots come from (seed, id) alone, so a replay rebuilt from its log in id order holds
+    the same buffer; another seed overwrites other slots."""
+    def filled(seed: int) -> EpisodeStore:
+        store = EpisodeStore(capacity_episodes=4, spec=SPEC, eviction="random",
+                             eviction_seed=seed)
+        for i in range(12):
+            store.insert(_episode(i))
+        return store
+
+    first, again, other = filled(1), filled(1), filled(2)
+    np.testing.assert_array_equal(first.episode_id, again.episode_id)
+    assert [first.slot_for(i) for i in range(4, 40)] != [other.slot_for(i) for i in range(4, 40)]
+    restored = EpisodeStore(capacity_episodes=4, spec=SPEC, eviction="random", eviction_seed=1)
+    restored.load_state_dict(first.state_dict())
+    assert restored.insert(_episode(12)) == first.insert(_episode(12)) == 12
+    np.testing.assert_array_equal(restored.episode_id, first.episode_id)
+    with pytest.raises(ConfigError, match=r"random eviction.*fifo eviction"):
+        EpisodeStore(capacity_episodes=4, spec=SPEC).load_state_dict(first.state_dict())
+    with pytest.raises(ConfigError, match="eviction: got 'lifo'"):
+        EpisodeStore(capacity_episodes=4, spec=SPEC, eviction="lifo")
 
 
 _MEASURE_EMPTY_STORE = """
