@@ -32,7 +32,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from actors.rollout import RolloutWorker
 from actors.weights import WeightsDecoder
@@ -237,7 +236,6 @@ class EvaluatorService:
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs evaluator`: evaluate every epoch-end policy until SIGTERM/SIGINT."""
-    torch.set_num_threads(1)
     return service_main(role="evaluator", config=config, ident=ident, body=_work)
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +11,7 @@ from hercs.episode import EpisodeData, expected_shapes
 from hercs.tasks import TaskSpec
 
 ActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""(observation, desired goal) -> action, for one step."""
+"""(observation, desired goal) -> action, for one step; with (n, dim) arrays, n actions."""
 
 
 class RolloutWorker:
@@ -65,3 +65,68 @@ class RolloutWorker:
 
     def close(self) -> None:
         self.env.close()
+
+
+class VectorRollout:
+    """Runs fixed-length episodes in n envs side by side: one batched `act` call per step for
+    all of them (the actor's `actor.envs_per_process`), so the policy's per-call overhead is
+    paid once per step instead of n times. Fetch episodes have no early termination, so the
+    n envs stay in step from reset to step T.
+
+    Env i is seeded once, with `seeds[i]`, at its first reset (as `RolloutWorker`); with one
+    env the episodes are those of a `RolloutWorker` with the same seed and policy.
+    """
+
+    def __init__(self, *, spec: TaskSpec, envs: Sequence[gym.Env], seeds: Sequence[int]) -> None:
+        if not envs or len(envs) != len(seeds):
+            raise ValueError(f"VectorRollout: {len(envs)} envs and {len(seeds)} seeds; need "
+                             "one seed per env and at least one env")
+        self.spec = spec
+        self.envs = list(envs)
+        self._seeds: list[int | None] = list(seeds)
+        n, shapes = len(self.envs), expected_shapes(spec)
+        self._obs = np.empty((n, *shapes["obs"]), np.float32)
+        self._ag = np.empty((n, *shapes["ag"]), np.float32)
+        self._g = np.empty((n, *shapes["g"]), np.float32)
+        self._actions = np.empty((n, *shapes["actions"]), np.float32)
+        # The policy sees the env's float64 observations, as with `RolloutWorker`, not the
+        # float32 copies kept for the episode.
+        self._o_now = np.empty((n, spec.obs_dim), np.float64)
+        self._g_now = np.empty((n, spec.goal_dim), np.float64)
+        self.env_steps = 0
+
+    @property
+    def num_envs(self) -> int:
+        return len(self.envs)
+
+    def _record(self, i: int, t: int, obs: dict) -> None:
+        self._o_now[i] = obs["observation"]
+        self._g_now[i] = obs["desired_goal"]
+        self._obs[i, t] = obs["observation"]
+        self._ag[i, t] = obs["achieved_goal"]
+        if t < self.spec.episode_steps:
+            self._g[i, t] = obs["desired_goal"]
+
+    def run_episodes(self, act: ActFn) -> list[EpisodeData]:
+        """One episode per env, in env order."""
+        infos: list[dict] = [{} for _ in self.envs]
+        for i, env in enumerate(self.envs):
+            obs, _ = env.reset(seed=self._seeds[i])
+            self._seeds[i] = None
+            self._record(i, 0, obs)
+        T = self.spec.episode_steps
+        for t in range(T):
+            actions = np.asarray(act(self._o_now, self._g_now), np.float32)
+            self._actions[:, t] = actions
+            for i, env in enumerate(self.envs):
+                obs, _, _, _, infos[i] = env.step(actions[i])
+                self._record(i, t + 1, obs)
+        self.env_steps += T * len(self.envs)
+        return [EpisodeData(obs=self._obs[i].copy(), ag=self._ag[i].copy(), g=self._g[i].copy(),
+                            actions=self._actions[i].copy(),
+                            success=bool(infos[i].get("is_success", 0.0)))
+                for i in range(len(self.envs))]
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()

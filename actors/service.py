@@ -1,4 +1,4 @@
-"""The rollout actor process (`hercs actor`): a thin Zenoh shell around `RolloutWorker`.
+"""The rollout actor process (`hercs actor`): a thin Zenoh shell around `VectorRollout`.
 
 What `run` does, in order:
 1. Joins the run: opens the transport (`ServiceRuntime`, role "actor") and asks the replay for
@@ -10,7 +10,8 @@ What `run` does, in order:
    against this task's networks); a bad one is logged once per minute and ignored, a good one
    replaces the slot's pending weights. The rollout loop adopts the newest at each episode
    start, and tags the episode with its version (`policy_version`, -1 before any Weights).
-3. Loops: one exploring episode, tagged `(actor_id=<ident>@<incarnation>, seq=0,1,2,…)`
+3. Loops: one exploring episode per env (`actor.envs_per_process` envs stepped side by side,
+   one batched policy call per step), each tagged `(actor_id=<ident>@<incarnation>, seq=0,1,2,…)`
    (the incarnation is the process's start time, so a restarted actor never reuses a pair
    the replay has stored), handed to the
    `Inserter` (at-least-once, on its own thread; see `actors.inserter` for retries and
@@ -28,7 +29,8 @@ What `run` does, in order:
    transport, returns 0. A dead inserter thread stops the actor with status 1.
 
 Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
-`generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")`.
+`generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")` for the
+first env and `int_seed(seed, "actor", ident, "env", str(i))` for env i ≥ 1.
 """
 
 from __future__ import annotations
@@ -38,14 +40,14 @@ import threading
 import time
 
 import numpy as np
-import torch
 
 from actors.inserter import Inserter
-from actors.rollout import RolloutWorker
+from actors.rollout import VectorRollout
 from actors.weights import WeightsDecoder
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig
 from hercs.envs import make_env
+from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.seeding import generator, int_seed
@@ -58,7 +60,7 @@ from proto import hercs_pb2 as pb
 log = logging.getLogger(__name__)
 
 INSERT_QUEUE = 2
-"""Finished episodes that may wait behind the one whose ack is in flight."""
+"""Finished episodes per env that may wait behind the one whose ack is in flight."""
 STOP_FLUSH_S = 3.0
 """On stop, queued inserts get this long to be acked before they are given up."""
 METRICS_EVERY_EPISODES = 10
@@ -129,8 +131,11 @@ class ActorService:
         self.policy = Policy(spec=self.spec, config=config.ddpg,
                              seed=int_seed(seed, "actor", self.ident))
         self.rng = generator(seed, "actor", self.ident)
-        self.worker = RolloutWorker(spec=self.spec, env=make_env(self.spec),
-                                    seed=int_seed(seed, "actor", self.ident, "env"))
+        n = config.actor.envs_per_process
+        self.worker = VectorRollout(
+            spec=self.spec, envs=[make_env(self.spec) for _ in range(n)],
+            seeds=[int_seed(seed, "actor", self.ident, "env", *([str(i)] if i else []))
+                   for i in range(n)])
         self.weights_rejected = 0
         self._warn = WarnOncePerMinute(log)
         self._weights = LatestWeights()
@@ -139,7 +144,8 @@ class ActorService:
         timeout_s = config.actor.insert_timeout_s
         self.inserter = Inserter(
             send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
-            actor_id=self.actor_id, capacity=INSERT_QUEUE, on_crash=runtime.crashed,
+            actor_id=self.actor_id, capacity=INSERT_QUEUE * config.actor.envs_per_process,
+            on_crash=runtime.crashed,
         )
         # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
         transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=4,
@@ -192,16 +198,12 @@ class ActorService:
                 self._adopt_newest()
                 if self.lockstep and not self._await_weights():
                     break
-                episode = self.worker.run_episode(self._act)
-                episode.actor_id, episode.seq = self.actor_id, self.episodes
-                episode.policy_version = self.policy.version
-                msg = episode_to_msg(episode, run=config.run.name, task=self.spec.name)
-                if not self.inserter.submit(self.episodes, msg.SerializeToString(), stop=stop):
-                    break  # stopped while the queue was full: this episode is not sent
-                self.episodes += 1
-                if self.lockstep and not self._await_outcome(episode.policy_version):
+                acted_with = self.policy.version
+                if not self._submit(self.worker.run_episodes(self._act), acted_with):
+                    break  # stopped while the queue was full: the rest are not sent
+                if self.lockstep and not self._await_outcome(acted_with):
                     break
-                if self.episodes % METRICS_EVERY_EPISODES == 0:
+                if self.episodes % METRICS_EVERY_EPISODES < self.worker.num_envs:
                     now = time.monotonic()
                     rate = (self.worker.env_steps - window[1]) / max(now - window[0], 1e-9)
                     window = (now, self.worker.env_steps)
@@ -213,6 +215,18 @@ class ActorService:
         log.info("actor %s stopping: %d episodes, %d acked, %d dropped, %d given up unacked",
                  self.ident, self.episodes, c.acked, c.dropped, self.unacked)
         return 0
+
+    def _submit(self, episodes: list[EpisodeData], acted_with: int) -> bool:
+        """Tag and hand each episode to the inserter; False if stopped while it was full."""
+        for episode in episodes:
+            episode.actor_id, episode.seq = self.actor_id, self.episodes
+            episode.policy_version = acted_with
+            msg = episode_to_msg(episode, run=self.config.run.name, task=self.spec.name)
+            if not self.inserter.submit(self.episodes, msg.SerializeToString(),
+                                        stop=self.runtime.stop):
+                return False
+            self.episodes += 1
+        return True
 
     def _adopt_newest(self) -> None:
         newest = self._weights.take()
@@ -279,7 +293,6 @@ class ActorService:
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs actor`: join `config.run.name` and collect episodes until SIGTERM/SIGINT."""
-    torch.set_num_threads(1)
     return service_main(role="actor", config=config, ident=ident, body=_work)
 
 

@@ -340,9 +340,15 @@ class ActorConfig:
     """Rollout workers started by `hercs up` (the paper used one)."""
     insert_timeout_s: float = 10.0
     """An insert without an InsertAck after this long is retried with the same (actor, seq)."""
+    envs_per_process: int = 1
+    """Envs one actor process steps side by side, with one batched policy call per step for
+    all of them [DESIGN]; more envs per process amortise the per-step inference and the
+    process's fixed costs (docs/PERFORMANCE.md)."""
 
     def __post_init__(self) -> None:
         _check(self.num_actors >= 0, "actor.num_actors", self.num_actors, "be >= 0")
+        _check(1 <= self.envs_per_process <= 256, "actor.envs_per_process",
+               self.envs_per_process, "be between 1 and 256")
         _positive("actor.insert_timeout_s", self.insert_timeout_s)
 
 

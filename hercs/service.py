@@ -23,6 +23,7 @@ from hercs.config import HercsConfig
 from hercs.errors import ConfigError, Unreachable
 from hercs.security import zenoh_settings
 from hercs.signals import StopSignals
+from hercs.threads import single_threaded_numerics
 from hercs.transport import ConnectAborted, Transport, TransportError
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
@@ -158,7 +159,7 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
     """The entry protocol every service process (`hercs <role>`) follows; returns its exit
     status. Call it on the main thread.
 
-    - Logging is set up for `role`.
+    - Logging is set up for `role`; numerics run on one thread (`hercs.threads`).
     - SIGINT and SIGTERM are caught with `StopSignals`: the handler only records the signal
       and the main thread, woken, sets `runtime.stop` (setting an Event inside a handler can
       deadlock on the Event's own lock).
@@ -172,6 +173,7 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
       every case.
     """
     setup_logging(role)
+    single_threaded_numerics()
     stop = threading.Event()
     status: list[int] = []
     done = threading.Event()

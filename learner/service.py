@@ -467,7 +467,6 @@ class LearnerService:
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs learner`: train for `training.epochs` epochs, then exit 0."""
-    torch.set_num_threads(1)
     return service_main(role="learner", config=config, ident=ident or "learner", body=_work)
 
 

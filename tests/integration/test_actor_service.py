@@ -44,11 +44,12 @@ OpenClient = Callable[[], Transport]
 RUN = "t-actor"
 
 
-def run_config(endpoint: str) -> HercsConfig:
+def run_config(endpoint: str, envs_per_process: int = 1) -> HercsConfig:
     """What the replay serves: the whole resolved config of the run."""
     return apply_overrides(HercsConfig(), [
         f"run.name={RUN}", "run.method=her", "task.name=reach", "ddpg.hidden_size=64",
         "actor.insert_timeout_s=1.0", f"transport.connect=[{endpoint}]",
+        f"actor.envs_per_process={envs_per_process}",
     ])
 
 
@@ -99,10 +100,14 @@ class FakeReplay:
         self.acked.put(episode)
 
 
+@pytest.mark.parametrize("envs_per_process", [1, 3])
 def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+    envs_per_process: int,
 ) -> None:
-    served = run_config(endpoint)
+    """With one env, and with three stepped side by side (`actor.envs_per_process`): the same
+    delivery contract, seqs in order, one policy version per episode."""
+    served = run_config(endpoint, envs_per_process)
     keys = RunKeys(RUN)
     side = open_client()
     alive: queue.Queue = queue.Queue()
@@ -141,6 +146,8 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     assert first.actor_id.startswith("a0@"), "the id plus this process's incarnation"
     assert {e.actor_id for e in episodes} == {first.actor_id}
     assert tuple(msg_to_array(first.obs).shape) == (51, served.task.spec.obs_dim)
+    goals = {tuple(msg_to_array(e.g)[0].tolist()) for e in episodes[:3]}
+    assert len(goals) == 3, "each env (and each reset) draws its own goal"
 
     learner = side.publisher(keys.weights, latest=True, block=True)  # as the learner
     learner.put(b"\x08\x01 not a Weights message")  # ignored, the actor carries on

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from actors.rollout import RolloutWorker
+from actors.rollout import RolloutWorker, VectorRollout
 from hercs.envs import make_env
 from hercs.episode import expected_shapes
 from hercs.tasks import task_spec
@@ -51,3 +51,38 @@ def test_same_seed_same_episodes() -> None:
         np.testing.assert_array_equal(a.obs, b.obs)
         np.testing.assert_array_equal(a.g, b.g)
     assert not np.array_equal(eps[0][0].g, eps[0][1].g), "consecutive resets draw new goals"
+
+
+def test_vector_rollout_is_n_rollout_workers_with_one_policy_call_per_step() -> None:
+    """Three envs stepped side by side give, env for env and episode for episode, what three
+    single-env workers with the same seeds give under the same (deterministic) policy, with
+    one batched policy call per step instead of three."""
+    spec = task_spec("push")
+    seeds = [3, 4, 5]
+
+    def controller(o: np.ndarray, g: np.ndarray) -> np.ndarray:
+        o, g = np.atleast_2d(o), np.atleast_2d(g)  # push the gripper towards the goal
+        return np.hstack([np.clip((g - o[:, :3]) * 5, -1, 1), np.full((len(o), 1), -1.0)])
+
+    calls: list[int] = []
+
+    def batched(o: np.ndarray, g: np.ndarray) -> np.ndarray:
+        calls.append(len(o))
+        return controller(o, g)
+
+    vector = VectorRollout(spec=spec, envs=[make_env(spec) for _ in seeds], seeds=seeds)
+    singles = [RolloutWorker(spec=spec, env=make_env(spec), seed=s) for s in seeds]
+    try:
+        for _ in range(2):
+            together = vector.run_episodes(batched)
+            apart = [w.run_episode(lambda o, g: controller(o, g)[0]) for w in singles]
+            for a, b in zip(together, apart, strict=True):
+                for name in ("obs", "ag", "g", "actions"):
+                    np.testing.assert_array_equal(getattr(a, name), getattr(b, name), name)
+                assert a.success == b.success
+        assert calls == [3] * (2 * spec.episode_steps)
+        assert vector.env_steps == 2 * 3 * spec.episode_steps
+    finally:
+        vector.close()
+        for w in singles:
+            w.close()
