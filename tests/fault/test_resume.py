@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from hercs.runlog.reader import read_episodes
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 
 pytestmark = pytest.mark.integration
@@ -115,3 +116,36 @@ def _wait_all_gone(pids, timeout_s: float = 20.0) -> bool:
             return False
         time.sleep(0.05)
     return True
+
+
+def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_schedule(
+        tmp_path: Path) -> None:
+    """`training.schedule=lockstep`, HER-CS, two actors: SIGKILL the replay during epoch 2
+    and the learner during epoch 3. The replay rebuilds its per-version counts from its log,
+    the learner trains the cycles since its checkpoint again on the episodes stored for them,
+    and the episode log still holds, episode for episode, the reference's schedule: episode i
+    acted with weights version i // 4."""
+    launcher = Launcher(up_argv(tmp_path, "--run", "strict", "--method", "her-cs",
+                                "--set", "training.schedule=lockstep",
+                                "--set", "cluster.k=2", "--set", "cluster.fgb_size=8"),
+                        cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "strict"
+    try:
+        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
+        os.kill(launcher.child_pids["replay-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started replay replay-0 again \(restart 1\)", timeout_s=60)
+        launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
+        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)", timeout_s=60)
+        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    logged = list(read_episodes(run_dir))
+    assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
+    versions = [int(msg.policy_version) for _, msg in logged]
+    assert versions == [i // 4 for i in range(len(logged))], versions
+    with (run_dir / "metrics.csv").open(newline="") as f:
+        assert {float(row["policy_lag"]) for row in csv.DictReader(f)} == {0.0}
+    assert "recovered" in log_text(run_dir, "replay-0")
+    assert "resumed from the checkpoint of epoch" in log_text(run_dir, "learner-0")
