@@ -11,7 +11,7 @@ matter are ratios of things timed together):
   `torch.utils.flop_counter.FlopCounterMode` on the real update;
 - the GEMM rate of this core for the update's shape class (B × 256 · 256 × 256) in fp32 and in
   bf16, from `torch.mm` timed in the same process;
-- the update rate (updates per CPU-second of this thread), fp32 and bf16 autocast;
+- the update rate (updates per CPU-second of this thread), `learner.precision` fp32 and bf16;
 - ratio = update rate ÷ (GEMM rate ÷ FLOPs per update): 1.0 would be an update that is
   nothing but GEMMs at the core's speed.
 
@@ -79,17 +79,12 @@ def gemm_rate(batch_size: int, hidden: int, dtype: torch.dtype, repeats: int) ->
     return 2.0 * batch_size * hidden * hidden / per_call
 
 
-def update_rate(learner: DDPGLearner, batches: list[TransitionBatch], *, bf16: bool) -> float:
-    """Updates per CPU-second of this thread."""
+def update_rate(learner: DDPGLearner, batches: list[TransitionBatch]) -> float:
+    """Updates per CPU-second of this thread (in the learner's own `precision`)."""
     it = iter(range(10**9))
 
     def one() -> None:
-        batch = batches[next(it) % len(batches)]
-        if bf16:
-            with torch.autocast("cpu", dtype=torch.bfloat16):
-                learner.update(batch)
-        else:
-            learner.update(batch)
+        learner.update(batches[next(it) % len(batches)])
 
     return 1.0 / cpu_seconds(one, len(batches))
 
@@ -143,13 +138,14 @@ def main(argv: list[str] | None = None) -> int:
     gemms = 200 if args.quick else 2000
     spec, config = task_spec(args.task), DDPGConfig()
     rng = np.random.default_rng(0)
-    learner = DDPGLearner(spec=spec, config=config, seed=0)
+    learners = {precision: DDPGLearner(spec=spec, config=config, seed=0, precision=precision)
+                for precision in ("fp32", "bf16")}
     batches = [make_batch(spec, args.batch_size, rng) for _ in range(16)]
-    flops = update_flops(learner, batches[0])
+    flops = update_flops(learners["fp32"], batches[0])
     results: dict[str, dict[str, float]] = {}
-    for name, dtype, bf16 in (("fp32", torch.float32, False), ("bf16", torch.bfloat16, True)):
+    for name, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16)):
         gemm = gemm_rate(args.batch_size, config.hidden_size, dtype, gemms)
-        rate = update_rate(learner, batches * max(1, updates // len(batches)), bf16=bf16)
+        rate = update_rate(learners[name], batches * max(1, updates // len(batches)))
         limit = gemm / flops
         results[name] = {"gemm_gflops": gemm / 1e9, "updates_per_cpu_s": rate,
                          "limit_updates_per_cpu_s": limit, "ratio_to_limit": rate / limit}

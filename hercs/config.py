@@ -353,6 +353,7 @@ class ActorConfig:
 
 
 LEARNER_DEVICES = ("auto", "cpu", "cuda")
+PRECISIONS = ("fp32", "bf16")
 
 
 @dataclass
@@ -361,8 +362,15 @@ class LearnerConfig:
     """Where the DDPG update runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu,
     cuda or cuda:N. The paper's runs used the CPU; results do not depend on it beyond float
     rounding."""
+    precision: str = "fp32"
+    """fp32, or bf16: the online networks' passes (Q(s, u), μ(s), Q(s, μ(s))) under bf16
+    autocast, with fp32 master weights, Adam, TD target y (the target networks run in fp32),
+    losses and normaliser [DESIGN]. Pays only where bf16 matrix products are native (recent
+    GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4."""
 
     def __post_init__(self) -> None:
+        _check(self.precision in PRECISIONS, "learner.precision", self.precision,
+               "be fp32 or bf16")
         base, _, index = self.device.partition(":")
         _check(base in LEARNER_DEVICES and (not index or (base == "cuda" and index.isdigit())),
                "learner.device", self.device, "be auto, cpu, cuda or cuda:N")

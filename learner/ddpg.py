@@ -19,6 +19,11 @@ statistics it is sent (`set_normalizer_state`) and forwards them with the actor 
 Threads: this module never calls `torch.set_num_threads`; that process-wide choice belongs
 to the service (on the 2-core development machine, 1–2 threads for the learner).
 
+Precision (`learner.precision`): with bf16 the online networks' passes run under
+`torch.autocast(dtype=bfloat16)`; the master weights and Adam stay fp32, the TD target y is
+computed by the target networks in fp32, and the losses are formed in fp32 from the
+networks' outputs cast back. With fp32 nothing changes.
+
 Device (`learner.device`, `resolve_device`): the networks are created and seeded on the CPU,
 so a run's initial weights do not depend on the device, then moved. A minibatch goes to the
 device as one pinned host copy per array (`non_blocking`, so the copy overlaps the previous
@@ -102,9 +107,12 @@ class DDPGLearner:
     """Actor, critic, their targets and optimisers; one `update` per minibatch."""
 
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", precision: str = "fp32") -> None:
+        if precision not in ("fp32", "bf16"):
+            raise ConfigError(f"learner.precision: got {precision!r}, must be fp32 or bf16")
         self.spec = spec
         self.config = config
+        self.precision = precision
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
         self.actor = Actor(spec=spec, config=config, seed=int_seed(seed, "learner", "actor"))
         self.critic = Critic(spec=spec, config=config, seed=int_seed(seed, "learner", "critic"))
@@ -153,18 +161,22 @@ class DDPGLearner:
         )
 
         # Critic loss: L_Q = mean (y − Q(s, u))².
-        q = self.critic(s, u_t)
+        with self._autocast():
+            q = self.critic(s, u_t).float()
         critic_loss = (y - q).pow(2).mean()
 
         # Actor loss: L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s)/max_action)².
         # The critic's weights are frozen for this pass: L_μ's gradient with respect to them
         # was computed and thrown away before; now it is not computed at all.
-        pi = self.actor(s)
+        with self._autocast():
+            pi = self.actor(s)
+        pi = pi.float()
         action_l2 = (pi / max_action).pow(2).mean()
         for param in self._critic_params:
             param.requires_grad_(False)
         try:
-            actor_q = self.critic(s, pi)
+            with self._autocast():
+                actor_q = self.critic(s, pi).float()
         finally:
             for param in self._critic_params:
                 param.requires_grad_(True)
@@ -186,6 +198,11 @@ class DDPGLearner:
             "y_mean": y.mean().item(),
             "action_l2": action_l2.item(),
         }
+
+    def _autocast(self) -> torch.autocast:
+        """bf16 autocast of the online networks' passes, or a disabled one (fp32)."""
+        return torch.autocast(self.device.type, dtype=torch.bfloat16,
+                              enabled=self.precision == "bf16")
 
     def update_targets(self) -> None:
         """Polyak averaging θ' ← polyak·θ' + (1−polyak)·θ for μ' and Q' (once per cycle)."""

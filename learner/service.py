@@ -249,9 +249,10 @@ class LearnerService:
         self.run_dir = run_dir
         self.checkpoints = run_dir / "checkpoints"
         self.learner = DDPGLearner(spec=config.task.spec, config=config.ddpg,
-                                   seed=config.run.seed, device=config.learner.device)
-        log.info("learner on %s (learner.device=%s)", self.learner.device,
-                 config.learner.device)
+                                   seed=config.run.seed, device=config.learner.device,
+                                   precision=config.learner.precision)
+        log.info("learner on %s (learner.device=%s), %s", self.learner.device,
+                 config.learner.device, config.learner.precision)
         self.loop = LearnerLoop(config=config, learner=self.learner)
         self.batch_wait_s: dict[int, float] = {}  # epoch -> seconds the updates waited
         self.eval_requests: dict[int, bytes] = {}  # pending epoch -> its Weights message
