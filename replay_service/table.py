@@ -400,7 +400,10 @@ class ReplayTable:
 
     # -- the rate limiter's queues ---------------------------------------------------------
     def _drain(self) -> None:
-        """Serve parked calls, oldest first per side, while the limiter admits them."""
+        """Serve parked calls, oldest first per side, while the limiter admits them. In
+        lockstep every parked sample that its cycle admits is served, in any order: each
+        names its own cycle, and one that can no longer be served (a dead learner's, for a
+        cycle no actor got the weights of) must not hold a restarted learner's behind it."""
         progressed = True
         while progressed:
             progressed = False
@@ -408,6 +411,12 @@ class ReplayTable:
                 self._ready.append(self._inserts.popleft())
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
                 progressed = True
+            if self.gate is not None:
+                for item in [item for item in self._samples if self._can_serve(item)]:
+                    self._samples.remove(item)
+                    self._serve(item)
+                    progressed = True
+                continue
             while self._samples and self._can_serve(self._samples[0]):
                 self._serve(self._samples.popleft())
                 progressed = True

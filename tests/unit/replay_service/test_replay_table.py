@@ -465,3 +465,16 @@ def test_a_replay_restarted_from_its_log_rebuilds_a_randomly_evicted_buffer() ->
     again = make(*extra)
     assert again.table.recover((i, h.episode(i)) for i in range(15)) == []
     np.testing.assert_array_equal(again.table.core.store.episode_id, store.episode_id)
+
+
+def test_lockstep_serves_a_restarted_learners_request_past_a_dead_learners() -> None:
+    """A learner died with its request for cycle 2 parked, before any actor had version 2; the
+    restarted learner asks for cycle 1 again (its checkpoint): that request is served at once,
+    not held behind the one that cannot be served."""
+    h = make("training.schedule=lockstep")
+    for cycle in (0, 1):
+        for i in range(4):
+            insert_acted(h, 4 * cycle + i, cycle)
+    dead = h.sample(8, "dead learner, cycle 2", version=2)
+    again = h.sample(8, "restarted learner, cycle 1", version=1)
+    assert again.results and not dead.results
