@@ -124,6 +124,8 @@ class Inserter:
         self._busy = False
         """An episode is being delivered (popped from the queue, outcome not yet known)."""
         self.last_outcome: Outcome | None = None
+        self.newest_next_policy_version = 0
+        """The highest `next_policy_version` any ack carried (lockstep)."""
         self._abort = threading.Event()
         self._warn = WarnOncePerMinute(log)
         self._thread = start_supervised(self._run, name=f"hercs-inserter-{actor_id}",
@@ -234,6 +236,8 @@ class Inserter:
             else:
                 ack = self._check_ack(reply, seq, first_attempt=attempt == 0)
                 if isinstance(ack, pb.InsertAck):
+                    self.newest_next_policy_version = max(self.newest_next_policy_version,
+                                                          int(ack.next_policy_version))
                     return Outcome(seq, "acked", int(ack.next_policy_version))
                 kind, why = "bad-ack", ack
             if self._abort.is_set():

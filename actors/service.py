@@ -191,6 +191,10 @@ class ActorService:
         config, stop = self.config, self.runtime.stop
         log.info("actor %s (wire id %s): run %r, task %s, method %s", self.ident,
                  self.actor_id, config.run.name, self.spec.name, config.run.method)
+        if self.lockstep and self.worker.num_envs > config.training.episodes_per_cycle:
+            log.warning("lockstep with %d envs per process and %d episodes per cycle: the "
+                        "replay refuses the surplus of every cycle (cycle_full)",
+                        self.worker.num_envs, config.training.episodes_per_cycle)
         window = (time.monotonic(), self.worker.env_steps)
         self.publish_metrics(steps_per_s=0.0)
         try:
@@ -199,9 +203,10 @@ class ActorService:
                 if self.lockstep and not self._await_weights():
                     break
                 acted_with = self.policy.version
+                superseded_before = self.inserter.counters.superseded
                 if not self._submit(self.worker.run_episodes(self._act), acted_with):
                     break  # stopped while the queue was full: the rest are not sent
-                if self.lockstep and not self._await_outcome(acted_with):
+                if self.lockstep and not self._await_outcome(acted_with, superseded_before):
                     break
                 if self.episodes % METRICS_EVERY_EPISODES < self.worker.num_envs:
                     now = time.monotonic()
@@ -243,18 +248,17 @@ class ActorService:
             self._adopt_newest()
         return not stop.is_set()
 
-    def _await_outcome(self, acted_with: int) -> bool:
-        """Lockstep: wait for the episode's insert to end; set the next episode's minimum
-        weights version from it. False if stopped."""
+    def _await_outcome(self, acted_with: int, superseded_before: int) -> bool:
+        """Lockstep: wait for the inserts of the episodes just submitted to end; set the next
+        episodes' minimum weights version from them. False if stopped."""
         if not self.inserter.wait_idle(stop=self.runtime.stop):
             return False
-        outcome = self.inserter.last_outcome
-        if outcome is not None and outcome.kind == "acked":
-            self.min_policy_version = max(self.min_policy_version, outcome.next_policy_version)
-        elif outcome is not None and outcome.kind == "superseded":
+        wanted = self.inserter.newest_next_policy_version  # what the acks asked for
+        if self.inserter.counters.superseded > superseded_before:
             # only newer weights can make an episode wanted; a dropped (malformed) episode is
             # replaced by another acted with the same weights, or its cycle never completes
-            self.min_policy_version = max(self.min_policy_version, acted_with + 1)
+            wanted = max(wanted, acted_with + 1)
+        self.min_policy_version = max(self.min_policy_version, wanted)
         return True
 
     @property

@@ -466,9 +466,9 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
     if figure == 2:
         for note in notes:
             print(f"hercs plot: {note}", file=sys.stderr)
-        return _write_outputs(plot_fig2(ours, group(load_reference(reference_csv)), output,
-                                        xmax or FIG2_EPOCHS),
-                              fig2_text(ours, group(load_reference(reference_csv))), table)
+        authors = group(load_reference(reference_csv))
+        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS),
+                              fig2_text(ours, authors), table)
     ref = group(load_reference(reference_csv)) if reference else None
     if ref is not None:
         missing = sorted(set(ours) - set(ref))

@@ -9,15 +9,20 @@ c − 1. Then:
   `cycle_full` when version p already has `episodes_per_cycle` episodes admitted; otherwise it
   is admitted at once (nothing waits: the actors wait for weights instead);
 - cycle c's request is served once `episodes_per_cycle` episodes acted with version c are
-  stored and, for the cluster-balanced methods, once the cluster model due by then has been
-  adopted: the reference refits k-means in the same process, before the next update, when
-  every `cluster.fgb_size`-th failed goal arrives, so model version ⌊failures / fgb_size⌋ is
-  due. The clusterer is a separate process that may be restarting: past `cluster_wait_s` of
-  waiting the request is served with the model at hand and counted in `late_cluster_models`.
+  stored and, for the cluster-balanced methods, once no refit is due: the reference refits
+  k-means in the same process, before the next update, when `cluster.fgb_size` new failed
+  goals have arrived since the last fit, so a model is due once the replay's failure count
+  reaches the current model's fit point (its `failed_goals_seen`) plus `fgb_size`
+  (`fgb_size` for the first). The clusterer is a separate process that may be restarting:
+  once cycle c has waited `cluster_wait_s` since it was first asked for, it is served with
+  the model at hand, counted in `late_cluster_models`, and no later cycle waits again for
+  that same refit.
 
 After a learner restart from its checkpoint, the versions it asks for again already have
-their episodes: those cycles run again on the episodes stored for them. After a replay restart
-the per-version counts are rebuilt from the recovered episodes (`recover`).
+their episodes: those cycles are trained again, on the buffer as it is then (which also holds
+the later cycles' episodes), with weights that differ from the dead learner's of the same
+version number. After a replay restart the per-version counts are rebuilt from the recovered
+episodes (`recover`).
 
 Pure bookkeeping under the table's lock; it never blocks.
 """
@@ -46,6 +51,11 @@ class LockstepGate:
         self.late_cluster_models = 0
         """Requests served with an older cluster model than was due (the clusterer was late
         by more than `cluster_wait_s`)."""
+        self._first_asked: dict[int, float] = {}
+        """When each cycle not yet served was first asked for (the grace is per cycle, not per
+        retried request)."""
+        self._waived_fit: int | None = None
+        """The refit (by failure count) the gate stopped waiting for."""
 
     def refuse_insert(self, policy_version: int) -> tuple[LockstepReason, str] | None:
         """Why an episode acted with `policy_version` is refused, or None to admit it."""
@@ -77,26 +87,41 @@ class LockstepGate:
             return policy_version + 1
         return max(policy_version, self.requested)
 
-    def due_cluster_version(self, failures: int) -> int:
-        return 0 if self.fgb_size is None else failures // self.fgb_size
+    def next_fit(self, fitted_at: int | None) -> int | None:
+        """The failure count at which the next refit is due: `fitted_at` (the current model's
+        `failed_goals_seen`, None before any model) plus `fgb_size`; None without clusters."""
+        if self.fgb_size is None:
+            return None
+        return self.fgb_size if fitted_at is None else fitted_at + self.fgb_size
 
-    def can_sample(self, weights_version: int, *, failures: int, cluster_version: int,
-                   waited_s: float) -> bool:
-        """Whether cycle `weights_version`'s request may be served now; `waited_s` is how long
-        it has been parked. Records the request's version as the newest asked for."""
+    def refit_due(self, *, failures: int, fitted_at: int | None) -> bool:
+        due = self.next_fit(fitted_at)
+        return due is not None and failures >= due and due != self._waived_fit
+
+    def can_sample(self, weights_version: int, *, failures: int, fitted_at: int | None,
+                   now: float) -> bool:
+        """Whether cycle `weights_version`'s request may be served at time `now`. Records the
+        request's version as the newest asked for, and when the cycle was first asked for."""
         self.requested = max(self.requested, weights_version)
+        first = self._first_asked.setdefault(weights_version, now)
         if self.stored[weights_version] < self.episodes_per_cycle:
             return False
-        if cluster_version >= self.due_cluster_version(failures):
+        if not self.refit_due(failures=failures, fitted_at=fitted_at):
             return True
-        return waited_s >= self.cluster_wait_s
+        return now - first >= self.cluster_wait_s
 
-    def served(self, *, failures: int, cluster_version: int) -> None:
-        if cluster_version < self.due_cluster_version(failures):
-            self.late_cluster_models += 1
+    def served(self, weights_version: int, *, failures: int, fitted_at: int | None) -> bool:
+        """Cycle `weights_version` was served; True if with a refit overdue (then counted, and
+        no later cycle waits for that refit again)."""
+        self._first_asked.pop(weights_version, None)
+        if not self.refit_due(failures=failures, fitted_at=fitted_at):
+            return False
+        self.late_cluster_models += 1
+        self._waived_fit = self.next_fit(fitted_at)
+        return True
 
     def recover(self, policy_versions: Iterable[int]) -> None:
-        """Count the episodes a restarted replay recovered from its log."""
+        """Count the episodes a restarted replay recovered from its log (once, all of them)."""
         for version in policy_versions:
             self.admitted[int(version)] += 1
             self.stored[int(version)] += 1

@@ -196,7 +196,8 @@ class ReplayService:
         episode, first, end = self.table.stored_episode(episode_id)
         if episode is None:
             why = "not inserted yet" if episode_id >= end else "overwritten by newer episodes"
-            held = f"ids {first}..{end - 1}" if end > first else "no episode yet"
+            held = (f"{end - first} episodes with ids up to {end - 1}" if end > first
+                    else "no episode yet")
             raise InvalidMessage(
                 RejectReason.UNKNOWN_EPISODE,
                 f"EpisodeRequest.episode_id {episode_id}: not stored ({why}; the replay holds "

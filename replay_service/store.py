@@ -284,6 +284,7 @@ class EpisodeStore:
             "capacity_episodes": self._capacity,
             "next_id": self._next_id,
             "eviction": self._eviction,
+            "eviction_key": self._eviction_key,
         }
         for name in (*_ARRAY_FIELDS, *_META_FIELDS):
             state[name] = getattr(self, f"_{name}")[:n].copy()
@@ -293,19 +294,21 @@ class EpisodeStore:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore from `state_dict()`; refuses a different task or capacity, or broken ids."""
         eviction = state.get("eviction", "fifo")
+        key = state.get("eviction_key", self._eviction_key)
         if (state["task"] != self._spec.name or state["capacity_episodes"] != self._capacity
-                or eviction != self._eviction):
+                or eviction != self._eviction or (eviction == "random"
+                                                  and key != self._eviction_key)):
             raise ConfigError(
                 f"EpisodeStore.load_state_dict: checkpoint is task {state['task']!r} with "
                 f"capacity {state['capacity_episodes']} and {eviction} eviction, this store is "
                 f"task {self._spec.name!r} with capacity {self._capacity} and "
-                f"{self._eviction} eviction; nothing loaded"
+                f"{self._eviction} eviction (random: the same eviction seed); nothing loaded"
             )
         ids = np.asarray(state["episode_id"], np.int64)
         n, next_id = len(ids), int(state["next_id"])
         if (n > self._capacity or len(set(ids.tolist())) != n
                 or np.any((ids < 0) | (ids >= next_id))
-                or (n < self._capacity and ids.tolist() != list(range(n)))
+                or (n < self._capacity and (ids.tolist() != list(range(n)) or next_id != n))
                 or (self._eviction == "fifo"
                     and sorted(ids.tolist()) != list(range(next_id - n, next_id)))
                 or any(self.slot_for(int(i)) != slot for slot, i in enumerate(ids))):

@@ -43,6 +43,7 @@ reply queues bytes) and never call back into the table.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
@@ -62,6 +63,8 @@ from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore, SampleResult
 from replay_service.lockstep import LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
+
+log = logging.getLogger("hercs.replay")
 
 POLICY_LAG_WINDOW = 64
 """Recent episodes whose policy lags are averaged into each `Sampled`."""
@@ -158,7 +161,6 @@ class _ParkedInsert(_Parked[Stored]):
 @dataclass
 class _ParkedSample(_Parked[Sampled]):
     call: SampleCall = field(kw_only=True)
-    parked_at: float = field(kw_only=True, default=0.0)
 
 
 P = TypeVar("P", bound=_Parked)
@@ -246,13 +248,15 @@ class ReplayTable:
         mismatched = []
         with self._lock:
             count = 0
+            versions = []
             for episode_id, episode in episodes:
                 stored = self.core.insert(episode)
                 if stored.episode_id != episode_id:
                     mismatched.append((episode_id, stored.episode_id))
-                if self.gate is not None:
-                    self.gate.recover([episode.policy_version])
+                versions.append(episode.policy_version)
                 count += 1
+            if self.gate is not None:
+                self.gate.recover(versions)
             if count:
                 self.limiter.inserts = count
                 self.limiter.samples = int(count * self.limiter.samples_per_insert)
@@ -271,7 +275,8 @@ class ReplayTable:
             known = self.core.lookup(*key)
             if known is not None:
                 self.core.duplicates += 1
-                waiter.done(Stored(episode, known, duplicate=True))
+                waiter.done(Stored(episode, known, duplicate=True,
+                                   next_policy_version=self._next_version(episode)))
                 return
             parked = self._parked_keys.get(key)
             if parked is not None:  # a retry of a call still waiting: answer both together
@@ -352,16 +357,23 @@ class ReplayTable:
         self._recent_schedule_lags.append(
             schedule_cycle(episode_id, self.config.training.episodes_per_cycle)
             - episode.policy_version)
-        next_version = 0
         if self.gate is not None:
             self.gate.store(episode.policy_version)
-            next_version = self.gate.next_policy_version(episode.policy_version)
+        next_version = self._next_version(episode)
         stored = Stored(episode, episode_id, duplicate=False, energy=result.energy,
                         cluster=result.cluster, next_policy_version=next_version)
         for i, waiter in enumerate(item.waiters):
             if i:  # the retries that joined the first call
                 self.core.duplicates += 1
-            waiter.done(stored if i == 0 else Stored(episode, episode_id, duplicate=True))
+            waiter.done(stored if i == 0 else Stored(episode, episode_id, duplicate=True,
+                                                     next_policy_version=next_version))
+
+    def _next_version(self, episode: EpisodeData) -> int:
+        """For an ack: the oldest weights version the actor's next episode may use (0
+        outside lockstep)."""
+        if self.gate is None:
+            return 0
+        return self.gate.next_policy_version(episode.policy_version)
 
     # -- samples ---------------------------------------------------------------------------
     def sample(self, call: SampleCall, *, waiter: Waiter[Sampled],
@@ -375,8 +387,7 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
-            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call,
-                                               parked_at=self.clock()))
+            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
@@ -387,8 +398,12 @@ class ReplayTable:
         self.limiter.record_sample(call.num_minibatches)
         o_state, g_state = self.core.normalizer_state()
         model = self.core.cluster_model
-        if self.gate is not None:
-            self.gate.served(failures=self.core.failures, cluster_version=self._model_version())
+        if self.gate is not None and self.gate.served(
+                call.weights_version, failures=self.core.failures, fitted_at=self._fitted_at()):
+            log.warning("lockstep: cycle %d served with cluster model v%d: the refit due at %s "
+                        "failed goals did not arrive within %.0f s (is the clusterer running?)",
+                        call.weights_version, self._model_version(),
+                        self.gate.next_fit(self._fitted_at()), self.gate.cluster_wait_s)
         sampled = Sampled(
             call=call, result=result, o_state=o_state, g_state=g_state,
             cluster_model_version=0 if model is None else model.version,
@@ -412,9 +427,14 @@ class ReplayTable:
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
                 progressed = True
             if self.gate is not None:
-                for item in [item for item in self._samples if self._can_serve(item)]:
-                    self._samples.remove(item)
-                    self._serve(item)
+                ready = [item for item in self._samples if self._can_serve(item)]
+                if ready:
+                    kept = [item for item in self._samples
+                            if not any(item is r for r in ready)]
+                    self._samples.clear()
+                    self._samples.extend(kept)
+                    for item in ready:
+                        self._serve(item)
                     progressed = True
                 continue
             while self._samples and self._can_serve(self._samples[0]):
@@ -425,12 +445,17 @@ class ReplayTable:
         if self.gate is None:
             return self.limiter.can_sample(item.call.num_minibatches)
         return self.gate.can_sample(item.call.weights_version, failures=self.core.failures,
-                                    cluster_version=self._model_version(),
-                                    waited_s=self.clock() - item.parked_at)
+                                    fitted_at=self._fitted_at(), now=self.clock())
 
     def _model_version(self) -> int:
         model = self.core.cluster_model
         return 0 if model is None else model.version
+
+    def _fitted_at(self) -> int | None:
+        """The failure count the current cluster model was fitted at (None: no model): the
+        replay builds its models with the message's `failed_goals_seen` as `inserts_seen`."""
+        model = self.core.cluster_model
+        return None if model is None else model.inserts_seen
 
     def _deadline(self, timeout_s: float | None) -> float | None:
         return None if timeout_s is None else self.clock() + timeout_s

@@ -200,7 +200,7 @@ def test_episode_queryable_serves_stored_episodes_and_rejects_unknown_ids(
                 get(episode_id)
             assert err.value.reason == "unknown_episode"
             assert err.value.detail == (f"EpisodeRequest.episode_id {episode_id}: not stored "
-                                        f"({why}; the replay holds ids 1..3)")
+                                        f"({why}; the replay holds 3 episodes with ids up to 3)")
         with pytest.raises(RemoteError) as err:
             client.request(KEYS.episode, b"\xff\xfe garbage", timeout_s=TIMEOUT)
         assert err.value.reason == "undecodable"

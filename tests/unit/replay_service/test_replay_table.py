@@ -376,7 +376,7 @@ def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> 
     """4 episodes per cycle, 8 minibatches per cycle: cycle c's request is served once four
     episodes acted with version c are stored; a fifth of version c is `cycle_full`, one acted
     with an older version than the learner asks for is `stale_policy`; each ack says which
-    version the actor's next episode needs; both lags are 0."""
+    version the actor's next episode needs; the lag against the lockstep schedule is 0."""
     h = make("training.schedule=lockstep")
     early = insert_acted(h, 0, -1)  # acted before the learner's first broadcast
     assert early.failures and early.failures[0][0] == LockstepReason.STALE_POLICY
@@ -406,10 +406,11 @@ def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> 
 
 
 def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> None:
-    """HER-CS refits at every fgb_size-th failure before the next update (as the reference's
-    single process): the cycle's request waits until a model of that version is adopted, or,
-    if the clusterer is late by more than LOCKSTEP_CLUSTER_WAIT_S, is served with the older
-    model and counted."""
+    """HER-CS refits once fgb_size failures have arrived since the last fit, before the next
+    update (as the reference's single process): the cycle's request waits until that model is
+    adopted, or, if the clusterer is late by more than LOCKSTEP_CLUSTER_WAIT_S since the cycle
+    was first asked for (a retried request does not restart the clock), is served with the
+    older model and counted; no later cycle waits again for that refit."""
     h = make("training.schedule=lockstep", "run.method=her-cs", "cluster.k=2",
              "cluster.fgb_size=4")
     request = h.sample(8, "cycle 0", version=0)
@@ -424,13 +425,22 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     assert request.results and request.results[0].cluster_model_version == 1
     assert h.table.gate is not None and h.table.gate.late_cluster_models == 0
 
-    request1 = h.sample(8, "cycle 1", version=1)
+    first_ask = h.sample(8, "cycle 1", version=1, timeout_s=20)
     for seq in range(4, 8):
         insert_acted(h, seq, 1)  # the 8th failure: model v2 due, no clusterer answers
-    assert not request1.results
-    h.clock.now += LOCKSTEP_CLUSTER_WAIT_S
+    assert not first_ask.results
+    h.clock.now += 20
+    h.table.expire()  # the learner's request times out; it asks again
+    assert first_ask.failures and first_ask.failures[0][0] == EXPIRED
+    retry = h.sample(8, "cycle 1 again", version=1)
+    h.clock.now += LOCKSTEP_CLUSTER_WAIT_S - 20
     h.table.expire()  # the service's once-a-second tick
-    assert request1.results and request1.results[0].cluster_model_version == 1
+    assert retry.results and retry.results[0].cluster_model_version == 1
+    assert h.table.gate.late_cluster_models == 1
+    request2 = h.sample(8, "cycle 2", version=2)
+    for seq in range(8, 12):
+        insert_acted(h, seq, 2)
+    assert request2.results, "the refit given up on is not waited for again"
     assert h.table.gate.late_cluster_models == 1
 
 
