@@ -69,9 +69,11 @@ def test_work_in_windows_counts_work_finished_inside_each_window() -> None:
     (tp.Target("ratio_at_most", 1.5), 151.0, 1.51, tp.BELOW),
     (tp.Target("ours_at_most", 5.0), 5.0, 40.0, tp.MEETS),
     (tp.Target("ours_at_most", 5.0), 5.01, 0.1, tp.BELOW),
+    (tp.Target("ours_at_least", 1000.0), 1000.0, 0.1, tp.MEETS),
+    (tp.Target("ours_at_least", 1000.0), 999.0, 10.0, tp.BELOW),
     (None, 1.0, 1.0, tp.NO_TARGET),
 ], ids=["ratio-min-met", "ratio-min-missed", "ratio-max-met", "ratio-max-missed",
-        "ours-max-met", "ours-max-missed", "none"])
+        "ours-max-met", "ours-max-missed", "ours-min-met", "ours-min-missed", "none"])
 def test_verdict_checks_the_bound_the_target_names(target, ours, ratio, expected) -> None:
     assert tp.verdict(target, ours=ours, ratio=ratio) == expected
 
@@ -80,6 +82,7 @@ def test_target_text_names_the_bound() -> None:
     assert tp.Target("ratio_at_least", 0.95).describe("updates/s") == "ratio ≥ 0.95"
     assert tp.Target("ratio_at_most", 1.5).describe("MiB") == "ratio ≤ 1.5"
     assert tp.Target("ours_at_most", 5.0).describe("ms") == "≤ 5.00 ms"
+    assert tp.Target("ours_at_least", 1000.0).describe("episodes/s") == "≥ 1,000 episodes/s"
 
 
 @pytest.mark.parametrize(("value", "unit", "text"), [
@@ -152,8 +155,8 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
         assert f["ratio"] == pytest.approx(f["ours"] / f["reference"], rel=1e-12), key
         assert f["verdict"] in (tp.MEETS, tp.BELOW, tp.NO_TARGET), key
         assert f"| {f['name']} |" in markdown, key
-    for key in ("env_steps_per_s", "learner_updates_per_s", "sample_p99_minibatch_her",
-                "replay_rss_growth"):
+    for key in ("env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
+                "sample_p99_minibatch_her", "replay_rss_growth"):
         assert figures[key]["target"] is not None, key
     machine = report["machine"]
     assert machine["cpu_count"] >= 1 and machine["versions"]["torch"]
