@@ -14,67 +14,14 @@ ActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(observation, desired goal) -> action, for one step; with (n, dim) arrays, n actions."""
 
 
-class RolloutWorker:
-    """Runs fixed-length episodes of T steps in one env.
-
-    The env is seeded once, at the first reset; later resets continue its own generator, so a
-    worker's stream of initial states and goals is reproducible from `seed`.
-    """
-
-    def __init__(self, *, spec: TaskSpec, env: gym.Env, seed: int) -> None:
-        self.spec = spec
-        self.env = env
-        self._seed: int | None = seed
-        shapes = expected_shapes(spec)
-        self._obs = np.empty(shapes["obs"], np.float32)
-        self._ag = np.empty(shapes["ag"], np.float32)
-        self._g = np.empty(shapes["g"], np.float32)
-        self._actions = np.empty(shapes["actions"], np.float32)
-        self.env_steps = 0
-
-    def skip(self, episodes: int) -> None:
-        """Advance the stream of initial states and goals by `episodes` episodes without
-        running them (a Fetch env draws from its generator only on reset), e.g. to evaluate on
-        the goals the evaluator used for a later epoch."""
-        for _ in range(episodes):
-            self.env.reset(seed=self._seed)
-            self._seed = None
-
-    def run_episode(self, act: ActFn) -> EpisodeData:
-        obs, _ = self.env.reset(seed=self._seed)
-        self._seed = None
-        info: dict = {}
-        for t in range(self.spec.episode_steps):
-            self._obs[t] = obs["observation"]
-            self._ag[t] = obs["achieved_goal"]
-            self._g[t] = obs["desired_goal"]
-            action = np.asarray(act(obs["observation"], obs["desired_goal"]), np.float32)
-            self._actions[t] = action
-            obs, _, _, _, info = self.env.step(action)
-        T = self.spec.episode_steps
-        self._obs[T] = obs["observation"]
-        self._ag[T] = obs["achieved_goal"]
-        self.env_steps += T
-        return EpisodeData(
-            obs=self._obs.copy(),
-            ag=self._ag.copy(),
-            g=self._g.copy(),
-            actions=self._actions.copy(),
-            success=bool(info.get("is_success", 0.0)),
-        )
-
-    def close(self) -> None:
-        self.env.close()
-
-
 class VectorRollout:
     """Runs fixed-length episodes in n envs side by side: one batched `act` call per step for
     all of them (the actor's `actor.envs_per_process`), so the policy's per-call overhead is
     paid once per step instead of n times. Fetch episodes have no early termination, so the
     n envs stay in step from reset to step T.
 
-    Env i is seeded once, with `seeds[i]`, at its first reset (as `RolloutWorker`); with one
-    env the episodes are those of a `RolloutWorker` with the same seed and policy.
+    Env i is seeded once, with `seeds[i]`, at its first reset; later resets continue its own
+    generator, so each env's stream of initial states and goals is reproducible from its seed.
     """
 
     def __init__(self, *, spec: TaskSpec, envs: Sequence[gym.Env], seeds: Sequence[int]) -> None:
@@ -107,6 +54,15 @@ class VectorRollout:
         if t < self.spec.episode_steps:
             self._g[i, t] = obs["desired_goal"]
 
+    def skip(self, episodes: int) -> None:
+        """Advance every env's stream of initial states and goals by `episodes` episodes
+        without running them (a Fetch env draws from its generator only on reset), e.g. to
+        evaluate on the goals the evaluator used for a later epoch."""
+        for _ in range(episodes):
+            for i, env in enumerate(self.envs):
+                env.reset(seed=self._seeds[i])
+                self._seeds[i] = None
+
     def run_episodes(self, act: ActFn) -> list[EpisodeData]:
         """One episode per env, in env order."""
         infos: list[dict] = [{} for _ in self.envs]
@@ -130,3 +86,29 @@ class VectorRollout:
     def close(self) -> None:
         for env in self.envs:
             env.close()
+
+
+class RolloutWorker:
+    """Runs fixed-length episodes of T steps in one env: a `VectorRollout` of one env whose
+    policy takes one observation and goal (the evaluator, `hercs eval`)."""
+
+    def __init__(self, *, spec: TaskSpec, env: gym.Env, seed: int) -> None:
+        self.spec = spec
+        self.env = env
+        self._vector = VectorRollout(spec=spec, envs=[env], seeds=[seed])
+
+    @property
+    def env_steps(self) -> int:
+        return self._vector.env_steps
+
+    def skip(self, episodes: int) -> None:
+        """See `VectorRollout.skip`."""
+        self._vector.skip(episodes)
+
+    def run_episode(self, act: ActFn) -> EpisodeData:
+        """`act` gets one observation and goal, (obs_dim,) and (goal_dim,)."""
+        return self._vector.run_episodes(
+            lambda o, g: np.asarray(act(o[0], g[0]))[None])[0]
+
+    def close(self) -> None:
+        self._vector.close()
