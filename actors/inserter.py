@@ -12,8 +12,8 @@ Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
 - A reply whose reason is a lockstep reason (`hercs.lockstep.LockstepReason`: acted with
   weights too old, or its cycle already full) means the episode is well formed but not wanted:
   it is dropped without a warning and counted `superseded`.
-- Episodes are delivered one at a time, in `seq` order. `last_outcome` says how the latest one
-  ended and, for an ack, the weights version the replay wants next (lockstep).
+- Episodes are delivered one at a time, in `seq` order. `newest_next_policy_version` is the
+  highest weights version an ack asked the next episodes to be acted with (lockstep).
 
 Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight. The
 replay's rate limiter holds insert queries (answers them later) when learner updates lag the
@@ -55,18 +55,6 @@ LOCKSTEP_REASONS = frozenset(reason.value for reason in LockstepReason)
 BACKOFF_MIN_S = 0.1
 BACKOFF_MAX_S = 2.0
 _ACK_MAX_BYTES = 64 * 1024
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """How one episode's delivery ended."""
-
-    seq: int
-    kind: str
-    """`acked`, `dropped`, `superseded` or `abandoned`."""
-    next_policy_version: int = 0
-    """From the ack: the oldest weights version the next episode may be acted with
-    (lockstep; 0 otherwise)."""
 
 
 @dataclass
@@ -123,7 +111,6 @@ class Inserter:
         self._closing = False
         self._busy = False
         """An episode is being delivered (popped from the queue, outcome not yet known)."""
-        self.last_outcome: Outcome | None = None
         self.newest_next_policy_version = 0
         """The highest `next_policy_version` any ack carried (lockstep)."""
         self._abort = threading.Event()
@@ -158,8 +145,8 @@ class Inserter:
         return True
 
     def wait_idle(self, *, stop: threading.Event, poll_s: float = 0.2) -> bool:
-        """Wait until every submitted episode's delivery has ended (`last_outcome` is then
-        the latest one's); False if `stop` is set or the sender thread ends first."""
+        """Wait until every submitted episode's delivery has ended; False if `stop` is set or
+        the sender thread ends first."""
         with self._cond:
             while self._queue or self._busy:
                 if stop.is_set() or not self._thread.is_alive():
@@ -198,22 +185,20 @@ class Inserter:
                 seq, payload = self._queue.popleft()
                 self._busy = True
                 self._cond.notify_all()  # a slot is free: wake a blocked submit
-            outcome = self._deliver(seq, payload)
+            self._deliver(seq, payload)
             with self._cond:
-                self.last_outcome = outcome
                 self._busy = False
                 self._cond.notify_all()  # wake `wait_idle`
 
-    def _deliver(self, seq: int, payload: bytes) -> Outcome:
-        """Send until acked, dropped or aborted; counts the outcome."""
+    def _deliver(self, seq: int, payload: bytes) -> None:
+        """Send until acked, dropped, superseded or aborted; counts the outcome."""
         c = self.counters
         delay, max_delay = self._backoff
         attempt = 0
-        abandoned = Outcome(seq, "abandoned")
         while True:
             if self._abort.is_set():
                 c.abandoned += 1
-                return abandoned
+                return
             try:
                 reply = self._send(payload)
             except TransportTimeout as exc:
@@ -223,13 +208,13 @@ class Inserter:
                     c.superseded += 1
                     log.debug("episode (%s, seq %d) not wanted by the lockstep schedule: %s",
                               self.actor_id, seq, exc.detail)
-                    return Outcome(seq, "superseded")
+                    return
                 if exc.reason in PERMANENT_REASONS:
                     c.dropped += 1
                     self._warn.warn(f"rejected:{exc.reason}",
                                     f"replay rejected episode ({self.actor_id}, seq {seq}): "
                                     f"{exc.reason}: {exc.detail}; dropped, it cannot succeed")
-                    return Outcome(seq, "dropped")
+                    return
                 kind, why = f"remote:{exc.reason}", str(exc)
             except TransportError as exc:
                 kind, why = "transport", str(exc)
@@ -238,11 +223,11 @@ class Inserter:
                 if isinstance(ack, pb.InsertAck):
                     self.newest_next_policy_version = max(self.newest_next_policy_version,
                                                           int(ack.next_policy_version))
-                    return Outcome(seq, "acked", int(ack.next_policy_version))
+                    return
                 kind, why = "bad-ack", ack
             if self._abort.is_set():
                 c.abandoned += 1
-                return abandoned
+                return
             attempt += 1
             c.retries += 1
             self._warn.warn(f"retry:{kind}",
@@ -250,7 +235,7 @@ class Inserter:
                             f"retrying the same episode in {delay:.1f} s (attempt {attempt + 1})")
             if self._abort.wait(delay):
                 c.abandoned += 1
-                return abandoned
+                return
             delay = min(delay * 2.0, max_delay)
 
     def _check_ack(self, reply: bytes, seq: int, *,
