@@ -397,16 +397,16 @@ class ReplayTable:
         result = self.core.sample(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
         o_state, g_state = self.core.normalizer_state()
-        model = self.core.cluster_model
+        fitted_at = self._fitted_at()
         if self.gate is not None and self.gate.served(
-                call.weights_version, failures=self.core.failures, fitted_at=self._fitted_at()):
+                call.weights_version, failures=self.core.failures, fitted_at=fitted_at):
             log.warning("lockstep: cycle %d served with cluster model v%d: the refit due at %s "
                         "failed goals did not arrive within %.0f s (is the clusterer running?)",
                         call.weights_version, self._model_version(),
-                        self.gate.next_fit(self._fitted_at()), self.gate.cluster_wait_s)
+                        self.gate.next_fit(fitted_at), self.gate.cluster_wait_s)
         sampled = Sampled(
             call=call, result=result, o_state=o_state, g_state=g_state,
-            cluster_model_version=0 if model is None else model.version,
+            cluster_model_version=self._model_version(),
             inserts=self.core.inserts, env_steps=self.core.env_steps,
             policy_lag=_mean(self._recent_schedule_lags),
             policy_lag_request=_mean(self._recent_lags))
@@ -427,15 +427,14 @@ class ReplayTable:
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
                 progressed = True
             if self.gate is not None:
-                ready = [item for item in self._samples if self._can_serve(item)]
-                if ready:
-                    kept = [item for item in self._samples
-                            if not any(item is r for r in ready)]
-                    self._samples.clear()
-                    self._samples.extend(kept)
-                    for item in ready:
-                        self._serve(item)
-                    progressed = True
+                ready: list[_ParkedSample] = []
+                waiting: deque[_ParkedSample] = deque()
+                for item in self._samples:
+                    (ready if self._can_serve(item) else waiting).append(item)
+                self._samples = waiting
+                for item in ready:
+                    self._serve(item)
+                progressed = progressed or bool(ready)
                 continue
             while self._samples and self._can_serve(self._samples[0]):
                 self._serve(self._samples.popleft())
@@ -501,10 +500,9 @@ class ReplayTable:
             core = self.core
             goals = (np.stack(list(core.recent_failed_goals)) if core.recent_failed_goals
                      else np.zeros((0, core.spec.goal_dim), np.float32))
-            model = core.cluster_model
             return ClustererSnapshot(failed_goals=goals, failures_seen=core.failures,
                                      episodes_seen=core.inserts,
-                                     model_version=0 if model is None else model.version)
+                                     model_version=self._model_version())
 
     def log_eval_result(self, record: pb.EvalResult) -> None:
         with self._lock:
@@ -528,7 +526,6 @@ class ReplayTable:
     def status(self) -> TableStatus:
         with self._lock:
             core = self.core
-            model = core.cluster_model
             waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
             return TableStatus(
                 size_episodes=core.store.size, size_transitions=core.store.num_transitions,
@@ -538,7 +535,7 @@ class ReplayTable:
                                                     samples_waiting=waiting_samples)),
                 rejects=dict(core.rejects),
                 cluster_sizes=[int(c) for c in core.cluster_sizes()],
-                cluster_model_version=0 if model is None else model.version,
+                cluster_model_version=self._model_version(),
                 inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
             )
 
