@@ -239,6 +239,7 @@ class EnergyConfig:
 
 
 SCHEDULES = ("async", "lockstep")
+EVICTIONS = ("fifo", "random")
 
 
 @dataclass
@@ -330,7 +331,7 @@ class ReplayConfig:
         _positive("replay.sample_timeout_s", self.sample_timeout_s)
         _check(self.insert_workers >= 1, "replay.insert_workers", self.insert_workers,
                "be >= 1")
-        _check(self.eviction in ("fifo", "random"), "replay.eviction", self.eviction,
+        _check(self.eviction in EVICTIONS, "replay.eviction", self.eviction,
                "be fifo or random")
 
 

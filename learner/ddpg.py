@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from hercs.batch import TransitionBatch
-from hercs.config import DDPGConfig
+from hercs.config import PRECISIONS, DDPGConfig
 from hercs.errors import ConfigError
 from hercs.networks import Actor, Critic, preprocess, to_arrays
 from hercs.normalizer import Normalizer, NormalizerState
@@ -108,7 +108,7 @@ class DDPGLearner:
 
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
                  device: str | torch.device = "cpu", precision: str = "fp32") -> None:
-        if precision not in ("fp32", "bf16"):
+        if precision not in PRECISIONS:
             raise ConfigError(f"learner.precision: got {precision!r}, must be fp32 or bf16")
         self.spec = spec
         self.config = config

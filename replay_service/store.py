@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from hercs.config import EVICTIONS
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import ConfigError
 from hercs.tasks import TaskSpec
@@ -33,7 +34,6 @@ from replay_service.sampling_index import SamplingIndex
 
 UNASSIGNED = -1
 """Cluster label of an episode that no cluster model has labelled yet."""
-EVICTIONS = ("fifo", "random")
 _MASK64 = (1 << 64) - 1
 
 
