@@ -32,6 +32,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -296,6 +297,25 @@ def _method_rank(key: str) -> tuple[int, str]:
 
 # ---------------------------------------------------------------------------------- figure
 
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend (files only; imported when a figure is drawn)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save_figure(plt: Any, fig: Any, output: str | Path) -> Path:
+    fig.tight_layout()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=DPI)
+    plt.close(fig)
+    return output
+
+
 def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
                 reference: dict[str, dict[str, list[Curve]]] | None = None,
                 xmax: int | None = None) -> Path:
@@ -303,12 +323,9 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
     authors' dashed; the authors' band is drawn for the methods we ran, the other methods'
     reference means are thin dashed lines). The x axis spans our epochs unless `xmax` is
     given."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
+    plt = _pyplot()
     tasks = list(ours)
     fig, axes = plt.subplots(1, len(tasks), figsize=(PANEL_W * len(tasks), PANEL_H), dpi=DPI,
                              squeeze=False)
@@ -346,12 +363,7 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         ax.set_yticks(np.linspace(0.0, 1.0, 6))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize=8, framealpha=0.9)
-    fig.tight_layout()
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(output, dpi=DPI)
-    plt.close(fig)
-    return output
+    return _save_figure(plt, fig, output)
 
 
 # ---------------------------------------------------------------------------------- Fig. 2
@@ -359,6 +371,15 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
 FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")
 FIG2_ROWS: tuple[tuple[str, str], ...] = (("her", "her-cs"), ("her-ebp", "her-ebp-cs"))
 FIG2_EPOCHS = 200
+
+
+def _panel_title(task: str, pair: tuple[str, str]) -> str:
+    return f"{task}: {' vs '.join(method_label(m) for m in pair)}"
+
+
+def _has_ours(pair: tuple[str, str], ours: dict[str, list[Curve]]) -> bool:
+    """Whether we ran any of the pair's methods (or their variants) on this task."""
+    return any(key.partition("/")[0] in pair for key in ours)
 
 
 def _fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
@@ -385,7 +406,7 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
     for pair in FIG2_ROWS:
         for task in FIG2_TASKS:
             mine, ref = ours.get(task, {}), reference.get(task, {})
-            title = f"{task}: {' vs '.join(method_label(m) for m in pair)}"
+            title = _panel_title(task, pair)
             rows: list[tuple[str, Milestones]] = []
             for key in _fig2_keys(pair, mine, ref):
                 if key in mine:
@@ -394,7 +415,7 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
                     rows.append((method_label(key) + " (authors)",
                                  milestones(aggregate(ref[key]))))
             parts.append(markdown_table(title, rows))
-            if not any(key.partition("/")[0] in pair for key in mine):
+            if not _has_ours(pair, mine):
                 parts += ["No runs of ours yet.", ""]
     return "\n".join(parts) + "\n" + TABLE_NOTE
 
@@ -408,11 +429,7 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
               xmax: int = FIG2_EPOCHS) -> Path:
     """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
                              figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
                              dpi=DPI, squeeze=False)
@@ -436,22 +453,17 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
                     ax.plot(a.epochs, mean, "-", color=color, linewidth=2.0,
                             label=f"{label} (ours, {a.n_seeds} seed"
                                   f"{'s' if a.n_seeds != 1 else ''})")
-            if not any(key.partition("/")[0] in pair for key in mine):
+            if not _has_ours(pair, mine):
                 ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
                         ha="left", va="top", fontsize=10, color="0.4")
-            ax.set_title(f"{task}: {' vs '.join(method_label(m) for m in pair)}", fontsize=10)
+            ax.set_title(_panel_title(task, pair), fontsize=10)
             ax.set_xlim(0, xmax)
             ax.set_ylim(-0.01, 1.01)
             ax.set_xlabel("epoch")
             ax.set_ylabel("success rate")
             ax.grid(True, alpha=0.3)
             ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
-    fig.tight_layout()
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(output, dpi=DPI)
-    plt.close(fig)
-    return output
+    return _save_figure(plt, fig, output)
 
 
 # ------------------------------------------------------------------------------------- CLI
