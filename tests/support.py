@@ -1,5 +1,5 @@
 """Helpers shared by tests of different folders: free ports, a real Rerun viewer stand-in,
-and loading the benchmark scripts (which are files, not a package)."""
+loading the benchmark scripts (which are files, not a package), random learner minibatches."""
 
 from __future__ import annotations
 
@@ -13,6 +13,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
+
+import numpy as np
+
+from hercs.batch import TransitionBatch
+from hercs.tasks import TaskSpec
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -70,3 +75,16 @@ def load_bench(name: str) -> ModuleType:
     sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
     spec.loader.exec_module(module)
     return module
+
+
+def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:
+    """A minibatch of `b` random transitions of `spec`'s shapes (rewards 0 or −1), from `seed`."""
+    rng = np.random.default_rng(seed)
+    return TransitionBatch(
+        o=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
+        g=rng.normal(size=(b, spec.goal_dim)).astype(np.float32),
+        u=rng.uniform(-spec.max_action, spec.max_action,
+                      size=(b, spec.action_dim)).astype(np.float32),
+        r=-(rng.random(b) < 0.7).astype(np.float32),
+        o2=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
+    )

@@ -10,28 +10,16 @@ import numpy as np
 import pytest
 import torch
 
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.networks import Actor, Critic, preprocess
 from hercs.normalizer import Normalizer
 from hercs.policy import Policy
-from hercs.tasks import TaskSpec, task_spec
+from hercs.tasks import task_spec
 from learner.ddpg import DDPGLearner, critic_target
+from tests.support import random_transition_batch as _batch
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=32)  # fast nets where the width does not matter
-
-
-def _batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:
-    rng = np.random.default_rng(seed)
-    return TransitionBatch(
-        o=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
-        g=rng.normal(size=(b, spec.goal_dim)).astype(np.float32),
-        u=rng.uniform(-spec.max_action, spec.max_action,
-                      size=(b, spec.action_dim)).astype(np.float32),
-        r=-(rng.random(b) < 0.7).astype(np.float32),
-        o2=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
-    )
 
 
 def _params(module: torch.nn.Module) -> list[torch.Tensor]:

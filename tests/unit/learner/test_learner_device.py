@@ -12,6 +12,7 @@ from hercs.config import DDPGConfig, HercsConfig, apply_overrides
 from hercs.errors import ConfigError
 from hercs.tasks import task_spec
 from learner.ddpg import DDPGLearner, resolve_device
+from tests.support import random_transition_batch
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=32)
@@ -20,13 +21,7 @@ NO_CUDA = "no CUDA device here (torch.cuda.is_available() is False): the GPU pat
 
 
 def _batch(seed: int, b: int = 32) -> TransitionBatch:
-    rng = np.random.default_rng(seed)
-    return TransitionBatch(
-        o=rng.normal(size=(b, SPEC.obs_dim)).astype(np.float32),
-        g=rng.normal(size=(b, SPEC.goal_dim)).astype(np.float32),
-        u=rng.uniform(-1, 1, size=(b, SPEC.action_dim)).astype(np.float32),
-        r=-(rng.random(b) < 0.7).astype(np.float32),
-        o2=rng.normal(size=(b, SPEC.obs_dim)).astype(np.float32))
+    return random_transition_batch(SPEC, b, seed)
 
 
 def test_auto_is_cuda_only_where_torch_sees_a_gpu() -> None:

@@ -14,19 +14,14 @@ from hercs.errors import ConfigError
 from hercs.networks import to_arrays
 from hercs.tasks import task_spec
 from learner.ddpg import DDPGLearner
+from tests.support import random_transition_batch
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=64)
 
 
 def _batch(seed: int, b: int = 64) -> TransitionBatch:
-    rng = np.random.default_rng(seed)
-    return TransitionBatch(
-        o=rng.normal(size=(b, SPEC.obs_dim)).astype(np.float32),
-        g=rng.normal(size=(b, SPEC.goal_dim)).astype(np.float32),
-        u=rng.uniform(-1, 1, size=(b, SPEC.action_dim)).astype(np.float32),
-        r=-(rng.random(b) < 0.7).astype(np.float32),
-        o2=rng.normal(size=(b, SPEC.obs_dim)).astype(np.float32))
+    return random_transition_batch(SPEC, b, seed)
 
 
 def _flat(learner: DDPGLearner) -> np.ndarray:
