@@ -21,7 +21,10 @@ mean faint behind it, and the min–max band; every run is drawn to its own end 
 over the seeds that reached it). Runs with the same task, method and seed are one seed (the
 longest is kept, with a note on stderr). A run trained in the lockstep schedule
 (`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so that it
-is compared with the asynchronous runs instead of averaged into them.
+is compared with the asynchronous runs instead of averaged into them; likewise a run whose
+learner ran in bf16 (`learner.precision`) is `<method>/bf16`. Fig. 2 draws the paper's methods
+and their lockstep variants, not the precision variants (a speed option, compared in
+docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
@@ -55,6 +58,8 @@ METHOD_COLORS: dict[str, str] = {
 VARIANT_COLORS: dict[str, str] = {
     "her/lockstep": "tab:cyan", "her-cs/lockstep": "tab:purple",
     "her-ebp/lockstep": "tab:olive", "her-ebp-cs/lockstep": "tab:brown",
+    "her/bf16": "tab:gray", "her-cs/bf16": "tab:pink",
+    "her-ebp/bf16": "darkgreen", "her-ebp-cs/bf16": "goldenrod",
 }
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
@@ -107,16 +112,17 @@ def task_title(name: str) -> str:
     return TASK_TITLES.get(name, name)
 
 
-def method_key(method: str, schedule: str = "async") -> str:
-    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule."""
-    return method if schedule == "async" else f"{method}/{schedule}"
+def method_key(method: str, schedule: str = "async", precision: str = "fp32") -> str:
+    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule and
+    `/bf16` for the learner's mixed precision (`her-cs/lockstep/bf16` has both)."""
+    variants = (v for v, default in ((schedule, "async"), (precision, "fp32")) if v != default)
+    return "/".join((method, *variants))
 
 
 def method_label(key: str) -> str:
     """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep"."""
-    method, _, variant = key.partition("/")
-    label = METHOD_LABELS.get(method, method)
-    return f"{label} {variant}" if variant else label
+    method, *variants = key.split("/")
+    return " ".join((METHOD_LABELS.get(method, method), *variants))
 
 
 def method_color(key: str) -> str | None:
@@ -143,7 +149,8 @@ def load_run(run_dir: str | Path) -> Curve:
         config = yaml.safe_load(config_path.read_text()) or {}
         task, method = config["task"]["name"], config["run"]["method"]
         seed = int(config["run"]["seed"])
-        method = method_key(method, (config.get("training") or {}).get("schedule", "async"))
+        method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
+                            (config.get("learner") or {}).get("precision", "fp32"))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc
@@ -377,15 +384,22 @@ def _panel_title(task: str, pair: tuple[str, str]) -> str:
     return f"{task}: {' vs '.join(method_label(m) for m in pair)}"
 
 
+def _in_panel(key: str, pair: tuple[str, str]) -> bool:
+    """Whether a Fig. 2 panel of `pair` draws method key `key`: the pair's methods and their
+    schedule variants (lockstep), not the learner's precision variants (bf16)."""
+    method, *variants = key.split("/")
+    return method in pair and "bf16" not in variants
+
+
 def _has_ours(pair: tuple[str, str], ours: dict[str, list[Curve]]) -> bool:
     """Whether we ran any of the pair's methods (or their variants) on this task."""
-    return any(key.partition("/")[0] in pair for key in ours)
+    return any(_in_panel(key, pair) for key in ours)
 
 
 def _fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
                ref: dict[str, list[Curve]]) -> list[str]:
-    """The method keys of one panel: the pair's methods and their variants (lockstep)."""
-    keys = {k for k in (*ours, *ref) if k.partition("/")[0] in pair}
+    """The method keys of one panel, in the paper's order (`_in_panel`)."""
+    keys = {k for k in (*ours, *ref) if _in_panel(k, pair)}
     return sorted(keys, key=_method_rank)
 
 

@@ -3,7 +3,8 @@
     python bench/sample_efficiency.py --tasks push --methods her her-cs --seeds 3
 
 Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`
-(`T-M-lockstep-sS` with `--schedule lockstep`, the reference's schedule), under `--run-dir`
+(`T-M-lockstep-sS` with `--schedule lockstep`, the reference's schedule; `T-M-bf16-sS` with
+`--precision bf16`, the learner's mixed precision), under `--run-dir`
 (default `runs/sample_efficiency`). The grid is resumable: a run whose
 `bench_done.json` exists is skipped; a run folder without it (the bench was stopped while the
 run trained) is continued with `hercs up --resume` from its last checkpoint (a folder with no
@@ -57,7 +58,7 @@ from apps.plots import (  # noqa: E402
     tables,
 )
 from bench.common import git_commit  # noqa: E402
-from hercs.config import SCHEDULES  # noqa: E402
+from hercs.config import PRECISIONS, SCHEDULES  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
 
@@ -77,17 +78,20 @@ class GridRun:
     method: str
     seed: int
     schedule: str = "async"
+    precision: str = "fp32"
 
     @property
     def name(self) -> str:
-        variant = "" if self.schedule == "async" else f"-{self.schedule}"
+        variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
+                                                     (self.precision, "fp32")) if v != default)
         return f"{self.task}-{self.method}{variant}-s{self.seed}"
 
 
 def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
-              schedule: str = "async") -> list[GridRun]:
+              schedule: str = "async", precision: str = "fp32") -> list[GridRun]:
     """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
-    return [GridRun(t, m, s, schedule) for s in seeds for t in tasks for m in methods]
+    return [GridRun(t, m, s, schedule, precision)
+            for s in seeds for t in tasks for m in methods]
 
 
 def is_done(run_dir: Path) -> bool:
@@ -125,7 +129,8 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
         cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
                cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
                cell.name, "--run-dir", str(run_root), "--actors", str(actors),
-               "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}"]
+               "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}",
+               "--set", f"learner.precision={cell.precision}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -219,7 +224,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 results.append((r.cell, code))
                 if code == 0:
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
-                              "schedule": r.cell.schedule, "epochs": epochs,
+                              "schedule": r.cell.schedule, "precision": r.cell.precision,
+                              "epochs": epochs,
                               "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
                               "command": " ".join(r.proc.args[1:]),  # type: ignore[index]
@@ -296,7 +302,8 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "- commit: " + ", ".join(sorted({str(w.get("commit", "unknown")) for w in walls})),
             f"- machine: {machine_description()}",
             "- runs: " + ", ".join(
-                f"{method_key(w['method'], w.get('schedule', 'async'))} s{w['seed']} "
+                f"{method_key(w['method'], w.get('schedule', 'async'), w.get('precision', 'fp32'))}"
+                f" s{w['seed']} "
                 f"({w['epochs']} epochs, {w['wall_s'] / 60:.0f} min)"
                 for w in walls),
         ]
@@ -321,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--schedule", choices=SCHEDULES, default="async",
                    help="training.schedule of every run (default async; lockstep runs are "
                         "named T-M-lockstep-sS)")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                   help="learner.precision of every run (default fp32; bf16 runs are named "
+                        "T-M-bf16-sS)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per run (default 100; 1 with --quick)")
     p.add_argument("--jobs", type=int, default=None,
@@ -359,7 +369,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = args.jobs or max(1, os.cpu_count() or 1)
     committed = (Path(args.committed).resolve() if args.committed
                  else None if args.quick else COMMITTED)
-    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule)
+    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule,
+                       args.precision)
     command = "python bench/sample_efficiency.py " + " ".join(
         a for a in (argv if argv is not None else sys.argv[1:]))
     print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "

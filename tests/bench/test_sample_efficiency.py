@@ -26,6 +26,16 @@ def test_grid_is_seed_major_so_every_method_gets_its_seeds_together() -> None:
         "push-her-s2", "push-her-cs-s2", "slide-her-s2", "slide-her-cs-s2"]
 
 
+def test_variant_runs_are_named_after_their_schedule_and_precision() -> None:
+    names = [c.name for c in se.plan_grid(["push"], ["her-cs"], [2], "lockstep", "bf16")]
+    assert names == ["push-her-cs-lockstep-bf16-s2"]
+    assert se.GridRun("push", "her-ebp-cs", 1, precision="bf16").name == "push-her-ebp-cs-bf16-s1"
+    cmd = se.up_command(se.GridRun("push", "her-ebp-cs", 1, precision="bf16"), epochs=1,
+                        run_root=Path("/tmp"), port=1, actors=1, overrides=[])
+    sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
+    assert sets == ["training.schedule=async", "learner.precision=bf16"]
+
+
 def test_up_command_names_the_run_after_its_cell_and_passes_overrides(tmp_path: Path) -> None:
     cell = se.GridRun("push", "her-cs", 3)
     cmd = se.up_command(cell, epochs=7, run_root=tmp_path, port=40123, actors=2,

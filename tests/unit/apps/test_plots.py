@@ -206,13 +206,19 @@ def test_reference_for_a_task_without_authors_data_says_so(tmp_path: Path, capsy
     assert "--reference: the authors published no curves for FetchReach" in err
 
 
-def _write_lockstep_run(root: Path, method: str, seed: int, success: list[float]) -> Path:
-    run = _write_run(root, f"{method}-lockstep", seed, success)
+def _write_variant_run(root: Path, method: str, seed: int, success: list[float], *,
+                       schedule: str = "async", precision: str = "fp32") -> Path:
+    run = _write_run(root, f"{method}-{schedule}-{precision}", seed, success)
     config = yaml.safe_load((run / "config.yaml").read_text())
     config["run"]["method"] = method
-    config["training"] = {"schedule": "lockstep"}
+    config["training"] = {"schedule": schedule}
+    config["learner"] = {"precision": precision}
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     return run
+
+
+def _write_lockstep_run(root: Path, method: str, seed: int, success: list[float]) -> Path:
+    return _write_variant_run(root, method, seed, success, schedule="lockstep")
 
 
 def test_a_lockstep_run_is_its_own_method_next_to_the_asynchronous_one(tmp_path: Path) -> None:
@@ -225,9 +231,24 @@ def test_a_lockstep_run_is_its_own_method_next_to_the_asynchronous_one(tmp_path:
     assert "| HER-CS lockstep | 1 | 3 | 2 | – |" in text  # ma 0.2, 0.4, 0.567 → epoch 3 − 1
 
 
+def test_a_bf16_run_is_its_own_method_and_combines_with_lockstep(tmp_path: Path) -> None:
+    runs = [_write_run(tmp_path, "her-ebp-cs", 1, [0.1, 0.3, 0.7]),
+            _write_variant_run(tmp_path, "her-ebp-cs", 1, [0.2, 0.6, 0.9], precision="bf16"),
+            _write_variant_run(tmp_path, "her-ebp-cs", 1, [0.0, 0.0, 0.1],
+                               schedule="lockstep", precision="bf16")]
+    groups = plots.group(plots.load_run(r) for r in runs)
+    assert sorted(groups["FetchPush"]) == [
+        "her-ebp-cs", "her-ebp-cs/bf16", "her-ebp-cs/lockstep/bf16"]
+    text = plots.tables(groups)
+    assert "| HER-EBP-CS bf16 | 1 | 3 | 2 | – |" in text
+    assert "| HER-EBP-CS lockstep bf16 | 1 | 3 | – | – |" in text
+
+
 def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -> None:
     runs = [_write_run(tmp_path, "her-ebp", 1, [0.0] * 5 + [1.0] * 10),
-            _write_lockstep_run(tmp_path, "her-cs", 1, [0.0] * 3 + [1.0] * 12)]
+            _write_lockstep_run(tmp_path, "her-cs", 1, [0.0] * 3 + [1.0] * 12),
+            # a precision variant is compared in docs/PERFORMANCE.md, not drawn in Fig. 2
+            _write_variant_run(tmp_path, "her-ebp", 1, [1.0] * 15, precision="bf16")]
     out, table = tmp_path / "fig2.png", tmp_path / "fig2.md"
     assert main(["plot", "--figure", "2", *map(str, runs), "-o", str(out), "--table",
                  str(table)]) == 0
@@ -244,5 +265,6 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
     # trailing means (e − 3)/e pass .5 at epoch 7, .9 at epoch 13 (counted from 0: 6, 12)
     assert "| HER-CS lockstep (ours) | 1 | 15 | 6 | 12 |" in push_her
     assert "| HER (authors) | 5 | 200 | 55 | 95 |" in push_her
+    assert "bf16" not in text
     assert text.count("No runs of ours yet.") == 4  # Pick and Slide, both rows
     assert text in capsys.readouterr().out
