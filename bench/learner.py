@@ -13,7 +13,13 @@ matter are ratios of things timed together):
   bf16, from `torch.mm` timed in the same process;
 - the update rate (updates per CPU-second of this thread), `learner.precision` fp32 and bf16;
 - ratio = update rate ÷ (GEMM rate ÷ FLOPs per update): 1.0 would be an update that is
-  nothing but GEMMs at the core's speed.
+  nothing but GEMMs at the core's speed;
+- the update's own GEMMs replayed alone: every matrix product of one real update recorded
+  with its shapes, strides and dtype (a `TorchDispatchMode`, below autograd and autocast) and
+  timed without anything else. That is the ceiling of the update as written, with zero
+  overhead: its ratio to the limit says how much the shapes themselves lose (thin first and
+  last layers, transposed operands of the backward pass), and the update's time beyond it is
+  everything else (autograd, element-wise ops, Adam, Python).
 
 Writes docs/results/learner.{json,md} (or --out).
 """
@@ -21,11 +27,13 @@ Writes docs/results/learner.{json,md} (or --out).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
 import sys
 import time
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -59,6 +67,52 @@ def update_flops(learner: DDPGLearner, batch: TransitionBatch) -> int:
     with FlopCounterMode(display=False) as counter:
         learner.update(batch)
     return int(counter.get_total_flops())
+
+
+@dataclass(frozen=True)
+class GemmCall:
+    """One matrix product of the update, as the dispatcher saw it."""
+
+    op: str  # "mm" or "addmm"
+    shapes: tuple[tuple[int, ...], ...]
+    strides: tuple[tuple[int, ...], ...]
+    dtype: torch.dtype
+
+    def operands(self) -> list[torch.Tensor]:
+        """Fresh tensors of the recorded shapes and strides (a transposed operand stays one)."""
+        return [torch.empty_strided(shape, stride, dtype=self.dtype).normal_()
+                for shape, stride in zip(self.shapes, self.strides, strict=True)]
+
+
+def update_gemms(learner: DDPGLearner, batch: TransitionBatch) -> list[GemmCall]:
+    """The matrix products one real update runs, in order."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    ops = {torch.ops.aten.mm.default: "mm", torch.ops.aten.addmm.default: "addmm"}
+    calls: list[GemmCall] = []
+
+    class Recorder(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # type: ignore[no-untyped-def]
+            if func in ops:
+                tensors = [a for a in args if isinstance(a, torch.Tensor)]
+                calls.append(GemmCall(ops[func], tuple(tuple(t.shape) for t in tensors),
+                                      tuple(t.stride() for t in tensors), tensors[-1].dtype))
+            return func(*args, **(kwargs or {}))
+
+    with Recorder():
+        learner.update(batch)
+    return calls
+
+
+def gemm_replay_seconds(calls: list[GemmCall], repeats: int) -> float:
+    """CPU seconds of the recorded products alone, per update."""
+    replay = [(torch.mm if c.op == "mm" else torch.addmm, c.operands()) for c in calls]
+
+    def one() -> None:
+        for fn, operands in replay:
+            fn(*operands)
+
+    return cpu_seconds(one, repeats)
 
 
 def cpu_seconds(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
@@ -106,6 +160,25 @@ def workers_scaling(spec, config: DDPGConfig, workers: tuple[int, ...], *,  # ty
     return {n: float(np.median(t)) for n, t in times.items()}
 
 
+def cpu_flags() -> set[str]:
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                return set(line.split(":", 1)[1].split())
+    return set()
+
+
+def bf16_note(flags: set[str]) -> str:
+    """What this CPU's extensions mean for the bf16 mode."""
+    if "amx_bf16" in flags:
+        return "AMX tiles multiply bf16 matrices natively, several times fp32's rate."
+    if "avx512_bf16" in flags:
+        return ("avx512_bf16 gives bf16 dot products a native instruction (VDPBF16PS): bf16 "
+                "matrix products run faster than fp32 here.")
+    return ("Without avx512_bf16 or AMX, bf16 matrix products have no native kernel and run "
+            "far below fp32: there bf16 cannot pay.")
+
+
 def cpu_features() -> str:
     """The CPU model and the vector extensions that decide bf16 speed."""
     model, flags = platform.processor() or "unknown CPU", set()
@@ -146,9 +219,14 @@ def main(argv: list[str] | None = None) -> int:
     for name, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16)):
         gemm = gemm_rate(args.batch_size, config.hidden_size, dtype, gemms)
         rate = update_rate(learners[name], batches * max(1, updates // len(batches)))
+        calls = update_gemms(learners[name], batches[0])
+        gemms_only = 1.0 / gemm_replay_seconds(calls, updates)
         limit = gemm / flops
         results[name] = {"gemm_gflops": gemm / 1e9, "updates_per_cpu_s": rate,
-                         "limit_updates_per_cpu_s": limit, "ratio_to_limit": rate / limit}
+                         "limit_updates_per_cpu_s": limit, "ratio_to_limit": rate / limit,
+                         "gemm_calls": len(calls), "gemms_only_updates_per_cpu_s": gemms_only,
+                         "gemms_only_ratio_to_limit": gemms_only / limit,
+                         "share_outside_gemms": 1.0 - rate / gemms_only}
     scaling = workers_scaling(spec, config, (1, 2, 4, 8), updates=3 if args.quick else 20,
                               rounds=1 if args.quick else 5)
     summary = {"task": args.task, "batch_size": args.batch_size, "gflop_per_update": flops / 1e9,
@@ -163,19 +241,28 @@ def main(argv: list[str] | None = None) -> int:
         f"`python bench/learner.py{' --quick' if args.quick else ''}` — {summary['date']}, "
         f"commit {summary['commit']}, {summary['machine']}, one torch thread.",
         "",
-        f"CPU: {summary['cpu']}. Without avx512_bf16 or AMX, bf16 matrix products have no "
-        "native kernel and run far below fp32: there bf16 cannot pay.",
+        f"CPU: {summary['cpu']}. {bf16_note(cpu_flags())}",
         "",
         f"One {spec.env_id} update at B = {args.batch_size}: "
         f"**{summary['gflop_per_update']:.3f} GFLOP** (torch's FLOP counter, Adam excluded).",
         "",
         "| precision | GEMM rate (GFLOP/s) | limit (updates/CPU-s) | measured (updates/CPU-s) "
-        "| ratio |",
-        "|---|---|---|---|---|",
+        "| ratio | its GEMMs alone (updates/CPU-s) | their ratio | time outside GEMMs |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
         lines.append(f"| {name} | {r['gemm_gflops']:.1f} | {r['limit_updates_per_cpu_s']:.1f} | "
-                     f"{r['updates_per_cpu_s']:.1f} | {r['ratio_to_limit']:.2f} |")
+                     f"{r['updates_per_cpu_s']:.1f} | **{r['ratio_to_limit']:.2f}** | "
+                     f"{r['gemms_only_updates_per_cpu_s']:.1f} | "
+                     f"{r['gemms_only_ratio_to_limit']:.2f} | "
+                     f"{r['share_outside_gemms']:.0%} |")
+    lines += [
+        "",
+        f"'Its GEMMs alone': the {results['fp32']['gemm_calls']:.0f} matrix products of one "
+        "update, recorded with their shapes, strides and dtype and replayed with nothing else: "
+        "the ratio an update with zero overhead would reach. 'Time outside GEMMs' is the rest of "
+        "the update's CPU time (autograd, element-wise ops, Adam, Python).",
+    ]
     lines += [
         "",
         "The `--workers N` preset (N× minibatch, what the reference's N MPI workers amount to): "
