@@ -308,7 +308,7 @@ def parse_proc_status_kib(text: str, field: str) -> int:
 def figure_keys(*, actor_counts: Sequence[int], methods: Sequence[str]) -> list[str]:
     """Every figure key a run with these insert levels and sample methods reports, in order."""
     keys = ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
-            "learner_updates_per_cpu_s"]
+            "learner_updates_per_cpu_s", "learner_roofline_fp32", "learner_roofline_bf16"]
     keys += [f"inserts_per_s_{n}_actors" for n in actor_counts]
     for method in methods:
         keys += [f"sample_{stat}_{per}_{method}" for per in ("minibatch", "request")
@@ -350,6 +350,9 @@ class Plan:
     methods: tuple[str, ...] = ("her", "her-cs", "her-ebp", "her-ebp-cs")
     actor_envs: int = 4
     """`actor.envs_per_process` of the measured actor."""
+    roofline_updates: int = 400
+    """Timed updates per precision against the GEMM limit (bench/learner.py)."""
+    roofline_gemms: int = 2000
 
 
 FULL = Plan(mode="full", env_rounds=12, env_slice_s=2.5, actor_warmup_episodes=3,
@@ -362,7 +365,8 @@ QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=
              minibatches_per_cycle=10, learner_min_episodes=20,
              insert_actor_counts=(1, 2), insert_warmup_s=0.3, insert_window_s=1.5,
              buffer_transitions=25_000, sample_requests=20, sample_warmup_requests=2,
-             methods=("her", "her-cs"), actor_envs=2)
+             methods=("her", "her-cs"), actor_envs=2, roofline_updates=10,
+             roofline_gemms=200)
 
 # ----------------------------------------------------------------------------- the system
 # Imports of hercs come after the path set-up above.
@@ -371,6 +375,7 @@ import torch  # noqa: E402
 
 from apps.router import open_router  # noqa: E402
 from bench.common import git_commit  # noqa: E402
+from bench.learner import gemm_rate, make_batch, update_flops, update_rate  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
 from hercs.codec import array_to_msg, episode_to_msg  # noqa: E402
 from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
@@ -1069,6 +1074,35 @@ class Bench:
                       "thread, prefetch and decoding, weights broadcast) in its slices",
             reference_what="in-process updates over the CPU time of the updating thread"))
 
+    def roofline_figures(self) -> None:
+        """The update against this core's GEMM limit, per precision (bench/learner.py, where
+        the GEMM replay that explains the gap also runs)."""
+        p, spec, config = self.plan, self.spec, self.configs["her"][0].ddpg
+        rng = np.random.default_rng(SEED)
+        batches = [make_batch(spec, config.batch_size, rng) for _ in range(16)]
+        repeats = batches * max(1, p.roofline_updates // len(batches))
+        flops = 0
+        targets = {"fp32": 0.85, "bf16": 0.8}
+        for precision, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16)):
+            learner = DDPGLearner(spec=spec, config=config, seed=SEED, precision=precision)
+            flops = flops or update_flops(learner, batches[0])
+            limit = gemm_rate(config.batch_size, config.hidden_size, dtype,
+                              p.roofline_gemms) / flops
+            rate = update_rate(learner, repeats)
+            say(f"learner {precision}: {rate:.1f} updates/CPU-s against a GEMM limit of "
+                f"{limit:.1f} ({rate / limit:.2f})")
+            self.figures.append(Figure(
+                key=f"learner_roofline_{precision}",
+                name=f"learner update vs its {precision} GEMM limit", unit="updates/CPU-s",
+                ours=rate, reference=limit,
+                ours_what=f"`DDPGLearner.update` with learner.precision={precision}, "
+                          f"B = {config.batch_size}, one torch thread, in process",
+                reference_what=f"this core's {config.batch_size}×{config.hidden_size}×"
+                               f"{config.hidden_size} {precision} GEMM rate ÷ the update's "
+                               f"{flops / 1e9:.3f} GFLOP (torch's FLOP counter), measured "
+                               "in the same run",
+                target=Target("ratio_at_least", targets[precision])))
+
     # -- 3. inserts and the fill ---------------------------------------------------------------
     def insert_phase(self, replay: Child) -> None:
         p = self.plan
@@ -1262,6 +1296,8 @@ class Bench:
         trace["env steps"] = replay.memory_mib()
         with self.phase("learner updates"):
             self.learner_phase(replay)
+        with self.phase("learner roofline"):
+            self.roofline_figures()
         trace["learner updates"] = replay.memory_mib()
         with self.phase("inserts"):
             self.insert_phase(replay)

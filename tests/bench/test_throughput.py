@@ -121,12 +121,13 @@ def test_proc_status_fields_are_read_in_kib() -> None:
 
 def test_figure_keys_cover_every_phase() -> None:
     keys = tp.figure_keys(actor_counts=(1, 2), methods=("her", "her-cs"))
-    assert keys[:6] == ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
-                        "learner_updates_per_cpu_s", "inserts_per_s_1_actors",
+    assert keys[:8] == ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
+                        "learner_updates_per_cpu_s", "learner_roofline_fp32",
+                        "learner_roofline_bf16", "inserts_per_s_1_actors",
                         "inserts_per_s_2_actors"]
     assert "sample_p99_minibatch_her-cs" in keys and "sample_p50_request_her" in keys
     assert keys[-2:] == ["replay_rss_growth", "replay_rss_total"]
-    assert len(keys) == 4 + 2 + 2 * 4 + 2
+    assert len(keys) == 6 + 2 + 2 * 4 + 2
 
 
 @pytest.mark.integration
@@ -156,7 +157,8 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
         assert f["verdict"] in (tp.MEETS, tp.BELOW, tp.NO_TARGET), key
         assert f"| {f['name']} |" in markdown, key
     for key in ("env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
-                "sample_p99_minibatch_her", "replay_rss_growth"):
+                "learner_roofline_fp32", "learner_roofline_bf16", "sample_p99_minibatch_her",
+                "replay_rss_growth"):
         assert figures[key]["target"] is not None, key
     machine = report["machine"]
     assert machine["cpu_count"] >= 1 and machine["versions"]["torch"]
