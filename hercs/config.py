@@ -229,13 +229,13 @@ class EnergyConfig:
             _positive(f"energy.{name}", getattr(self, name))
         _check(self.cluster_fill in ("energy", "uniform"), "energy.cluster_fill",
                self.cluster_fill, "be energy or uniform")
+        for name in ("w_potential", "w_kinetic"):
+            _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
 
     @property
     def exponent(self) -> float:
         """The power the trajectory energies are raised to before ε is added."""
         return 1.0 / (self.temperature + 0.01)
-        for name in ("w_potential", "w_kinetic"):
-            _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
 
 
 SCHEDULES = ("async", "lockstep")
