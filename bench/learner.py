@@ -161,6 +161,7 @@ def workers_scaling(spec, config: DDPGConfig, workers: tuple[int, ...], *,  # ty
 
 
 def cpu_flags() -> set[str]:
+    """The CPU's feature flags (/proc/cpuinfo; empty where there is none)."""
     with contextlib.suppress(OSError):
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("flags"):
@@ -181,15 +182,14 @@ def bf16_note(flags: set[str]) -> str:
 
 def cpu_features() -> str:
     """The CPU model and the vector extensions that decide bf16 speed."""
-    model, flags = platform.processor() or "unknown CPU", set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name") and model in ("", "unknown CPU", "x86_64"):
-                model = line.split(":", 1)[1].strip()
-            elif line.startswith("flags"):
-                flags = set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
+    model = platform.processor() or "unknown CPU"
+    if model in ("unknown CPU", "x86_64"):
+        with contextlib.suppress(OSError):
+            for line in Path("/proc/cpuinfo").read_text().splitlines():
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    flags = cpu_flags()
     wanted = ["avx2", "avx512f", "avx512_bf16", "amx_bf16"]
     have = [f for f in wanted if f in flags]
     missing = [f for f in wanted if f not in flags]
