@@ -353,6 +353,7 @@ class Plan:
     roofline_updates: int = 400
     """Timed updates per precision against the GEMM limit (bench/learner.py)."""
     roofline_gemms: int = 2000
+    """Timed 256×256×256 products per precision for the core's GEMM rate."""
 
 
 FULL = Plan(mode="full", env_rounds=12, env_slice_s=2.5, actor_warmup_episodes=3,
@@ -1372,6 +1373,11 @@ NOTES = [
     "weights: the same network, so the same inference cost.",
     "Learner updates/s are counted from its `weights` broadcasts, one per cycle of "
     "`minibatches_per_cycle` updates, after its first cycles (start-up, first batch).",
+    "Learner against its GEMM limit: in this process after the learner phase (the learner "
+    "service stopped), one torch thread, per precision: `DDPGLearner.update` per CPU-second "
+    "against (this core's 256×256×256 GEMM rate in that precision) ÷ (the update's FLOPs, "
+    "torch's FLOP counter); `bench/learner.py` measures the same and also replays the "
+    "update's own products alone, which shows where the gap is (docs/PERFORMANCE.md §4).",
     "Synthetic actors insert pre-generated random Push episodes (valid shapes and values); "
     "each episode is appended to the replay's MCAP log and fsynced before its ack, as always. "
     "The replay serves inserts one at a time, so on a busy machine the rate follows the CPU "
