@@ -8,7 +8,7 @@ becomes a numpy array.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -139,6 +139,37 @@ def minibatch_to_msg(batch: TransitionBatch) -> pb.Minibatch:
     for name, value in zip(TRANSITION_FIELDS, batch, strict=True):
         array_to_msg(np.asarray(value, dtype=np.float32), out=getattr(msg, name))
     return msg
+
+
+def _varint(value: int) -> bytes:
+    """Protobuf's base-128 varint of a non-negative integer."""
+    out = bytearray()
+    while value > 0x7F:
+        out.append((value & 0x7F) | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+_MINIBATCHES_TAG = _varint(pb.Batch.DESCRIPTOR.fields_by_name["minibatches"].number << 3 | 2)
+"""Field key of `Batch.minibatches` (wire type 2, length-delimited)."""
+
+
+def batch_to_bytes(header: pb.Batch, minibatches: Sequence[TransitionBatch]) -> bytes:
+    """The serialised `Batch` = `header` with `minibatches` as its repeated `minibatches`.
+
+    The same message as setting `header.minibatches` and calling `SerializeToString()`
+    (protobuf parses a repeated field from entries anywhere in the message), about 4× faster
+    for a 40×256 FetchPush reply (~2.4 MB: 1.2 ms against 4.9 ms): upb serialises one large
+    message into a buffer it grows and copies, while 40 minibatches of ~60 kB each serialise
+    without that, and joining them costs one copy. This is on the replay's sampling path."""
+    if len(header.minibatches):
+        raise ValueError("batch_to_bytes: the header must not hold minibatches already")
+    parts = [header.SerializeToString()]
+    for batch in minibatches:
+        body = minibatch_to_msg(batch).SerializeToString()
+        parts += [_MINIBATCHES_TAG, _varint(len(body)), body]
+    return b"".join(parts)
 
 
 def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> TransitionBatch:

@@ -42,8 +42,8 @@ import yaml
 from hercs.clustering import ClusterModel
 from hercs.codec import (
     array_to_msg,
+    batch_to_bytes,
     episode_to_msg,
-    minibatch_to_msg,
     msg_to_array,
     msg_to_episode,
     stats_to_msg,
@@ -314,15 +314,15 @@ class ReplayService:
 
 def _batch_bytes(sampled: Sampled) -> bytes:
     call, result = sampled.call, sampled.result
-    return pb.Batch(
+    header = pb.Batch(
         schema_version=SCHEMA_VERSION, request_id=call.request_id,
-        minibatches=[minibatch_to_msg(mb) for mb in result.minibatches],
         o_stats=stats_to_msg(sampled.o_state), g_stats=stats_to_msg(sampled.g_state),
         cluster_model_version=sampled.cluster_model_version,
         cluster_draws=[int(c) for c in result.cluster_draws],
         inserts=sampled.inserts, env_steps=sampled.env_steps, policy_lag=sampled.policy_lag,
         policy_lag_request=sampled.policy_lag_request,
-    ).SerializeToString()
+    )
+    return batch_to_bytes(header, result.minibatches)
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:

@@ -2,11 +2,15 @@
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.codec import (
+    _varint,
     array_to_msg,
     arrays_to_named,
+    batch_to_bytes,
     episode_to_msg,
     minibatch_to_msg,
     msg_to_array,
@@ -136,6 +140,42 @@ def test_minibatch_round_trip() -> None:
     for name, value, got in zip(TRANSITION_FIELDS, batch, back, strict=True):
         np.testing.assert_array_equal(got, value.astype(np.float32), err_msg=name)
         assert got.dtype == np.float32
+
+
+def _random_minibatches(count: int, batch_size: int, seed: int) -> list[TransitionBatch]:
+    rng = np.random.default_rng(seed)
+    return [TransitionBatch(o=rng.random((batch_size, 25), np.float32),
+                            g=rng.random((batch_size, 3), np.float32),
+                            u=rng.random((batch_size, 4), np.float32),
+                            r=-rng.integers(0, 2, batch_size).astype(np.float32),
+                            o2=rng.random((batch_size, 25), np.float32))
+            for _ in range(count)]
+
+
+# 0, 1 and 40 minibatches; 12,000 rows make one minibatch ~2.8 MB, a 4-byte length prefix
+@pytest.mark.parametrize(("count", "batch_size"), [(0, 256), (1, 1), (40, 256), (1, 12_000)])
+def test_batch_to_bytes_is_the_message_serialize_to_string_gives(count: int,
+                                                                   batch_size: int) -> None:
+    minibatches = _random_minibatches(count, batch_size, seed=count)
+    fields = {"schema_version": SCHEMA_VERSION, "request_id": 7, "cluster_draws": [3, 0, 5],
+              "inserts": 12, "env_steps": 600, "policy_lag": 1.5, "policy_lag_request": 0.25,
+              "o_stats": stats_to_msg({"sum": np.ones(3), "sumsq": np.ones(3), "count": 2.0,
+                                       "mean": np.ones(3), "std": np.ones(3)})}
+    plain = pb.Batch(**fields, minibatches=[minibatch_to_msg(mb) for mb in minibatches])
+    fast = pb.Batch.FromString(batch_to_bytes(pb.Batch(**fields), minibatches))
+    assert fast == plain
+    for mb, msg in zip(minibatches, fast.minibatches, strict=True):
+        np.testing.assert_array_equal(msg_to_minibatch(msg).o, mb.o)
+    if minibatches:
+        with pytest.raises(ValueError, match="must not hold minibatches"):
+            batch_to_bytes(plain, minibatches)
+
+
+@given(st.integers(min_value=0, max_value=2**64 - 1))
+def test_varint_is_protobufs(value: int) -> None:
+    # Batch.request_id is field 2, a uint64: key byte 0x10, then the value as a varint
+    encoded = pb.Batch(request_id=value).SerializeToString()
+    assert encoded == (b"\x10" + _varint(value) if value else b"")
 
 
 def _sample_of_each_message() -> list:
