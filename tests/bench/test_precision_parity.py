@@ -30,7 +30,7 @@ def test_a_seed_inside_the_fp32_band_passes_and_one_that_lags_does_not(tmp_path:
     fp32, bf16 = parity.load_pair(tmp_path, "push", "her-ebp-cs")
     assert sorted(c.seed for c in fp32) == [1, 2] and [c.seed for c in bf16] == [1]
     text, passed = parity.report(fp32, bf16, last_epoch=epochs, tolerance=0.0, command="t")
-    assert passed and "| bf16 seed 1 | 20/20 (100%) |" in text
+    assert passed and "| bf16 seed 1 | 20/20 (100%) | 0 | 0 |" in text
 
     # a seed 5 epochs late: outside the band while the others climb, so the rule refuses it
     _run(tmp_path, "bf16-s2", 2, [0.0] * 5 + ramp[:-5], "bf16")
@@ -38,6 +38,7 @@ def test_a_seed_inside_the_fp32_band_passes_and_one_that_lags_does_not(tmp_path:
     compared, seeds = parity.compare(fp32, bf16, last_epoch=epochs)
     late = seeds[1]
     assert len(compared) == epochs and late.seed == 2 and late.inside < late.compared
+    assert late.above == 0  # all its epochs outside the band are below it
     assert late.at_half is not None and late.at_half > seeds[0].at_half  # type: ignore[operator]
     text, passed = parity.report(fp32, bf16, last_epoch=epochs, tolerance=0.1, command="t")
     assert not passed and "outside the fp32 band" in text
@@ -52,5 +53,5 @@ def test_the_command_writes_table_and_figure_and_refuses_missing_runs(tmp_path: 
     _run(runs, "a", 1, [0.1, 0.5, 0.9], "fp32")
     _run(runs, "b", 1, [0.1, 0.5, 0.9], "bf16")
     assert parity.main(["--runs", str(runs), "--out", str(out), "--epochs", "3"]) == 0
-    assert "| bf16 seed 1 | 3/3 (100%) |" in (out / "bf16_parity.md").read_text()
+    assert "| bf16 seed 1 | 3/3 (100%) | 0 | 0 |" in (out / "bf16_parity.md").read_text()
     assert (out / "bf16_parity.png").stat().st_size > 10_000
