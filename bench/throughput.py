@@ -29,15 +29,19 @@ Figures (the system is real: an embedded Zenoh router on a free loopback port, a
    (sampling is outside the timed loop: the service's prefetch is meant to hide it);
    alternating slices as above (full mode: 8 of 4 s). Target ratio ≥ 0.95. Also per
    CPU-second of the learner process (all its threads) and of the updating thread.
-3. **Insert throughput** with 1, 2, 4, 8 concurrent synthetic actors (quick: 1, 2): each has
-   its own Zenoh client session and one insert in flight, as `actors.inserter` delivers;
+3. **Insert throughput** with 1, 2, 4, 8, 16 concurrent synthetic actors (quick: 1, 2): each
+   has its own Zenoh client session and one insert in flight, as `actors.inserter` delivers;
    episodes are pre-generated random Push episodes (`hercs.episode.random_episode`). ratio =
-   speed-up over one actor; no target.
+   speed-up over one actor; target ≥ 1,000 acked episodes/s from 8 actors. At the end of the
+   run the largest levels (8, 16; quick: 2) are measured again into a replay of its own with
+   `replay.log_scene=false` (every episode logged, no Foxglove scene drawn), against the
+   same level with scenes: what drawing the scenes costs the replay's one core.
 4. **Sample latency** of a SampleRequest of 40 minibatches × 256 on a full buffer (1e6
-   transitions = 20,000 Push episodes; quick: 500 episodes), for `her` and `her-cs`: time from
+   transitions = 20,000 Push episodes; quick: 500 episodes), for each sampler (`her`, `her-cs`,
+   `her-ebp`, `her-ebp-cs`; quick: the first two): time from
    sending the request to holding the reply bytes, at a client of the router (the learner's
    path), decode excluded; per request and per minibatch (÷ 40). reference: `ReplayCore.sample`
-   of the same size in this process on a store of the same size. Target p99 ≤ 5 ms per
+   of the same size in this process on a store of the same size. Target p99 ≤ 1 ms per
    minibatch. The `her` replay is the one filled over Zenoh; the `her-cs` replay is the same
    run restarted with `run.method=her-cs`, refilled from its episode log (the replay's own
    crash recovery), and given a k=8 `ClusterModel` published on `cluster/model` as the
@@ -305,7 +309,12 @@ def parse_proc_status_kib(text: str, field: str) -> int:
     raise ValueError(f"/proc status: no field {field!r}")
 
 
-def figure_keys(*, actor_counts: Sequence[int], methods: Sequence[str]) -> list[str]:
+NO_SCENE = "her-no-scene"
+"""Config key of the replay that draws no scenes (inserts phase without scenes)."""
+
+
+def figure_keys(*, actor_counts: Sequence[int], methods: Sequence[str],
+                no_scene_counts: Sequence[int] = ()) -> list[str]:
     """Every figure key a run with these insert levels and sample methods reports, in order."""
     keys = ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
             "learner_updates_per_cpu_s", "learner_roofline_fp32", "learner_roofline_bf16"]
@@ -314,6 +323,7 @@ def figure_keys(*, actor_counts: Sequence[int], methods: Sequence[str]) -> list[
         keys += [f"sample_{stat}_{per}_{method}" for per in ("minibatch", "request")
                  for stat in ("p50", "p99")]
     keys += ["replay_rss_growth", "replay_rss_total"]
+    keys += [f"inserts_per_s_{n}_actors_no_scene" for n in no_scene_counts]
     return keys
 
 
@@ -342,6 +352,8 @@ class Plan:
     insert_actor_counts: tuple[int, ...]
     insert_warmup_s: float
     insert_window_s: float
+    insert_no_scene_counts: tuple[int, ...]
+    """Insert levels measured again with `replay.log_scene=false` (a replay of its own)."""
     buffer_transitions: int
     sample_requests: int
     sample_warmup_requests: int
@@ -360,12 +372,14 @@ FULL = Plan(mode="full", env_rounds=12, env_slice_s=2.5, actor_warmup_episodes=3
             learner_rounds=8, learner_slice_s=4.0, learner_warmup_cycles=2,
             minibatches_per_cycle=40, learner_min_episodes=200,
             insert_actor_counts=(1, 2, 4, 8, 16), insert_warmup_s=1.0, insert_window_s=10.0,
-            buffer_transitions=1_000_000, sample_requests=200, sample_warmup_requests=5)
+            insert_no_scene_counts=(8, 16), buffer_transitions=1_000_000,
+            sample_requests=200, sample_warmup_requests=5)
 QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=1,
              learner_rounds=2, learner_slice_s=1.5, learner_warmup_cycles=1,
              minibatches_per_cycle=10, learner_min_episodes=20,
              insert_actor_counts=(1, 2), insert_warmup_s=0.3, insert_window_s=1.5,
-             buffer_transitions=25_000, sample_requests=20, sample_warmup_requests=2,
+             insert_no_scene_counts=(2,), buffer_transitions=25_000, sample_requests=20,
+             sample_warmup_requests=2,
              methods=("her", "her-cs"), actor_envs=2, roofline_updates=10,
              roofline_gemms=200)
 
@@ -783,6 +797,9 @@ class Bench:
         self.headers = Arrivals()
         self.weights = Arrivals()
         self.configs = {m: self._write_config(m) for m in plan.methods}
+        # A replay of its own (own log folder) for the inserts without scenes.
+        self.configs[NO_SCENE] = self._write_config("her", name=NO_SCENE, extra=[
+            "replay.log_scene=false", f"run.run_dir={self.workdir / 'runs-no-scene'}"])
         self.spec = self.configs[plan.methods[0]][0].task.spec
         self.pool = episode_pool(self.spec, EPISODE_POOL)
         self.router: Transport | None = None
@@ -790,7 +807,8 @@ class Bench:
         self._fleet: SyntheticFleet | None = None
 
     # -- set-up ----------------------------------------------------------------------------
-    def _write_config(self, method: str) -> tuple[HercsConfig, Path]:
+    def _write_config(self, method: str, *, name: str | None = None,
+                      extra: Sequence[str] = ()) -> tuple[HercsConfig, Path]:
         p = self.plan
         config = apply_overrides(HercsConfig(), [
             f"run.name={RUN}", f"run.run_dir={self.workdir / 'runs'}", f"run.seed={SEED}",
@@ -800,8 +818,9 @@ class Bench:
             "training.epochs=1000000",  # the learner runs until stopped
             f"actor.envs_per_process={p.actor_envs}",
             f"transport.connect=[{self.endpoint}]", f"transport.listen=[{self.endpoint}]",
+            *extra,
         ])
-        path = self.workdir / f"config-{method}.yaml"
+        path = self.workdir / f"config-{name or method}.yaml"
         save_yaml(config, path)
         return config, path
 
@@ -1105,12 +1124,14 @@ class Bench:
                 target=Target("ratio_at_least", targets[precision])))
 
     # -- 3. inserts and the fill ---------------------------------------------------------------
-    def insert_phase(self, replay: Child) -> None:
+    def insert_rates(self, replay: Child, counts: Sequence[int], *, label: str = ""
+                     ) -> tuple[dict[int, float], dict[int, float], dict[int, dict[str, float]]]:
+        """Acked episodes/s, episodes per replay CPU-second and ack latency per insert level."""
         p = self.plan
         rates: dict[int, float] = {}
         per_cpu: dict[int, float] = {}
         latency: dict[int, dict[str, float]] = {}
-        for n in p.insert_actor_counts:
+        for n in counts:
             with self.fleet.running(n):
                 time.sleep(p.insert_warmup_s)
                 cpu0, opened = replay.cpu_seconds(), time.monotonic()
@@ -1124,10 +1145,15 @@ class Bench:
             lat_ms = [a[2] * 1e3 for a in acks]
             latency[n] = {"p50_ms": percentile(lat_ms, 50), "p99_ms": percentile(lat_ms, 99),
                           "replay_cpu_share": (cpu1 - cpu0) / (closed - opened)}
-            say(f"inserts, {n} synthetic actor(s): {rates[n]:.1f} episodes/s acked, ack "
-                f"latency p50 {latency[n]['p50_ms']:.1f} ms, replay CPU "
+            say(f"inserts{label}, {n} synthetic actor(s): {rates[n]:.1f} episodes/s acked, "
+                f"ack latency p50 {latency[n]['p50_ms']:.1f} ms, replay CPU "
                 f"{latency[n]['replay_cpu_share']:.2f} → {per_cpu[n]:.0f} episodes per "
                 "replay CPU-second")
+        return rates, per_cpu, latency
+
+    def insert_phase(self, replay: Child) -> None:
+        p = self.plan
+        rates, per_cpu, latency = self.insert_rates(replay, p.insert_actor_counts)
         self.details["inserts"] = {"episodes_per_s": rates, "ack_latency": latency,
                                    "episodes_per_replay_cpu_s": per_cpu,
                                    "window_s": p.insert_window_s}
@@ -1142,6 +1168,35 @@ class Bench:
                           f"{per_cpu[n]:.0f} episodes per replay CPU-second)",
                 reference_what=f"the same with {p.insert_actor_counts[0]} actor (ratio = "
                                "speed-up)",
+                target=Target("ours_at_least", 1000.0) if n >= 8 else None))
+
+    def insert_no_scene_phase(self) -> None:
+        """The largest insert levels again, into a fresh replay with `replay.log_scene=false`:
+        what drawing each episode's Foxglove scene costs the replay (docs/PERFORMANCE.md §6)."""
+        p = self.plan
+        replay = self.start("replay", "bench-replay-no-scene", NO_SCENE)
+        try:
+            self.status.clear()
+            self.wait_status(lambda s: True, what="the replay without scenes up", replay=replay)
+            rates, per_cpu, latency = self.insert_rates(replay, p.insert_no_scene_counts,
+                                                        label=" without scenes")
+        finally:
+            self.stop(replay)
+        self.details["inserts_no_scene"] = {"episodes_per_s": rates, "ack_latency": latency,
+                                            "episodes_per_replay_cpu_s": per_cpu,
+                                            "window_s": p.insert_window_s}
+        with_scene = self.details["inserts"]["episodes_per_s"]
+        for n in p.insert_no_scene_counts:
+            self.figures.append(Figure(
+                key=f"inserts_per_s_{n}_actors_no_scene",
+                name=f"inserts/s acked, {n} actor(s), replay.log_scene=false",
+                unit="episodes/s", ours=rates[n], reference=with_scene[n],
+                ours_what=f"as above with {n} actor(s), into a replay of its own that logs "
+                          "every episode but draws no Foxglove scene (the replay used "
+                          f"{latency[n]['replay_cpu_share']:.2f} CPU: {per_cpu[n]:.0f} "
+                          "episodes per replay CPU-second)",
+                reference_what=f"the same {n} actor(s) into the replay drawing scenes, above "
+                               "(ratio = what the scenes cost)",
                 target=Target("ours_at_least", 1000.0) if n >= 8 else None))
 
     def fill(self, replay: Child) -> int:
@@ -1325,6 +1380,8 @@ class Bench:
                 self.details.setdefault("replay_memory_mib_recovered", {})[method] = (
                     replay.memory_mib())
                 self.stop(replay)
+        with self.phase("inserts without scenes"):
+            self.insert_no_scene_phase()
 
 
 # ----------------------------------------------------------------------------- report
@@ -1382,6 +1439,10 @@ NOTES = [
     "each episode is appended to the replay's MCAP log and fsynced before its ack, as always. "
     "The replay serves inserts one at a time, so on a busy machine the rate follows the CPU "
     "share the replay gets; `details.inserts` also gives episodes per replay CPU-second.",
+    "Inserts without scenes: after the sample phases, a fresh replay (its own log folder, "
+    "`replay.log_scene=false`: every episode is logged and fsynced before its ack, no "
+    "Foxglove scene is drawn) takes the largest insert levels from the same synthetic actors; "
+    "the ratio to the same level with scenes is what drawing them costs.",
     "Sample latency: the `her` replay is the one filled over Zenoh; the `her-cs` replay is the "
     "same run restarted with `run.method=her-cs`, refilled from its own episode log (crash "
     "recovery) and given a k=8 cluster model on `cluster/model`; the reply is not decoded "

@@ -120,14 +120,15 @@ def test_proc_status_fields_are_read_in_kib() -> None:
 
 
 def test_figure_keys_cover_every_phase() -> None:
-    keys = tp.figure_keys(actor_counts=(1, 2), methods=("her", "her-cs"))
+    keys = tp.figure_keys(actor_counts=(1, 2), methods=("her", "her-cs"), no_scene_counts=(2,))
     assert keys[:8] == ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
                         "learner_updates_per_cpu_s", "learner_roofline_fp32",
                         "learner_roofline_bf16", "inserts_per_s_1_actors",
                         "inserts_per_s_2_actors"]
     assert "sample_p99_minibatch_her-cs" in keys and "sample_p50_request_her" in keys
-    assert keys[-2:] == ["replay_rss_growth", "replay_rss_total"]
-    assert len(keys) == 6 + 2 + 2 * 4 + 2
+    assert keys[-3:] == ["replay_rss_growth", "replay_rss_total",
+                         "inserts_per_s_2_actors_no_scene"]
+    assert len(keys) == 6 + 2 + 2 * 4 + 2 + 1
 
 
 @pytest.mark.integration
@@ -147,7 +148,8 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
 
     assert report["mode"] == "quick"
     plan = tp.QUICK
-    expected = tp.figure_keys(actor_counts=plan.insert_actor_counts, methods=plan.methods)
+    expected = tp.figure_keys(actor_counts=plan.insert_actor_counts, methods=plan.methods,
+                              no_scene_counts=plan.insert_no_scene_counts)
     figures = {f["key"]: f for f in report["figures"]}
     assert sorted(figures) == sorted(expected)
     for key, f in figures.items():
@@ -160,6 +162,8 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
                 "learner_roofline_fp32", "learner_roofline_bf16", "sample_p99_minibatch_her",
                 "replay_rss_growth"):
         assert figures[key]["target"] is not None, key
+    no_scene = report["details"]["inserts_no_scene"]["episodes_per_s"]
+    assert sorted(int(n) for n in no_scene) == list(plan.insert_no_scene_counts)
     machine = report["machine"]
     assert machine["cpu_count"] >= 1 and machine["versions"]["torch"]
     assert report["command"].startswith("python bench/throughput.py --quick")
