@@ -12,6 +12,7 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from hercs import pbwire
 from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
@@ -141,17 +142,7 @@ def minibatch_to_msg(batch: TransitionBatch) -> pb.Minibatch:
     return msg
 
 
-def _varint(value: int) -> bytes:
-    """Protobuf's base-128 varint of a non-negative integer."""
-    out = bytearray()
-    while value > 0x7F:
-        out.append((value & 0x7F) | 0x80)
-        value >>= 7
-    out.append(value)
-    return bytes(out)
-
-
-_MINIBATCHES_TAG = _varint(pb.Batch.DESCRIPTOR.fields_by_name["minibatches"].number << 3 | 2)
+_MINIBATCHES_TAG = pbwire.field_key(pb.Batch.DESCRIPTOR, "minibatches", pbwire.LENGTH_DELIMITED)
 """Field key of `Batch.minibatches` (wire type 2, length-delimited)."""
 
 
@@ -168,7 +159,7 @@ def batch_to_bytes(header: pb.Batch, minibatches: Sequence[TransitionBatch]) -> 
     parts = [header.SerializeToString()]
     for batch in minibatches:
         body = minibatch_to_msg(batch).SerializeToString()
-        parts += [_MINIBATCHES_TAG, _varint(len(body)), body]
+        parts += [_MINIBATCHES_TAG, pbwire.varint(len(body)), body]
     return b"".join(parts)
 
 

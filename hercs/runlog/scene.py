@@ -39,6 +39,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 
+from hercs import pbwire
 from hercs.tasks import TaskSpec
 
 STEP_NS = 40_000_000
@@ -98,11 +99,6 @@ def episode_positions(obs: np.ndarray, ag: np.ndarray, g: np.ndarray,
     )
 
 
-def _pose(p: np.ndarray) -> Pose:
-    return Pose(position=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                orientation=Quaternion(w=1.0))
-
-
 def _color(rgba: tuple[float, float, float, float]) -> Color:
     return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
 
@@ -111,51 +107,79 @@ def _size(edge: float) -> Vector3:
     return Vector3(x=edge, y=edge, z=edge)
 
 
-def scene_updates(positions: EpisodePositions, times_ns: Sequence[int], *,
-                  goal_diameter: float, labels: dict[str, str]) -> list[SceneUpdate]:
-    """One SceneUpdate per observation with entities `gripper`, `object` (if any) and `goal`,
-    each replacing the previous step's entity of the same id; `labels` and the step index
-    become entity metadata.
+# Field keys of the parts that change from step to step (from the descriptors).
+_LD = pbwire.LENGTH_DELIMITED
+_UPDATE_ENTITY = pbwire.field_key(SceneUpdate.DESCRIPTOR, "entities", _LD)
+_ENTITY_TIMESTAMP = pbwire.TimestampField(SceneEntity.DESCRIPTOR)
+_ENTITY_METADATA = pbwire.field_key(SceneEntity.DESCRIPTOR, "metadata", _LD)
+_ENTITY_SPHERES = pbwire.field_key(SceneEntity.DESCRIPTOR, "spheres", _LD)
+_ENTITY_CUBES = pbwire.field_key(SceneEntity.DESCRIPTOR, "cubes", _LD)
+_SPHERE_POSE = pbwire.field_key(SpherePrimitive.DESCRIPTOR, "pose", _LD)
+_CUBE_POSE = pbwire.field_key(CubePrimitive.DESCRIPTOR, "pose", _LD)
+_POSE_POSITION = pbwire.field_key(Pose.DESCRIPTOR, "position", _LD)
+_POSE_ORIENTATION = pbwire.length_delimited(
+    pbwire.field_key(Pose.DESCRIPTOR, "orientation", _LD),
+    Quaternion(w=1.0).SerializeToString())
+_KEY_VALUE_VALUE = pbwire.field_key(KeyValuePair.DESCRIPTOR, "value", _LD)
+_STEP_KEY = KeyValuePair(key="step").SerializeToString()
+_XYZ = pbwire.DoubleTriple(Vector3.DESCRIPTOR)
+_CLOUD_TIMESTAMP = pbwire.TimestampField(PointCloud.DESCRIPTOR)
+_CLOUD_DATA = pbwire.field_key(PointCloud.DESCRIPTOR, "data", _LD)
 
-    Built by copying one template update and setting positions, time, step and goal colour
-    (about 3x faster than constructing each message: this runs on the replay's insert path).
+
+def scene_updates(positions: EpisodePositions, times_ns: Sequence[int], *,
+                  goal_diameter: float, labels: dict[str, str]) -> list[bytes]:
+    """One serialised `foxglove.SceneUpdate` per observation with entities `gripper`,
+    `object` (if any) and `goal`, each replacing the previous step's entity of the same id;
+    `labels` and the step index (`step`, last) become entity metadata.
+
+    Each entity is its constant part (frame, id, labels; the primitive's size and colour),
+    serialised once by protobuf, followed by the fields that change per step (timestamp,
+    step, pose), written with `hercs.pbwire`: ~4× faster than copying and serialising a
+    template message per step, and this runs on the replay (issue: inserts from many hosts).
+    Parsing gives the message protobuf would build (tests/unit/hercs/test_scene.py).
     """
     n = len(positions.gripper)
     if len(times_ns) != n:
         raise ValueError(f"{len(times_ns)} times for {n} observations")
-    metadata = [*(KeyValuePair(key=k, value=v) for k, v in labels.items()),
-                KeyValuePair(key="step", value="")]
-    origin = _pose(np.zeros(3))
-    template = SceneUpdate(entities=[SceneEntity(
-        frame_id=FRAME_ID, id="gripper", metadata=metadata,
-        spheres=[SpherePrimitive(pose=origin, size=_size(GRIPPER_DIAMETER),
-                                 color=_color(GRIPPER_RGBA))])])
-    bodies = [positions.gripper]
+    labels_metadata = [KeyValuePair(key=k, value=v) for k, v in labels.items()]
+
+    def head(entity_id: str) -> bytes:
+        return SceneEntity(frame_id=FRAME_ID, id=entity_id,
+                           metadata=labels_metadata).SerializeToString()
+
+    def primitive(kind: type[SpherePrimitive] | type[CubePrimitive], edge: float,
+                  rgba: tuple[float, float, float, float]) -> bytes:
+        return kind(size=_size(edge), color=_color(rgba)).SerializeToString()
+
+    # (constant head, primitive key, pose key, constant primitive per step, positions)
+    entities: list[tuple[bytes, bytes, bytes, list[bytes], np.ndarray]] = [
+        (head("gripper"), _ENTITY_SPHERES, _SPHERE_POSE,
+         [primitive(SpherePrimitive, GRIPPER_DIAMETER, GRIPPER_RGBA)] * n, positions.gripper)]
     if positions.obj is not None:
-        template.entities.append(SceneEntity(
-            frame_id=FRAME_ID, id="object", metadata=metadata,
-            cubes=[CubePrimitive(pose=origin, size=_size(OBJECT_SIZE),
-                                 color=_color(OBJECT_RGBA))]))
-        bodies.append(positions.obj)
-    template.entities.append(SceneEntity(
-        frame_id=FRAME_ID, id="goal", metadata=metadata,
-        spheres=[SpherePrimitive(pose=origin, size=_size(goal_diameter))]))
-    bodies.append(positions.goal)
-    xyz = np.stack(bodies, axis=1).astype(float).tolist()  # (T+1, entities, 3) as floats
-    reached_color, missed_color = _color(GOAL_REACHED_RGBA), _color(GOAL_MISSED_RGBA)
+        entities.append((head("object"), _ENTITY_CUBES, _CUBE_POSE,
+                         [primitive(CubePrimitive, OBJECT_SIZE, OBJECT_RGBA)] * n,
+                         positions.obj))
+    reached = primitive(SpherePrimitive, goal_diameter, GOAL_REACHED_RGBA)
+    missed = primitive(SpherePrimitive, goal_diameter, GOAL_MISSED_RGBA)
+    entities.append((head("goal"), _ENTITY_SPHERES, _SPHERE_POSE,
+                     [reached if r else missed for r in positions.reached.tolist()],
+                     positions.goal))
+    xyz = [body.astype(float).tolist() for *_, body in entities]  # per entity (T+1, 3)
     updates = []
     for t, time_ns in enumerate(times_ns):
-        update = SceneUpdate()
-        update.CopyFrom(template)
-        for entity, p in zip(update.entities, xyz[t], strict=True):
-            primitive = entity.cubes[0] if entity.cubes else entity.spheres[0]
-            position = primitive.pose.position
-            position.x, position.y, position.z = p
-            entity.timestamp.FromNanoseconds(time_ns)
-            entity.metadata[-1].value = str(t)
-        update.entities[-1].spheres[0].color.CopyFrom(
-            reached_color if positions.reached[t] else missed_color)
-        updates.append(update)
+        common = _ENTITY_TIMESTAMP.encode(int(time_ns)) + pbwire.length_delimited(
+            _ENTITY_METADATA,
+            _STEP_KEY + pbwire.length_delimited(_KEY_VALUE_VALUE, str(t).encode()))
+        parts = []
+        for (entity_head, primitive_key, pose_key, constant, _), rows in zip(
+                entities, xyz, strict=True):
+            pose = pbwire.length_delimited(
+                pose_key, pbwire.length_delimited(_POSE_POSITION, _XYZ.pack(*rows[t]))
+                + _POSE_ORIENTATION)
+            parts.append(pbwire.length_delimited(_UPDATE_ENTITY, entity_head + common
+                         + pbwire.length_delimited(primitive_key, pose + constant[t])))
+        updates.append(b"".join(parts))
     return updates
 
 
@@ -174,9 +198,10 @@ def _rgba8(rgba: tuple[float, float, float, float]) -> np.ndarray:
     return np.round(np.array([*rgba[:3], 1.0]) * 255).astype(np.uint8)
 
 
-def point_clouds(positions: EpisodePositions, times_ns: Sequence[int]) -> list[PointCloud]:
-    """One PointCloud per observation: points gripper, [object,] goal in that order, coloured
-    as in `scene_updates` but opaque."""
+def point_clouds(positions: EpisodePositions, times_ns: Sequence[int]) -> list[bytes]:
+    """One serialised `foxglove.PointCloud` per observation: points gripper, [object,] goal in
+    that order, coloured as in `scene_updates` but opaque (the constant part serialised once,
+    as there)."""
     n = len(positions.gripper)
     if len(times_ns) != n:
         raise ValueError(f"{len(times_ns)} times for {n} observations")
@@ -193,11 +218,10 @@ def point_clouds(positions: EpisodePositions, times_ns: Sequence[int]) -> list[P
         points[axis] = xyz[..., i]
     for i, channel in enumerate(("red", "green", "blue", "alpha")):
         points[channel] = rgba[..., i]
-    identity = Pose(position=Vector3(), orientation=Quaternion(w=1.0))
-    clouds = []
-    for t, time_ns in enumerate(times_ns):
-        cloud = PointCloud(frame_id=FRAME_ID, pose=identity, point_stride=_POINT_DTYPE.itemsize,
-                           fields=_POINT_FIELDS, data=points[t].tobytes())
-        cloud.timestamp.FromNanoseconds(time_ns)
-        clouds.append(cloud)
-    return clouds
+    constant = PointCloud(frame_id=FRAME_ID,
+                          pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+                          point_stride=_POINT_DTYPE.itemsize,
+                          fields=_POINT_FIELDS).SerializeToString()
+    return [constant + _CLOUD_TIMESTAMP.encode(int(time_ns))
+            + pbwire.length_delimited(_CLOUD_DATA, points[t].tobytes())
+            for t, time_ns in enumerate(times_ns)]

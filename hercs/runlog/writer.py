@@ -29,6 +29,8 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, NamedTuple
 
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.message import Message
 from mcap.well_known import MessageEncoding
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType
@@ -62,6 +64,10 @@ if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, 
     raise ImportError("hercs.runlog.writer needs mcap.writer.Writer.flush() "
                       "(mcap >= 1.6); upgrade the mcap package")
 
+
+_SCENE_UPDATE, _POINT_CLOUD = SceneUpdate(), PointCloud()
+"""Instances naming the scene topics' message types (their schemas); the scene's messages
+themselves are built as bytes (`hercs.runlog.scene`)."""
 
 SCENE_BACKLOG = 1024
 """Episodes whose scene may wait to be written; beyond it new episodes get none."""
@@ -273,8 +279,8 @@ class EpisodeLogWriter:
 
     def _scene_records(self, episode: _PreparedEpisode
                        ) -> Iterator[tuple[str, Message, int, int, int, bytes]]:
-        """(topic, message, log_time, publish_time, sequence, serialised message) of one
-        episode's scene."""
+        """(topic, message type instance, log_time, publish_time, sequence, serialised
+        message) of one episode's scene."""
         positions, times, msg = episode.positions, episode.times_ns, episode.msg
         labels = {"episode_id": str(episode.episode_id), "actor_id": msg.actor_id,
                   "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
@@ -283,9 +289,8 @@ class EpisodeLogWriter:
                                       labels=labels)
         for update, cloud, t in zip(updates, scene.point_clouds(positions, times), times,
                                     strict=True):
-            yield TOPIC_SCENE, update, t, t, episode.episode_id, update.SerializeToString()
-            yield (TOPIC_SCENE_POINTS, cloud, t, t, episode.episode_id,
-                   cloud.SerializeToString())
+            yield TOPIC_SCENE, _SCENE_UPDATE, t, t, episode.episode_id, update
+            yield TOPIC_SCENE_POINTS, _POINT_CLOUD, t, t, episode.episode_id, cloud
 
     def _queue_scene(self, episode: _PreparedEpisode) -> None:
         if self._scene_queue is None:

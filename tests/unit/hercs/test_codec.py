@@ -2,12 +2,9 @@
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
 from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.codec import (
-    _varint,
     array_to_msg,
     arrays_to_named,
     batch_to_bytes,
@@ -169,13 +166,6 @@ def test_batch_to_bytes_is_the_message_serialize_to_string_gives(count: int,
     if minibatches:
         with pytest.raises(ValueError, match="must not hold minibatches"):
             batch_to_bytes(plain, minibatches)
-
-
-@given(st.integers(min_value=0, max_value=2**64 - 1))
-def test_varint_is_protobufs(value: int) -> None:
-    # Batch.request_id is field 2, a uint64: key byte 0x10, then the value as a varint
-    encoded = pb.Batch(request_id=value).SerializeToString()
-    assert encoded == (b"\x10" + _varint(value) if value else b"")
 
 
 def _sample_of_each_message() -> list:

@@ -1,0 +1,101 @@
+"""The episode log's scene messages, built as bytes, against the messages protobuf builds
+from the same positions (an independent construction, field by field)."""
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+
+from hercs.runlog import scene
+from hercs.tasks import task_spec
+
+LABELS = {"episode_id": "7", "actor_id": "actor-0", "seq": "3", "success": "false"}
+
+
+def positions_of(task: str, rng: np.random.Generator) -> scene.EpisodePositions:
+    spec = task_spec(task)
+    T = spec.episode_steps
+    obs = rng.uniform(-2, 2, size=(T + 1, spec.obs_dim)).astype(np.float32)
+    obs[0, 0:6] = 0.0  # a coordinate at exactly 0.0 (protobuf would omit it)
+    g = np.repeat(rng.uniform(-2, 2, size=(1, spec.goal_dim)), T, axis=0).astype(np.float32)
+    ag = obs[1:, 3:6] if spec.has_object else obs[1:, 0:3]
+    ag = np.concatenate([obs[:1, 0:3], ag], axis=0)
+    ag[5] = g[0]  # step 5 inside the goal: the goal is drawn green there
+    return scene.episode_positions(obs, ag, g, spec)
+
+
+def expected_update(p: scene.EpisodePositions, t: int, time_ns: int,
+                    goal_diameter: float) -> SceneUpdate:
+    def entity(entity_id: str, xyz: np.ndarray, **primitive: object) -> SceneEntity:
+        e = SceneEntity(frame_id="world", id=entity_id,
+                        metadata=[*(KeyValuePair(key=k, value=v) for k, v in LABELS.items()),
+                                  KeyValuePair(key="step", value=str(t))], **primitive)
+        e.timestamp.FromNanoseconds(time_ns)
+        return e
+
+    def pose(xyz: np.ndarray) -> Pose:
+        x, y, z = (float(v) for v in xyz)
+        return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(w=1.0))
+
+    def color(rgba: tuple[float, float, float, float]) -> Color:
+        return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+    def cube(edge: float) -> Vector3:
+        return Vector3(x=edge, y=edge, z=edge)
+
+    entities = [entity("gripper", p.gripper[t], spheres=[SpherePrimitive(
+        pose=pose(p.gripper[t]), size=cube(scene.GRIPPER_DIAMETER),
+        color=color(scene.GRIPPER_RGBA))])]
+    if p.obj is not None:
+        entities.append(entity("object", p.obj[t], cubes=[CubePrimitive(
+            pose=pose(p.obj[t]), size=cube(scene.OBJECT_SIZE), color=color(scene.OBJECT_RGBA))]))
+    goal_rgba = scene.GOAL_REACHED_RGBA if p.reached[t] else scene.GOAL_MISSED_RGBA
+    entities.append(entity("goal", p.goal[t], spheres=[SpherePrimitive(
+        pose=pose(p.goal[t]), size=cube(goal_diameter), color=color(goal_rgba))]))
+    return SceneUpdate(entities=entities)
+
+
+@pytest.mark.parametrize("task", ["reach", "push"])
+def test_scene_updates_parse_as_the_messages(task: str) -> None:
+    p = positions_of(task, np.random.default_rng(3))
+    assert p.reached[5] and not p.reached.all()
+    start = 1_764_000_000_123_456_789  # a real epoch time in ns: seconds and nanos both set
+    times = [start + t * scene.STEP_NS for t in range(len(p.gripper))]
+    updates = scene.scene_updates(p, times, goal_diameter=0.1, labels=LABELS)
+    assert len(updates) == len(times)
+    for t, data in enumerate(updates):
+        assert SceneUpdate.FromString(data) == expected_update(p, t, times[t], 0.1), t
+
+
+def test_point_clouds_parse_as_the_messages() -> None:
+    p = positions_of("push", np.random.default_rng(4))
+    times = [t * scene.STEP_NS for t in range(len(p.gripper))]  # from 0: seconds 0 at first
+    clouds = scene.point_clouds(p, times)
+    for t, data in enumerate(clouds):
+        cloud = PointCloud.FromString(data)
+        assert cloud.frame_id == "world" and cloud.pose.orientation.w == 1.0
+        assert cloud.timestamp.ToNanoseconds() == times[t]
+        points = np.frombuffer(cloud.data, dtype=[("xyz", "<f4", 3), ("rgba", "u1", 4)])
+        assert cloud.point_stride == points.dtype.itemsize == 16
+        np.testing.assert_array_equal(points["xyz"], np.stack([p.gripper[t], p.obj[t],
+                                                               p.goal[t]]))
+        goal_rgb = points["rgba"][2, :3]
+        expected = scene.GOAL_REACHED_RGBA if p.reached[t] else scene.GOAL_MISSED_RGBA
+        np.testing.assert_array_equal(goal_rgb,
+                                      np.round(np.array(expected[:3]) * 255).astype(np.uint8))
+
+
+def test_times_must_match_the_observations() -> None:
+    p = positions_of("push", np.random.default_rng(5))
+    with pytest.raises(ValueError, match="50 times for 51 observations"):
+        scene.scene_updates(p, list(range(50)), goal_diameter=0.1, labels=LABELS)
+    with pytest.raises(ValueError, match="50 times for 51 observations"):
+        scene.point_clouds(p, list(range(50)))
