@@ -7,9 +7,11 @@ the field.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import yaml
 
@@ -236,11 +238,45 @@ SERVICES: dict[str, tuple[str, str]] = {
 }
 
 
+HARD_EXIT_SERVICES = frozenset({"replay_service.service", "clusterer.service",
+                                "learner.service", "actors.service", "actors.evaluator"})
+"""Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
+flushes its recording in an exit handler)."""
+
+
+def exit_after_close(code: int) -> NoReturn:
+    """End a service process as soon as its orderly close is done, without interpreter
+    teardown.
+
+    When a service's `run` returns it has closed its Zenoh session, joined its threads (up
+    to `hercs.service.THREAD_JOIN_S`) and made everything it acknowledged durable; teardown
+    adds nothing but the finalisation of native threads, and there a clusterer stopped with
+    SIGTERM once aborted (SIGABRT, glibc's "FATAL: exception not rethrown": a native thread
+    unwound by the exiting interpreter; seen once in `make test` on a loaded machine, after
+    a clean stop). So: wait for non-daemon threads as a normal exit would, flush the logs
+    and the standard streams, and `os._exit`."""
+    import logging
+    import os
+    import threading
+
+    for thread in threading.enumerate():
+        if thread is not threading.current_thread() and not thread.daemon:
+            thread.join()
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
 def _service_command(module: str) -> Command:
     def command(args: argparse.Namespace, config: HercsConfig) -> int:
         from importlib import import_module
 
-        return int(import_module(module).run(config, ident=args.ident))
+        code = int(import_module(module).run(config, ident=args.ident))
+        if module in HARD_EXIT_SERVICES:
+            exit_after_close(code)
+        return code
 
     return command
 

@@ -105,3 +105,30 @@ def test_workers_preset_scales_episodes_batch_and_actors(capsys, tmp_path: Path)
     assert "--workers: got 0" in capsys.readouterr().err
     assert main(["up", "--resume", str(tmp_path), "--workers", "2"]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+EXIT_AFTER_CLOSE_SCRIPT = """
+import logging, sys, threading
+from apps.cli import exit_after_close
+logging.basicConfig(level=logging.INFO, format="%(message)s")
+release = threading.Event()
+def late_writer():
+    release.wait()
+    print("non-daemon thread done", flush=False)
+threading.Thread(target=late_writer).start()
+threading.Thread(target=threading.Event().wait, daemon=True).start()  # never ends
+logging.getLogger("svc").info("service closed")
+sys.stdout.write("buffered, not flushed")
+threading.Timer(0.2, release.set).start()
+exit_after_close(3)
+"""
+
+
+def test_exit_after_close_keeps_the_status_waits_for_non_daemon_threads_and_flushes() -> None:
+    # What a service process does once its run returned: the status is the run's, output
+    # still buffered is written, a non-daemon thread is waited for, a daemon one is not.
+    done = subprocess.run([sys.executable, "-c", EXIT_AFTER_CLOSE_SCRIPT], capture_output=True,
+                          text=True, timeout=60, cwd=Path(__file__).resolve().parents[3])
+    assert done.returncode == 3, done.stderr
+    assert "service closed" in done.stderr
+    assert "buffered, not flushed" in done.stdout and "non-daemon thread done" in done.stdout
