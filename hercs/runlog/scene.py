@@ -135,9 +135,11 @@ def scene_updates(positions: EpisodePositions, times_ns: Sequence[int], *,
 
     Each entity is its constant part (frame, id, labels; the primitive's size and colour),
     serialised once by protobuf, followed by the fields that change per step (timestamp,
-    step, pose), written with `hercs.pbwire`: ~4× faster than copying and serialising a
-    template message per step, and this runs on the replay (issue: inserts from many hosts).
-    Parsing gives the message protobuf would build (tests/unit/hercs/test_scene.py).
+    step, pose), written with `hercs.pbwire`: ~2× faster than copying and serialising a
+    template message per step (0.5 against 1.0 ms per FetchPush episode), and this runs on
+    the replay's core. A field's pieces parse in wire order, so the step comes after the
+    labels in `metadata`. Parsing gives the message protobuf would build
+    (tests/unit/hercs/test_scene.py).
     """
     n = len(positions.gripper)
     if len(times_ns) != n:
