@@ -238,8 +238,8 @@ SERVICES: dict[str, tuple[str, str]] = {
 }
 
 
-HARD_EXIT_SERVICES = frozenset({"replay_service.service", "clusterer.service",
-                                "learner.service", "actors.service", "actors.evaluator"})
+HARD_EXIT_SERVICES = frozenset(module for role, (module, _) in SERVICES.items()
+                               if role != "live")
 """Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
 flushes its recording in an exit handler)."""
 

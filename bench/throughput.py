@@ -1125,8 +1125,9 @@ class Bench:
 
     # -- 3. inserts and the fill ---------------------------------------------------------------
     def insert_rates(self, replay: Child, counts: Sequence[int], *, label: str = ""
-                     ) -> tuple[dict[int, float], dict[int, float], dict[int, dict[str, float]]]:
-        """Acked episodes/s, episodes per replay CPU-second and ack latency per insert level."""
+                     ) -> dict[str, Any]:
+        """Per insert level: acked episodes/s (`episodes_per_s`), ack latency and the replay's
+        CPU share (`ack_latency`), episodes per replay CPU-second; the phase's `details`."""
         p = self.plan
         rates: dict[int, float] = {}
         per_cpu: dict[int, float] = {}
@@ -1149,14 +1150,14 @@ class Bench:
                 f"ack latency p50 {latency[n]['p50_ms']:.1f} ms, replay CPU "
                 f"{latency[n]['replay_cpu_share']:.2f} → {per_cpu[n]:.0f} episodes per "
                 "replay CPU-second")
-        return rates, per_cpu, latency
+        return {"episodes_per_s": rates, "ack_latency": latency,
+                "episodes_per_replay_cpu_s": per_cpu, "window_s": p.insert_window_s}
 
     def insert_phase(self, replay: Child) -> None:
         p = self.plan
-        rates, per_cpu, latency = self.insert_rates(replay, p.insert_actor_counts)
-        self.details["inserts"] = {"episodes_per_s": rates, "ack_latency": latency,
-                                   "episodes_per_replay_cpu_s": per_cpu,
-                                   "window_s": p.insert_window_s}
+        details = self.details["inserts"] = self.insert_rates(replay, p.insert_actor_counts)
+        rates, per_cpu, latency = (details["episodes_per_s"], details["episodes_per_replay_cpu_s"],
+                                   details["ack_latency"])
         base = rates[p.insert_actor_counts[0]]
         for n in p.insert_actor_counts:
             self.figures.append(Figure(
@@ -1178,13 +1179,12 @@ class Bench:
         try:
             self.status.clear()
             self.wait_status(lambda s: True, what="the replay without scenes up", replay=replay)
-            rates, per_cpu, latency = self.insert_rates(replay, p.insert_no_scene_counts,
-                                                        label=" without scenes")
+            details = self.details["inserts_no_scene"] = self.insert_rates(
+                replay, p.insert_no_scene_counts, label=" without scenes")
         finally:
             self.stop(replay)
-        self.details["inserts_no_scene"] = {"episodes_per_s": rates, "ack_latency": latency,
-                                            "episodes_per_replay_cpu_s": per_cpu,
-                                            "window_s": p.insert_window_s}
+        rates, per_cpu, latency = (details["episodes_per_s"], details["episodes_per_replay_cpu_s"],
+                                   details["ack_latency"])
         with_scene = self.details["inserts"]["episodes_per_s"]
         for n in p.insert_no_scene_counts:
             self.figures.append(Figure(

@@ -61,6 +61,7 @@ from hypothesis import strategies as st
 
 from actors.weights import WeightsDecoder
 from clusterer.service import decode_header
+from hercs import pbwire
 from hercs.batch import TransitionBatch
 from hercs.clustering import ClusterModel
 from hercs.codec import (
@@ -190,19 +191,11 @@ class Probe:
         printer.text(repr(self))
 
 
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte, value = value & 0x7F, value >> 7
-        out.append(byte | (0x80 if value else 0))
-        if not value:
-            return bytes(out)
-
-
 def unknown_field(size: int) -> bytes:
     """A length-delimited protobuf field no hercs message defines (number 1000): parsers keep
     it as an unknown field, so a message padded with it still parses."""
-    return _varint(1000 << 3 | 2) + _varint(size) + b"\xa5" * size
+    return pbwire.length_delimited(pbwire.varint(1000 << 3 | pbwire.LENGTH_DELIMITED),
+                                   b"\xa5" * size)
 
 
 MUTATIONS = ("truncate", "flip", "flips", "splice", "zero", "append", "duplicate")
