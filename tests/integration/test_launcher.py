@@ -605,3 +605,50 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     assert [int(r["weights_version"]) for r in rows] == [3, 6]
     assert any(msg.failed_goals_seen for msg in read_cluster_models(run_dir)), \
         "the clusterer refitted during the run (the lockstep gate waited for its models)"
+
+
+# metrics.csv columns that depend on the computation alone. Left out: wall time and rates, and
+# replay_size and cluster_sizes, which are read from the replay when the row is written, by
+# then holding a varying part of the next cycle's episodes (the actor starts it as soon as the
+# cycle's weights are out).
+COMPUTED_COLUMNS = ("env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
+                    "weights_version", "cluster_model_version", "critic_loss", "actor_loss",
+                    "q_mean")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
+                    reason="a service module is not written yet")
+def test_lockstep_runs_with_one_seed_compute_the_same_numbers(tmp_path: Path) -> None:
+    """Lockstep with one actor is reproducible from the root seed on one machine, whatever the
+    timing (docs/DESIGN.md §10): two identical FetchReach HER-CS runs started side by side,
+    so that they compete for the cores, log the same episodes (observations, goals, actions,
+    weights version) and write the same losses, Q, evaluations and cluster model versions."""
+    names = ("twin-a", "twin-b")
+    launchers = [Launcher(
+        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+         "--epochs", "2", "--actors", "1", "--seed", "7", "--run", name, "--run-dir",
+         str(tmp_path / "runs"), "--listen", free_endpoint(),
+         "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
+         "--set", "training.eval_episodes=4", "--set", "cluster.k=2",
+         "--set", "cluster.fgb_size=8"],
+        cwd=tmp_path) for name in names]
+    try:
+        for launcher in launchers:
+            assert launcher.finish(timeout_s=180) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        for launcher in launchers:
+            launcher.kill()
+    runs = [tmp_path / "runs" / name for name in names]
+
+    def episodes(run_dir: Path) -> list[tuple[int, bytes, bytes, bytes, bytes, int]]:
+        return [(i, m.obs.data, m.ag.data, m.g.data, m.actions.data, int(m.policy_version))
+                for i, m in read_episodes(run_dir)]
+
+    first, second = (episodes(r) for r in runs)
+    assert len(first) >= 2 * 3 * 4 and first == second, \
+        "the two runs logged different episodes"
+    computed = [[{c: row[c] for c in COMPUTED_COLUMNS}
+                 for row in csv.DictReader((r / "metrics.csv").open())] for r in runs]
+    assert len(computed[0]) == 2 and computed[0] == computed[1]
+    assert float(computed[0][-1]["critic_loss"]) > 0.0, "the learner updated"
