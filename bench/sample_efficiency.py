@@ -57,7 +57,7 @@ from apps.plots import (  # noqa: E402
     plot_figure,
     tables,
 )
-from bench.common import git_commit  # noqa: E402
+from bench.common import git_commit, machine_identity  # noqa: E402
 from hercs.config import PRECISIONS, SCHEDULES  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
@@ -172,7 +172,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
              ) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
-    A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs);
+    A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs,
+    commit, the machine's CPU and boot id);
     one that fails or is interrupted is left in place and the next invocation continues it
     with `hercs up --resume` (its epochs already trained are kept)."""
     run_root.mkdir(parents=True, exist_ok=True)
@@ -199,6 +200,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     results: list[tuple[GridRun, int]] = []
     running: list[_Running] = []
     commit = git_commit()  # the code the runs train with (the report may be written later)
+    machine = machine_identity()  # runs differ across CPUs even with one seed (DESIGN §10)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     try:
         while todo or running:
@@ -229,7 +231,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
                               "command": " ".join(r.proc.args[1:]),  # type: ignore[index]
-                              "finished": datetime.now(UTC).isoformat(timespec="seconds")}
+                              "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+                              "machine": machine}
                     (run_root / r.cell.name / DONE_FILE).write_text(json.dumps(record, indent=2))
                     print(f"[done] {r.cell.name}: {wall / 60:.1f} min", flush=True)
                     if committed is not None:

@@ -79,6 +79,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     for name in ("reach-her-s1", "reach-her-cs-s1"):
         done = json.loads((tmp_path / "runs" / name / se.DONE_FILE).read_text())
         assert (done["task"], done["epochs"]) == ("reach", 1)
+        assert done["machine"] == se.machine_identity()  # one seed differs across CPUs
         rows = (tmp_path / "runs" / name / "metrics.csv").read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch
         committed = tmp_path / "committed" / name  # the small files, ready to commit

@@ -1,11 +1,13 @@
-"""The committed figures are what `hercs plot` computes from the committed runs: a run added
-under docs/results/runs/ without redrawing docs/results/fig2.md (`make figures`) fails here."""
+"""The committed figures are what `hercs plot` and bench/schedule_effect.py compute from the
+committed runs: a run added under docs/results/runs/ without redrawing docs/results/fig2.md
+and asynchrony.md (`make figures`) fails here."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from apps import plots
+from tests.support import load_bench
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
 
@@ -22,3 +24,11 @@ def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() ->
     assert (RESULTS / "fig2.md").read_text() == expected, (
         "docs/results/fig2.md is not what the committed runs give: run `make figures`")
     assert (RESULTS / "fig2.png").stat().st_size > 10_000
+
+
+def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committed_runs() -> None:
+    effect = load_bench("schedule_effect")
+    curves = [plots.load_run(run) for run in committed_runs()]
+    expected = effect.report(effect.compare_all(curves, 50), "python bench/schedule_effect.py")
+    assert (RESULTS / effect.OUTPUT).read_text() == expected, (
+        "docs/results/asynchrony.md is not what the committed runs give: run `make figures`")
