@@ -173,7 +173,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
     A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs,
-    commit, the machine's CPU and boot id);
+    commit, the CPU and boot id of the machine it finished on);
     one that fails or is interrupted is left in place and the next invocation continues it
     with `hercs up --resume` (its epochs already trained are kept)."""
     run_root.mkdir(parents=True, exist_ok=True)
