@@ -236,6 +236,15 @@ class ReplayTable:
         self._learner_version = 0
         self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self._schedule_offset = 0
+        """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
+        after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
+        the resumed learner's weights version (episodes acted after its last checkpoint), so
+        that a restart does not read as 50 cycles of lag. The limiter restarts balanced for
+        the same reason."""
+        self._recovered_unplaced: int | None = None
+        """Recovered episodes whose place in the schedule waits for the learner's first
+        sample call (its weights version); no schedule lag is recorded until then."""
         self.log_failures = 0
         """Inserts refused because their log append failed."""
 
@@ -260,6 +269,8 @@ class ReplayTable:
             if count:
                 self.limiter.inserts = count
                 self.limiter.samples = int(count * self.limiter.samples_per_insert)
+                if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
+                    self._recovered_unplaced = count
         return mismatched
 
     # -- inserts ---------------------------------------------------------------------------
@@ -354,9 +365,11 @@ class ReplayTable:
         assert result.episode_id == episode_id, "log and store disagree on episode ids"
         self.limiter.store_admitted()
         self._recent_lags.append(self._learner_version - episode.policy_version)
-        self._recent_schedule_lags.append(
-            schedule_cycle(episode_id, self.config.training.episodes_per_cycle)
-            - episode.policy_version)
+        if self._recovered_unplaced is None:
+            self._recent_schedule_lags.append(
+                schedule_cycle(episode_id - self._schedule_offset,
+                               self.config.training.episodes_per_cycle)
+                - episode.policy_version)
         if self.gate is not None:
             self.gate.store(episode.policy_version)
         next_version = self._next_version(episode)
@@ -394,6 +407,11 @@ class ReplayTable:
     def _serve(self, item: _ParkedSample) -> None:
         call = item.call
         self._learner_version = max(self._learner_version, call.weights_version)
+        if self._recovered_unplaced is not None:
+            per_cycle = self.config.training.episodes_per_cycle
+            surplus = self._recovered_unplaced // per_cycle - call.weights_version
+            self._schedule_offset = max(0, surplus) * per_cycle
+            self._recovered_unplaced = None
         result = self.core.sample(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
         o_state, g_state = self.core.normalizer_state()
