@@ -646,7 +646,10 @@ def test_lockstep_runs_with_one_seed_compute_the_same_numbers(tmp_path: Path) ->
                 for i, m in read_episodes(run_dir)]
 
     first, second = (episodes(r) for r in runs)
-    assert len(first) >= 2 * 3 * 4 and first == second, \
+    # the 24 episodes of the 6 trained cycles, and those of the next cycle that each run
+    # logged before it stopped (how many is timing: the actor starts it with the last weights)
+    both = min(len(first), len(second))
+    assert both >= 2 * 3 * 4 and first[:both] == second[:both], \
         "the two runs logged different episodes"
     computed = [[{c: row[c] for c in COMPUTED_COLUMNS}
                  for row in csv.DictReader((r / "metrics.csv").open())] for r in runs]
