@@ -21,22 +21,33 @@ def git_commit() -> str:
     return sha + (" (with uncommitted changes)" if dirty else "")
 
 
+VECTOR_EXTENSIONS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
+"""The CPU extensions that decide which matrix kernels run, and how fast bf16 is."""
+
+
+def cpu_info() -> dict[str, str]:
+    """The first CPU's /proc/cpuinfo fields (`model name`, `cpu family`, `model`, `flags`, …);
+    empty where there is none."""
+    fields: dict[str, str] = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, sep, value = line.partition(":")
+            key = key.strip()
+            if sep and key not in fields:
+                fields[key] = value.strip()
+    except OSError:
+        pass
+    return fields
+
+
 def machine_identity() -> dict[str, str]:
     """Which machine a result came from, as far as it can change the numbers: the CPU (model
     name, family/model, the widest vector extensions, which decide the kernels MKL and oneDNN
     pick, docs/DESIGN.md §10) and the boot (two results with one boot id come from one
     machine instance; a cloud machine of the same CPU model may still differ)."""
-    fields: dict[str, str] = {}
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            key = key.strip()
-            if key in ("model name", "cpu family", "model", "flags") and key not in fields:
-                fields[key] = value.strip()
-    except OSError:
-        pass
+    fields = cpu_info()
     flags = set(fields.get("flags", "").split())
-    wide = [f for f in ("avx2", "avx512f", "avx512_bf16", "amx_bf16") if f in flags]
+    wide = [f for f in VECTOR_EXTENSIONS if f in flags]
     cpu = (f"{fields.get('model name', 'unknown CPU')} (family {fields.get('cpu family', '?')}"
            f" model {fields.get('model', '?')}; {' '.join(wide) or 'no AVX2'})")
     try:

@@ -27,7 +27,6 @@ Writes docs/results/learner.{json,md} (or --out).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import platform
@@ -44,7 +43,7 @@ if str(REPO) not in sys.path:  # `python bench/learner.py` from a checkout
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from bench.common import git_commit  # noqa: E402
+from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit  # noqa: E402
 from hercs.batch import TransitionBatch  # noqa: E402
 from hercs.config import DDPGConfig  # noqa: E402
 from hercs.tasks import task_spec  # noqa: E402
@@ -162,11 +161,7 @@ def workers_scaling(spec, config: DDPGConfig, workers: tuple[int, ...], *,  # ty
 
 def cpu_flags() -> set[str]:
     """The CPU's feature flags (/proc/cpuinfo; empty where there is none)."""
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                return set(line.split(":", 1)[1].split())
-    return set()
+    return set(cpu_info().get("flags", "").split())
 
 
 def bf16_note(flags: set[str]) -> str:
@@ -184,15 +179,10 @@ def cpu_features() -> str:
     """The CPU model and the vector extensions that decide bf16 speed."""
     model = platform.processor() or "unknown CPU"
     if model in ("unknown CPU", "x86_64"):
-        with contextlib.suppress(OSError):
-            for line in Path("/proc/cpuinfo").read_text().splitlines():
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
+        model = cpu_info().get("model name", model)
     flags = cpu_flags()
-    wanted = ["avx2", "avx512f", "avx512_bf16", "amx_bf16"]
-    have = [f for f in wanted if f in flags]
-    missing = [f for f in wanted if f not in flags]
+    have = [f for f in VECTOR_EXTENSIONS if f in flags]
+    missing = [f for f in VECTOR_EXTENSIONS if f not in flags]
     return f"{model}; has {', '.join(have) or 'none of'}; lacks {', '.join(missing) or '-'}"
 
 

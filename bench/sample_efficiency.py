@@ -57,7 +57,7 @@ from apps.plots import (  # noqa: E402
     plot_figure,
     tables,
 )
-from bench.common import git_commit, machine_identity  # noqa: E402
+from bench.common import cpu_info, git_commit, machine_identity  # noqa: E402
 from hercs.config import PRECISIONS, SCHEDULES  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
 from hercs.tasks import TASKS  # noqa: E402
@@ -257,12 +257,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
 # ------------------------------------------------------------------------------- report
 
 def machine_description() -> str:
-    model = ""
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
+    model = cpu_info().get("model name", "")
     mem = ""
     with contextlib.suppress(OSError, ValueError, IndexError):
         kib = int(Path("/proc/meminfo").read_text().split("\n")[0].split()[1])

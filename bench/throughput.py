@@ -389,7 +389,7 @@ QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=
 import torch  # noqa: E402
 
 from apps.router import open_router  # noqa: E402
-from bench.common import git_commit  # noqa: E402
+from bench.common import cpu_info, git_commit  # noqa: E402
 from bench.learner import gemm_rate, make_batch, update_flops, update_rate  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
 from hercs.codec import array_to_msg, episode_to_msg  # noqa: E402
@@ -1388,12 +1388,7 @@ class Bench:
 
 
 def machine_description() -> dict[str, Any]:
-    model = platform.processor() or "unknown CPU"
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
+    model = cpu_info().get("model name", platform.processor() or "unknown CPU")
     ram_gib = float("nan")
     with contextlib.suppress(OSError, ValueError):
         ram_gib = parse_proc_status_kib(Path("/proc/meminfo").read_text(), "MemTotal") / 2**20
