@@ -40,7 +40,7 @@ from apps.plots import (  # noqa: E402
     PlotError,
     aggregate,
     group,
-    load_run,
+    load_runs,
     method_key,
     method_label,
     milestones,
@@ -106,13 +106,7 @@ def _cut(curve: Curve, epochs: np.ndarray) -> Curve:
 def load_pair(runs: Path, task: str, method: str) -> tuple[list[Curve], list[Curve]]:
     """(fp32 seeds, bf16 seeds) of one task and method in the asynchronous schedule."""
     title = task_title(task)
-    curves = []
-    for folder in sorted(p for p in runs.iterdir() if p.is_dir()):
-        try:
-            curves.append(load_run(folder))
-        except PlotError:
-            continue  # not a run folder (or an unfinished one without metrics)
-    mine = group(c for c in curves if c.task == title).get(title, {})
+    mine = group(c for c in load_runs(runs) if c.task == title).get(title, {})
     return mine.get(method_key(method), []), mine.get(method_key(method, precision="bf16"), [])
 
 

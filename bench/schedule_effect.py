@@ -41,14 +41,12 @@ from scipy import stats  # noqa: E402
 
 from apps.plots import (  # noqa: E402
     Curve,
-    PlotError,
     aggregate,
     group,
-    load_run,
+    load_runs,
     method_key,
     method_label,
     milestones,
-    moving_average,
 )
 
 SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}
@@ -104,14 +102,15 @@ def _done_record(run_dir: Path) -> dict[str, object]:
 
 def seed_result(curve: Curve, epoch: int) -> SeedResult:
     keep = curve.epochs <= epoch
-    epochs, success = curve.epochs[keep], curve.success[keep]
-    ma = moving_average(epochs, success)
-    cut = Curve(curve.task, curve.method, curve.seed, epochs, success, curve.source)
+    cut = Curve(curve.task, curve.method, curve.seed, curve.epochs[keep], curve.success[keep],
+                curve.source)
+    m = milestones(aggregate([cut]))  # one seed: its own trailing mean
     run_dir = Path(curve.source)
     done = _done_record(run_dir)
+    assert m.final is not None
     return SeedResult(run_dir.name, curve.seed, str(done.get("commit", "–")),
                       str(done.get("finished", "–"))[:16].replace("T", " "),
-                      milestones(aggregate([cut])).crossing[0.5], float(ma[-1]))
+                      m.crossing[0.5], m.final)
 
 
 def difference(lockstep: Sequence[float], asynchronous: Sequence[float]) -> Difference:
@@ -218,12 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--epoch must be at least 1, got {args.epoch}")
     if not args.runs.is_dir():
         p.error(f"--runs {args.runs}: not a directory")
-    curves = []
-    for folder in sorted(d for d in args.runs.iterdir() if d.is_dir()):
-        try:
-            curves.append(load_run(folder))
-        except PlotError:
-            continue  # not a run folder, or one without metrics yet
+    curves = load_runs(args.runs)
     command = " ".join(["python bench/schedule_effect.py",
                         *(sys.argv[1:] if argv is None else argv)])
     text = report(compare_all(curves, args.epoch), command, args.epoch)
