@@ -15,7 +15,8 @@ Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
 - Episodes are delivered one at a time, in `seq` order. `newest_next_policy_version` is the
   highest weights version an ack asked the next episodes to be acted with (lockstep).
 
-Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight. The
+Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight (with
+capacity 0, while one is in flight). The
 replay's rate limiter holds insert queries (answers them later) when learner updates lag the
 inserts; the in-flight request then waits, the queue fills and the actor's rollout loop stops
 stepping the env until an ack frees a slot. With the default capacity of 2 the env keeps
@@ -96,8 +97,8 @@ class Inserter:
     ) -> None:
         """`on_crash(thread name, exc)` hears of an unexpected exception that ended the sender
         thread (e.g. `ServiceRuntime.crashed`); without it the exception is only logged."""
-        if capacity < 1:
-            raise ValueError(f"Inserter capacity: got {capacity}, must be >= 1")
+        if capacity < 0:
+            raise ValueError(f"Inserter capacity: got {capacity}, must be >= 0")
         if not 0 < backoff_min_s <= backoff_max_s:
             raise ValueError(f"Inserter backoff: got min {backoff_min_s}, max {backoff_max_s}; "
                              "need 0 < min <= max")
@@ -112,7 +113,7 @@ class Inserter:
         self._busy = False
         """An episode is being delivered (popped from the queue, outcome not yet known)."""
         self.newest_next_policy_version = 0
-        """The highest `next_policy_version` any ack carried (lockstep)."""
+        """The highest `next_policy_version` any ack carried (lockstep, or a lag bound)."""
         self._abort = threading.Event()
         self._warn = WarnOncePerMinute(log)
         self._thread = start_supervised(self._run, name=f"hercs-inserter-{actor_id}",
@@ -133,7 +134,7 @@ class Inserter:
         """
         start = time.monotonic()
         with self._cond:
-            while len(self._queue) >= self.capacity:
+            while self._full():
                 if stop.is_set() or self._closing:
                     return False
                 self._cond.wait(poll_s)
@@ -143,6 +144,12 @@ class Inserter:
             self._cond.notify_all()
         self.counters.blocked_s += time.monotonic() - start
         return True
+
+    def _full(self) -> bool:
+        """(Under the lock.) With capacity 0 nothing waits behind a delivery in flight."""
+        if self.capacity == 0:
+            return bool(self._queue) or self._busy
+        return len(self._queue) >= self.capacity
 
     def wait_idle(self, *, stop: threading.Event, poll_s: float = 0.2) -> bool:
         """Wait until every submitted episode's delivery has ended; False if `stop` is set or

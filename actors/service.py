@@ -22,7 +22,8 @@ What `run` does, in order:
    broadcast), and after it for the insert's outcome: an ack says which version the next
    episode needs (the next cycle's once this one is full); an episode the replay refuses as
    stale or surplus (`hercs.lockstep.LockstepReason`) is dropped and the next waits for newer
-   weights.
+   weights. Asynchronously with `training.max_policy_lag` the loop waits likewise, before each
+   episode, for the weights the newest ack asked for; an episode refused as stale is dropped.
 4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
    finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
    queued inserts for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the
@@ -59,8 +60,6 @@ from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 
-INSERT_QUEUE = 2
-"""Finished episodes per env that may wait behind the one whose ack is in flight."""
 STOP_FLUSH_S = 3.0
 """On stop, queued inserts get this long to be acked before they are given up."""
 METRICS_EVERY_EPISODES = 10
@@ -144,7 +143,8 @@ class ActorService:
         timeout_s = config.actor.insert_timeout_s
         self.inserter = Inserter(
             send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
-            actor_id=self.actor_id, capacity=INSERT_QUEUE * config.actor.envs_per_process,
+            actor_id=self.actor_id,
+            capacity=config.actor.insert_queue * config.actor.envs_per_process,
             on_crash=runtime.crashed,
         )
         # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
@@ -155,8 +155,13 @@ class ActorService:
         self.run_finished = threading.Event()
         self.episodes = 0
         self.lockstep = config.training.schedule == "lockstep"
+        self.lag_bounded = not self.lockstep and config.training.max_policy_lag >= 1
+        """Asynchronous with `training.max_policy_lag`: the acks say which weights the next
+        episode needs, and the loop waits for them instead of acting an episode the replay
+        would refuse."""
         self.min_policy_version = 0
-        """Lockstep: the oldest weights version the next episode may be acted with."""
+        """Lockstep (or a lag bound): the oldest weights version the next episode may be
+        acted with."""
 
     def _on_weights(self, key: str, raw: bytes) -> None:
         """Subscription thread: decode, check, offer. Never touches the policy itself."""
@@ -200,7 +205,10 @@ class ActorService:
         try:
             while not stop.is_set():
                 self._adopt_newest()
-                if self.lockstep and not self._await_weights():
+                if self.lag_bounded:
+                    self.min_policy_version = max(self.min_policy_version,
+                                                  self.inserter.newest_next_policy_version)
+                if (self.lockstep or self.lag_bounded) and not self._await_weights():
                     break
                 acted_with = self.policy.version
                 superseded_before = self.inserter.counters.superseded
@@ -239,7 +247,8 @@ class ActorService:
             self.policy.load(newest)
 
     def _await_weights(self) -> bool:
-        """Lockstep: wait for weights of at least `min_policy_version`; False if stopped."""
+        """Lockstep or a lag bound: wait for weights of at least `min_policy_version`; False
+        if stopped."""
         stop = self.runtime.stop
         while self.policy.version < self.min_policy_version:
             if stop.is_set():

@@ -269,8 +269,18 @@ class TrainingConfig:
     stale). `lockstep`: the reference's single-process alternation, exactly: cycle c's
     episodes are acted with weights version c, then its updates see them (docs/DESIGN.md
     §9.1) [DESIGN]."""
+    max_policy_lag: int = -1
+    """Asynchronous schedule: the most cycles an episode may lag the lockstep schedule (its
+    cycle there minus the weights version it was acted with; Sample Factory's
+    `max_policy_lag`). The replay refuses an older episode as `stale_policy` before storing
+    it (nothing acknowledged is ever dropped) unless it was acted with the learner's newest
+    weights, and its acks tell the actors which weights to wait for. -1: no bound. Lockstep
+    is lag 0 by construction and ignores this (docs/DESIGN.md §9.1) [DESIGN]."""
 
     def __post_init__(self) -> None:
+        _check(self.max_policy_lag == -1 or self.max_policy_lag >= 1, "training.max_policy_lag",
+               self.max_policy_lag,
+               "be -1 (no bound) or >= 1 (lag 0 is training.schedule=lockstep)")
         _check(self.schedule in SCHEDULES, "training.schedule", self.schedule,
                f"be one of {', '.join(SCHEDULES)}")
         for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
@@ -345,8 +355,13 @@ class ActorConfig:
     """Envs one actor process steps side by side, with one batched policy call per step for
     all of them [DESIGN]; more envs per process amortise the per-step inference and the
     process's fixed costs (docs/PERFORMANCE.md)."""
+    insert_queue: int = 2
+    """Finished episodes per env that may wait behind the one whose insert is in flight
+    before the rollout loop blocks (0: none, the next episode starts only once the last is
+    acked). Each waiting episode was acted with weights that age while it waits [DESIGN]."""
 
     def __post_init__(self) -> None:
+        _check(self.insert_queue >= 0, "actor.insert_queue", self.insert_queue, "be >= 0")
         _check(self.num_actors >= 0, "actor.num_actors", self.num_actors, "be >= 0")
         _check(1 <= self.envs_per_process <= 256, "actor.envs_per_process",
                self.envs_per_process, "be between 1 and 256")
@@ -369,7 +384,15 @@ class LearnerConfig:
     losses and normaliser [DESIGN]. Pays only where bf16 matrix products are native (recent
     GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4."""
 
+    prefetch_depth: int = 3
+    """Batches sampled ahead of the one the update loop is training on, to hide sampling and
+    transport. In the asynchronous schedule each one lets the rate limiter admit one cycle of
+    episodes more before their weights exist: one cycle of policy lag per batch of depth
+    (docs/PERFORMANCE.md §2). Lockstep asks for nothing ahead whatever this says [DESIGN]."""
+
     def __post_init__(self) -> None:
+        _check(self.prefetch_depth >= 0, "learner.prefetch_depth", self.prefetch_depth,
+               "be >= 0 (0: ask for a batch only when the update loop wants it)")
         _check(self.precision in PRECISIONS, "learner.precision", self.precision,
                "be fp32 or bf16")
         base, _, index = self.device.partition(":")

@@ -43,6 +43,13 @@ class SampleBatch:
     """Against the lockstep schedule (`Batch.policy_lag`)."""
     policy_lag_request: float = 0.0
     """Against the learner's latest sample request (`Batch.policy_lag_request`)."""
+    policy_lags: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """The lag of each episode stored since the previous batch (`Batch.policy_lags`)."""
+    sampled_moved: int = 0
+    """Transitions of this batch whose episode's achieved goal moved."""
+    sampled_transitions: int = 0
+    buffer_moved_share: float = 0.0
+    """Share of the replay's episodes whose achieved goal moved, when this batch was drawn."""
 
 
 @dataclass
@@ -70,6 +77,11 @@ class EpochSnapshot:
     cluster_share: list[float]
     losses: dict[str, float]
     policy_lag_request: float = 0.0
+    policy_lag_p50: float = float("nan")
+    policy_lag_p95: float = float("nan")
+    policy_lag_max: float = float("nan")
+    sampled_moved_share: float = float("nan")
+    buffer_moved_share: float = float("nan")
 
 
 METRICS_COLUMNS = [
@@ -77,13 +89,21 @@ METRICS_COLUMNS = [
     "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
     "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
     "actor_loss", "q_mean", "batch_wait_s", "bad_batches", "policy_lag_request",
+    "policy_lag_p50", "policy_lag_p95", "policy_lag_max", "sampled_moved_share",
+    "buffer_moved_share",
 ]
 """`batch_wait_s` (written by the learner service): seconds of the epoch the update loop
 waited for a batch, i.e. sampling and transport that prefetch did not hide. `bad_batches`: Batch
 replies skipped so far because they failed validation. `policy_lag`: mean over recent episodes
 of (their cycle in the lockstep schedule) − (the weights version they were acted with), 0 in
 lockstep; `policy_lag_request`: the same against the weights version of the learner's latest
-sample request when they were stored (the measure before the lockstep schedule existed)."""
+sample request when they were stored (the measure before the lockstep schedule existed).
+`policy_lag_p50`, `_p95`, `_max`: the distribution of `policy_lag` over the episodes stored
+during the epoch (nan when none was placed, e.g. right after a replay restart).
+`sampled_moved_share`: the share of the epoch's sampled transitions whose episode's achieved
+goal moved (the object, in the object tasks: replay_service.store.MOVED_THRESHOLD_M);
+`buffer_moved_share`: that share among the replay's stored episodes, averaged over the
+epoch's batches — what HER-CS and EBP exist to raise the first above."""
 
 
 class LearnerLoop:
@@ -101,6 +121,9 @@ class LearnerLoop:
         self._epoch_start_steps = 0
         self._epoch_start_updates = 0
         self._epoch_draws = np.zeros(config.cluster.k, np.int64)
+        self._epoch_lags: list[np.ndarray] = []
+        self._epoch_moved = np.zeros(2, np.int64)  # sampled moved, sampled transitions
+        self._epoch_buffer_share: list[float] = []
         self._loss_sums: dict[str, float] = {}
         self._loss_count = 0
         self._last: SampleBatch | None = None
@@ -146,6 +169,10 @@ class LearnerLoop:
         self.cycle += 1
         if batch.cluster_draws.shape == self._epoch_draws.shape:
             self._epoch_draws += batch.cluster_draws
+        self._epoch_lags.append(batch.policy_lags)
+        self._epoch_moved += (batch.sampled_moved, batch.sampled_transitions)
+        if batch.sampled_transitions:
+            self._epoch_buffer_share.append(batch.buffer_moved_share)
         self._last = batch
         ended = None
         if self.cycle % self.config.training.cycles_per_epoch == 0:
@@ -163,6 +190,10 @@ class LearnerLoop:
         draws = self._epoch_draws
         share = (draws / draws.sum()).tolist() if draws.sum() else [0.0] * len(draws)
         losses = {k: v / max(self._loss_count, 1) for k, v in self._loss_sums.items()}
+        lags = np.concatenate(self._epoch_lags) if self._epoch_lags else np.zeros(0)
+        p50, p95, top = ((float(np.percentile(lags, 50)), float(np.percentile(lags, 95)),
+                          float(lags.max())) if lags.size else (float("nan"),) * 3)
+        moved, sampled = (int(v) for v in self._epoch_moved)
         snap = EpochSnapshot(
             epoch=self.epoch, version=self.version, env_steps=batch.env_steps,
             inserts=batch.inserts, updates=updates, wall_s=now - self._start,
@@ -170,7 +201,13 @@ class LearnerLoop:
             updates_per_s=(updates - self._epoch_start_updates) / elapsed,
             policy_lag=batch.policy_lag, cluster_model_version=batch.cluster_model_version,
             cluster_share=share, losses=losses, policy_lag_request=batch.policy_lag_request,
+            policy_lag_p50=p50, policy_lag_p95=p95, policy_lag_max=top,
+            sampled_moved_share=moved / sampled if sampled else float("nan"),
+            buffer_moved_share=(float(np.mean(self._epoch_buffer_share))
+                                if self._epoch_buffer_share else float("nan")),
         )
+        self._epoch_lags, self._epoch_moved = [], np.zeros(2, np.int64)
+        self._epoch_buffer_share = []
         self._epoch_start, self._epoch_start_steps = now, batch.env_steps
         self._epoch_start_updates = updates
         self._epoch_draws = np.zeros_like(self._epoch_draws)
@@ -193,6 +230,10 @@ class LearnerLoop:
             "replay_size": status.get("size_transitions", 0),
             "policy_lag": round(snap.policy_lag, 3), "weights_version": snap.version,
             "policy_lag_request": round(snap.policy_lag_request, 3),
+            "policy_lag_p50": snap.policy_lag_p50, "policy_lag_p95": snap.policy_lag_p95,
+            "policy_lag_max": snap.policy_lag_max,
+            "sampled_moved_share": round(snap.sampled_moved_share, 4),
+            "buffer_moved_share": round(snap.buffer_moved_share, 4),
             "cluster_model_version": snap.cluster_model_version,
             "cluster_sizes": ";".join(str(c) for c in status.get("cluster_sizes", [])),
             "cluster_share": ";".join(f"{s:.4f}" for s in snap.cluster_share),

@@ -64,7 +64,6 @@ from proto import hercs_pb2 as pb
 
 log = logging.getLogger("hercs.learner")
 
-PREFETCH_DEPTH = 2
 _POLL_S = 0.5
 MAX_BATCH_BYTES = 1 << 30
 
@@ -95,6 +94,14 @@ def decode_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         raise InvalidMessage(RejectReason.BAD_LENGTH,
                              f"Batch.cluster_draws: {len(msg.cluster_draws)} values, expected "
                              f"{k} (cluster.k) or none")
+    if msg.sampled_moved > msg.sampled_transitions:
+        raise InvalidMessage(RejectReason.BAD_VALUE,
+                             f"Batch.sampled_moved {msg.sampled_moved} exceeds "
+                             f"Batch.sampled_transitions {msg.sampled_transitions}")
+    if not 0.0 <= msg.buffer_moved_share <= 1.0:
+        raise InvalidMessage(RejectReason.BAD_VALUE,
+                             f"Batch.buffer_moved_share {msg.buffer_moved_share!r} is not a "
+                             "share in [0, 1]")
     if any(d > MAX_INT64 for d in msg.cluster_draws):  # they are summed in an int64 array
         raise InvalidMessage(RejectReason.BAD_VALUE,
                              f"Batch.cluster_draws: {list(msg.cluster_draws)} holds a value "
@@ -107,11 +114,20 @@ def decode_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         policy_lag=float(msg.policy_lag) if math.isfinite(msg.policy_lag) else 0.0,
         policy_lag_request=(float(msg.policy_lag_request) if math.isfinite(msg.policy_lag_request)
                             else 0.0),
+        policy_lags=np.asarray(msg.policy_lags, np.int64),
+        sampled_moved=int(msg.sampled_moved), sampled_transitions=int(msg.sampled_transitions),
+        buffer_moved_share=float(msg.buffer_moved_share),
     )
 
 
 class Prefetcher:
     """Requests batches ahead of the update loop on its own thread.
+
+    At most `learner.prefetch_depth` batches are sampled and not yet taken by the loop: each
+    request takes a credit, each `get` gives one back before it waits, so with depth 0 a
+    batch is asked for only when the loop wants it. Every batch sampled ahead lets the rate
+    limiter admit a cycle of episodes more before their weights exist: one cycle of policy lag
+    per batch of depth (docs/DESIGN.md §9.1).
 
     In the lockstep schedule it asks for nothing ahead: cycle c's request (weights_version c)
     is sent once the loop has reached version c (`cycle_done` wakes it), and the replay holds
@@ -124,7 +140,8 @@ class Prefetcher:
         self.version = version
         self.lockstep = config.training.schedule == "lockstep"
         self._advanced = threading.Condition()
-        self.batches: queue.Queue[SampleBatch] = queue.Queue(maxsize=PREFETCH_DEPTH)
+        self.batches: queue.Queue[SampleBatch] = queue.Queue()  # bounded by the credits
+        self._credits = threading.Semaphore(config.learner.prefetch_depth)
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
         self.waiting_s = 0.0
@@ -151,43 +168,49 @@ class Prefetcher:
         stop = self.runtime.stop
         wanted = self.version()  # lockstep: the cycle the next request is for
         while not stop.is_set():
+            if not self._credits.acquire(timeout=_POLL_S):
+                continue
             if self.lockstep and not self._wait_for_version(wanted):
                 return
-            self._request_id += 1
-            request = pb.SampleRequest(
-                schema_version=SCHEMA_VERSION, run=self.config.run.name,
-                learner_id=self.runtime.ident, request_id=self._request_id,
-                num_minibatches=self.config.training.minibatches_per_cycle,
-                batch_size=self.config.ddpg.batch_size,
-                weights_version=wanted if self.lockstep else self.version())
-            try:
-                raw = self.runtime.transport.request(
-                    self.runtime.keys.sample, request.SerializeToString(),
-                    timeout_s=self.config.replay.sample_timeout_s)
-                batch = decode_batch(raw, spec=self.config.task.spec, k=self.config.cluster.k,
-                                     batch_size=self.config.ddpg.batch_size,
-                                     num_minibatches=self.config.training.minibatches_per_cycle)
-            except InvalidMessage as exc:  # a reply no update may see: counted, skipped
-                self.bad_batches[exc.reason] += 1
-                self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")
-                continue
-            except (TransportTimeout, RemoteError, TransportError) as exc:
-                if stop.is_set():
-                    return
-                self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
-                stop.wait(0.5)
+            if not self._fetch(wanted):
+                self._credits.release()  # nothing was sampled with it
                 continue
             wanted += 1
-            while not stop.is_set():
-                try:
-                    self.batches.put(batch, timeout=0.5)
-                    break
-                except queue.Full:
-                    continue
+
+    def _fetch(self, wanted: int) -> bool:
+        """One request for cycle `wanted`; True once its batch is queued, False if it failed
+        (counted and warned; the caller asks again) or the service is stopping."""
+        stop = self.runtime.stop
+        self._request_id += 1
+        request = pb.SampleRequest(
+            schema_version=SCHEMA_VERSION, run=self.config.run.name,
+            learner_id=self.runtime.ident, request_id=self._request_id,
+            num_minibatches=self.config.training.minibatches_per_cycle,
+            batch_size=self.config.ddpg.batch_size,
+            weights_version=wanted if self.lockstep else self.version())
+        try:
+            raw = self.runtime.transport.request(
+                self.runtime.keys.sample, request.SerializeToString(),
+                timeout_s=self.config.replay.sample_timeout_s)
+            batch = decode_batch(raw, spec=self.config.task.spec, k=self.config.cluster.k,
+                                 batch_size=self.config.ddpg.batch_size,
+                                 num_minibatches=self.config.training.minibatches_per_cycle)
+        except InvalidMessage as exc:  # a reply no update may see: counted, skipped
+            self.bad_batches[exc.reason] += 1
+            self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")
+            return False
+        except (TransportTimeout, RemoteError, TransportError) as exc:
+            if not stop.is_set():
+                self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
+                stop.wait(0.5)
+            return False
+        self.batches.put(batch)
+        return True
 
     def get(self) -> SampleBatch | None:
         """The next batch, or None once the service is stopping. Time spent waiting for one
         adds to `waiting_s`: the update loop idles then, so it is what prefetch failed to hide."""
+        self._credits.release()  # room for the batch after the ones already sampled
         try:
             return self.batches.get_nowait()
         except queue.Empty:

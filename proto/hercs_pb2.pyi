@@ -145,7 +145,7 @@ class Minibatch(_message.Message):
     def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
-    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag", "policy_lag_request")
+    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag", "policy_lag_request", "policy_lags", "sampled_moved", "sampled_transitions", "buffer_moved_share")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
@@ -157,6 +157,10 @@ class Batch(_message.Message):
     ENV_STEPS_FIELD_NUMBER: _ClassVar[int]
     POLICY_LAG_FIELD_NUMBER: _ClassVar[int]
     POLICY_LAG_REQUEST_FIELD_NUMBER: _ClassVar[int]
+    POLICY_LAGS_FIELD_NUMBER: _ClassVar[int]
+    SAMPLED_MOVED_FIELD_NUMBER: _ClassVar[int]
+    SAMPLED_TRANSITIONS_FIELD_NUMBER: _ClassVar[int]
+    BUFFER_MOVED_SHARE_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     request_id: int
     minibatches: _containers.RepeatedCompositeFieldContainer[Minibatch]
@@ -168,7 +172,11 @@ class Batch(_message.Message):
     env_steps: int
     policy_lag: float
     policy_lag_request: float
-    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ..., policy_lag_request: _Optional[float] = ...) -> None: ...
+    policy_lags: _containers.RepeatedScalarFieldContainer[int]
+    sampled_moved: int
+    sampled_transitions: int
+    buffer_moved_share: float
+    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ..., policy_lag_request: _Optional[float] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., buffer_moved_share: _Optional[float] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
     __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failed_goals_seen")

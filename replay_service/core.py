@@ -48,6 +48,11 @@ class SampleResult:
     cluster_draws: np.ndarray
     """(k,) episodes drawn per cluster over all minibatches (zeros for non-cluster methods
     before any model)."""
+    sampled_moved: int = 0
+    """Sampled transitions whose episode's achieved goal moved (`EpisodeStore.moved`)."""
+    sampled_transitions: int = 0
+    buffer_moved_share: float = 0.0
+    """Share of the stored episodes whose achieved goal moved, when sampled."""
 
 
 class ReplayCore:
@@ -145,14 +150,19 @@ class ReplayCore:
         """`num_minibatches` HER-relabelled minibatches of `batch_size` transitions."""
         draws = np.zeros(self.config.cluster.k, np.int64)
         out = []
+        moved, sampled = 0, 0
         for _ in range(num_minibatches):
             slots, info = self.sampler.sample(self.store, batch_size, self.rng)
             draws += info.cluster_counts
+            moved += int(self.store.moved[slots].sum())
+            sampled += len(slots)
             out.append(relabel(self.store, slots, future_p=self.config.her.future_p,
                                reward_fn=self.spec.compute_reward, rng=self.rng).transitions)
         self.samples += num_minibatches
         self.cluster_draws_total += draws
-        return SampleResult(out, draws)
+        store = self.store
+        return SampleResult(out, draws, sampled_moved=moved, sampled_transitions=sampled,
+                            buffer_moved_share=store.moved_count / max(store.size, 1))
 
     def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         return self.o_norm.state_dict(), self.g_norm.state_dict()

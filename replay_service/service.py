@@ -320,7 +320,9 @@ def _batch_bytes(sampled: Sampled) -> bytes:
         cluster_model_version=sampled.cluster_model_version,
         cluster_draws=[int(c) for c in result.cluster_draws],
         inserts=sampled.inserts, env_steps=sampled.env_steps, policy_lag=sampled.policy_lag,
-        policy_lag_request=sampled.policy_lag_request,
+        policy_lag_request=sampled.policy_lag_request, policy_lags=list(sampled.policy_lags),
+        sampled_moved=result.sampled_moved, sampled_transitions=result.sampled_transitions,
+        buffer_moved_share=result.buffer_moved_share,
     )
     return batch_to_bytes(header, result.minibatches)
 

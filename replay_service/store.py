@@ -34,6 +34,11 @@ from replay_service.sampling_index import SamplingIndex
 
 UNASSIGNED = -1
 """Cluster label of an episode that no cluster model has labelled yet."""
+MOVED_THRESHOLD_M = 0.005
+"""An episode's achieved goal *moved* when it got farther than this from where it started (the
+object, in the object tasks; the gripper in Reach). 5 mm is far above the simulator's jitter of
+a resting object and far below any push that matters: the episodes HER-CS and EBP exist to
+draw more often are the ones where it moved."""
 _MASK64 = (1 << 64) - 1
 
 
@@ -47,6 +52,7 @@ def _mix64(value: int) -> int:
 _ARRAY_FIELDS = ("obs", "ag", "g", "actions")
 _META_FIELDS = (
     "episode_id", "actor_id", "seq", "success", "final_ag", "energy", "cluster", "policy_version",
+    "moved",
 )
 
 
@@ -85,6 +91,9 @@ class EpisodeStore:
         self._energy = np.zeros(n, np.float64)
         self._cluster = np.full(n, UNASSIGNED, np.int32)
         self._policy_version = np.zeros(n, np.int64)
+        self._moved = np.zeros(n, bool)
+        self.moved_count = 0
+        """Stored episodes whose achieved goal moved (`MOVED_THRESHOLD_M`)."""
         self._size = 0
         self._next_id = 0
         self._index = SamplingIndex(n)
@@ -155,6 +164,12 @@ class EpisodeStore:
             )
         episode_id = self._next_id
         slot = self.slot_for(episode_id)
+        ag = arrays["ag"]
+        moved = bool(np.linalg.norm(ag - ag[:1], axis=-1).max() > MOVED_THRESHOLD_M)
+        if episode_id >= self._capacity:  # the slot's episode leaves
+            self.moved_count -= int(self._moved[slot])
+        self._moved[slot] = moved
+        self.moved_count += int(moved)
         self._obs[slot] = arrays["obs"]
         self._ag[slot] = arrays["ag"]
         self._g[slot] = arrays["g"]
@@ -254,6 +269,11 @@ class EpisodeStore:
     def policy_version(self) -> np.ndarray:
         return self._view(self._policy_version)
 
+    @property
+    def moved(self) -> np.ndarray:
+        """(size,) bool: the episode's achieved goal moved (`MOVED_THRESHOLD_M`)."""
+        return self._view(self._moved)
+
     def slot_of(self, episode_id: int) -> int | None:
         """The slot holding `episode_id`, or None if it was never inserted or was overwritten."""
         if not 0 <= episode_id < self._next_id:
@@ -330,4 +350,5 @@ class EpisodeStore:
         self._actor_id[:n] = [str(a) for a in state["actor_id"]]
         self._size = n
         self._next_id = next_id
+        self.moved_count = int(self._moved[:n].sum())
         self._index.rebuild(self._energy[:n], self._cluster[:n])

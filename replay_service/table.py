@@ -61,6 +61,7 @@ from hercs.methods import METHODS
 from hercs.normalizer import NormalizerState
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore, SampleResult
+from replay_service.lag_bound import PolicyLagBound
 from replay_service.lockstep import LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
 
@@ -68,6 +69,9 @@ log = logging.getLogger("hercs.replay")
 
 POLICY_LAG_WINDOW = 64
 """Recent episodes whose policy lags are averaged into each `Sampled`."""
+POLICY_LAGS_KEPT = 65536
+"""At most this many per-episode lags wait for the next sample call (`Sampled.policy_lags`);
+the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
 """Lockstep: how long a sample waits for a cluster model that is due before it is served with
 the model at hand (the clusterer may be restarting)."""
@@ -140,6 +144,9 @@ class Sampled:
     policy_lag_request: float = 0.0
     """Mean over recent episodes of (the weights version of the learner's latest sample
     request when they were stored) − (the version they were acted with)."""
+    policy_lags: tuple[int, ...] = ()
+    """The lag (as `policy_lag`) of each episode stored since the previous sample call, so
+    that the learner can report the distribution over an epoch's episodes."""
 
 
 class SampleRefused(ValueError):
@@ -216,6 +223,9 @@ class ReplayTable:
                       else None),
             cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S) if lockstep else None
         """Lockstep's admission rules; None in the asynchronous schedule."""
+        self.lag_bound = (PolicyLagBound(max_lag=config.training.max_policy_lag)
+                          if not lockstep and config.training.max_policy_lag >= 1 else None)
+        """`training.max_policy_lag` (replay_service.lag_bound); None: no bound."""
         self.limiter = SampleToInsertRatio(  # in lockstep it only counts
             samples_per_insert=config.training.updates_per_episode,
             min_size_to_sample=config.replay.min_episodes_to_sample,
@@ -236,6 +246,10 @@ class ReplayTable:
         self._learner_version = 0
         self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self._lags_since_sample: deque[int] = deque(maxlen=POLICY_LAGS_KEPT)
+        self._newest_request_version = 0
+        """The weights version of the latest sample call served (not the highest ever: a
+        restarted learner counts from its checkpoint again)."""
         self._schedule_offset = 0
         """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
         after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
@@ -366,10 +380,9 @@ class ReplayTable:
         self.limiter.store_admitted()
         self._recent_lags.append(self._learner_version - episode.policy_version)
         if self._recovered_unplaced is None:
-            self._recent_schedule_lags.append(
-                schedule_cycle(episode_id - self._schedule_offset,
-                               self.config.training.episodes_per_cycle)
-                - episode.policy_version)
+            lag = self._cycle_of(episode_id) - episode.policy_version
+            self._recent_schedule_lags.append(lag)
+            self._lags_since_sample.append(lag)
         if self.gate is not None:
             self.gate.store(episode.policy_version)
         next_version = self._next_version(episode)
@@ -383,10 +396,42 @@ class ReplayTable:
 
     def _next_version(self, episode: EpisodeData) -> int:
         """For an ack: the oldest weights version the actor's next episode may use (0
-        outside lockstep)."""
-        if self.gate is None:
-            return 0
-        return self.gate.next_policy_version(episode.policy_version)
+        asynchronously without a lag bound)."""
+        if self.gate is not None:
+            return self.gate.next_policy_version(episode.policy_version)
+        if self.lag_bound is not None and self._recovered_unplaced is None:
+            return self.lag_bound.next_policy_version(
+                next_cycle=self._cycle_of(self._next_episode_id()),
+                newest_version=self._newest_request_version)
+        return 0
+
+    def _cycle_of(self, episode_id: int) -> int:
+        """The lockstep-schedule cycle that policy lag measures episode `episode_id` against."""
+        return schedule_cycle(episode_id - self._schedule_offset,
+                              self.config.training.episodes_per_cycle)
+
+    def _next_episode_id(self) -> int:
+        """The id the next admitted insert will be stored under (after those admitted and
+        not yet stored)."""
+        return self.core.store.num_inserted + self.limiter.pending_inserts
+
+    def _refuse_stale(self, item: _ParkedInsert) -> bool:
+        """The lag bound's check of an insert the limiter admits: True if it was refused
+        (answered `stale_policy`, counted, forgotten)."""
+        if self.lag_bound is None or self._recovered_unplaced is not None:
+            return False
+        episode = item.episode
+        refusal = self.lag_bound.refusal(
+            policy_version=episode.policy_version,
+            cycle=self._cycle_of(self._next_episode_id()),
+            newest_version=self._newest_request_version)
+        if refusal is None:
+            return False
+        del self._parked_keys[(episode.actor_id, int(episode.seq))]
+        self.core.count_reject(refusal[0])
+        for waiter in item.waiters:
+            waiter.fail(*refusal)
+        return True
 
     # -- samples ---------------------------------------------------------------------------
     def sample(self, call: SampleCall, *, waiter: Waiter[Sampled],
@@ -407,6 +452,7 @@ class ReplayTable:
     def _serve(self, item: _ParkedSample) -> None:
         call = item.call
         self._learner_version = max(self._learner_version, call.weights_version)
+        self._newest_request_version = call.weights_version
         if self._recovered_unplaced is not None:
             per_cycle = self.config.training.episodes_per_cycle
             surplus = self._recovered_unplaced // per_cycle - call.weights_version
@@ -427,7 +473,9 @@ class ReplayTable:
             cluster_model_version=self._model_version(),
             inserts=self.core.inserts, env_steps=self.core.env_steps,
             policy_lag=_mean(self._recent_schedule_lags),
-            policy_lag_request=_mean(self._recent_lags))
+            policy_lag_request=_mean(self._recent_lags),
+            policy_lags=tuple(self._lags_since_sample))
+        self._lags_since_sample.clear()
         for waiter in item.waiters:
             waiter.done(sampled)
 
@@ -441,9 +489,12 @@ class ReplayTable:
         while progressed:
             progressed = False
             while self._inserts and self.limiter.can_insert():
-                self._ready.append(self._inserts.popleft())
-                self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
+                parked = self._inserts.popleft()
                 progressed = True
+                if self._refuse_stale(parked):
+                    continue
+                self._ready.append(parked)
+                self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
             if self.gate is not None:
                 ready: list[_ParkedSample] = []
                 waiting: deque[_ParkedSample] = deque()

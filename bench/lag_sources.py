@@ -1,0 +1,195 @@
+"""Policy lag against epoch time over the asynchronous schedule's three lag sources.
+
+    python bench/lag_sources.py                       # the grid, FetchPush, one run at a time
+    python bench/lag_sources.py --quick               # CI: two tiny FetchReach runs
+
+Each row is one real `hercs up` run (one actor, the default method) with one setting of the
+three sources of policy lag (docs/DESIGN.md §9.1) and of the bound:
+`replay.rate_tolerance_updates` (the limiter's surplus: inserts may run E/ρ episodes ahead of
+the samples), `learner.prefetch_depth` (batches sampled ahead of the one being trained) and
+`actor.insert_queue` (finished episodes waiting behind the one in flight), and
+`training.max_policy_lag`. From its `metrics.csv`: the epoch time (median over the epochs after
+the first, which includes start-up and filling the buffer) and the policy-lag distribution
+(the per-epoch p50 / p95 / max columns, over the same epochs). The first setting is repeated
+last, so the table shows how much the machine drifted while the grid ran. Epoch times are
+reported as ratios to the first setting's mean, since the machine is shared and noisy.
+
+Writes `docs/results/lag_sources.{json,md}` (`--out`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `python bench/lag_sources.py` from a checkout
+    sys.path.insert(0, str(REPO))
+
+from bench.common import git_commit, machine_identity  # noqa: E402
+from bench.sample_efficiency import free_port  # noqa: E402
+
+
+@dataclass(frozen=True)
+class LagSetting:
+    tolerance: float
+    """replay.rate_tolerance_updates (minibatches; 40 = one cycle of updates)."""
+    prefetch: int
+    """learner.prefetch_depth."""
+    queue: int
+    """actor.insert_queue."""
+    max_lag: int = -1
+    """training.max_policy_lag (-1: no bound)."""
+
+    @property
+    def label(self) -> str:
+        bound = "none" if self.max_lag < 0 else str(self.max_lag)
+        return (f"tolerance {self.tolerance:g}, prefetch {self.prefetch}, queue {self.queue}, "
+                f"bound {bound}")
+
+    def overrides(self) -> list[str]:
+        return [f"replay.rate_tolerance_updates={self.tolerance:g}",
+                f"learner.prefetch_depth={self.prefetch}", f"actor.insert_queue={self.queue}",
+                f"training.max_policy_lag={self.max_lag}"]
+
+
+GRID = (
+    LagSetting(80, 3, 2),      # the asynchronous default until 2026-11-25
+    LagSetting(80, 1, 1),
+    LagSetting(40, 1, 1),
+    LagSetting(40, 0, 0),
+    LagSetting(25, 1, 1),
+    LagSetting(25, 0, 0),
+    LagSetting(40, 1, 1, max_lag=2),
+)
+QUICK_GRID = (LagSetting(80, 3, 2), LagSetting(25, 0, 0, max_lag=1))
+
+
+@dataclass
+class LagRow:
+    setting: LagSetting
+    epoch_s: float
+    epoch_ratio: float
+    lag_mean: float
+    lag_p50: float
+    lag_p95: float
+    lag_max: float
+    epochs_used: int
+    run_s: float
+
+
+def read_rows(metrics: Path) -> list[dict[str, str]]:
+    with metrics.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def summarise(rows: list[dict[str, str]]) -> dict[str, float]:
+    """Epoch time and lag figures over the epochs after the first (all of them if only one)."""
+    walls = [float(r["wall_s"]) for r in rows]
+    times = [b - a for a, b in itertools.pairwise(walls)] or walls
+    used = rows[1:] or rows
+
+    def col(name: str) -> list[float]:
+        return [float(r[name]) for r in used if r.get(name) not in (None, "", "nan")]
+
+    def mean(values: list[float]) -> float:
+        return statistics.fmean(values) if values else float("nan")
+
+    return {"epoch_s": statistics.median(times), "lag_mean": mean(col("policy_lag")),
+            "lag_p50": mean(col("policy_lag_p50")), "lag_p95": mean(col("policy_lag_p95")),
+            "lag_max": max(col("policy_lag_max"), default=float("nan")),
+            "epochs_used": len(used)}
+
+
+def run_setting(setting: LagSetting, *, task: str, epochs: int, cycles: int, root: Path,
+                name: str, extra: list[str]) -> tuple[dict[str, float], float]:
+    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", task, "--epochs", str(epochs),
+           "--actors", "1", "--run", name, "--run-dir", str(root),
+           "--listen", f"tcp/127.0.0.1:{free_port()}",
+           "--set", f"training.cycles_per_epoch={cycles}"]
+    for item in [*setting.overrides(), *extra]:
+        cmd += ["--set", item]
+    started = time.monotonic()
+    with (root / f"{name}.log").open("wb") as log:
+        subprocess.run(cmd, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, check=True)
+    return summarise(read_rows(root / name / "metrics.csv")), time.monotonic() - started
+
+
+def markdown(rows: list[LagRow], meta: dict[str, object]) -> str:
+    lines = [
+        "# Policy lag against epoch time: the asynchronous schedule's lag sources",
+        "",
+        f"`{meta['command']}` — {meta['date']}, commit {meta['commit']}, "
+        f"{meta['machine']}. Task {meta['task']}, method her-cs, one actor, {meta['epochs']} "
+        f"epochs of {meta['cycles']} cycles per setting, one run at a time "
+        f"({meta['beside']}). Epoch time: median over the epochs after the first; ratio to "
+        "the mean of the first setting's two runs (the first and the last row). Lag: cycles "
+        "behind the lockstep schedule (0 in lockstep), per-epoch p50/p95 averaged over the "
+        "same epochs, max over them.",
+        "",
+        "| setting | epoch s | ratio | lag mean | p50 | p95 | max |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r.setting.label} | {r.epoch_s:.1f} | {r.epoch_ratio:.2f} | "
+                     f"{r.lag_mean:.2f} | {r.lag_p50:.1f} | {r.lag_p95:.1f} | {r.lag_max:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="CI: two tiny FetchReach runs")
+    p.add_argument("--task", default="push")
+    p.add_argument("--epochs", type=int, default=4)
+    p.add_argument("--cycles", type=int, default=25, help="cycles per epoch")
+    p.add_argument("--beside", default="nothing else running by this script",
+                   help="what ran beside the grid, for the report")
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "lag_sources"))
+    args = p.parse_args(argv)
+    if args.epochs < 2 or args.cycles < 1:
+        p.error(f"--epochs must be >= 2 and --cycles >= 1 (got {args.epochs}, {args.cycles})")
+    grid, extra = GRID, []
+    if args.quick:
+        grid, args.task, args.epochs, args.cycles = QUICK_GRID, "reach", 2, 2
+        extra = ["training.episodes_per_cycle=2", "training.minibatches_per_cycle=4",
+                 "training.eval_episodes=2"]
+        args.out = tempfile.mkdtemp(prefix="hercs-lag-") + "/lag_sources"
+    root = Path(tempfile.mkdtemp(prefix="hercs-lag-runs-"))
+    settings = [*grid, grid[0]]  # the first again: how much the machine drifted
+    measured = []
+    for i, setting in enumerate(settings):
+        figures, run_s = run_setting(setting, task=args.task, epochs=args.epochs,
+                                     cycles=args.cycles, root=root, name=f"lag{i}", extra=extra)
+        print(f"{setting.label}: {json.dumps(figures)} ({run_s:.0f} s)", flush=True)
+        measured.append((setting, figures, run_s))
+    base = statistics.fmean([measured[0][1]["epoch_s"], measured[-1][1]["epoch_s"]])
+    rows = [LagRow(setting=s, epoch_s=f["epoch_s"], epoch_ratio=f["epoch_s"] / base,
+                   lag_mean=f["lag_mean"], lag_p50=f["lag_p50"], lag_p95=f["lag_p95"],
+                   lag_max=f["lag_max"], epochs_used=int(f["epochs_used"]), run_s=run_s)
+            for s, f, run_s in measured]
+    meta: dict[str, object] = {
+        "command": "python bench/lag_sources.py" + (" --quick" if args.quick else ""),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "commit": git_commit(),
+        "machine": machine_identity()["cpu"], "task": args.task, "epochs": args.epochs,
+        "cycles": args.cycles, "beside": args.beside}
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(
+        {"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2) + "\n")
+    out.with_suffix(".md").write_text(markdown(rows, meta))
+    print(f"wrote {out.with_suffix('.md')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
