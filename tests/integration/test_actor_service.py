@@ -193,6 +193,31 @@ def test_a_remote_actor_exits_by_itself_when_the_learner_says_the_run_is_finishe
     assert procs[0].wait(timeout=WAIT_S) == 0
 
 
+def test_an_inserter_of_capacity_0_holds_the_next_episode_until_the_last_is_acked() -> None:
+    """`actor.insert_queue=0`: nothing waits behind the delivery in flight."""
+    entered, release = threading.Event(), threading.Event()
+
+    def held_send(payload: bytes) -> bytes:
+        entered.set()
+        release.wait(WAIT_S)
+        return pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id="a",
+                            seq=int(payload.decode()), episode_id=0).SerializeToString()
+
+    inserter = Inserter(send=held_send, actor_id="a", capacity=0)
+    running, stopped = threading.Event(), threading.Event()
+    stopped.set()
+    assert inserter.submit(0, b"0", stop=running)
+    assert entered.wait(WAIT_S)
+    assert not inserter.submit(1, b"1", stop=stopped), "one in flight: the next is not taken"
+    assert inserter.queued == 0
+    release.set()
+    assert inserter.submit(1, b"1", stop=running), "taken once the first is acked"
+    assert inserter.wait_idle(stop=running)
+    assert inserter.counters.acked == 2
+    inserter.close(timeout_s=1.0)
+    assert inserter.join(WAIT_S)
+
+
 def test_inserter_backpressure_then_gives_up_unacked_episodes_at_close() -> None:
     """The replay holds the in-flight insert (rate limiter): the queue fills, `submit` refuses
     once stopped, and `close` gives up what was never acked within its flush time."""

@@ -50,6 +50,10 @@ def test_overrides_are_typed() -> None:
         ("task.name=ant", "task.name: got 'ant'"),
         ("cluster.fgb_size=4", "cluster.fgb_size: got 4, must be >= k=8"),
         ("energy.w_kinetic=-1", "energy.w_kinetic: got -1.0, must be >= 0"),
+        ("training.max_policy_lag=0", "training.max_policy_lag: got 0, must be -1 (no bound) "
+                                      "or >= 1 (lag 0 is training.schedule=lockstep)"),
+        ("learner.prefetch_depth=-1", "learner.prefetch_depth: got -1, must be >= 0"),
+        ("actor.insert_queue=-2", "actor.insert_queue: got -2, must be >= 0"),
         ("ddpg.lr=1", "unknown field 'ddpg.lr'"),
         ("nosuch.x=1", "unknown section 'nosuch'"),
         ("gamma=0.9", "must look like section.field=value"),
@@ -65,6 +69,7 @@ def test_overrides_are_typed() -> None:
         ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "fgb", "energy-weight",
+         "max-policy-lag-0", "prefetch-negative", "insert-queue-negative",
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
          "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy",

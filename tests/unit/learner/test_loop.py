@@ -148,3 +148,27 @@ def test_metrics_of_an_older_run_keep_its_columns(tmp_path) -> None:
     out.write({"epoch": 2, "success_rate": 0.6, "bad_batches": 0})
     out.close()
     assert path.read_text().splitlines() == ["epoch,success_rate", "1,0.5", "2,0.6"]
+
+
+def test_the_epoch_row_reports_the_lag_distribution_and_moved_shares() -> None:
+    cfg = config()
+    loop = LearnerLoop(config=cfg, learner=DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg,
+                                                       seed=0))
+    lags = [[3, 4], [], [4, 4, 5, 12]]           # the episodes stored before each batch
+    moved = [(10, 32, 0.25), (0, 32, 0.25), (22, 32, 0.5)]
+    for batch, lag, (m, n, share) in zip(batches(cfg, 3), lags, moved, strict=True):
+        batch.policy_lags = np.asarray(lag, np.int64)
+        batch.sampled_moved, batch.sampled_transitions, batch.buffer_moved_share = m, n, share
+        loop.step(batch)
+    row = loop.record_eval(epoch=1, success_rate=0.0, mean_final_distance=0.0)
+    every = np.asarray([3, 4, 4, 4, 5, 12])
+    assert row["policy_lag_p50"] == np.percentile(every, 50) == 4.0
+    assert row["policy_lag_p95"] == pytest.approx(np.percentile(every, 95))
+    assert row["policy_lag_max"] == 12
+    assert row["sampled_moved_share"] == round(32 / 96, 4)
+    assert row["buffer_moved_share"] == round((0.25 + 0.25 + 0.5) / 3, 4)
+    for batch in batches(cfg, 3):                # the next epoch starts from nothing
+        loop.step(batch)
+    row = loop.record_eval(epoch=2, success_rate=0.0, mean_final_distance=0.0)
+    assert np.isnan(row["policy_lag_p50"]) and np.isnan(row["policy_lag_max"])
+    assert np.isnan(row["sampled_moved_share"]), "batches without these fields: unknown"

@@ -228,3 +228,28 @@ def test_preallocation_commits_memory_only_when_written() -> None:
     capacity, grown = int(out[0]), int(out[1])
     assert capacity == 20_000
     assert grown < 20e6, f"creating an empty store committed {grown / 1e6:.0f} MB"
+
+
+def _still(seq: int, *, moved_by: float) -> EpisodeData:
+    """An episode whose achieved goal rests at one point, then is moved by `moved_by` metres."""
+    ep = _episode(seq)
+    ag = np.repeat(ep.ag[:1], len(ep.ag), axis=0)
+    ag[-1, 0] += moved_by
+    return dataclasses.replace(ep, ag=ag)
+
+
+def test_moved_flags_and_their_count_follow_inserts_and_evictions() -> None:
+    from replay_service.store import MOVED_THRESHOLD_M
+
+    store = EpisodeStore(capacity_episodes=3, spec=SPEC)
+    for seq, moved_by in enumerate([0.0, 2 * MOVED_THRESHOLD_M, MOVED_THRESHOLD_M / 2]):
+        store.insert(_still(seq, moved_by=moved_by))
+    np.testing.assert_array_equal(store.moved, [False, True, False])
+    assert store.moved_count == 1
+    store.insert(_still(3, moved_by=0.1))        # evicts episode 0 (still): 2 moved now
+    store.insert(_still(4, moved_by=0.0))        # evicts episode 1 (moved): 1 moved now
+    np.testing.assert_array_equal(store.moved, [True, False, False])
+    assert store.moved_count == 1
+    restored = EpisodeStore(capacity_episodes=3, spec=SPEC)
+    restored.load_state_dict(store.state_dict())
+    assert restored.moved_count == 1 and restored.moved.tolist() == [True, False, False]

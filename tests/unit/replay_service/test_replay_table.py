@@ -511,3 +511,58 @@ def test_lockstep_serves_a_restarted_learners_request_past_a_dead_learners() -> 
     dead = h.sample(8, "dead learner, cycle 2", version=2)
     again = h.sample(8, "restarted learner, cycle 1", version=1)
     assert again.results and not dead.results
+
+
+# -- the policy-lag bound (training.max_policy_lag, replay_service.lag_bound) ----------------
+# 4 episodes per cycle: episode i lies in cycle i // 4 of the lockstep schedule; its lag is
+# that cycle minus the weights version it was acted with.
+
+def test_the_lag_bound_refuses_a_stale_episode_before_storing_it() -> None:
+    h = make("training.max_policy_lag=1")
+    for seq in range(4):                         # cycle 0, acted with version 0: lag 0
+        assert insert_acted(h, seq, 0).results
+    h.sample(8, version=1)                       # the learner is at version 1
+    for seq in range(4, 8):                      # cycle 1: lag 1 with version 0, allowed
+        assert insert_acted(h, seq, 0).results
+    stale = insert_acted(h, 8, 0)                # cycle 2 with version 0: lag 2 > 1
+    assert stale.failures[0][0] == LockstepReason.STALE_POLICY
+    assert "training.max_policy_lag=1" in stale.failures[0][1]
+    assert "act with version 1 or newer" in stale.failures[0][1]
+    assert not stale.results and len(h.log.episodes) == 8, "neither logged nor stored"
+    st = h.table.status()
+    assert st.inserts == 8 and st.rejects == {"stale_policy": 1}
+    fresh = insert_acted(h, 9, 1)                # the same cycle with version 1: lag 1
+    assert fresh.results[0].episode_id == 8
+    # the ack tells the actor the oldest version its next episode may use: cycle 2 − 1
+    assert fresh.results[0].next_policy_version == 1
+
+
+def test_the_lag_bound_always_admits_an_episode_acted_with_the_newest_weights() -> None:
+    # however far the limiter and prefetch let the cycles run ahead of the weights, an actor
+    # with the learner's newest weights is never held back (no deadlock)
+    h = make("training.max_policy_lag=1")
+    for seq in range(4):
+        insert_acted(h, seq, 0)
+    h.sample(8, version=1)                       # d = 0
+    for seq in range(4, 12):                     # cycles 1 and 2 with version 1: lag 0, 1
+        assert insert_acted(h, seq, 1).results
+    h.sample(8, version=1)                       # a prefetched batch: still version 1
+    newest = insert_acted(h, 12, 1)              # cycle 3 with version 1: lag 2 > 1 ...
+    assert newest.results[0].episode_id == 12, "... but no newer weights exist: admitted"
+    older = insert_acted(h, 13, 0)               # cycle 3 with version 0: refused
+    assert older.failures[0][0] == LockstepReason.STALE_POLICY
+    assert newest.results[0].next_policy_version == 1, "never newer than the newest weights"
+
+
+def test_sample_calls_carry_the_lags_of_the_episodes_stored_since_the_last_call() -> None:
+    h = make()
+    for seq in range(4):
+        insert_acted(h, seq, 0)
+    first = h.sample(8, version=0)
+    assert first.results[0].policy_lags == (0, 0, 0, 0)
+    for seq in range(4, 10):                     # cycle 1 (ids 4..7) and cycle 2 (8, 9)
+        insert_acted(h, seq, 0)
+    second = h.sample(8, version=1)
+    assert second.results[0].policy_lags == (1, 1, 1, 1, 2, 2)
+    third = h.sample(4, version=2)
+    assert third.results[0].policy_lags == (), "each episode's lag is handed over once"

@@ -1,0 +1,83 @@
+"""The learner's prefetcher keeps exactly `learner.prefetch_depth` batches sampled ahead of the
+update loop (each is one cycle of policy lag in the asynchronous schedule). Driven with a
+stand-in transport that answers from a real ReplayCore; no Zenoh."""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hercs.codec import batch_to_bytes, stats_to_msg
+from hercs.config import HercsConfig, apply_overrides
+from hercs.episode import random_episode
+from learner.service import Prefetcher
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from replay_service.core import ReplayCore
+
+WAIT_S = 10.0
+
+
+class AnsweringTransport:
+    """Answers every sample request with a valid Batch and counts them."""
+
+    def __init__(self, config: HercsConfig) -> None:
+        self.config = config
+        self.core = ReplayCore(config=config, rng=np.random.default_rng(0))
+        for seq in range(4):
+            self.core.insert(random_episode(self.core.spec, np.random.default_rng(seq), seq=seq))
+        self.requests = 0
+        self.asked = threading.Condition()
+
+    def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+        t = self.config.training
+        result = self.core.sample(t.minibatches_per_cycle, self.config.ddpg.batch_size)
+        o_state, g_state = self.core.normalizer_state()
+        header = pb.Batch(schema_version=SCHEMA_VERSION, o_stats=stats_to_msg(o_state),
+                          g_stats=stats_to_msg(g_state))
+        with self.asked:
+            self.requests += 1
+            self.asked.notify_all()
+        return batch_to_bytes(header, result.minibatches)
+
+    def wait_for(self, count: int, timeout_s: float = WAIT_S) -> bool:
+        with self.asked:
+            return self.asked.wait_for(lambda: self.requests >= count, timeout_s)
+
+
+def start(depth: int) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
+    config = apply_overrides(HercsConfig(), [
+        "task.name=reach", "run.method=her", "training.minibatches_per_cycle=2",
+        "ddpg.batch_size=8", "replay.buffer_transitions=5000",
+        f"learner.prefetch_depth={depth}"])
+    transport = AnsweringTransport(config)
+    stop = threading.Event()
+
+    def start_thread(target, *, name):
+        thread = threading.Thread(target=target, name=name, daemon=True)
+        thread.start()
+        return thread
+
+    runtime = SimpleNamespace(stop=stop, transport=transport, ident="learner-test",
+                              keys=SimpleNamespace(sample="sample"), start_thread=start_thread)
+    return Prefetcher(runtime=runtime, config=config, version=lambda: 0), transport, stop
+
+
+@pytest.mark.parametrize("depth", [0, 1, 3], ids=lambda d: f"depth{d}")
+def test_the_prefetcher_samples_exactly_depth_batches_ahead(depth: int) -> None:
+    prefetcher, transport, stop = start(depth)
+    try:
+        assert transport.wait_for(depth)
+        # nothing more is asked for while the loop takes nothing (a bounded look for a
+        # request that must not come)
+        assert not transport.wait_for(depth + 1, timeout_s=0.5)
+        for taken in range(1, 4):
+            assert prefetcher.get() is not None
+            # each batch taken lets exactly one more be sampled: `depth` stay ahead
+            assert transport.wait_for(depth + taken)
+            assert not transport.wait_for(depth + taken + 1, timeout_s=0.3)
+    finally:
+        stop.set()
