@@ -1,10 +1,12 @@
-"""The committed figures are what `hercs plot` and bench/schedule_effect.py compute from the
-committed runs: a run added under docs/results/runs/ without redrawing docs/results/fig2.md
-and asynchrony.md (`make figures`) fails here."""
+"""The committed figures are what `hercs plot`, bench/schedule_effect.py and bench/claims.py
+compute from the committed runs: a run added under docs/results/runs/ without redrawing
+docs/results/fig2.md, asynchrony.md and claims.md (`make figures`) fails here."""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import pytest
 
 from apps import plots
 from tests.support import load_bench
@@ -32,3 +34,13 @@ def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committ
     expected = effect.report(effect.compare_all(curves, 50), "python bench/schedule_effect.py")
     assert (RESULTS / effect.OUTPUT).read_text() == expected, (
         "docs/results/asynchrony.md is not what the committed runs give: run `make figures`")
+
+
+@pytest.mark.slow  # the bootstrap at the committed file's 10,000 reps: ~10 s
+def test_claims_equal_what_claims_py_computes_from_the_committed_runs() -> None:
+    claims = load_bench("claims")
+    groups = claims.load_groups(RESULTS / "runs")
+    expected = claims.report(claims.evaluate(claims.CLAIMS, groups), groups,
+                             "python bench/claims.py")
+    assert (RESULTS / claims.OUTPUT).read_text() == expected, (
+        "docs/results/claims.md is not what the committed runs give: run `make figures`")

@@ -1,0 +1,550 @@
+"""The project's claims as the field states them: IQM and mean over seeds with stratified
+bootstrap intervals, and the probability of improvement (rliable, Agarwal et al. 2021).
+
+    python bench/claims.py          # committed runs + the authors' curves → docs/results/claims.md
+
+Reads finished runs (config.yaml + metrics.csv) from `--runs` (default docs/results/runs/, the
+committed ones) and the authors' per-seed curves (docs/reference/authors_success_rates.csv).
+
+Runs are grouped by what their config.yaml says: task.name, task.env_version (absent: v4,
+the only environment before the setting existed), run.method, training.schedule,
+learner.precision and, for the asynchronous schedule, the policy-lag setting: a config
+without `learner.prefetch_depth` and `training.max_policy_lag` is *legacy* (the old default,
+whose measured policy lag was 7 cycles); one with them is grouped by their values (and
+`actor.insert_queue`'s), and the values equal to hercs.config's defaults are the *new
+default*. A claim whose sides run asynchronously takes the new default when every
+asynchronous side has at least MIN_SEEDS runs of it, else the legacy runs, and says which.
+
+Per run, with apps/plots.py's rule (the Fig. 2 tables'): its success after epoch EPOCH (the
+10-epoch trailing mean there) and the epoch its 10-epoch trailing mean first exceeds 0.5,
+counted from 0; a run that never does by epoch EPOCH counts as EPOCH, one more than the
+last epoch in that count (censored: a lower bound). Every run is cut at EPOCH (the authors'
+too), and a run with fewer epochs is left out. Per side: IQM and mean with 95 % stratified
+bootstrap percentile intervals (rliable.library.get_interval_estimates); per claim: the
+probability of improvement P(X > Y) (rliable.metrics.probability_of_improvement) with its
+interval from resampling each side on its own. A side with fewer than MIN_SEEDS runs gets no
+numbers. The output is a pure function of the runs (fixed reps and RNG seed, no date), so a
+test checks the committed file against them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `python bench/claims.py` from a checkout
+    sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+from apps.plots import (  # noqa: E402
+    Curve,
+    aggregate,
+    load_reference,
+    load_runs,
+    method_label,
+    milestones,
+    task_title,
+)
+from hercs.config import HercsConfig  # noqa: E402
+
+OUTPUT = "claims.md"
+EPOCH = 50
+THRESHOLD = 0.5
+MIN_SEEDS = 2
+REPS = 10_000
+"""Bootstrap replications. With 2–5 runs a side has at most 126 distinct resamples: at 10,000
+the printed digits of the committed claims are the same with RNG seeds 0 and 1."""
+RNG_SEED = 0
+LEGACY = "legacy"
+LEGACY_LAG_CYCLES = 7  # docs/results/runs/README.md: the median policy lag of the legacy runs
+LAG_KEYS: tuple[tuple[str, str], ...] = (
+    ("learner", "prefetch_depth"), ("training", "max_policy_lag"), ("actor", "insert_queue"))
+"""The settings that bound an asynchronous run's policy lag; the first two mark a run as made
+after the legacy default."""
+DEFAULT_ENV = "v4"
+
+
+# ---------------------------------------------------------------------------------- groups
+
+@dataclass(frozen=True)
+class Group:
+    """What makes runs seeds of one experiment: everything but the seed."""
+
+    task: str  # display name, "FetchPush"
+    method: str  # her, her-cs, her-ebp, her-ebp-cs
+    env: str = DEFAULT_ENV  # task.env_version
+    schedule: str = "async"  # training.schedule; "authors" for the published curves
+    precision: str = "fp32"  # learner.precision
+    lag: str = ""  # asynchronous only: LEGACY or "prefetch_depth=3, max_policy_lag=…, …"
+
+    @property
+    def label(self) -> str:
+        """"HER-CS, v4, async (legacy), fp32"; "HER-CS, authors' (v1)"."""
+        name = method_label(self.method)
+        if self.schedule == "authors":
+            return f"{name}, authors' ({self.env})"
+        schedule = f"async ({lag_label(self.lag)})" if self.schedule == "async" else self.schedule
+        return f"{name}, {self.env}, {schedule}, {self.precision}"
+
+
+@functools.cache
+def new_default_lag() -> str:
+    """The lag setting of a run made with hercs.config's defaults today."""
+    config = HercsConfig()
+    return lag_setting({section: {key: getattr(getattr(config, section), key, None)}
+                        for section, key in LAG_KEYS})
+
+
+def lag_setting(config: dict) -> str:
+    """LEGACY for a config.yaml from before `learner.prefetch_depth` and
+    `training.max_policy_lag` existed, else the values of LAG_KEYS."""
+    values = [(key, (config.get(section) or {}).get(key)) for section, key in LAG_KEYS]
+    if all(value is None for _, value in values[:2]):
+        return LEGACY
+    return ", ".join(f"{key}={value}" for key, value in values)
+
+
+def lag_label(lag: str) -> str:
+    return "new default" if lag == new_default_lag() else lag
+
+
+def group_of(config: dict) -> Group:
+    """A run's group from its config.yaml (task.name, run.method present: load_run checked)."""
+    task, run = config.get("task") or {}, config.get("run") or {}
+    schedule = (config.get("training") or {}).get("schedule", "async")
+    return Group(task=task_title(task["name"]), method=run["method"],
+                 env=task.get("env_version", DEFAULT_ENV), schedule=schedule,
+                 precision=(config.get("learner") or {}).get("precision", "fp32"),
+                 lag=lag_setting(config) if schedule == "async" else "")
+
+
+@dataclass(frozen=True)
+class Run:
+    name: str  # the run folder's name, or "authors seed 121"
+    seed: int
+    epochs: int  # the last epoch it reached
+    curve: Curve
+
+
+def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> dict[Group, list[Run]]:
+    """Our runs under `runs_dir` (folders that are not runs are passed over) and the
+    authors' curves, by group, each group's runs by seed. Two runs of one group and seed are
+    one seed: the longer is kept, as in `hercs plot`."""
+    found: list[tuple[Group, Run]] = []
+    for curve in load_runs(runs_dir):
+        source = Path(curve.source)
+        config = yaml.safe_load((source / "config.yaml").read_text()) or {}
+        found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
+                                            curve)))
+    reference = load_reference() if reference_csv is None else load_reference(reference_csv)
+    for curve in reference:
+        found.append((Group(curve.task, curve.method, env="v1", schedule="authors"),
+                      Run(f"authors seed {curve.seed}", curve.seed, int(curve.epochs.max()),
+                          curve)))
+    by_seed: dict[tuple[Group, int], Run] = {}
+    for g, run in found:
+        kept = by_seed.get((g, run.seed))
+        if kept is None or run.epochs > kept.epochs:
+            by_seed[(g, run.seed)] = run
+    out: dict[Group, list[Run]] = {}
+    for (g, _), run in sorted(by_seed.items(), key=lambda kv: (kv[0][1], kv[1].name)):
+        out.setdefault(g, []).append(run)
+    return out
+
+
+# ---------------------------------------------------------------------------------- scores
+
+@dataclass(frozen=True)
+class Score:
+    """One run's two numbers at epoch EPOCH."""
+
+    run: str
+    success: float
+    """The 10-epoch trailing mean of the test success after epoch EPOCH."""
+    at_half: int
+    """The first epoch (counted from 0) whose trailing mean exceeds 0.5; `epoch` when none
+    does by then (censored)."""
+    censored: bool
+
+
+def score(run: Run, epoch: int = EPOCH) -> Score | None:
+    """`run`'s numbers with its curve cut at `epoch`; None when it did not reach it."""
+    c = run.curve
+    keep = c.epochs <= epoch
+    if not keep.any() or int(c.epochs[keep].max()) != epoch:
+        return None
+    cut = replace(c, epochs=c.epochs[keep], success=c.success[keep])
+    m = milestones(aggregate([cut]), thresholds=(THRESHOLD,), at_epochs=(epoch,))
+    at, success = m.crossing[THRESHOLD], m.at[epoch]
+    assert success is not None
+    return Score(run.name, success, epoch if at is None else at, at is None)
+
+
+# ------------------------------------------------------------------------------ statistics
+
+@contextmanager
+def _numpy_global_seed(seed: int) -> Iterator[None]:
+    """rliable's bootstraps draw their resamples with `np.random.choice` from numpy's global
+    RNG (StratifiedBootstrap.update_indices), whatever `random_state` says: seed it for the
+    call and put the caller's state back."""
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    value: float
+    low: float
+    high: float
+
+
+@dataclass(frozen=True)
+class SideStats:
+    """IQM and mean of the success after EPOCH and of the epoch at 0.5, with intervals."""
+
+    success_iqm: Estimate
+    success_mean: Estimate
+    epoch_iqm: Estimate
+    epoch_mean: Estimate
+
+
+def _matrix(scores: Sequence[Score]) -> np.ndarray:
+    """(runs × 2): success after EPOCH, epoch at 0.5; rliable's (runs × tasks) layout, the
+    two numbers as two tasks so that each is resampled over runs on its own."""
+    return np.array([[s.success, float(s.at_half)] for s in scores], dtype=float)
+
+
+def iqm(x: np.ndarray) -> float:
+    """rliable.metrics.aggregate_iqm (scipy's trim_mean, 25 % off each end, all cells)
+    without scipy's per-call overhead, which is most of a bootstrap's time: equal to it
+    (tests/bench/test_claims.py)."""
+    v = np.sort(np.asarray(x, dtype=float).ravel())
+    cut = int(0.25 * len(v))
+    return float(v[cut:len(v) - cut].mean())
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """rliable.metrics.probability_of_improvement for one task: the Mann–Whitney U of x over
+    y divided by n_x·n_y, i.e. the share of pairs (a, b) with a > b, ties counted half;
+    equal to rliable's (tests/bench/test_claims.py) at a thousandth of scipy's cost."""
+    a = np.asarray(x, dtype=float).ravel()[:, None]
+    b = np.asarray(y, dtype=float).ravel()[None, :]
+    return float(((a > b).sum() + 0.5 * (a == b).sum()) / (a.size * b.size))
+
+
+def _estimates(point: Sequence[float], interval: np.ndarray) -> list[Estimate]:
+    return [Estimate(float(point[i]), float(interval[0, i]), float(interval[1, i]))
+            for i in range(len(point))]
+
+
+def side_stats(scores: Sequence[Score], reps: int = REPS, seed: int = RNG_SEED) -> SideStats:
+    """IQM and mean of both numbers over the runs, with rliable's stratified bootstrap
+    intervals; the point estimates are rliable's own functions'."""
+    from rliable import library, metrics
+
+    def func(m: np.ndarray) -> np.ndarray:
+        return np.array([iqm(m[:, :1]), m[:, 0].mean(), iqm(m[:, 1:]), m[:, 1].mean()])
+
+    m = _matrix(scores)
+    with _numpy_global_seed(seed):
+        _, interval = library.get_interval_estimates({"side": m}, func, reps=reps)
+    point = [metrics.aggregate_iqm(m[:, :1]), metrics.aggregate_mean(m[:, :1]),
+             metrics.aggregate_iqm(m[:, 1:]), metrics.aggregate_mean(m[:, 1:])]
+    return SideStats(*_estimates(point, interval["side"]))
+
+
+def improvement(x: Sequence[Score], y: Sequence[Score], reps: int = REPS,
+                seed: int = RNG_SEED) -> tuple[Estimate, Estimate]:
+    """P(X > Y) for the success after EPOCH, and P(X reaches 0.5 earlier than Y): the
+    probability that a run of X beats a run of Y, ties half; two runs both censored at
+    EPOCH are a tie, and a censored run loses to every run that crossed. Intervals from
+    rliable's independent stratified bootstrap of both sides; the point estimates are
+    rliable's own function's."""
+    from rliable import library, metrics
+
+    def func(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.array([probability_of_improvement(a[:, 0], b[:, 0]),
+                         probability_of_improvement(-a[:, 1], -b[:, 1])])
+
+    mx, my = _matrix(x), _matrix(y)
+    with _numpy_global_seed(seed):
+        _, interval = library.get_interval_estimates({"xy": [mx, my]}, func, reps=reps)
+    point = [metrics.probability_of_improvement(mx[:, :1], my[:, :1]),
+             metrics.probability_of_improvement(-mx[:, 1:], -my[:, 1:])]
+    success, earlier = _estimates(point, interval["xy"])
+    return success, earlier
+
+
+# ---------------------------------------------------------------------------------- claims
+
+ASYNC_ANY_LAG = "?"  # a claim side in the asynchronous schedule whose lag setting is chosen
+
+
+@dataclass(frozen=True)
+class Claim:
+    title: str
+    x: Group
+    y: Group
+
+
+def _push(method: str, **kw: str) -> Group:
+    lag = kw.pop("lag", ASYNC_ANY_LAG if kw.get("schedule", "async") == "async" else "")
+    return Group("FetchPush", method, lag=lag, **kw)
+
+
+CLAIMS: tuple[Claim, ...] = (
+    Claim("environment v1 against v4, HER-EBP-CS", _push("her-ebp-cs", env="v1"),
+          _push("her-ebp-cs")),
+    Claim("HER-CS against HER, v1", _push("her-cs", env="v1"), _push("her", env="v1")),
+    Claim("HER-CS against HER, v4", _push("her-cs"), _push("her")),
+    Claim("lockstep against asynchronous, HER-CS", _push("her-cs", schedule="lockstep"),
+          _push("her-cs")),
+    Claim("bf16 against fp32, HER-EBP-CS", _push("her-ebp-cs", precision="bf16"),
+          _push("her-ebp-cs")),
+    *(Claim(f"ours against the authors', {method_label(m)}, {env}", _push(m, env=env),
+            _push(m, env="v1", schedule="authors", lag=""))
+      for env in ("v4", "v1") for m in ("her", "her-cs", "her-ebp", "her-ebp-cs")),
+)
+
+
+@dataclass(frozen=True)
+class Side:
+    group: Group
+    scores: list[Score]
+    short: list[str]
+    """Runs of the group left out: they stopped before EPOCH."""
+
+    @property
+    def n(self) -> int:
+        return len(self.scores)
+
+
+@dataclass(frozen=True)
+class ClaimResult:
+    claim: Claim
+    x: Side
+    y: Side
+    x_stats: SideStats | None
+    y_stats: SideStats | None
+    improvement: tuple[Estimate, Estimate] | None
+    """None unless both sides have MIN_SEEDS runs."""
+
+
+def _side(groups: dict[Group, list[Run]], g: Group, epoch: int) -> Side:
+    scores, short = [], []
+    for run in groups.get(g, []):
+        s = score(run, epoch)
+        if s is None:
+            short.append(run.name)
+        else:
+            scores.append(s)
+    return Side(g, scores, short)
+
+
+def resolve(claim: Claim, groups: dict[Group, list[Run]], epoch: int = EPOCH
+            ) -> tuple[Side, Side]:
+    """The claim's sides, an asynchronous side's lag setting chosen (the same for both):
+    the new default where every asynchronous side has MIN_SEEDS runs of it, else the legacy
+    runs where they do; failing both, the setting that has runs at all, the new default
+    first."""
+    def sides(lag: str) -> tuple[Side, Side]:
+        x, y = (_side(groups, replace(g, lag=lag) if g.lag == ASYNC_ANY_LAG else g, epoch)
+                for g in (claim.x, claim.y))
+        return x, y
+
+    chosen = [i for i, g in enumerate((claim.x, claim.y)) if g.lag == ASYNC_ANY_LAG]
+    candidates = [sides(new_default_lag()), sides(LEGACY)] if chosen else [sides("")]
+    for ok in (lambda s: s.n >= MIN_SEEDS, lambda s: bool(s.scores or s.short)):
+        for pair in candidates:
+            if all(ok(pair[i]) for i in chosen):
+                return pair
+    return candidates[0]
+
+
+def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int = EPOCH,
+             reps: int = REPS, seed: int = RNG_SEED) -> list[ClaimResult]:
+    cache: dict[tuple[Score, ...], SideStats] = {}
+
+    def stats_of(side: Side) -> SideStats | None:
+        if side.n < MIN_SEEDS:
+            return None
+        key = tuple(side.scores)
+        if key not in cache:
+            cache[key] = side_stats(side.scores, reps, seed)
+        return cache[key]
+
+    out = []
+    for claim in claims:
+        x, y = resolve(claim, groups, epoch)
+        both = x.n >= MIN_SEEDS and y.n >= MIN_SEEDS
+        out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y),
+                               improvement(x.scores, y.scores, reps, seed) if both else None))
+    return out
+
+
+# ---------------------------------------------------------------------------------- report
+
+def _rate(v: float) -> str:
+    text = f"{v:.2f}"
+    return text[1:] if text.startswith("0") else text.replace("-0.", "-.")
+
+
+def _epoch(v: float) -> str:
+    return f"{v:.1f}"
+
+
+def _est(e: Estimate, fmt: Callable[[float], str]) -> str:
+    return f"{fmt(e.value)} [{fmt(e.low)}, {fmt(e.high)}]"
+
+
+def _not_enough(r: ClaimResult) -> str:
+    parts = []
+    for name, side in (("X", r.x), ("Y", r.y)):
+        if side.n < MIN_SEEDS:
+            short = f", {len(side.short)} shorter than {EPOCH} epochs" if side.short else ""
+            parts.append(f"{name} n={side.n}{short}")
+    return f"not enough seeds ({'; '.join(parts)})"
+
+
+def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
+    lines = []
+    for r in results:
+        head = f"| {r.claim.title} | {r.x.group.label} | {r.y.group.label} | {r.x.n} / {r.y.n} |"
+        if which == "epoch":
+            cx, cy = (sum(s.censored for s in side.scores) for side in (r.x, r.y))
+            head += f" {cx} / {cy} |"
+        if r.x_stats is None or r.y_stats is None or r.improvement is None:
+            lines.append(head + f" {_not_enough(r)} | – | – | – | – |")
+            continue
+        if which == "success":
+            cells = [_est(st.success_iqm, _rate) for st in (r.x_stats, r.y_stats)]
+            cells += [_est(st.success_mean, _rate) for st in (r.x_stats, r.y_stats)]
+            poi = r.improvement[0]
+        else:
+            cells = [_est(st.epoch_iqm, _epoch) for st in (r.x_stats, r.y_stats)]
+            cells += [_est(st.epoch_mean, _epoch) for st in (r.x_stats, r.y_stats)]
+            poi = r.improvement[1]
+        lines.append(head + " " + " | ".join(cells) + f" | {_est(poi, _rate)} |")
+    return lines
+
+
+def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run]],
+                    epoch: int) -> list[str]:
+    lines = [f"## The runs behind each side, at epoch {epoch}", "",
+             f"| side | run | success after {epoch} | epoch at {THRESHOLD:g} |",
+             "|---|---|---|---|"]
+    seen: set[Group] = set()
+    for r in results:
+        for side in (r.x, r.y):
+            if side.group in seen or not (side.scores or side.short):
+                continue
+            seen.add(side.group)
+            for s in side.scores:
+                at = f"never ({epoch}, censored)" if s.censored else str(s.at_half)
+                lines.append(f"| {side.group.label} | {s.run} | {_rate(s.success)} | {at} |")
+            for name in side.short:
+                lines.append(f"| {side.group.label} | {name} | stopped before epoch {epoch}: "
+                             "left out | – |")
+    unused = sorted(run.name for g, runs in groups.items() if g not in seen
+                    and g.schedule != "authors" for run in runs)
+    if unused:
+        lines += ["", f"Runs in no claim: {', '.join(unused)}."]
+    return [*lines, ""]
+
+
+def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], command: str,
+           epoch: int = EPOCH, reps: int = REPS, seed: int = RNG_SEED) -> str:
+    lines = [
+        "# The claims, with intervals over seeds", "",
+        f"Drawn by `{command}` from the committed runs (docs/results/runs/) and the authors' "
+        "per-seed curves (docs/reference/authors_success_rates.csv); also `make figures`, and "
+        "a test checks this file against them. All on FetchPush.", "",
+        "**Per run** (apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
+        f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
+        f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "
+        f"counted from 0 (epochs completed before it). A run that never does by epoch {epoch} "
+        f"counts as {epoch}, one more than its last epoch in that count: **censored**, a lower "
+        "bound, so the IQM and mean of a side with censored runs are lower bounds too (the "
+        f"table counts them). Every run is cut at epoch {epoch}, the authors' too; a run that "
+        f"stopped before epoch {epoch} is left out.", "",
+        "**Per side**: the IQM (interquartile mean, rliable's `aggregate_iqm`: the mean of the "
+        "middle 50 % of runs; below 4 runs it trims nothing and equals the mean) and the mean, "
+        "each with a 95 % stratified bootstrap percentile interval over runs "
+        f"(`rliable.library.get_interval_estimates`, {reps:,} reps; rliable draws its "
+        f"resamples from numpy's global RNG, seeded with {seed} for each estimate). **Per "
+        "claim**: P(X > Y), the probability that a run of X beats a run of Y, ties counted "
+        "half (`rliable.metrics.probability_of_improvement`: Mann–Whitney U / (n_X·n_Y)), "
+        "with a 95 % interval from resampling each side's runs on its own (rliable's "
+        "independent stratified bootstrap), same reps and seed; for the epoch at "
+        f"{THRESHOLD:g}, beating is getting there earlier, and two censored runs tie. The "
+        "point estimates are rliable's functions'; inside the bootstrap, numpy equivalents "
+        "(equal to them, tests/bench/test_claims.py) stand in for them, scipy's per-call "
+        f"cost being most of its time. A side with fewer than {MIN_SEEDS} seeds gets no "
+        "numbers.", "",
+        "**Groups**: runs are seeds of one experiment when their config.yaml agrees on "
+        "task.name, task.env_version (absent: v4; v1 is the authors' gym/mujoco-py "
+        "environment), run.method, training.schedule and learner.precision, and, when "
+        "asynchronous, on the policy-lag setting: *legacy* (no `learner.prefetch_depth` and "
+        f"`training.max_policy_lag` in the config: the old default, policy lag "
+        f"{LEGACY_LAG_CYCLES} cycles) or the values of those two and `actor.insert_queue` "
+        "(*new default*: hercs.config's defaults). A claim takes the new default's runs where "
+        f"every asynchronous side has {MIN_SEEDS} seeds of it, else the legacy ones; each "
+        "side says which.", "",
+        "**How far to trust them**: with 2–5 seeds a side the bootstrap can only resample the "
+        "seeds there are, so an interval describes these seeds and is narrower than the "
+        "uncertainty about the next one (a percentile bootstrap undercovers at such n): an "
+        "interval of P(X > Y) that excludes .5 is a lead, not a verdict. The runs also come "
+        "from different machines and commits (docs/results/runs/README.md), and one seed "
+        "gives other numbers on another CPU (docs/DESIGN.md §10).", "",
+        f"## Success after epoch {epoch}", "",
+        "| claim | X | Y | seeds X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] |",
+        "|---|---|---|---|---|---|---|---|---|",
+        *_rows(results, "success"), "",
+        f"## Epoch at which the 10-epoch mean first exceeds {THRESHOLD:g}", "",
+        f"Censored: runs that never did by epoch {epoch}, counted as {epoch}. "
+        "P(X earlier): the probability that a run of X gets there before a run of Y.", "",
+        "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+        *_rows(results, "epoch"), "",
+        *_groups_section(results, groups, epoch),
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=Path, default=REPO / "docs" / "results" / "runs")
+    p.add_argument("--out", type=Path, default=REPO / "docs" / "results")
+    p.add_argument("--reps", type=int, default=REPS,
+                   help=f"bootstrap replications (default {REPS:,})")
+    args = p.parse_args(argv)
+    if not args.runs.is_dir():
+        p.error(f"--runs {args.runs}: not a directory")
+    if args.reps < 100:
+        p.error(f"--reps must be at least 100, got {args.reps}")
+    groups = load_groups(args.runs)
+    command = " ".join(["python bench/claims.py", *(sys.argv[1:] if argv is None else argv)])
+    text = report(evaluate(CLAIMS, groups, reps=args.reps), groups, command, reps=args.reps)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / OUTPUT).write_text(text)
+    print(text, end="")
+    print(f"wrote {args.out / OUTPUT}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
