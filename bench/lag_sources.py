@@ -1,6 +1,7 @@
 """Policy lag against epoch time over the asynchronous schedule's three lag sources.
 
     python bench/lag_sources.py                       # the grid, FetchPush, one run at a time
+    python bench/lag_sources.py --beside              # each setting beside the old default
     python bench/lag_sources.py --quick               # CI: two tiny FetchReach runs
 
 Each row is one real `hercs up` run (one actor, the default method) with one setting of the
@@ -13,6 +14,10 @@ the first, which includes start-up and filling the buffer) and the policy-lag di
 (the per-epoch p50 / p95 / max columns, over the same epochs). The first setting is repeated
 last, so the table shows how much the machine drifted while the grid ran. Epoch times are
 reported as ratios to the first setting's mean, since the machine is shared and noisy.
+
+`--beside`: each setting runs at the same time as a run of the first setting (two runs on the
+machine, as when the grid trains two seeds at a time); its ratio is to that run's epoch time,
+measured side by side under the same load, which a shared machine's drift cannot bias.
 
 Writes `docs/results/lag_sources.{json,md}` (`--out`).
 """
@@ -111,18 +116,42 @@ def summarise(rows: list[dict[str, str]]) -> dict[str, float]:
             "epochs_used": len(used)}
 
 
-def run_setting(setting: LagSetting, *, task: str, epochs: int, cycles: int, root: Path,
-                name: str, extra: list[str]) -> tuple[dict[str, float], float]:
+def up_command(setting: LagSetting, *, task: str, epochs: int, cycles: int, root: Path,
+               name: str, extra: list[str]) -> list[str]:
     cmd = [sys.executable, "-m", "apps.cli", "up", "--task", task, "--epochs", str(epochs),
            "--actors", "1", "--run", name, "--run-dir", str(root),
            "--listen", f"tcp/127.0.0.1:{free_port()}",
            "--set", f"training.cycles_per_epoch={cycles}"]
     for item in [*setting.overrides(), *extra]:
         cmd += ["--set", item]
+    return cmd
+
+
+def run_together(settings: list[LagSetting], *, root: Path, names: list[str],
+                 **kwargs: object) -> list[tuple[dict[str, float], float]]:
+    """Run `settings` at the same time; each one's figures and wall time."""
     started = time.monotonic()
-    with (root / f"{name}.log").open("wb") as log:
-        subprocess.run(cmd, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, check=True)
-    return summarise(read_rows(root / name / "metrics.csv")), time.monotonic() - started
+    procs = []
+    for setting, name in zip(settings, names, strict=True):
+        log = (root / f"{name}.log").open("wb")
+        cmd = up_command(setting, root=root, name=name, **kwargs)  # type: ignore[arg-type]
+        procs.append((subprocess.Popen(cmd, cwd=REPO, stdout=log, stderr=subprocess.STDOUT),
+                      log))
+    out = []
+    for (proc, log), name in zip(procs, names, strict=True):
+        code = proc.wait()
+        log.close()
+        if code != 0:
+            raise SystemExit(f"run {name} failed (exit {code}); log {root / (name + '.log')}")
+        out.append((summarise(read_rows(root / name / "metrics.csv")),
+                    time.monotonic() - started))
+    return out
+
+
+def _row(setting: LagSetting, f: dict[str, float], base_s: float, run_s: float) -> LagRow:
+    return LagRow(setting=setting, epoch_s=f["epoch_s"], epoch_ratio=f["epoch_s"] / base_s,
+                  lag_mean=f["lag_mean"], lag_p50=f["lag_p50"], lag_p95=f["lag_p95"],
+                  lag_max=f["lag_max"], epochs_used=int(f["epochs_used"]), run_s=run_s)
 
 
 def markdown(rows: list[LagRow], meta: dict[str, object]) -> str:
@@ -131,9 +160,8 @@ def markdown(rows: list[LagRow], meta: dict[str, object]) -> str:
         "",
         f"`{meta['command']}` — {meta['date']}, commit {meta['commit']}, "
         f"{meta['machine']}. Task {meta['task']}, method her-cs, one actor, {meta['epochs']} "
-        f"epochs of {meta['cycles']} cycles per setting, one run at a time "
-        f"({meta['beside']}). Epoch time: median over the epochs after the first; ratio to "
-        "the mean of the first setting's two runs (the first and the last row). Lag: cycles "
+        f"epochs of {meta['cycles']} cycles per setting. {meta['mode']} {meta['note']} "
+        "Epoch time: median over the epochs after the first. Lag: cycles "
         "behind the lockstep schedule (0 in lockstep), per-epoch p50/p95 averaged over the "
         "same epochs, max over them.",
         "",
@@ -152,37 +180,57 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--task", default="push")
     p.add_argument("--epochs", type=int, default=4)
     p.add_argument("--cycles", type=int, default=25, help="cycles per epoch")
-    p.add_argument("--beside", default="nothing else running by this script",
-                   help="what ran beside the grid, for the report")
-    p.add_argument("--out", default=str(REPO / "docs" / "results" / "lag_sources"))
+    p.add_argument("--beside", action="store_true",
+                   help="run each setting beside a run of the first setting")
+    p.add_argument("--note", default="", help="what else ran on the machine, for the report")
+    p.add_argument("--out", default=None,
+                   help="path stem of the .json/.md results (default "
+                        "docs/results/lag_sources[_beside]; --quick: a temporary folder)")
     args = p.parse_args(argv)
     if args.epochs < 2 or args.cycles < 1:
         p.error(f"--epochs must be >= 2 and --cycles >= 1 (got {args.epochs}, {args.cycles})")
-    grid, extra = GRID, []
+    grid: tuple[LagSetting, ...] = GRID
+    extra: list[str] = []
     if args.quick:
         grid, args.task, args.epochs, args.cycles = QUICK_GRID, "reach", 2, 2
         extra = ["training.episodes_per_cycle=2", "training.minibatches_per_cycle=4",
                  "training.eval_episodes=2"]
-        args.out = tempfile.mkdtemp(prefix="hercs-lag-") + "/lag_sources"
+        if args.out is None:
+            args.out = tempfile.mkdtemp(prefix="hercs-lag-") + "/lag_sources"
     root = Path(tempfile.mkdtemp(prefix="hercs-lag-runs-"))
-    settings = [*grid, grid[0]]  # the first again: how much the machine drifted
-    measured = []
-    for i, setting in enumerate(settings):
-        figures, run_s = run_setting(setting, task=args.task, epochs=args.epochs,
-                                     cycles=args.cycles, root=root, name=f"lag{i}", extra=extra)
-        print(f"{setting.label}: {json.dumps(figures)} ({run_s:.0f} s)", flush=True)
-        measured.append((setting, figures, run_s))
-    base = statistics.fmean([measured[0][1]["epoch_s"], measured[-1][1]["epoch_s"]])
-    rows = [LagRow(setting=s, epoch_s=f["epoch_s"], epoch_ratio=f["epoch_s"] / base,
-                   lag_mean=f["lag_mean"], lag_p50=f["lag_p50"], lag_p95=f["lag_p95"],
-                   lag_max=f["lag_max"], epochs_used=int(f["epochs_used"]), run_s=run_s)
-            for s, f, run_s in measured]
+    run_args = {"task": args.task, "epochs": args.epochs, "cycles": args.cycles,
+                "extra": extra}
+    rows = []
+    if args.beside:  # each setting with a baseline run beside it: ratios within a pair
+        for i, setting in enumerate(grid[1:], start=1):
+            (base, _), (figures, run_s) = run_together(
+                [grid[0], setting], root=root, names=[f"base{i}", f"lag{i}"], **run_args)
+            print(f"{setting.label}: {json.dumps(figures)} beside {json.dumps(base)}",
+                  flush=True)
+            rows.append(_row(grid[0], base, base["epoch_s"], run_s))
+            rows.append(_row(setting, figures, base["epoch_s"], run_s))
+    else:
+        measured = []
+        for i, setting in enumerate([*grid, grid[0]]):  # the first again: the machine's drift
+            ((figures, run_s),) = run_together([setting], root=root, names=[f"lag{i}"],
+                                               **run_args)
+            print(f"{setting.label}: {json.dumps(figures)} ({run_s:.0f} s)", flush=True)
+            measured.append((setting, figures, run_s))
+        base_s = statistics.fmean([measured[0][1]["epoch_s"], measured[-1][1]["epoch_s"]])
+        rows = [_row(s, f, base_s, run_s) for s, f, run_s in measured]
     meta: dict[str, object] = {
-        "command": "python bench/lag_sources.py" + (" --quick" if args.quick else ""),
+        "command": "python bench/lag_sources.py" + (" --quick" if args.quick else "")
+                   + (" --beside" if args.beside else ""),
         "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "commit": git_commit(),
         "machine": machine_identity()["cpu"], "task": args.task, "epochs": args.epochs,
-        "cycles": args.cycles, "beside": args.beside}
-    out = Path(args.out)
+        "cycles": args.cycles, "note": args.note,
+        "mode": ("Each setting ran beside a run of the first setting, started together; "
+                 "ratio: its epoch time over that run's (the pair's first row has ratio 1)."
+                 if args.beside else
+                 "One run at a time; ratio to the mean of the first setting's two runs (the "
+                 "first and the last row show the machine's drift).")}
+    out = Path(args.out or str(REPO / "docs" / "results" / (
+        "lag_sources_beside" if args.beside else "lag_sources")))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(
         {"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2) + "\n")
