@@ -15,6 +15,7 @@ from typing import NoReturn
 
 import yaml
 
+from apps.plots import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
@@ -287,7 +288,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
     try:
         return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
-                        xmax=args.xmax, figure=args.figure)
+                        xmax=args.xmax, figure=args.figure, band=args.band)
     except HercsError as exc:
         print(f"hercs plot: {exc}", file=sys.stderr)
         return 2
@@ -358,8 +359,11 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         commands[name] = _service_command(module)
 
     p = sub.add_parser("plot", help="learning curves (PNG) and milestone tables of run folders",
-                       description="Seed mean and min–max band of success rate per epoch, one "
-                                   "panel per task; milestone tables on stdout.")
+                       description="10-epoch mean of the seed mean of the success rate per "
+                                   "epoch, with a bootstrap 95 % interval band (and/or the "
+                                   "min–max band), one panel per task, the legend beside it; "
+                                   "milestone tables on stdout. A folder named twice is read "
+                                   "once.")
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (config.yaml + "
                    "metrics.csv)")
     p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
@@ -368,6 +372,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
     p.add_argument("--xmax", type=int, metavar="EPOCH",
                    help="x axis end (default: the last epoch of our runs; 200 with --figure 2)")
+    p.add_argument("--band", choices=BANDS, default=DEFAULT_BAND,
+                   help="ci: bootstrap 95 %% interval of the seed mean (default); minmax: "
+                        "min–max over seeds; both: the interval and, lighter, the min–max")
     p.add_argument("--figure", type=int, choices=[2],
                    help="the paper's figure layout: 2 = Fig. 2 (2x3 panels: HER vs HER-CS and "
                         "HER-EBP vs HER-EBP-CS on Push, PickAndPlace, Slide; authors dashed)")

@@ -16,14 +16,17 @@ Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exa
   (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
 * "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
 
-Figure rule: each method's 10-epoch moving average of the seed mean (solid), its raw seed
-mean faint behind it, and the min–max band; every run is drawn to its own end (at each epoch,
-over the seeds that reached it). Runs with the same task, method and seed are one seed (the
-longest is kept, with a note on stderr). A run trained in the lockstep schedule
-(`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so that it
-is compared with the asynchronous runs instead of averaged into them; likewise a run whose
-learner ran in bf16 (`learner.precision`) is `<method>/bf16`. Fig. 2 draws the paper's methods
-and their lockstep variants, not the precision variants (a speed option, compared in
+Figure rule: each method's 10-epoch moving average of the seed mean (solid) and bands over the
+seeds' own 10-epoch moving averages (`seed_bands`; `--band ci|minmax|both`): the bootstrap 95 %
+interval of their mean (resampling seeds, a fixed RNG seed; the default) and/or, lighter, their
+min–max; the authors' curves dashed, smoothed alike. Every run is drawn to its own end (at each
+epoch, over the seeds that reached it); the legend sits beside the panel, not over the curves.
+Runs with the same task, method and seed are one seed (the longest is kept, with a note on
+stderr); a folder named twice on the command line is read once. A run trained in the lockstep
+schedule (`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so
+that it is compared with the asynchronous runs instead of averaged into them; likewise a run
+whose learner ran in bf16 (`learner.precision`) is `<method>/bf16`. Fig. 2 draws the paper's
+methods and their lockstep variants, not the precision variants (a speed option, compared in
 docs/PERFORMANCE.md).
 """
 
@@ -32,6 +35,7 @@ from __future__ import annotations
 import csv
 import math
 import sys
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,14 +64,23 @@ VARIANT_COLORS: dict[str, str] = {
     "her-ebp/lockstep": "tab:olive", "her-ebp-cs/lockstep": "tab:brown",
     "her/bf16": "tab:gray", "her-cs/bf16": "tab:pink",
     "her-ebp/bf16": "darkgreen", "her-ebp-cs/bf16": "goldenrod",
+    "her/lockstep/bf16": "slategray", "her-cs/lockstep/bf16": "darkmagenta",
+    "her-ebp/lockstep/bf16": "yellowgreen", "her-ebp-cs/lockstep/bf16": "darkslateblue",
 }
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
 _EPS = 1e-9  # "exceeds": float noise around an exact tie (e.g. 25/50) does not count
 
-# Figure geometry: the PNG is exactly (PANEL_W * panels) x PANEL_H inches at DPI.
+# Figure geometry: `hercs plot`'s PNG is exactly ((PANEL_W + LEGEND_W) * panels) x PANEL_H
+# inches at DPI, the legend beside each panel; Fig. 2's (PANEL_W * 3) x (PANEL_H * 2).
 PANEL_W, PANEL_H, DPI = 5.0, 4.0, 100
+LEGEND_W = 3.2
+BANDS: tuple[str, ...] = ("ci", "minmax", "both")
+DEFAULT_BAND = "ci"  # a dozen curves' min–max bands cover one another; `--band both` adds them
+CI_LEVEL = 0.95
+CI_REPS = 2000
+CI_SEED = 0
 
 
 class PlotError(HercsError):
@@ -127,6 +140,15 @@ def method_label(key: str) -> str:
 
 def method_color(key: str) -> str | None:
     return METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
+
+
+def method_linestyle(key: str) -> str | tuple[int, tuple[int, ...]]:
+    """Our curves: solid, a lockstep variant dash-dotted, a bf16 one dotted (the authors'
+    are dashed), so that variants read apart where their colours are close."""
+    variants = key.split("/")[1:]
+    if "lockstep" in variants:
+        return (0, (5, 1, 1, 1, 1, 1)) if "bf16" in variants else "-."
+    return ":" if "bf16" in variants else "-"
 
 
 def _curve(task: str, method: str, seed: int, points: dict[int, float], source: str) -> Curve:
@@ -244,6 +266,47 @@ def moving_average(epochs: np.ndarray, values: np.ndarray, window: int = WINDOW)
     return np.array([values[(epochs > e - window) & (epochs <= e)].mean() for e in epochs])
 
 
+@dataclass(frozen=True)
+class Bands:
+    """Per epoch, over the seeds that reached it, statistics of the seeds' own 10-epoch
+    moving averages: their mean, the bootstrap interval of that mean, their min and max."""
+
+    epochs: np.ndarray
+    mean: np.ndarray
+    ci_low: np.ndarray
+    ci_high: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    n_seeds: int
+
+
+def seed_bands(curves: Sequence[Curve], rng: np.random.Generator, *, window: int = WINDOW,
+               reps: int = CI_REPS, level: float = CI_LEVEL, every_seed: bool = False) -> Bands:
+    """The figure's bands (module docstring). The interval is the percentile interval of
+    the mean over `reps` resamples of the seeds, drawn with replacement; one draw of seed
+    indices serves every epoch that the same seeds reached, so the band is as smooth as the
+    curves. With one seed the interval and the min–max are the curve itself."""
+    if not curves:
+        raise ValueError("seed_bands needs at least one curve")
+    smoothed = [dict(zip(c.epochs.tolist(), moving_average(c.epochs, c.success, window).tolist(),
+                         strict=True)) for c in curves]
+    sets = [set(t) for t in smoothed]
+    epochs = np.array(sorted(set.intersection(*sets) if every_seed else set.union(*sets)),
+                      dtype=int)
+    tail = (1.0 - level) / 2.0 * 100.0
+    draws: dict[tuple[int, ...], np.ndarray] = {}
+    out = np.empty((5, len(epochs)))
+    for i, e in enumerate(epochs.tolist()):
+        present = tuple(k for k, t in enumerate(smoothed) if e in t)
+        values = np.array([smoothed[k][e] for k in present])
+        if present not in draws:
+            draws[present] = rng.integers(0, len(present), size=(reps, len(present)))
+        low, high = np.percentile(values[draws[present]].mean(axis=1), [tail, 100.0 - tail])
+        out[:, i] = values.mean(), low, high, values.min(), values.max()
+    mean, ci_low, ci_high, low, high = out
+    return Bands(epochs, mean, ci_low, ci_high, low, high, len(curves))
+
+
 def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
                at_epochs: Sequence[int] = AT_EPOCHS, window: int = WINDOW) -> Milestones:
     """docs/DESIGN.md §5's numbers for one aggregated method (rule: module docstring)."""
@@ -327,7 +390,8 @@ def _pyplot() -> Any:
 
 
 def _save_figure(plt: Any, fig: Any, output: str | Path) -> Path:
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(output, dpi=DPI)
@@ -335,53 +399,109 @@ def _save_figure(plt: Any, fig: Any, output: str | Path) -> Path:
     return output
 
 
+def _check_band(band: str) -> None:
+    if band not in BANDS:
+        raise PlotError(f"band must be one of {', '.join(BANDS)}, got {band!r}")
+
+
+def _band_rng() -> np.random.Generator:
+    """A fresh generator per drawn method, so that its band does not depend on what else
+    the figure draws."""
+    return np.random.default_rng(CI_SEED)
+
+
+def _fill_bands(ax: Any, b: Bands, color: str | None, band: str, *, strength: float = 1.0,
+                right: float | None = None) -> None:
+    """`band` of ci|minmax|both; the min–max lighter than the interval (`strength` scales
+    both, for the authors' bands)."""
+    keep = b.epochs <= right if right is not None else np.ones(len(b.epochs), dtype=bool)
+    if band in ("minmax", "both"):
+        ax.fill_between(b.epochs[keep], b.low[keep], b.high[keep], color=color,
+                        alpha=(0.10 if band == "both" else 0.18) * strength, linewidth=0)
+    if band in ("ci", "both"):
+        ax.fill_between(b.epochs[keep], b.ci_low[keep], b.ci_high[keep], color=color,
+                        alpha=0.25 * strength, linewidth=0)
+
+
+_BAND_CAPTIONS: dict[str, str] = {
+    "ci": f"the bootstrap {CI_LEVEL * 100:.0f} % interval of their mean (seeds resampled, "
+          "a fixed RNG seed)",
+    "minmax": "their min–max",
+    "both": f"the bootstrap {CI_LEVEL * 100:.0f} % interval of their mean (seeds resampled, "
+            "a fixed RNG seed) and, lighter, their min–max",
+}
+
+
+def _band_words(band: str) -> str:
+    return {"ci": f"band: {CI_LEVEL * 100:.0f} % CI of the seed mean",
+            "minmax": "band: min–max over seeds",
+            "both": f"bands: {CI_LEVEL * 100:.0f} % CI of the seed mean,\n"
+                    "min–max over seeds (lighter)"}[band]
+
+
+def _legend_title(keys: set[str], reference: bool, band: str) -> str:
+    """What the line styles and bands mean, for the styles drawn."""
+    lines = ["solid: ours" + ("; dashed: the authors'" if reference else "")]
+    variants = {v for key in keys for v in key.split("/")[1:]}
+    styles = [f"{style}: {v}" for v, style in (("lockstep", "dash-dot"), ("bf16", "dotted"))
+              if v in variants]
+    if styles:
+        lines.append("; ".join(styles))
+    return "\n".join([*lines, _band_words(band)])
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed{'s' if n != 1 else ''}"
+
+
 def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
                 reference: dict[str, dict[str, list[Curve]]] | None = None,
-                xmax: int | None = None) -> Path:
-    """One panel per task: per method the seed mean with a min–max band (ours solid, the
-    authors' dashed; the authors' band is drawn for the methods we ran, the other methods'
-    reference means are thin dashed lines). The x axis spans our epochs unless `xmax` is
-    given."""
+                xmax: int | None = None, band: str = DEFAULT_BAND) -> Path:
+    """One panel per task, its legend beside it: per method the 10-epoch moving average of
+    the seed mean with its bands (`seed_bands`; ours solid, the authors' dashed and smoothed
+    alike; the authors' bands only for the methods we ran, the other methods' reference
+    means thin). The x axis spans our epochs unless `xmax` is given."""
     from matplotlib.ticker import MaxNLocator
 
+    _check_band(band)
     plt = _pyplot()
     tasks = list(ours)
-    fig, axes = plt.subplots(1, len(tasks), figsize=(PANEL_W * len(tasks), PANEL_H), dpi=DPI,
-                             squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=((PANEL_W + LEGEND_W) * len(tasks), PANEL_H),
+                             dpi=DPI, squeeze=False, layout="constrained")
     for ax, task in zip(axes[0], tasks, strict=True):
         ref = (reference or {}).get(task, {})
         right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
         for method in sorted(set(ours[task]) | set(ref), key=_method_rank):
             color = method_color(method)
             label = method_label(method)
+            mine = method in ours[task]
+            if mine:
+                a = aggregate(ours[task][method], every_seed=False)
+                _fill_bands(ax, seed_bands(ours[task][method], _band_rng()), color, band)
+                ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
+                        linestyle=method_linestyle(method), linewidth=2.0, zorder=3,
+                        label=f"{label}, {_seeds(a.n_seeds)}")
             if method in ref:
                 a = aggregate(ref[method])
                 keep = a.epochs <= right
-                mine = method in ours[task]  # the authors' band only where it compares to ours
-                if mine:
-                    ax.fill_between(a.epochs[keep], a.low[keep], a.high[keep], color=color,
-                                    alpha=0.12, linewidth=0, hatch="///", edgecolor=color)
-                ax.plot(a.epochs[keep], a.mean[keep], "--", color=color,
-                        linewidth=1.4 if mine else 1.0, alpha=0.9 if mine else 0.6,
-                        label=f"{label} (authors, {a.n_seeds} seeds)")
-            if method in ours[task]:
-                a = aggregate(ours[task][method], every_seed=False)
-                ax.fill_between(a.epochs, a.low, a.high, color=color, alpha=0.18, linewidth=0)
-                ax.plot(a.epochs, a.mean, "o-" if len(a.epochs) <= 30 else "-", color=color,
-                        linewidth=0.8, alpha=0.35, markersize=2.5, zorder=2)  # raw seed mean
-                ax.plot(a.epochs, moving_average(a.epochs, a.mean), "-", color=color,
-                        linewidth=2.0, zorder=3,
-                        label=f"{label} ({a.n_seeds} seed{'s' if a.n_seeds != 1 else ''}, "
-                              f"{WINDOW}-epoch mean)")
+                if mine:  # the authors' band only where it compares to ours
+                    _fill_bands(ax, seed_bands(ref[method], _band_rng(), every_seed=True),
+                                color, band, strength=0.6, right=right)
+                ax.plot(a.epochs[keep], moving_average(a.epochs, a.mean)[keep], "--",
+                        color=color, linewidth=1.4 if mine else 1.0,
+                        alpha=0.9 if mine else 0.6,
+                        label=f"{label}, authors' ({_seeds(a.n_seeds)})")
         ax.set_title(task)
         ax.set_xlabel("epoch")
-        ax.set_ylabel("success rate")
+        ax.set_ylabel(f"success rate ({WINDOW}-epoch mean)")
         ax.set_xlim(1 if right > 1 else 0, right)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # epochs are whole numbers
         ax.set_ylim(-0.01, 1.01)  # curves at exactly 0 or 1 stay visible
         ax.set_yticks(np.linspace(0.0, 1.0, 6))
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize=8, framealpha=0.9)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8,
+                  frameon=False, title=_legend_title(set(ours[task]), bool(ref), band),
+                  title_fontsize=7, alignment="left")
     return _save_figure(plt, fig, output)
 
 
@@ -416,18 +536,19 @@ def _fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
 
 
 def fig2_text(ours: dict[str, dict[str, list[Curve]]],
-              reference: dict[str, dict[str, list[Curve]]]) -> str:
-    """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2."""
+              reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND) -> str:
+    """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2 (`band`:
+    what the figure's bands are, for its caption)."""
     parts = [
         "# Fig. 2: ours beside the authors'", "",
         "Drawn by `hercs plot --figure 2` from the committed runs (docs/results/runs/). Rows "
         "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
-        "FetchPickAndPlace, FetchSlide. Ours solid, the authors' dashed; both curves are the "
-        f"{WINDOW}-epoch trailing mean of the seed mean, and both bands the {WINDOW}-epoch "
-        "trailing mean of the per-epoch min and max over seeds (the paper smooths over 21 "
-        "epochs and pads short runs; we do neither). Ours: gymnasium-robotics Fetch*-v4 on "
-        "MuJoCo 3; the authors': gym Fetch*-v1 on mujoco-py (docs/DESIGN.md §9.6), so the "
-        "curves are compared, not matched.", "",
+        "FetchPickAndPlace, FetchSlide. Ours solid (lockstep dash-dotted), the authors' "
+        f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
+        "smooths over 21 epochs and pads short runs; we do neither), and the bands, over the "
+        f"seeds' own {WINDOW}-epoch trailing means, are {_BAND_CAPTIONS[band]}. Ours: "
+        "gymnasium-robotics Fetch*-v4 on MuJoCo 3; the authors': gym Fetch*-v1 on mujoco-py "
+        "(docs/DESIGN.md §9.6), so the curves are compared, not matched.", "",
     ]
     for pair in FIG2_ROWS:
         for task in FIG2_TASKS:
@@ -446,15 +567,11 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
     return "\n".join(parts) + "\n" + TABLE_NOTE
 
 
-def _smoothed_band(a: Aggregate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (moving_average(a.epochs, a.mean), moving_average(a.epochs, a.low),
-            moving_average(a.epochs, a.high))
-
-
 def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
-              xmax: int = FIG2_EPOCHS) -> Path:
+              xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND) -> Path:
     """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`."""
+    _check_band(band)
     plt = _pyplot()
     fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
                              figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
@@ -468,17 +585,16 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
                 label = method_label(key)
                 if key in ref:
                     a = aggregate(ref[key])
-                    mean, low, high = _smoothed_band(a)
-                    ax.fill_between(a.epochs, low, high, color=color, alpha=0.08, linewidth=0)
-                    ax.plot(a.epochs, mean, "--", color=color, linewidth=1.3,
-                            label=f"{label} (authors, {a.n_seeds} seeds)")
+                    _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
+                                band, strength=0.4)
+                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), "--", color=color,
+                            linewidth=1.3, label=f"{label} (authors, {_seeds(a.n_seeds)})")
                 if key in mine:
                     a = aggregate(mine[key], every_seed=False)
-                    mean, low, high = _smoothed_band(a)
-                    ax.fill_between(a.epochs, low, high, color=color, alpha=0.22, linewidth=0)
-                    ax.plot(a.epochs, mean, "-", color=color, linewidth=2.0,
-                            label=f"{label} (ours, {a.n_seeds} seed"
-                                  f"{'s' if a.n_seeds != 1 else ''})")
+                    _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
+                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
+                            linestyle=method_linestyle(key), linewidth=2.0,
+                            label=f"{label} (ours, {_seeds(a.n_seeds)})")
             if not _has_ours(pair, mine):
                 ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
                         ha="left", va="top", fontsize=10, color="0.4")
@@ -494,19 +610,41 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
 
 # ------------------------------------------------------------------------------------- CLI
 
+def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:
+    """The run folders in the order given, each once (the shell glob `push-her-*` also
+    matches `push-her-cs-*`, so a command line can name a folder twice), and how many
+    folders were named more than once."""
+    counts = Counter(Path(d).resolve() for d in run_dirs)
+    seen: set[Path] = set()
+    out = []
+    for d in run_dirs:
+        key = Path(d).resolve()
+        if key not in seen:
+            seen.add(key)
+            out.append(Path(d))
+    return out, sum(1 for n in counts.values() if n > 1)
+
+
 def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
              table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
-             xmax: int | None = None, figure: int | None = None) -> int:
+             xmax: int | None = None, figure: int | None = None,
+             band: str = DEFAULT_BAND) -> int:
     """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`);
-    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours)."""
+    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours).
+    A folder named twice is read once, with one line on stderr saying how many were."""
+    _check_band(band)
+    folders, repeated = distinct_run_dirs(run_dirs)
     notes: list[str] = []
-    ours = group((load_run(d) for d in run_dirs), notes)
+    if repeated:
+        notes.append(f"{repeated} run folder{'s' if repeated != 1 else ''} named more than "
+                     "once (overlapping globs?): each read once")
+    ours = group((load_run(d) for d in folders), notes)
     if figure == 2:
         for note in notes:
             print(f"hercs plot: {note}", file=sys.stderr)
         authors = group(load_reference(reference_csv))
-        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS),
-                              fig2_text(ours, authors), table)
+        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band),
+                              fig2_text(ours, authors, band), table)
     ref = group(load_reference(reference_csv)) if reference else None
     if ref is not None:
         missing = sorted(set(ours) - set(ref))
@@ -515,7 +653,7 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
                          f" (they did for {', '.join(sorted(ref))}); drawn without them")
     for note in notes:
         print(f"hercs plot: {note}", file=sys.stderr)
-    return _write_outputs(plot_figure(ours, output, ref, xmax), tables(ours, ref), table)
+    return _write_outputs(plot_figure(ours, output, ref, xmax, band), tables(ours, ref), table)
 
 
 def _write_outputs(path: Path, text: str, table: str | None) -> int:

@@ -153,9 +153,78 @@ def test_figure_is_a_non_blank_png_of_the_expected_size(run_dirs: list[Path],
     out = plots.plot_figure(ours, tmp_path / "fig.png",
                             plots.group(plots.load_reference(plots.REFERENCE_CSV)))
     img = mpimg.imread(out)
-    h, w = int(plots.PANEL_H * plots.DPI), int(plots.PANEL_W * plots.DPI)
-    assert img.shape == (h, 2 * w, 4)  # two panels: FetchPush, FetchSlide
+    h, w = round(plots.PANEL_H * plots.DPI), round((plots.PANEL_W + plots.LEGEND_W) * plots.DPI)
+    assert img.shape == (h, 2 * w, 4)  # two panels, each with its legend beside it
     assert img[..., :3].var() > 1e-3
+
+
+def test_the_legend_sits_beside_the_axes_not_over_them(run_dirs: list[Path],
+                                                       tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A dozen entries over the curves was the README example's figure: every legend's box
+    lies right of its axes' box, inside the figure."""
+    import matplotlib.pyplot as plt
+
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)  # keep the figure to look at it
+    ours = plots.group(plots.load_run(d) for d in run_dirs)
+    plots.plot_figure(ours, tmp_path / "fig.png",
+                      plots.group(plots.load_reference(plots.REFERENCE_CSV)))
+    [fig] = figures
+    renderer = fig.canvas.get_renderer()
+    [ax] = fig.axes
+    axes_box = ax.get_window_extent(renderer)
+    legend_box = ax.get_legend().get_window_extent(renderer)
+    assert legend_box.x0 > axes_box.x1
+    assert legend_box.x1 <= fig.bbox.x1 and legend_box.y0 >= fig.bbox.y0
+    title = ax.get_legend().get_title().get_text()
+    assert title.startswith("solid: ours; dashed: the authors'")
+    assert "lockstep" not in title  # no lockstep run drawn, no style to explain
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels[:2] == ["HER, 2 seeds", "HER, authors' (5 seeds)"]
+    plt.close(fig)
+
+
+def _constant(seed: int, value: float, n: int = 12) -> plots.Curve:
+    return plots.Curve("FetchPush", "her", seed, np.arange(1, n + 1), np.full(n, value))
+
+
+def test_seed_bands_by_hand() -> None:
+    """Four seeds flat at 0, 0, 0, 1: their moving averages are the same constants. The
+    seed mean is .25; resampled means are k/4 for k ones drawn, P(k ≥ 3) = 5.1 % and
+    P(k = 4) = 0.4 %, so the 97.5th percentile is .75, and P(k = 0) = 32 % puts the 2.5th at
+    0. Min–max: 0 and 1."""
+    curves = [_constant(s, v) for s, v in enumerate([0.0, 0.0, 0.0, 1.0], start=1)]
+    b = plots.seed_bands(curves, np.random.default_rng(0))
+    assert b.n_seeds == 4 and b.epochs.tolist() == list(range(1, 13))
+    assert b.mean == pytest.approx([0.25] * 12)
+    assert b.ci_low.tolist() == [0.0] * 12 and b.ci_high.tolist() == [0.75] * 12
+    assert b.low.tolist() == [0.0] * 12 and b.high.tolist() == [1.0] * 12
+    again = plots.seed_bands(curves, np.random.default_rng(0))
+    assert np.array_equal(again.ci_high, b.ci_high)  # a fixed seed, a fixed band
+
+
+def test_seed_bands_are_over_the_seeds_own_moving_averages_to_each_runs_end() -> None:
+    """A 0→1 step: the bands follow the trailing mean, not the raw step; past the short
+    seed's end the one seed left is its own band."""
+    step = plots.Curve("FetchPush", "her", 1, np.arange(1, 11), np.array([0.0] * 5 + [1.0] * 5))
+    short = plots.Curve("FetchPush", "her", 2, np.arange(1, 6), np.zeros(5))
+    b = plots.seed_bands([step, short], np.random.default_rng(0))
+    assert b.epochs.tolist() == list(range(1, 11))
+    smoothed = plots.moving_average(step.epochs, step.success)  # 0 ×5, then 1/6 … 5/10
+    assert b.high[5:] == pytest.approx(smoothed[5:])
+    assert b.ci_low[5:] == pytest.approx(smoothed[5:])  # one seed: no spread to resample
+    assert b.ci_high[5:] == pytest.approx(smoothed[5:])
+    assert b.mean[:5].tolist() == [0.0] * 5
+    with pytest.raises(ValueError):
+        plots.seed_bands([], np.random.default_rng(0))
+
+
+def test_variants_have_their_own_line_style() -> None:
+    assert [plots.method_linestyle(k) for k in ("her-cs", "her-cs/lockstep", "her-cs/bf16")
+            ] == ["-", "-.", ":"]
+    assert plots.method_linestyle("her-cs/lockstep/bf16") not in ("-", "-.", ":", "--")
+    assert all(plots.method_color(f"{m}/lockstep/bf16") for m in plots.METHOD_ORDER)
 
 
 def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
@@ -268,3 +337,44 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
     assert "bf16" not in text
     assert text.count("No runs of ours yet.") == 4  # Pick and Slide, both rows
     assert text in capsys.readouterr().out
+
+
+def test_a_folder_named_twice_is_read_once_with_one_line_saying_so(tmp_path: Path,
+                                                                   capsys) -> None:
+    """The README's `hercs plot runs/push-her-* runs/push-her-cs-* --reference`: the first
+    glob also matches the HER-CS folders, which used to give one warning per folder."""
+    runs = [_write_run(tmp_path, m, s, c) for (m, s), c in CURVES.items()]
+    her, cs = runs[:2], runs[2:]
+    argv = ["plot", *map(str, [*her, *cs]), *map(str, cs), f"{cs[0]}/",
+            "-o", str(tmp_path / "f.png")]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        "hercs plot: 2 run folders named more than once (overlapping globs?): each read once"]
+    assert "| HER-CS | 2 | 6 |" in captured.out  # two seeds, not four
+    assert plots.distinct_run_dirs([*her, her[0], f"{her[1]}/"]) == (her, 2)
+
+
+@pytest.mark.parametrize("band", ["ci", "minmax", "both"])
+def test_cli_band_option(run_dirs: list[Path], tmp_path: Path, band: str) -> None:
+    out = tmp_path / f"{band}.png"
+    assert main(["plot", *map(str, run_dirs), "-o", str(out), "--band", band]) == 0
+    assert out.is_file()
+
+
+def test_cli_refuses_an_unknown_band(run_dirs: list[Path], tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["plot", str(run_dirs[0]), "-o", str(tmp_path / "f.png"), "--band", "sd"])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'sd'" in capsys.readouterr().err
+    with pytest.raises(plots.PlotError, match="got 'sd'"):
+        plots.run_plot([str(run_dirs[0])], str(tmp_path / "f.png"), band="sd")
+
+
+def test_figure_2_caption_names_the_band_drawn() -> None:
+    ref = plots.group(plots.load_reference(plots.REFERENCE_CSV))
+    assert "are the bootstrap 95 % interval of their mean" in plots.fig2_text({}, ref)
+    both = plots.fig2_text({}, ref, band="both")
+    assert "interval of their mean (seeds resampled, a fixed RNG seed) and, lighter, their " \
+           "min–max" in both
+    assert "are their min–max." in plots.fig2_text({}, ref, band="minmax")
