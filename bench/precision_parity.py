@@ -171,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot_figure({task_title(args.task): {
         method_key(args.method): [_cut(c, shown) for c in fp32],
         method_key(args.method, precision="bf16"): [_cut(c, shown) for c in bf16]}},
-        args.out / "bf16_parity.png")
+        args.out / "bf16_parity.png", band="minmax")  # the rule's band
     (args.out / "bf16_parity.md").write_text(text)
     print(text, end="")
     print(f"wrote {args.out / 'bf16_parity.md'} and {args.out / 'bf16_parity.png'} "
