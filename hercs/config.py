@@ -25,7 +25,7 @@ import yaml
 
 from hercs.errors import ConfigError
 from hercs.methods import METHODS, Method
-from hercs.tasks import TASKS, TaskSpec, task_spec
+from hercs.tasks import ENV_VERSIONS, TASKS, TaskSpec, task_spec
 
 log = logging.getLogger(__name__)
 
@@ -109,14 +109,21 @@ class RunConfig:
 @dataclass
 class TaskConfig:
     name: str = "push"
-    """Task preset: reach, push, pick (PickAndPlace) or slide; Fetch*-v4 environments."""
+    """Task preset: reach, push, pick (PickAndPlace) or slide."""
+    env_version: str = "v4"
+    """v4: gymnasium-robotics Fetch*-v4 on MuJoCo 3 [DESIGN]; v1: the authors' Fetch*-v1 on
+    mujoco-py and MuJoCo 2.1 [HER-py] (installed by `make mujoco-py`). Same shapes, horizon
+    and reward; the physics differ (docs/DESIGN.md §9)."""
 
     def __post_init__(self) -> None:
         _check(self.name in TASKS, "task.name", self.name, f"be one of {sorted(TASKS)}")
+        _check(self.env_version in ENV_VERSIONS, "task.env_version", self.env_version,
+               f"be one of {list(ENV_VERSIONS)} (v1 is the authors' Fetch*-v1 on mujoco-py)")
 
     @property
     def spec(self) -> TaskSpec:
-        return task_spec(self.name)
+        """The task on its environment version: what every env factory makes."""
+        return task_spec(self.name, self.env_version)
 
 
 @dataclass

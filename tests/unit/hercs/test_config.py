@@ -1,11 +1,13 @@
 """Defaults equal docs/DESIGN.md §4; overrides and YAML round trip; bad values name the field."""
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
 from hercs.errors import ConfigError
+from hercs.tasks import task_spec
 
 
 def test_defaults_are_the_paper_reference_values() -> None:
@@ -48,6 +50,7 @@ def test_overrides_are_typed() -> None:
         ("ddpg.clip_return=maybe", "ddpg.clip_return: got 'maybe', must be true or false"),
         ("run.method=her-xx", "run.method: got 'her-xx'"),
         ("task.name=ant", "task.name: got 'ant'"),
+        ("task.env_version=v2", "task.env_version: got 'v2', must be one of ['v4', 'v1']"),
         ("cluster.fgb_size=4", "cluster.fgb_size: got 4, must be >= k=8"),
         ("energy.w_kinetic=-1", "energy.w_kinetic: got -1.0, must be >= 0"),
         ("training.max_policy_lag=0", "training.max_policy_lag: got 0, must be -1 (no bound) "
@@ -68,7 +71,8 @@ def test_overrides_are_typed() -> None:
         ("view.viewer=http://host:9876", "view.viewer: got 'http://host:9876', must be 'spawn'"),
         ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
     ],
-    ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "fgb", "energy-weight",
+    ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "env-version", "fgb",
+         "energy-weight",
          "max-policy-lag-0", "prefetch-negative", "insert-queue-negative",
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
@@ -109,3 +113,16 @@ def test_a_saved_config_with_a_retired_key_still_loads(tmp_path: Path) -> None:
     data["cluster"]["no_such_key"] = 1
     with pytest.raises(ConfigError, match="no_such_key"):
         HercsConfig.from_dict(data)
+
+
+@pytest.mark.parametrize("version", ["v4", "v1"])
+def test_the_env_version_picks_the_env_every_factory_makes(version: str) -> None:
+    """Fetch*-v1 and Fetch*-v4 differ in their env id only: the shapes the wire, the replay and
+    the networks are built from are the same."""
+    c = apply_overrides(HercsConfig(), ["task.name=pick", f"task.env_version={version}"])
+    assert c.task.spec.env_id == f"FetchPickAndPlace-{version}"
+    default = HercsConfig().task
+    assert default.env_version == "v4" and default.spec.env_id == "FetchPush-v4"
+    for name in ("reach", "push", "pick", "slide"):
+        v1, v4 = task_spec(name, "v1"), task_spec(name, "v4")
+        assert dataclasses.replace(v1, env_version="v4") == v4
