@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint proto install clean compose-test compose-clean figures
+.PHONY: run test lint proto install clean compose-test compose-clean figures mujoco-py
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -24,6 +24,13 @@ $(STAMP): pyproject.toml | $(PY)
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# The authors' environment, Fetch*-v1 on mujoco-py and MuJoCo 2.1 (--set task.env_version=v1):
+# Debian's compiler and OSMesa/GL headers when root and missing, MuJoCo 2.1 from PyPI's
+# free-mujoco-py wheel into .venv/mujoco210, the `v1` extra, mujoco-py's one-time compile and a
+# check (deploy/install_mujoco_py.sh). 2-3 minutes on 2 cores; a second run only checks.
+mujoco-py: $(STAMP)
+	VENV=$(abspath $(VENV)) bash deploy/install_mujoco_py.sh
 
 # A short real run: router, replay, clusterer, learner, evaluator and two actors as separate
 # processes over Zenoh, FetchReach with HER-CS for 3 epochs; prints where the run directory is.

@@ -62,7 +62,9 @@ def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
                        metavar="SECTION.FIELD=VALUE",
                        help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
     helps = {
-        "task": dict(choices=sorted(TASKS), help="task preset (Fetch*-v4)"),
+        "task": dict(choices=sorted(TASKS),
+                     help="task preset (Fetch*-v4; --set task.env_version=v1: the authors' "
+                          "Fetch*-v1)"),
         "method": dict(choices=list(METHODS), help="sampling method"),
         "seed": dict(type=int, help="root seed"),
         "epochs": dict(type=int, help="training epochs"),
@@ -467,6 +469,12 @@ NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "eval": _needs_extras(_cmd_eval)}
 
 
+ENV_COMMANDS = frozenset({"up", "actor", "evaluator"})
+"""Commands that make envs, themselves or in their children: before anything starts they check
+that the task's env can be made here (the v1 envs need `make mujoco-py`). A remote actor, which
+learns its task from the run, meets a missing mujoco-py when it makes its envs instead."""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser, commands = build_parser()
     args = parser.parse_args(argv)
@@ -480,6 +488,14 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
         return 2
+    if args.command in ENV_COMMANDS:
+        from hercs.envs import check_env
+
+        try:
+            check_env(config.task.spec)
+        except ConfigError as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
     return commands[args.command](args, config)
 
 

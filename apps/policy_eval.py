@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from hercs.config import HercsConfig
-from hercs.errors import HercsError
+from hercs.errors import ConfigError, HercsError
 from hercs.seeding import int_seed
 from hercs.tasks import goal_distance
 
@@ -210,7 +210,7 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         sinks, closers = _sinks(video, rerun_save)
         summary = evaluate(policy, episodes=episodes, seed=seed, render=render,
                            on_frame=lambda n, t, rgb: [sink(n, t, rgb) for sink in sinks])
-    except EvalError as exc:
+    except (EvalError, ConfigError) as exc:  # ConfigError: a v1 run without mujoco-py
         print(f"hercs eval: {exc}", file=sys.stderr)
         return 2
     finally:

@@ -1,15 +1,35 @@
-"""Environment factory: gymnasium-robotics Fetch tasks, seeded, without the env checker."""
+"""Environment factory: gymnasium-robotics Fetch tasks, seeded, without the env checker.
+
+`Fetch*-v4` runs on the mujoco bindings (MuJoCo 3). The authors' `Fetch*-v1` runs on mujoco-py,
+which needs MuJoCo 2.1's binaries and a Cython extension compiled against them: `make mujoco-py`
+puts the binaries in `<venv>/mujoco210`, compiles the extension and sets that folder's `bin/` as
+the extension's run path (RUNPATH), so that no process needs LD_LIBRARY_PATH at its start.
+`prepare_mujoco_py` sets the variables mujoco-py reads at import, in every process that makes
+an env; `check_env` tells a run on v1 at its start when that installation is missing.
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import os
+import sys
 import warnings
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
+from hercs.errors import ConfigError
 from hercs.tasks import TaskSpec
 
+MUJOCO210 = Path(sys.prefix) / "mujoco210"
+"""Where `make mujoco-py` puts MuJoCo 2.1 (inside the virtualenv)."""
+INSTALL_HINT = ("install it with `make mujoco-py` in the hercs checkout (README, \"The authors' "
+                "environment\")")
+
 _registered = False
+_blocked: str | None = None
+"""Why `prepare_mujoco_py` made `import mujoco_py` fail in this process, if it did."""
 
 
 def _drop_adroit_notice() -> None:
@@ -23,24 +43,97 @@ def _drop_adroit_notice() -> None:
     farama_notifications.notifications.pop("gymnasium_robotics", None)
 
 
+def prepare_mujoco_py() -> str | None:
+    """Point mujoco-py at MuJoCo 2.1 before anything imports it; returns why it cannot be
+    imported here, or None when it can.
+
+    Once mujoco-py is installed, gymnasium-robotics imports it with every Fetch env, v4
+    included, and the import raises (a bare Exception, which gymnasium-robotics lets through)
+    unless MUJOCO_PY_MUJOCO_PATH names MuJoCo 2.1 and LD_LIBRARY_PATH lists its `bin/`, and it
+    compiles mujoco-py's extension (minutes) where none is compiled. So, in this process's
+    environment (children inherit it): MUJOCO_PY_MUJOCO_PATH defaults to MUJOCO210; its `bin/`
+    is appended to LD_LIBRARY_PATH (mujoco-py only checks the variable: the loader reads it at
+    process start only, and the extension finds the libraries through the RUNPATH `make
+    mujoco-py` gave it); MUJOCO_PY_FORCE_CPU defaults to 1, the OSMesa build `make mujoco-py`
+    compiled (where `nvidia-smi` exists mujoco-py would compile an EGL build at import). Where
+    MuJoCo 2.1 or the compiled extension is missing, `import mujoco_py` is made to raise
+    ImportError instead, so that the v4 envs work and never wait for a compile."""
+    global _blocked
+    if "mujoco_py" in sys.modules:  # imported, or blocked, earlier in this process
+        return _blocked
+    package = importlib.util.find_spec("mujoco_py")
+    if package is None or not package.submodule_search_locations:
+        return "mujoco_py is not installed"
+    path = Path(os.environ.get("MUJOCO_PY_MUJOCO_PATH") or MUJOCO210).absolute()
+    generated = Path(package.submodule_search_locations[0]) / "generated"
+    if not (path / "bin" / "libmujoco210.so").is_file():
+        _blocked = f"MuJoCo 2.1 is not in {path}"
+    elif not any(generated.glob("cymj_*_linuxcpuextensionbuilder_*.so")):
+        _blocked = f"mujoco-py's extension is not compiled (none in {generated})"
+    if _blocked is not None:
+        sys.modules["mujoco_py"] = None  # type: ignore[assignment]
+        return _blocked
+    os.environ["MUJOCO_PY_MUJOCO_PATH"] = str(path)
+    paths = [p for p in os.environ.get("LD_LIBRARY_PATH", "").split(":") if p]
+    if str(path / "bin") not in (os.path.abspath(p) for p in paths):
+        os.environ["LD_LIBRARY_PATH"] = ":".join([*paths, str(path / "bin")])
+    os.environ.setdefault("MUJOCO_PY_FORCE_CPU", "1")
+    return None
+
+
+def mujoco_py_problem() -> str | None:
+    """Why the v1 envs cannot be made in this process, or None. Imports mujoco_py; where that
+    fails, blocks it as `prepare_mujoco_py` does (the v4 envs still work)."""
+    global _blocked
+    problem = prepare_mujoco_py()
+    if problem is None and "mujoco_py" not in sys.modules:
+        try:
+            with warnings.catch_warnings():  # Cython's and importlib's deprecations
+                warnings.simplefilter("ignore")
+                import mujoco_py  # noqa: F401
+        except Exception as exc:  # mujoco_py raises bare Exceptions for a broken set-up
+            last = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+            problem = _blocked = f"importing mujoco_py failed ({last})"
+            sys.modules["mujoco_py"] = None  # type: ignore[assignment]
+    return problem
+
+
+def check_env(spec: TaskSpec) -> None:
+    """Raise ConfigError, saying how to install what is missing, where `spec`'s env cannot be
+    made here (the v1 envs without mujoco-py); what a run checks before it starts."""
+    if spec.env_version != "v1":
+        return
+    problem = mujoco_py_problem()
+    if problem is not None:
+        raise ConfigError(f"task.env_version: got 'v1', but {spec.env_id} runs on mujoco-py "
+                          f"(MuJoCo 2.1) and {problem}; {INSTALL_HINT}")
+
+
 def make_env(spec: TaskSpec, *, render_mode: str | None = None,
              size: tuple[int, int] | None = None) -> gym.Env:
-    """A fresh Fetch env for `spec`. Seed it through the first `reset(seed=...)`. With
-    `render_mode='rgb_array'`, `render()` returns frames of `size` (width, height); rendering
-    does not change the dynamics or the env's random stream."""
+    """A fresh Fetch env for `spec` (its `env_id`). Seed it through the first
+    `reset(seed=...)`. With `render_mode='rgb_array'`, `render()` returns frames of `size`
+    (width, height); rendering does not change the dynamics or the env's random stream.
+    A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
     global _registered
     if not _registered:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             _drop_adroit_notice()
+            mujoco_py_problem()  # the Fetch envs import mujoco_py: here, quietly
             import gymnasium_robotics
 
             gym.register_envs(gymnasium_robotics)
         _registered = True
+    check_env(spec)
     # The passive env checker only re-validates spaces on every step; it costs throughput.
     kwargs: dict[str, Any] = {}
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if size is not None:
         kwargs["width"], kwargs["height"] = size
-    return gym.make(spec.env_id, disable_env_checker=True, **kwargs)
+    with warnings.catch_warnings():
+        # v1 was chosen knowingly: not "out of date, upgrade to v4" and "mujoco-py is no
+        # longer maintained" on every process's stderr.
+        warnings.filterwarnings("ignore", message=".*(is out of date|mujoco-py bindings)")
+        return gym.make(spec.env_id, disable_env_checker=True, **kwargs)

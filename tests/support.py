@@ -88,3 +88,14 @@ def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatc
         r=-(rng.random(b) < 0.7).astype(np.float32),
         o2=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
     )
+
+
+def skip_without_mujoco_py() -> None:
+    """Skip, saying why, where the authors' Fetch*-v1 cannot run (no `make mujoco-py`)."""
+    import pytest
+
+    from hercs.envs import mujoco_py_problem
+
+    problem = mujoco_py_problem()
+    if problem is not None:
+        pytest.skip(f"Fetch*-v1 needs mujoco-py and {problem}; `make mujoco-py` installs it")

@@ -132,3 +132,18 @@ def test_exit_after_close_keeps_the_status_waits_for_non_daemon_threads_and_flus
     assert done.returncode == 3, done.stderr
     assert "service closed" in done.stderr
     assert "buffered, not flushed" in done.stdout and "non-daemon thread done" in done.stdout
+
+
+@pytest.mark.parametrize("command", ["up", "actor", "evaluator"])
+def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_path: Path,
+                                                             capsys, monkeypatch) -> None:
+    import hercs.envs
+
+    monkeypatch.setattr(hercs.envs, "mujoco_py_problem", lambda: "mujoco_py is not installed")
+    assert main([command, "--set", "task.name=reach", "--set", "task.env_version=v1",
+                 "--set", f"run.run_dir={tmp_path}", "--set", "run.name=v1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hercs {command}: task.env_version: got 'v1', but FetchReach-v1 "
+                          "runs on mujoco-py (MuJoCo 2.1) and mujoco_py is not installed; "
+                          "install it with `make mujoco-py`"), err
+    assert not any(tmp_path.iterdir()), "nothing started"

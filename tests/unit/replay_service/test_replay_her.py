@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import gymnasium
-import gymnasium_robotics
 import numpy as np
 import pytest
 
 from hercs.batch import TRANSITION_FIELDS
 from hercs.config import HERConfig
+from hercs.envs import make_env
 from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
 from hercs.tasks import fetch_reward, task_spec
@@ -95,8 +94,7 @@ def test_batch_gathers_the_right_transition(store: EpisodeStore) -> None:
 def test_rewards_match_the_real_env_compute_reward(store: EpisodeStore) -> None:
     """r equals FetchPush-v4's vectorised compute_reward(ag2, g) and fetch_reward, exactly,
     on a batch that holds both rewards (so the comparison is not vacuous)."""
-    gymnasium.register_envs(gymnasium_robotics)
-    env = gymnasium.make(SPEC.env_id)
+    env = make_env(SPEC)
     try:
         rng = np.random.default_rng(3)
         idxs = rng.integers(0, store.size, 4096)
