@@ -186,8 +186,9 @@ class EvaluatorService:
 
     def run(self) -> int:
         stop = self.runtime.stop
-        log.info("evaluator %s: run %r, task %s, %d episodes per evaluation", self.runtime.ident,
-                 self.config.run.name, self.spec.name, self.config.training.eval_episodes)
+        log.info("evaluator %s: run %r, task %s (%s), %d episodes per evaluation",
+                 self.runtime.ident, self.config.run.name, self.spec.name, self.spec.env_id,
+                 self.config.training.eval_episodes)
         self.publish_metrics(eval_s=0.0)
         while not stop.is_set():
             request = self.requests.get(_POLL_S)

@@ -41,6 +41,7 @@ from hercs.config import HercsConfig, load_yaml
 from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
 from proto.keys import RunKeys
+from tests.support import skip_without_mujoco_py
 
 pytestmark = pytest.mark.integration
 
@@ -571,6 +572,34 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     walls = [float(rows[0]["wall_s"]), float(rows[1]["wall_s"]) - float(rows[0]["wall_s"])]
     assert all(0.0 <= float(r["batch_wait_s"]) <= w for r, w in zip(rows, walls, strict=True))
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+@pytest.mark.slow
+def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A short real run on FetchReach-v1 (mujoco-py and MuJoCo 2.1, `make mujoco-py`), its
+    processes started with neither LD_LIBRARY_PATH nor MUJOCO_PY_MUJOCO_PATH set: an epoch is
+    trained and evaluated on v1, and config.yaml records the version."""
+    skip_without_mujoco_py()
+    for name in ("LD_LIBRARY_PATH", "MUJOCO_PY_MUJOCO_PATH", "MUJOCO_PY_FORCE_CPU"):
+        monkeypatch.delenv(name, raising=False)  # hercs.envs set them in this process
+    launcher = Launcher(
+        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+         "--epochs", "1", "--run", "v1", "--run-dir", str(tmp_path / "runs"),
+         "--listen", free_endpoint(), "--set", "task.env_version=v1",
+         "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2"],
+        cwd=tmp_path,
+    )
+    try:
+        assert launcher.finish(timeout_s=90) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    run_dir = tmp_path / "runs" / "v1"
+    assert load_yaml(run_dir / "config.yaml").task.spec.env_id == "FetchReach-v1"
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert [int(r["epoch"]) for r in rows] == [1] and int(rows[0]["episodes"]) >= 8
+    evaluator = (run_dir / "logs" / "evaluator-0.log").read_text()
+    assert "task reach (FetchReach-v1)" in evaluator and "epoch 1 (weights version" in evaluator
+    assert len(list(read_episodes(run_dir))) >= 8, "the actor's v1 episodes were logged"
 
 
 @pytest.mark.slow
