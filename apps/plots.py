@@ -25,9 +25,10 @@ Runs with the same task, method and seed are one seed (the longest is kept, with
 stderr); a folder named twice on the command line is read once. A run trained in the lockstep
 schedule (`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so
 that it is compared with the asynchronous runs instead of averaged into them; likewise a run
-whose learner ran in bf16 (`learner.precision`) is `<method>/bf16`. Fig. 2 draws the paper's
-methods and their lockstep variants, not the precision variants (a speed option, compared in
-docs/PERFORMANCE.md).
+whose learner ran in bf16 (`learner.precision`) is `<method>/bf16`, and a run on the authors'
+Fetch*-v1 (`task.env_version`) is `<method>/v1` ("HER-CS (v1)"), never averaged with v4 runs.
+Fig. 2 draws the paper's methods, their lockstep variants and their v1 runs, not the precision
+variants (a speed option, compared in docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
@@ -66,7 +67,11 @@ VARIANT_COLORS: dict[str, str] = {
     "her-ebp/bf16": "darkgreen", "her-ebp-cs/bf16": "goldenrod",
     "her/lockstep/bf16": "slategray", "her-cs/lockstep/bf16": "darkmagenta",
     "her-ebp/lockstep/bf16": "yellowgreen", "her-ebp-cs/lockstep/bf16": "darkslateblue",
+    "her/v1": "navy", "her-cs/v1": "darkred", "her-ebp/v1": "seagreen",
+    "her-ebp-cs/v1": "chocolate",
 }
+ENV_VERSION_DEFAULT = "v4"
+"""`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
@@ -125,21 +130,36 @@ def task_title(name: str) -> str:
     return TASK_TITLES.get(name, name)
 
 
-def method_key(method: str, schedule: str = "async", precision: str = "fp32") -> str:
-    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule and
-    `/bf16` for the learner's mixed precision (`her-cs/lockstep/bf16` has both)."""
-    variants = (v for v, default in ((schedule, "async"), (precision, "fp32")) if v != default)
+def method_key(method: str, schedule: str = "async", precision: str = "fp32",
+               env_version: str = ENV_VERSION_DEFAULT) -> str:
+    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
+    for the learner's mixed precision and `/v1` for the authors' Fetch*-v1 environment
+    (`her-cs/lockstep/bf16/v1` has all three)."""
+    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"),
+                                     (env_version, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
 
 
+def _env_version(variant: str) -> bool:
+    return variant in ("v1", ENV_VERSION_DEFAULT)
+
+
 def method_label(key: str) -> str:
-    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep"."""
+    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
+    "HER-CS (v1)"."""
     method, *variants = key.split("/")
-    return " ".join((METHOD_LABELS.get(method, method), *variants))
+    label = " ".join((METHOD_LABELS.get(method, method),
+                      *(v for v in variants if not _env_version(v))))
+    return "".join((label, *(f" ({v})" for v in variants if _env_version(v))))
 
 
 def method_color(key: str) -> str | None:
-    return METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
+    """A colour per method and variant; a v1 combination without its own colour takes its
+    v4 twin's (the label tells them apart)."""
+    color = METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
+    if color is None and key.endswith("/v1"):
+        return method_color(key.removesuffix("/v1"))
+    return color
 
 
 def method_linestyle(key: str) -> str | tuple[int, tuple[int, ...]]:
@@ -158,8 +178,9 @@ def _curve(task: str, method: str, seed: int, points: dict[int, float], source: 
 
 
 def load_run(run_dir: str | Path) -> Curve:
-    """`config.yaml` (task.name, run.method, run.seed) and `metrics.csv` (epoch, success_rate)
-    of one run directory. A repeated epoch keeps its last row."""
+    """`config.yaml` (task.name, run.method, run.seed; the variants of `method_key`) and
+    `metrics.csv` (epoch, success_rate) of one run directory. A repeated epoch keeps its last
+    row."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PlotError(f"{run_dir}: not a run directory")
@@ -172,7 +193,8 @@ def load_run(run_dir: str | Path) -> Curve:
         task, method = config["task"]["name"], config["run"]["method"]
         seed = int(config["run"]["seed"])
         method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
-                            (config.get("learner") or {}).get("precision", "fp32"))
+                            (config.get("learner") or {}).get("precision", "fp32"),
+                            config["task"].get("env_version", ENV_VERSION_DEFAULT))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc
@@ -447,6 +469,8 @@ def _legend_title(keys: set[str], reference: bool, band: str) -> str:
               if v in variants]
     if styles:
         lines.append("; ".join(styles))
+    if "v1" in variants:
+        lines.append("(v1): on the authors' Fetch*-v1")
     return "\n".join([*lines, _band_words(band)])
 
 
@@ -517,8 +541,9 @@ def _panel_title(task: str, pair: tuple[str, str]) -> str:
 
 
 def _in_panel(key: str, pair: tuple[str, str]) -> bool:
-    """Whether a Fig. 2 panel of `pair` draws method key `key`: the pair's methods and their
-    schedule variants (lockstep), not the learner's precision variants (bf16)."""
+    """Whether a Fig. 2 panel of `pair` draws method key `key`: the pair's methods, their
+    schedule variants (lockstep) and their runs on v1, not the learner's precision variants
+    (bf16)."""
     method, *variants = key.split("/")
     return method in pair and "bf16" not in variants
 

@@ -4,7 +4,8 @@
 
 Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`
 (`T-M-lockstep-sS` with `--schedule lockstep`, the reference's schedule; `T-M-bf16-sS` with
-`--precision bf16`, the learner's mixed precision), under `--run-dir`
+`--precision bf16`, the learner's mixed precision; `T-v1-M-sS` with `--env-version v1`, the
+authors' Fetch*-v1 on mujoco-py, which `make mujoco-py` installs), under `--run-dir`
 (default `runs/sample_efficiency`). The grid is resumable: a run whose
 `bench_done.json` exists is skipped; a run folder without it (the bench was stopped while the
 run trained) is continued with `hercs up --resume` from its last checkpoint (a folder with no
@@ -20,8 +21,9 @@ done on any machine (the grid continues elsewhere), and the report reads a run f
 directory or, when it is not there, from the committed folder.
 
 When the grid is done (or with `--report-only`), `hercs plot --reference` draws one figure per
-task and `docs/results/<task>.md` puts our milestone table next to the authors' (docs/DESIGN.md §5),
-with the figure, the command, date, commit and machine.
+task and `docs/results/<task>.md` (`<task>-v1.md` for a v1 grid) puts our milestone table next
+to the authors' (docs/DESIGN.md §5), with the figure, the command, date, commit and machine.
+Each finished run's `bench_done.json` names the env id it trained on (`env_id`).
 
 `--quick` is the CI mode: a tiny grid (default Reach, 1 epoch of 2 cycles) into a temporary
 folder, checking that the whole path — launch, resume, plot, report — still works.
@@ -59,8 +61,10 @@ from apps.plots import (  # noqa: E402
 )
 from bench.common import cpu_info, git_commit, machine_identity  # noqa: E402
 from hercs.config import PRECISIONS, SCHEDULES  # noqa: E402
+from hercs.envs import check_env  # noqa: E402
+from hercs.errors import ConfigError  # noqa: E402
 from hercs.methods import METHODS  # noqa: E402
-from hercs.tasks import TASKS  # noqa: E402
+from hercs.tasks import ENV_VERSIONS, TASKS, task_spec  # noqa: E402
 
 DONE_FILE = "bench_done.json"
 UNFINISHED_DIR = "_unfinished"
@@ -79,18 +83,27 @@ class GridRun:
     seed: int
     schedule: str = "async"
     precision: str = "fp32"
+    env_version: str = "v4"
 
     @property
     def name(self) -> str:
+        """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
+        version after the task: `push-v1-her-cs-lockstep-s2`."""
         variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
                                                      (self.precision, "fp32")) if v != default)
-        return f"{self.task}-{self.method}{variant}-s{self.seed}"
+        env = "" if self.env_version == "v4" else f"-{self.env_version}"
+        return f"{self.task}{env}-{self.method}{variant}-s{self.seed}"
+
+    @property
+    def env_id(self) -> str:
+        return task_spec(self.task, self.env_version).env_id
 
 
 def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
-              schedule: str = "async", precision: str = "fp32") -> list[GridRun]:
+              schedule: str = "async", precision: str = "fp32", env_version: str = "v4"
+              ) -> list[GridRun]:
     """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
-    return [GridRun(t, m, s, schedule, precision)
+    return [GridRun(t, m, s, schedule, precision, env_version)
             for s in seeds for t in tasks for m in methods]
 
 
@@ -130,7 +143,8 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
                cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
                cell.name, "--run-dir", str(run_root), "--actors", str(actors),
                "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}",
-               "--set", f"learner.precision={cell.precision}"]
+               "--set", f"learner.precision={cell.precision}",
+               "--set", f"task.env_version={cell.env_version}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -172,8 +186,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
              ) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
-    A run that exits 0 gets `bench_done.json` (command, wall time of this invocation, epochs,
-    commit, the CPU and boot id of the machine it finished on);
+    A run that exits 0 gets `bench_done.json` (the env id it trained on, command, wall time of
+    this invocation, epochs, commit, the CPU and boot id of the machine it finished on);
     one that fails or is interrupted is left in place and the next invocation continues it
     with `hercs up --resume` (its epochs already trained are kept)."""
     run_root.mkdir(parents=True, exist_ok=True)
@@ -227,6 +241,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 if code == 0:
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
                               "schedule": r.cell.schedule, "precision": r.cell.precision,
+                              "env_version": r.cell.env_version, "env_id": r.cell.env_id,
                               "epochs": epochs,
                               "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
@@ -268,31 +283,42 @@ def machine_description() -> str:
 
 
 
+def done_key(record: dict) -> str:
+    """The method key (apps.plots.method_key) of a `bench_done.json` record; older records
+    have no schedule, precision or env version (async, fp32, v4)."""
+    return method_key(record["method"], record.get("schedule", "async"),
+                      record.get("precision", "fp32"), record.get("env_version", "v4"))
+
+
 def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, command: str,
                   reference_csv: Path | None = None, committed: Path | None = None
                   ) -> list[Path]:
-    """Per task: `<out>/<task>.png` and `<out>/<task>.md` from the finished runs."""
+    """Per task: `<out>/<task>.png` and `<out>/<task>.md` from the finished runs
+    (`<task>-v1.*` for runs on v1, so that a v1 grid does not overwrite the v4 report)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     ref_kwargs = {} if reference_csv is None else {"path": reference_csv}
     reference = group(load_reference(**ref_kwargs))
     written = []
-    for task in dict.fromkeys(c.task for c in cells):
-        folders = {c: finished_folder(c, run_root, committed) for c in cells if c.task == task}
+    for task, env_version in dict.fromkeys((c.task, c.env_version) for c in cells):
+        stem = task if env_version == "v4" else f"{task}-{env_version}"
+        folders = {c: finished_folder(c, run_root, committed) for c in cells
+                   if (c.task, c.env_version) == (task, env_version)}
         done = [c for c, folder in folders.items() if folder is not None]
         if not done:
-            print(f"[report] {task}: no finished run yet", flush=True)
+            print(f"[report] {stem}: no finished run yet", flush=True)
             continue
         curves = [load_run(folders[c]) for c in done]  # type: ignore[arg-type]
         ours = group(curves)
         title = next(iter(ours))
-        figure = plot_figure(ours, out_dir / f"{task}.png", reference)
+        heading = title if env_version == "v4" else f"{title}-{env_version}"
+        figure = plot_figure(ours, out_dir / f"{stem}.png", reference)
         walls = [json.loads((folders[c] / DONE_FILE).read_text()) for c in done]  # type: ignore[operator]
-        missing = [c.name for c in cells if c.task == task and c not in done]
+        missing = [c.name for c in folders if c not in done]
         lines = [
-            f"# Sample efficiency: {title}", "",
+            f"# Sample efficiency: {heading}", "",
             "Our runs (solid, min–max band over seeds) against the authors' published "
             "per-seed results (dashed; docs/DESIGN.md §5, `docs/reference/`).", "",
-            f"![{title}]({figure.name})", "",
+            f"![{heading}]({figure.name})", "",
             tables(ours, {title: reference.get(title, {})}).rstrip("\n"), "",
             "## How these were made", "",
             f"- command: `{command}`",
@@ -300,14 +326,13 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "- commit: " + ", ".join(sorted({str(w.get("commit", "unknown")) for w in walls})),
             f"- machine: {machine_description()}",
             "- runs: " + ", ".join(
-                f"{method_key(w['method'], w.get('schedule', 'async'), w.get('precision', 'fp32'))}"
-                f" s{w['seed']} "
+                f"{done_key(w)} s{w['seed']} "
                 f"({w['epochs']} epochs, {w['wall_s'] / 60:.0f} min)"
                 for w in walls),
         ]
         if missing:
             lines.append("- not finished yet: " + ", ".join(missing))
-        md = out_dir / f"{task}.md"
+        md = out_dir / f"{stem}.md"
         md.write_text("\n".join(lines) + "\n")
         written += [md, figure]
         print(f"[report] wrote {md} and {figure}", flush=True)
@@ -329,6 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="learner.precision of every run (default fp32; bf16 runs are named "
                         "T-M-bf16-sS)")
+    p.add_argument("--env-version", choices=list(ENV_VERSIONS), default="v4",
+                   help="task.env_version of every run (default v4; v1, the authors' Fetch*-v1 "
+                        "on mujoco-py after `make mujoco-py`: runs named T-v1-M-sS)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per run (default 100; 1 with --quick)")
     p.add_argument("--jobs", type=int, default=None,
@@ -368,7 +396,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     committed = (Path(args.committed).resolve() if args.committed
                  else None if args.quick else COMMITTED)
     cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule,
-                       args.precision)
+                      args.precision, args.env_version)
+    if not args.report_only:
+        try:  # once here, not a failed `hercs up` per cell
+            check_env(task_spec(tasks[0], args.env_version))
+        except ConfigError as exc:
+            print(f"sample_efficiency: {exc}", file=sys.stderr)
+            return 2
     command = "python bench/sample_efficiency.py " + " ".join(
         a for a in (argv if argv is not None else sys.argv[1:]))
     print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "

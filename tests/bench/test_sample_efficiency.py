@@ -33,7 +33,51 @@ def test_variant_runs_are_named_after_their_schedule_and_precision() -> None:
     cmd = se.up_command(se.GridRun("push", "her-ebp-cs", 1, precision="bf16"), epochs=1,
                         run_root=Path("/tmp"), port=1, actors=1, overrides=[])
     sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
-    assert sets == ["training.schedule=async", "learner.precision=bf16"]
+    assert sets == ["training.schedule=async", "learner.precision=bf16", "task.env_version=v4"]
+
+
+def test_v1_runs_are_named_after_their_env_version_and_v4_names_stay() -> None:
+    cells = se.plan_grid(["push"], ["her-cs"], [2], "lockstep", env_version="v1")
+    assert [c.name for c in cells] == ["push-v1-her-cs-lockstep-s2"]
+    assert (cells[0].env_id, se.GridRun("pick", "her", 1).env_id) == (
+        "FetchPush-v1", "FetchPickAndPlace-v4")
+    assert se.GridRun("push", "her", 1, env_version="v4").name == "push-her-s1"
+    cmd = se.up_command(cells[0], epochs=1, run_root=Path("/tmp"), port=1, actors=1,
+                        overrides=[])
+    assert cmd[cmd.index("--run") + 1] == "push-v1-her-cs-lockstep-s2"
+    assert "task.env_version=v1" in cmd
+    assert se.done_key({"method": "her-cs", "env_version": "v1"}) == "her-cs/v1"
+    assert se.done_key({"method": "her-cs"}) == "her-cs"  # a record from before v1
+
+
+def _finished(root: Path, cell, success: list[float]) -> None:
+    """A run folder as run_grid leaves it: config.yaml, metrics.csv, bench_done.json."""
+    run = root / cell.name
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text(
+        f"run: {{method: {cell.method}, seed: {cell.seed}}}\n"
+        f"task: {{name: {cell.task}, env_version: {cell.env_version}}}\n")
+    rows = [f"{e},{v}" for e, v in enumerate(success, start=1)]
+    (run / "metrics.csv").write_text("\n".join(["epoch,success_rate", *rows]) + "\n")
+    (run / se.DONE_FILE).write_text(json.dumps(
+        {"task": cell.task, "method": cell.method, "seed": cell.seed,
+         "env_version": cell.env_version, "env_id": cell.env_id, "epochs": len(success),
+         "wall_s": 60.0, "commit": "abc"}))
+
+
+def test_v1_and_v4_grids_report_apart(tmp_path: Path) -> None:
+    v4, v1 = se.GridRun("push", "her-cs", 1), se.GridRun("push", "her-cs", 1, env_version="v1")
+    _finished(tmp_path / "runs", v4, [0.2, 0.4, 0.6])
+    _finished(tmp_path / "runs", v1, [0.9, 0.9, 0.9])
+    written = se.write_reports([v4, v1], tmp_path / "runs", tmp_path / "out", command="x")
+    assert sorted(p.name for p in written) == ["push-v1.md", "push-v1.png", "push.md",
+                                               "push.png"]
+    v4_md, v1_md = (tmp_path / "out" / "push.md").read_text(), (
+        tmp_path / "out" / "push-v1.md").read_text()
+    assert v4_md.startswith("# Sample efficiency: FetchPush\n")
+    assert v1_md.startswith("# Sample efficiency: FetchPush-v1\n")
+    assert "| HER-CS (ours) | 1 | 3 |" in v4_md and "(v1)" not in v4_md
+    assert "| HER-CS (v1) (ours) | 1 | 3 |" in v1_md and "- runs: her-cs/v1 s1 " in v1_md
 
 
 def test_up_command_names_the_run_after_its_cell_and_passes_overrides(tmp_path: Path) -> None:
@@ -78,7 +122,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert first.returncode == 0, first.stdout + first.stderr
     for name in ("reach-her-s1", "reach-her-cs-s1"):
         done = json.loads((tmp_path / "runs" / name / se.DONE_FILE).read_text())
-        assert (done["task"], done["epochs"]) == ("reach", 1)
+        assert (done["task"], done["epochs"], done["env_id"]) == ("reach", 1, "FetchReach-v4")
         assert done["machine"] == se.machine_identity()  # one seed differs across CPUs
         rows = (tmp_path / "runs" / name / "metrics.csv").read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch

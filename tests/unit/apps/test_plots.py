@@ -313,6 +313,35 @@ def test_a_bf16_run_is_its_own_method_and_combines_with_lockstep(tmp_path: Path)
     assert "| HER-EBP-CS lockstep bf16 | 1 | 3 | – | – |" in text
 
 
+def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> None:
+    """Runs on the authors' Fetch*-v1 (task.env_version) are grouped apart from the v4 runs of
+    the same method and seed, labelled "(v1)", alone or with a schedule variant; a config.yaml
+    without env_version is v4."""
+    runs = [_write_run(tmp_path, "her-ebp-cs", 1, [0.1, 0.3, 0.7]),
+            _write_variant_run(tmp_path, "her-ebp-cs", 1, [0.2, 0.6, 0.9]),
+            _write_variant_run(tmp_path, "her-ebp-cs", 2, [0.0, 0.8, 1.0], schedule="lockstep")]
+    for run, version in zip(runs[1:], ("v1", "v1"), strict=True):
+        config = yaml.safe_load((run / "config.yaml").read_text())
+        config["task"]["env_version"] = version
+        (run / "config.yaml").write_text(yaml.safe_dump(config))
+    groups = plots.group(plots.load_run(r) for r in runs)
+    assert list(groups["FetchPush"]) == ["her-ebp-cs", "her-ebp-cs/lockstep/v1", "her-ebp-cs/v1"]
+    assert [len(c) for c in groups["FetchPush"].values()] == [1, 1, 1]
+    text = plots.tables(groups)
+    assert "| HER-EBP-CS | 1 | 3 | – | – |" in text
+    assert "| HER-EBP-CS (v1) | 1 | 3 | 2 | – |" in text
+    assert "| HER-EBP-CS lockstep (v1) | 1 | 3 | 2 | – |" in text  # ma 0, .4, .6
+    assert plots.method_key("her-cs", "lockstep", "bf16", "v1") == "her-cs/lockstep/bf16/v1"
+    assert plots.method_label("her-cs/lockstep/bf16/v1") == "HER-CS lockstep bf16 (v1)"
+    assert plots.method_key("her-cs", env_version="v4") == "her-cs"
+    assert all(plots.method_color(f"{m}/v1") != plots.method_color(m)
+               for m in plots.METHOD_ORDER)
+    assert all(plots.method_color(f"{m}/lockstep/bf16/v1") for m in plots.METHOD_ORDER)
+    with_reference = plots.tables(groups, plots.group(plots.load_reference()))
+    assert "| HER-EBP-CS (v1) (ours) | 1 | 3 |" in with_reference
+    assert "| HER-EBP-CS (authors) | 5 | 100 | 22 | 31 |" in with_reference
+
+
 def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -> None:
     runs = [_write_run(tmp_path, "her-ebp", 1, [0.0] * 5 + [1.0] * 10),
             _write_lockstep_run(tmp_path, "her-cs", 1, [0.0] * 3 + [1.0] * 12),
