@@ -77,6 +77,9 @@ GRID = (
     LagSetting(25, 0, 0),
     LagSetting(40, 1, 1, max_lag=2),
 )
+BESIDE_GRID = (LagSetting(80, 3, 2), LagSetting(40, 1, 1), LagSetting(40, 0, 0),
+               LagSetting(25, 1, 1), LagSetting(25, 0, 0))
+"""`--beside`: the candidates for the default (the smallest lags of the grid) and the old one."""
 QUICK_GRID = (LagSetting(80, 3, 2), LagSetting(25, 0, 0, max_lag=1))
 
 
@@ -189,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.epochs < 2 or args.cycles < 1:
         p.error(f"--epochs must be >= 2 and --cycles >= 1 (got {args.epochs}, {args.cycles})")
-    grid: tuple[LagSetting, ...] = GRID
+    grid: tuple[LagSetting, ...] = BESIDE_GRID if args.beside else GRID
     extra: list[str] = []
     if args.quick:
         grid, args.task, args.epochs, args.cycles = QUICK_GRID, "reach", 2, 2

@@ -276,13 +276,15 @@ class TrainingConfig:
     stale). `lockstep`: the reference's single-process alternation, exactly: cycle c's
     episodes are acted with weights version c, then its updates see them (docs/DESIGN.md
     §9.1) [DESIGN]."""
-    max_policy_lag: int = -1
+    max_policy_lag: int = 3
     """Asynchronous schedule: the most cycles an episode may lag the lockstep schedule (its
     cycle there minus the weights version it was acted with; Sample Factory's
     `max_policy_lag`). The replay refuses an older episode as `stale_policy` before storing
     it (nothing acknowledged is ever dropped) unless it was acted with the learner's newest
-    weights, and its acks tell the actors which weights to wait for. -1: no bound. Lockstep
-    is lag 0 by construction and ignores this (docs/DESIGN.md §9.1) [DESIGN]."""
+    weights, and its acks tell the actors which weights to wait for. -1: no bound. 3 is the
+    most the default limiter and prefetch give one actor (docs/PERFORMANCE.md §2), so it holds
+    back only actors slower than that (many actors, a remote host). Lockstep is lag 0 by
+    construction and ignores this (docs/DESIGN.md §9.1) [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.max_policy_lag == -1 or self.max_policy_lag >= 1, "training.max_policy_lag",
@@ -315,9 +317,11 @@ class ReplayConfig:
     """Capacity in transitions; the store holds buffer_transitions // T episodes [HER-py]."""
     min_episodes_to_sample: int = 4
     """Samples wait until this many episodes are stored (one cycle's worth) [DESIGN]."""
-    rate_tolerance_updates: float = 80.0
+    rate_tolerance_updates: float = 40.0
     """How far updates may run ahead of or behind updates_per_episode × inserts, in
-    minibatches (Reverb's error_buffer); two cycles' worth by default [DESIGN]."""
+    minibatches (Reverb's error_buffer); one cycle's worth by default. Each cycle of it is a
+    cycle of policy lag in the asynchronous schedule: 40 is the least stale setting that
+    kept the epoch time of the old default (80) side by side (docs/PERFORMANCE.md §2) [DESIGN]."""
     free_run: bool = False
     """Disable the rate limiter: inserts and samples never wait [DESIGN]."""
     max_message_bytes: int = 8 * 1024 * 1024
@@ -362,10 +366,11 @@ class ActorConfig:
     """Envs one actor process steps side by side, with one batched policy call per step for
     all of them [DESIGN]; more envs per process amortise the per-step inference and the
     process's fixed costs (docs/PERFORMANCE.md)."""
-    insert_queue: int = 2
+    insert_queue: int = 0
     """Finished episodes per env that may wait behind the one whose insert is in flight
     before the rollout loop blocks (0: none, the next episode starts only once the last is
-    acked). Each waiting episode was acted with weights that age while it waits [DESIGN]."""
+    acked). Each waiting episode was acted with weights that age while it waits; 0 cost no
+    epoch time against the old default of 2 (docs/PERFORMANCE.md §2) [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.insert_queue >= 0, "actor.insert_queue", self.insert_queue, "be >= 0")
@@ -391,11 +396,13 @@ class LearnerConfig:
     losses and normaliser [DESIGN]. Pays only where bf16 matrix products are native (recent
     GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4."""
 
-    prefetch_depth: int = 3
+    prefetch_depth: int = 0
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and
     transport. In the asynchronous schedule each one lets the rate limiter admit one cycle of
-    episodes more before their weights exist: one cycle of policy lag per batch of depth
-    (docs/PERFORMANCE.md §2). Lockstep asks for nothing ahead whatever this says [DESIGN]."""
+    episodes more before their weights exist: one cycle of policy lag per batch of depth.
+    0 (ask when the loop wants a batch) cost no epoch time against the old default of 3 on
+    one box (docs/PERFORMANCE.md §2); a learner far from its replay may want 1. Lockstep asks
+    for nothing ahead whatever this says [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.prefetch_depth >= 0, "learner.prefetch_depth", self.prefetch_depth,
