@@ -28,7 +28,7 @@ install: $(STAMP)
 # The authors' environment, Fetch*-v1 on mujoco-py and MuJoCo 2.1 (--set task.env_version=v1):
 # Debian's compiler and OSMesa/GL headers when root and missing, MuJoCo 2.1 from PyPI's
 # free-mujoco-py wheel into .venv/mujoco210, the `v1` extra, mujoco-py's one-time compile and a
-# check (deploy/install_mujoco_py.sh). 2-3 minutes on 2 cores; a second run only checks.
+# check (deploy/install_mujoco_py.sh). About a minute on a fresh machine; a second run checks.
 mujoco-py: $(STAMP)
 	VENV=$(abspath $(VENV)) bash deploy/install_mujoco_py.sh
 

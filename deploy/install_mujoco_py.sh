@@ -8,15 +8,17 @@
 #   mujoco   MuJoCo 2.1.0's Linux binaries, out of PyPI's free-mujoco-py 2.1.6 wheel
 #            (mujoco_py/binaries/linux/mujoco210), into <venv>/mujoco210 (hercs.envs.MUJOCO210)
 #   extra    pip install -e '.[v1]': mujoco-py-cython3 and what it needs, pinned in pyproject.toml
-#   compile  the first `import mujoco_py` compiles its Cython extension (1-2 min on 2 cores;
-#            without debug info, -g0, which is a third of that and changes no code); then
-#            patchelf gives the extension <venv>/mujoco210/bin as its RUNPATH, so that every
-#            process finds libmujoco210.so without LD_LIBRARY_PATH set at its start
+#   compile  the first `import mujoco_py` cythonizes and compiles its extension (about 15 s on
+#            2 cores); then patchelf gives the extension <venv>/mujoco210/bin as its RUNPATH,
+#            so that every process finds libmujoco210.so without LD_LIBRARY_PATH set at its
+#            start (mujoco-py removes the RUNPATH its build sets)
 #   check    FetchPush-v1 made through hercs.envs, reset and stepped, in a fresh process
 #            with neither MUJOCO_PY_MUJOCO_PATH nor LD_LIBRARY_PATH set
 #
-# A second run finds everything in place and only checks (seconds). VENV (default .venv)
-# names the virtualenv, which must already hold hercs (`make install`).
+# About a minute on a fresh Debian bookworm machine with 2 cores (apt included), half that where
+# the Debian packages are there; a second run finds everything in place and only checks
+# (seconds). VENV (default .venv) names the virtualenv, which must already hold hercs
+# (`make install`).
 set -euo pipefail
 
 REPO=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -98,9 +100,9 @@ export MUJOCO_PY_MUJOCO_PATH=$MUJOCO MUJOCO_PY_FORCE_CPU=1
 generated=$("$PY" -c 'import importlib.util as u
 print(u.find_spec("mujoco_py").submodule_search_locations[0])')/generated
 if ! compgen -G "$generated/cymj_*_linuxcpuextensionbuilder_*.so" > /dev/null; then
-    say "compiling mujoco-py's extension (once; 1-2 min; log: $LOG)"
+    say "compiling mujoco-py's extension (once; log: $LOG)"
     if ! LD_LIBRARY_PATH=$MUJOCO/bin${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH} \
-            CFLAGS="${CFLAGS:-} -g0" "$PY" -c 'import mujoco_py' > "$LOG" 2>&1; then
+            "$PY" -c 'import mujoco_py' > "$LOG" 2>&1; then
         tail -n 30 "$LOG" >&2
         die "compiling mujoco-py failed (the whole log: $LOG)"
     fi
