@@ -11,7 +11,9 @@
 #   compile  the first `import mujoco_py` cythonizes and compiles its extension (about 15 s on
 #            2 cores); then patchelf gives the extension <venv>/mujoco210/bin as its RUNPATH,
 #            so that every process finds libmujoco210.so without LD_LIBRARY_PATH set at its
-#            start (mujoco-py removes the RUNPATH its build sets)
+#            start (mujoco-py removes the RUNPATH its build sets; hercs.envs refuses an
+#            extension compiled again since, instead of letting mujoco-py compile it once more
+#            in every process: run `make mujoco-py` again)
 #   check    FetchPush-v1 made through hercs.envs, reset and stepped, in a fresh process
 #            with neither MUJOCO_PY_MUJOCO_PATH nor LD_LIBRARY_PATH set
 #
@@ -110,6 +112,7 @@ fi
 for so in "$generated"/cymj_*_linuxcpuextensionbuilder_*.so; do
     patchelf --set-rpath "$MUJOCO/bin" "$so"
 done
+echo "$MUJOCO/bin" > "$generated/hercs-runpath"  # hercs.envs.RUNPATH_MARK: set since the compile
 
 # --- check ----------------------------------------------------------------------------------
 env -u MUJOCO_PY_MUJOCO_PATH -u MUJOCO_PY_FORCE_CPU -u LD_LIBRARY_PATH "$PY" - <<'EOF'

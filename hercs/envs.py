@@ -24,7 +24,10 @@ from hercs.tasks import TaskSpec
 
 MUJOCO210 = Path(sys.prefix) / "mujoco210"
 """Where `make mujoco-py` puts MuJoCo 2.1 (inside the virtualenv)."""
-INSTALL_HINT = ("install it with `make mujoco-py` in the hercs checkout (README, \"The authors' "
+RUNPATH_MARK = "hercs-runpath"
+"""The file, beside mujoco-py's compiled extension, where `make mujoco-py` notes the RUNPATH
+it gave the extension."""
+INSTALL_HINT = ("`make mujoco-py` in the hercs checkout installs it (README, \"The authors' "
                 "environment\")")
 
 _registered = False
@@ -49,15 +52,17 @@ def prepare_mujoco_py() -> str | None:
 
     Once mujoco-py is installed, gymnasium-robotics imports it with every Fetch env, v4
     included, and the import raises (a bare Exception, which gymnasium-robotics lets through)
-    unless MUJOCO_PY_MUJOCO_PATH names MuJoCo 2.1 and LD_LIBRARY_PATH lists its `bin/`, and it
-    compiles mujoco-py's extension (minutes) where none is compiled. So, in this process's
-    environment (children inherit it): MUJOCO_PY_MUJOCO_PATH defaults to MUJOCO210; its `bin/`
-    is appended to LD_LIBRARY_PATH (mujoco-py only checks the variable: the loader reads it at
-    process start only, and the extension finds the libraries through the RUNPATH `make
-    mujoco-py` gave it); MUJOCO_PY_FORCE_CPU defaults to 1, the OSMesa build `make mujoco-py`
-    compiled (where `nvidia-smi` exists mujoco-py would compile an EGL build at import). Where
-    MuJoCo 2.1 or the compiled extension is missing, `import mujoco_py` is made to raise
-    ImportError instead, so that the v4 envs work and never wait for a compile."""
+    unless MUJOCO_PY_MUJOCO_PATH names MuJoCo 2.1 and LD_LIBRARY_PATH lists its `bin/`; where
+    its extension is not compiled, or does not load, it compiles it (again) first. So, in this
+    process's environment (children inherit it): MUJOCO_PY_MUJOCO_PATH defaults to MUJOCO210;
+    its `bin/` is appended to LD_LIBRARY_PATH (mujoco-py only checks the variable: the loader
+    reads it at process start only, and the extension finds the libraries through the RUNPATH
+    `make mujoco-py` gave it); MUJOCO_PY_FORCE_CPU defaults to 1, the OSMesa build `make
+    mujoco-py` compiled (where `nvidia-smi` exists mujoco-py would build for EGL). Where MuJoCo
+    2.1 is missing, or the extension is not compiled, or was compiled again since `make
+    mujoco-py` set its RUNPATH (a compile drops it) and LD_LIBRARY_PATH did not list `bin/`
+    when this process started, `import mujoco_py` is made to raise ImportError instead: the v4
+    envs work and never wait for a compile."""
     global _blocked
     if "mujoco_py" in sys.modules:  # imported, or blocked, earlier in this process
         return _blocked
@@ -65,20 +70,38 @@ def prepare_mujoco_py() -> str | None:
     if package is None or not package.submodule_search_locations:
         return "mujoco_py is not installed"
     path = Path(os.environ.get("MUJOCO_PY_MUJOCO_PATH") or MUJOCO210).absolute()
+    bin_dir = str(path / "bin")
     generated = Path(package.submodule_search_locations[0]) / "generated"
+    built = list(generated.glob("cymj_*_linuxcpuextensionbuilder_*.so"))
+    paths = [p for p in os.environ.get("LD_LIBRARY_PATH", "").split(":") if p]
+    on_path = bin_dir in (os.path.abspath(p) for p in paths)
     if not (path / "bin" / "libmujoco210.so").is_file():
         _blocked = f"MuJoCo 2.1 is not in {path}"
-    elif not any(generated.glob("cymj_*_linuxcpuextensionbuilder_*.so")):
+    elif not built:
         _blocked = f"mujoco-py's extension is not compiled (none in {generated})"
+    elif not on_path and not _runpath_set(generated, built, bin_dir):
+        _blocked = (f"mujoco-py's extension in {generated} was compiled without the RUNPATH "
+                    f"that finds {bin_dir}")
     if _blocked is not None:
         sys.modules["mujoco_py"] = None  # type: ignore[assignment]
         return _blocked
     os.environ["MUJOCO_PY_MUJOCO_PATH"] = str(path)
-    paths = [p for p in os.environ.get("LD_LIBRARY_PATH", "").split(":") if p]
-    if str(path / "bin") not in (os.path.abspath(p) for p in paths):
-        os.environ["LD_LIBRARY_PATH"] = ":".join([*paths, str(path / "bin")])
+    if not on_path:
+        os.environ["LD_LIBRARY_PATH"] = ":".join([*paths, bin_dir])
     os.environ.setdefault("MUJOCO_PY_FORCE_CPU", "1")
     return None
+
+
+def _runpath_set(generated: Path, built: list[Path], bin_dir: str) -> bool:
+    """Whether `make mujoco-py` gave the compiled extension `bin_dir` as RUNPATH since its last
+    compile: it writes `bin_dir` to RUNPATH_MARK after patchelf, and a compile writes a newer
+    extension."""
+    mark = generated / RUNPATH_MARK
+    try:
+        return (mark.read_text().strip() == bin_dir
+                and mark.stat().st_mtime >= max(so.stat().st_mtime for so in built))
+    except OSError:
+        return False
 
 
 def mujoco_py_problem() -> str | None:

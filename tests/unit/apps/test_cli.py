@@ -145,5 +145,5 @@ def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_p
     err = capsys.readouterr().err
     assert err.startswith(f"hercs {command}: task.env_version: got 'v1', but FetchReach-v1 "
                           "runs on mujoco-py (MuJoCo 2.1) and mujoco_py is not installed; "
-                          "install it with `make mujoco-py`"), err
+                          "`make mujoco-py` in the hercs checkout installs it"), err
     assert not any(tmp_path.iterdir()), "nothing started"

@@ -59,3 +59,46 @@ def test_without_mujoco_2_1_v4_still_works_and_v1_says_how_to_install_it(tmp_pat
     assert done.stdout.startswith("task.env_version: got 'v1', but FetchPush-v1 runs on "
                                   "mujoco-py (MuJoCo 2.1) and "), done.stdout
     assert "`make mujoco-py`" in done.stdout and done.stderr == ""
+
+
+PREPARE = """
+import os, sys
+from hercs import envs
+print(envs.prepare_mujoco_py())
+print(os.environ.get("LD_LIBRARY_PATH", ""), os.environ.get("MUJOCO_PY_MUJOCO_PATH", ""))
+"""
+
+
+def test_an_extension_compiled_again_since_make_mujoco_py_is_refused_not_recompiled(
+        tmp_path) -> None:
+    """mujoco-py drops the extension's RUNPATH whenever it compiles it, after which it loads
+    only where LD_LIBRARY_PATH listed MuJoCo 2.1's bin/ at process start, and mujoco-py would
+    compile it again in every process that imports it. So hercs uses a compiled extension only
+    with `make mujoco-py`'s mark newer than it, or that LD_LIBRARY_PATH (a stand-in package)."""
+    generated = tmp_path / "site" / "mujoco_py" / "generated"
+    generated.mkdir(parents=True)
+    (generated.parent / "__init__.py").write_text("raise SystemExit('imported')\n")
+    built = generated / "cymj_2.1.2.15_311_linuxcpuextensionbuilder_311.so"
+    built.write_bytes(b"")
+    bin_dir = tmp_path / "mujoco210" / "bin"
+    bin_dir.mkdir(parents=True)
+    (bin_dir / "libmujoco210.so").write_bytes(b"")
+    mark = generated / "hercs-runpath"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), *sys.path]),
+           "MUJOCO_PY_MUJOCO_PATH": str(bin_dir.parent), "LD_LIBRARY_PATH": ""}
+
+    def prepare(**extra: str) -> list[str]:
+        done = subprocess.run([sys.executable, "-c", PREPARE], capture_output=True, text=True,
+                              timeout=60, env={**env, **extra})
+        assert done.returncode == 0, done.stderr
+        return done.stdout.splitlines()
+
+    assert prepare()[0].startswith(f"mujoco-py's extension in {generated} was compiled "
+                                   f"without the RUNPATH that finds {bin_dir}")
+    mark.write_text(f"{bin_dir}\n")  # what make mujoco-py writes after patchelf
+    assert prepare() == ["None", f"{bin_dir} {bin_dir.parent}"]
+    os.utime(built, (mark.stat().st_mtime + 5,) * 2)  # compiled again since
+    assert prepare()[0].startswith("mujoco-py's extension")
+    assert prepare(LD_LIBRARY_PATH=str(bin_dir))[0] == "None"  # the loader finds bin/ anyway
+    built.unlink()
+    assert prepare()[0] == f"mujoco-py's extension is not compiled (none in {generated})"
