@@ -69,6 +69,8 @@ VARIANT_COLORS: dict[str, str] = {
     "her-ebp/lockstep/bf16": "yellowgreen", "her-ebp-cs/lockstep/bf16": "darkslateblue",
     "her/v1": "navy", "her-cs/v1": "darkred", "her-ebp/v1": "seagreen",
     "her-ebp-cs/v1": "chocolate",
+    "her/lag7": "lightsteelblue", "her-cs/lag7": "lightcoral", "her-ebp/lag7": "lightgreen",
+    "her-ebp-cs/lag7": "burlywood", "her-ebp-cs/bf16/lag7": "khaki",
 }
 ENV_VERSION_DEFAULT = "v4"
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
@@ -131,13 +133,29 @@ def task_title(name: str) -> str:
 
 
 def method_key(method: str, schedule: str = "async", precision: str = "fp32",
-               env_version: str = ENV_VERSION_DEFAULT) -> str:
+               env_version: str = ENV_VERSION_DEFAULT, lag: str = "") -> str:
     """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
-    for the learner's mixed precision and `/v1` for the authors' Fetch*-v1 environment
-    (`her-cs/lockstep/bf16/v1` has all three)."""
-    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"),
+    for the learner's mixed precision, `/lag7` for an asynchronous run made with the old,
+    staler default (`lag`, see `legacy_lag`) and `/v1` for the authors' Fetch*-v1
+    environment (`her-cs/lockstep/bf16/v1` has three)."""
+    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (lag, ""),
                                      (env_version, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
+
+
+LEGACY_LAG = "lag7"
+"""The variant of asynchronous runs made before the lag sources were settings (2026-11-25):
+rate tolerance 80, two batches prefetched plus one held, two episodes queued per actor, a
+policy lag of 7 cycles (docs/results/lag_sources_beside.md) against 2–3 since."""
+
+
+def legacy_lag(config: dict[str, Any]) -> str:
+    """`LEGACY_LAG` for an asynchronous run whose resolved config.yaml (one with a `replay`
+    section, as every run saves) predates `learner.prefetch_depth`, else ""."""
+    schedule = (config.get("training") or {}).get("schedule", "async")
+    resolved = "rate_tolerance_updates" in (config.get("replay") or {})
+    new = "prefetch_depth" in (config.get("learner") or {})
+    return LEGACY_LAG if schedule == "async" and resolved and not new else ""
 
 
 def _env_version(variant: str) -> bool:
@@ -146,11 +164,14 @@ def _env_version(variant: str) -> bool:
 
 def method_label(key: str) -> str:
     """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
-    "HER-CS (v1)"."""
+    "HER-CS (v1)", `her-cs/lag7` → "HER-CS (lag 7)"."""
     method, *variants = key.split("/")
-    label = " ".join((METHOD_LABELS.get(method, method),
-                      *(v for v in variants if not _env_version(v))))
-    return "".join((label, *(f" ({v})" for v in variants if _env_version(v))))
+    inline = (v for v in variants if not _env_version(v) and v != LEGACY_LAG)
+    label = " ".join((METHOD_LABELS.get(method, method), *inline))
+    notes = [v for v in variants if _env_version(v)]
+    if LEGACY_LAG in variants:
+        notes.append("lag 7")
+    return "".join((label, *(f" ({v})" for v in notes)))
 
 
 def method_color(key: str) -> str | None:
@@ -194,7 +215,8 @@ def load_run(run_dir: str | Path) -> Curve:
         seed = int(config["run"]["seed"])
         method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
                             (config.get("learner") or {}).get("precision", "fp32"),
-                            config["task"].get("env_version", ENV_VERSION_DEFAULT))
+                            config["task"].get("env_version", ENV_VERSION_DEFAULT),
+                            legacy_lag(config))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc

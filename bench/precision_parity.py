@@ -36,6 +36,7 @@ if str(REPO) not in sys.path:  # `python bench/precision_parity.py` from a check
 import numpy as np  # noqa: E402
 
 from apps.plots import (  # noqa: E402
+    LEGACY_LAG,
     Curve,
     PlotError,
     aggregate,
@@ -104,10 +105,17 @@ def _cut(curve: Curve, epochs: np.ndarray) -> Curve:
 
 
 def load_pair(runs: Path, task: str, method: str) -> tuple[list[Curve], list[Curve]]:
-    """(fp32 seeds, bf16 seeds) of one task and method in the asynchronous schedule."""
+    """(fp32 seeds, bf16 seeds) of one task and method in the asynchronous schedule: those of
+    the current default where both precisions have runs of it, else those of the old, staler
+    default (`apps.plots.LEGACY_LAG`), never one of each."""
     title = task_title(task)
     mine = group(c for c in load_runs(runs) if c.task == title).get(title, {})
-    return mine.get(method_key(method), []), mine.get(method_key(method, precision="bf16"), [])
+    for lag in ("", LEGACY_LAG):
+        pair = (mine.get(method_key(method, lag=lag), []),
+                mine.get(method_key(method, precision="bf16", lag=lag), []))
+        if all(pair):
+            return pair
+    return [], []
 
 
 def report(fp32: Sequence[Curve], bf16: Sequence[Curve], *, last_epoch: int, tolerance: float,

@@ -40,6 +40,7 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from apps.plots import (  # noqa: E402
+    ENV_VERSION_DEFAULT,
     Curve,
     aggregate,
     group,
@@ -144,7 +145,11 @@ def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
             if "lockstep" in variants:
                 continue
             precision = "bf16" if "bf16" in variants else "fp32"
-            lock_curves = methods.get(method_key(method, "lockstep", precision), [])
+            env_version = "v1" if "v1" in variants else ENV_VERSION_DEFAULT
+            # lockstep ignores the asynchronous lag settings: old and new defaults alike
+            # pair with the lockstep runs of the same precision and environment
+            lock_curves = methods.get(
+                method_key(method, "lockstep", precision, env_version), [])
             if not lock_curves:
                 continue
             both = [*lock_curves, *async_curves]
