@@ -113,7 +113,10 @@ class Inserter:
         self._busy = False
         """An episode is being delivered (popped from the queue, outcome not yet known)."""
         self.newest_next_policy_version = 0
-        """The highest `next_policy_version` any ack carried (lockstep, or a lag bound)."""
+        """The highest `next_policy_version` any ack carried (lockstep)."""
+        self.latest_next_policy_version = 0
+        """The `next_policy_version` of the latest ack (the lag bound: after a learner restart
+        the versions start lower again, so the highest would ask for weights that never come)."""
         self._abort = threading.Event()
         self._warn = WarnOncePerMinute(log)
         self._thread = start_supervised(self._run, name=f"hercs-inserter-{actor_id}",
@@ -230,6 +233,7 @@ class Inserter:
                 if isinstance(ack, pb.InsertAck):
                     self.newest_next_policy_version = max(self.newest_next_policy_version,
                                                           int(ack.next_policy_version))
+                    self.latest_next_policy_version = int(ack.next_policy_version)
                     return
                 kind, why = "bad-ack", ack
             if self._abort.is_set():

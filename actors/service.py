@@ -22,8 +22,9 @@ What `run` does, in order:
    broadcast), and after it for the insert's outcome: an ack says which version the next
    episode needs (the next cycle's once this one is full); an episode the replay refuses as
    stale or surplus (`hercs.lockstep.LockstepReason`) is dropped and the next waits for newer
-   weights. Asynchronously with `training.max_policy_lag` the loop waits likewise, before each
-   episode, for the weights the newest ack asked for; an episode refused as stale is dropped.
+   weights. Asynchronously with `training.max_policy_lag`, when the latest ack asked for newer
+   weights than the policy's, the loop waits for the next Weights to arrive before the next
+   episode; an episode refused as stale is dropped.
 4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
    finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
    queued inserts for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the
@@ -157,11 +158,10 @@ class ActorService:
         self.lockstep = config.training.schedule == "lockstep"
         self.lag_bounded = not self.lockstep and config.training.max_policy_lag >= 1
         """Asynchronous with `training.max_policy_lag`: the acks say which weights the next
-        episode needs, and the loop waits for them instead of acting an episode the replay
-        would refuse."""
+        episode needs, and the loop waits for newer weights instead of acting an episode the
+        replay would refuse (`_await_bounded_weights`)."""
         self.min_policy_version = 0
-        """Lockstep (or a lag bound): the oldest weights version the next episode may be
-        acted with."""
+        """Lockstep: the oldest weights version the next episode may be acted with."""
 
     def _on_weights(self, key: str, raw: bytes) -> None:
         """Subscription thread: decode, check, offer. Never touches the policy itself."""
@@ -205,10 +205,9 @@ class ActorService:
         try:
             while not stop.is_set():
                 self._adopt_newest()
-                if self.lag_bounded:
-                    self.min_policy_version = max(self.min_policy_version,
-                                                  self.inserter.newest_next_policy_version)
-                if (self.lockstep or self.lag_bounded) and not self._await_weights():
+                if self.lockstep and not self._await_weights():
+                    break
+                if self.lag_bounded and not self._await_bounded_weights():
                     break
                 acted_with = self.policy.version
                 superseded_before = self.inserter.counters.superseded
@@ -246,9 +245,27 @@ class ActorService:
         if newest is not None:
             self.policy.load(newest)
 
+    def _await_bounded_weights(self) -> bool:
+        """A lag bound: if the latest ack asked for newer weights than the policy's, wait for
+        the next Weights to arrive (whatever its version) and adopt it; False if stopped.
+
+        Not for a version number, as lockstep waits: a learner restarted from its checkpoint
+        broadcasts lower versions than the acks before its restart asked for, and an actor
+        waiting for those numbers would wait for ever while the learner waits for its
+        episodes. The latest ack, not the highest, for the same reason."""
+        if self.policy.version >= self.inserter.latest_next_policy_version:
+            return True
+        stop = self.runtime.stop
+        while not stop.is_set():
+            self._weights.wait(0.5)
+            newest = self._weights.take()
+            if newest is not None:
+                self.policy.load(newest)
+                return True
+        return False
+
     def _await_weights(self) -> bool:
-        """Lockstep or a lag bound: wait for weights of at least `min_policy_version`; False
-        if stopped."""
+        """Lockstep: wait for weights of at least `min_policy_version`; False if stopped."""
         stop = self.runtime.stop
         while self.policy.version < self.min_policy_version:
             if stop.is_set():

@@ -61,6 +61,44 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
 
+def wait_for_episodes(run_dir: Path, count: int, *, timeout_s: float) -> bool:
+    """Until the episode log holds `count` episodes (a segment still being written may end in
+    a partial chunk: read again)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            if sum(1 for _ in read_episodes(run_dir)) >= count:
+                return True
+        except Exception:  # a chunk still being written: the next read sees it
+            pass
+        time.sleep(0.2)
+    return False
+
+
+def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
+        tmp_path: Path) -> None:
+    """`training.max_policy_lag=1`: the restarted learner broadcasts versions below those the
+    acks before its death asked for; the actors must not wait for those numbers (nor the
+    replay refuse everything) while the learner waits for their episodes."""
+    launcher = Launcher(up_argv(tmp_path, "--run", "tight", "--set", "training.max_policy_lag=1",
+                                "--set", "training.cycles_per_epoch=8"), cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "tight"
+    try:
+        # kill it 5+ cycles past its checkpoint of epoch 1 (cycle 8): more than the limiter's
+        # window and the bound together, so that the restarted learner needs new episodes
+        # before it is back at the versions the actors were last told to act with
+        launcher.wait_for_line(r"^epoch 1/4", timeout_s=RUN_S)
+        assert wait_for_episodes(run_dir, 4 * (8 + 7), timeout_s=RUN_S)
+        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)",
+                               timeout_s=60)
+        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
+    assert "resumed from the checkpoint of epoch 1" in log_text(run_dir, "learner-0")
+
+
 def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> None:
     launcher = Launcher(up_argv(tmp_path, "--run", "actorless"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "actorless"
