@@ -594,8 +594,10 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
         "smooths over 21 epochs and pads short runs; we do neither), and the bands, over the "
         f"seeds' own {WINDOW}-epoch trailing means, are {_BAND_CAPTIONS[band]}. Ours: "
-        "gymnasium-robotics Fetch*-v4 on MuJoCo 3; the authors': gym Fetch*-v1 on mujoco-py "
-        "(docs/DESIGN.md §9.6), so the curves are compared, not matched.", "",
+        "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled (v1) the authors' "
+        "environment, gym Fetch*-v1 on mujoco-py, which the authors' curves are on "
+        "(docs/DESIGN.md §9.6); (lag 7): asynchronous runs of the old, staler default "
+        "(docs/PERFORMANCE.md §2).", "",
     ]
     for pair in FIG2_ROWS:
         for task in FIG2_TASKS:

@@ -86,8 +86,10 @@ class _SceneOnAckPath:
 
 def measure(name: str, *, window_s: float, pool: list, workdir: Path) -> float:
     threads, scene, scene_on_path = VARIANTS[name]
+    # synthetic episodes carry no weights version: no lag bound (the insert path is measured)
     config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=bench",
-                                             "replay.free_run=true"])
+                                             "replay.free_run=true",
+                                             "training.max_policy_lag=-1"])
     run_dir = Path(tempfile.mkdtemp(dir=workdir))
     log, _ = RecoveringLogWriter.open(run_dir, run="bench", task="push", scene=scene)
     sink = _SceneOnAckPath(log) if scene_on_path else log

@@ -813,6 +813,7 @@ class Bench:
         config = apply_overrides(HercsConfig(), [
             f"run.name={RUN}", f"run.run_dir={self.workdir / 'runs'}", f"run.seed={SEED}",
             "task.name=push", f"run.method={method}", "replay.free_run=true",
+            "training.max_policy_lag=-1",  # synthetic actors act with no weights version
             f"replay.buffer_transitions={p.buffer_transitions}",
             f"training.minibatches_per_cycle={p.minibatches_per_cycle}",
             "training.epochs=1000000",  # the learner runs until stopped
