@@ -287,8 +287,11 @@ def _service_command(module: str) -> Command:
 def _cmd_plot(args: argparse.Namespace) -> int:
     from apps.plots import run_plot
     from hercs.errors import HercsError
+    from hercs.rundir import METRICS, require_run_dir
 
     try:
+        for run_dir in args.run_dirs:  # what a folder lacks, before plots reads any
+            require_run_dir(run_dir, needs=(METRICS,))
         return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
                         xmax=args.xmax, figure=args.figure, band=args.band)
     except HercsError as exc:

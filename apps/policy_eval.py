@@ -25,13 +25,12 @@ import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hercs.config import HercsConfig
-from hercs.errors import ConfigError, HercsError
+from hercs.checkpoints import LoadedPolicy, read_policy
+from hercs.errors import HercsError
 from hercs.seeding import int_seed
 from hercs.tasks import goal_distance
 
@@ -48,16 +47,6 @@ class EvalError(HercsError):
 
 
 @dataclass
-class LoadedPolicy:
-    config: HercsConfig
-    epoch: int
-    """The epoch whose end the weights are from."""
-    source: Path
-    weights: Any
-    """`hercs.policy.PolicyWeights`."""
-
-
-@dataclass
 class EvalSummary:
     episodes: int
     successes: int
@@ -69,67 +58,11 @@ class EvalSummary:
         return self.successes / self.episodes
 
 
-def _checkpoint_path(run_dir: Path, checkpoint: str | None) -> Path:
-    from learner.checkpoint import BEST, LATEST, epoch_file
-
-    folder = run_dir / "checkpoints"
-    if checkpoint is None:
-        return folder / BEST if (folder / BEST).exists() else folder / LATEST
-    if checkpoint == "best":
-        return folder / BEST
-    if checkpoint == "latest":
-        return folder / LATEST
-    if checkpoint.startswith("epoch-") and checkpoint[6:].isdigit():
-        return folder / epoch_file(int(checkpoint[6:]))
-    return Path(checkpoint)
-
-
 def load_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = None) -> LoadedPolicy:
-    """The policy of a run folder's checkpoint (see the module docstring for the names)."""
-    import torch
-
-    from actors.weights import WeightsDecoder
-    from hercs.errors import InvalidMessage
-    from hercs.policy import PolicyWeights
-
-    run_dir = Path(run_dir)
-    path = _checkpoint_path(run_dir, checkpoint)
-    if not path.is_file():
-        kept = sorted(p.name for p in (run_dir / "checkpoints").glob("*.pt"))
-        raise EvalError(f"{path}: no such checkpoint; {run_dir}/checkpoints holds "
-                        f"{kept or 'none'} (names: best, latest, epoch-N, or a path)")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise EvalError(f"{path}: not a readable checkpoint ({exc})") from None
-    if not isinstance(state, dict) or not ("policy" in state or "learner" in state):
-        raise EvalError(f"{path}: neither a policy file (best.pt, epoch-N.pt) nor a learner "
-                        "checkpoint (learner.pt) of this version of hercs")
-    config = HercsConfig.from_dict(state["config"]) if "config" in state else \
-        _run_config(run_dir)
-    if "policy" in state:
-        decoder = WeightsDecoder(spec=config.task.spec, config=config)
-        try:
-            weights = decoder.decode(decoder.parse(state["policy"]))
-        except InvalidMessage as exc:
-            raise EvalError(f"{path}: the policy in it does not load ({exc})") from None
-        return LoadedPolicy(config=config, epoch=int(state["epoch"]), source=path,
-                            weights=weights)
-    learner, loop = state["learner"], state["loop"]
-    weights = PolicyWeights(version=int(loop.get("version", 0)),
-                            actor={k: v.detach().cpu().numpy().astype(np.float32)
-                                   for k, v in learner["actor"].items()},
-                            o_stats=learner["o_norm"], g_stats=learner["g_norm"])
-    return LoadedPolicy(config=config, epoch=int(loop["epoch"]), source=path, weights=weights)
-
-
-def _run_config(run_dir: Path) -> HercsConfig:
-    from hercs.config import load_yaml
-
-    saved = run_dir / "config.yaml"
-    if not saved.is_file():
-        raise EvalError(f"{run_dir}: no config.yaml; give a run folder that `hercs up` made")
-    return load_yaml(saved)
+    """The policy of a run folder's checkpoint (see the module docstring for the names; None:
+    best if present, else latest): `hercs.checkpoints.read_policy`, which `hercs.load_policy`
+    uses too. Its errors (`RunDirError`, `CheckpointError`) are `HercsError`s."""
+    return read_policy(run_dir, checkpoint)
 
 
 def choose_gl() -> str:
@@ -158,11 +91,9 @@ def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
     gets T + 1 frames per episode (the start and after every step)."""
     from actors.rollout import RolloutWorker
     from hercs.envs import make_env
-    from hercs.policy import Policy
 
     config, spec = policy.config, policy.config.task.spec
-    actor = Policy(spec=spec, config=config.ddpg, seed=0)
-    actor.load(policy.weights)
+    actor = policy.policy()
     size = FRAME_SIZE if render else None
     env = make_env(spec, render_mode="rgb_array" if render else None, size=size)
     if seed is None:  # the evaluator's stream: its seed, past the earlier epochs' episodes
@@ -210,7 +141,7 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         sinks, closers = _sinks(video, rerun_save)
         summary = evaluate(policy, episodes=episodes, seed=seed, render=render,
                            on_frame=lambda n, t, rgb: [sink(n, t, rgb) for sink in sinks])
-    except (EvalError, ConfigError) as exc:  # ConfigError: a v1 run without mujoco-py
+    except HercsError as exc:  # a bad run, checkpoint or renderer; a v1 run without mujoco-py
         print(f"hercs eval: {exc}", file=sys.stderr)
         return 2
     finally:

@@ -13,6 +13,7 @@ every construction runs `__post_init__` validation, whose messages name the fiel
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import logging
 import math
 import re
@@ -571,7 +572,9 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
     if hint is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{where}: got {value!r}, must be true or false")
+        raise ConfigError(f"{where}: got {value!r}, must be true or false"
+                          + (" (yes, no, on and off are not taken as booleans)"
+                             if str(value).lower() in YAML11_BOOLS else ""))
     if hint is int:
         if isinstance(value, bool):
             raise ConfigError(f"{where}: got {value!r}, must be an integer")
@@ -604,6 +607,30 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
     raise ConfigError(f"{where}: unsupported config type {hint!r}")  # pragma: no cover
 
 
+YAML11_BOOLS = frozenset({"yes", "no", "on", "off"})
+"""Words PyYAML's YAML 1.1 resolver reads as booleans; `StrictBoolLoader` keeps them strings."""
+
+
+class StrictBoolLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2's booleans: only true and false (any case) are
+    booleans; yes, no, on and off stay strings, which a boolean field then refuses."""
+
+
+StrictBoolLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+StrictBoolLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+    list("tTfF"))
+
+
+def _did_you_mean(name: str, known: typing.Iterable[str], prefix: str = "") -> str:
+    """' did you mean 'x.y'?' for the closest known name, or '' if none is close."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f" did you mean {prefix + close[0]!r}?" if close else ""
+
+
 def _parse_number(text: str, where: str) -> int | float:
     try:
         return int(text)
@@ -629,17 +656,19 @@ def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
             )
         section, _, name = key.strip().partition(".")
         if section not in data or not isinstance(data[section], dict):
-            raise ConfigError(f"override {item!r}: unknown section {section!r}; "
-                              f"known: {sorted(data)}")
+            raise ConfigError(f"override {item!r}: unknown section {section!r};"
+                              f"{_did_you_mean(section, data)} known: {sorted(data)}")
         if name not in data[section]:
-            raise ConfigError(f"override {item!r}: unknown field {key!r}; known in {section}: "
-                              f"{sorted(data[section])}")
+            raise ConfigError(f"override {item!r}: unknown field {key.strip()!r};"
+                              f"{_did_you_mean(name, data[section], section + '.')} known in "
+                              f"{section}: {sorted(data[section])} (`hercs config` prints "
+                              "every field with its value)")
         if isinstance(data[section][name], str):
             # A string field takes the text as it is, so a run named "007" stays a string.
             data[section][name] = raw
             continue
         try:
-            value = yaml.safe_load(raw) if raw.strip() else ""
+            value = yaml.load(raw, Loader=StrictBoolLoader) if raw.strip() else ""
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
         data[section][name] = value
@@ -664,23 +693,54 @@ def workers_overrides(config: HercsConfig, workers: int) -> list[str]:
 
 
 def load_yaml(path: str | Path) -> HercsConfig:
-    """Load a (possibly partial) config; missing fields keep their defaults."""
+    """Load a (possibly partial) config; missing fields keep their defaults. Booleans are
+    YAML 1.2's (`StrictBoolLoader`); every error names the file."""
+    name = f"config file {str(path)!r}"
+    start = "`hercs config -o FILE` writes the full default config to start from"
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"config file {str(path)!r}: cannot read ({exc})") from None
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{name}: no such file; give the path of a YAML config ({start})"
+                          ) from None
+    except IsADirectoryError:
+        raise ConfigError(f"{name}: is a folder, not a YAML file (a run folder's config is "
+                          "its config.yaml; `hercs up --resume RUN` continues a run)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{name}: cannot read it ({exc})") from None
+    try:
+        data = yaml.load(text, Loader=StrictBoolLoader) or {}
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        context, begun = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+        if context and begun is not None:
+            problem += f", {context} that begins at line {begun.line + 1}, column " \
+                       f"{begun.column + 1}"
+        raise ConfigError(f"{name}{at}: not valid YAML ({problem}); fix the file there "
+                          f"({start})") from None
     merged = HercsConfig().to_dict()
     if not isinstance(data, dict):
-        raise ConfigError(f"config file {str(path)!r}: must hold a mapping, got {data!r}")
+        raise ConfigError(f"{name}: must hold a mapping of sections (e.g. `ddpg:` with "
+                          f"`lr_actor: 0.001` under it), got {data!r}")
     for section, values in data.items():
         if section not in merged:
-            raise ConfigError(f"config file {str(path)!r}: unknown section {section!r}; "
-                              f"known: {sorted(merged)}")
+            raise ConfigError(f"{name}: unknown section {section!r};"
+                              f"{_did_you_mean(str(section), merged)} known: {sorted(merged)}")
         if not isinstance(values, dict):
-            raise ConfigError(f"config file {str(path)!r}: section {section!r} must be a "
+            raise ConfigError(f"{name}: section {section!r} must be a "
                               f"mapping, got {values!r}")
+        for key in values:
+            if key not in merged[section] and f"{section}.{key}" not in RETIRED_KEYS:
+                raise ConfigError(
+                    f"{name}: unknown key {f'{section}.{key}'!r};"
+                    f"{_did_you_mean(str(key), merged[section], section + '.')} known in "
+                    f"{section}: {sorted(merged[section])}")
         merged[section].update(values)
-    return HercsConfig.from_dict(merged)
+    try:
+        return HercsConfig.from_dict(merged)
+    except ConfigError as exc:
+        raise ConfigError(f"{name}: {exc}") from None
 
 
 def save_yaml(config: HercsConfig, path: str | Path) -> None:

@@ -1,0 +1,171 @@
+"""A run directory (`runs/<run>/`, made by `hercs up`) as its readers see it: the names of what
+it holds, and checks whose errors say what a folder lacks and what to do.
+
+    config.yaml                         the full resolved config
+    metrics.csv                         one row per evaluated epoch (the learner)
+    episodes.mcap, episodes.NNN.mcap    the episode log (`hercs.runlog`, the replay)
+    checkpoints/learner.pt              the learner's state at its last epoch end ("latest")
+    checkpoints/best.pt                 the policy of the best-evaluated epoch ("best")
+    checkpoints/epoch-NNNN.pt           the policy every `training.checkpoint_every` epochs
+    logs/<service>.log                  each process's log
+
+The checkpoint names repeat `learner.checkpoint`'s (which writes them; a unit test keeps the
+two equal) so that readers in the library layer need not import the learner.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import re
+from pathlib import Path
+
+from hercs.config import RunConfig
+from hercs.errors import HercsError
+from hercs.runlog.format import LIVE_NAME, SEGMENT_RE
+
+CONFIG = "config.yaml"
+METRICS = "metrics.csv"
+CHECKPOINTS = "checkpoints"
+LOGS = "logs"
+LATEST = "learner.pt"
+BEST = "best.pt"
+EPOCH_FILE = re.compile(r"^epoch-(\d+)\.pt$")
+
+CHECKPOINT_NAMES = "best, latest, epoch-N or a .pt file's path"
+"""What a checkpoint argument may be (`hercs eval --checkpoint`, `hercs.load_policy`)."""
+
+WHAT_A_RUN_HOLDS = ("config.yaml, metrics.csv, episodes.mcap and checkpoints/, which "
+                    "`hercs up` writes into runs/<run>/")
+
+NOT_YET = {
+    METRICS: "the learner writes its first row when epoch 1 has been evaluated; wait for "
+             "that, or look at a finished run",
+    LIVE_NAME: "the replay writes it from the run's first episode on; wait for the run to "
+               "start, or look at another run",
+}
+"""Why a run directory may lack a file, and what to do, by file name."""
+
+
+class RunDirError(HercsError):
+    """A folder is not a run directory, or lacks what the caller needs from it; the message
+    names the folder, what is missing and what to do."""
+
+
+def epoch_file(epoch: int) -> str:
+    """The name of the policy file kept every `training.checkpoint_every` epochs."""
+    return f"epoch-{epoch:04d}.pt"
+
+
+def is_run_dir(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` is a folder holding a run's config.yaml."""
+    return (Path(path) / CONFIG).is_file()
+
+
+def has_episode_log(path: str | os.PathLike[str]) -> bool:
+    path = Path(path)
+    return (path / LIVE_NAME).exists() or any(SEGMENT_RE.match(p.name) for p in path.iterdir())
+
+
+def require_run_dir(path: str | os.PathLike[str], *, needs: tuple[str, ...] = ()) -> Path:
+    """`path` as a Path if it is a run directory holding every file named in `needs` (names
+    in this module, or LIVE_NAME for the episode log in any segment); else `RunDirError`."""
+    path = Path(path)
+    if not path.exists():
+        raise RunDirError(f"{path}: no such folder; give a run directory, the folder "
+                          f"`hercs up` made as runs/<run>/{_nearby_runs(path)}")
+    if not path.is_dir():
+        raise RunDirError(f"{path}: a file, not a run directory; give the folder that holds "
+                          f"{WHAT_A_RUN_HOLDS}")
+    if not is_run_dir(path):
+        inside = _runs_in(path)
+        hint = (f"; it holds run directories: {_listed(inside)}; give one of them" if inside
+                else _nearby_runs(path))
+        raise RunDirError(f"{path}: not a run directory: it has no {CONFIG} (a run directory "
+                          f"holds {WHAT_A_RUN_HOLDS}){hint}")
+    for name in needs:
+        present = has_episode_log(path) if name == LIVE_NAME else (path / name).exists()
+        if not present:
+            what = "an episode log (episodes.mcap or episodes.NNN.mcap)" if name == LIVE_NAME \
+                else name
+            raise RunDirError(f"{path}: this run has no {what} yet; "
+                              f"{NOT_YET.get(name, 'was it made by this version of hercs?')}")
+    return path
+
+
+def _runs_in(folder: Path) -> list[str]:
+    try:
+        return sorted(p.name for p in folder.iterdir() if p.is_dir() and is_run_dir(p))
+    except OSError:
+        return []
+
+
+def _listed(names: list[str], most: int = 6) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most
+                                      else "")
+
+
+def _nearby_runs(path: Path) -> str:
+    """'; did you mean …?' or '; run directories in PARENT: …' from the folder above `path`,
+    or else from the default run folder (runs/) beside it."""
+    parent = path.parent
+    runs = [name for name in _runs_in(parent) if name != path.name]
+    if not runs:
+        parent = parent / RunConfig.run_dir
+        runs = _runs_in(parent)
+    if not runs:
+        return ""
+    close = difflib.get_close_matches(path.name, runs, n=1)
+    if close:
+        return f"; did you mean {parent / close[0]}?"
+    return f"; run directories in {parent}: {_listed(runs)}"
+
+
+def checkpoint_path(run_dir: Path, checkpoint: str | None) -> Path:
+    """The file a checkpoint argument names: 'best', 'latest', 'epoch-N' under
+    `run_dir/checkpoints/`, or a path; None = best.pt if it exists, else learner.pt (what
+    `hercs eval` loads by default)."""
+    folder = run_dir / CHECKPOINTS
+    if checkpoint is None:
+        return folder / BEST if (folder / BEST).exists() else folder / LATEST
+    if checkpoint == "best":
+        return folder / BEST
+    if checkpoint == "latest":
+        return folder / LATEST
+    if checkpoint.startswith("epoch-") and checkpoint[6:].isdigit():
+        return folder / epoch_file(int(checkpoint[6:]))
+    return Path(checkpoint)
+
+
+def kept_checkpoints(run_dir: Path) -> dict[str, str]:
+    """{file name: the name to ask for it by} of the checkpoints in `run_dir/checkpoints/`,
+    best first, then latest, then by epoch."""
+    folder = run_dir / CHECKPOINTS
+    files = sorted(p.name for p in folder.glob("*.pt")) if folder.is_dir() else []
+    kept = {name: {BEST: "best", LATEST: "latest"}.get(name, "") for name in files}
+    for name in files:
+        match = EPOCH_FILE.match(name)
+        if match:
+            kept[name] = f"epoch-{int(match[1])}"
+    order = {BEST: 0, LATEST: 1}
+    return dict(sorted(kept.items(), key=lambda item: (order.get(item[0], 2), item[0])))
+
+
+def missing_checkpoint(run_dir: Path, checkpoint: str | None, path: Path) -> RunDirError:
+    """The error for a checkpoint that `checkpoint_path` named and that does not exist: which
+    one was asked for, which exist and what to do."""
+    folder = run_dir / CHECKPOINTS
+    if path.parent != folder:
+        return RunDirError(f"checkpoint {path}: no such file; give {CHECKPOINT_NAMES}")
+    asked = (f"best ({BEST}, the default) and no {LATEST}" if checkpoint is None
+             else f"{checkpoint} ({path.name})")
+    kept = kept_checkpoints(run_dir)
+    if not kept:
+        return RunDirError(
+            f"{run_dir}: no checkpoint {asked} yet: {folder} holds none. {BEST} (best, the "
+            f"best-evaluated epoch's policy) is written once the run's first epoch has been "
+            f"evaluated, {LATEST} (latest) at every epoch end; wait for epoch 1 to finish "
+            "(metrics.csv gets its row), or give another run")
+    offers = ", ".join(f"{ask} ({name})" if ask else name for name, ask in kept.items())
+    return RunDirError(f"{run_dir}: no checkpoint {asked}; {folder} holds {offers}: ask for "
+                       f"one of those ({CHECKPOINT_NAMES})")

@@ -1,0 +1,153 @@
+"""The errors a new user meets first (issue 23, item 8), met as they meet them: through the
+`hercs` command, in a folder of their own. Each message names what is wrong, where, and what
+to do; each test asserts the text."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from apps.cli import main
+from hercs.config import HercsConfig, save_yaml
+
+CONFIG_HINT = "(`hercs config -o FILE` writes the full default config to start from)"
+NOT_BOOLEAN = "must be true or false (yes, no, on and off are not taken as booleans)"
+RUN_HOLDS = ("config.yaml, metrics.csv, episodes.mcap and checkpoints/, which `hercs up` "
+             "writes into runs/<run>/")
+
+
+@pytest.fixture
+def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A user's working folder with a few files in it; the commands run there."""
+    monkeypatch.chdir(tmp_path)
+    files = {
+        "bad.yaml": "ddpg:\n  lr_actor: [1\n",
+        "tab.yaml": "ddpg:\n\tgamma: 0.9\n",
+        "typo.yaml": "ddpg:\n  lr_actr: 0.001\n",
+        "section.yaml": "dpg:\n  lr_actor: 0.001\n",
+        "yes.yaml": "security:\n  allow_insecure: yes\n",
+        "range.yaml": "ddpg:\n  gamma: 1.5\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    (tmp_path / "notes").mkdir()  # a folder that is not a run
+    run = tmp_path / "runs" / "reach-her-cs-s1"  # a run that has not finished epoch 1
+    (run / "checkpoints").mkdir(parents=True)
+    save_yaml(HercsConfig(), run / "config.yaml")
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--config", "bad.yaml"],
+         "config file 'bad.yaml', line 3, column 1: not valid YAML (expected ',' or ']', but "
+         "got '<stream end>', while parsing a flow sequence that begins at line 2, column 13); "
+         f"fix the file there {CONFIG_HINT}"),
+        (["--config", "tab.yaml"],
+         "config file 'tab.yaml', line 2, column 1: not valid YAML (found character '\\t' that "
+         f"cannot start any token); fix the file there {CONFIG_HINT}"),
+        (["--config", "nosuch.yaml"],
+         f"config file 'nosuch.yaml': no such file; give the path of a YAML config {CONFIG_HINT}"),
+        (["--config", "notes"],
+         "config file 'notes': is a folder, not a YAML file (a run folder's config is its "
+         "config.yaml; `hercs up --resume RUN` continues a run)"),
+        (["--config", "typo.yaml"],
+         "config file 'typo.yaml': unknown key 'ddpg.lr_actr'; did you mean 'ddpg.lr_actor'? "
+         "known in ddpg: ['action_l2', 'batch_size',"),
+        (["--config", "section.yaml"],
+         "config file 'section.yaml': unknown section 'dpg'; did you mean 'ddpg'? known: "
+         "['actor', 'cluster', 'ddpg',"),
+        (["--config", "yes.yaml"],
+         f"config file 'yes.yaml': security.allow_insecure: got 'yes', {NOT_BOOLEAN}"),
+        (["--config", "range.yaml"],
+         "config file 'range.yaml': ddpg.gamma: got 1.5, must lie in (0, 1)"),
+        (["--set", "ddpg.lr_actr=1e-3"],
+         "override 'ddpg.lr_actr=1e-3': unknown field 'ddpg.lr_actr'; did you mean "
+         "'ddpg.lr_actor'? known in ddpg: ['action_l2',"),
+        (["--set", "ddpg.lr=1e-3"],  # nothing close: the list alone
+         "override 'ddpg.lr=1e-3': unknown field 'ddpg.lr'; known in ddpg: ['action_l2',"),
+        (["--set", "dpg.lr_actor=1e-3"],
+         "override 'dpg.lr_actor=1e-3': unknown section 'dpg'; did you mean 'ddpg'? known:"),
+        (["--set", "security.allow_insecure=yes"],
+         f"security.allow_insecure: got 'yes', {NOT_BOOLEAN}"),
+        (["--set", "security.allow_insecure=on"],
+         f"security.allow_insecure: got 'on', {NOT_BOOLEAN}"),
+        (["--set", "replay.free_run=off"], f"replay.free_run: got 'off', {NOT_BOOLEAN}"),
+        (["--set", "replay.free_run=1"], "replay.free_run: got 1, must be true or false"),
+    ],
+    ids=["bad-yaml", "yaml-tab", "no-such-file", "config-is-a-folder", "yaml-unknown-key",
+         "yaml-unknown-section", "yaml-yes", "yaml-bad-value", "set-unknown-field",
+         "set-unknown-field-nothing-close", "set-unknown-section", "set-yes", "set-on",
+         "set-off", "set-1"])
+def test_a_bad_config_is_refused_naming_file_field_and_fix(here: Path, argv: list[str],
+                                                           message: str, capsys) -> None:
+    assert main(["config", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hercs config: invalid configuration: ")
+    assert message in err
+
+
+@pytest.mark.parametrize("value", ["true", "false", "True", "FALSE"])
+def test_booleans_are_true_or_false(here: Path, value: str, capsys) -> None:
+    assert main(["config", "--set", f"security.allow_insecure={value}"]) == 0
+    resolved = yaml.safe_load(capsys.readouterr().out)
+    assert resolved["security"]["allow_insecure"] is (value.lower() == "true")
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["eval", "runs/reach-her-cs-s1"],
+         "hercs eval: runs/reach-her-cs-s1: no checkpoint best (best.pt, the default) and no "
+         "learner.pt yet: runs/reach-her-cs-s1/checkpoints holds none. best.pt (best, the "
+         "best-evaluated epoch's policy) is written once the run's first epoch has been "
+         "evaluated, learner.pt (latest) at every epoch end; wait for epoch 1 to finish "
+         "(metrics.csv gets its row), or give another run\n"),
+        (["eval", "runs/reach-her-cs-s1", "--checkpoint", "epoch-10"],
+         "hercs eval: runs/reach-her-cs-s1: no checkpoint epoch-10 (epoch-0010.pt) yet: "),
+        (["eval", "notes"],
+         f"hercs eval: notes: not a run directory: it has no config.yaml (a run directory "
+         f"holds {RUN_HOLDS}); run directories in runs: reach-her-cs-s1\n"),
+        (["eval", "runs"],
+         f"hercs eval: runs: not a run directory: it has no config.yaml (a run directory holds "
+         f"{RUN_HOLDS}); it holds run directories: reach-her-cs-s1; give one of them\n"),
+        (["eval", "runs/reach-her-cs-1"],
+         "hercs eval: runs/reach-her-cs-1: no such folder; give a run directory, the folder "
+         "`hercs up` made as runs/<run>/; did you mean runs/reach-her-cs-s1?\n"),
+        (["eval", "bad.yaml"],
+         f"hercs eval: bad.yaml: a file, not a run directory; give the folder that holds "
+         f"{RUN_HOLDS}\n"),
+        (["eval", "runs/reach-her-cs-s1", "--checkpoint", "mine.pt"],
+         "hercs eval: checkpoint mine.pt: no such file; give best, latest, epoch-N or a .pt "
+         "file's path\n"),
+        (["plot", "notes", "-o", "fig.png"],
+         f"hercs plot: notes: not a run directory: it has no config.yaml (a run directory "
+         f"holds {RUN_HOLDS}); run directories in runs: reach-her-cs-s1\n"),
+        (["plot", "runs/reach-her-cs-s1", "-o", "fig.png"],
+         "hercs plot: runs/reach-her-cs-s1: this run has no metrics.csv yet; the learner "
+         "writes its first row when epoch 1 has been evaluated; wait for that, or look at a "
+         "finished run\n"),
+    ],
+    ids=["eval-no-checkpoint-yet", "eval-no-such-epoch", "eval-not-a-run",
+         "eval-folder-of-runs", "eval-typo", "eval-a-file", "eval-no-such-file",
+         "plot-not-a-run", "plot-no-metrics-yet"])
+def test_a_folder_that_is_no_run_or_has_no_checkpoint_says_what_to_do(
+        here: Path, argv: list[str], message: str, capsys) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+
+
+def test_eval_names_the_checkpoints_a_run_has(here: Path, capsys) -> None:
+    checkpoints = here / "runs" / "reach-her-cs-s1" / "checkpoints"
+    for name in ("learner.pt", "epoch-0010.pt", "epoch-0020.pt"):
+        (checkpoints / name).write_bytes(b"")
+    assert main(["eval", "runs/reach-her-cs-s1", "--checkpoint", "best"]) == 2
+    assert capsys.readouterr().err == (
+        "hercs eval: runs/reach-her-cs-s1: no checkpoint best (best.pt); "
+        "runs/reach-her-cs-s1/checkpoints holds latest (learner.pt), epoch-10 "
+        "(epoch-0010.pt), epoch-20 (epoch-0020.pt): ask for one of those (best, latest, "
+        "epoch-N or a .pt file's path)\n")
