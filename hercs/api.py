@@ -1,0 +1,259 @@
+"""The Python API: a run directory's policy, metrics, episodes and config in your own code,
+with no service running. Re-exported by the `hercs` package:
+
+    import hercs
+
+    policy = hercs.load_policy("runs/RUN")            # checkpoints/best.pt
+    action = policy.act(obs)                          # obs: the env's observation dict
+    metrics = hercs.read_metrics("runs/RUN")          # metrics.csv, numbers parsed
+    for episode in hercs.read_episodes("runs/RUN", last=10): ...
+    config = hercs.load_config("runs/RUN")            # or a YAML file, or the defaults
+
+Arrays go in and come out as numpy; the caller needs no torch. Errors are `HercsError`s whose
+messages name the folder or file, what is missing and what to do.
+
+Imports of torch, the episode log and the config are deferred to the calls, so that
+`import hercs` (which every hercs process does) stays light.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections import deque
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hercs.episode import EpisodeData
+from hercs.errors import HercsError
+
+if TYPE_CHECKING:
+    from hercs.checkpoints import LoadedPolicy
+    from hercs.config import HercsConfig
+    from hercs.tasks import TaskSpec
+
+OBSERVATION_KEYS = ("observation", "desired_goal")
+"""What `act` reads of the env's observation dict (`achieved_goal` may be there too)."""
+
+MetricValue = int | float | str | tuple[int | float, ...] | dict[str, int] | None
+"""A parsed metrics.csv cell: a number, a ';'-separated list of numbers (cluster_sizes,
+cluster_share), `reason:count` pairs (rejects), text, or None where the cell is empty."""
+
+LIST_COLUMNS = frozenset({"cluster_sizes", "cluster_share"})
+COUNT_COLUMNS = frozenset({"rejects"})
+
+
+class ObservationError(HercsError, ValueError):
+    """An observation given to `TrainedPolicy.act` is not one of the policy's task."""
+
+
+class TrainedPolicy:
+    """A run's trained policy: μ(o, g) with its normalisers, as the run's evaluator acts.
+
+    Made by `load_policy`. `act` is deterministic unless asked to explore."""
+
+    def __init__(self, loaded: LoadedPolicy, *, seed: int | None = None) -> None:
+        self._policy = loaded.policy()
+        self._rng = np.random.default_rng(seed)
+        self.config: HercsConfig = loaded.config
+        """The run's resolved config."""
+        self.epoch: int = loaded.epoch
+        """The epoch at whose end these weights were taken."""
+        self.source: Path = loaded.source
+        """The checkpoint file read."""
+        self.weights_version: int = loaded.weights.version
+
+    @property
+    def spec(self) -> TaskSpec:
+        """The task: `obs_dim`, `goal_dim`, `action_dim`, `max_action`, `env_id`, …"""
+        return self.config.task.spec
+
+    def act(self, observation: Mapping[str, Any], *, explore: bool = False,
+            rng: np.random.Generator | None = None) -> np.ndarray:
+        """Action(s) for the env's observation dict, float32 in [-max_action, max_action].
+
+        `observation["observation"]` is (obs_dim,) or (n, obs_dim), `["desired_goal"]`
+        (goal_dim,) or (n, goal_dim); returns (action_dim,) or (n, action_dim). With
+        `explore=False` (the default) this is μ(o, g), the run's evaluator's action. With
+        `explore=True`, the actors' exploration (Gaussian noise and random actions) drawn
+        from `rng`, or from a generator seeded by `load_policy(seed=...)`.
+        """
+        o, g = self._arrays(observation)
+        return self._policy.act(o, g, explore=explore,
+                                rng=rng if rng is not None else self._rng)
+
+    def _arrays(self, observation: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        if not isinstance(observation, Mapping):
+            raise ObservationError(
+                f"act: got {type(observation).__name__}, need the env's observation dict "
+                f"with keys {list(OBSERVATION_KEYS)}")
+        missing = [k for k in OBSERVATION_KEYS if k not in observation]
+        if missing:
+            raise ObservationError(f"act: the observation has no {missing} (keys: "
+                                   f"{sorted(observation)}); pass the env's observation dict")
+        spec = self.spec
+        arrays = []
+        for key, size in zip(OBSERVATION_KEYS, (spec.obs_dim, spec.goal_dim), strict=True):
+            value = np.asarray(observation[key], dtype=np.float64)
+            if value.ndim not in (1, 2) or value.shape[-1] != size:
+                raise ObservationError(
+                    f"act: observation[{key!r}] has shape {value.shape}; task {spec.name} "
+                    f"needs ({size},) for one observation or (n, {size}) for n")
+            arrays.append(value)
+        o, g = arrays
+        if o.ndim != g.ndim or o.shape[:-1] != g.shape[:-1]:
+            raise ObservationError(
+                f"act: observation['observation'] {o.shape} and observation['desired_goal'] "
+                f"{g.shape} do not match: give both single (1-d) or both with n rows")
+        return o, g
+
+    def __repr__(self) -> str:
+        return (f"TrainedPolicy(run={self.config.run.name!r}, task={self.spec.name!r}, "
+                f"method={self.config.run.method!r}, epoch={self.epoch}, "
+                f"source={str(self.source)!r})")
+
+
+def load_policy(run_dir: str | os.PathLike[str], checkpoint: str = "best", *,
+                seed: int | None = None) -> TrainedPolicy:
+    """The trained policy of a run directory.
+
+    `checkpoint`: 'best' (checkpoints/best.pt, the best-evaluated epoch), 'latest'
+    (learner.pt, the last epoch end), 'epoch-N' (epoch-NNNN.pt) or a .pt file's path.
+    `seed` seeds the generator of `act(..., explore=True)`. Raises `RunDirError` for a folder
+    that is not a run or a checkpoint it does not hold (naming those it does),
+    `CheckpointError` for a file that does not load."""
+    from hercs.checkpoints import read_policy
+
+    return TrainedPolicy(read_policy(run_dir, checkpoint), seed=seed)
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """A run's metrics.csv: one row per evaluated epoch, cells parsed (`MetricValue`).
+
+    Iterate for the rows (dicts by column), or take a column as a float array:
+    `metrics.column("success_rate")`. The columns are learner.loop.METRICS_COLUMNS for a run
+    of this version (older runs may have fewer)."""
+
+    path: Path
+    columns: tuple[str, ...]
+    rows: tuple[dict[str, MetricValue], ...]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __iter__(self) -> Iterator[dict[str, MetricValue]]:
+        return iter(self.rows)
+
+    def column(self, name: str) -> np.ndarray:
+        """A numeric column as float64, nan where a row has no value."""
+        if name not in self.columns:
+            raise KeyError(f"{self.path}: no column {name!r}; columns: {list(self.columns)}")
+        values = [row.get(name) for row in self.rows]
+        bad = [v for v in values if v is not None and not isinstance(v, int | float)]
+        if bad:
+            raise TypeError(f"{self.path}: column {name!r} is not numeric (e.g. {bad[0]!r}); "
+                            "read it from the rows")
+        return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def read_metrics(run_dir: str | os.PathLike[str]) -> Metrics:
+    """`run_dir/metrics.csv` (or a metrics.csv file given directly), numbers parsed."""
+    from hercs.rundir import METRICS, require_run_dir
+
+    path = Path(run_dir)
+    if not (path.is_file() and path.suffix == ".csv"):
+        path = require_run_dir(path, needs=(METRICS,)) / METRICS
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        columns = tuple(reader.fieldnames or ())
+        rows = tuple({key: _cell(key, value) for key, value in row.items() if key is not None}
+                     for row in reader)
+    return Metrics(path=path, columns=columns, rows=rows)
+
+
+def _cell(column: str, text: str | None) -> MetricValue:
+    if text is None or text == "":
+        return None
+    if column in COUNT_COLUMNS:
+        pairs = (item.rpartition(":") for item in text.split(";") if item)
+        return {reason: int(count) for reason, _, count in pairs}
+    if column in LIST_COLUMNS:
+        return tuple(_number(item) for item in text.split(";") if item)
+    try:
+        return _number(text)
+    except ValueError:
+        return text
+
+
+def _number(text: str) -> int | float:
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
+
+
+@dataclass
+class LoggedEpisode(EpisodeData):
+    """An episode as the episode log holds it: `EpisodeData` (obs, ag, g, actions, actor_id,
+    seq, success, policy_version) with its id and the run and task it was logged for.
+
+    Shapes, T = the task's episode_steps: obs (T+1, obs_dim), ag (T+1, goal_dim),
+    g (T, goal_dim), actions (T, action_dim), all float32."""
+
+    id: int = field(kw_only=True)
+    """The episode id the replay gave it (MCAP sequence), increasing across segments."""
+    run: str = field(default="", kw_only=True)
+    task: str = field(default="", kw_only=True)
+
+
+def read_episodes(run_dir: str | os.PathLike[str], *, ids: Iterable[int] | None = None,
+                  last: int | None = None) -> Iterator[LoggedEpisode]:
+    """The episodes of a run's log in the order logged, across all its segments
+    (episodes.000.mcap, …, episodes.mcap); also a single .mcap file.
+
+    `ids`: only these episode ids; `last`: only the last N (of those selected by `ids`, if
+    given). Only the selected episodes are decoded. Works while the run writes its log and on
+    a log whose writer was killed (up to its last complete record)."""
+    from hercs.codec import msg_to_episode
+    from hercs.rundir import require_run_dir
+    from hercs.runlog import LIVE_NAME, TOPIC_EPISODES, read_messages
+    from proto import hercs_pb2 as pb
+
+    path = Path(run_dir)
+    if not path.is_file():
+        path = require_run_dir(path, needs=(LIVE_NAME,))
+    if last is not None and last < 0:
+        raise ValueError(f"read_episodes: last={last}, must be >= 0")
+    wanted = None if ids is None else {int(i) for i in ids}
+    messages = (m for m in read_messages(path, [TOPIC_EPISODES])
+                if wanted is None or m.sequence in wanted)
+    selected: Iterable[Any] = messages if last is None else deque(messages, maxlen=last)
+    for message in selected:
+        msg = message.decode_as(pb.Episode)
+        data = msg_to_episode(msg)
+        yield LoggedEpisode(obs=data.obs.copy(), ag=data.ag.copy(), g=data.g.copy(),
+                            actions=data.actions.copy(), actor_id=data.actor_id, seq=data.seq,
+                            success=data.success, policy_version=data.policy_version,
+                            id=int(message.sequence), run=msg.run, task=msg.task)
+
+
+def load_config(source: str | os.PathLike[str] | None = None,
+                overrides: Sequence[str] = ()) -> HercsConfig:
+    """A validated config: the defaults (`source` None), a YAML file (partial: the rest
+    defaults) or a run directory's config.yaml; then `overrides` as `hercs --set` takes them
+    (`"ddpg.lr_actor=5e-4"`). Raises `ConfigError` naming the file, field and value."""
+    from hercs.config import HercsConfig, apply_overrides, load_yaml
+    from hercs.rundir import CONFIG, require_run_dir
+
+    if source is None:
+        config = HercsConfig()
+    elif Path(source).is_dir():
+        config = load_yaml(require_run_dir(source) / CONFIG)
+    else:
+        config = load_yaml(Path(source))
+    return apply_overrides(config, list(overrides)) if overrides else config
