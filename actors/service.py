@@ -252,9 +252,12 @@ class ActorService:
         Not for a version number, as lockstep waits: a learner restarted from its checkpoint
         broadcasts lower versions than the acks before its restart asked for, and an actor
         waiting for those numbers would wait for ever while the learner waits for its
-        episodes. The latest ack, not the highest, for the same reason."""
-        if self.policy.version >= self.inserter.latest_next_policy_version:
-            return True
+        episodes. The latest ack, not the highest, for the same reason. An ack's 0 asks for
+        nothing: it is also what a replay without a bound, or before the learner's first
+        sample call, answers."""
+        wanted = self.inserter.latest_next_policy_version
+        if wanted <= 0 or self.policy.version >= wanted:  # 0: nothing asked (or the
+            return True                                   # learner's initial weights)
         stop = self.runtime.stop
         while not stop.is_set():
             self._weights.wait(0.5)

@@ -247,9 +247,10 @@ class ReplayTable:
         self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self._lags_since_sample: deque[int] = deque(maxlen=POLICY_LAGS_KEPT)
-        self._newest_request_version = 0
+        self._newest_request_version: int | None = None
         """The weights version of the latest sample call served (not the highest ever: a
-        restarted learner counts from its checkpoint again)."""
+        restarted learner counts from its checkpoint again); None before the first, when the
+        lag bound refuses nothing (actors act with their own initial policy until then)."""
         self._schedule_offset = 0
         """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
         after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
@@ -399,7 +400,8 @@ class ReplayTable:
         asynchronously without a lag bound)."""
         if self.gate is not None:
             return self.gate.next_policy_version(episode.policy_version)
-        if self.lag_bound is not None and self._recovered_unplaced is None:
+        if (self.lag_bound is not None and self._recovered_unplaced is None
+                and self._newest_request_version is not None):
             return self.lag_bound.next_policy_version(
                 next_cycle=self._cycle_of(self._next_episode_id()),
                 newest_version=self._newest_request_version)
@@ -418,7 +420,8 @@ class ReplayTable:
     def _refuse_stale(self, item: _ParkedInsert) -> bool:
         """The lag bound's check of an insert the limiter admits: True if it was refused
         (answered `stale_policy`, counted, forgotten)."""
-        if self.lag_bound is None or self._recovered_unplaced is not None:
+        if (self.lag_bound is None or self._recovered_unplaced is not None
+                or self._newest_request_version is None):
             return False
         episode = item.episode
         refusal = self.lag_bound.refusal(

@@ -33,7 +33,9 @@ from replay_service.table import (
 OVERRIDES = ["task.name=reach", "run.method=her", "training.episodes_per_cycle=4",
              "training.minibatches_per_cycle=8", "replay.rate_tolerance_updates=8",
              "replay.min_episodes_to_sample=4", "replay.buffer_transitions=5000",
-             "ddpg.batch_size=16"]
+             "ddpg.batch_size=16",
+             # synthetic episodes act with no weights version: the lag bound has its own tests
+             "training.max_policy_lag=-1"]
 
 
 @dataclass
@@ -566,3 +568,11 @@ def test_sample_calls_carry_the_lags_of_the_episodes_stored_since_the_last_call(
     assert second.results[0].policy_lags == (1, 1, 1, 1, 2, 2)
     third = h.sample(4, version=2)
     assert third.results[0].policy_lags == (), "each episode's lag is handed over once"
+
+
+def test_the_lag_bound_refuses_nothing_before_the_learner_first_asks() -> None:
+    # actors act with their own initial policy (-1) until the learner's weights exist
+    h = make("training.max_policy_lag=1")
+    waiters = [insert_acted(h, seq, -1) for seq in range(8)]   # cycles 0 and 1: lag up to 2
+    assert all(w.results for w in waiters) and h.table.status().rejects == {}
+    assert {w.results[0].next_policy_version for w in waiters} == {0}, "0: nothing asked"
