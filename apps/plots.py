@@ -133,13 +133,16 @@ def task_title(name: str) -> str:
 
 
 def method_key(method: str, schedule: str = "async", precision: str = "fp32",
-               env_version: str = ENV_VERSION_DEFAULT, lag: str = "") -> str:
+               env_version: str = ENV_VERSION_DEFAULT, lag: str = "",
+               torquescale: float = 1.0) -> str:
     """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
     for the learner's mixed precision, `/lag7` for an asynchronous run made with the old,
     staler default (`lag`, see `legacy_lag`) and `/v1` for the authors' Fetch*-v1
-    environment (`her-cs/lockstep/bf16/v1` has three)."""
+    environment, or `/ts4` for v4 with the gripper weld's torquescale 4
+    (`her-cs/lockstep/bf16/v1` has three)."""
+    env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
     variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (lag, ""),
-                                     (env_version, ENV_VERSION_DEFAULT)) if v != default)
+                                     (env, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
 
 
@@ -159,7 +162,7 @@ def legacy_lag(config: dict[str, Any]) -> str:
 
 
 def _env_version(variant: str) -> bool:
-    return variant in ("v1", ENV_VERSION_DEFAULT)
+    return variant in ("v1", ENV_VERSION_DEFAULT) or variant.startswith("ts")
 
 
 def method_label(key: str) -> str:
@@ -168,7 +171,8 @@ def method_label(key: str) -> str:
     method, *variants = key.split("/")
     inline = (v for v in variants if not _env_version(v) and v != LEGACY_LAG)
     label = " ".join((METHOD_LABELS.get(method, method), *inline))
-    notes = [v for v in variants if _env_version(v)]
+    notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
+             for v in variants if _env_version(v)]
     if LEGACY_LAG in variants:
         notes.append("lag 7")
     return "".join((label, *(f" ({v})" for v in notes)))
@@ -178,8 +182,9 @@ def method_color(key: str) -> str | None:
     """A colour per method and variant; a v1 combination without its own colour takes its
     v4 twin's (the label tells them apart)."""
     color = METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
-    if color is None and key.endswith("/v1"):
-        return method_color(key.removesuffix("/v1"))
+    method, *variants = key.split("/")
+    if color is None and variants and _env_version(variants[-1]):
+        return method_color("/".join((method, *variants[:-1])))
     return color
 
 
@@ -216,7 +221,8 @@ def load_run(run_dir: str | Path) -> Curve:
         method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
                             (config.get("learner") or {}).get("precision", "fp32"),
                             config["task"].get("env_version", ENV_VERSION_DEFAULT),
-                            legacy_lag(config))
+                            legacy_lag(config),
+                            float(config["task"].get("weld_torquescale", 1.0)))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc

@@ -84,14 +84,18 @@ class GridRun:
     schedule: str = "async"
     precision: str = "fp32"
     env_version: str = "v4"
+    weld_torquescale: float = 1.0
 
     @property
     def name(self) -> str:
         """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
-        version after the task: `push-v1-her-cs-lockstep-s2`."""
+        version (or a v4 env's weld torquescale, `-ts4`) after the task:
+        `push-v1-her-cs-lockstep-s2`."""
         variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
                                                      (self.precision, "fp32")) if v != default)
         env = "" if self.env_version == "v4" else f"-{self.env_version}"
+        if self.weld_torquescale != 1.0:
+            env += f"-ts{self.weld_torquescale:g}"
         return f"{self.task}{env}-{self.method}{variant}-s{self.seed}"
 
     @property
@@ -100,10 +104,10 @@ class GridRun:
 
 
 def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
-              schedule: str = "async", precision: str = "fp32", env_version: str = "v4"
-              ) -> list[GridRun]:
+              schedule: str = "async", precision: str = "fp32", env_version: str = "v4",
+              weld_torquescale: float = 1.0) -> list[GridRun]:
     """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
-    return [GridRun(t, m, s, schedule, precision, env_version)
+    return [GridRun(t, m, s, schedule, precision, env_version, weld_torquescale)
             for s in seeds for t in tasks for m in methods]
 
 
@@ -145,6 +149,8 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
                "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}",
                "--set", f"learner.precision={cell.precision}",
                "--set", f"task.env_version={cell.env_version}"]
+        if cell.weld_torquescale != 1.0:
+            cmd += ["--set", f"task.weld_torquescale={cell.weld_torquescale:g}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -242,6 +248,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
                               "schedule": r.cell.schedule, "precision": r.cell.precision,
                               "env_version": r.cell.env_version, "env_id": r.cell.env_id,
+                              "weld_torquescale": r.cell.weld_torquescale,
                               "epochs": epochs,
                               "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
@@ -357,6 +364,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-version", choices=list(ENV_VERSIONS), default="v4",
                    help="task.env_version of every run (default v4; v1, the authors' Fetch*-v1 "
                         "on mujoco-py after `make mujoco-py`: runs named T-v1-M-sS)")
+    p.add_argument("--weld-torquescale", type=float, default=1.0,
+                   help="task.weld_torquescale of every run (v4 only; default 1, MuJoCo 3's; "
+                        "4 tilts the gripper as v1 does, docs/results/env_diff.md: runs named "
+                        "T-ts4-M-sS)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per run (default 100; 1 with --quick)")
     p.add_argument("--jobs", type=int, default=None,
@@ -395,8 +406,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = args.jobs or max(1, os.cpu_count() or 1)
     committed = (Path(args.committed).resolve() if args.committed
                  else None if args.quick else COMMITTED)
+    if args.weld_torquescale != 1.0 and (args.env_version != "v4"
+                                         or not args.weld_torquescale > 0):
+        print(f"sample_efficiency: --weld-torquescale {args.weld_torquescale:g} needs "
+              "--env-version v4 and a value > 0", file=sys.stderr)
+        return 2
     cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule,
-                      args.precision, args.env_version)
+                      args.precision, args.env_version, args.weld_torquescale)
     if not args.report_only:
         try:  # once here, not a failed `hercs up` per cell
             check_env(task_spec(tasks[0], args.env_version))

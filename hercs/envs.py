@@ -159,4 +159,25 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
         # v1 was chosen knowingly: not "out of date, upgrade to v4" and "mujoco-py is no
         # longer maintained" on every process's stderr.
         warnings.filterwarnings("ignore", message=".*(is out of date|mujoco-py bindings)")
-        return gym.make(spec.env_id, disable_env_checker=True, **kwargs)
+        env = gym.make(spec.env_id, disable_env_checker=True, **kwargs)
+    if spec.weld_torquescale != 1.0:
+        set_weld_torquescale(env, spec.weld_torquescale)
+    return env
+
+
+WELD_TORQUESCALE = 10
+"""Index of a weld's torquescale in MuJoCo 3's `eq_data` row (anchor 0:3, relpose 3:10)."""
+
+
+def set_weld_torquescale(env: gym.Env, value: float) -> None:
+    """Set the torquescale of every weld of a v4 env's model (the Fetch tasks have one: the
+    mocap weld that drives the gripper). Takes effect from the next step; a reset keeps it
+    (the model is not reloaded)."""
+    import mujoco  # type: ignore[import-untyped]
+
+    model = env.unwrapped.model  # type: ignore[attr-defined]
+    welds = model.eq_type == mujoco.mjtEq.mjEQ_WELD
+    if not welds.any():
+        raise ConfigError(f"task.weld_torquescale: {env.spec.id if env.spec else env} has no "
+                          "weld to set")
+    model.eq_data[welds, WELD_TORQUESCALE] = value

@@ -43,6 +43,9 @@ class TaskSpec:
     """The observation carries an object's position at obs[3:6] (all but Reach)."""
     env_version: str = "v4"
     """One of ENV_VERSIONS."""
+    weld_torquescale: float = 1.0
+    """v4 only: the torquescale of the mocap weld that moves the gripper (MuJoCo 3's
+    default 1; `task.weld_torquescale`)."""
 
     @property
     def env_id(self) -> str:
@@ -66,7 +69,7 @@ TASKS: dict[str, TaskSpec] = {
 """The tasks on the default environment version (v4)."""
 
 
-def task_spec(name: str, env_version: str = "v4") -> TaskSpec:
+def task_spec(name: str, env_version: str = "v4", weld_torquescale: float = 1.0) -> TaskSpec:
     try:
         spec = TASKS[name]
     except KeyError:
@@ -76,7 +79,7 @@ def task_spec(name: str, env_version: str = "v4") -> TaskSpec:
     if env_version not in ENV_VERSIONS:
         raise ConfigError(f"task.env_version: got {env_version!r}, must be one of "
                           f"{list(ENV_VERSIONS)}")
-    return dataclasses.replace(spec, env_version=env_version)
+    return dataclasses.replace(spec, env_version=env_version, weld_torquescale=weld_torquescale)
 
 
 def goal_distance(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:

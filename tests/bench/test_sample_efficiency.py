@@ -179,3 +179,13 @@ def test_effective_share_is_one_for_an_even_draw_and_small_for_a_repeated_one() 
     assert sm.effective_share(even, size) == pytest.approx(size / (10000 / 1090))
     # one episode drawn n times: one distinct-equivalent
     assert sm.effective_share(np.zeros(n, np.int64), size) == pytest.approx(1 / (10000 / 1090))
+
+
+def test_a_v4_grid_with_a_stiffer_gripper_weld_is_named_and_launched_apart() -> None:
+    cell = se.GridRun("push", "her-ebp-cs", 2, weld_torquescale=4.0)
+    assert cell.name == "push-ts4-her-ebp-cs-s2"
+    cmd = se.up_command(cell, epochs=3, run_root=Path("/r"), port=1, actors=1, overrides=[])
+    assert cmd[-2:] == ["--set", "task.weld_torquescale=4"]
+    plain = se.up_command(se.GridRun("push", "her", 1), epochs=3, run_root=Path("/r"), port=1,
+                          actors=1, overrides=[])
+    assert not any("weld_torquescale" in a for a in plain)

@@ -57,6 +57,7 @@ def test_overrides_are_typed() -> None:
                                       "or >= 1 (lag 0 is training.schedule=lockstep)"),
         ("learner.prefetch_depth=-1", "learner.prefetch_depth: got -1, must be >= 0"),
         ("actor.insert_queue=-2", "actor.insert_queue: got -2, must be >= 0"),
+        ("task.weld_torquescale=0", "task.weld_torquescale: got 0.0, must be a finite number > 0"),
         ("ddpg.lr=1", "unknown field 'ddpg.lr'"),
         ("nosuch.x=1", "unknown section 'nosuch'"),
         ("gamma=0.9", "must look like section.field=value"),
@@ -73,7 +74,7 @@ def test_overrides_are_typed() -> None:
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "env-version", "fgb",
          "energy-weight",
-         "max-policy-lag-0", "prefetch-negative", "insert-queue-negative",
+         "max-policy-lag-0", "prefetch-negative", "insert-queue-negative", "torquescale-0",
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
          "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy",
@@ -126,3 +127,11 @@ def test_the_env_version_picks_the_env_every_factory_makes(version: str) -> None
     for name in ("reach", "push", "pick", "slide"):
         v1, v4 = task_spec(name, "v1"), task_spec(name, "v4")
         assert dataclasses.replace(v1, env_version="v4") == v4
+
+
+def test_the_weld_torquescale_is_a_v4_setting() -> None:
+    with pytest.raises(ConfigError, match=r"task\.weld_torquescale: got 4\.0, must be 1 with "
+                                          r"task\.env_version v1"):
+        apply_overrides(HercsConfig(), ["task.env_version=v1", "task.weld_torquescale=4"])
+    spec = apply_overrides(HercsConfig(), ["task.weld_torquescale=4"]).task.spec
+    assert (spec.env_id, spec.weld_torquescale) == ("FetchPush-v4", 4.0)

@@ -102,3 +102,23 @@ def test_an_extension_compiled_again_since_make_mujoco_py_is_refused_not_recompi
     assert prepare(LD_LIBRARY_PATH=str(bin_dir))[0] == "None"  # the loader finds bin/ anyway
     built.unlink()
     assert prepare()[0] == f"mujoco-py's extension is not compiled (none in {generated})"
+
+
+def test_the_weld_torquescale_setting_reaches_the_v4_model() -> None:
+    """The mocap weld of a real FetchPush-v4 gets `task.weld_torquescale` (MuJoCo 3's default
+    1 otherwise), and keeps it across resets."""
+    import dataclasses
+
+    from hercs.envs import WELD_TORQUESCALE, make_env
+    from hercs.tasks import task_spec
+
+    plain = make_env(task_spec("push"))
+    stiff = make_env(dataclasses.replace(task_spec("push"), weld_torquescale=4.0))
+    try:
+        stiff.reset(seed=0)
+        stiff.reset(seed=1)
+        assert plain.unwrapped.model.eq_data[:, WELD_TORQUESCALE].tolist() == [1.0]
+        assert stiff.unwrapped.model.eq_data[:, WELD_TORQUESCALE].tolist() == [4.0]
+    finally:
+        plain.close()
+        stiff.close()
