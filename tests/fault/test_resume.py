@@ -40,15 +40,19 @@ def log_text(run_dir: Path, ident: str) -> str:
     return (run_dir / "logs" / f"{ident}.log").read_text(errors="replace")
 
 
+def kill_learner_and_finish(launcher: Launcher) -> None:
+    """SIGKILL the learner, wait for its restart, then for the run to end with status 0."""
+    os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
+    launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)", timeout_s=60)
+    assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+
+
 def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path: Path) -> None:
     launcher = Launcher(up_argv(tmp_path, "--run", "bumpy"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "bumpy"
     try:
         launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)",
-                               timeout_s=60)
-        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+        kill_learner_and_finish(launcher)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
@@ -89,10 +93,7 @@ def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
         # before it is back at the versions the actors were last told to act with
         launcher.wait_for_line(r"^epoch 1/4", timeout_s=RUN_S)
         assert wait_for_episodes(run_dir, 4 * (8 + 7), timeout_s=RUN_S)
-        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)",
-                               timeout_s=60)
-        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+        kill_learner_and_finish(launcher)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
