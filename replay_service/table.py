@@ -32,6 +32,10 @@ are serialised):
   client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
 - `recover`: the episodes of the log go into the store without being logged again; the
   limiter restarts balanced at the recovered count (as if the learner had used them all).
+- the lag bound (asynchronous, `training.max_policy_lag`, replay_service.lag_bound): an insert
+  the limiter admits is first checked against the bound, with the id it would be stored under
+  (those admitted before it counted); one it refuses is answered `stale_policy` at once,
+  counted as a reject, and neither logged nor stored.
 - lockstep (`training.schedule: lockstep`): `LockstepGate` (replay_service.lockstep) decides
   instead of the limiter's window: an insert it refuses is answered at once with its reason
   (`stale_policy`, `cycle_full`) and counted as a reject; a sample waits for its cycle's
