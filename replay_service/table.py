@@ -76,6 +76,7 @@ POLICY_LAG_WINDOW = 64
 POLICY_LAGS_KEPT = 65536
 """At most this many per-episode lags wait for the next sample call (`Sampled.policy_lags`);
 the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
 """Lockstep: how long a sample waits for a cluster model that is due before it is served with
 the model at hand (the clusterer may be restarting)."""
@@ -385,7 +386,9 @@ class ReplayTable:
         self.limiter.store_admitted()
         self._recent_lags.append(self._learner_version - episode.policy_version)
         if self._recovered_unplaced is None:
-            lag = self._cycle_of(episode_id) - episode.policy_version
+            # an int64 version far below -1 (valid on the wire) must not overflow the Batch
+            lag = min(max(self._cycle_of(episode_id) - episode.policy_version, INT64_MIN),
+                      INT64_MAX)
             self._recent_schedule_lags.append(lag)
             self._lags_since_sample.append(lag)
         if self.gate is not None:

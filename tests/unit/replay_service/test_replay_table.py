@@ -576,3 +576,13 @@ def test_the_lag_bound_refuses_nothing_before_the_learner_first_asks() -> None:
     waiters = [insert_acted(h, seq, -1) for seq in range(8)]   # cycles 0 and 1: lag up to 2
     assert all(w.results for w in waiters) and h.table.status().rejects == {}
     assert {w.results[0].next_policy_version for w in waiters} == {0}, "0: nothing asked"
+
+
+def test_a_lag_beyond_int64_is_clipped_not_an_error() -> None:
+    """A valid episode may carry any int64 weights version; its lag still fits the wire."""
+    from replay_service.table import INT64_MAX
+
+    h = make()
+    for seq in range(4):
+        insert_acted(h, seq, -(1 << 63))
+    assert h.sample(8).results[0].policy_lags == (INT64_MAX,) * 4
