@@ -144,6 +144,9 @@ def replay_config(endpoint: str, run_dir: Path) -> HercsConfig:
         f"run.name={RUN_R}", f"run.run_dir={run_dir}", "run.method=her-cs", "task.name=reach",
         f"cluster.k={K}", "cluster.fgb_size=2000", "cluster.kmeans_n_init=1",
         "replay.free_run=true", "replay.min_episodes_to_sample=4",
+        # the probes' episodes carry any weights version: the lag bound (not input
+        # validation) would refuse some of the valid ones
+        "training.max_policy_lag=-1",
         f"replay.max_message_bytes={MAX_BYTES}", f"transport.connect=[{endpoint}]",
     ])
 
