@@ -40,12 +40,11 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from apps.plots import (  # noqa: E402
-    ENV_VERSION_DEFAULT,
+    LEGACY_LAG,
     Curve,
     aggregate,
     group,
     load_runs,
-    method_key,
     method_label,
     milestones,
 )
@@ -144,12 +143,11 @@ def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
             method, *variants = key.split("/")
             if "lockstep" in variants:
                 continue
-            precision = "bf16" if "bf16" in variants else "fp32"
-            env_version = "v1" if "v1" in variants else ENV_VERSION_DEFAULT
-            # lockstep ignores the asynchronous lag settings: old and new defaults alike
-            # pair with the lockstep runs of the same precision and environment
-            lock_curves = methods.get(
-                method_key(method, "lockstep", precision, env_version), [])
+            # lockstep ignores the asynchronous lag settings: old and new defaults alike pair
+            # with the lockstep runs of the same precision and environment (v1, a v4 weld
+            # setting), whose key is theirs with /lockstep first (apps.plots.method_key's order)
+            partner = "/".join((method, "lockstep", *(v for v in variants if v != LEGACY_LAG)))
+            lock_curves = methods.get(partner, [])
             if not lock_curves:
                 continue
             both = [*lock_curves, *async_curves]
