@@ -21,17 +21,9 @@ from typing import Any
 
 import torch
 
+from hercs.rundir import LATEST  # the run directory's names have one owner
+
 log = logging.getLogger(__name__)
-
-LATEST = "learner.pt"
-BEST = "best.pt"
-"""The policy of the epoch with the highest evaluation success so far (the first on ties)."""
-
-
-def epoch_file(epoch: int) -> str:
-    """The name of the policy file kept every `training.checkpoint_every` epochs."""
-    return f"epoch-{epoch:04d}.pt"
-
 
 def save_checkpoint(folder: Path, state: dict[str, Any], *, name: str = LATEST) -> bool:
     """Write `state` atomically to `folder/name`; False (logged, the previous file kept) if the

@@ -31,6 +31,7 @@ from hercs.codec import msg_to_stats, weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
+from hercs.rundir import BEST, epoch_file
 from hercs.service import ServiceRuntime, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError, TransportTimeout
@@ -43,8 +44,6 @@ from hercs.validation import (
 )
 from hercs.warn_once import WarnOncePerMinute
 from learner.checkpoint import (
-    BEST,
-    epoch_file,
     load_checkpoint,
     load_policy_file,
     save_checkpoint,
