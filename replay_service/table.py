@@ -255,7 +255,8 @@ class ReplayTable:
         self._newest_request_version: int | None = None
         """The weights version of the latest sample call served (not the highest ever: a
         restarted learner counts from its checkpoint again); None before the first, when the
-        lag bound refuses nothing (actors act with their own initial policy until then)."""
+        lag bound refuses nothing (actors act with their own initial policy until then) and
+        after a recovery until that call places the recovered episodes in the schedule."""
         self._schedule_offset = 0
         """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
         after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
@@ -407,8 +408,7 @@ class ReplayTable:
         asynchronously without a lag bound)."""
         if self.gate is not None:
             return self.gate.next_policy_version(episode.policy_version)
-        if (self.lag_bound is not None and self._recovered_unplaced is None
-                and self._newest_request_version is not None):
+        if self.lag_bound is not None and self._newest_request_version is not None:
             return self.lag_bound.next_policy_version(
                 next_cycle=self._cycle_of(self._next_episode_id()),
                 newest_version=self._newest_request_version)
@@ -427,8 +427,7 @@ class ReplayTable:
     def _refuse_stale(self, item: _ParkedInsert) -> bool:
         """The lag bound's check of an insert the limiter admits: True if it was refused
         (answered `stale_policy`, counted, forgotten)."""
-        if (self.lag_bound is None or self._recovered_unplaced is not None
-                or self._newest_request_version is None):
+        if self.lag_bound is None or self._newest_request_version is None:
             return False
         episode = item.episode
         refusal = self.lag_bound.refusal(
@@ -462,12 +461,12 @@ class ReplayTable:
     def _serve(self, item: _ParkedSample) -> None:
         call = item.call
         self._learner_version = max(self._learner_version, call.weights_version)
-        self._newest_request_version = call.weights_version
         if self._recovered_unplaced is not None:
             per_cycle = self.config.training.episodes_per_cycle
             surplus = self._recovered_unplaced // per_cycle - call.weights_version
             self._schedule_offset = max(0, surplus) * per_cycle
             self._recovered_unplaced = None
+        self._newest_request_version = call.weights_version
         result = self.core.sample(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
         o_state, g_state = self.core.normalizer_state()
