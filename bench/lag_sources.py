@@ -2,7 +2,7 @@
 
     python bench/lag_sources.py                       # the grid, FetchPush, one run at a time
     python bench/lag_sources.py --beside              # each setting beside the old default
-    python bench/lag_sources.py --quick               # CI: two tiny FetchReach runs
+    python bench/lag_sources.py --quick               # CI: two short FetchReach runs
 
 Each row is one real `hercs up` run (one actor, the default method) with one setting of the
 three sources of policy lag (docs/DESIGN.md §9.1) and of the bound:
@@ -81,6 +81,9 @@ BESIDE_GRID = (LagSetting(80, 3, 2), LagSetting(40, 1, 1), LagSetting(40, 0, 0),
                LagSetting(25, 1, 1), LagSetting(25, 0, 0))
 """`--beside`: the candidates for the default (the smallest lags of the grid) and the old one."""
 QUICK_GRID = (LagSetting(80, 3, 2), LagSetting(25, 0, 0, max_lag=1))
+"""`--quick`: FetchReach, 3 epochs of 4 full-size cycles (40 updates per 4 episodes, so the
+learner is the bottleneck and the lag sources fill as in a real run; smaller cycles left both
+settings' lags to the start-up race)."""
 
 
 @dataclass
@@ -179,7 +182,7 @@ def markdown(rows: list[LagRow], meta: dict[str, object]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="CI: two tiny FetchReach runs")
+    p.add_argument("--quick", action="store_true", help="CI: two short FetchReach runs")
     p.add_argument("--task", default="push")
     p.add_argument("--epochs", type=int, default=4)
     p.add_argument("--cycles", type=int, default=25, help="cycles per epoch")
@@ -195,9 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     grid: tuple[LagSetting, ...] = BESIDE_GRID if args.beside else GRID
     extra: list[str] = []
     if args.quick:
-        grid, args.task, args.epochs, args.cycles = QUICK_GRID, "reach", 2, 2
-        extra = ["training.episodes_per_cycle=2", "training.minibatches_per_cycle=4",
-                 "training.eval_episodes=2"]
+        grid, args.task, args.epochs, args.cycles = QUICK_GRID, "reach", 3, 4
+        extra = ["training.eval_episodes=2"]
         if args.out is None:
             args.out = tempfile.mkdtemp(prefix="hercs-lag-") + "/lag_sources"
     root = Path(tempfile.mkdtemp(prefix="hercs-lag-runs-"))
