@@ -78,6 +78,7 @@ from typing import IO
 from apps.router import RouterListenError, open_router
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.service import EXIT_CONFIG
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
 from proto import hercs_pb2 as pb
@@ -493,6 +494,13 @@ class _Launcher:
             child.expected_exit = True
             restarts = 0 if time.monotonic() - child.started >= HEALTHY_S else child.restarts
             limit = self.config.launch.max_restarts
+            if code == EXIT_CONFIG:
+                # It refused its configuration: a restart reads the same config.yaml.
+                self._report_exit(child, code, then="; it refused the run's configuration, "
+                                                    "which a restart cannot change, so the "
+                                                    "run stops")
+                failed = True
+                continue
             if restarts >= limit:
                 self._report_exit(child, code, then=f"; it was restarted {restarts} times "
                                                     "already, so the run stops")

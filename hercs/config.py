@@ -534,6 +534,15 @@ class HercsConfig:
         _check(not (self.training.schedule == "lockstep" and self.replay.free_run),
                "replay.free_run", self.replay.free_run,
                "be false with training.schedule lockstep (lockstep admits by cycle)")
+        # The replay's rate limiter needs a window wider than one request plus one insert, or
+        # inserts and samples could both wait forever; checked here too so that `hercs up`
+        # refuses the run before it starts any service.
+        least = (self.training.minibatches_per_cycle + self.training.updates_per_episode) / 2
+        _check(self.training.schedule == "lockstep" or self.replay.free_run
+               or self.replay.rate_tolerance_updates >= least,
+               "replay.rate_tolerance_updates", self.replay.rate_tolerance_updates,
+               f"be at least (training.minibatches_per_cycle + updates per episode)/2 = "
+               f"{least:g}, or inserts and samples could both wait forever")
 
     @property
     def capacity_episodes(self) -> int:

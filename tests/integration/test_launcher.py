@@ -89,6 +89,10 @@ if behaviour == "crash-once" and not os.path.exists(f"{events}.crashed.{ident}")
     os._exit(3)
 if behaviour == "exit0":
     os._exit(0)
+if behaviour == "config-error":  # what hercs.service exits with for a ConfigError
+    print("hercs replay: invalid configuration: the stand-in refused it", file=sys.stderr,
+          flush=True)
+    os._exit(2)
 if behaviour.startswith("epochs:"):
     metrics = transport.publisher(keys.metrics(role))
     evals = transport.publisher(keys.eval_result)
@@ -458,6 +462,20 @@ def test_a_child_exiting_more_often_than_allowed_is_reported_and_stops_the_run(
     if behaviour == "crash":
         assert "  | boom: the stand-in failed on purpose" in report
     assert "run broken stopped" in report
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_a_child_that_refuses_its_configuration_stops_the_run_without_restarts(up) -> None:
+    launcher = up({"replay-0": "config-error"}, "--run", "misconfigured",
+                  "--set", "launch.restart_backoff_s=0.05")
+
+    assert launcher.finish() == 1
+    report = "\n".join(launcher.err)
+    assert ("hercs up: replay replay-0 exited unexpectedly (exit code 2); it refused the run's "
+            "configuration, which a restart cannot change, so the run stops") in report
+    assert "  | hercs replay: invalid configuration: the stand-in refused it" in report
+    assert "again (restart" not in "\n".join(launcher.out)
+    assert [i for what, i in read_events(up.events) if what == "start"].count("replay-0") == 1
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
 

@@ -135,3 +135,17 @@ def test_the_weld_torquescale_is_a_v4_setting() -> None:
         apply_overrides(HercsConfig(), ["task.env_version=v1", "task.weld_torquescale=4"])
     spec = apply_overrides(HercsConfig(), ["task.weld_torquescale=4"]).task.spec
     assert (spec.env_id, spec.weld_torquescale) == ("FetchPush-v4", 4.0)
+
+
+def test_a_rate_window_too_narrow_for_the_limiter_is_refused_before_any_service_starts() -> None:
+    # 40 updates per cycle of 2 episodes: one request (40) plus one insert (20), halved, is 30
+    with pytest.raises(ConfigError, match=r"replay\.rate_tolerance_updates: got 25\.0, must be "
+                                          r"at least .* = 30, or inserts and samples could both "
+                                          r"wait forever"):
+        apply_overrides(HercsConfig(), ["training.episodes_per_cycle=2",
+                                        "replay.rate_tolerance_updates=25"])
+    # the window does not matter where the limiter does not hold anything back
+    for mode in ("replay.free_run=true", "training.schedule=lockstep"):
+        c = apply_overrides(HercsConfig(), ["training.episodes_per_cycle=2",
+                                            "replay.rate_tolerance_updates=25", mode])
+        assert c.replay.rate_tolerance_updates == 25
