@@ -397,11 +397,12 @@ from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
 from hercs.envs import make_env  # noqa: E402
 from hercs.episode import EpisodeData, random_episode  # noqa: E402
 from hercs.seeding import generator, int_seed  # noqa: E402
+from hercs.served import ServedBatch  # noqa: E402
 from hercs.tasks import TaskSpec  # noqa: E402
 from hercs.transport import Transport  # noqa: E402
 from hercs.validation import parse_message  # noqa: E402
 from learner.ddpg import DDPGLearner  # noqa: E402
-from learner.loop import LearnerLoop, SampleBatch  # noqa: E402
+from learner.loop import LearnerLoop  # noqa: E402
 from proto import SCHEMA_VERSION  # noqa: E402
 from proto import hercs_pb2 as pb  # noqa: E402
 from proto.keys import RunKeys  # noqa: E402
@@ -1004,7 +1005,7 @@ class Bench:
             target=Target("ratio_at_least", 0.95)))
 
     # -- 2. learner updates --------------------------------------------------------------------
-    def reference_learner(self, batches: Sequence[SampleBatch]
+    def reference_learner(self, batches: Sequence[ServedBatch]
                           ) -> Callable[[float], tuple[float, float, float]]:
         """A `LearnerLoop` in this process; returns run(seconds) -> (updates, seconds, CPU
         seconds), whole cycles only. One untimed cycle first."""
@@ -1026,19 +1027,13 @@ class Bench:
 
         return run
 
-    def local_batches(self, count: int) -> list[SampleBatch]:
+    def local_batches(self, count: int) -> list[ServedBatch]:
         """Batches as the learner gets them, sampled here from a local core (untimed)."""
         config = self.configs["her"][0]
         core = ReplayCore(config=config, rng=generator(SEED, "bench", "learner-core"))
         fill_core(core, self.pool, max(self.plan.learner_min_episodes, EPISODE_POOL))
-        out = []
-        for _ in range(count):
-            result = core.sample(self.plan.minibatches_per_cycle, config.ddpg.batch_size)
-            o_stats, g_stats = core.normalizer_state()
-            out.append(SampleBatch(
-                minibatches=result.minibatches,
-                o_stats=o_stats, g_stats=g_stats))
-        return out
+        return [core.sample(self.plan.minibatches_per_cycle, config.ddpg.batch_size)
+                for _ in range(count)]
 
     def top_up(self, replay: Child, episodes: int) -> None:
         """Insert synthetic episodes until the replay holds at least `episodes`."""

@@ -136,7 +136,7 @@ class Metrics:
     """A run's metrics.csv: one row per evaluated epoch, cells parsed (`MetricValue`).
 
     Iterate for the rows (dicts by column), or take a column as a float array:
-    `metrics.column("success_rate")`. The columns are learner.loop.METRICS_COLUMNS for a run
+    `metrics.column("success_rate")`. The columns are hercs.metrics.METRICS_COLUMNS for a run
     of this version (older runs may have fewer)."""
 
     path: Path

@@ -7,7 +7,7 @@ not read (the achieved goals used to compute r stay in the replay).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -36,3 +36,20 @@ class TransitionBatch(NamedTuple):
 
 TRANSITION_FIELDS: tuple[str, ...] = TransitionBatch._fields
 """("o", "g", "u", "r", "o2"): the codec and the learner's shape checks iterate over it."""
+
+
+class _Dims(Protocol):
+    @property
+    def obs_dim(self) -> int: ...
+    @property
+    def goal_dim(self) -> int: ...
+    @property
+    def action_dim(self) -> int: ...
+
+
+def transition_shapes(spec: _Dims, batch_size: int) -> dict[str, tuple[int, ...]]:
+    """The one shape table of a `TransitionBatch` of `batch_size` rows for a task: the wire's
+    checks (hercs.validation) and the update's (learner.ddpg) both read it."""
+    return {"o": (batch_size, spec.obs_dim), "g": (batch_size, spec.goal_dim),
+            "u": (batch_size, spec.action_dim), "r": (batch_size,),
+            "o2": (batch_size, spec.obs_dim)}

@@ -8,6 +8,7 @@ it holds, and checks whose errors say what a folder lacks and what to do.
     checkpoints/best.pt                 the policy of the best-evaluated epoch ("best")
     checkpoints/epoch-NNNN.pt           the policy every `training.checkpoint_every` epochs
     logs/<service>.log                  each process's log
+    tensorboard/                        TensorBoard scalars (with `run.tensorboard`)
 
 The checkpoint names repeat `learner.checkpoint`'s (which writes them; a unit test keeps the
 two equal) so that readers in the library layer need not import the learner.
@@ -28,6 +29,7 @@ CONFIG = "config.yaml"
 METRICS = "metrics.csv"
 CHECKPOINTS = "checkpoints"
 LOGS = "logs"
+TENSORBOARD = "tensorboard"
 LATEST = "learner.pt"
 BEST = "best.pt"
 EPOCH_FILE = re.compile(r"^epoch-(\d+)\.pt$")

@@ -15,7 +15,7 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 from google.protobuf.message import DecodeError, Message
 
-from hercs.batch import TRANSITION_FIELDS, TransitionBatch
+from hercs.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
 from hercs.codec import msg_to_array, msg_to_episode, msg_to_minibatch
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import InvalidMessage
@@ -171,9 +171,7 @@ def decode_minibatch(msg: pb.Minibatch, spec: TaskSpec, *, batch_size: int,
                      where: str = "Minibatch") -> TransitionBatch:
     """A `Minibatch` as the learner takes it: every field float32 of the task's shape with
     `batch_size` rows, all finite; else `InvalidMessage` naming the field."""
-    shapes = {"o": (batch_size, spec.obs_dim), "g": (batch_size, spec.goal_dim),
-              "u": (batch_size, spec.action_dim), "r": (batch_size,),
-              "o2": (batch_size, spec.obs_dim)}
+    shapes = transition_shapes(spec, batch_size)
     for name in TRANSITION_FIELDS:
         rejection = _array_rejection(f"{where}.{name}", getattr(msg, name), shapes[name],
                                      length_axis=False)

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hercs.batch import TransitionBatch
+from hercs.batch import TransitionBatch, transition_shapes
 from hercs.config import PRECISIONS, DDPGConfig
 from hercs.errors import ConfigError
 from hercs.networks import Actor, Critic, preprocess, to_arrays
@@ -273,11 +273,9 @@ class DDPGLearner:
     def _check_batch(self, batch: TransitionBatch) -> tuple[np.ndarray, ...]:
         """Arrays as float32 with shapes checked; r reshaped to (B, 1) so that y broadcasts
         row-wise (a (B,) r plus a (B, 1) Q' would silently broadcast to (B, B))."""
-        spec = self.spec
         o, g, u, r, o2 = (np.asarray(value, dtype=np.float32) for value in batch)
         b = o.shape[0] if o.ndim == 2 else -1
-        want = {"o": (b, spec.obs_dim), "g": (b, spec.goal_dim), "u": (b, spec.action_dim),
-                "o2": (b, spec.obs_dim)}
+        want = transition_shapes(self.spec, b)
         for key, arr in zip(("o", "g", "u", "o2"), (o, g, u, o2), strict=True):
             if b < 1 or arr.shape != want[key]:
                 raise ValueError(f"DDPGLearner.update: {key!r} has shape {arr.shape}, "

@@ -12,44 +12,16 @@ directly with locally built batches.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import os
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hercs.batch import TransitionBatch
 from hercs.config import HercsConfig
-from hercs.normalizer import NormalizerState
+from hercs.served import ServedBatch
 from learner.ddpg import DDPGLearner
-
-
-@dataclass
-class SampleBatch:
-    """What one Batch reply carries, decoded."""
-
-    minibatches: list[TransitionBatch]
-    o_stats: NormalizerState
-    g_stats: NormalizerState
-    cluster_model_version: int = 0
-    cluster_draws: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    inserts: int = 0
-    env_steps: int = 0
-    policy_lag: float = 0.0
-    """Against the lockstep schedule (`Batch.policy_lag`)."""
-    policy_lag_request: float = 0.0
-    """Against the learner's latest sample request (`Batch.policy_lag_request`)."""
-    policy_lags: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    """The lag of each episode stored since the previous batch (`Batch.policy_lags`)."""
-    sampled_moved: int = 0
-    """Transitions of this batch whose episode's achieved goal moved."""
-    sampled_transitions: int = 0
-    buffer_moved_share: float = 0.0
-    """Share of the replay's episodes whose achieved goal moved, when this batch was drawn."""
 
 
 @dataclass
@@ -82,28 +54,10 @@ class EpochSnapshot:
     policy_lag_max: float = float("nan")
     sampled_moved_share: float = float("nan")
     buffer_moved_share: float = float("nan")
-
-
-METRICS_COLUMNS = [
-    "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
-    "wall_s", "env_steps_per_s", "updates_per_s", "replay_size", "policy_lag", "weights_version",
-    "cluster_model_version", "cluster_sizes", "cluster_share", "rejects", "critic_loss",
-    "actor_loss", "q_mean", "batch_wait_s", "bad_batches", "policy_lag_request",
-    "policy_lag_p50", "policy_lag_p95", "policy_lag_max", "sampled_moved_share",
-    "buffer_moved_share",
-]
-"""`batch_wait_s` (written by the learner service): seconds of the epoch the update loop
-waited for a batch, i.e. sampling and transport that prefetch did not hide. `bad_batches`: Batch
-replies skipped so far because they failed validation. `policy_lag`: mean over recent episodes
-of (their cycle in the lockstep schedule) − (the weights version they were acted with), 0 in
-lockstep; `policy_lag_request`: the same against the weights version of the learner's latest
-sample request when they were stored (the measure before the lockstep schedule existed).
-`policy_lag_p50`, `_p95`, `_max`: the distribution of `policy_lag` over the episodes stored
-during the epoch (nan when none was placed, e.g. right after a replay restart).
-`sampled_moved_share`: the share of the epoch's sampled transitions whose episode's achieved
-goal moved (the object, in the object tasks: replay_service.store.MOVED_THRESHOLD_M);
-`buffer_moved_share`: that share among the replay's stored episodes, averaged over the
-epoch's batches — what HER-CS and EBP exist to raise the first above."""
+    replay_size: int = 0
+    """Transitions stored at the epoch's last batch."""
+    cluster_sizes: list[int] = field(default_factory=list)
+    rejects: dict[str, int] = field(default_factory=dict)
 
 
 class LearnerLoop:
@@ -126,7 +80,7 @@ class LearnerLoop:
         self._epoch_buffer_share: list[float] = []
         self._loss_sums: dict[str, float] = {}
         self._loss_count = 0
-        self._last: SampleBatch | None = None
+        self._last: ServedBatch | None = None
         self.pending: dict[int, EpochSnapshot] = {}
 
     @property
@@ -156,7 +110,7 @@ class LearnerLoop:
         self._epoch_start_updates = int(state["epoch_start_updates"])
         self.pending = {int(e): EpochSnapshot(**s) for e, s in state["pending"].items()}
 
-    def step(self, batch: SampleBatch) -> CycleResult:
+    def step(self, batch: ServedBatch) -> CycleResult:
         """One cycle: adopt the replay's normaliser stats, update on every minibatch, update
         the targets, bump the version."""
         self.learner.set_normalizer_state(batch.o_stats, batch.g_stats)
@@ -172,7 +126,7 @@ class LearnerLoop:
         self._epoch_lags.append(batch.policy_lags)
         self._epoch_moved += (batch.sampled_moved, batch.sampled_transitions)
         if batch.sampled_transitions:
-            self._epoch_buffer_share.append(batch.buffer_moved_share)
+            self._epoch_buffer_share.append(batch.status.buffer_moved_share)
         self._last = batch
         ended = None
         if self.cycle % self.config.training.cycles_per_epoch == 0:
@@ -194,40 +148,42 @@ class LearnerLoop:
         p50, p95, top = ((float(np.percentile(lags, 50)), float(np.percentile(lags, 95)),
                           float(lags.max())) if lags.size else (float("nan"),) * 3)
         moved, sampled = (int(v) for v in self._epoch_moved)
+        status = batch.status
         snap = EpochSnapshot(
-            epoch=self.epoch, version=self.version, env_steps=batch.env_steps,
-            inserts=batch.inserts, updates=updates, wall_s=now - self._start,
-            env_steps_per_s=(batch.env_steps - self._epoch_start_steps) / elapsed,
+            epoch=self.epoch, version=self.version, env_steps=status.env_steps,
+            inserts=status.inserts, updates=updates, wall_s=now - self._start,
+            env_steps_per_s=(status.env_steps - self._epoch_start_steps) / elapsed,
             updates_per_s=(updates - self._epoch_start_updates) / elapsed,
-            policy_lag=batch.policy_lag, cluster_model_version=batch.cluster_model_version,
-            cluster_share=share, losses=losses, policy_lag_request=batch.policy_lag_request,
+            policy_lag=status.policy_lag, cluster_model_version=status.cluster_model_version,
+            cluster_share=share, losses=losses, policy_lag_request=status.policy_lag_request,
             policy_lag_p50=p50, policy_lag_p95=p95, policy_lag_max=top,
             sampled_moved_share=moved / sampled if sampled else float("nan"),
             buffer_moved_share=(float(np.mean(self._epoch_buffer_share))
                                 if self._epoch_buffer_share else float("nan")),
+            replay_size=status.size_transitions, cluster_sizes=list(status.cluster_sizes),
+            rejects=dict(status.rejects),
         )
         self._epoch_lags, self._epoch_moved = [], np.zeros(2, np.int64)
         self._epoch_buffer_share = []
-        self._epoch_start, self._epoch_start_steps = now, batch.env_steps
+        self._epoch_start, self._epoch_start_steps = now, status.env_steps
         self._epoch_start_updates = updates
         self._epoch_draws = np.zeros_like(self._epoch_draws)
         self._loss_sums, self._loss_count = {}, 0
         return snap
 
-    def record_eval(self, *, epoch: int, success_rate: float, mean_final_distance: float,
-                    replay_status: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    def record_eval(self, *, epoch: int, success_rate: float,
+                    mean_final_distance: float) -> dict[str, Any] | None:
         """Complete epoch `epoch`'s metrics row; None if that epoch is unknown or done."""
         snap = self.pending.pop(epoch, None)
         if snap is None:
             return None
-        status = replay_status or {}
         return {
             "epoch": snap.epoch, "env_steps": snap.env_steps, "episodes": snap.inserts,
             "updates": snap.updates, "success_rate": success_rate,
             "mean_final_distance": mean_final_distance, "wall_s": round(snap.wall_s, 3),
             "env_steps_per_s": round(snap.env_steps_per_s, 2),
             "updates_per_s": round(snap.updates_per_s, 2),
-            "replay_size": status.get("size_transitions", 0),
+            "replay_size": snap.replay_size,
             "policy_lag": round(snap.policy_lag, 3), "weights_version": snap.version,
             "policy_lag_request": round(snap.policy_lag_request, 3),
             "policy_lag_p50": snap.policy_lag_p50, "policy_lag_p95": snap.policy_lag_p95,
@@ -235,65 +191,10 @@ class LearnerLoop:
             "sampled_moved_share": round(snap.sampled_moved_share, 4),
             "buffer_moved_share": round(snap.buffer_moved_share, 4),
             "cluster_model_version": snap.cluster_model_version,
-            "cluster_sizes": ";".join(str(c) for c in status.get("cluster_sizes", [])),
+            "cluster_sizes": ";".join(str(c) for c in snap.cluster_sizes),
             "cluster_share": ";".join(f"{s:.4f}" for s in snap.cluster_share),
-            "rejects": ";".join(f"{k}:{v}" for k, v in sorted(status.get("rejects", {}).items())),
+            "rejects": ";".join(f"{k}:{v}" for k, v in sorted(snap.rejects.items())),
             "critic_loss": round(snap.losses.get("critic_loss", float("nan")), 6),
             "actor_loss": round(snap.losses.get("actor_loss", float("nan")), 6),
             "q_mean": round(snap.losses.get("q_mean", float("nan")), 6),
         }
-
-
-def recorded_epochs(path: Path) -> list[int]:
-    """The epochs that metrics.csv holds rows for, in file order (empty if no file)."""
-    if not path.exists():
-        return []
-    with path.open(newline="") as f:
-        return [int(row["epoch"]) for row in csv.DictReader(f) if row.get("epoch")]
-
-
-def truncate_metrics(path: Path, *, through_epoch: int) -> list[int]:
-    """Drop the rows of epochs after `through_epoch` (a resumed learner trains them again),
-    rewriting the file atomically; returns the epochs dropped."""
-    if not path.exists():
-        return []
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        fields = reader.fieldnames or METRICS_COLUMNS
-        rows = list(reader)
-    keep = [r for r in rows if r.get("epoch") and int(r["epoch"]) <= through_epoch]
-    dropped = [int(r["epoch"]) for r in rows if r not in keep and r.get("epoch")]
-    if dropped or len(keep) != len(rows):
-        tmp = path.with_suffix(".csv.tmp")
-        with tmp.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=fields)
-            writer.writeheader()
-            writer.writerows(keep)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    return dropped
-
-
-class MetricsCsv:
-    """runs/<run>/metrics.csv, one row per evaluated epoch, flushed per row."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        new = not path.exists() or path.stat().st_size == 0
-        fields = METRICS_COLUMNS
-        if not new:  # a resumed run keeps its file's columns (older runs may have fewer)
-            with path.open(newline="") as f:
-                fields = next(csv.reader(f), []) or METRICS_COLUMNS
-        self._file = open(path, "a", newline="")  # noqa: SIM115 (closed in close())
-        self._writer = csv.DictWriter(self._file, fieldnames=fields, extrasaction="ignore")
-        if new:
-            self._writer.writeheader()
-            self._file.flush()
-
-    def write(self, row: dict[str, Any]) -> None:
-        self._writer.writerow(row)
-        self._file.flush()
-
-    def close(self) -> None:
-        self._file.close()

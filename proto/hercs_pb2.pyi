@@ -145,38 +145,28 @@ class Minibatch(_message.Message):
     def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
-    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_model_version", "cluster_draws", "inserts", "env_steps", "policy_lag", "policy_lag_request", "policy_lags", "sampled_moved", "sampled_transitions", "buffer_moved_share")
+    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_draws", "policy_lags", "sampled_moved", "sampled_transitions", "status")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
     O_STATS_FIELD_NUMBER: _ClassVar[int]
     G_STATS_FIELD_NUMBER: _ClassVar[int]
-    CLUSTER_MODEL_VERSION_FIELD_NUMBER: _ClassVar[int]
     CLUSTER_DRAWS_FIELD_NUMBER: _ClassVar[int]
-    INSERTS_FIELD_NUMBER: _ClassVar[int]
-    ENV_STEPS_FIELD_NUMBER: _ClassVar[int]
-    POLICY_LAG_FIELD_NUMBER: _ClassVar[int]
-    POLICY_LAG_REQUEST_FIELD_NUMBER: _ClassVar[int]
     POLICY_LAGS_FIELD_NUMBER: _ClassVar[int]
     SAMPLED_MOVED_FIELD_NUMBER: _ClassVar[int]
     SAMPLED_TRANSITIONS_FIELD_NUMBER: _ClassVar[int]
-    BUFFER_MOVED_SHARE_FIELD_NUMBER: _ClassVar[int]
+    STATUS_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     request_id: int
     minibatches: _containers.RepeatedCompositeFieldContainer[Minibatch]
     o_stats: NormalizerStats
     g_stats: NormalizerStats
-    cluster_model_version: int
     cluster_draws: _containers.RepeatedScalarFieldContainer[int]
-    inserts: int
-    env_steps: int
-    policy_lag: float
-    policy_lag_request: float
     policy_lags: _containers.RepeatedScalarFieldContainer[int]
     sampled_moved: int
     sampled_transitions: int
-    buffer_moved_share: float
-    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model_version: _Optional[int] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., inserts: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ..., policy_lag_request: _Optional[float] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., buffer_moved_share: _Optional[float] = ...) -> None: ...
+    status: ReplayStatus
+    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., status: _Optional[_Union[ReplayStatus, _Mapping]] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
     __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failed_goals_seen")
@@ -227,7 +217,7 @@ class EvalResult(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., epoch: _Optional[int] = ..., weights_version: _Optional[int] = ..., episodes: _Optional[int] = ..., success_rate: _Optional[float] = ..., mean_final_distance: _Optional[float] = ...) -> None: ...
 
 class ReplayStatus(_message.Message):
-    __slots__ = ("schema_version", "size_episodes", "size_transitions", "inserts", "duplicates", "samples", "rate_limiter", "rejects", "cluster_sizes", "cluster_model_version")
+    __slots__ = ("schema_version", "size_episodes", "size_transitions", "inserts", "duplicates", "samples", "rate_limiter", "rejects", "cluster_sizes", "cluster_model_version", "env_steps", "policy_lag", "policy_lag_request", "buffer_moved_share", "inserts_waiting", "samples_waiting")
     class RejectsEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -245,6 +235,12 @@ class ReplayStatus(_message.Message):
     REJECTS_FIELD_NUMBER: _ClassVar[int]
     CLUSTER_SIZES_FIELD_NUMBER: _ClassVar[int]
     CLUSTER_MODEL_VERSION_FIELD_NUMBER: _ClassVar[int]
+    ENV_STEPS_FIELD_NUMBER: _ClassVar[int]
+    POLICY_LAG_FIELD_NUMBER: _ClassVar[int]
+    POLICY_LAG_REQUEST_FIELD_NUMBER: _ClassVar[int]
+    BUFFER_MOVED_SHARE_FIELD_NUMBER: _ClassVar[int]
+    INSERTS_WAITING_FIELD_NUMBER: _ClassVar[int]
+    SAMPLES_WAITING_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     size_episodes: int
     size_transitions: int
@@ -255,7 +251,13 @@ class ReplayStatus(_message.Message):
     rejects: _containers.ScalarMap[str, int]
     cluster_sizes: _containers.RepeatedScalarFieldContainer[int]
     cluster_model_version: int
-    def __init__(self, schema_version: _Optional[int] = ..., size_episodes: _Optional[int] = ..., size_transitions: _Optional[int] = ..., inserts: _Optional[int] = ..., duplicates: _Optional[int] = ..., samples: _Optional[int] = ..., rate_limiter: _Optional[str] = ..., rejects: _Optional[_Mapping[str, int]] = ..., cluster_sizes: _Optional[_Iterable[int]] = ..., cluster_model_version: _Optional[int] = ...) -> None: ...
+    env_steps: int
+    policy_lag: float
+    policy_lag_request: float
+    buffer_moved_share: float
+    inserts_waiting: int
+    samples_waiting: int
+    def __init__(self, schema_version: _Optional[int] = ..., size_episodes: _Optional[int] = ..., size_transitions: _Optional[int] = ..., inserts: _Optional[int] = ..., duplicates: _Optional[int] = ..., samples: _Optional[int] = ..., rate_limiter: _Optional[str] = ..., rejects: _Optional[_Mapping[str, int]] = ..., cluster_sizes: _Optional[_Iterable[int]] = ..., cluster_model_version: _Optional[int] = ..., env_steps: _Optional[int] = ..., policy_lag: _Optional[float] = ..., policy_lag_request: _Optional[float] = ..., buffer_moved_share: _Optional[float] = ..., inserts_waiting: _Optional[int] = ..., samples_waiting: _Optional[int] = ...) -> None: ...
 
 class Metrics(_message.Message):
     __slots__ = ("schema_version", "service", "step", "values")

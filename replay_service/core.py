@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from hercs.batch import TransitionBatch
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.normalizer import Normalizer, NormalizerState
 from hercs.seeding import int_seed
+from hercs.served import ServedBatch
 from replay_service.energy import trajectory_energy
 from replay_service.her import normalizer_sample, relabel
 from replay_service.samplers import make_sampler
@@ -40,19 +40,6 @@ class InsertResult:
     duplicate: bool
     energy: float
     cluster: int
-
-
-@dataclass(frozen=True)
-class SampleResult:
-    minibatches: list[TransitionBatch]
-    cluster_draws: np.ndarray
-    """(k,) episodes drawn per cluster over all minibatches (zeros for non-cluster methods
-    before any model)."""
-    sampled_moved: int = 0
-    """Sampled transitions whose episode's achieved goal moved (`EpisodeStore.moved`)."""
-    sampled_transitions: int = 0
-    buffer_moved_share: float = 0.0
-    """Share of the stored episodes whose achieved goal moved, when sampled."""
 
 
 class ReplayCore:
@@ -146,8 +133,9 @@ class ReplayCore:
         return np.bincount(labels[labels >= 0], minlength=self.config.cluster.k)
 
     # -- samples ---------------------------------------------------------------------------
-    def sample(self, num_minibatches: int, batch_size: int) -> SampleResult:
-        """`num_minibatches` HER-relabelled minibatches of `batch_size` transitions."""
+    def sample(self, num_minibatches: int, batch_size: int) -> ServedBatch:
+        """`num_minibatches` HER-relabelled minibatches of `batch_size` transitions, with the
+        normaliser statistics to train them with (the caller adds the counters)."""
         draws = np.zeros(self.config.cluster.k, np.int64)
         out = []
         moved, sampled = 0, 0
@@ -160,9 +148,14 @@ class ReplayCore:
                                reward_fn=self.spec.compute_reward, rng=self.rng).transitions)
         self.samples += num_minibatches
         self.cluster_draws_total += draws
-        store = self.store
-        return SampleResult(out, draws, sampled_moved=moved, sampled_transitions=sampled,
-                            buffer_moved_share=store.moved_count / max(store.size, 1))
+        o_stats, g_stats = self.normalizer_state()
+        return ServedBatch(minibatches=out, o_stats=o_stats, g_stats=g_stats,
+                           cluster_draws=draws, sampled_moved=moved, sampled_transitions=sampled)
+
+    @property
+    def buffer_moved_share(self) -> float:
+        """Share of the stored episodes whose achieved goal moved (`EpisodeStore.moved`)."""
+        return self.store.moved_count / max(self.store.size, 1)
 
     def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         return self.o_norm.state_dict(), self.g_norm.state_dict()

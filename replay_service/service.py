@@ -31,6 +31,7 @@ logged cluster model is adopted again.
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,11 +43,9 @@ import yaml
 from hercs.clustering import ClusterModel
 from hercs.codec import (
     array_to_msg,
-    batch_to_bytes,
     episode_to_msg,
     msg_to_array,
     msg_to_episode,
-    stats_to_msg,
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
@@ -57,6 +56,7 @@ from hercs.runlog import (
     read_cluster_models,
 )
 from hercs.seeding import generator
+from hercs.served import counters_to_msg, served_batch_to_bytes
 from hercs.service import ServiceRuntime, service_main
 from hercs.transport import PendingReply
 from hercs.validation import (
@@ -71,7 +71,7 @@ from hercs.warn_once import WarnOncePerMinute
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
-from replay_service.table import ReplayTable, SampleCall, Sampled, SampleRefused, Stored
+from replay_service.table import ReplayTable, SampleCall, SampleRefused, Stored
 
 log = logging.getLogger("hercs.replay")
 
@@ -225,7 +225,8 @@ class ReplayService:
                           weights_version=int(request.weights_version),
                           request_id=int(request.request_id))
         try:
-            self.table.sample(call, waiter=_QueryWaiter(pending, _batch_bytes),
+            self.table.sample(call, waiter=_QueryWaiter(pending, functools.partial(
+                served_batch_to_bytes, request_id=call.request_id)),
                               timeout_s=self.config.replay.sample_timeout_s)
         except SampleRefused as exc:
             raise InvalidMessage(RejectReason.BAD_VALUE, str(exc)) from None
@@ -291,14 +292,7 @@ class ReplayService:
 
     # -- status ----------------------------------------------------------------------------
     def status(self) -> pb.ReplayStatus:
-        st = self.table.status()
-        return pb.ReplayStatus(
-            schema_version=SCHEMA_VERSION, size_episodes=st.size_episodes,
-            size_transitions=st.size_transitions, inserts=st.inserts,
-            duplicates=st.duplicates, samples=st.samples, rate_limiter=st.rate_limiter,
-            rejects=st.rejects, cluster_sizes=st.cluster_sizes,
-            cluster_model_version=st.cluster_model_version,
-        )
+        return counters_to_msg(self.table.status())
 
     def tick(self) -> None:
         """Once a second: expire parked calls past their deadline, put the status."""
@@ -310,21 +304,6 @@ class ReplayService:
 
     def close(self) -> None:
         self.log.close()
-
-
-def _batch_bytes(sampled: Sampled) -> bytes:
-    call, result = sampled.call, sampled.result
-    header = pb.Batch(
-        schema_version=SCHEMA_VERSION, request_id=call.request_id,
-        o_stats=stats_to_msg(sampled.o_state), g_stats=stats_to_msg(sampled.g_state),
-        cluster_model_version=sampled.cluster_model_version,
-        cluster_draws=[int(c) for c in result.cluster_draws],
-        inserts=sampled.inserts, env_steps=sampled.env_steps, policy_lag=sampled.policy_lag,
-        policy_lag_request=sampled.policy_lag_request, policy_lags=list(sampled.policy_lags),
-        sampled_moved=result.sampled_moved, sampled_transitions=result.sampled_transitions,
-        buffer_moved_share=result.buffer_moved_share,
-    )
-    return batch_to_bytes(header, result.minibatches)
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:

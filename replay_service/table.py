@@ -47,6 +47,7 @@ reply queues bytes) and never call back into the table.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -62,9 +63,9 @@ from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.lockstep import schedule_cycle
 from hercs.methods import METHODS
-from hercs.normalizer import NormalizerState
+from hercs.served import ReplayCounters, ServedBatch
 from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore, SampleResult
+from replay_service.core import ReplayCore
 from replay_service.lag_bound import PolicyLagBound
 from replay_service.lockstep import LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
@@ -72,9 +73,9 @@ from replay_service.rate_limiter import SampleToInsertRatio
 log = logging.getLogger("hercs.replay")
 
 POLICY_LAG_WINDOW = 64
-"""Recent episodes whose policy lags are averaged into each `Sampled`."""
+"""Recent episodes whose policy lags are averaged into each served batch's counters."""
 POLICY_LAGS_KEPT = 65536
-"""At most this many per-episode lags wait for the next sample call (`Sampled.policy_lags`);
+"""At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
 the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
@@ -132,28 +133,6 @@ class SampleCall:
     request_id: int = 0
 
 
-@dataclass(frozen=True)
-class Sampled:
-    """The answer to a sample call: the minibatches and what the learner adopts with them."""
-
-    call: SampleCall
-    result: SampleResult
-    o_state: NormalizerState
-    g_state: NormalizerState
-    cluster_model_version: int
-    inserts: int
-    env_steps: int
-    policy_lag: float
-    """Mean over recent episodes of (their cycle in the lockstep schedule, `schedule_cycle`)
-    − (the weights version they were acted with): 0 in lockstep."""
-    policy_lag_request: float = 0.0
-    """Mean over recent episodes of (the weights version of the learner's latest sample
-    request when they were stored) − (the version they were acted with)."""
-    policy_lags: tuple[int, ...] = ()
-    """The lag (as `policy_lag`) of each episode stored since the previous sample call, so
-    that the learner can report the distribution over an epoch's episodes."""
-
-
 class SampleRefused(ValueError):
     """A sample call the rate limiter could never admit; nothing was parked."""
 
@@ -171,7 +150,7 @@ class _ParkedInsert(_Parked[Stored]):
 
 
 @dataclass
-class _ParkedSample(_Parked[Sampled]):
+class _ParkedSample(_Parked[ServedBatch]):
     call: SampleCall = field(kw_only=True)
 
 
@@ -195,23 +174,6 @@ class ClustererSnapshot:
     failures_seen: int
     episodes_seen: int
     model_version: int
-
-
-@dataclass(frozen=True)
-class TableStatus:
-    """A consistent snapshot for `ReplayStatus`."""
-
-    size_episodes: int
-    size_transitions: int
-    inserts: int
-    duplicates: int
-    samples: int
-    rate_limiter: str
-    rejects: dict[str, int]
-    cluster_sizes: list[int]
-    cluster_model_version: int
-    inserts_waiting: int
-    samples_waiting: int
 
 
 class ReplayTable:
@@ -443,10 +405,10 @@ class ReplayTable:
         return True
 
     # -- samples ---------------------------------------------------------------------------
-    def sample(self, call: SampleCall, *, waiter: Waiter[Sampled],
+    def sample(self, call: SampleCall, *, waiter: Waiter[ServedBatch],
                timeout_s: float | None = None) -> None:
         """Draw `call.num_minibatches` minibatches when the limiter admits them, then
-        `waiter.done(Sampled)`. Raises `SampleRefused` (nothing parked) for a call no state of
+        `waiter.done(ServedBatch)`. Raises `SampleRefused` (nothing parked) for a call no state of
         the limiter could ever admit."""
         if not self.limiter.could_ever_sample(call.num_minibatches):
             raise SampleRefused(
@@ -467,9 +429,8 @@ class ReplayTable:
             self._schedule_offset = max(0, surplus) * per_cycle
             self._recovered_unplaced = None
         self._newest_request_version = call.weights_version
-        result = self.core.sample(call.num_minibatches, call.batch_size)
+        served = self.core.sample(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
-        o_state, g_state = self.core.normalizer_state()
         fitted_at = self._fitted_at()
         if self.gate is not None and self.gate.served(
                 call.weights_version, failures=self.core.failures, fitted_at=fitted_at):
@@ -477,16 +438,12 @@ class ReplayTable:
                         "failed goals did not arrive within %.0f s (is the clusterer running?)",
                         call.weights_version, self._model_version(),
                         self.gate.next_fit(fitted_at), self.gate.cluster_wait_s)
-        sampled = Sampled(
-            call=call, result=result, o_state=o_state, g_state=g_state,
-            cluster_model_version=self._model_version(),
-            inserts=self.core.inserts, env_steps=self.core.env_steps,
-            policy_lag=_mean(self._recent_schedule_lags),
-            policy_lag_request=_mean(self._recent_lags),
-            policy_lags=tuple(self._lags_since_sample))
+        served = dataclasses.replace(
+            served, policy_lags=np.asarray(self._lags_since_sample, np.int64),
+            status=self._counters())
         self._lags_since_sample.clear()
         for waiter in item.waiters:
-            waiter.done(sampled)
+            waiter.done(served)
 
     # -- the rate limiter's queues ---------------------------------------------------------
     def _drain(self) -> None:
@@ -601,21 +558,28 @@ class ReplayTable:
         with self._lock:
             return [int(c) for c in self.core.cluster_sizes()]
 
-    def status(self) -> TableStatus:
+    def status(self) -> ReplayCounters:
+        """The counters as one consistent snapshot (`ReplayStatus`, and each served batch's)."""
         with self._lock:
-            core = self.core
-            waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
-            return TableStatus(
-                size_episodes=core.store.size, size_transitions=core.store.num_transitions,
-                inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
-                rate_limiter=("lockstep" if self.gate is not None else
-                              self.limiter.describe(inserts_waiting=waiting_inserts,
-                                                    samples_waiting=waiting_samples)),
-                rejects=dict(core.rejects),
-                cluster_sizes=[int(c) for c in core.cluster_sizes()],
-                cluster_model_version=self._model_version(),
-                inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
-            )
+            return self._counters()
+
+    def _counters(self) -> ReplayCounters:
+        core = self.core
+        waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
+        return ReplayCounters(
+            size_episodes=core.store.size, size_transitions=core.store.num_transitions,
+            inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
+            rate_limiter=("lockstep" if self.gate is not None else
+                          self.limiter.describe(inserts_waiting=waiting_inserts,
+                                                samples_waiting=waiting_samples)),
+            rejects=dict(core.rejects),
+            cluster_sizes=[int(c) for c in core.cluster_sizes()],
+            cluster_model_version=self._model_version(), env_steps=core.env_steps,
+            policy_lag=_mean(self._recent_schedule_lags),
+            policy_lag_request=_mean(self._recent_lags),
+            buffer_moved_share=core.buffer_moved_share,
+            inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
+        )
 
 
 def _mean(values: deque[int]) -> float:

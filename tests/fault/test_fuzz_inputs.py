@@ -79,6 +79,7 @@ from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
 from hercs.policy import Policy
 from hercs.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
+from hercs.served import decode_served_batch
 from hercs.transport import PendingReply, RemoteError, Transport, TransportError
 from hercs.validation import (
     RejectReason,
@@ -88,7 +89,6 @@ from hercs.validation import (
     validate_eval_result,
     validate_sample_request,
 )
-from learner.service import decode_batch
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
@@ -391,9 +391,11 @@ def make_batch(seed: int, *, n: int = LEARNER_N, b: int = LEARNER_B) -> pb.Batch
     draws = rng.multinomial(n * b, [1 / K] * K)
     return pb.Batch(schema_version=SCHEMA_VERSION, request_id=seed, minibatches=minibatches,
                     o_stats=stats_to_msg(stats(SPEC.obs_dim, seed)),
-                    g_stats=stats_to_msg(stats(SPEC.goal_dim, seed)), cluster_model_version=0,
-                    cluster_draws=[int(d) for d in draws], inserts=100 + seed,
-                    env_steps=5000 + 50 * seed, policy_lag=0.5)
+                    g_stats=stats_to_msg(stats(SPEC.goal_dim, seed)),
+                    cluster_draws=[int(d) for d in draws],
+                    status=pb.ReplayStatus(cluster_model_version=0, inserts=100 + seed,
+                                           env_steps=5000 + 50 * seed, policy_lag=0.5,
+                                           size_transitions=4242))
 
 
 BASE_BATCHES = [make_batch(seed) for seed in range(3)]
@@ -746,10 +748,10 @@ def batch_probes(draw: st.DrawFn) -> Probe:
         expect = "bad_value"
     else:  # counters as large as their types go, a policy lag that is not a number
         msg.request_id = draw(st.integers(0, 2**64 - 1))
-        msg.inserts = draw(st.integers(0, 2**64 - 1))
-        msg.env_steps = draw(st.integers(0, 2**64 - 1))
-        msg.cluster_model_version = draw(st.integers(0, 2**64 - 1))
-        msg.policy_lag = draw(st.sampled_from([np.nan, np.inf, -np.inf, 1e308, -5.0]))
+        msg.status.inserts = draw(st.integers(0, 2**64 - 1))
+        msg.status.env_steps = draw(st.integers(0, 2**64 - 1))
+        msg.status.cluster_model_version = draw(st.integers(0, 2**64 - 1))
+        msg.status.policy_lag = draw(st.sampled_from([np.nan, np.inf, -np.inf, 1e308, -5.0]))
         del msg.cluster_draws[:]
     return Probe(msg.SerializeToString(), f"batch:{kind}", expect)
 
@@ -763,19 +765,6 @@ def progress_probes(draw: st.DrawFn) -> Probe:
         msg.finished = draw(st.booleans())  # a finished flag in a bad message is not obeyed
         return Probe(msg.SerializeToString(), "progress:schema", "schema_version")
     return Probe(msg.SerializeToString(), "progress:running", VALID)
-
-
-@st.composite
-def status_probes(draw: st.DrawFn) -> Probe:
-    msg = pb.ReplayStatus(
-        schema_version=draw(st.sampled_from([SCHEMA_VERSION, 0, 2])),
-        size_episodes=draw(st.integers(0, 2**64 - 1)),
-        size_transitions=draw(st.integers(0, 2**64 - 1)),
-        rate_limiter=draw(st.text(max_size=20)),
-        rejects=draw(st.dictionaries(st.text(max_size=12), st.integers(0, 2**64 - 1),
-                                     max_size=4)),
-        cluster_sizes=draw(st.lists(st.integers(0, 2**64 - 1), max_size=12)))
-    return Probe(msg.SerializeToString(), "status", None)
 
 
 # --------------------------------------------------------------------------- oracles
@@ -833,8 +822,8 @@ def header_verdict(raw: bytes) -> str:
 
 
 def batch_verdict(raw: bytes) -> str:
-    return reason_of(lambda: decode_batch(raw, spec=SPEC, k=K, batch_size=LEARNER_B,
-                                          num_minibatches=LEARNER_N))
+    return reason_of(lambda: decode_served_batch(raw, spec=SPEC, k=K, batch_size=LEARNER_B,
+                                                 num_minibatches=LEARNER_N))
 
 
 class ModelOracle:
@@ -1175,7 +1164,7 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
                   model_pub=client.publisher(KR.cluster_model, latest=True, block=True),
                   puts={key: client.publisher(key, block=True)
                         for key in (KR.eval_result, KR.inserted, KA.eval_request, KA.progress,
-                                    KL.eval_result, KL.status)},
+                                    KL.eval_result)},
                   status=status, metrics=metrics, eval_results=eval_results,
                   learner_weights=learner_weights)
         # The clusterer has asked the replay for its state (a fresh run) before any insert,
@@ -1304,11 +1293,11 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
                 continue
             assert reply is not None, (probe, reason, detail)
             msg = pb.SampleRequest.FromString(probe.payload)
-            batch = decode_batch(reply, spec=SPEC, k=K, batch_size=msg.batch_size,
-                                 num_minibatches=msg.num_minibatches)
+            batch = decode_served_batch(reply, spec=SPEC, k=K, batch_size=msg.batch_size,
+                                        num_minibatches=msg.num_minibatches)
             assert pb.Batch.FromString(reply).request_id == msg.request_id
             assert int(batch.cluster_draws.sum()) == msg.num_minibatches * msg.batch_size
-            assert batch.cluster_model_version == w.model_oracle.version
+            assert batch.status.cluster_model_version == w.model_oracle.version
         sent(w, "replay/sample", [p for p, _ in keep])
 
     barrage()
@@ -1616,17 +1605,6 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
     version = int(weights.version)
     assert version == CYCLES_PER_EPOCH, "one version per cycle"
 
-    @settings(HYPOTHESIS, max_examples=15)
-    @given(probe_lists(mixed(status_probes(), [OTHER_MESSAGES[9][1]], LEARNER_EVAL_MAX_BYTES)))
-    def status_barrage(probes: list[Probe]) -> None:
-        for probe in probes:
-            w.puts[KL.status].put(probe.payload)
-        sent(w, "replay/status (learner)", probes)
-
-    status_barrage()
-    w.puts[KL.status].put(pb.ReplayStatus(schema_version=SCHEMA_VERSION, size_episodes=84,
-                                          size_transitions=4242).SerializeToString())
-
     def recorded(probe: Probe) -> bool:
         """Would the learner rightly record it: valid, for a pending epoch, of its weights."""
         if eval_verdict(probe.payload, limit=LEARNER_EVAL_MAX_BYTES) != VALID:
@@ -1660,7 +1638,7 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
     assert (values["success_rate"], values["mean_final_distance"]) == (0.625, 0.0425)
     assert values["weights_version"] == version
     assert values["bad_batches"] == w.ledger.bad_batches
-    assert values["replay_size"] == 4242, "the last ReplayStatus, a valid one, is the one used"
+    assert values["replay_size"] == 4242, "the counters of the epoch's last Batch, a valid one"
     with (Path(w.configs["learner"].run.run_dir) / RUN_L / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [(r["epoch"], r["success_rate"], r["bad_batches"]) for r in rows] == [
@@ -1672,7 +1650,7 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
 BARRAGES = {"replay/insert", "replay/sample", "replay/episode", "replay/clusterer_state",
             "cluster/model", "eval/result (replay)", "replay/inserted", "weights",
             "eval/request", "run/progress", "replay/sample replies (learner)",
-            "replay/status (learner)", "eval/result (learner)"}
+            "eval/result (learner)"}
 
 
 def test_after_the_barrage_every_service_serves_valid_input_and_stops_cleanly(
@@ -1688,10 +1666,10 @@ def test_after_the_barrage_every_service_serves_valid_input_and_stops_cleanly(
     w.ledger.stored[ack.episode_id] = msg
     request = pb.SampleRequest(schema_version=SCHEMA_VERSION, run=RUN_R, learner_id="fz",
                                request_id=7, num_minibatches=3, batch_size=32)
-    batch = decode_batch(w.client.request(KR.sample, request.SerializeToString(),
-                                          timeout_s=REQUEST_TIMEOUT_S),
-                         spec=SPEC, k=K, batch_size=32, num_minibatches=3)
-    assert batch.cluster_model_version == w.model_oracle.version
+    batch = decode_served_batch(w.client.request(KR.sample, request.SerializeToString(),
+                                                 timeout_s=REQUEST_TIMEOUT_S),
+                                spec=SPEC, k=K, batch_size=32, num_minibatches=3)
+    assert batch.status.cluster_model_version == w.model_oracle.version
     w.check_replay_counters()
     check_clusterer(w)
     # the actor: valid weights are still adopted

@@ -125,7 +125,7 @@ def test_rate_limiter_holds_samples_until_inserts_arrive(replay, open_client) ->
     for seq in range(4, 8):  # 4 more episodes: d = −8 + 8 = 0 ≥ −8 + 8, admitted
         insert(client, episode_msg(spec, seq))
     assert done.wait(TIMEOUT)
-    assert result[0].request_id == 3 and result[0].inserts == 8
+    assert result[0].request_id == 3 and result[0].status.inserts == 8
     thread.join()
 
 
@@ -144,9 +144,9 @@ def test_cluster_model_relabels_and_balances_batches(replay, open_client) -> Non
     batch = None
     for request_id in range(1, 50):  # until the replay has adopted the model
         batch = sample(client, 8, request_id)
-        if batch.cluster_model_version == 1:
+        if batch.status.cluster_model_version == 1:
             break
-    assert batch is not None and batch.cluster_model_version == 1
+    assert batch is not None and batch.status.cluster_model_version == 1
     draws = np.asarray(batch.cluster_draws)
     assert draws.sum() == 8 * 64
     sizes = np.asarray(status(client).cluster_sizes)

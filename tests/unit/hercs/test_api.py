@@ -18,11 +18,11 @@ from actors.weights import WeightsDecoder
 from hercs.codec import episode_to_msg, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
+from hercs.metrics import METRICS_COLUMNS
 from hercs.policy import Policy
 from hercs.rundir import RunDirError
 from hercs.runlog import EpisodeLog, segment_paths
 from learner.checkpoint import save_policy
-from learner.loop import METRICS_COLUMNS
 
 REPO = Path(__file__).resolve().parents[3]
 RUN = "api-test"

@@ -1,22 +1,19 @@
 """LearnerLoop: cycle and epoch arithmetic, versions, and the metrics row, driven with batches
 from a real ReplayCore (no transport)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
+from hercs.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
+from hercs.served import ReplayCounters, ServedBatch
 from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.ddpg import DDPGLearner
-from learner.loop import (
-    METRICS_COLUMNS,
-    LearnerLoop,
-    MetricsCsv,
-    SampleBatch,
-    recorded_epochs,
-    truncate_metrics,
-)
+from learner.loop import LearnerLoop
 from replay_service.core import ReplayCore
 
 
@@ -27,18 +24,21 @@ def config() -> HercsConfig:
         "ddpg.hidden_size=32", "replay.buffer_transitions=5000"])
 
 
-def batches(cfg: HercsConfig, n: int) -> list[SampleBatch]:
+def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
+    """Batches as the replay serves them, without the moved-goal figures."""
     core = ReplayCore(config=cfg, rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     out = []
     for i in range(n):
         core.insert(random_episode(core.spec, rng, seq=i))
-        result = core.sample(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
-        o_state, g_state = core.normalizer_state()
-        out.append(SampleBatch(
-            minibatches=result.minibatches,
-            o_stats=o_state, g_stats=g_state, cluster_draws=result.cluster_draws,
-            inserts=core.inserts, env_steps=core.env_steps, policy_lag=1.5))
+        served = core.sample(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
+        out.append(ServedBatch(
+            minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
+            cluster_draws=served.cluster_draws,
+            status=ReplayCounters(inserts=core.inserts, env_steps=core.env_steps,
+                                  policy_lag=1.5,
+                                  size_transitions=core.store.num_transitions,
+                                  rejects={"non_finite": 2})))
     return out
 
 
@@ -51,9 +51,9 @@ def test_epochs_versions_and_rows(tmp_path) -> None:
     assert ended == [None, None, 1, None, None, 2]
     assert loop.version == 6 and loop.learner.updates == 12 and loop.learner.target_updates == 6
     assert loop.done
-    row = loop.record_eval(epoch=1, success_rate=0.25, mean_final_distance=0.1,
-                           replay_status={"size_transitions": 150, "cluster_sizes": [],
-                                          "rejects": {"non_finite": 2}})
+    # the replay's counters come from the epoch's last batch
+    row = loop.record_eval(epoch=1, success_rate=0.25, mean_final_distance=0.1)
+    assert row["replay_size"] == 150 and row["cluster_sizes"] == ""
     # the service adds those two
     assert set(row) == set(METRICS_COLUMNS) - {"batch_wait_s", "bad_batches"}
     assert (row["epoch"], row["env_steps"], row["episodes"], row["updates"]) == (1, 150, 3, 6)
@@ -157,9 +157,10 @@ def test_the_epoch_row_reports_the_lag_distribution_and_moved_shares() -> None:
     lags = [[3, 4], [], [4, 4, 5, 12]]           # the episodes stored before each batch
     moved = [(10, 32, 0.25), (0, 32, 0.25), (22, 32, 0.5)]
     for batch, lag, (m, n, share) in zip(batches(cfg, 3), lags, moved, strict=True):
-        batch.policy_lags = np.asarray(lag, np.int64)
-        batch.sampled_moved, batch.sampled_transitions, batch.buffer_moved_share = m, n, share
-        loop.step(batch)
+        loop.step(dataclasses.replace(
+            batch, policy_lags=np.asarray(lag, np.int64), sampled_moved=m,
+            sampled_transitions=n,
+            status=dataclasses.replace(batch.status, buffer_moved_share=share)))
     row = loop.record_eval(epoch=1, success_rate=0.0, mean_final_distance=0.0)
     every = np.asarray([3, 4, 4, 4, 5, 12])
     assert row["policy_lag_p50"] == np.percentile(every, 50) == 4.0

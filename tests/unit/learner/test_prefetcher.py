@@ -13,7 +13,7 @@ import pytest
 from hercs.codec import batch_to_bytes, stats_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
-from learner.service import Prefetcher
+from learner.prefetch import Prefetcher
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore

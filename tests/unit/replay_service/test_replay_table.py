@@ -15,6 +15,7 @@ from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
 from hercs.lockstep import LockstepReason
+from hercs.served import ServedBatch
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
 from replay_service.table import (
@@ -23,7 +24,6 @@ from replay_service.table import (
     LOG_FAILED,
     ReplayTable,
     SampleCall,
-    Sampled,
     SampleRefused,
     Stored,
 )
@@ -136,7 +136,7 @@ def test_samples_wait_for_min_episodes_then_inserts_wait_for_samples() -> None:
     assert not first.results and h.table.status().samples_waiting == 1
     inserts = [h.insert(seq) for seq in range(4)]
     # the 4th insert makes I = N_min and d = 8: the parked request of 8 is served at once
-    assert len(first.results) == 1 and len(first.results[0].result.minibatches) == 8
+    assert len(first.results) == 1 and len(first.results[0].minibatches) == 8
     assert all(w.results for w in inserts)
     # d = 0 now; inserts are admitted until d + 2 > 16, i.e. 8 more, then held
     more = [h.insert(seq) for seq in range(4, 14)]
@@ -271,13 +271,13 @@ def test_policy_lags_against_the_learners_request_and_the_lockstep_schedule() ->
         episode.policy_version = 3
         h.table.insert(episode, record=pb.Episode(), waiter=Recorder(f"e{i}", h.journal))
     got = h.sample(8, version=6).results[0]
-    assert isinstance(got, Sampled)
+    assert isinstance(got, ServedBatch)
     # mean over the 8 stored: 4 random episodes (version −1) stored while the learner was at
     # 0 → lag 1 each; 4 at version 3 stored while it was at 5 → lag 2 each
-    assert got.policy_lag_request == pytest.approx(1.5)
+    assert got.status.policy_lag_request == pytest.approx(1.5)
     # against the lockstep schedule (4 episodes per cycle): ids 0–3 belong to cycle 0 (lag
     # 0 − (−1) = 1), ids 4–7 to cycle 1, acted with version 3 (lag 1 − 3 = −2)
-    assert got.policy_lag == pytest.approx(-0.5)
+    assert got.status.policy_lag == pytest.approx(-0.5)
 
 
 def test_recovery_restarts_the_limiter_balanced_and_dedups_retries() -> None:
@@ -314,8 +314,8 @@ def test_recovered_surplus_episodes_do_not_read_as_policy_lag() -> None:
         h.table.insert(episode, record=pb.Episode(), waiter=Recorder(str(seq), h.journal))
     got = h.sample(8, version=1001).results[0]
     ids = range(4213, 4221)
-    assert got.policy_lag == pytest.approx(np.mean([(i - 212) // 4 - 995 for i in ids]))
-    assert 5 <= got.policy_lag <= 6
+    assert got.status.policy_lag == pytest.approx(np.mean([(i - 212) // 4 - 995 for i in ids]))
+    assert 5 <= got.status.policy_lag <= 6
 
 
 def test_clusterer_snapshot_holds_the_newest_failed_goals_and_the_counts() -> None:
@@ -420,11 +420,11 @@ def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> 
     assert not request1.results, "three of cycle 1's four episodes are not enough"
     insert_acted(h, 10, 1, actor="b")
     got = request1.results[0]
-    assert isinstance(got, Sampled)
-    assert got.policy_lag == 0.0
+    assert isinstance(got, ServedBatch)
+    assert got.status.policy_lag == 0.0
     # the older measure takes the learner's version from the requests served so far: cycle
     # 1's episodes were stored before request 1 was served, so they count 0 − 1 = −1
-    assert got.policy_lag_request == pytest.approx(-0.5)
+    assert got.status.policy_lag_request == pytest.approx(-0.5)
     status = h.table.status()
     assert (status.inserts, status.rate_limiter) == (8, "lockstep")
     assert status.rejects == {"stale_policy": 2, "cycle_full": 1}
@@ -447,7 +447,7 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     model = ClusterModel(version=1, centroids=np.zeros((2, 3), np.float32), n_goals=4,
                          inserts_seen=4)
     assert h.table.adopt_cluster_model(model, None)
-    assert request.results and request.results[0].cluster_model_version == 1
+    assert request.results and request.results[0].status.cluster_model_version == 1
     assert h.table.gate is not None and h.table.gate.late_cluster_models == 0
 
     first_ask = h.sample(8, "cycle 1", version=1, timeout_s=20)
@@ -460,7 +460,7 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     retry = h.sample(8, "cycle 1 again", version=1)
     h.clock.now += LOCKSTEP_CLUSTER_WAIT_S - 20
     h.table.expire()  # the service's once-a-second tick
-    assert retry.results and retry.results[0].cluster_model_version == 1
+    assert retry.results and retry.results[0].status.cluster_model_version == 1
     assert h.table.gate.late_cluster_models == 1
     request2 = h.sample(8, "cycle 2", version=2)
     for seq in range(8, 12):
@@ -561,13 +561,13 @@ def test_sample_calls_carry_the_lags_of_the_episodes_stored_since_the_last_call(
     for seq in range(4):
         insert_acted(h, seq, 0)
     first = h.sample(8, version=0)
-    assert first.results[0].policy_lags == (0, 0, 0, 0)
+    assert first.results[0].policy_lags.tolist() == [0, 0, 0, 0]
     for seq in range(4, 10):                     # cycle 1 (ids 4..7) and cycle 2 (8, 9)
         insert_acted(h, seq, 0)
     second = h.sample(8, version=1)
-    assert second.results[0].policy_lags == (1, 1, 1, 1, 2, 2)
+    assert second.results[0].policy_lags.tolist() == [1, 1, 1, 1, 2, 2]
     third = h.sample(4, version=2)
-    assert third.results[0].policy_lags == (), "each episode's lag is handed over once"
+    assert third.results[0].policy_lags.tolist() == [], "each episode's lag is handed over once"
 
 
 def test_the_lag_bound_refuses_nothing_before_the_learner_first_asks() -> None:
@@ -585,4 +585,4 @@ def test_a_lag_beyond_int64_is_clipped_not_an_error() -> None:
     h = make()
     for seq in range(4):
         insert_acted(h, seq, -(1 << 63))
-    assert h.sample(8).results[0].policy_lags == (INT64_MAX,) * 4
+    assert h.sample(8).results[0].policy_lags.tolist() == [INT64_MAX] * 4
