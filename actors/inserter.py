@@ -6,12 +6,11 @@ Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
   `internal` reply or a malformed ack is retried with the *same bytes*, so the same
   `(actor_id, seq)`, after an exponential backoff (0.1 s doubling to 2 s): the replay
   deduplicates, so a retry of an insert that was in fact stored is acked `duplicate=True`.
-- A reply whose reason is a validation reason (`hercs.validation.RejectReason`: wrong shape,
-  NaN, wrong task, …) can never succeed: the episode is dropped, counted and logged (once per
-  reason per minute).
-- A reply whose reason is a lockstep reason (`hercs.lockstep.LockstepReason`: acted with
-  weights too old, or its cycle already full) means the episode is well formed but not wanted:
-  it is dropped without a warning and counted `superseded`.
+- What an error reply leads to is its reason's disposition (`hercs.reasons`): `drop` (wrong
+  shape, NaN, wrong task, …) can never succeed: the episode is dropped, counted and logged
+  (once per reason per minute); `superseded` (acted with weights too old, or its lockstep
+  cycle already full) means the episode is well formed but not wanted: it is dropped without
+  a warning and counted `superseded`; `retry` as above.
 - Episodes are delivered one at a time, in `seq` order. `newest_next_policy_version` is the
   highest weights version an ack asked the next episodes to be acted with (lockstep).
 
@@ -39,19 +38,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hercs.errors import InvalidMessage
-from hercs.lockstep import LockstepReason
+from hercs.reasons import Disposition, disposition
 from hercs.service import start_supervised
 from hercs.transport import RemoteError, TransportError, TransportTimeout
-from hercs.validation import RejectReason, parse_message
+from hercs.validation import parse_message
 from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 
-PERMANENT_REASONS = frozenset(reason.value for reason in RejectReason)
-"""Error-reply reasons that mean the episode itself is bad: drop it, never retry."""
-LOCKSTEP_REASONS = frozenset(reason.value for reason in LockstepReason)
-"""Error-reply reasons that mean the lockstep schedule has no use for the episode."""
 
 BACKOFF_MIN_S = 0.1
 BACKOFF_MAX_S = 2.0
@@ -214,12 +209,13 @@ class Inserter:
             except TransportTimeout as exc:
                 kind, why = "timeout", str(exc)
             except RemoteError as exc:
-                if exc.reason in LOCKSTEP_REASONS:
+                then = disposition(exc.reason)
+                if then is Disposition.SUPERSEDED:
                     c.superseded += 1
                     log.debug("episode (%s, seq %d) not wanted by the lockstep schedule: %s",
                               self.actor_id, seq, exc.detail)
                     return
-                if exc.reason in PERMANENT_REASONS:
+                if then is Disposition.DROP:
                     c.dropped += 1
                     self._warn.warn(f"rejected:{exc.reason}",
                                     f"replay rejected episode ({self.actor_id}, seq {seq}): "

@@ -21,7 +21,7 @@ What `run` does, in order:
    for weights at least as new as the replay wants (none before the learner's first
    broadcast), and after it for the insert's outcome: an ack says which version the next
    episode needs (the next cycle's once this one is full); an episode the replay refuses as
-   stale or surplus (`hercs.lockstep.LockstepReason`) is dropped and the next waits for newer
+   stale or surplus (`hercs.reasons.Reason`, superseded) is dropped and the next waits for newer
    weights. Asynchronously with `training.max_policy_lag`, when the latest ack asked for newer
    weights than the policy's, the loop waits for the next Weights to arrive before the next
    episode; an episode refused as stale is dropped.

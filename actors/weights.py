@@ -7,8 +7,9 @@ from hercs.codec import msg_to_weight_arrays
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.policy import Policy, PolicyWeights
+from hercs.reasons import Reason
 from hercs.tasks import TaskSpec
-from hercs.validation import MAX_INT64, RejectReason, parse_message
+from hercs.validation import MAX_INT64, parse_message
 from proto import hercs_pb2 as pb
 
 
@@ -31,7 +32,7 @@ class WeightsDecoder:
 
     def decode(self, msg: pb.Weights) -> PolicyWeights:
         if msg.version > MAX_INT64:  # episodes carry it as their int64 policy_version
-            raise InvalidMessage(RejectReason.BAD_VALUE,
+            raise InvalidMessage(Reason.BAD_VALUE,
                                  f"Weights version {msg.version} is above {MAX_INT64}")
         actor, o_stats, g_stats = msg_to_weight_arrays(msg)
         weights = PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
@@ -39,6 +40,6 @@ class WeightsDecoder:
         try:
             self._scratch.load(weights)
         except ValueError as exc:
-            raise InvalidMessage(RejectReason.BAD_VALUE,
+            raise InvalidMessage(Reason.BAD_VALUE,
                                  f"Weights version {msg.version}: {exc}") from None
         return weights

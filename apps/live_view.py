@@ -72,11 +72,11 @@ from apps.view import (
 from hercs.codec import msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.reasons import Reason
 from hercs.service import ServiceRuntime, join_run, service_main
 from hercs.tasks import TaskSpec
 from hercs.transport import RemoteError, TransportError
 from hercs.validation import (
-    RejectReason,
     header_goals,
     parse_message,
     validate_centroids,
@@ -113,7 +113,7 @@ def header_outcome(header: pb.EpisodeHeader, spec: TaskSpec) -> EpisodeOutcome:
     final_ag, desired_goal = (v.astype(np.float32)
                               for v in header_goals(header, goal_dim=spec.goal_dim))
     if header.cluster < -1:
-        raise InvalidMessage(RejectReason.BAD_VALUE,
+        raise InvalidMessage(Reason.BAD_VALUE,
                              f"EpisodeHeader.cluster {header.cluster}, must be >= -1")
     distance = float(np.linalg.norm(final_ag - desired_goal))
     return EpisodeOutcome(
@@ -214,9 +214,7 @@ class LiveRecorder:
         one seen (from then on the replay labels episodes with it); one that comes before any
         header (a live view joining a running run) is drawn at the first header. False if not
         newer (a late joiner may get an older model still in flight)."""
-        rejection = validate_centroids(msg, k=self.k, goal_dim=self.spec.goal_dim)
-        if rejection is not None:
-            raise rejection.error()
+        validate_centroids(msg, k=self.k, goal_dim=self.spec.goal_dim)
         version = int(msg.version)
         if version <= self._model_version:
             return False
@@ -445,9 +443,7 @@ class LiveViewService:
                                                  request.SerializeToString(),
                                                  timeout_s=EPISODE_TIMEOUT_S)
             msg = parse_message(raw, pb.Episode, max_bytes=self.max_bytes)
-            rejection = validate_episode(msg, self.recorder.spec)
-            if rejection is not None:
-                raise rejection.error()
+            validate_episode(msg, self.recorder.spec)
         except (TransportError, InvalidMessage) as exc:
             self.fetch_failures += 1
             self.recorder.forget(episode_id)

@@ -56,8 +56,8 @@ def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[int, np.ndarray, np
     """`EpisodeHeader` bytes → (episode id, final achieved goal, desired goal), the goals
     float64 (goal_dim,) each.
 
-    Raises `InvalidMessage` (a `RejectReason`) for undecodable bytes, a wrong schema version,
-    a missing or misshapen vector, or NaN/Inf.
+    Raises `InvalidMessage` (a `hercs.reasons.Reason`) for undecodable bytes, a wrong schema
+    version, a missing or misshapen vector, or NaN/Inf.
     """
     msg = parse_message(raw, pb.EpisodeHeader, max_bytes=_HEADER_MAX_BYTES)
     return (int(msg.episode_id), *header_goals(msg, goal_dim=goal_dim))

@@ -17,6 +17,7 @@ from hercs.batch import TRANSITION_FIELDS, TransitionBatch
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.normalizer import NormalizerState
+from hercs.reasons import Reason
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
@@ -25,9 +26,6 @@ MAX_NDIM = 8
 MAX_DIM = 2**31 - 1
 """Bounds on a wire array's shape; nothing this project sends comes near them."""
 
-# Reject reasons raised by the codec itself (validation.RejectReason holds the full list).
-BAD_ARRAY = "bad_array"
-BAD_DTYPE = "bad_dtype"
 
 
 def array_to_msg(value: np.ndarray, out: pb.Array | None = None) -> pb.Array:
@@ -47,28 +45,30 @@ def msg_to_array(msg: pb.Array, *, where: str = "array") -> np.ndarray:
     """Decode an Array message; the result is a read-only view of the message bytes."""
     if msg.dtype not in WIRE_DTYPES:
         raise InvalidMessage(
-            BAD_DTYPE, f"{where}: dtype {msg.dtype!r} is not one of {sorted(WIRE_DTYPES)}"
+            Reason.BAD_DTYPE, f"{where}: dtype {msg.dtype!r} is not one of {sorted(WIRE_DTYPES)}"
         )
     shape = tuple(int(d) for d in msg.shape)
     if len(shape) > MAX_NDIM:
-        raise InvalidMessage(BAD_ARRAY, f"{where}: {len(shape)} dimensions, at most {MAX_NDIM}")
+        raise InvalidMessage(Reason.BAD_ARRAY,
+                             f"{where}: {len(shape)} dimensions, at most {MAX_NDIM}")
     if any(d < 0 for d in shape):
-        raise InvalidMessage(BAD_ARRAY, f"{where}: negative dimension in shape {shape}")
+        raise InvalidMessage(Reason.BAD_ARRAY, f"{where}: negative dimension in shape {shape}")
     if any(d > MAX_DIM for d in shape):
-        raise InvalidMessage(BAD_ARRAY, f"{where}: dimension above {MAX_DIM} in shape {shape}")
+        raise InvalidMessage(Reason.BAD_ARRAY,
+                             f"{where}: dimension above {MAX_DIM} in shape {shape}")
     dtype = np.dtype(msg.dtype).newbyteorder("<")
     # Python integers: a product of wire dimensions cannot wrap around (np.prod would).
     expected = math.prod(shape) * dtype.itemsize
     if len(msg.data) != expected:
         raise InvalidMessage(
-            BAD_ARRAY,
+            Reason.BAD_ARRAY,
             f"{where}: {len(msg.data)} data bytes for shape {shape} {msg.dtype}, "
             f"expected {expected}",
         )
     try:
         flat = np.frombuffer(msg.data, dtype=dtype).reshape(shape)
     except ValueError as exc:  # e.g. an empty array whose other dimensions overflow numpy
-        raise InvalidMessage(BAD_ARRAY, f"{where}: shape {shape} is not an array numpy can "
+        raise InvalidMessage(Reason.BAD_ARRAY, f"{where}: shape {shape} is not an array numpy can "
                                         f"hold ({exc})") from None
     return flat.astype(dtype.newbyteorder("="), copy=False)
 
@@ -81,7 +81,7 @@ def named_to_arrays(items: Iterable[pb.NamedArray], *, where: str) -> dict[str, 
     out: dict[str, np.ndarray] = {}
     for item in items:
         if item.name in out:
-            raise InvalidMessage(BAD_ARRAY, f"{where}: duplicate array name {item.name!r}")
+            raise InvalidMessage(Reason.BAD_ARRAY, f"{where}: duplicate array name {item.name!r}")
         out[item.name] = msg_to_array(item.array, where=f"{where}[{item.name}]")
     return out
 

@@ -14,7 +14,7 @@ class ConfigError(HercsError, ValueError):
 class InvalidMessage(HercsError):
     """A wire message was rejected; it never reaches a buffer, the clusterer or the learner.
 
-    `reason` is one of `hercs.validation.RejectReason`'s values, counted by reason in
+    `reason` is one of `hercs.reasons.Reason`'s values, counted by reason in
     `ReplayStatus`; `detail` says what was wrong and where.
     """
 

@@ -1,5 +1,6 @@
-"""The lockstep schedule's shared vocabulary (docs/DESIGN.md §9.1): what the replay answers an
-episode that lockstep has no use for, and which cycle an episode belongs to.
+"""The lockstep schedule's shared arithmetic (docs/DESIGN.md §9.1): which cycle an episode
+belongs to. (What the replay answers an episode lockstep has no use for, `stale_policy` or
+`cycle_full`, is in hercs.reasons.)
 
 In lockstep, cycle c is: `episodes_per_cycle` episodes acted with weights version c, then the
 learner's `minibatches_per_cycle` updates on a buffer holding them, then version c + 1, as the
@@ -8,18 +9,6 @@ therefore belongs to cycle i // episodes_per_cycle.
 """
 
 from __future__ import annotations
-
-from enum import StrEnum
-
-
-class LockstepReason(StrEnum):
-    """Error-reply reasons for an insert that lockstep refuses. The episode is well formed but
-    will never be wanted, so the actor drops it (no retry) and waits for newer weights."""
-
-    STALE_POLICY = "stale_policy"
-    """Acted with weights older than the cycle the learner is collecting for."""
-    CYCLE_FULL = "cycle_full"
-    """Its cycle already has its `episodes_per_cycle` episodes (another actor was faster)."""
 
 
 def schedule_cycle(episode_id: int, episodes_per_cycle: int) -> int:

@@ -22,8 +22,9 @@ from hercs.batch import TransitionBatch
 from hercs.codec import batch_to_bytes, msg_to_stats, stats_to_msg
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer, NormalizerState
+from hercs.reasons import Reason
 from hercs.tasks import TaskSpec
-from hercs.validation import MAX_INT64, RejectReason, decode_minibatch, parse_message
+from hercs.validation import MAX_INT64, decode_minibatch, parse_message
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
@@ -122,7 +123,7 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
     `InvalidMessage` naming what is wrong."""
     msg = parse_message(raw, pb.Batch, max_bytes=MAX_BATCH_BYTES)
     if len(msg.minibatches) != num_minibatches:
-        raise InvalidMessage(RejectReason.BAD_LENGTH,
+        raise InvalidMessage(Reason.BAD_LENGTH,
                              f"Batch: {len(msg.minibatches)} minibatches, asked for "
                              f"{num_minibatches}")
     minibatches = [decode_minibatch(mb, spec, batch_size=batch_size,
@@ -135,22 +136,22 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         try:
             Normalizer(size).load_state_dict(stats)
         except ValueError as exc:
-            raise InvalidMessage(RejectReason.BAD_VALUE, f"{where}: {exc}") from None
+            raise InvalidMessage(Reason.BAD_VALUE, f"{where}: {exc}") from None
     if len(msg.cluster_draws) not in (0, k):
-        raise InvalidMessage(RejectReason.BAD_LENGTH,
+        raise InvalidMessage(Reason.BAD_LENGTH,
                              f"Batch.cluster_draws: {len(msg.cluster_draws)} values, expected "
                              f"{k} (cluster.k) or none")
     if msg.sampled_moved > msg.sampled_transitions:
-        raise InvalidMessage(RejectReason.BAD_VALUE,
+        raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.sampled_moved {msg.sampled_moved} exceeds "
                              f"Batch.sampled_transitions {msg.sampled_transitions}")
     share = msg.status.buffer_moved_share
     if not 0.0 <= share <= 1.0:
-        raise InvalidMessage(RejectReason.BAD_VALUE,
+        raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.status.buffer_moved_share {share!r} is not a share in "
                              "[0, 1]")
     if any(d > MAX_INT64 for d in msg.cluster_draws):  # they are summed in an int64 array
-        raise InvalidMessage(RejectReason.BAD_VALUE,
+        raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.cluster_draws: {list(msg.cluster_draws)} holds a value "
                              f"above {MAX_INT64}")
     return ServedBatch(

@@ -67,6 +67,7 @@ import zenoh
 import zenoh.ext as zext
 
 from hercs.errors import ConfigError, HercsError, InvalidMessage, Unreachable
+from hercs.reasons import Reason
 
 log = logging.getLogger(__name__)
 
@@ -74,10 +75,6 @@ Mode = Literal["router", "peer", "client"]
 
 ERROR_ENCODING = "text/plain;hercs-error"
 """Encoding of every hercs error reply; its payload is UTF-8 `"<reason>: <detail>"`."""
-REASON_INTERNAL = "internal"
-"""Reason sent when a handler raised something other than `InvalidMessage` (a bug)."""
-REASON_UNAVAILABLE = "unavailable"
-"""Reason sent to queries still parked when their server closes; the caller should retry."""
 
 _CONNECT_WINDOW_S = 1.0
 _CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
@@ -116,7 +113,7 @@ class RouterUnreachable(TransportError, Unreachable):
 
 
 class RemoteError(TransportError):
-    """The queryable answered with an error: `reason` (e.g. a `RejectReason` value,
+    """The queryable answered with an error: `reason` (a `hercs.reasons.Reason` value,
     `internal` or `unavailable`) and `detail`. A rejected message is never retried unchanged."""
 
     def __init__(self, key: str, reason: str, detail: str) -> None:
@@ -299,7 +296,7 @@ class PendingReply:
             except Exception as exc:  # the session closed meanwhile, or a payload of bad type
                 log.warning("could not answer a query on %r: %s", self._key, exc)
                 with contextlib.suppress(Exception):  # never leave the caller without an answer
-                    query.reply_err(f"{REASON_INTERNAL}: reply not sent ({exc})".encode(),
+                    query.reply_err(f"{Reason.INTERNAL}: reply not sent ({exc})".encode(),
                                     encoding=ERROR_ENCODING)
             finally:
                 with contextlib.suppress(zenoh.ZError):
@@ -310,7 +307,7 @@ class PendingReply:
 
 def _report(on_error: Callable[[Exception], None] | None, key: str, exc: Exception) -> None:
     if not isinstance(exc, InvalidMessage):
-        log.error("handler for %r raised; replying %r", key, REASON_INTERNAL, exc_info=exc)
+        log.error("handler for %r raised; replying %r", key, Reason.INTERNAL, exc_info=exc)
     if on_error is None:
         if isinstance(exc, InvalidMessage):
             log.warning("rejected a request on %r: %s", key, exc)
@@ -389,7 +386,7 @@ class QueryServer:
                 if not closing:
                     self._pending.add(pending)
             if closing:
-                pending.reply_error(REASON_UNAVAILABLE, f"{self.key} is shutting down")
+                pending.reply_error(Reason.UNAVAILABLE, f"{self.key} is shutting down")
                 continue
             try:
                 self._handler(pending)
@@ -398,7 +395,7 @@ class QueryServer:
                 pending.reply_error(exc.reason, exc.detail)
             except Exception as exc:
                 _report(self._on_error, self.key, exc)
-                pending.reply_error(REASON_INTERNAL, f"{type(exc).__name__}: {exc}")
+                pending.reply_error(Reason.INTERNAL, f"{type(exc).__name__}: {exc}")
 
     def close(self) -> None:
         """Stop taking queries, answer parked ones `unavailable`, join the workers."""
@@ -409,7 +406,7 @@ class QueryServer:
             parked = list(self._pending)
         _undeclare(self._queryable)
         for pending in parked:
-            pending.reply_error(REASON_UNAVAILABLE, f"{self.key} closed before answering")
+            pending.reply_error(Reason.UNAVAILABLE, f"{self.key} closed before answering")
         _join(self._threads)
 
 

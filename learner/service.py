@@ -95,9 +95,7 @@ class LearnerService:
     def _on_eval(self, key: str, payload: bytes) -> None:
         try:
             msg = parse_message(payload, pb.EvalResult, max_bytes=1 << 20)
-            rejection = validate_eval_result(msg)
-            if rejection is not None:
-                raise rejection.error()
+            validate_eval_result(msg)
         except InvalidMessage as exc:
             self.warn.warn("eval", f"ignored an EvalResult: {exc}")
             return

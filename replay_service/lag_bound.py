@@ -21,7 +21,7 @@ Pure bookkeeping under the table's lock.
 
 from __future__ import annotations
 
-from hercs.lockstep import LockstepReason
+from hercs.reasons import Reason
 
 
 class PolicyLagBound:
@@ -32,13 +32,13 @@ class PolicyLagBound:
         self.max_lag = int(max_lag)
 
     def refusal(self, *, policy_version: int, cycle: int,
-                newest_version: int) -> tuple[LockstepReason, str] | None:
+                newest_version: int) -> tuple[Reason, str] | None:
         """Why an episode acted with `policy_version`, to be stored in `cycle`, is refused
         while the learner's newest weights are `newest_version`; None to admit it."""
         lag = cycle - policy_version
         if lag <= self.max_lag or policy_version >= newest_version:
             return None
-        return (LockstepReason.STALE_POLICY,
+        return (Reason.STALE_POLICY,
                 f"episode acted with weights version {policy_version} would be stored in "
                 f"cycle {cycle}: {lag} cycles of policy lag, more than "
                 f"training.max_policy_lag={self.max_lag}; act with version "

@@ -32,7 +32,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable
 
-from hercs.lockstep import LockstepReason
+from hercs.reasons import Reason
 
 
 class LockstepGate:
@@ -57,15 +57,15 @@ class LockstepGate:
         self._waived_fit: int | None = None
         """The refit (by failure count) the gate stopped waiting for."""
 
-    def refuse_insert(self, policy_version: int) -> tuple[LockstepReason, str] | None:
+    def refuse_insert(self, policy_version: int) -> tuple[Reason, str] | None:
         """Why an episode acted with `policy_version` is refused, or None to admit it."""
         if policy_version < self.requested:
-            return (LockstepReason.STALE_POLICY,
+            return (Reason.STALE_POLICY,
                     f"episode acted with weights version {policy_version}; the learner is "
                     f"collecting cycle {self.requested} (lockstep): act with version "
                     f"{self.requested} or newer")
         if self.admitted[policy_version] >= self.episodes_per_cycle:
-            return (LockstepReason.CYCLE_FULL,
+            return (Reason.CYCLE_FULL,
                     f"cycle {policy_version} already has its {self.episodes_per_cycle} "
                     "episodes (lockstep): wait for the next weights")
         return None

@@ -49,6 +49,7 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
+from hercs.reasons import Reason
 from hercs.runlog import (
     MAX_SEQUENCE,
     EpisodeLogError,
@@ -60,7 +61,6 @@ from hercs.served import counters_to_msg, served_batch_to_bytes
 from hercs.service import ServiceRuntime, service_main
 from hercs.transport import PendingReply
 from hercs.validation import (
-    RejectReason,
     decode_episode,
     parse_message,
     validate_centroids,
@@ -199,14 +199,14 @@ class ReplayService:
             held = (f"{end - first} episodes with ids up to {end - 1}" if end > first
                     else "no episode yet")
             raise InvalidMessage(
-                RejectReason.UNKNOWN_EPISODE,
+                Reason.UNKNOWN_EPISODE,
                 f"EpisodeRequest.episode_id {episode_id}: not stored ({why}; the replay holds "
                 f"{held})")
         return episode_to_msg(episode, run=self.config.run.name,
                               task=self.spec.name).SerializeToString()
 
     def _on_episode_request_error(self, exc: Exception) -> None:
-        if isinstance(exc, InvalidMessage) and exc.reason == RejectReason.UNKNOWN_EPISODE:
+        if isinstance(exc, InvalidMessage) and exc.reason == Reason.UNKNOWN_EPISODE:
             log.debug("episode request: %s", exc)
             return
         self._on_reject(exc)
@@ -215,11 +215,9 @@ class ReplayService:
     def _on_sample(self, pending: PendingReply) -> None:
         request = parse_message(pending.payload, pb.SampleRequest,
                                 max_bytes=self.config.replay.max_message_bytes)
-        rejection = validate_sample_request(
+        validate_sample_request(
             request, run=self.config.run.name, max_minibatches=MAX_MINIBATCHES_PER_REQUEST,
             max_batch_size=MAX_BATCH_SIZE, max_rows=MAX_ROWS_PER_REQUEST)
-        if rejection is not None:
-            raise rejection.error()
         call = SampleCall(num_minibatches=int(request.num_minibatches),
                           batch_size=int(request.batch_size),
                           weights_version=int(request.weights_version),
@@ -229,7 +227,7 @@ class ReplayService:
                 served_batch_to_bytes, request_id=call.request_id)),
                               timeout_s=self.config.replay.sample_timeout_s)
         except SampleRefused as exc:
-            raise InvalidMessage(RejectReason.BAD_VALUE, str(exc)) from None
+            raise InvalidMessage(Reason.BAD_VALUE, str(exc)) from None
 
     # -- cluster model and eval results ----------------------------------------------------
     def _on_cluster_model(self, key: str, payload: bytes) -> None:
@@ -243,7 +241,7 @@ class ReplayService:
                            f"logged: {exc}")
             return
         except (InvalidMessage, ValueError) as exc:
-            reason = exc.reason if isinstance(exc, InvalidMessage) else RejectReason.BAD_VALUE
+            reason = exc.reason if isinstance(exc, InvalidMessage) else Reason.BAD_VALUE
             self._on_reject(InvalidMessage(str(reason), f"ClusterModel: {exc}"))
             return
         if adopted:
@@ -251,11 +249,9 @@ class ReplayService:
                      self.table.cluster_sizes())
 
     def _cluster_model(self, msg: pb.ClusterModel) -> ClusterModel:
-        rejection = validate_centroids(msg, k=self.config.cluster.k, goal_dim=self.spec.goal_dim)
-        if rejection is not None:
-            raise rejection.error()
+        validate_centroids(msg, k=self.config.cluster.k, goal_dim=self.spec.goal_dim)
         if msg.version > MAX_SEQUENCE:  # checked before adopting: the log could not hold it
-            raise InvalidMessage(RejectReason.BAD_VALUE,
+            raise InvalidMessage(Reason.BAD_VALUE,
                                  f"ClusterModel.version {msg.version} is above {MAX_SEQUENCE}, "
                                  "the largest the episode log holds")
         return ClusterModel(version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
@@ -274,11 +270,9 @@ class ReplayService:
         try:
             msg = parse_message(payload, pb.EvalResult,
                                 max_bytes=self.config.replay.max_message_bytes)
-            rejection = validate_eval_result(msg)
-            if rejection is not None:
-                raise rejection.error()
+            validate_eval_result(msg)
             if msg.epoch > MAX_SEQUENCE:
-                raise InvalidMessage(RejectReason.BAD_VALUE,
+                raise InvalidMessage(Reason.BAD_VALUE,
                                      f"EvalResult.epoch {msg.epoch} is above {MAX_SEQUENCE}, "
                                      "the largest the episode log holds")
         except InvalidMessage as exc:

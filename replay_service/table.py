@@ -63,6 +63,7 @@ from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.lockstep import schedule_cycle
 from hercs.methods import METHODS
+from hercs.reasons import Reason
 from hercs.served import ReplayCounters, ServedBatch
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
@@ -81,11 +82,6 @@ INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
 """Lockstep: how long a sample waits for a cluster model that is due before it is served with
 the model at hand (the clusterer may be restarting)."""
-EXPIRED = "expired"
-"""Reason given to a parked call dropped by `expire`."""
-LOG_FAILED = "log_failed"
-"""Reason given to an insert whose log append failed (disk full, I/O error): it was neither
-stored nor acknowledged, and the actor retries it."""
 
 T_contra = TypeVar("T_contra", contravariant=True)
 T = TypeVar("T")
@@ -96,7 +92,7 @@ class Waiter(Protocol[T_contra]):
 
     def done(self, result: T_contra) -> None: ...
 
-    def fail(self, reason: str, detail: str) -> None: ...
+    def fail(self, reason: Reason, detail: str) -> None: ...
 
 
 class EpisodeLogSink(Protocol):
@@ -339,7 +335,7 @@ class ReplayTable:
             if self.gate is not None:
                 self.gate.cancel(item.episode.policy_version)
             for waiter in item.waiters:
-                waiter.fail(LOG_FAILED, f"episode not logged, so not stored: {exc}")
+                waiter.fail(Reason.LOG_FAILED, f"episode not logged, so not stored: {exc}")
 
     def _store(self, item: _ParkedInsert, episode_id: int) -> None:
         episode = item.episode
@@ -505,8 +501,8 @@ class ReplayTable:
             expired: list[_Parked[Any]] = [*inserts, *samples]
             for parked in expired:
                 for waiter in parked.waiters:
-                    waiter.fail(EXPIRED, "the rate limiter held this call past its caller's "
-                                         "timeout; the caller retries")
+                    waiter.fail(Reason.EXPIRED, "the rate limiter held this call past its "
+                                                "caller's timeout; the caller retries")
             if inserts or samples or self.gate is not None:
                 # A dropped head of a queue may have held admissible calls; in lockstep a
                 # sample may have waited long enough for a late cluster model.

@@ -78,11 +78,11 @@ from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
 from hercs.policy import Policy
+from hercs.reasons import Reason
 from hercs.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
 from hercs.served import decode_served_batch
 from hercs.transport import PendingReply, RemoteError, Transport, TransportError
 from hercs.validation import (
-    RejectReason,
     decode_episode,
     parse_message,
     validate_centroids,
@@ -248,7 +248,7 @@ def oversized_probes(bases: list[bytes], limit: int) -> st.SearchStrategy[Probe]
         else:
             payload = np.random.default_rng(seed).bytes(limit + extra)
         assert len(payload) > limit
-        return Probe(payload, "oversized", RejectReason.OVERSIZED)
+        return Probe(payload, "oversized", Reason.OVERSIZED)
 
     return st.tuples(st.sampled_from(bases), st.integers(1, 4096), st.booleans(), SEEDS).map(
         make)
@@ -784,12 +784,10 @@ def insert_verdict(raw: bytes) -> str:
 def sample_verdict(raw: bytes) -> str:
     def check() -> None:
         msg = parse_message(raw, pb.SampleRequest, max_bytes=MAX_BYTES)
-        rejection = validate_sample_request(msg, run=RUN_R,
+        validate_sample_request(msg, run=RUN_R,
                                             max_minibatches=MAX_MINIBATCHES_PER_REQUEST,
                                             max_batch_size=MAX_BATCH_SIZE,
                                             max_rows=MAX_ROWS_PER_REQUEST)
-        if rejection is not None:
-            raise rejection.error()
 
     return reason_of(check)
 
@@ -802,9 +800,7 @@ def eval_verdict(raw: bytes, *, limit: int = LEARNER_EVAL_MAX_BYTES) -> str:
     """What the learner says about an EvalResult."""
 
     def check() -> None:
-        rejection = validate_eval_result(parse_message(raw, pb.EvalResult, max_bytes=limit))
-        if rejection is not None:
-            raise rejection.error()
+        validate_eval_result(parse_message(raw, pb.EvalResult, max_bytes=limit))
 
     return reason_of(check)
 
@@ -836,9 +832,7 @@ class ModelOracle:
     def __call__(self, raw: bytes) -> str:
         try:
             msg = parse_message(raw, pb.ClusterModel, max_bytes=MAX_BYTES)
-            rejection = validate_centroids(msg, k=K, goal_dim=SPEC.goal_dim)
-            if rejection is not None:
-                raise rejection.error()
+            validate_centroids(msg, k=K, goal_dim=SPEC.goal_dim)
             if msg.version > MAX_SEQUENCE:  # the replay's log could not hold it
                 return "bad_value"
             with np.errstate(over="ignore"):  # float64 beyond float32: inf, refused

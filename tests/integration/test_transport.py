@@ -19,9 +19,8 @@ from typing import Any
 import pytest
 
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.reasons import Reason
 from hercs.transport import (
-    REASON_INTERNAL,
-    REASON_UNAVAILABLE,
     PendingReply,
     RemoteError,
     Transport,
@@ -116,7 +115,7 @@ def test_handler_bug_is_an_internal_error_reply_answered_once(
 
     with pytest.raises(RemoteError) as info:
         client.request(f"{RUN}/replay/sample", b"x", timeout_s=WAIT_S)
-    assert info.value.reason == REASON_INTERNAL
+    assert info.value.reason == Reason.INTERNAL
     assert detail in info.value.detail
     assert calls == [b"x"]  # not re-sent
 
@@ -178,7 +177,7 @@ def test_closing_a_server_answers_parked_queries_unavailable(open_client: OpenCl
     srv.close()
 
     error = result.get(timeout=WAIT_S)
-    assert isinstance(error, RemoteError) and error.reason == REASON_UNAVAILABLE
+    assert isinstance(error, RemoteError) and error.reason == Reason.UNAVAILABLE
     assert time.monotonic() - started < 1.0
     assert not pending.reply(b"too late")  # the limiter's later answer is a harmless no-op
 

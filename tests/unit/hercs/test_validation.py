@@ -8,9 +8,9 @@ import pytest
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
+from hercs.reasons import Reason
 from hercs.tasks import task_spec
 from hercs.validation import (
-    RejectReason,
     decode_episode,
     parse_message,
     validate_centroids,
@@ -18,6 +18,15 @@ from hercs.validation import (
     validate_sample_request,
 )
 from proto import hercs_pb2 as pb
+
+
+def rejected(check: Callable[[], object]) -> InvalidMessage | None:
+    """What a validator raised (None: it accepted the message)."""
+    try:
+        check()
+    except InvalidMessage as exc:
+        return exc
+    return None
 
 SPEC = task_spec("push")
 MAX = 1 << 20
@@ -54,34 +63,34 @@ def _truncate_data(msg: pb.Episode) -> None:
     msg.ag.data = msg.ag.data[:-4]
 
 
-CASES: list[tuple[str, Callable[[pb.Episode], None], RejectReason, str]] = [
-    ("schema", lambda m: setattr(m, "schema_version", 99), RejectReason.SCHEMA_VERSION,
+CASES: list[tuple[str, Callable[[pb.Episode], None], Reason, str]] = [
+    ("schema", lambda m: setattr(m, "schema_version", 99), Reason.SCHEMA_VERSION,
      "schema_version 99"),
-    ("run", lambda m: setattr(m, "run", "other"), RejectReason.UNKNOWN_RUN, "'other'"),
-    ("task", lambda m: setattr(m, "task", "slide"), RejectReason.WRONG_TASK, "'slide'"),
-    ("actor", lambda m: setattr(m, "actor_id", ""), RejectReason.MISSING_FIELD, "actor_id"),
-    ("missing-array", lambda m: m.ClearField("actions"), RejectReason.MISSING_FIELD,
+    ("run", lambda m: setattr(m, "run", "other"), Reason.UNKNOWN_RUN, "'other'"),
+    ("task", lambda m: setattr(m, "task", "slide"), Reason.WRONG_TASK, "'slide'"),
+    ("actor", lambda m: setattr(m, "actor_id", ""), Reason.MISSING_FIELD, "actor_id"),
+    ("missing-array", lambda m: m.ClearField("actions"), Reason.MISSING_FIELD,
      "Episode.actions is missing"),
-    ("dtype", _set_array("obs", np.zeros((51, 25), np.float64)), RejectReason.BAD_DTYPE,
+    ("dtype", _set_array("obs", np.zeros((51, 25), np.float64)), Reason.BAD_DTYPE,
      "Episode.obs: dtype 'float64'"),
-    ("dims", _set_array("obs", np.zeros((51, 10), np.float32)), RejectReason.BAD_SHAPE,
+    ("dims", _set_array("obs", np.zeros((51, 10), np.float32)), Reason.BAD_SHAPE,
      "Episode.obs: shape (51, 10), expected (51, 25)"),
-    ("rank", _set_array("g", np.zeros(150, np.float32)), RejectReason.BAD_SHAPE, "Episode.g"),
-    ("length", _set_array("actions", np.zeros((40, 4), np.float32)), RejectReason.BAD_LENGTH,
+    ("rank", _set_array("g", np.zeros(150, np.float32)), Reason.BAD_SHAPE, "Episode.g"),
+    ("length", _set_array("actions", np.zeros((40, 4), np.float32)), Reason.BAD_LENGTH,
      "Episode.actions: 40 steps"),
-    ("bytes", _truncate_data, RejectReason.BAD_ARRAY, "Episode.ag"),
-    ("nan", _nan_at("obs", (7, 3)), RejectReason.NON_FINITE, "index (7, 3)"),
+    ("bytes", _truncate_data, Reason.BAD_ARRAY, "Episode.ag"),
+    ("nan", _nan_at("obs", (7, 3)), Reason.NON_FINITE, "index (7, 3)"),
     ("inf", lambda m: _set_array("g", np.full((50, 3), np.inf, np.float32))(m),
-     RejectReason.NON_FINITE, "Episode.g"),
+     Reason.NON_FINITE, "Episode.g"),
 ]
 
 
 @pytest.mark.parametrize(("mutate", "reason", "detail"), [c[1:] for c in CASES],
                          ids=[c[0] for c in CASES])
-def test_reject_reason(mutate, reason: RejectReason, detail: str) -> None:
+def test_reject_reason(mutate, reason: Reason, detail: str) -> None:
     msg = good_message()
     mutate(msg)
-    rejection = validate_episode(msg, SPEC, run="run1")
+    rejection = rejected(lambda: validate_episode(msg, SPEC, run="run1"))
     assert rejection is not None
     assert rejection.reason == reason
     assert detail in rejection.detail
@@ -93,14 +102,14 @@ def test_reject_reason(mutate, reason: RejectReason, detail: str) -> None:
 def test_undecodable_bytes() -> None:
     with pytest.raises(InvalidMessage) as err:
         decode_episode(b"\xff\xff\xff\xff garbage", SPEC, run="run1", max_bytes=MAX)
-    assert err.value.reason == RejectReason.UNDECODABLE
+    assert err.value.reason == Reason.UNDECODABLE
     assert "do not parse" in err.value.detail
 
 
 def test_bytes_that_parse_but_are_not_ours_fail_the_schema_check() -> None:
     with pytest.raises(InvalidMessage) as err:
         decode_episode(b"", SPEC, run="run1", max_bytes=MAX)
-    assert err.value.reason == RejectReason.SCHEMA_VERSION
+    assert err.value.reason == Reason.SCHEMA_VERSION
     assert "not a hercs message" in err.value.detail
 
 
@@ -108,14 +117,14 @@ def test_oversized_is_rejected_before_parsing() -> None:
     raw = good_message().SerializeToString()
     with pytest.raises(InvalidMessage) as err:
         decode_episode(raw, SPEC, run="run1", max_bytes=len(raw) - 1)
-    assert err.value.reason == RejectReason.OVERSIZED
+    assert err.value.reason == Reason.OVERSIZED
     assert str(len(raw)) in err.value.detail
 
 
 def test_any_run_accepted_when_not_checked() -> None:
     msg = good_message()
     msg.run = "other"
-    assert validate_episode(msg, SPEC, run=None) is None
+    assert rejected(lambda: validate_episode(msg, SPEC, run=None)) is None
 
 
 def test_parse_message_checks_schema_of_any_type() -> None:
@@ -132,19 +141,19 @@ def test_parse_message_checks_schema_of_any_type() -> None:
 def test_sample_request_bounds(minibatches: int, batch_size: int, ok: bool) -> None:
     msg = pb.SampleRequest(schema_version=1, run="run1", num_minibatches=minibatches,
                            batch_size=batch_size)
-    rejection = validate_sample_request(msg, run="run1", max_minibatches=40, max_batch_size=4096,
-                                        max_rows=25 * 4096)
+    rejection = rejected(lambda: validate_sample_request(
+        msg, run="run1", max_minibatches=40, max_batch_size=4096, max_rows=25 * 4096))
     assert (rejection is None) == ok
     if not ok:
-        assert rejection.reason == RejectReason.BAD_VALUE
+        assert rejection is not None and rejection.reason == Reason.BAD_VALUE
 
 
 def test_centroid_checks() -> None:
     msg = pb.ClusterModel(schema_version=1, version=1,
                           centroids=array_to_msg(np.zeros((8, 3), np.float32)))
-    assert validate_centroids(msg, k=8) is None
-    assert validate_centroids(msg, k=4).reason == RejectReason.BAD_SHAPE
+    assert rejected(lambda: validate_centroids(msg, k=8)) is None
+    assert rejected(lambda: validate_centroids(msg, k=4)).reason == Reason.BAD_SHAPE
     bad = np.zeros((8, 3), np.float32)
     bad[2, 1] = np.nan
     array_to_msg(bad, out=msg.centroids)
-    assert validate_centroids(msg, k=8).reason == RejectReason.NON_FINITE
+    assert rejected(lambda: validate_centroids(msg, k=8)).reason == Reason.NON_FINITE

@@ -14,14 +14,12 @@ import pytest
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
-from hercs.lockstep import LockstepReason
+from hercs.reasons import Reason
 from hercs.served import ServedBatch
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
 from replay_service.table import (
-    EXPIRED,
     LOCKSTEP_CLUSTER_WAIT_S,
-    LOG_FAILED,
     ReplayTable,
     SampleCall,
     SampleRefused,
@@ -197,7 +195,7 @@ def test_a_failed_log_append_answers_log_failed_and_stores_nothing() -> None:
     h.insert(0)
     h.log.fail_next = 1
     failed = h.insert(1)
-    assert failed.failures and failed.failures[0][0] == LOG_FAILED
+    assert failed.failures and failed.failures[0][0] == Reason.LOG_FAILED
     assert "No space left" in failed.failures[0][1]
     st = h.table.status()
     assert (st.size_episodes, st.inserts, h.table.log_failures) == (1, 1, 1)
@@ -211,7 +209,7 @@ def test_parked_calls_expire_after_their_callers_timeout_and_the_rest_keep_order
     patient = h.sample(8, "patient", timeout_s=60.0)
     h.clock.now += 5.0
     assert h.table.expire() == 1
-    assert early.failures[0][0] == EXPIRED and not early.results
+    assert early.failures[0][0] == Reason.EXPIRED and not early.results
     assert h.table.status().samples_waiting == 1
     for seq in range(4):
         h.insert(seq)
@@ -221,7 +219,7 @@ def test_parked_calls_expire_after_their_callers_timeout_and_the_rest_keep_order
         h.insert(seq)
     held = h.insert(12, timeout_s=10.0)
     h.clock.now += 10.0
-    assert h.table.expire() == 1 and held.failures[0][0] == EXPIRED
+    assert h.table.expire() == 1 and held.failures[0][0] == Reason.EXPIRED
     h.sample(8)
     retry = h.insert(12)
     assert retry.results and not retry.results[0].duplicate
@@ -404,17 +402,17 @@ def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> 
     version the actor's next episode needs; the lag against the lockstep schedule is 0."""
     h = make("training.schedule=lockstep")
     early = insert_acted(h, 0, -1)  # acted before the learner's first broadcast
-    assert early.failures and early.failures[0][0] == LockstepReason.STALE_POLICY
+    assert early.failures and early.failures[0][0] == Reason.STALE_POLICY
     request0 = h.sample(8, "cycle 0", version=0)
     acks = [insert_acted(h, seq, 0) for seq in range(1, 5)]
     assert [a.results[0].next_policy_version for a in acks] == [0, 0, 0, 1]
     assert request0.results, "served once its cycle's four episodes are stored"
     assert h.journal.index("done insert a/4") < h.journal.index("done cycle 0")
     surplus = insert_acted(h, 5, 0, actor="b")
-    assert surplus.failures[0][0] == LockstepReason.CYCLE_FULL and not surplus.results
+    assert surplus.failures[0][0] == Reason.CYCLE_FULL and not surplus.results
     request1 = h.sample(8, "cycle 1", version=1)
     late = insert_acted(h, 6, 0, actor="b")
-    assert late.failures[0][0] == LockstepReason.STALE_POLICY
+    assert late.failures[0][0] == Reason.STALE_POLICY
     for seq in range(7, 10):
         insert_acted(h, seq, 1)
     assert not request1.results, "three of cycle 1's four episodes are not enough"
@@ -456,7 +454,7 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     assert not first_ask.results
     h.clock.now += 20
     h.table.expire()  # the learner's request times out; it asks again
-    assert first_ask.failures and first_ask.failures[0][0] == EXPIRED
+    assert first_ask.failures and first_ask.failures[0][0] == Reason.EXPIRED
     retry = h.sample(8, "cycle 1 again", version=1)
     h.clock.now += LOCKSTEP_CLUSTER_WAIT_S - 20
     h.table.expire()  # the service's once-a-second tick
@@ -480,7 +478,7 @@ def test_lockstep_counts_survive_a_replay_restart() -> None:
         recovered.append((seq, episode))
     assert h.table.recover(recovered) == []
     assert h.sample(8, "cycle 0 again", version=0).results
-    assert insert_acted(h, 6, 0).failures[0][0] == LockstepReason.STALE_POLICY
+    assert insert_acted(h, 6, 0).failures[0][0] == Reason.STALE_POLICY
     request1 = h.sample(8, "cycle 1", version=1)
     insert_acted(h, 7, 1)
     assert not request1.results
@@ -527,7 +525,7 @@ def test_the_lag_bound_refuses_a_stale_episode_before_storing_it() -> None:
     for seq in range(4, 8):                      # cycle 1: lag 1 with version 0, allowed
         assert insert_acted(h, seq, 0).results
     stale = insert_acted(h, 8, 0)                # cycle 2 with version 0: lag 2 > 1
-    assert stale.failures[0][0] == LockstepReason.STALE_POLICY
+    assert stale.failures[0][0] == Reason.STALE_POLICY
     assert "training.max_policy_lag=1" in stale.failures[0][1]
     assert "act with version 1 or newer" in stale.failures[0][1]
     assert not stale.results and len(h.log.episodes) == 8, "neither logged nor stored"
@@ -552,7 +550,7 @@ def test_the_lag_bound_always_admits_an_episode_acted_with_the_newest_weights() 
     newest = insert_acted(h, 12, 1)              # cycle 3 with version 1: lag 2 > 1 ...
     assert newest.results[0].episode_id == 12, "... but no newer weights exist: admitted"
     older = insert_acted(h, 13, 0)               # cycle 3 with version 0: refused
-    assert older.failures[0][0] == LockstepReason.STALE_POLICY
+    assert older.failures[0][0] == Reason.STALE_POLICY
     assert newest.results[0].next_policy_version == 1, "never newer than the newest weights"
 
 

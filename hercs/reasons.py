@@ -1,0 +1,87 @@
+"""The one vocabulary of error-reply reasons, each tagged with what a client does on it.
+
+Every refusal a service sends (`PendingReply.reply_error`, an `InvalidMessage`, a parked call
+failed by the replay table) names one of these; `ReplayStatus.rejects` counts them by value.
+A client decides from the tag alone:
+
+- `DROP`: the message itself can never succeed (malformed, wrong run or task, a miss): drop it,
+  count it, never resend it unchanged;
+- `SUPERSEDED`: well formed but no longer wanted (the lockstep schedule or the lag bound has
+  moved on): drop it quietly and act with newer weights;
+- `RETRY`: the service could not answer now (shutting down, a log write failed, held past
+  the caller's timeout, a handler error): send the same bytes again after a backoff.
+
+A reason outside this enum (a newer peer's) is retried with a warning; with
+`HERCS_STRICT_REASONS=1` (set for the test suite) it raises instead, so that a new reason
+added without a tag fails the tests rather than silently meaning "retry".
+"""
+
+from __future__ import annotations
+
+import os
+from enum import StrEnum
+
+
+class Disposition(StrEnum):
+    DROP = "drop"
+    SUPERSEDED = "superseded"
+    RETRY = "retry"
+
+
+class Reason(StrEnum):
+    disposition: Disposition
+
+    def __new__(cls, value: str, disposition: Disposition) -> Reason:
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.disposition = disposition
+        return member
+
+    # the message is malformed (hercs.validation, hercs.codec)
+    UNDECODABLE = "undecodable", Disposition.DROP
+    OVERSIZED = "oversized", Disposition.DROP
+    SCHEMA_VERSION = "schema_version", Disposition.DROP
+    UNKNOWN_RUN = "unknown_run", Disposition.DROP
+    WRONG_TASK = "wrong_task", Disposition.DROP
+    MISSING_FIELD = "missing_field", Disposition.DROP
+    BAD_ARRAY = "bad_array", Disposition.DROP
+    BAD_DTYPE = "bad_dtype", Disposition.DROP
+    BAD_SHAPE = "bad_shape", Disposition.DROP
+    BAD_LENGTH = "bad_length", Disposition.DROP
+    NON_FINITE = "non_finite", Disposition.DROP
+    BAD_VALUE = "bad_value", Disposition.DROP
+    UNKNOWN_EPISODE = "unknown_episode", Disposition.DROP
+    """An `EpisodeRequest` for an id the replay does not hold (never inserted, or overwritten
+    by the ring): a miss, not bad input, so it is not counted in `ReplayStatus.rejects`."""
+    # well formed, not wanted (hercs.lockstep, replay_service.lag_bound)
+    STALE_POLICY = "stale_policy", Disposition.SUPERSEDED
+    """Acted with weights older than the lockstep cycle or the lag bound allows."""
+    CYCLE_FULL = "cycle_full", Disposition.SUPERSEDED
+    """Lockstep: its cycle already has its `episodes_per_cycle` episodes."""
+    # not now (replay_service.table, hercs.transport)
+    EXPIRED = "expired", Disposition.RETRY
+    """The rate limiter held the call past its caller's timeout."""
+    LOG_FAILED = "log_failed", Disposition.RETRY
+    """The episode log append failed (disk full, I/O error): neither stored nor acked."""
+    UNAVAILABLE = "unavailable", Disposition.RETRY
+    """The service is shutting down, or closed before answering."""
+    INTERNAL = "internal", Disposition.RETRY
+    """The handler raised; the error is logged where it happened."""
+
+
+_BY_VALUE: dict[str, Reason] = {r.value: r for r in Reason}
+
+
+class UnknownReason(ValueError):
+    """An error reply named a reason outside `Reason` (strict mode only)."""
+
+
+def disposition(reason: str) -> Disposition:
+    """What a client does on an error reply naming `reason`."""
+    known = _BY_VALUE.get(reason)
+    if known is not None:
+        return known.disposition
+    if os.environ.get("HERCS_STRICT_REASONS") == "1":
+        raise UnknownReason(f"error-reply reason {reason!r} is not in hercs.reasons.Reason; "
+                            "add it there with its disposition")
+    return Disposition.RETRY
