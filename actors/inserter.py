@@ -37,6 +37,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from hercs.backoff import Backoff
 from hercs.errors import InvalidMessage
 from hercs.reasons import Disposition, disposition
 from hercs.service import start_supervised
@@ -198,7 +199,7 @@ class Inserter:
     def _deliver(self, seq: int, payload: bytes) -> None:
         """Send until acked, dropped, superseded or aborted; counts the outcome."""
         c = self.counters
-        delay, max_delay = self._backoff
+        backoff = Backoff(*self._backoff)
         attempt = 0
         while True:
             if self._abort.is_set():
@@ -239,11 +240,11 @@ class Inserter:
             c.retries += 1
             self._warn.warn(f"retry:{kind}",
                             f"insert of ({self.actor_id}, seq {seq}) not acked ({why}); "
-                            f"retrying the same episode in {delay:.1f} s (attempt {attempt + 1})")
-            if self._abort.wait(delay):
+                            f"retrying the same episode in {backoff.next_s:.1f} s (attempt "
+                            f"{attempt + 1})")
+            if backoff.wait(self._abort):
                 c.abandoned += 1
                 return
-            delay = min(delay * 2.0, max_delay)
 
     def _check_ack(self, reply: bytes, seq: int, *,
                    first_attempt: bool) -> pb.InsertAck | str:

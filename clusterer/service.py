@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from clusterer.core import Clusterer
+from hercs.backoff import Backoff
 from hercs.clustering import ClusterModel
 from hercs.codec import array_to_msg, msg_to_array
 from hercs.config import HercsConfig
@@ -161,7 +162,7 @@ class ClustererService:
         gets an empty snapshot. False if stopped first."""
         stop, keys = self.runtime.stop, self.runtime.keys
         request = pb.ClustererStateRequest(schema_version=SCHEMA_VERSION).SerializeToString()
-        delay = 0.2
+        backoff = Backoff(0.2, 2.0)
         while not stop.is_set():
             try:
                 raw = self.runtime.transport.request(keys.clusterer_state, request,
@@ -174,8 +175,7 @@ class ClustererService:
                                                       f"{goals.shape} or values unusable")
             except (TransportError, InvalidMessage) as exc:
                 self._warn.warn("state", f"waiting for the replay's clusterer state: {exc}")
-                stop.wait(delay)
-                delay = min(delay * 2, 2.0)
+                backoff.wait(stop)
                 continue
             self.core.resume(failed_goals=goals, failures_seen=int(state.failures_seen),
                              episodes_seen=int(state.episodes_seen),

@@ -54,6 +54,11 @@ class RunDirError(HercsError):
     names the folder, what is missing and what to do."""
 
 
+def run_dir_of(run: RunConfig) -> Path:
+    """`run.run_dir/run.name`: where every process of the run reads and writes its files."""
+    return Path(run.run_dir) / run.name
+
+
 def epoch_file(epoch: int) -> str:
     """The name of the policy file kept every `training.checkpoint_every` epochs."""
     return f"epoch-{epoch:04d}.pt"

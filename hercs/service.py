@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping
 
 import yaml
 
+from hercs.backoff import Backoff
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, Unreachable
 from hercs.security import zenoh_settings
@@ -259,7 +260,7 @@ def join_run(runtime: ServiceRuntime, local: HercsConfig, *,
     """
     run = local.run.name
     wait_s = local.transport.wait_s
-    delay = 0.1
+    backoff = Backoff(0.1, CONFIG_RETRY_MAX_S)
     start = time.monotonic()
     next_log = start
     while not runtime.stop.is_set():
@@ -289,6 +290,5 @@ def join_run(runtime: ServiceRuntime, local: HercsConfig, *,
             kept = {name: getattr(local, name) for name in keep}
             return dataclasses.replace(
                 remote, run=dataclasses.replace(remote.run, name=run), **kept)
-        runtime.stop.wait(delay)
-        delay = min(delay * 2.0, CONFIG_RETRY_MAX_S)
+        backoff.wait(runtime.stop)
     return None

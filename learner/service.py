@@ -24,7 +24,7 @@ from hercs.codec import weights_to_msg
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.metrics import MetricsCsv
-from hercs.rundir import BEST, CHECKPOINTS, METRICS, TENSORBOARD
+from hercs.rundir import BEST, CHECKPOINTS, METRICS, TENSORBOARD, run_dir_of
 from hercs.service import ServiceRuntime, service_main
 from hercs.validation import parse_message, validate_eval_result
 from hercs.warn_once import WarnOncePerMinute
@@ -229,7 +229,7 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
 
 def _work(runtime: ServiceRuntime) -> int:
     config = runtime.config
-    run_dir = Path(config.run.run_dir) / config.run.name
+    run_dir = run_dir_of(config.run)
     run_dir.mkdir(parents=True, exist_ok=True)
     service = LearnerService(config=config, runtime=runtime, run_dir=run_dir)
     try:

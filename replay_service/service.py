@@ -50,6 +50,7 @@ from hercs.codec import (
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
 from hercs.reasons import Reason
+from hercs.rundir import CONFIG, run_dir_of
 from hercs.runlog import (
     MAX_SEQUENCE,
     EpisodeLogError,
@@ -307,10 +308,10 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
 
 def _work(runtime: ServiceRuntime) -> int:
     config = runtime.config
-    run_dir = Path(config.run.run_dir) / config.run.name
+    run_dir = run_dir_of(config.run)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not (run_dir / "config.yaml").exists():  # `hercs up` writes it; compose runs do not
-        save_yaml(config, run_dir / "config.yaml")
+    if not (run_dir / CONFIG).exists():  # `hercs up` writes it; compose runs do not
+        save_yaml(config, run_dir / CONFIG)
     service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
     log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
              config.task.name, config.run.method, config.capacity_episodes)
