@@ -100,9 +100,6 @@ class SampleToInsertRatio:
         request behind it)."""
         return num_minibatches <= self.max_admissible_sample()
 
-    def record_insert(self) -> None:
-        self.inserts += 1
-
     def admit_insert(self) -> None:
         """An insert was admitted; it is stored later (`store_admitted`) or
         given up (`cancel_inserts`)."""
@@ -140,9 +137,11 @@ class SampleToInsertRatio:
         return RateLimiterState(self.inserts, self.samples, self.surplus, self.min_surplus,
                                 self.max_surplus)
 
-    def state_dict(self) -> dict[str, int]:
-        return {"inserts": self.inserts, "samples": self.samples}
-
-    def load_state_dict(self, state: dict[str, int]) -> None:
-        self.inserts = int(state["inserts"])
-        self.samples = int(state["samples"])
+    def restart_balanced(self, inserts: int) -> None:
+        """A restarted replay recovered `inserts` episodes from its log: count them as inserted
+        and as sampled at exactly the ratio (the samples of its previous life are unknown),
+        so that neither side is held for history it cannot see."""
+        if inserts < 0:
+            raise ValueError(f"restart_balanced: got {inserts} inserts, must be >= 0")
+        self.inserts = int(inserts)
+        self.samples = int(inserts * self.samples_per_insert)

@@ -246,8 +246,7 @@ class ReplayTable:
             if self.gate is not None:
                 self.gate.recover(versions)
             if count:
-                self.limiter.inserts = count
-                self.limiter.samples = int(count * self.limiter.samples_per_insert)
+                self.limiter.restart_balanced(count)
                 if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
                     self._recovered_unplaced = count
         return mismatched
