@@ -27,8 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # `python bench/sampler_mix.py` from a checkout
     sys.path.insert(0, str(REPO))
 
-from hercs.clustering import ClusterModel  # noqa: E402
-from hercs.codec import msg_to_array, msg_to_episode  # noqa: E402
+from hercs.codec import msg_to_cluster_model, msg_to_episode  # noqa: E402
 from hercs.config import apply_overrides, load_yaml  # noqa: E402
 from hercs.runlog import (  # noqa: E402
     TOPIC_CLUSTER_MODEL,
@@ -76,10 +75,7 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
     next_mark = every_epochs * per_epoch
     for message in read_messages(run_dir, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
         if message.topic == TOPIC_CLUSTER_MODEL:
-            msg = message.decode_as(pb.ClusterModel)
-            core.set_cluster_model(ClusterModel(
-                version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
-                n_goals=int(msg.fitted_on), inserts_seen=int(msg.failed_goals_seen)))
+            core.set_cluster_model(msg_to_cluster_model(message.decode_as(pb.ClusterModel)))
             continue
         core.insert(msg_to_episode(message.decode_as(pb.Episode)))
         if core.store.num_inserted < next_mark:

@@ -392,7 +392,7 @@ from apps.router import open_router  # noqa: E402
 from bench.common import cpu_info, git_commit  # noqa: E402
 from bench.learner import gemm_rate, make_batch, update_flops, update_rate  # noqa: E402
 from hercs.clustering import ClusterModel  # noqa: E402
-from hercs.codec import array_to_msg, episode_to_msg  # noqa: E402
+from hercs.codec import cluster_model_to_msg, episode_to_msg  # noqa: E402
 from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
 from hercs.envs import make_env  # noqa: E402
 from hercs.episode import EpisodeData, random_episode  # noqa: E402
@@ -1256,7 +1256,7 @@ class Bench:
         fill_core(core, self.pool, episodes)
         if config.run.uses_clusters:
             core.set_cluster_model(ClusterModel(version=1, centroids=cluster_centroids(
-                self.spec), n_goals=config.cluster.fgb_size, inserts_seen=episodes))
+                self.spec), n_goals=config.cluster.fgb_size, failures_seen=episodes))
         out = []
         for i in range(p.sample_warmup_requests + p.sample_requests):
             start = time.perf_counter()
@@ -1298,11 +1298,10 @@ class Bench:
     def publish_cluster_model(self, replay: Child) -> None:
         centroids = cluster_centroids(self.spec)
         publisher = self.client.publisher(self.keys.cluster_model, latest=True, block=True)
-        msg = pb.ClusterModel(schema_version=SCHEMA_VERSION, version=1,
-                              centroids=array_to_msg(centroids),
-                              fitted_on=self.configs["her-cs"][0].cluster.fgb_size,
-                              failed_goals_seen=self.configs["her-cs"][0].cluster.fgb_size)
-        publisher.put(msg.SerializeToString())
+        fgb_size = self.configs["her-cs"][0].cluster.fgb_size
+        model = ClusterModel(version=1, centroids=centroids, n_goals=fgb_size,
+                             failures_seen=fgb_size)
+        publisher.put(cluster_model_to_msg(model).SerializeToString())
         status = self.wait_status(lambda s: s.cluster_model_version >= 1,
                                   what="cluster model v1 adopted", replay=replay)
         self.details.setdefault("samples", {})["her-cs_cluster_sizes"] = list(
