@@ -1,7 +1,7 @@
 """The project's claims as the field states them: IQM and mean over seeds with stratified
 bootstrap intervals, and the probability of improvement (rliable, Agarwal et al. 2021).
 
-    python bench/claims.py          # committed runs + the authors' curves → docs/results/claims.md
+    python -m bench.claims          # committed runs + the authors' curves → docs/results/claims.md
 
 Reads finished runs (config.yaml + metrics.csv) from `--runs` (default docs/results/runs/, the
 committed ones) and the authors' per-seed curves (docs/reference/authors_success_rates.csv).
@@ -37,14 +37,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/claims.py` from a checkout
-    sys.path.insert(0, str(REPO))
+import numpy as np
+import yaml
 
-import numpy as np  # noqa: E402
-import yaml  # noqa: E402
-
-from apps.plots import (  # noqa: E402
+from apps.plots import (
     Curve,
     aggregate,
     load_reference,
@@ -53,7 +49,9 @@ from apps.plots import (  # noqa: E402
     milestones,
     task_title,
 )
-from hercs.config import HercsConfig  # noqa: E402
+from hercs.config import HercsConfig
+
+REPO = Path(__file__).resolve().parents[1]
 
 OUTPUT = "claims.md"
 EPOCH = 50
@@ -537,7 +535,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.reps < 100:
         p.error(f"--reps must be at least 100, got {args.reps}")
     groups = load_groups(args.runs)
-    command = " ".join(["python bench/claims.py", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join(["python -m bench.claims", *(sys.argv[1:] if argv is None else argv)])
     text = report(evaluate(CLAIMS, groups, reps=args.reps), groups, command, reps=args.reps)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / OUTPUT).write_text(text)

@@ -1,7 +1,7 @@
 """What differs between the authors' Fetch*-v1 (mujoco-py, MuJoCo 2.1) and Fetch*-v4 (MuJoCo 3).
 
-    python bench/env_diff.py            # push, pick, slide: ~5 min on one core
-    python bench/env_diff.py --quick    # CI: push only, a few resets and episodes (< 20 s)
+    python -m bench.env_diff            # push, pick, slide: ~5 min on one core
+    python -m bench.env_diff --quick    # CI: push only, a few resets and episodes (< 20 s)
 
 Both versions load the same XML files (gymnasium-robotics' assets) and run the same Python task
 code; what can differ is the simulator that compiles and steps them. Per task, with one v1 and
@@ -49,15 +49,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from bench.common import git_commit, machine_identity
+from hercs.envs import make_env, mujoco_py_problem
+from hercs.tasks import fetch_reward, task_spec
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/env_diff.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-import numpy as np  # noqa: E402
-
-from bench.common import git_commit, machine_identity  # noqa: E402
-from hercs.envs import make_env, mujoco_py_problem  # noqa: E402
-from hercs.tasks import fetch_reward, task_spec  # noqa: E402
 
 TASKS = ("push", "pick", "slide")
 G = 9.81

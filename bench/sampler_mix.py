@@ -1,6 +1,6 @@
 """What each sampler feeds the learner: the mix of episodes HER and HER-CS draw from one buffer.
 
-    python bench/sampler_mix.py runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
+    python -m bench.sampler_mix runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
 
 Replays a run's episode log (`episodes.mcap`: every acked episode and every cluster model, in
 the order the replay saw them) into a `ReplayCore`, and at every `--every-epochs` epoch
@@ -23,20 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/sampler_mix.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-from hercs.codec import msg_to_cluster_model, msg_to_episode  # noqa: E402
-from hercs.config import apply_overrides, load_yaml  # noqa: E402
-from hercs.runlog import (  # noqa: E402
+from hercs.codec import msg_to_cluster_model, msg_to_episode
+from hercs.config import apply_overrides, load_yaml
+from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,
 )
-from proto import hercs_pb2 as pb  # noqa: E402
-from replay_service.core import ReplayCore  # noqa: E402
-from replay_service.samplers import make_sampler  # noqa: E402
+from proto import hercs_pb2 as pb
+from replay_service.core import ReplayCore
+from replay_service.samplers import make_sampler
+
+REPO = Path(__file__).resolve().parents[1]
 
 BATCH = 256
 

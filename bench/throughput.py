@@ -1,7 +1,7 @@
 """Throughput of the running system against its physical limits, measured side by side.
 
-    python bench/throughput.py                 # full mode, ~5-10 min on 2 cores → docs/results/
-    python bench/throughput.py --quick         # CI mode: tiny sizes, well under a minute
+    python -m bench.throughput                 # full mode, ~5-10 min on 2 cores → docs/results/
+    python -m bench.throughput --quick         # CI mode: tiny sizes, well under a minute
 
 One invocation measures every figure below and writes `throughput.json` (every figure, the
 raw measurements behind it, the machine, commit, date and command) and `throughput.md` (a
@@ -89,11 +89,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/throughput.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-import numpy as np  # noqa: E402
+import numpy as np
 
 # ----------------------------------------------------------------------------- pure helpers
 # Everything in this section is free of processes, Zenoh and clocks (tests check exact values).
@@ -384,29 +380,30 @@ QUICK = Plan(mode="quick", env_rounds=2, env_slice_s=1.0, actor_warmup_episodes=
              roofline_gemms=200)
 
 # ----------------------------------------------------------------------------- the system
-# Imports of hercs come after the path set-up above.
 
-import torch  # noqa: E402
+import torch
 
-from apps.router import open_router  # noqa: E402
-from bench.common import cpu_info, git_commit  # noqa: E402
-from bench.learner import gemm_rate, make_batch, update_flops, update_rate  # noqa: E402
-from hercs.clustering import ClusterModel  # noqa: E402
-from hercs.codec import cluster_model_to_msg, episode_to_msg  # noqa: E402
-from hercs.config import HercsConfig, apply_overrides, save_yaml  # noqa: E402
-from hercs.envs import make_env  # noqa: E402
-from hercs.episode import EpisodeData, random_episode  # noqa: E402
-from hercs.seeding import generator, int_seed  # noqa: E402
-from hercs.tasks import TaskSpec  # noqa: E402
-from hercs.transport import Transport  # noqa: E402
-from hercs.validation import parse_message  # noqa: E402
-from learner.ddpg import DDPGLearner  # noqa: E402
-from learner.loop import LearnerLoop, SampleBatch  # noqa: E402
-from proto import SCHEMA_VERSION  # noqa: E402
-from proto import hercs_pb2 as pb  # noqa: E402
-from proto.keys import RunKeys  # noqa: E402
-from replay_service.core import ReplayCore  # noqa: E402
-from replay_service.store import EpisodeStore  # noqa: E402
+from apps.router import open_router
+from bench.common import cpu_info, git_commit
+from bench.learner import gemm_rate, make_batch, update_flops, update_rate
+from hercs.clustering import ClusterModel
+from hercs.codec import cluster_model_to_msg, episode_to_msg
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.envs import make_env
+from hercs.episode import EpisodeData, random_episode
+from hercs.seeding import generator, int_seed
+from hercs.tasks import TaskSpec
+from hercs.transport import Transport
+from hercs.validation import parse_message
+from learner.ddpg import DDPGLearner
+from learner.loop import LearnerLoop, SampleBatch
+from proto import SCHEMA_VERSION
+from proto import hercs_pb2 as pb
+from proto.keys import RunKeys
+from replay_service.core import ReplayCore
+from replay_service.store import EpisodeStore
+
+REPO = Path(__file__).resolve().parents[1]
 
 RUN = "throughput"
 SEED = 1
@@ -1402,7 +1399,6 @@ def machine_description() -> dict[str, Any]:
     return {"cpu_count": os.cpu_count(), "cpu_model": model, "ram_gib": ram_gib,
             "python": platform.python_version(), "platform": platform.platform(),
             "versions": versions}
-
 
 
 NOTES = [

@@ -166,5 +166,5 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
     assert sorted(int(n) for n in no_scene) == list(plan.insert_no_scene_counts)
     machine = report["machine"]
     assert machine["cpu_count"] >= 1 and machine["versions"]["torch"]
-    assert report["command"].startswith("python bench/throughput.py --quick")
+    assert report["command"].startswith("python -m bench.throughput --quick")
     assert report["git_commit"] and report["date"]
