@@ -31,12 +31,8 @@ import pytest
 import yaml
 
 from apps.cli import build_parser, main, resolve_config
-from apps.launcher import (
-    Progress,
-    plan_children,
-    resolve_run,
-    service_command,
-)
+from apps.progress import Progress
+from apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, load_yaml
 from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
