@@ -285,7 +285,7 @@ def _service_command(module: str) -> Command:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from apps.plots import run_plot
+    from apps.plot_figures import run_plot
     from hercs.errors import HercsError
     from hercs.rundir import METRICS, require_run_dir
 

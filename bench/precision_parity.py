@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from apps.plot_figures import plot_figure
 from apps.plots import (
     LEGACY_LAG,
     Curve,
@@ -42,7 +43,6 @@ from apps.plots import (
     method_label,
     milestones,
     moving_average,
-    plot_figure,
     task_title,
 )
 from bench.common import git_commit

@@ -47,14 +47,9 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from apps.plots import (
-    group,
-    load_reference,
-    load_run,
-    method_key,
-    plot_figure,
-    tables,
-)
+from apps.plot_figures import plot_figure
+from apps.plot_tables import tables
+from apps.plots import group, load_reference, load_run, method_key
 from bench.common import cpu_info, git_commit, machine_identity
 from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
