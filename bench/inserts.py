@@ -15,7 +15,7 @@ for the same wall-clock window, in alternating rounds:
 - group commit, no scene: the same with `replay.log_scene=false`.
 
 Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
-synthetic actor processes is `bench/throughput.py`'s insert phase. Writes OUT.json and OUT.md.
+synthetic actor processes is bench/throughput's insert phase. Writes OUT.json and OUT.md.
 """
 
 from __future__ import annotations

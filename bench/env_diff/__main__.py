@@ -118,7 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"env_diff: Fetch*-v1 needs mujoco-py and {problem}; `make mujoco-py` installs it",
               file=sys.stderr)
         return 2
-    cmd = " ".join(["python", "bench/env_diff.py", *(argv if argv is not None else sys.argv[1:])])
+    cmd = " ".join(["python", "-m", "bench.env_diff",
+                    *(argv if argv is not None else sys.argv[1:])])
     result: dict[str, Any] = {
         "command": cmd, "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "commit": git_commit(), "machine": machine_identity(), "versions": versions(),

@@ -1,4 +1,4 @@
-"""bench/env_diff.py --quick: FetchPush-v1 against FetchPush-v4 from a few resets and short
+"""python -m bench.env_diff --quick: FetchPush-v1 against FetchPush-v4 from a few resets and short
 episodes; the result has the parameter table and the trajectory comparison, in finite numbers.
 Skipped, with the reason, where the authors' v1 envs cannot run (no `make mujoco-py`)."""
 
