@@ -61,8 +61,8 @@ lint: $(STAMP)
 figures: $(STAMP)
 	$(PY) -m apps.cli plot --figure 2 $$(ls -d docs/results/runs/*/) -o docs/results/fig2.png \
 		--table docs/results/fig2.md > /dev/null
-	$(PY) bench/schedule_effect.py > /dev/null
-	$(PY) bench/claims.py > /dev/null
+	$(PY) -m bench.schedule_effect > /dev/null
+	$(PY) -m bench.claims > /dev/null
 
 # Regenerate proto/hercs_pb2.py(.pyi) from proto/hercs.proto with the pinned grpcio-tools.
 proto: $(STAMP)

@@ -2,9 +2,10 @@
 
 What `run_up` does, in order:
 
-1. Names the run if `run.name` is empty (`<task>-<method>-s<seed>-<YYYYmmdd-HHMMSS>`) and
-   points the children's `transport.connect` at the embedded router (every `listen` endpoint,
-   with a wildcard host 0.0.0.0 / [::] replaced by loopback). Refuses a run directory that
+1. (apps/run_plan.py) Names the run if `run.name` is empty
+   (`<task>-<method>-s<seed>-<YYYYmmdd-HHMMSS>`) and points the children's
+   `transport.connect` at the embedded router (every `listen` endpoint, with a wildcard host
+   0.0.0.0 / [::] replaced by loopback). Refuses a run directory that
    already holds files (exit 2): a replay would load the old episode log into the new run.
    With `resume` (`hercs up --resume runs/RUN`) it is the other way round: the folder must
    hold a run, and every service continues it.
@@ -20,8 +21,8 @@ What `run_up` does, in order:
    With `view.live` (`--rerun`, `--rerun-save`) the live view `live-0` (apps/live_view.py)
    starts right after the replay, and the others once its token is up (so that it sees the
    first episode) or after `LIVE_READY_TIMEOUT_S` without it.
-5. Prints one progress line per epoch (`Progress`), and logs remote processes (e.g. actors
-   started with `hercs actor --connect … --run …`) joining and leaving.
+5. Prints one progress line per epoch (`Progress`, apps/progress.py), and logs remote
+   processes (e.g. actors started with `hercs actor --connect … --run …`) joining and leaving.
 6. Ends when:
    - the learner exits 0 (its last epoch is done): waits up to a few seconds for the last
      epoch's progress line, stops the others, prints the run directory, returns 0;
@@ -42,8 +43,9 @@ Stopping goes stage by stage — actors, then evaluator/learner/clusterer/live, 
 process group, a bounded wait (`stop_timeout_s`), then SIGKILL. A second Ctrl-C skips the
 waits and kills at once.
 
-No orphans: every child runs in its own process group (Ctrl-C at the terminal reaches only
-the launcher, which then stops the children in order) with `PR_SET_PDEATHSIG` = SIGKILL set
+No orphans (apps/child_process.py, which the benchmarks use too): every child runs in its
+own process group (Ctrl-C at the terminal reaches only the launcher, which then stops the
+children in order) with `PR_SET_PDEATHSIG` = SIGKILL set
 between fork and exec, so if the launcher itself is SIGKILLed (or crashes) the kernel kills
 every child. The parent-death signal fires when the *thread* that forked the child exits,
 so children are only ever started from the main thread (`run_up` checks it). SIGKILL is safe
@@ -61,21 +63,20 @@ waits for it until the next epoch's metrics arrive); a missing `replay_size` fro
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import os
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 from typing import IO
 
+from apps.child_process import describe_exit, log_tail, signal_group, start_child
+from apps.progress import Progress
 from apps.router import RouterListenError, open_router
+from apps.run_plan import ChildSpec, CommandFactory, plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.service import EXIT_CONFIG
@@ -84,9 +85,6 @@ from hercs.validation import parse_message
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
 
-START_ORDER = ("replay", "live", "clusterer", "learner", "evaluator", "actor")
-"""Roles in start order; the replay alone first (it serves the config and the insert queryable),
-then the live view if enabled (before any episode is made)."""
 STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("replay",))
 """Roles stopped together, stage after stage; the replay last."""
 OPTIONAL_ROLES = frozenset({"live"})
@@ -103,241 +101,6 @@ LIVE_READY_TIMEOUT_S = 30.0
 FINAL_PROGRESS_TIMEOUT_S = 5.0
 LOG_TAIL_LINES = 20
 _POLL_S = 1.0
-_PR_SET_PDEATHSIG = 1
-
-
-@dataclass(frozen=True)
-class ChildSpec:
-    """One service process of the run."""
-
-    role: str
-    ident: str
-
-    @property
-    def log_name(self) -> str:
-        return f"{self.ident}.log"
-
-    def __str__(self) -> str:
-        return f"{self.role} {self.ident}"
-
-
-CommandFactory = Callable[[ChildSpec, Path], list[str]]
-"""Builds a child's argv from its spec and the run's config.yaml (injectable for tests)."""
-
-
-def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
-    """The real child: `python -m apps.cli <role> --config <config.yaml> --id <ident>`."""
-    return [sys.executable, "-m", "apps.cli", spec.role, "--config", str(config_path),
-            "--id", spec.ident]
-
-
-def plan_children(config: HercsConfig) -> list[ChildSpec]:
-    """Every child of a run, in start order (the live view only with `view.live`)."""
-    roles = [r for r in START_ORDER if r != "actor" and (r != "live" or config.view.live)]
-    specs = [ChildSpec(role, f"{role}-0") for role in roles]
-    specs += [ChildSpec("actor", f"actor-{i}") for i in range(config.actor.num_actors)]
-    return specs
-
-
-def default_run_name(config: HercsConfig, now: datetime | None = None) -> str:
-    stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
-    return f"{config.task.name}-{config.run.method}-s{config.run.seed}-{stamp}"
-
-
-def loopback_endpoints(listen: list[str]) -> list[str]:
-    """Where a process on this host reaches a router listening on `listen`: a wildcard host
-    (0.0.0.0, [::]) becomes loopback; a concrete address stays."""
-    out = []
-    for endpoint in listen:
-        proto, sep, rest = endpoint.partition("/")
-        if sep and rest.startswith("0.0.0.0:"):
-            rest = "127.0.0.1:" + rest.removeprefix("0.0.0.0:")
-        elif sep and rest.startswith("[::]:"):
-            rest = "[::1]:" + rest.removeprefix("[::]:")
-        out.append(f"{proto}{sep}{rest}")
-    return out
-
-
-def resolve_run(config: HercsConfig, now: datetime | None = None) -> HercsConfig:
-    """The config the children get: a run name, and `connect` = the embedded router."""
-    data = config.to_dict()
-    data["run"]["name"] = config.run.name or default_run_name(config, now)
-    data["transport"]["connect"] = loopback_endpoints(config.transport.listen)
-    return HercsConfig.from_dict(data)
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
-
-
-def _duration(seconds: float) -> str:
-    """1h02m, 3m20s or 45s."""
-    seconds = max(round(seconds), 0)
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    if hours:
-        return f"{hours}h{minutes:02d}m"
-    return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
-
-
-FIRST_LINE_S = 5.0
-"""The first progress line comes this long after the run starts (before epoch 1 ends)."""
-INTERIM_EVERY_S = 60.0
-"""While an epoch runs, a progress line at least this often."""
-
-
-class Progress:
-    """Turns the learner's per-epoch `Metrics` (and `EvalResult`s) into one line per epoch.
-
-    Pure bookkeeping, no I/O: each method returns the lines now ready, in epoch order. A line
-    without `success_rate` waits for its epoch's `EvalResult` until a later epoch's metrics
-    arrive (or `flush()`); each epoch is printed once.
-    """
-
-    def __init__(self, total_epochs: int, *,
-                 clock: Callable[[], float] = time.monotonic) -> None:
-        self.total_epochs = total_epochs
-        self.last_printed = 0
-        self._pending: dict[int, dict[str, float]] = {}
-        self._success: dict[int, float] = {}
-        self._replay_size: float | None = None
-        self.restarts = 0
-        """Children restarted so far (shown on the line when not 0)."""
-        self.actors: int | None = None
-        """Actors whose liveliness token the router sees (local and remote)."""
-        self._episodes_by_actor: Counter[str] = Counter()
-        """Episodes stored per actor since the last epoch line (from replay/inserted)."""
-        self._clock = clock
-        self.started = clock()
-        self.last_line_at: float | None = None
-        self._first_epoch: int | None = None  # the first epoch this launcher saw (resume)
-
-    def interim(self) -> str | None:
-        """A line for an epoch still running: the first `FIRST_LINE_S` after start (so a
-        user sees the run is alive long before epoch 1 ends), then whenever no line was
-        printed for `INTERIM_EVERY_S`; None otherwise."""
-        now = self._clock()
-        quiet_since = self.last_line_at if self.last_line_at is not None else (
-            self.started - INTERIM_EVERY_S + FIRST_LINE_S)
-        if now - quiet_since < INTERIM_EVERY_S:
-            return None
-        self.last_line_at = now
-        epoch = self.last_printed + 1
-        return (f"epoch {epoch}/{self.total_epochs} running  {_duration(now - self.started)} "
-                f"since start  replay {_fmt(self._replay_size, '.0f')} episodes"
-                + (f"  actors {self.actors}" if self.actors is not None else "")
-                + (f"  restarts {self.restarts}" if self.restarts else ""))
-
-    def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
-        if not service.startswith("learner/") or "epoch" not in values:
-            return []
-        epoch = int(values["epoch"])
-        if epoch <= self.last_printed:
-            return []
-        self._pending[epoch] = dict(values)
-        return self._release(final=False)
-
-    def on_eval(self, epoch: int, success_rate: float) -> list[str]:
-        self._success[epoch] = success_rate
-        return self._release(final=False)
-
-    def on_replay_size(self, size: float) -> None:
-        self._replay_size = size
-
-    def on_inserted(self, actor_id: str) -> None:
-        """One more episode stored, from `actor_id` (its share shows on the next line)."""
-        self._episodes_by_actor[actor_id] += 1
-
-    def _actors_text(self) -> str:
-        """`  actors N`, with each actor's share of the episodes since the last line when
-        more than one actor contributed (in actor-id order), e.g. `  actors 2 (61/39 %)`."""
-        if self.actors is None:
-            return ""
-        counts = [n for _, n in sorted(self._episodes_by_actor.items())]
-        self._episodes_by_actor.clear()
-        if len(counts) < 2:
-            return f"  actors {self.actors}"
-        total = sum(counts)
-        shares = "/".join(f"{round(100 * n / total)}" for n in counts)
-        return f"  actors {self.actors} ({shares} %)"
-
-    def flush(self) -> list[str]:
-        """Every line still waiting, with `success -` where no result came."""
-        return self._release(final=True)
-
-    def _release(self, *, final: bool) -> list[str]:
-        lines = []
-        for epoch in sorted(self._pending):
-            values = self._pending[epoch]
-            has_success = "success_rate" in values or epoch in self._success
-            later = any(e > epoch for e in self._pending)
-            if not (has_success or later or final):
-                break
-            del self._pending[epoch]
-            lines.append(self._line(epoch, values))
-            self.last_printed = epoch
-        return lines
-
-    def _line(self, epoch: int, values: Mapping[str, float]) -> str:
-        now = self._clock()
-        total = int(values.get("epochs", self.total_epochs))
-        success = values.get("success_rate", self._success.get(epoch))
-        replay = values.get("replay_size", self._replay_size)
-        if self._first_epoch is None:
-            self._first_epoch = epoch
-        done_here = epoch - self._first_epoch + 1  # epochs this launcher watched end
-        eta = (now - self.started) / done_here * (total - epoch) if done_here > 0 else None
-        self.last_line_at = now
-        return (f"epoch {epoch}/{total}  success {_fmt(success, '.2f')}  "
-                f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
-                f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
-                f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
-                + self._actors_text()
-                + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
-                + (f"  restarts {self.restarts}" if self.restarts else ""))
-
-
-def _pdeathsig_preexec() -> Callable[[], None] | None:
-    """A `preexec_fn` making the child get SIGKILL when the launcher dies (Linux only).
-
-    Runs in the forked child before exec, so it only calls what was resolved here, in the
-    parent. If the launcher died before the prctl took effect the child is already
-    re-parented: it exits at once.
-    """
-    if not sys.platform.startswith("linux"):
-        return None
-    prctl = ctypes.CDLL(None, use_errno=True).prctl
-    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
-                      ctypes.c_ulong]
-    sigkill = int(signal.SIGKILL)
-    parent = os.getpid()
-
-    def preexec() -> None:
-        prctl(_PR_SET_PDEATHSIG, sigkill, 0, 0, 0)
-        if os.getppid() != parent:
-            os._exit(1)
-
-    return preexec
-
-
-def _describe_exit(code: int) -> str:
-    if code < 0:
-        try:
-            return f"killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit code {code}"
-
-
-def _tail(path: Path, lines: int) -> list[str]:
-    try:
-        with path.open("rb") as f:
-            f.seek(0, os.SEEK_END)
-            f.seek(max(0, f.tell() - 64 * 1024))
-            text = f.read().decode("utf-8", errors="replace")
-    except OSError as exc:
-        return [f"(cannot read {path}: {exc})"]
-    return text.splitlines()[-lines:]
 
 
 @dataclass
@@ -352,8 +115,7 @@ class _Child:
 
     def signal(self, sig: int) -> None:
         """Signal the child's whole process group (it leads it), so helpers it forked go too."""
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(self.proc.pid, sig)
+        signal_group(self.proc, sig)
 
 
 @dataclass
@@ -443,13 +205,7 @@ class _Launcher:
     def start(self, spec: ChildSpec, *, restarts: int = 0) -> _Child:
         config_path = self.run_dir / "config.yaml"
         log_path = self.run_dir / "logs" / spec.log_name
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        with log_path.open("ab") as log_file:
-            proc = subprocess.Popen(
-                self.command(spec, config_path),
-                stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
-                env=env, close_fds=True, process_group=0, preexec_fn=_pdeathsig_preexec(),
-            )
+        proc = start_child(self.command(spec, config_path), log_path=log_path)
         child = _Child(spec, proc, log_path, restarts=restarts)
         self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]
         self.children.append(child)
@@ -460,8 +216,8 @@ class _Launcher:
     def _report_exit(self, child: _Child, code: int, *, then: str = "") -> None:
         goes_on = "; training goes on without it" if child.spec.role in OPTIONAL_ROLES else then
         lines = [f"hercs up: {child.spec.role} {child.spec.ident} exited unexpectedly "
-                 f"({_describe_exit(code)}){goes_on}; last lines of {child.log_path}:"]
-        lines += [f"  | {line}" for line in _tail(child.log_path, LOG_TAIL_LINES)]
+                 f"({describe_exit(code)}){goes_on}; last lines of {child.log_path}:"]
+        lines += [f"  | {line}" for line in log_tail(child.log_path, LOG_TAIL_LINES)]
         self.say("\n".join(lines), error=True)
 
     def _reap_optional(self) -> None:

@@ -6,7 +6,7 @@ log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file 
 the web viewer (`--web`).
 
 The live view (`hercs up --rerun`, apps/live_view.py) logs the same entities on the same
-timelines with the logging functions below while a run trains.
+timelines while a run trains: both draw with apps/rerun_draw.py.
 
 Timelines
     episode   the episode id (sequence). Every per-episode entity, the failed goals and the
@@ -69,8 +69,22 @@ from pathlib import Path
 
 import numpy as np
 
+from apps.rerun_draw import (
+    APP_ID,
+    EpisodeSummary,
+    LoggedModel,
+    blueprint,
+    declare_curve,
+    log_centroids,
+    log_episode,
+    log_episode_scalars,
+    log_failed_goals,
+    log_world,
+    rerun_executable,
+    summarize_episode,
+)
 from hercs.clustering import assign_clusters
-from hercs.codec import msg_to_array
+from hercs.codec import msg_to_array, msg_to_cluster_model
 from hercs.config import load_yaml
 from hercs.errors import HercsError
 from hercs.runlog import (
@@ -82,29 +96,12 @@ from hercs.runlog import (
     read_messages,
     segment_paths,
 )
-from hercs.tasks import TaskSpec, task_spec
+from hercs.tasks import task_spec
 from proto import hercs_pb2 as pb
 
 FALLBACK_EPISODES_PER_EPOCH = 200
 """Without --episodes the view draws the last epoch's episodes; this many when the run's
 config.yaml cannot tell how many an epoch has (the reference's 50 cycles × 4 episodes)."""
-
-APP_ID = "hercs"
-
-# tab10: one colour per cluster (index modulo 10).
-PALETTE = np.array([
-    [31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
-    [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207],
-], dtype=np.uint8)
-UNCLUSTERED = (170, 170, 170)
-SUCCESS_RGBA = (30, 200, 60, 160)
-FAILURE_RGBA = (220, 30, 30, 160)
-
-GRIPPER_RADIUS = 0.002
-OBJECT_RADIUS = 0.004
-CENTROID_RADIUS = 0.02
-FAILED_GOAL_RADIUS = 0.006
-GOAL_RADIUS = 0.012
 
 
 class ViewError(HercsError):
@@ -194,41 +191,6 @@ def select_episodes(text: str | None, ids: Sequence[int], *,
 
 
 @dataclass
-class EpisodeOutcome:
-    """What every episode contributes (the per-episode scalars and the failed goals); the
-    live view has it from the replay's EpisodeHeader alone."""
-
-    episode_id: int
-    success: bool  # ‖ag_T − g_T‖ ≤ the task's threshold
-    final_distance: float
-    cluster: int  # of ag_T under the cluster model current at insert; −1 before the first
-    desired_goal: np.ndarray  # g_T, (3,)
-    actor_id: str
-    seq: int
-    policy_version: int
-    # wall-clock time the replay logged it (ns since the epoch); 0 unknown (live view)
-    inserted_ns: int = field(default=0, kw_only=True)
-
-
-@dataclass
-class EpisodeSummary(EpisodeOutcome):
-    """An outcome plus the positions drawn in 3D (selected episodes)."""
-
-    gripper: np.ndarray  # (T+1, 3)
-    obj: np.ndarray | None  # (T+1, 3)
-    goal: np.ndarray  # (T+1, 3): g, with g[T-1] repeated for o_T
-
-
-@dataclass
-class LoggedModel:
-    at_episode: int  # the id of the first episode it applies to
-    version: int
-    centroids: np.ndarray
-    fitted_on: int
-    failed_goals_seen: int
-
-
-@dataclass
 class RunLog:
     task: str = ""
     threshold: float = 0.05
@@ -248,23 +210,6 @@ def resolve_log_path(path: str | os.PathLike[str]) -> Path:
     return p
 
 
-def summarize_episode(msg: pb.Episode, *, episode_id: int, spec: TaskSpec,
-                      cluster: int) -> EpisodeSummary:
-    """An Episode message as drawn: positions from obs (gripper 0:3, object 3:6 for the tasks
-    with an object), success by the task's rule (`TaskSpec.is_success`)."""
-    obs = msg_to_array(msg.obs, where="Episode.obs")
-    ag = msg_to_array(msg.ag, where="Episode.ag")
-    g = msg_to_array(msg.g, where="Episode.g")
-    distance = float(np.linalg.norm(ag[-1] - g[-1]))
-    return EpisodeSummary(
-        episode_id=episode_id, success=bool(spec.is_success(ag[-1], g[-1])),
-        final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
-        actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
-        gripper=np.asarray(obs[:, 0:3], np.float32),
-        obj=np.asarray(obs[:, 3:6], np.float32) if spec.has_object else None,
-        goal=np.concatenate([g, g[-1:]]).astype(np.float32))
-
-
 def read_run_log(path: Path) -> RunLog:
     """One pass over the log: per episode its positions, success and cluster (under the latest
     cluster model logged before it)."""
@@ -274,10 +219,9 @@ def read_run_log(path: Path) -> RunLog:
     spec = None
     for message in read_messages(path, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
         if message.topic == TOPIC_CLUSTER_MODEL:
-            model = message.decode_as(pb.ClusterModel)
-            centroids = msg_to_array(model.centroids, where="ClusterModel.centroids")
-            run.models.append(LoggedModel(next_id, int(model.version), centroids,
-                                          int(model.fitted_on), int(model.failed_goals_seen)))
+            model = msg_to_cluster_model(message.decode_as(pb.ClusterModel))
+            centroids = model.centroids
+            run.models.append(LoggedModel(at_episode=next_id, model=model))
             continue
         msg = message.decode_as(pb.Episode)
         if spec is None:
@@ -323,104 +267,6 @@ def read_metrics(path: Path) -> dict[str, list[str]]:
 # Logging
 
 
-def cluster_colors(clusters: np.ndarray, alpha: int = 255) -> np.ndarray:
-    """(N, 4) uint8 RGBA: the palette colour of each cluster index, grey for −1."""
-    clusters = np.asarray(clusters, dtype=np.int64)
-    rgb = np.where((clusters < 0)[:, None], np.array(UNCLUSTERED, np.uint8),
-                   PALETTE[np.maximum(clusters, 0) % len(PALETTE)])
-    return np.concatenate([rgb, np.full((len(clusters), 1), alpha, np.uint8)], axis=1)
-
-
-def _growing_strips(rr, rec, entity: str, episode_id: int, path: np.ndarray,
-                    color: np.ndarray, radius: float) -> None:
-    n = len(path)
-    rec.send_columns(
-        entity,
-        indexes=[rr.TimeColumn("step", sequence=np.arange(n)),
-                 rr.TimeColumn("episode", sequence=np.full(n, episode_id))],
-        columns=rr.LineStrips3D.columns(strips=[path[:t + 1] for t in range(n)],
-                                        colors=np.repeat(color[None], n, axis=0),
-                                        radii=np.full(n, radius, np.float32)),
-    )
-
-
-def log_episode(rr, rec, ep: EpisodeSummary) -> None:
-    base = f"world/episodes/{ep.episode_id:06d}"
-    color = cluster_colors(np.array([ep.cluster]))[0]
-    if ep.obj is not None:
-        _growing_strips(rr, rec, f"{base}/object", ep.episode_id, ep.obj, color, OBJECT_RADIUS)
-        gripper_color = color.copy()
-        gripper_color[3] = 110
-    else:
-        gripper_color = color
-    _growing_strips(rr, rec, f"{base}/gripper", ep.episode_id, ep.gripper, gripper_color,
-                    GRIPPER_RADIUS)
-    n = len(ep.goal)
-    rec.send_columns(
-        f"{base}/goal",
-        indexes=[rr.TimeColumn("step", sequence=np.arange(n)),
-                 rr.TimeColumn("episode", sequence=np.full(n, ep.episode_id))],
-        columns=rr.Points3D.columns(
-            positions=ep.goal,
-            colors=np.repeat(np.array([SUCCESS_RGBA if ep.success else FAILURE_RGBA],
-                                      np.uint8), n, axis=0),
-            radii=np.full(n, GOAL_RADIUS, np.float32)),
-    )
-    rec.set_time("episode", sequence=ep.episode_id)
-    outcome = "success" if ep.success else "FAILED"
-    cluster = "-" if ep.cluster < 0 else str(ep.cluster)
-    rec.log("log/episodes", rr.TextLog(
-        f"episode {ep.episode_id}: {outcome}, |ag_T - g_T| = {ep.final_distance:.3f} m, "
-        f"cluster {cluster}, actor {ep.actor_id} seq {ep.seq}, policy v{ep.policy_version}",
-        level=rr.TextLogLevel.INFO if ep.success else rr.TextLogLevel.WARN))
-
-
-def log_episode_scalars(rr, rec, episodes: Sequence[EpisodeOutcome], *,
-                        styles: bool = True) -> None:
-    """`episodes/success`, `episodes/final_distance`, `episodes/cluster` on `episode`, one
-    row per episode, also on the wall-clock `time` timeline when every episode's insert time
-    is known; `styles=False` skips the static series styles (logged once is enough)."""
-    indexes = [rr.TimeColumn("episode", sequence=[e.episode_id for e in episodes])]
-    if episodes and all(e.inserted_ns > 0 for e in episodes):
-        indexes.append(rr.TimeColumn("time", timestamp=np.array(
-            [e.inserted_ns for e in episodes], dtype="datetime64[ns]")))
-    for name, values in (("success", [float(e.success) for e in episodes]),
-                         ("final_distance", [e.final_distance for e in episodes]),
-                         ("cluster", [float(e.cluster) for e in episodes])):
-        if styles:
-            style = (rr.SeriesLines(names=name) if name == "final_distance"
-                     else rr.SeriesPoints(names=name, marker_sizes=1.5))
-            rec.log(f"episodes/{name}", style, static=True)
-        rec.send_columns(f"episodes/{name}", indexes=indexes,
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
-
-
-def log_centroids(rr, rec, model: LoggedModel) -> None:
-    """`world/centroids` and a `log/cluster_models` line at the model's first episode."""
-    rec.set_time("episode", sequence=model.at_episode)
-    k = len(model.centroids)
-    rec.log("world/centroids", rr.Points3D(
-        model.centroids, colors=cluster_colors(np.arange(k)),
-        radii=np.full(k, CENTROID_RADIUS, np.float32),
-        labels=[f"c{i}" for i in range(k)]))
-    rec.log("log/cluster_models", rr.TextLog(
-        f"cluster model v{model.version}: k={k}, fitted on {model.fitted_on} failed goals "
-        f"({model.failed_goals_seen} seen), applies from episode {model.at_episode}"))
-
-
-def log_failed_goals(rr, rec, *, at_episode: int, goals: np.ndarray,
-                     centroids: np.ndarray | None) -> None:
-    """`world/failed_goals` at `at_episode`: `goals` (N, 3) coloured by their nearest centroid
-    (grey without a model)."""
-    if centroids is not None and len(goals):
-        colors = cluster_colors(assign_clusters(goals, centroids), 200)
-    else:
-        colors = cluster_colors(np.full(len(goals), -1), 200)
-    rec.set_time("episode", sequence=at_episode)
-    rec.log("world/failed_goals", rr.Points3D(
-        goals, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
-
-
 def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
     """Centroids at each refit; the accumulated failed goals at each refit and each selected
     episode (so that scrubbing the `episode` timeline shows them grow)."""
@@ -434,7 +280,8 @@ def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
     for t in times:
         current = np.searchsorted(model_starts, t, side="right") - 1
         log_failed_goals(rr, rec, at_episode=t, goals=failed_goals[failed_ids <= t],
-                         centroids=run.models[current].centroids if current >= 0 else None)
+                         centroids=run.models[current].model.centroids if current >= 0
+                         else None)
 
 
 def _floats(values: Sequence[str]) -> np.ndarray | None:
@@ -442,13 +289,6 @@ def _floats(values: Sequence[str]) -> np.ndarray | None:
         return np.array([float(v) if v != "" else np.nan for v in values], np.float64)
     except ValueError:
         return None
-
-
-def declare_curve(rr, rec, name: str) -> str:
-    """Log the static series style of `curves/<name>` and return that entity path."""
-    entity = f"curves/{name}"
-    rec.log(entity, rr.SeriesLines(names=name), static=True)
-    return entity
 
 
 def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[str]:
@@ -494,63 +334,9 @@ def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[s
     return logged
 
 
-def rerun_executable() -> str | None:
-    """The `rerun` beside this interpreter (the pinned rerun-sdk's), else None: rerun-sdk then
-    looks for one on PATH."""
-    rerun_exe = Path(sys.executable).parent / "rerun"
-    return str(rerun_exe) if rerun_exe.exists() else None
-
-
-def blueprint(selected: Sequence[int] = (), *, has_object: bool = False):
-    """The default layout: the 3D scene large, the curves, per-episode scalars and the text
-    logs beside it, the `episode` timeline active with the drawn episodes' span selected.
-    With an object (push, pick, slide) the 3D view shows the object paths and leaves the
-    gripper paths out (one click in the blueprint panel brings them back): two hundred of each
-    hide the clusters' shapes."""
-    import rerun.blueprint as rrb
-    from rerun.blueprint.components import AbsoluteTimeRange
-
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            # one rule per path: Rerun's filters take `**` only at the end of a path
-            rrb.Spatial3DView(origin="world", name="episodes (3D)", contents=(
-                ["+ world/**", *(f"- world/episodes/{i:06d}/gripper" for i in selected)]
-                if has_object else "world/**")),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="curves", name="success rate",
-                                   contents=["curves/success_rate"]),
-                rrb.TimeSeriesView(origin="curves", name="throughput",
-                                   contents=["curves/env_steps_per_s", "curves/updates_per_s"]),
-                rrb.TimeSeriesView(origin="episodes", name="episodes",
-                                   contents=["episodes/final_distance"]),
-                # one unit per panel: a panel of every curve mixed 0..1 with 0..30,000
-                rrb.Tabs(
-                    rrb.TimeSeriesView(origin="curves", name="losses",
-                                       contents=["curves/critic_loss", "curves/actor_loss",
-                                                 "curves/q_mean"]),
-                    rrb.TimeSeriesView(origin="curves", name="replay size",
-                                       contents=["curves/replay_size"]),
-                    rrb.TimeSeriesView(origin="curves", name="policy lag",
-                                       contents=["curves/policy_lag"]),
-                    rrb.TimeSeriesView(origin="curves", name="clusters",
-                                       contents=["curves/cluster_sizes"]),
-                    rrb.TimeSeriesView(origin="curves", name="cluster share",
-                                       contents=["curves/cluster_share"]),
-                    rrb.TimeSeriesView(origin="episodes", name="success, cluster",
-                                       contents=["episodes/success", "episodes/cluster"])),
-                rrb.TextLogView(origin="log", name="log"),
-            ),
-            column_shares=[3, 2],
-        ),
-        rrb.TimePanel(timeline="episode", time_selection=AbsoluteTimeRange(
-            min=min(selected), max=max(selected)) if selected else None),
-        collapse_panels=False,
-    )
-
-
 def build_recording(rr, rec, run: RunLog, selected: Sequence[int],
                     metrics: dict[str, list[str]], log_path: Path) -> None:
-    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    log_world(rr, rec)
     by_id = {e.episode_id: e for e in run.episodes}
     for episode_id in selected:
         log_episode(rr, rec, by_id[episode_id])

@@ -1,8 +1,8 @@
 """Env steps per CPU-second of the actor's rollout core against raw env stepping
 (issue: actors that pay off, `actor.envs_per_process`).
 
-    python bench/actor_envs.py            # ~4 min: FetchPush, 1/2/4/8/16 envs per process
-    python bench/actor_envs.py --quick    # CI: a few episodes, every figure still computed
+    python -m bench.actor_envs            # ~4 min: FetchPush, 1/2/4/8/16 envs per process
+    python -m bench.actor_envs --quick    # CI: a few episodes, every figure still computed
 
 In one process with one compute thread (torch and BLAS, `hercs.threads`, as every service),
 side by side in alternating slices (these machines are shared and noisy, so the figure that
@@ -31,20 +31,18 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
+from actors.rollout import VectorRollout
+from bench.common import git_commit
+from hercs.codec import episode_to_msg
+from hercs.config import DDPGConfig
+from hercs.envs import make_env
+from hercs.policy import Policy
+from hercs.tasks import TaskSpec, task_spec
+from hercs.threads import single_threaded_numerics
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/actor_envs.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-import numpy as np  # noqa: E402
-
-from actors.rollout import VectorRollout  # noqa: E402
-from bench.common import git_commit  # noqa: E402
-from hercs.codec import episode_to_msg  # noqa: E402
-from hercs.config import DDPGConfig  # noqa: E402
-from hercs.envs import make_env  # noqa: E402
-from hercs.policy import Policy  # noqa: E402
-from hercs.tasks import TaskSpec, task_spec  # noqa: E402
-from hercs.threads import single_threaded_numerics  # noqa: E402
 
 TARGET = 0.95
 
@@ -123,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = {"task": args.task, "target_ratio": TARGET, "rows": rows, "commit": git_commit(),
                "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                "machine": f"{platform.node()} ({os.cpu_count()} cores)", "quick": args.quick,
-               "command": "python bench/actor_envs.py " + " ".join(argv or sys.argv[1:])}
+               "command": "python -m bench.actor_envs " + " ".join(argv or sys.argv[1:])}
     lines = [
         "# Actor: env steps per CPU-second against raw env stepping",
         "",

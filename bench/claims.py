@@ -1,7 +1,7 @@
 """The project's claims as the field states them: IQM and mean over seeds with stratified
 bootstrap intervals, and the probability of improvement (rliable, Agarwal et al. 2021).
 
-    python bench/claims.py          # committed runs + the authors' curves → docs/results/claims.md
+    python -m bench.claims          # committed runs + the authors' curves → docs/results/claims.md
 
 Reads finished runs (config.yaml + metrics.csv) from `--runs` (default docs/results/runs/, the
 committed ones) and the authors' per-seed curves (docs/reference/authors_success_rates.csv).
@@ -32,19 +32,13 @@ from __future__ import annotations
 import argparse
 import functools
 import sys
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/claims.py` from a checkout
-    sys.path.insert(0, str(REPO))
+import yaml
 
-import numpy as np  # noqa: E402
-import yaml  # noqa: E402
-
-from apps.plots import (  # noqa: E402
+from apps.plots import (
     Curve,
     aggregate,
     load_reference,
@@ -53,16 +47,23 @@ from apps.plots import (  # noqa: E402
     milestones,
     task_title,
 )
-from hercs.config import HercsConfig  # noqa: E402
+from bench.claim_statistics import (
+    REPS,
+    RNG_SEED,
+    Estimate,
+    Score,
+    SideStats,
+    improvement,
+    side_stats,
+)
+from hercs.config import HercsConfig
+
+REPO = Path(__file__).resolve().parents[1]
 
 OUTPUT = "claims.md"
 EPOCH = 50
 THRESHOLD = 0.5
 MIN_SEEDS = 2
-REPS = 10_000
-"""Bootstrap replications. With 2–5 runs a side has at most 126 distinct resamples: at 10,000
-the printed digits of the committed claims are the same with RNG seeds 0 and 1."""
-RNG_SEED = 0
 LEGACY = "legacy"
 LEGACY_LAG_CYCLES = 7  # docs/results/runs/README.md: the median policy lag of the legacy runs
 LAG_KEYS: tuple[tuple[str, str], ...] = (
@@ -162,19 +163,6 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> dict[Group
 
 # ---------------------------------------------------------------------------------- scores
 
-@dataclass(frozen=True)
-class Score:
-    """One run's two numbers at epoch EPOCH."""
-
-    run: str
-    success: float
-    """The 10-epoch trailing mean of the test success after epoch EPOCH."""
-    at_half: int
-    """The first epoch (counted from 0) whose trailing mean exceeds 0.5; `epoch` when none
-    does by then (censored)."""
-    censored: bool
-
-
 def score(run: Run, epoch: int = EPOCH) -> Score | None:
     """`run`'s numbers with its curve cut at `epoch`; None when it did not reach it."""
     c = run.curve
@@ -186,105 +174,6 @@ def score(run: Run, epoch: int = EPOCH) -> Score | None:
     at, success = m.crossing[THRESHOLD], m.at[epoch]
     assert success is not None
     return Score(run.name, success, epoch if at is None else at, at is None)
-
-
-# ------------------------------------------------------------------------------ statistics
-
-@contextmanager
-def _numpy_global_seed(seed: int) -> Iterator[None]:
-    """rliable's bootstraps draw their resamples with `np.random.choice` from numpy's global
-    RNG (StratifiedBootstrap.update_indices), whatever `random_state` says: seed it for the
-    call and put the caller's state back."""
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        yield
-    finally:
-        np.random.set_state(state)
-
-
-@dataclass(frozen=True)
-class Estimate:
-    value: float
-    low: float
-    high: float
-
-
-@dataclass(frozen=True)
-class SideStats:
-    """IQM and mean of the success after EPOCH and of the epoch at 0.5, with intervals."""
-
-    success_iqm: Estimate
-    success_mean: Estimate
-    epoch_iqm: Estimate
-    epoch_mean: Estimate
-
-
-def _matrix(scores: Sequence[Score]) -> np.ndarray:
-    """(runs × 2): success after EPOCH, epoch at 0.5; rliable's (runs × tasks) layout, the
-    two numbers as two tasks so that each is resampled over runs on its own."""
-    return np.array([[s.success, float(s.at_half)] for s in scores], dtype=float)
-
-
-def iqm(x: np.ndarray) -> float:
-    """rliable.metrics.aggregate_iqm (scipy's trim_mean, 25 % off each end, all cells)
-    without scipy's per-call overhead, which is most of a bootstrap's time: equal to it
-    (tests/bench/test_claims.py)."""
-    v = np.sort(np.asarray(x, dtype=float).ravel())
-    cut = int(0.25 * len(v))
-    return float(v[cut:len(v) - cut].mean())
-
-
-def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
-    """rliable.metrics.probability_of_improvement for one task: the Mann–Whitney U of x over
-    y divided by n_x·n_y, i.e. the share of pairs (a, b) with a > b, ties counted half;
-    equal to rliable's (tests/bench/test_claims.py) at a thousandth of scipy's cost."""
-    a = np.asarray(x, dtype=float).ravel()[:, None]
-    b = np.asarray(y, dtype=float).ravel()[None, :]
-    return float(((a > b).sum() + 0.5 * (a == b).sum()) / (a.size * b.size))
-
-
-def _estimates(point: Sequence[float], interval: np.ndarray) -> list[Estimate]:
-    return [Estimate(float(point[i]), float(interval[0, i]), float(interval[1, i]))
-            for i in range(len(point))]
-
-
-def side_stats(scores: Sequence[Score], reps: int = REPS, seed: int = RNG_SEED) -> SideStats:
-    """IQM and mean of both numbers over the runs, with rliable's stratified bootstrap
-    intervals; the point estimates are rliable's own functions'."""
-    from rliable import library, metrics
-
-    def func(m: np.ndarray) -> np.ndarray:
-        return np.array([iqm(m[:, :1]), m[:, 0].mean(), iqm(m[:, 1:]), m[:, 1].mean()])
-
-    m = _matrix(scores)
-    with _numpy_global_seed(seed):
-        _, interval = library.get_interval_estimates({"side": m}, func, reps=reps)
-    point = [metrics.aggregate_iqm(m[:, :1]), metrics.aggregate_mean(m[:, :1]),
-             metrics.aggregate_iqm(m[:, 1:]), metrics.aggregate_mean(m[:, 1:])]
-    return SideStats(*_estimates(point, interval["side"]))
-
-
-def improvement(x: Sequence[Score], y: Sequence[Score], reps: int = REPS,
-                seed: int = RNG_SEED) -> tuple[Estimate, Estimate]:
-    """P(X > Y) for the success after EPOCH, and P(X reaches 0.5 earlier than Y): the
-    probability that a run of X beats a run of Y, ties half; two runs both censored at
-    EPOCH are a tie, and a censored run loses to every run that crossed. Intervals from
-    rliable's independent stratified bootstrap of both sides; the point estimates are
-    rliable's own function's."""
-    from rliable import library, metrics
-
-    def func(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.array([probability_of_improvement(a[:, 0], b[:, 0]),
-                         probability_of_improvement(-a[:, 1], -b[:, 1])])
-
-    mx, my = _matrix(x), _matrix(y)
-    with _numpy_global_seed(seed):
-        _, interval = library.get_interval_estimates({"xy": [mx, my]}, func, reps=reps)
-    point = [metrics.probability_of_improvement(mx[:, :1], my[:, :1]),
-             metrics.probability_of_improvement(-mx[:, 1:], -my[:, 1:])]
-    success, earlier = _estimates(point, interval["xy"])
-    return success, earlier
 
 
 # ---------------------------------------------------------------------------------- claims
@@ -537,7 +426,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.reps < 100:
         p.error(f"--reps must be at least 100, got {args.reps}")
     groups = load_groups(args.runs)
-    command = " ".join(["python bench/claims.py", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join(["python -m bench.claims", *(sys.argv[1:] if argv is None else argv)])
     text = report(evaluate(CLAIMS, groups, reps=args.reps), groups, command, reps=args.reps)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / OUTPUT).write_text(text)

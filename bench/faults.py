@@ -1,7 +1,7 @@
 """Fault injection: a real `hercs up` run while each service in turn is SIGKILLed.
 
-    python bench/faults.py                 # ~10 min: FetchReach, 6 epochs per fault
-    python bench/faults.py --quick         # CI: one fault (the actor), 3 short epochs
+    python -m bench.faults                 # ~10 min: FetchReach, 6 epochs per fault
+    python -m bench.faults --quick         # CI: one fault (the actor), 3 short epochs
 
 For each fault a fresh run starts (FetchReach, HER-CS, two actors); once epoch `--kill-at` is
 printed, the target gets SIGKILL:
@@ -44,12 +44,10 @@ from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/faults.py` from a checkout
-    sys.path.insert(0, str(REPO))
+from bench.common import git_commit
+from hercs.runlog import read_episodes
 
-from bench.common import git_commit  # noqa: E402
-from hercs.runlog import read_episodes  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 FAULTS = ("replay", "learner", "clusterer", "evaluator", "actor", "everything")
 CHILD = {"replay": "replay-0", "learner": "learner-0", "clusterer": "clusterer-0",
@@ -220,7 +218,6 @@ def run_fault(fault: str, *, root: Path, epochs: int, cycles: int, kill_at: int,
         wall_s=round(time.monotonic() - started, 1), notes=notes)
 
 
-
 def report(results: list[FaultResult], *, command: str, quick: bool) -> str:
     lines = [
         "# Fault injection: one SIGKILL per run",
@@ -277,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
                            kill_at=min(kill_at, epochs - 1), timeout_s=args.timeout)
         print(f"faults: {fault}: {'ok' if result.ok else 'FAILED'} {asdict(result)}", flush=True)
         results.append(result)
-    command = "python bench/faults.py" + (" --quick" if args.quick else "")
+    command = "python -m bench.faults" + (" --quick" if args.quick else "")
     out.mkdir(parents=True, exist_ok=True)
     (out / "faults.md").write_text(report(results, command=command, quick=args.quick))
     (out / "faults.json").write_text(json.dumps(

@@ -1,6 +1,6 @@
 """Acked inserts per second of the replay table with its real episode log, in process.
 
-    python bench/inserts.py [--quick] [--out docs/results/inserts]
+    python -m bench.inserts [--quick] [--out docs/results/inserts]
 
 What the replay can acknowledge when inserts arrive from many hosts at once, without Zenoh
 or actors in the way: N threads (the replay's insert workers) each insert pre-built FetchPush
@@ -15,7 +15,7 @@ for the same wall-clock window, in alternating rounds:
 - group commit, no scene: the same with `replay.log_scene=false`.
 
 Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
-synthetic actor processes is `bench/throughput.py`'s insert phase. Writes OUT.json and OUT.md.
+synthetic actor processes is bench/throughput's insert phase. Writes OUT.json and OUT.md.
 """
 
 from __future__ import annotations
@@ -31,18 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/inserts.py` from a checkout
-    sys.path.insert(0, str(REPO))
+from bench.common import git_commit
+from hercs.codec import episode_to_msg
+from hercs.config import HercsConfig, apply_overrides
+from hercs.episode import random_episode
+from hercs.runlog import RecoveringLogWriter
+from proto import hercs_pb2 as pb
+from replay_service.core import ReplayCore
+from replay_service.table import ReplayTable, Stored
 
-from bench.common import git_commit  # noqa: E402
-from hercs.codec import episode_to_msg  # noqa: E402
-from hercs.config import HercsConfig, apply_overrides  # noqa: E402
-from hercs.episode import random_episode  # noqa: E402
-from hercs.runlog import RecoveringLogWriter  # noqa: E402
-from proto import hercs_pb2 as pb  # noqa: E402
-from replay_service.core import ReplayCore  # noqa: E402
-from replay_service.table import ReplayTable, Stored  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 VARIANTS = {
     "serial, scene on the ack path": (1, True, True),
@@ -144,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     base = float(np.median(rates["serial, scene on the ack path"]))
     results = {name: {"episodes_per_s": float(np.median(r)), "rounds": r,
                       "ratio": float(np.median(r)) / base} for name, r in rates.items()}
-    command = "python bench/inserts.py" + (" --quick" if args.quick else "")
+    command = "python -m bench.inserts" + (" --quick" if args.quick else "")
     lines = ["# Replay inserts acked per second, in process", "",
              f"`{command}` — git {git_commit()}; {rounds} round(s) of {window_s:g} s per "
              "variant, median; FetchPush episodes, free run, log fsynced on this disk.", "",

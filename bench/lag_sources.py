@@ -1,8 +1,8 @@
 """Policy lag against epoch time over the asynchronous schedule's three lag sources.
 
-    python bench/lag_sources.py                       # the grid, FetchPush, one run at a time
-    python bench/lag_sources.py --beside              # each setting beside the old default
-    python bench/lag_sources.py --quick               # CI: two short FetchReach runs
+    python -m bench.lag_sources                       # the grid, FetchPush, one run at a time
+    python -m bench.lag_sources --beside              # each setting beside the old default
+    python -m bench.lag_sources --quick               # CI: two short FetchReach runs
 
 Each row is one real `hercs up` run (one actor, the default method) with one setting of the
 three sources of policy lag (docs/DESIGN.md §9.1) and of the bound:
@@ -37,12 +37,10 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/lag_sources.py` from a checkout
-    sys.path.insert(0, str(REPO))
+from bench.common import git_commit, machine_identity
+from bench.sample_efficiency import free_port
 
-from bench.common import git_commit, machine_identity  # noqa: E402
-from bench.sample_efficiency import free_port  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -224,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         base_s = statistics.fmean([measured[0][1]["epoch_s"], measured[-1][1]["epoch_s"]])
         rows = [_row(s, f, base_s, run_s) for s, f, run_s in measured]
     meta: dict[str, object] = {
-        "command": "python bench/lag_sources.py" + (" --quick" if args.quick else "")
+        "command": "python -m bench.lag_sources" + (" --quick" if args.quick else "")
                    + (" --beside" if args.beside else ""),
         "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "commit": git_commit(),
         "machine": machine_identity()["cpu"], "task": args.task, "epochs": args.epochs,

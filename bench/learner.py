@@ -1,7 +1,7 @@
 """The learner's update against its compute limit on this core (issue: learner at its limit).
 
-    python bench/learner.py            # ~1 min: FetchPush, B = 256, one torch thread
-    python bench/learner.py --quick    # CI: a few updates, every figure still computed
+    python -m bench.learner            # ~1 min: FetchPush, B = 256, one torch thread
+    python -m bench.learner --quick    # CI: a few updates, every figure still computed
 
 Measured in one run, side by side (these machines are shared and noisy, so the figures that
 matter are ratios of things timed together):
@@ -36,18 +36,16 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+import torch
+
+from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit
+from hercs.batch import TransitionBatch
+from hercs.config import DDPGConfig
+from hercs.tasks import task_spec
+from learner.ddpg import DDPGLearner
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/learner.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-
-from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit  # noqa: E402
-from hercs.batch import TransitionBatch  # noqa: E402
-from hercs.config import DDPGConfig  # noqa: E402
-from hercs.tasks import task_spec  # noqa: E402
-from learner.ddpg import DDPGLearner  # noqa: E402
 
 
 def make_batch(spec, batch_size: int, rng: np.random.Generator) -> TransitionBatch:  # type: ignore[no-untyped-def]
@@ -186,7 +184,6 @@ def cpu_features() -> str:
     return f"{model}; has {', '.join(have) or 'none of'}; lacks {', '.join(missing) or '-'}"
 
 
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", default="push")
@@ -228,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# The learner's update against this core's GEMM limit",
         "",
-        f"`python bench/learner.py{' --quick' if args.quick else ''}` — {summary['date']}, "
+        f"`python -m bench.learner{' --quick' if args.quick else ''}` — {summary['date']}, "
         f"commit {summary['commit']}, {summary['machine']}, one torch thread.",
         "",
         f"CPU: {summary['cpu']}. {bf16_note(cpu_flags())}",

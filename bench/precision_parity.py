@@ -1,6 +1,6 @@
 """Does the learner's bf16 mode learn like fp32? A method's bf16 seeds against its fp32 seeds.
 
-    python bench/precision_parity.py          # FetchPush HER-EBP-CS, epochs 1–40, committed runs
+    python -m bench.precision_parity          # FetchPush HER-EBP-CS, epochs 1–40, committed runs
 
 Reads finished runs (config.yaml + metrics.csv) from `--runs` (default docs/results/runs/, the
 committed ones): the fp32 runs of `--task`/`--method` in the asynchronous schedule, and the same
@@ -29,13 +29,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/precision_parity.py` from a checkout
-    sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from apps.plots import (  # noqa: E402
+from apps.plot_figures import plot_figure
+from apps.plots import (
     LEGACY_LAG,
     Curve,
     PlotError,
@@ -46,10 +43,11 @@ from apps.plots import (  # noqa: E402
     method_label,
     milestones,
     moving_average,
-    plot_figure,
     task_title,
 )
-from bench.common import git_commit  # noqa: E402
+from bench.common import git_commit
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -165,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     if not 0.0 <= args.tolerance < 1.0:
         p.error(f"--tolerance must be in [0, 1), got {args.tolerance}")
-    command = "python bench/precision_parity.py " + " ".join(
+    command = "python -m bench.precision_parity " + " ".join(
         sys.argv[1:] if argv is None else argv)
     try:
         fp32, bf16 = load_pair(args.runs, args.task, args.method)

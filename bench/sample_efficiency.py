@@ -1,6 +1,6 @@
 """Sample efficiency against the paper: a grid of tasks × methods × seeds through `hercs up`.
 
-    python bench/sample_efficiency.py --tasks push --methods her her-cs --seeds 3
+    python -m bench.sample_efficiency --tasks push --methods her her-cs --seeds 3
 
 Each cell of the grid is one full run, `hercs up --task T --method M --seed S --run T-M-sS`
 (`T-M-lockstep-sS` with `--schedule lockstep`, the reference's schedule; `T-M-bf16-sS` with
@@ -47,24 +47,17 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/sample_efficiency.py` from a checkout
-    sys.path.insert(0, str(REPO))
+from apps.plot_figures import plot_figure
+from apps.plot_tables import tables
+from apps.plots import group, load_reference, load_run, method_key
+from bench.common import cpu_info, git_commit, machine_identity
+from hercs.config import PRECISIONS, SCHEDULES
+from hercs.envs import check_env
+from hercs.errors import ConfigError
+from hercs.methods import METHODS
+from hercs.tasks import ENV_VERSIONS, TASKS, task_spec
 
-from apps.plots import (  # noqa: E402
-    group,
-    load_reference,
-    load_run,
-    method_key,
-    plot_figure,
-    tables,
-)
-from bench.common import cpu_info, git_commit, machine_identity  # noqa: E402
-from hercs.config import PRECISIONS, SCHEDULES  # noqa: E402
-from hercs.envs import check_env  # noqa: E402
-from hercs.errors import ConfigError  # noqa: E402
-from hercs.methods import METHODS  # noqa: E402
-from hercs.tasks import ENV_VERSIONS, TASKS, task_spec  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 DONE_FILE = "bench_done.json"
 UNFINISHED_DIR = "_unfinished"
@@ -289,7 +282,6 @@ def machine_description() -> str:
             "CPU only")
 
 
-
 def done_key(record: dict) -> str:
     """The method key (apps.plots.method_key) of a `bench_done.json` record; older records
     have no schedule, precision or env version (async, fp32, v4)."""
@@ -419,7 +411,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ConfigError as exc:
             print(f"sample_efficiency: {exc}", file=sys.stderr)
             return 2
-    command = "python bench/sample_efficiency.py " + " ".join(
+    command = "python -m bench.sample_efficiency " + " ".join(
         a for a in (argv if argv is not None else sys.argv[1:]))
     print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "
           f"{args.seeds} seeds), {epochs} epochs each, {jobs} at a time, in {run_root}",

@@ -1,6 +1,6 @@
 """What each sampler feeds the learner: the mix of episodes HER and HER-CS draw from one buffer.
 
-    python bench/sampler_mix.py runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
+    python -m bench.sampler_mix runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
 
 Replays a run's episode log (`episodes.mcap`: every acked episode and every cluster model, in
 the order the replay saw them) into a `ReplayCore`, and at every `--every-epochs` epoch
@@ -23,21 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/sampler_mix.py` from a checkout
-    sys.path.insert(0, str(REPO))
-
-from hercs.clustering import ClusterModel  # noqa: E402
-from hercs.codec import msg_to_array, msg_to_episode  # noqa: E402
-from hercs.config import apply_overrides, load_yaml  # noqa: E402
-from hercs.runlog import (  # noqa: E402
+from hercs.codec import msg_to_cluster_model, msg_to_episode
+from hercs.config import apply_overrides, load_yaml
+from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,
 )
-from proto import hercs_pb2 as pb  # noqa: E402
-from replay_service.core import ReplayCore  # noqa: E402
-from replay_service.samplers import make_sampler  # noqa: E402
+from proto import hercs_pb2 as pb
+from replay_service.core import ReplayCore
+from replay_service.samplers import make_sampler
+
+REPO = Path(__file__).resolve().parents[1]
 
 BATCH = 256
 
@@ -76,10 +73,7 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
     next_mark = every_epochs * per_epoch
     for message in read_messages(run_dir, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
         if message.topic == TOPIC_CLUSTER_MODEL:
-            msg = message.decode_as(pb.ClusterModel)
-            core.set_cluster_model(ClusterModel(
-                version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
-                n_goals=int(msg.fitted_on), inserts_seen=int(msg.failed_goals_seen)))
+            core.set_cluster_model(msg_to_cluster_model(message.decode_as(pb.ClusterModel)))
             continue
         core.insert(msg_to_episode(message.decode_as(pb.Episode)))
         if core.store.num_inserted < next_mark:

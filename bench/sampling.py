@@ -1,6 +1,6 @@
 """In-process cost of one minibatch: the episode draw of each sampler and HER's relabelling.
 
-    python bench/sampling.py [--quick] [--out docs/results/sampling]
+    python -m bench.sampling [--quick] [--out docs/results/sampling]
 
 A store of 20,000 FetchPush episodes (1e6 transitions; --quick: 500) with random energies and
 8 cluster labels (a k=8 model: every episode labelled), as a full HER-CS replay holds. For each
@@ -31,17 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/sampling.py` from a checkout
-    sys.path.insert(0, str(REPO))
+from bench.common import git_commit
+from hercs.config import HercsConfig, apply_overrides
+from hercs.episode import random_episode
+from replay_service.her import relabel
+from replay_service.samplers import make_sampler
+from replay_service.samplers.base import make_info
+from replay_service.store import EpisodeStore
 
-from bench.common import git_commit  # noqa: E402
-from hercs.config import HercsConfig, apply_overrides  # noqa: E402
-from hercs.episode import random_episode  # noqa: E402
-from replay_service.her import relabel  # noqa: E402
-from replay_service.samplers import make_sampler  # noqa: E402
-from replay_service.samplers.base import make_info  # noqa: E402
-from replay_service.store import EpisodeStore  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
 BATCH = 256
@@ -197,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     store, config = fill_store(episodes)
     measure(store, config, rounds=1, per_round=5)  # warm-up
     summary = summarise(measure(store, config, rounds=rounds, per_round=per_round))
-    command = "python bench/sampling.py" + (" --quick" if args.quick else "")
+    command = "python -m bench.sampling" + (" --quick" if args.quick else "")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(

@@ -1,6 +1,6 @@
 """Does asynchrony change the result? Each method's lockstep seeds against its asynchronous ones.
 
-    python bench/schedule_effect.py           # every pair in the committed runs → docs/results/
+    python -m bench.schedule_effect           # every pair in the committed runs → docs/results/
 
 Reads finished runs (config.yaml, metrics.csv and bench_done.json) from `--runs` (default
 docs/results/runs/, the committed ones) and pairs, per task, method and learner precision,
@@ -32,14 +32,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `python bench/schedule_effect.py` from a checkout
-    sys.path.insert(0, str(REPO))
+import numpy as np
+from scipy import stats
 
-import numpy as np  # noqa: E402
-from scipy import stats  # noqa: E402
-
-from apps.plots import (  # noqa: E402
+from apps.plots import (
     LEGACY_LAG,
     Curve,
     aggregate,
@@ -48,6 +44,8 @@ from apps.plots import (  # noqa: E402
     method_label,
     milestones,
 )
+
+REPO = Path(__file__).resolve().parents[1]
 
 SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}
 OUTPUT = "asynchrony.md"
@@ -221,7 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.runs.is_dir():
         p.error(f"--runs {args.runs}: not a directory")
     curves = load_runs(args.runs)
-    command = " ".join(["python bench/schedule_effect.py",
+    command = " ".join(["python -m bench.schedule_effect",
                         *(sys.argv[1:] if argv is None else argv)])
     text = report(compare_all(curves, args.epoch), command, args.epoch)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -31,9 +31,10 @@ class Clusterer:
         self.seed = int(seed)
         self.spec = spec
         self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=spec.goal_dim)
-        self.inserts_seen = 0
+        self.episodes_seen = 0
         """Episodes observed (successes and failures)."""
         self.failures_seen = 0
+        """Episodes observed that failed (each put its goal into the buffer)."""
         self.model: ClusterModel | None = None
         """Latest fitted model (None before the first fit); republished to late joiners."""
         self.last_version = 0
@@ -51,7 +52,7 @@ class Clusterer:
             self.fgb.mark_fitted()
         self.fgb.total_added = int(failures_seen)
         self.failures_seen = int(failures_seen)
-        self.inserts_seen = int(episodes_seen)
+        self.episodes_seen = int(episodes_seen)
         self.last_version = int(model_version)
 
     def observe(self, *, final_ag: np.ndarray, desired_goal: np.ndarray) -> ClusterModel | None:
@@ -66,7 +67,7 @@ class Clusterer:
                              f"{desired_goal.shape} must have the same shape")
         if not (np.all(np.isfinite(final_ag)) and np.all(np.isfinite(desired_goal))):
             raise ValueError("Clusterer.observe: final_ag or desired_goal holds NaN or Inf")
-        self.inserts_seen += 1
+        self.episodes_seen += 1
         if self.spec.is_success(final_ag, desired_goal):
             return None
         self.failures_seen += 1
@@ -86,21 +87,17 @@ class Clusterer:
         )
         self.fgb.mark_fitted()
         self.model = ClusterModel(version=version, centroids=centroids, n_goals=len(goals),
-                                  inserts_seen=self.inserts_seen)
+                                  failures_seen=self.failures_seen)
         self.last_version = version
         return self.model
 
     def state_dict(self) -> dict[str, Any]:
-        model = None
-        if self.model is not None:
-            model = {"version": self.model.version, "centroids": self.model.centroids.copy(),
-                     "n_goals": self.model.n_goals, "inserts_seen": self.model.inserts_seen}
         return {
             "seed": self.seed,
             "fgb": self.fgb.state_dict(),
-            "inserts_seen": self.inserts_seen,
+            "episodes_seen": self.episodes_seen,
             "failures_seen": self.failures_seen,
-            "model": model,
+            "model": self.model,  # never changed in place: a refit makes a new one
             "last_version": self.last_version,
         }
 
@@ -108,9 +105,8 @@ class Clusterer:
         """Restore a `state_dict()`; the seed is restored too, so later refits match."""
         self.fgb.load_state_dict(state["fgb"])
         self.seed = int(state["seed"])
-        self.inserts_seen = int(state["inserts_seen"])
+        self.episodes_seen = int(state["episodes_seen"])
         self.failures_seen = int(state["failures_seen"])
-        model = state["model"]
-        self.model = None if model is None else ClusterModel(**model)
+        self.model = state["model"]
         self.last_version = int(state.get("last_version",
                                           0 if self.model is None else self.model.version))

@@ -7,7 +7,7 @@ What `run` does:
   and skipped. Refits (k-means, tens of ms or more) run on the main loop, never on the
   subscription thread, so Zenoh's receive path is never held up.
 - the main loop feeds each pair to `Clusterer.observe`; when it returns a new model, that
-  model is published as `ClusterModel(version, centroids, fitted_on, failed_goals_seen)` on
+  model is published as `ClusterModel(version, centroids, fitted_on, failures_seen)` on
   `keys.cluster_model` with `latest=True`, so a replay that joins (or restarts) later gets it
   at once.
 - methods without clusters (`her`, `her-ebp`): the process runs the same way (the topology is
@@ -35,7 +35,7 @@ import numpy as np
 from clusterer.core import Clusterer
 from hercs.backoff import Backoff
 from hercs.clustering import ClusterModel
-from hercs.codec import array_to_msg, msg_to_array
+from hercs.codec import cluster_model_to_msg, msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.service import ServiceRuntime, service_main
@@ -62,16 +62,6 @@ def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[int, np.ndarray, np
     """
     msg = parse_message(raw, pb.EpisodeHeader, max_bytes=_HEADER_MAX_BYTES)
     return (int(msg.episode_id), *header_goals(msg, goal_dim=goal_dim))
-
-
-def model_to_msg(model: ClusterModel, *, failed_goals_seen: int) -> pb.ClusterModel:
-    return pb.ClusterModel(
-        schema_version=SCHEMA_VERSION,
-        version=model.version,
-        centroids=array_to_msg(model.centroids),
-        fitted_on=model.n_goals,
-        failed_goals_seen=failed_goals_seen,
-    )
 
 
 class ClustererService:
@@ -145,10 +135,9 @@ class ClustererService:
                 model = self.observe(final_ag, desired_goal)
             if model is not None and self._models is not None:
                 self.refits += 1
-                self._models.put(model_to_msg(model, failed_goals_seen=self.failures_seen)
-                                 .SerializeToString())
+                self._models.put(cluster_model_to_msg(model).SerializeToString())
                 log.info("cluster model version %d fitted on %d failed goals (%d seen)",
-                         model.version, model.n_goals, self.failures_seen)
+                         model.version, model.n_goals, model.failures_seen)
             now = time.monotonic()
             if model is not None or (dirty and now >= next_metrics):
                 self.publish_metrics()

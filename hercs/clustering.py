@@ -25,8 +25,9 @@ class ClusterModel:
     """(k, goal_dim) float32 cluster centres."""
     n_goals: int
     """Failed goals the model was fitted on (the buffer's capacity)."""
-    inserts_seen: int
-    """Episodes the clusterer had observed when it fitted this model."""
+    failures_seen: int
+    """Failed episodes the clusterer had counted when it fitted this model (the fit point
+    from which the lockstep gate counts `fgb_size` more failures, docs/DESIGN.md §9.1)."""
 
     def __post_init__(self) -> None:
         self.centroids = np.ascontiguousarray(self.centroids, dtype=np.float32)

@@ -14,6 +14,7 @@ import numpy as np
 
 from hercs import pbwire
 from hercs.batch import TRANSITION_FIELDS, TransitionBatch
+from hercs.clustering import ClusterModel
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.normalizer import NormalizerState
@@ -115,6 +116,28 @@ def msg_to_episode(msg: pb.Episode) -> EpisodeData:
         success=bool(msg.success),
         policy_version=int(msg.policy_version),
     )
+
+
+def cluster_model_to_msg(model: ClusterModel) -> pb.ClusterModel:
+    """The clusterer's model as published on `cluster/model` and logged by the replay."""
+    return pb.ClusterModel(schema_version=SCHEMA_VERSION, version=model.version,
+                           centroids=array_to_msg(model.centroids), fitted_on=model.n_goals,
+                           failures_seen=model.failures_seen)
+
+
+def msg_to_cluster_model(msg: pb.ClusterModel) -> ClusterModel:
+    """The one reading of a `ClusterModel` message (replay, live view, `hercs view`, benches).
+
+    Field 5 was named `failed_goals_seen` in logs written before; the number is the same, so
+    they decode here unchanged. Raises `InvalidMessage` for an undecodable array, a version
+    below 1 or non-finite centroids; the shape against k and goal_dim is the caller's check
+    (`validation.validate_centroids`)."""
+    centroids = msg_to_array(msg.centroids, where="ClusterModel.centroids").copy()
+    try:
+        return ClusterModel(version=int(msg.version), centroids=centroids,
+                            n_goals=int(msg.fitted_on), failures_seen=int(msg.failures_seen))
+    except ValueError as exc:
+        raise InvalidMessage("bad_value", str(exc)) from None
 
 
 NORMALIZER_ARRAYS = ("sum", "sumsq", "mean", "std")

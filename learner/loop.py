@@ -1,8 +1,8 @@
 """The learner's loop as a pure object: cycles, epochs, weights versions and metrics rows.
 
 `LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one cycle = one pulled
-`SampleBatch` of `minibatches_per_cycle` minibatches → that many DDPG updates → one Polyak
-target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
+`ServedBatch` (hercs.served) of `minibatches_per_cycle` minibatches → that many DDPG updates →
+one Polyak target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
 caller broadcasts the epoch-end policy for evaluation and checkpoints. When the evaluator's
 result for epoch e arrives, `record_eval` completes the epoch's metrics row.
 

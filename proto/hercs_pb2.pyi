@@ -169,18 +169,18 @@ class Batch(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., status: _Optional[_Union[ReplayStatus, _Mapping]] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
-    __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failed_goals_seen")
+    __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failures_seen")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     VERSION_FIELD_NUMBER: _ClassVar[int]
     CENTROIDS_FIELD_NUMBER: _ClassVar[int]
     FITTED_ON_FIELD_NUMBER: _ClassVar[int]
-    FAILED_GOALS_SEEN_FIELD_NUMBER: _ClassVar[int]
+    FAILURES_SEEN_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     version: int
     centroids: Array
     fitted_on: int
-    failed_goals_seen: int
-    def __init__(self, schema_version: _Optional[int] = ..., version: _Optional[int] = ..., centroids: _Optional[_Union[Array, _Mapping]] = ..., fitted_on: _Optional[int] = ..., failed_goals_seen: _Optional[int] = ...) -> None: ...
+    failures_seen: int
+    def __init__(self, schema_version: _Optional[int] = ..., version: _Optional[int] = ..., centroids: _Optional[_Union[Array, _Mapping]] = ..., fitted_on: _Optional[int] = ..., failures_seen: _Optional[int] = ...) -> None: ...
 
 class Weights(_message.Message):
     __slots__ = ("schema_version", "version", "actor_params", "o_stats", "g_stats", "epoch", "evaluate")

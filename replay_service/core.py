@@ -162,14 +162,11 @@ class ReplayCore:
 
     # -- checkpoint ------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        model = self.cluster_model
         return {
             "store": self.store.state_dict(),
             "o_norm": self.o_norm.state_dict(),
             "g_norm": self.g_norm.state_dict(),
-            "cluster_model": None if model is None else {
-                "version": model.version, "centroids": model.centroids.copy(),
-                "n_goals": model.n_goals, "inserts_seen": model.inserts_seen},
+            "cluster_model": self.cluster_model,  # never changed in place: a new model replaces it
             "seen": list(self._seen.items()),
             "counters": {"inserts": self.inserts, "duplicates": self.duplicates,
                          "samples": self.samples, "env_steps": self.env_steps,
@@ -184,8 +181,7 @@ class ReplayCore:
         self.store.load_state_dict(state["store"])
         self.o_norm.load_state_dict(state["o_norm"])
         self.g_norm.load_state_dict(state["g_norm"])
-        model = state["cluster_model"]
-        self.cluster_model = None if model is None else ClusterModel(**model)
+        self.cluster_model = state["cluster_model"]
         self._seen = OrderedDict((tuple(k), v) for k, v in state["seen"])
         for name, value in state["counters"].items():
             setattr(self, name, int(value))

@@ -12,7 +12,7 @@ c − 1. Then:
   stored and, for the cluster-balanced methods, once no refit is due: the reference refits
   k-means in the same process, before the next update, when `cluster.fgb_size` new failed
   goals have arrived since the last fit, so a model is due once the replay's failure count
-  reaches the current model's fit point (its `failed_goals_seen`) plus `fgb_size`
+  reaches the current model's fit point (its `failures_seen`) plus `fgb_size`
   (`fgb_size` for the first). The clusterer is a separate process that may be restarting:
   once cycle c has waited `cluster_wait_s` since it was first asked for, it is served with
   the model at hand, counted in `late_cluster_models`, and no later cycle waits again for
@@ -89,7 +89,7 @@ class LockstepGate:
 
     def next_fit(self, fitted_at: int | None) -> int | None:
         """The failure count at which the next refit is due: `fitted_at` (the current model's
-        `failed_goals_seen`, None before any model) plus `fgb_size`; None without clusters."""
+        `failures_seen`, None before any model) plus `fgb_size`; None without clusters."""
         if self.fgb_size is None:
             return None
         return self.fgb_size if fitted_at is None else fitted_at + self.fgb_size

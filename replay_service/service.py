@@ -44,7 +44,7 @@ from hercs.clustering import ClusterModel
 from hercs.codec import (
     array_to_msg,
     episode_to_msg,
-    msg_to_array,
+    msg_to_cluster_model,
     msg_to_episode,
 )
 from hercs.config import HercsConfig, save_yaml
@@ -255,8 +255,7 @@ class ReplayService:
             raise InvalidMessage(Reason.BAD_VALUE,
                                  f"ClusterModel.version {msg.version} is above {MAX_SEQUENCE}, "
                                  "the largest the episode log holds")
-        return ClusterModel(version=int(msg.version), centroids=msg_to_array(msg.centroids).copy(),
-                            n_goals=int(msg.fitted_on), inserts_seen=int(msg.failed_goals_seen))
+        return msg_to_cluster_model(msg)
 
     def _on_clusterer_state(self, payload: bytes) -> bytes:
         parse_message(payload, pb.ClustererStateRequest,

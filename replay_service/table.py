@@ -481,10 +481,9 @@ class ReplayTable:
         return 0 if model is None else model.version
 
     def _fitted_at(self) -> int | None:
-        """The failure count the current cluster model was fitted at (None: no model): the
-        replay builds its models with the message's `failed_goals_seen` as `inserts_seen`."""
+        """The failure count the current cluster model was fitted at (None: no model)."""
         model = self.core.cluster_model
-        return None if model is None else model.inserts_seen
+        return None if model is None else model.failures_seen
 
     def _deadline(self, timeout_s: float | None) -> float | None:
         return None if timeout_s is None else self.clock() + timeout_s

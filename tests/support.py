@@ -3,11 +3,10 @@ loading the benchmark scripts (which are files, not a package), random learner m
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import signal
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -68,13 +67,8 @@ def rerun_viewer(port: int, received: Path) -> Iterator[subprocess.Popen[bytes]]
 
 
 def load_bench(name: str) -> ModuleType:
-    """`bench/<name>.py` as a module."""
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", REPO / "bench" / f"{name}.py")
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
+    """The benchmark module `bench.<name>` (run as `python -m bench.<name>`)."""
+    return importlib.import_module(f"bench.{name}")
 
 
 def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_quick_mode_reports_actor_against_raw_steps_per_envs_count(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "bench/actor_envs.py", "--quick", "--envs", "1", "3",
+    done = subprocess.run([sys.executable, "-m", "bench.actor_envs", "--quick", "--envs", "1", "3",
                            "--out", str(tmp_path)],
                           cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -29,6 +29,6 @@ def test_quick_mode_reports_actor_against_raw_steps_per_envs_count(tmp_path: Pat
 
 
 def test_a_bad_envs_count_is_refused_with_the_flag_named() -> None:
-    done = subprocess.run([sys.executable, "bench/actor_envs.py", "--quick", "--envs", "0"],
+    done = subprocess.run([sys.executable, "-m", "bench.actor_envs", "--quick", "--envs", "0"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "--envs: every count must be >= 1" in done.stderr

@@ -14,6 +14,7 @@ import yaml
 from rliable import metrics
 
 from apps.plots import Curve
+from bench import claim_statistics
 from tests.support import load_bench
 
 claims = load_bench("claims")
@@ -232,16 +233,16 @@ def test_output_is_deterministic_and_leaves_numpys_global_rng_alone(tmp_path: Pa
 ], ids=["distinct", "ties", "censored", "identical", "one-run"])
 def test_probability_of_improvement_equals_rliables(x: list[float], y: list[float]) -> None:
     a, b = np.array(x)[:, None], np.array(y)[:, None]
-    assert claims.probability_of_improvement(a, b) == pytest.approx(
+    assert claim_statistics.probability_of_improvement(a, b) == pytest.approx(
         metrics.probability_of_improvement(a, b), abs=1e-12)
-    assert claims.probability_of_improvement(b, a) == pytest.approx(
+    assert claim_statistics.probability_of_improvement(b, a) == pytest.approx(
         metrics.probability_of_improvement(b, a), abs=1e-12)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 8, 20])
 def test_iqm_equals_rliables(n: int) -> None:
     x = np.random.default_rng(n).random((n, 1))
-    assert claims.iqm(x) == pytest.approx(metrics.aggregate_iqm(x), abs=1e-12)
+    assert claim_statistics.iqm(x) == pytest.approx(metrics.aggregate_iqm(x), abs=1e-12)
 
 
 # ------------------------------------------------------------------------ command line

@@ -1,4 +1,4 @@
-"""bench/env_diff.py --quick: FetchPush-v1 against FetchPush-v4 from a few resets and short
+"""python -m bench.env_diff --quick: FetchPush-v1 against FetchPush-v4 from a few resets and short
 episodes; the result has the parameter table and the trajectory comparison, in finite numbers.
 Skipped, with the reason, where the authors' v1 envs cannot run (no `make mujoco-py`)."""
 
@@ -30,7 +30,7 @@ def _numbers(x: Any) -> list[float]:
 
 def test_quick_mode_compares_the_models_and_the_trajectories(tmp_path: Path) -> None:
     skip_without_mujoco_py()
-    done = subprocess.run([sys.executable, "bench/env_diff.py", "--quick",
+    done = subprocess.run([sys.executable, "-m", "bench.env_diff", "--quick",
                            "--out", str(tmp_path / "diff")], cwd=REPO, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
@@ -63,6 +63,6 @@ def test_quick_mode_compares_the_models_and_the_trajectories(tmp_path: Path) -> 
 
 
 def test_an_unknown_variant_is_refused_with_its_name() -> None:
-    done = subprocess.run([sys.executable, "bench/env_diff.py", "--variant", "stiffer"],
+    done = subprocess.run([sys.executable, "-m", "bench.env_diff", "--variant", "stiffer"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "unknown variant 'stiffer'" in done.stderr

@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 
 
 def test_quick_mode_kills_an_actor_and_loses_nothing(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "bench/faults.py", "--quick", "--out", str(tmp_path)],
+    done = subprocess.run([sys.executable, "-m", "bench.faults", "--quick", "--out", str(tmp_path)],
                           cwd=REPO, capture_output=True, text=True, timeout=540)
     assert done.returncode == 0, done.stdout + done.stderr
     (row,) = json.loads((tmp_path / "faults.json").read_text())

@@ -12,8 +12,8 @@ from tests.support import REPO
 
 def test_quick_mode_measures_every_variant(tmp_path: Path) -> None:
     out = tmp_path / "inserts"
-    done = subprocess.run([sys.executable, str(REPO / "bench/inserts.py"), "--quick", "--out",
-                           str(out)], capture_output=True, text=True, timeout=600)
+    done = subprocess.run([sys.executable, "-m", "bench.inserts", "--quick", "--out",
+                           str(out)], cwd=REPO, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     results = json.loads(out.with_suffix(".json").read_text())["results"]
     assert list(results) == ["serial, scene on the ack path", "serial", "group commit",

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_quick_mode_measures_lag_and_epoch_time_beside_the_old_default(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "bench/lag_sources.py", "--quick", "--beside",
+    done = subprocess.run([sys.executable, "-m", "bench.lag_sources", "--quick", "--beside",
                            "--out", str(tmp_path / "lag")], cwd=REPO, capture_output=True,
                           text=True, timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
@@ -29,6 +29,6 @@ def test_quick_mode_measures_lag_and_epoch_time_beside_the_old_default(tmp_path:
 
 
 def test_a_bad_flag_is_refused_with_its_value() -> None:
-    done = subprocess.run([sys.executable, "bench/lag_sources.py", "--epochs", "1"], cwd=REPO,
+    done = subprocess.run([sys.executable, "-m", "bench.lag_sources", "--epochs", "1"], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "--epochs must be >= 2" in done.stderr

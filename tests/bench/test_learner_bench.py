@@ -18,8 +18,8 @@ bench = load_bench("learner")
 
 
 def test_quick_mode_reports_the_roofline_ratio_per_precision(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "bench/learner.py", "--quick", "--out", str(tmp_path)],
-                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-m", "bench.learner", "--quick", "--out",
+                           str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "learner.json").read_text())
     # FetchPush, B = 256: the FLOP count is a property of the networks, not of the machine

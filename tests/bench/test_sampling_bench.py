@@ -14,8 +14,9 @@ from tests.support import REPO, load_bench
 
 def test_quick_mode_reports_every_method_and_part(tmp_path: Path) -> None:
     out = tmp_path / "sampling"
-    done = subprocess.run([sys.executable, str(REPO / "bench/sampling.py"), "--quick",
-                           "--out", str(out)], capture_output=True, text=True, timeout=600)
+    done = subprocess.run([sys.executable, "-m", "bench.sampling", "--quick",
+                           "--out", str(out)], cwd=REPO, capture_output=True, text=True,
+                          timeout=600)
     assert done.returncode == 0, done.stderr
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["episodes"] == 500 and report["batch"] == 256 and report["k"] == 8

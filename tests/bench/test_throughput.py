@@ -1,4 +1,4 @@
-"""bench/throughput.py: its pure helpers (exact values) and its quick mode end to end.
+"""bench/throughput/: its pure helpers (exact values) and its quick mode end to end.
 
 No timing is asserted anywhere: the quick run only has to produce every figure, finite and
 positive, with consistent ratios, in both the JSON and the markdown.
@@ -14,12 +14,24 @@ from pathlib import Path
 
 import pytest
 
-from tests.support import load_bench
+from bench.throughput import BenchError
+from bench.throughput.plan import QUICK
+from bench.throughput.rates import percentile, pooled_rate, work_in_windows
+from bench.throughput.replay_memory import own_rss_mib
+from bench.throughput.report import (
+    BELOW,
+    MEETS,
+    NO_TARGET,
+    Figure,
+    Target,
+    figure_keys,
+    format_value,
+    markdown_table,
+    parse_proc_status_kib,
+    verdict,
+)
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-tp = load_bench("throughput")
 
 
 @pytest.mark.parametrize(("values", "q", "expected"), [
@@ -32,14 +44,14 @@ tp = load_bench("throughput")
     (list(range(1, 101)), 99, 99.01),    # position 98.01: 99 + 0.01 × 1
 ], ids=["single", "median-even", "p0", "p100", "p99", "p25", "p99-of-100"])
 def test_percentile_interpolates_between_closest_ranks(values, q, expected) -> None:
-    assert tp.percentile(values, q) == pytest.approx(expected, abs=1e-12)
+    assert percentile(values, q) == pytest.approx(expected, abs=1e-12)
 
 
 def test_percentile_refuses_empty_input_and_bad_q() -> None:
     with pytest.raises(ValueError, match="no values"):
-        tp.percentile([], 50)
+        percentile([], 50)
     with pytest.raises(ValueError, match="q=101"):
-        tp.percentile([1.0], 101)
+        percentile([1.0], 101)
 
 
 def test_pooled_rate_counts_whole_intervals_inside_each_slice() -> None:
@@ -48,41 +60,41 @@ def test_pooled_rate_counts_whole_intervals_inside_each_slice() -> None:
     # 8 s pause between the slices is never counted.
     first = [(10.0, 0), (10.5, 50), (11.0, 100), (11.5, 150), (12.0, 200)]
     second = [(20.5, 300), (20.0, 250), (21.0, 350)]  # order inside a slice does not matter
-    assert tp.pooled_rate([first, second, [(30.0, 400)]]) == 100.0
-    with pytest.raises(tp.BenchError, match="no slice of 2 holds two distinct arrivals"):
-        tp.pooled_rate([[(1.0, 0)], [(2.0, 5), (2.0, 9)]])
+    assert pooled_rate([first, second, [(30.0, 400)]]) == 100.0
+    with pytest.raises(BenchError, match="no slice of 2 holds two distinct arrivals"):
+        pooled_rate([[(1.0, 0)], [(2.0, 5), (2.0, 9)]])
 
 
 def test_work_in_windows_counts_work_finished_inside_each_window() -> None:
     # Cumulative steps at arrival times; windows (0.5, 2.5] and (3.5, 10]: 200 − 0 (nothing
     # before 0.5 counts as 0) and 400 − 300.
     samples = [(1.0, 100), (2.0, 200), (3.0, 300), (4.0, 400)]
-    assert tp.work_in_windows(samples, [(0.5, 2.5), (3.5, 10.0)]) == 300
-    assert tp.work_in_windows(samples, [(2.0, 3.0)]) == 100  # (start, end]: 300 − 200
-    assert tp.work_in_windows(samples, []) == 0
+    assert work_in_windows(samples, [(0.5, 2.5), (3.5, 10.0)]) == 300
+    assert work_in_windows(samples, [(2.0, 3.0)]) == 100  # (start, end]: 300 − 200
+    assert work_in_windows(samples, []) == 0
 
 
 @pytest.mark.parametrize(("target", "ours", "ratio", "expected"), [
-    (tp.Target("ratio_at_least", 0.9), 900.0, 0.9, tp.MEETS),
-    (tp.Target("ratio_at_least", 0.9), 899.0, 0.899, tp.BELOW),
-    (tp.Target("ratio_at_most", 1.5), 150.0, 1.5, tp.MEETS),
-    (tp.Target("ratio_at_most", 1.5), 151.0, 1.51, tp.BELOW),
-    (tp.Target("ours_at_most", 5.0), 5.0, 40.0, tp.MEETS),
-    (tp.Target("ours_at_most", 5.0), 5.01, 0.1, tp.BELOW),
-    (tp.Target("ours_at_least", 1000.0), 1000.0, 0.1, tp.MEETS),
-    (tp.Target("ours_at_least", 1000.0), 999.0, 10.0, tp.BELOW),
-    (None, 1.0, 1.0, tp.NO_TARGET),
+    (Target("ratio_at_least", 0.9), 900.0, 0.9, MEETS),
+    (Target("ratio_at_least", 0.9), 899.0, 0.899, BELOW),
+    (Target("ratio_at_most", 1.5), 150.0, 1.5, MEETS),
+    (Target("ratio_at_most", 1.5), 151.0, 1.51, BELOW),
+    (Target("ours_at_most", 5.0), 5.0, 40.0, MEETS),
+    (Target("ours_at_most", 5.0), 5.01, 0.1, BELOW),
+    (Target("ours_at_least", 1000.0), 1000.0, 0.1, MEETS),
+    (Target("ours_at_least", 1000.0), 999.0, 10.0, BELOW),
+    (None, 1.0, 1.0, NO_TARGET),
 ], ids=["ratio-min-met", "ratio-min-missed", "ratio-max-met", "ratio-max-missed",
         "ours-max-met", "ours-max-missed", "ours-min-met", "ours-min-missed", "none"])
 def test_verdict_checks_the_bound_the_target_names(target, ours, ratio, expected) -> None:
-    assert tp.verdict(target, ours=ours, ratio=ratio) == expected
+    assert verdict(target, ours=ours, ratio=ratio) == expected
 
 
 def test_target_text_names_the_bound() -> None:
-    assert tp.Target("ratio_at_least", 0.95).describe("updates/s") == "ratio ≥ 0.95"
-    assert tp.Target("ratio_at_most", 1.5).describe("MiB") == "ratio ≤ 1.5"
-    assert tp.Target("ours_at_most", 5.0).describe("ms") == "≤ 5.00 ms"
-    assert tp.Target("ours_at_least", 1000.0).describe("episodes/s") == "≥ 1,000 episodes/s"
+    assert Target("ratio_at_least", 0.95).describe("updates/s") == "ratio ≥ 0.95"
+    assert Target("ratio_at_most", 1.5).describe("MiB") == "ratio ≤ 1.5"
+    assert Target("ours_at_most", 5.0).describe("ms") == "≤ 5.00 ms"
+    assert Target("ours_at_least", 1000.0).describe("episodes/s") == "≥ 1,000 episodes/s"
 
 
 @pytest.mark.parametrize(("value", "unit", "text"), [
@@ -93,17 +105,17 @@ def test_target_text_names_the_bound() -> None:
     (0.0, "", "0"),
 ], ids=["thousands", "tens", "units", "below-one", "no-unit"])
 def test_format_value(value, unit, text) -> None:
-    assert tp.format_value(value, unit) == text
+    assert format_value(value, unit) == text
 
 
 def test_figure_ratio_verdict_and_table_row() -> None:
-    figure = tp.Figure(key="env", name="env steps/s, one actor", unit="steps/s", ours=900.0,
+    figure = Figure(key="env", name="env steps/s, one actor", unit="steps/s", ours=900.0,
                        reference=1200.0, ours_what="actor", reference_what="raw",
-                       target=tp.Target("ratio_at_least", 0.9))
+                       target=Target("ratio_at_least", 0.9))
     row = figure.to_dict()
-    assert row["ratio"] == 0.75 and row["verdict"] == tp.BELOW
+    assert row["ratio"] == 0.75 and row["verdict"] == BELOW
     assert row["target"] == {"kind": "ratio_at_least", "value": 0.9, "text": "ratio ≥ 0.9"}
-    table = tp.markdown_table([row]).splitlines()
+    table = markdown_table([row]).splitlines()
     assert table[0] == "| figure | ours | reference | ratio | target | verdict |"
     assert table[2] == ("| env steps/s, one actor | 900 steps/s | 1,200 steps/s | 0.75× | "
                         "ratio ≥ 0.9 | below target |")
@@ -111,16 +123,16 @@ def test_figure_ratio_verdict_and_table_row() -> None:
 
 def test_proc_status_fields_are_read_in_kib() -> None:
     text = "Name:\tpython\nVmHWM:\t  204800 kB\nVmRSS:\t  102400 kB\nThreads:\t18\n"
-    assert tp.parse_proc_status_kib(text, "VmRSS") == 102400
-    assert tp.parse_proc_status_kib(text, "VmHWM") == 204800
+    assert parse_proc_status_kib(text, "VmRSS") == 102400
+    assert parse_proc_status_kib(text, "VmHWM") == 204800
     with pytest.raises(ValueError, match="RssShmem"):
-        tp.parse_proc_status_kib(text, "RssShmem")
+        parse_proc_status_kib(text, "RssShmem")
     memory = {"VmRSS": 300.0, "RssShmem": 48.0}
-    assert tp.own_rss_mib(memory) == 252.0
+    assert own_rss_mib(memory) == 252.0
 
 
 def test_figure_keys_cover_every_phase() -> None:
-    keys = tp.figure_keys(actor_counts=(1, 2), methods=("her", "her-cs"), no_scene_counts=(2,))
+    keys = figure_keys(actor_counts=(1, 2), methods=("her", "her-cs"), no_scene_counts=(2,))
     assert keys[:8] == ["env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
                         "learner_updates_per_cpu_s", "learner_roofline_fp32",
                         "learner_roofline_bf16", "inserts_per_s_1_actors",
@@ -138,7 +150,7 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
     the JSON, finite and positive, ratio = ours / reference, and every row is in the
     markdown (which is also printed). No figure is compared with its target here."""
     out = tmp_path / "results"
-    run = subprocess.run([sys.executable, str(REPO / "bench" / "throughput.py"), "--quick",
+    run = subprocess.run([sys.executable, "-m", "bench.throughput", "--quick",
                           "--out", str(out)], capture_output=True, text=True, timeout=300,
                          cwd=REPO)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-5000:]
@@ -147,8 +159,8 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
     assert run.stdout == markdown
 
     assert report["mode"] == "quick"
-    plan = tp.QUICK
-    expected = tp.figure_keys(actor_counts=plan.insert_actor_counts, methods=plan.methods,
+    plan = QUICK
+    expected = figure_keys(actor_counts=plan.insert_actor_counts, methods=plan.methods,
                               no_scene_counts=plan.insert_no_scene_counts)
     figures = {f["key"]: f for f in report["figures"]}
     assert sorted(figures) == sorted(expected)
@@ -156,7 +168,7 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
         for field in ("ours", "reference", "ratio"):
             assert math.isfinite(f[field]) and f[field] > 0, (key, field, f[field])
         assert f["ratio"] == pytest.approx(f["ours"] / f["reference"], rel=1e-12), key
-        assert f["verdict"] in (tp.MEETS, tp.BELOW, tp.NO_TARGET), key
+        assert f["verdict"] in (MEETS, BELOW, NO_TARGET), key
         assert f"| {f['name']} |" in markdown, key
     for key in ("env_steps_per_s", "env_steps_per_cpu_s", "learner_updates_per_s",
                 "learner_roofline_fp32", "learner_roofline_bf16", "sample_p99_minibatch_her",
@@ -166,5 +178,5 @@ def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:
     assert sorted(int(n) for n in no_scene) == list(plan.insert_no_scene_counts)
     machine = report["machine"]
     assert machine["cpu_count"] >= 1 and machine["versions"]["torch"]
-    assert report["command"].startswith("python bench/throughput.py --quick")
+    assert report["command"].startswith("python -m bench.throughput --quick")
     assert report["git_commit"] and report["date"]

@@ -405,7 +405,7 @@ def make_model(version: int, seed: int) -> pb.ClusterModel:
     centroids = np.random.default_rng(seed).uniform(-1, 1, (K, 3)).astype(np.float32)
     return pb.ClusterModel(schema_version=SCHEMA_VERSION, version=version,
                            centroids=array_to_msg(centroids), fitted_on=150,
-                           failed_goals_seen=150 + version)
+                           failures_seen=150 + version)
 
 
 FIRST_MODEL_VERSION = 3
@@ -839,7 +839,7 @@ class ModelOracle:
                 model = ClusterModel(version=int(msg.version),
                                      centroids=msg_to_array(msg.centroids),
                                      n_goals=int(msg.fitted_on),
-                                     inserts_seen=int(msg.failed_goals_seen))
+                                     failures_seen=int(msg.failures_seen))
         except InvalidMessage as exc:
             return str(exc.reason)
         except ValueError:

@@ -124,7 +124,7 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
 
     got = models.get(timeout=WAIT_S)
     assert (got.version, got.fitted_on) == (1, config.cluster.fgb_size)
-    assert got.failed_goals_seen == config.cluster.fgb_size, "fitted exactly at the 16th failure"
+    assert got.failures_seen == config.cluster.fgb_size, "fitted exactly at the 16th failure"
     centroids = msg_to_array(got.centroids)
     assert centroids.shape == (config.cluster.k, 3) and centroids.dtype == np.float32
     np.testing.assert_allclose(centroids, expected_model.centroids, rtol=0, atol=1e-6)
@@ -138,7 +138,7 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     values = wait_for(metrics, lambda m: m["failed_goals_seen"] == expected.failures_seen,
                       "metrics counting every valid failure")
     assert values["rejected"] == 3
-    assert values["episodes_seen"] == expected.inserts_seen
+    assert values["episodes_seen"] == expected.episodes_seen
     assert values["model_version"] == 1 and values["refits"] == 1
     assert models.empty()
 
@@ -178,6 +178,6 @@ def test_a_restarted_clusterer_continues_the_runs_buffer_counts_and_versions(
     got = models.get(timeout=WAIT_S)
     assert requests, "it asked the replay where the run stands"
     assert model is not None and (got.version, model.version) == (8, 8)
-    assert (got.fitted_on, got.failed_goals_seen) == (16, 56)
+    assert (got.fitted_on, got.failures_seen) == (16, 56)
     np.testing.assert_allclose(msg_to_array(got.centroids), model.centroids, rtol=0, atol=1e-6)
     assert models.empty()

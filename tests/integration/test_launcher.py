@@ -31,12 +31,8 @@ import pytest
 import yaml
 
 from apps.cli import build_parser, main, resolve_config
-from apps.launcher import (
-    Progress,
-    plan_children,
-    resolve_run,
-    service_command,
-)
+from apps.progress import Progress
+from apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, load_yaml
 from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
@@ -650,7 +646,7 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
     assert [float(r["policy_lag"]) for r in rows] == [0.0, 0.0]
     assert [int(r["weights_version"]) for r in rows] == [3, 6]
-    assert any(msg.failed_goals_seen for msg in read_cluster_models(run_dir)), \
+    assert any(msg.failures_seen for msg in read_cluster_models(run_dir)), \
         "the clusterer refitted during the run (the lockstep gate waited for its models)"
 
 

@@ -138,7 +138,7 @@ def test_cluster_model_relabels_and_balances_batches(replay, open_client) -> Non
         insert(client, episode_msg(spec, seq))
     centroids = np.array([[-1, -1, 0], [1, 1, 0], [-1, 1, 0], [1, -1, 0]], np.float32) * 0.5
     model = pb.ClusterModel(schema_version=SCHEMA_VERSION, version=1,
-                            centroids=array_to_msg(centroids), fitted_on=8, failed_goals_seen=8)
+                            centroids=array_to_msg(centroids), fitted_on=8, failures_seen=8)
     pub = client.publisher(KEYS.cluster_model, latest=True)
     pub.put(model.SerializeToString())
     batch = None

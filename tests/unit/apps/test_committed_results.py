@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from apps import plots
+from apps import plot_tables, plots
 from tests.support import load_bench
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
@@ -22,7 +22,7 @@ def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() ->
     runs = committed_runs()
     assert runs, "docs/results/runs/ holds no run"
     ours = plots.group(plots.load_run(run) for run in runs)
-    expected = plots.fig2_text(ours, plots.group(plots.load_reference()))
+    expected = plot_tables.fig2_text(ours, plots.group(plots.load_reference()))
     assert (RESULTS / "fig2.md").read_text() == expected, (
         "docs/results/fig2.md is not what the committed runs give: run `make figures`")
     assert (RESULTS / "fig2.png").stat().st_size > 10_000
@@ -31,7 +31,7 @@ def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() ->
 def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committed_runs() -> None:
     effect = load_bench("schedule_effect")
     curves = [plots.load_run(run) for run in committed_runs()]
-    expected = effect.report(effect.compare_all(curves, 50), "python bench/schedule_effect.py")
+    expected = effect.report(effect.compare_all(curves, 50), "python -m bench.schedule_effect")
     assert (RESULTS / effect.OUTPUT).read_text() == expected, (
         "docs/results/asynchrony.md is not what the committed runs give: run `make figures`")
 
@@ -41,6 +41,6 @@ def test_claims_equal_what_claims_py_computes_from_the_committed_runs() -> None:
     claims = load_bench("claims")
     groups = claims.load_groups(RESULTS / "runs")
     expected = claims.report(claims.evaluate(claims.CLAIMS, groups), groups,
-                             "python bench/claims.py")
+                             "python -m bench.claims")
     assert (RESULTS / claims.OUTPUT).read_text() == expected, (
         "docs/results/claims.md is not what the committed runs give: run `make figures`")

@@ -19,7 +19,8 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from apps.cli import main
-from apps.live_view import LiveRecorder, ViewerHealth, header_outcome
+from apps.live_recorder import LiveRecorder, header_outcome
+from apps.live_view import ViewerHealth
 from hercs.clustering import assign_clusters
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import EpisodeData, random_episode
@@ -129,7 +130,7 @@ def test_live_recording_matches_hercs_view_of_the_same_run(tmp_path: Path) -> No
     episodes = run_episodes(12)
     centroids = np.random.default_rng(1).uniform(-1, 1, (3, 3)).astype(np.float32)
     model = pb.ClusterModel(schema_version=SCHEMA_VERSION, version=1,
-                            centroids=array_to_msg(centroids), fitted_on=5, failed_goals_seen=6)
+                            centroids=array_to_msg(centroids), fitted_on=5, failures_seen=6)
     rows = [{"epoch": 1, "episodes": 6, "success_rate": 0.25, "env_steps_per_s": 400.5},
             {"epoch": 2, "episodes": 12, "success_rate": 0.5, "env_steps_per_s": 410.0}]
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from apps import plots
+from apps import plot_figures, plot_tables, plots
 from apps.cli import main
 
 # Hand-made curves. her: seed 1 succeeds from epoch 5, seed 2 from epoch 7 (15 epochs each).
@@ -91,7 +91,7 @@ def test_milestones_by_hand(run_dirs: list[Path]) -> None:
 
 
 def test_table_text_by_hand(run_dirs: list[Path]) -> None:
-    text = plots.tables(plots.group(plots.load_run(d) for d in run_dirs))
+    text = plot_tables.tables(plots.group(plots.load_run(d) for d in run_dirs))
     assert "### FetchPush" in text
     assert "| HER | 2 | 15 | 10 | 14 | – | – | – | .95 |" in text
     assert "| HER-CS | 2 | 6 | – | – | – | – | – | .42 |" in text
@@ -122,7 +122,7 @@ def test_authors_csv_reproduces_design_section_5() -> None:
         assert got == (e5, e9, s50, s100, s200), (task, method)
         assert m.n_seeds == 5
     # The table cells as printed (ties like .985 -> ".98" as DESIGN has them).
-    text = plots.tables(ref)
+    text = plot_tables.tables(ref)
     assert "| HER | 5 | 200 | 55 | 95 | .41 | .90 | .99 |" in text
     assert "| HER-CS | 5 | 125 | 43 | 61 | .70 | .98 | – |" in text  # one seed stops at 125
     assert "| HER-EBP | 5 | 100 | 23 | 34 | .97 | 1.00 | – |" in text
@@ -150,7 +150,7 @@ def test_figure_is_a_non_blank_png_of_the_expected_size(run_dirs: list[Path],
     ours = plots.group(plots.load_run(d) for d in run_dirs)
     ours.update(plots.group([plots.load_run(_write_run(tmp_path, "her", 3, [0.1, 0.3],
                                                        task="slide"))]))
-    out = plots.plot_figure(ours, tmp_path / "fig.png",
+    out = plot_figures.plot_figure(ours, tmp_path / "fig.png",
                             plots.group(plots.load_reference(plots.REFERENCE_CSV)))
     img = mpimg.imread(out)
     h, w = round(plots.PANEL_H * plots.DPI), round((plots.PANEL_W + plots.LEGEND_W) * plots.DPI)
@@ -168,7 +168,7 @@ def test_the_legend_sits_beside_the_axes_not_over_them(run_dirs: list[Path],
     figures = []
     monkeypatch.setattr(plt, "close", figures.append)  # keep the figure to look at it
     ours = plots.group(plots.load_run(d) for d in run_dirs)
-    plots.plot_figure(ours, tmp_path / "fig.png",
+    plot_figures.plot_figure(ours, tmp_path / "fig.png",
                       plots.group(plots.load_reference(plots.REFERENCE_CSV)))
     [fig] = figures
     renderer = fig.canvas.get_renderer()
@@ -295,7 +295,7 @@ def test_a_lockstep_run_is_its_own_method_next_to_the_asynchronous_one(tmp_path:
             _write_lockstep_run(tmp_path, "her-cs", 1, [0.2, 0.6, 0.9])]
     groups = plots.group(plots.load_run(r) for r in runs)
     assert list(groups["FetchPush"]) == ["her-cs", "her-cs/lockstep"]
-    text = plots.tables(groups)
+    text = plot_tables.tables(groups)
     assert "| HER-CS | 1 | 3 | – | – |" in text  # ma 0.1, 0.2, 0.367: none past 0.5
     assert "| HER-CS lockstep | 1 | 3 | 2 | – |" in text  # ma 0.2, 0.4, 0.567 → epoch 3 − 1
 
@@ -308,7 +308,7 @@ def test_a_bf16_run_is_its_own_method_and_combines_with_lockstep(tmp_path: Path)
     groups = plots.group(plots.load_run(r) for r in runs)
     assert sorted(groups["FetchPush"]) == [
         "her-ebp-cs", "her-ebp-cs/bf16", "her-ebp-cs/lockstep/bf16"]
-    text = plots.tables(groups)
+    text = plot_tables.tables(groups)
     assert "| HER-EBP-CS bf16 | 1 | 3 | 2 | – |" in text
     assert "| HER-EBP-CS lockstep bf16 | 1 | 3 | – | – |" in text
 
@@ -327,7 +327,7 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     groups = plots.group(plots.load_run(r) for r in runs)
     assert list(groups["FetchPush"]) == ["her-ebp-cs", "her-ebp-cs/lockstep/v1", "her-ebp-cs/v1"]
     assert [len(c) for c in groups["FetchPush"].values()] == [1, 1, 1]
-    text = plots.tables(groups)
+    text = plot_tables.tables(groups)
     assert "| HER-EBP-CS | 1 | 3 | – | – |" in text
     assert "| HER-EBP-CS (v1) | 1 | 3 | 2 | – |" in text
     assert "| HER-EBP-CS lockstep (v1) | 1 | 3 | 2 | – |" in text  # ma 0, .4, .6
@@ -337,7 +337,7 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     assert all(plots.method_color(f"{m}/v1") != plots.method_color(m)
                for m in plots.METHOD_ORDER)
     assert all(plots.method_color(f"{m}/lockstep/bf16/v1") for m in plots.METHOD_ORDER)
-    with_reference = plots.tables(groups, plots.group(plots.load_reference()))
+    with_reference = plot_tables.tables(groups, plots.group(plots.load_reference()))
     assert "| HER-EBP-CS (v1) (ours) | 1 | 3 |" in with_reference
     assert "| HER-EBP-CS (authors) | 5 | 100 | 22 | 31 |" in with_reference
 
@@ -358,7 +358,7 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
     titles = [line for line in text.splitlines() if line.startswith("### ")]
     assert titles == [f"### {task}: {pair}"
                       for pair in ("HER vs HER-CS", "HER-EBP vs HER-EBP-CS")
-                      for task in plots.FIG2_TASKS]
+                      for task in plot_tables.FIG2_TASKS]
     push_her = text.split("### FetchPush: HER vs HER-CS")[1].split("###")[0]
     # trailing means (e − 3)/e pass .5 at epoch 7, .9 at epoch 13 (counted from 0: 6, 12)
     assert "| HER-CS lockstep (ours) | 1 | 15 | 6 | 12 |" in push_her
@@ -381,7 +381,7 @@ def test_a_folder_named_twice_is_read_once_with_one_line_saying_so(tmp_path: Pat
     assert captured.err.splitlines() == [
         "hercs plot: 2 run folders named more than once (overlapping globs?): each read once"]
     assert "| HER-CS | 2 | 6 |" in captured.out  # two seeds, not four
-    assert plots.distinct_run_dirs([*her, her[0], f"{her[1]}/"]) == (her, 2)
+    assert plot_figures.distinct_run_dirs([*her, her[0], f"{her[1]}/"]) == (her, 2)
 
 
 @pytest.mark.parametrize("band", ["ci", "minmax", "both"])
@@ -397,13 +397,13 @@ def test_cli_refuses_an_unknown_band(run_dirs: list[Path], tmp_path: Path, capsy
     assert exit_info.value.code == 2
     assert "invalid choice: 'sd'" in capsys.readouterr().err
     with pytest.raises(plots.PlotError, match="got 'sd'"):
-        plots.run_plot([str(run_dirs[0])], str(tmp_path / "f.png"), band="sd")
+        plot_figures.run_plot([str(run_dirs[0])], str(tmp_path / "f.png"), band="sd")
 
 
 def test_figure_2_caption_names_the_band_drawn() -> None:
     ref = plots.group(plots.load_reference(plots.REFERENCE_CSV))
-    assert "are the bootstrap 95 % interval of their mean" in plots.fig2_text({}, ref)
-    both = plots.fig2_text({}, ref, band="both")
+    assert "are the bootstrap 95 % interval of their mean" in plot_tables.fig2_text({}, ref)
+    both = plot_tables.fig2_text({}, ref, band="both")
     assert "interval of their mean (seeds resampled, a fixed RNG seed) and, lighter, their " \
            "min–max" in both
-    assert "are their min–max." in plots.fig2_text({}, ref, band="minmax")
+    assert "are their min–max." in plot_tables.fig2_text({}, ref, band="minmax")

@@ -32,7 +32,7 @@ def _write_run(run_dir: Path, n: int = 12) -> None:
                 writer.append_cluster_model(pb.ClusterModel(
                     schema_version=SCHEMA_VERSION, version=1,
                     centroids=array_to_msg(rng.uniform(-1, 1, (3, 3)).astype(np.float32)),
-                    fitted_on=5, failed_goals_seen=5))
+                    fitted_on=5, failures_seen=5))
             ep = random_episode(spec, rng, seq=i)
             writer.append_episode(episode_to_msg(ep, run="t", task="push"), episode_id=i)
     (run_dir / "metrics.csv").write_text(

@@ -37,10 +37,10 @@ def test_models_exactly_every_fgb_size_failures_never_counting_successes() -> No
             models.append((fails, model))
     assert [f for f, _ in models] == list(range(150, fails + 1, 150))
     assert [m.version for _, m in models] == list(range(1, len(models) + 1))
-    assert clusterer.inserts_seen == 1200 and clusterer.failures_seen == fails
+    assert clusterer.episodes_seen == 1200 and clusterer.failures_seen == fails
     m = models[0][1]
     assert m.centroids.shape == (8, 3) and m.centroids.dtype == np.float32
-    assert m.n_goals == 150 and m.inserts_seen <= 1200
+    assert m.n_goals == 150 and m.failures_seen <= 1200
     assert clusterer.model is models[-1][1]
 
 
@@ -87,4 +87,4 @@ def test_rejects_non_finite_input() -> None:
     clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
     with pytest.raises(ValueError, match="NaN"):
         clusterer.observe(final_ag=np.array([np.nan, 0, 0]), desired_goal=np.zeros(3))
-    assert clusterer.inserts_seen == 0
+    assert clusterer.episodes_seen == 0

@@ -56,10 +56,10 @@ def test_fit_needs_at_least_k_goals() -> None:
 
 def test_cluster_model_invariants() -> None:
     m = ClusterModel(version=1, centroids=np.eye(3, dtype=np.float64), n_goals=150,
-                     inserts_seen=400)
+                     failures_seen=400)
     assert m.centroids.dtype == np.float32 and m.k == 3
     np.testing.assert_array_equal(m.assign(np.array([[0.9, 0.1, 0], [0, 0, 2]])), [0, 2])
     with pytest.raises(ValueError, match="version"):
-        ClusterModel(version=0, centroids=np.eye(3), n_goals=1, inserts_seen=1)
+        ClusterModel(version=0, centroids=np.eye(3), n_goals=1, failures_seen=1)
     with pytest.raises(ValueError, match="NaN"):
-        ClusterModel(version=1, centroids=np.full((2, 3), np.nan), n_goals=1, inserts_seen=1)
+        ClusterModel(version=1, centroids=np.full((2, 3), np.nan), n_goals=1, failures_seen=1)

@@ -186,7 +186,7 @@ def _sample_of_each_message() -> list:
                  o_stats=stats, g_stats=stats, cluster_draws=[32] * 8,
                  status=pb.ReplayStatus(cluster_model_version=2, inserts=100, env_steps=5000)),
         pb.ClusterModel(schema_version=v, version=2, centroids=arr, fitted_on=150,
-                        failed_goals_seen=300),
+                        failures_seen=300),
         pb.Weights(schema_version=v, version=7, o_stats=stats, g_stats=stats, epoch=1,
                    evaluate=True, actor_params=arrays_to_named({"w": np.ones(2, np.float32)})),
         pb.EvalResult(schema_version=v, epoch=1, weights_version=7, episodes=20,

@@ -60,7 +60,7 @@ def assert_same_episode(got: pb.Episode, want: pb.Episode) -> None:
 def cluster_model() -> pb.ClusterModel:
     centroids = np.random.default_rng(5).uniform(-1, 1, size=(8, 3)).astype(np.float32)
     return pb.ClusterModel(schema_version=1, version=3, centroids=array_to_msg(centroids),
-                           fitted_on=150, failed_goals_seen=450)
+                           fitted_on=150, failures_seen=450)
 
 
 def eval_result() -> pb.EvalResult:

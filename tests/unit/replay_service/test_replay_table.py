@@ -443,7 +443,7 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     assert failures == 4, "random Reach episodes fail: the test needs exactly one refit due"
     assert not request.results, "model v1 is due at the 4th failure"
     model = ClusterModel(version=1, centroids=np.zeros((2, 3), np.float32), n_goals=4,
-                         inserts_seen=4)
+                         failures_seen=4)
     assert h.table.adopt_cluster_model(model, None)
     assert request.results and request.results[0].status.cluster_model_version == 1
     assert h.table.gate is not None and h.table.gate.late_cluster_models == 0
