@@ -17,7 +17,7 @@ import yaml
 
 from apps.plots import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
-from hercs.errors import ConfigError
+from hercs.errors import ConfigError, HercsError
 from hercs.methods import METHODS
 from hercs.tasks import TASKS
 
@@ -47,10 +47,15 @@ FLAGS_OF: dict[str, tuple[str, ...]] = {
     "learner": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
     "evaluator": ("task", "method", "seed", "epochs", "run", "run_dir", "connect",
                   "security"),
-    # actors and the live view take everything else from the run's replay
-    "actor": ("run", "connect", "security"),
-    "live": ("run", "connect", "security"),
+    # actors and the live view take everything else from the run's replay; without
+    # --connect they find the router in the run directory (`join_endpoints`)
+    "actor": ("run", "run_dir", "connect", "security"),
+    "live": ("run", "run_dir", "connect", "security"),
 }
+JOINERS = frozenset({"actor", "live"})
+"""Commands that join a running run and, without --connect, read its router.json."""
+EXIT_NO_ROUTER = 3
+"""A joiner gave up waiting for the run's router (as a service does, `transport.wait_s`)."""
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
@@ -191,6 +196,40 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
             listed = yaml.safe_dump(endpoints, default_flow_style=True).strip()
             overrides.append(f"transport.{flag}={listed}")
     return apply_overrides(config, overrides + rerun_overrides(args) + list(args.overrides))
+
+
+def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig | None:
+    """An actor's or live view's config with `transport.connect` = the endpoints the run's
+    `hercs up` recorded in RUN_DIR/RUN/router.json, when --connect is not given.
+
+    With --run-dir given it waits for the file (`transport.wait_s`, 0 = for ever: a Slurm
+    job's actors start with the run, before its router listens); None when it gave up.
+    Without --run-dir it uses runs/RUN/router.json if there is one, else the config's
+    `connect` as before."""
+    from hercs.rundir import read_router, wait_router
+
+    if getattr(args, "connect", None) or not config.run.name:
+        if getattr(args, "run_dir", None) is not None and not config.run.name:
+            raise ConfigError("--run-dir: give --run RUN too (the router is recorded in "
+                              "RUN_DIR/RUN/router.json)")
+        return config
+    run_dir = Path(config.run.run_dir) / config.run.name
+    if args.run_dir is None:
+        record = read_router(run_dir)
+    else:
+        record = wait_router(run_dir, timeout_s=config.transport.wait_s,
+                             say=lambda line: print(f"hercs {args.command}: {line}",
+                                                    file=sys.stderr, flush=True))
+        if record is None:
+            print(f"hercs {args.command}: no router recorded in {run_dir} after "
+                  f"{config.transport.wait_s:g} s (transport.wait_s); is the run's `hercs up` "
+                  "running, and is RUN_DIR on storage this host shares with it?",
+                  file=sys.stderr, flush=True)
+            return None
+    if record is None:
+        return config
+    listed = yaml.safe_dump(record.endpoints_for(), default_flow_style=True).strip()
+    return apply_overrides(config, [f"transport.connect={listed}"])
 
 
 def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -491,6 +530,17 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
         return 2
+    if args.command in JOINERS:
+        try:
+            joined = join_endpoints(args, config)
+        except (ConfigError, HercsError) as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            return 128 + 2
+        if joined is None:
+            return EXIT_NO_ROUTER
+        config = joined
     if args.command in ENV_COMMANDS:
         from hercs.envs import check_env
 
