@@ -39,6 +39,8 @@ RUN_FLAGS = ("task", "method", "seed", "epochs", "run", "run_dir", "actors", "wo
 FLAGS_OF: dict[str, tuple[str, ...]] = {
     "config": (*RUN_FLAGS, "connect", "listen", "security"),
     "up": (*RUN_FLAGS, "listen", "security"),
+    # a Slurm job's run: its router, actors and certificates are the job script's
+    "slurm": ("task", "method", "seed", "epochs", "run", "run_dir", "workers"),
     "router": ("listen", "security"),
     "replay": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
     # --workers shapes a run once, in the config `hercs up` saves: not a service flag
@@ -252,6 +254,12 @@ def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
     return run_up(config, resume=bool(args.resume))
 
 
+def _cmd_slurm(args: argparse.Namespace, config: HercsConfig) -> int:
+    from apps.slurm import run_submit
+
+    return run_submit(args, config)
+
+
 def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
     from apps.router import run_router
 
@@ -382,6 +390,23 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                         "stopped: the replay reloads its log, the learner its checkpoint, the "
                         "clusterer asks the replay; metrics.csv goes on from the last epoch")
     commands["up"] = _cmd_up
+
+    p = sub.add_parser("slurm", help="run on a Slurm cluster (docs/CLUSTER.md)",
+                       description="Slurm jobs of hercs runs (docs/CLUSTER.md).")
+    slurm = p.add_subparsers(dest="slurm_command", metavar="SLURM_COMMAND", required=True)
+    p = slurm.add_parser(
+        "submit", help="submit one run as one heterogeneous job",
+        description="Write runs/RUN/slurm/job.sbatch (component 0: `hercs up --actors 0` on "
+                    "one node; component 1: one actor per node over mutual TLS; a warning "
+                    "before the time limit stops the run in order and requeues the job, which "
+                    "then resumes) and submit it. Example: hercs slurm submit --task push "
+                    "--method her-cs --epochs 100 --actor-nodes 4 --actor-cpus 8 --gpus 1 "
+                    "--time 2:00:00")
+    add_config_arguments(p, "slurm")
+    from apps.slurm import add_submit_arguments
+
+    add_submit_arguments(p)
+    commands["slurm"] = _cmd_slurm
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
                                       "tcp/0.0.0.0:7447) until Ctrl-C",
