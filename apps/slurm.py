@@ -66,7 +66,9 @@ class JobPlan:
     account: str = ""
     sbatch: tuple[str, ...] = ()
     """More sbatch options for the whole job (each becomes a `#SBATCH` line)."""
-    workdir: Path = Path.cwd()
+    workdir: Path = Path(".")
+    """The job's working directory (`--chdir`; `plan_from_args` gives the submitting
+    shell's)."""
 
     def __post_init__(self) -> None:
         for flag, value, least in (("--actor-nodes", self.actor_nodes, 1),
@@ -92,7 +94,8 @@ class JobPlan:
 def render_script(plan: JobPlan) -> str:
     """The batch script of `plan` (see the module docstring)."""
     q = shlex.quote
-    run_dir, parent = q(str(plan.run_dir)), q(str(plan.run_dir.parent))
+    run_dir, parent, run = q(str(plan.run_dir)), q(str(plan.run_dir.parent)), q(plan.run)
+    hercs = " ".join(q(part) for part in plan.hercs)
     whole = [f"--job-name=hercs-{plan.run}", f"--output={plan.folder}/job-%j.out",
              "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
              f"--chdir={plan.workdir}"]
@@ -121,10 +124,22 @@ def render_script(plan: JobPlan) -> str:
 
 set -u
 RUN_DIR={run_dir}
-HERCS=({" ".join(q(part) for part in plan.hercs)})
+HERCS=({hercs})
 ATTEMPT="$SLURM_JOB_ID.${{SLURM_RESTART_COUNT:-0}}"
 CERTS="$RUN_DIR/{SLURM}/certs-$ATTEMPT"
 log() {{ echo "[$(date +%FT%T)] job $ATTEMPT: $*"; }}
+
+# USR1: Slurm's warning before the time limit (it may come up to a minute early); TERM:
+# preemption, requeue or scancel. srun passes SIGTERM on to its tasks: `hercs up` stops in
+# order, the actors leave.
+REASON="" UP="" ACTORS=""
+stop_run() {{
+    REASON=$1
+    log "got SIG$1, stopping the run in order"
+    if [ -n "$UP" ]; then kill -TERM "$UP" "$ACTORS" 2> /dev/null; fi
+}}
+trap 'stop_run USR1' USR1
+trap 'stop_run TERM' TERM
 
 # This attempt's certificates: the router's names this host, where component 0 runs.
 # An earlier attempt's router.json names a router that is gone.
@@ -133,31 +148,28 @@ rm -f "$RUN_DIR/router.json"
 rm -f "$CERTS/ca.key"
 
 if [ -f "$RUN_DIR/config.yaml" ]; then
-    log "continuing run {plan.run} (hercs up --resume)"
+    log "continuing run {run} (hercs up --resume)"
     START=(--resume "$RUN_DIR")
 else
-    log "starting run {plan.run}"
+    log "starting run {run}"
     START=(--config "$RUN_DIR/{SLURM}/{CONFIG}")
 fi
-srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \\
-    --listen tls/0.0.0.0:0 --tls-dir "$CERTS" &
-UP=$!
-srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {q(plan.run)} \\
-    --run-dir {parent} --tls-dir "$CERTS" &
-ACTORS=$!
-
-# USR1: Slurm's warning before the time limit; TERM: preemption, requeue or scancel.
-# srun passes SIGTERM on to its tasks: `hercs up` stops in order, the actors leave.
-REASON=""
-stop_run() {{ REASON=$1; log "got SIG$1, stopping the run in order"; kill -TERM "$UP" "$ACTORS" 2> /dev/null; }}
-trap 'stop_run USR1' USR1
-trap 'stop_run TERM' TERM
-wait "$UP"; STATUS=$?
-while kill -0 "$UP" 2> /dev/null; do wait "$UP"; STATUS=$?; done  # a trap ended the wait
-kill -TERM "$ACTORS" 2> /dev/null  # the run is over: actors of a finished run leave anyway
-wait "$ACTORS"
-while kill -0 "$ACTORS" 2> /dev/null; do wait "$ACTORS"; done
-log "hercs up exited with status $STATUS"
+STATUS=1
+if [ -z "$REASON" ]; then
+    srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \
+        --listen tls/0.0.0.0:0 --tls-dir "$CERTS" &
+    UP=$!
+    srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \
+        --run-dir {parent} --tls-dir "$CERTS" &
+    ACTORS=$!
+    if [ -n "$REASON" ]; then kill -TERM "$UP" "$ACTORS" 2> /dev/null; fi
+    wait "$UP"; STATUS=$?
+    while kill -0 "$UP" 2> /dev/null; do wait "$UP"; STATUS=$?; done  # a trap ended the wait
+    kill -TERM "$ACTORS" 2> /dev/null  # the run is over (its actors leave by themselves too)
+    wait "$ACTORS"
+    while kill -0 "$ACTORS" 2> /dev/null; do wait "$ACTORS"; done
+    log "hercs up exited with status $STATUS"
+fi
 if [ "$STATUS" -ne 0 ] && [ "$REASON" = USR1 ]; then
     log "requeueing: the next attempt continues the run"
     scontrol requeue "$SLURM_JOB_ID"
@@ -258,3 +270,89 @@ def run_submit(args: argparse.Namespace, config: HercsConfig) -> int:
           f"{plan.folder}/job-{job}.out; watch it with `hercs live --run {plan.run} --run-dir "
           f"{plan.run_dir.parent}`")
     return 0
+
+
+# ------------------------------------------------------------------------------ job arrays
+
+ARRAY_SCRIPT = "grid.sbatch"
+
+
+@dataclass(frozen=True)
+class ArrayPlan:
+    """A job array whose task i runs `command i` (i = `$SLURM_ARRAY_TASK_ID`) on one node,
+    requeueing itself on Slurm's warning before the time limit (the command must stop in
+    order on SIGTERM and continue where it stopped when started again)."""
+
+    name: str
+    folder: Path
+    """Where the script and the tasks' output go."""
+    command: tuple[str, ...]
+    indices: tuple[int, ...]
+    cpus: int = 4
+    time: str = ""
+    signal_before_s: int = 300
+    partition: str = ""
+    account: str = ""
+    sbatch: tuple[str, ...] = ()
+    workdir: Path = Path(".")
+
+    def __post_init__(self) -> None:
+        if not self.indices:
+            raise ConfigError("a job array needs at least one task")
+        # the resources are checked as a run's job checks them
+        JobPlan(run=self.name, run_dir=self.folder, hercs=(), learner_cpus=self.cpus,
+                time=self.time, signal_before_s=self.signal_before_s, sbatch=self.sbatch)
+
+
+def render_array_script(plan: ArrayPlan) -> str:
+    options = [f"--job-name={plan.name}", f"--output={plan.folder}/task-%A_%a.out",
+               "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
+               f"--chdir={plan.workdir}", f"--array={','.join(map(str, plan.indices))}",
+               "--nodes=1", "--ntasks=1", f"--cpus-per-task={plan.cpus}"]
+    options += [f"--time={plan.time}"] if plan.time else []
+    options += [f"--partition={plan.partition}"] if plan.partition else []
+    options += [f"--account={plan.account}"] if plan.account else []
+    options += list(plan.sbatch)
+    head = "\n".join(f"#SBATCH {option}" for option in options)
+    command = " ".join(shlex.quote(part) for part in plan.command)
+    return f"""#!/bin/bash
+# {plan.name}: one array task per index, written by hercs (docs/CLUSTER.md). Task i runs the
+# command below with SLURM_ARRAY_TASK_ID=i; Slurm's warning {plan.signal_before_s} s before the
+# time limit stops it in order and requeues the task, which then continues where it stopped.
+{head}
+
+set -u
+TASK="${{SLURM_ARRAY_JOB_ID}}_${{SLURM_ARRAY_TASK_ID}}"
+log() {{ echo "[$(date +%FT%T)] task $TASK.${{SLURM_RESTART_COUNT:-0}}: $*"; }}
+REASON="" PID=""
+stop_task() {{
+    REASON=$1
+    log "got SIG$1, stopping in order"
+    if [ -n "$PID" ]; then kill -TERM "$PID" 2> /dev/null; fi
+}}
+trap 'stop_task USR1' USR1
+trap 'stop_task TERM' TERM
+
+STATUS=1
+if [ -z "$REASON" ]; then
+    {command} "$SLURM_ARRAY_TASK_ID" &
+    PID=$!
+    wait "$PID"; STATUS=$?
+    while kill -0 "$PID" 2> /dev/null; do wait "$PID"; STATUS=$?; done  # a trap ended the wait
+    log "exited with status $STATUS"
+fi
+if [ "$STATUS" -ne 0 ] && [ "$REASON" = USR1 ]; then
+    log "requeueing: the next attempt continues"
+    scontrol requeue "$TASK"
+    exit {EXIT_REQUEUED}
+fi
+exit "$STATUS"
+"""
+
+
+def submit_array(plan: ArrayPlan, *, dry_run: bool = False) -> tuple[Path, str | None]:
+    """Write `folder/grid.sbatch` and submit it (not with `dry_run`); (script, job id)."""
+    plan.folder.mkdir(parents=True, exist_ok=True)
+    script = plan.folder / ARRAY_SCRIPT
+    script.write_text(render_array_script(plan))
+    return script, None if dry_run else submit(script)

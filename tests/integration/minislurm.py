@@ -13,7 +13,8 @@ Each node's daemon runs in a mount namespace of its own too, where ROOT/hosts (n
 node) is bound over /etc/hosts, so that a process on one node reaches another by its host
 name, as on a cluster; the rest of the file system is shared, as a cluster's shared storage
 is. All state lives under one temporary folder; `stop()` ends every daemon it started (by
-pid) and removes the namespaces and the bridge. `problem()` says why none can run here (not root, a binary missing).
+pid) and removes the namespaces and the bridge. `problem()` says why none can run here (not
+root, a binary missing).
 
 Only this module knows how the cluster is laid out; tests/integration/test_slurm.py uses
 `MiniSlurm.start()`, `env` (SLURM_CONF for the client commands) and the node names.
@@ -192,7 +193,8 @@ class MiniSlurm:
             "AccountingStorageHost=127.0.0.1", f"AccountingStoragePort={self.dbd_port}",
             # the munge socket of connections to slurmdbd (AuthInfo covers the others)
             f"AccountingStoragePass={self.munge_socket}",
-            "MpiDefault=none", "MailProg=/bin/true", "SwitchType=switch/none", "SchedulerType=sched/backfill",
+            "MpiDefault=none", "MailProg=/bin/true", "SwitchType=switch/none",
+            "SchedulerType=sched/backfill",
             "SelectType=select/cons_tres", "SelectTypeParameters=CR_CPU",
             "ReturnToService=2", "KillWait=10", "MinJobAge=600", "InactiveLimit=0",
             "SlurmdTimeout=60", "MessageTimeout=20", "JobRequeue=1",
