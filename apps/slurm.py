@@ -130,13 +130,13 @@ CERTS="$RUN_DIR/{SLURM}/certs-$ATTEMPT"
 log() {{ echo "[$(date +%FT%T)] job $ATTEMPT: $*"; }}
 
 # USR1: Slurm's warning before the time limit (it may come up to a minute early); TERM:
-# preemption, requeue or scancel. srun passes SIGTERM on to its tasks: `hercs up` stops in
-# order, the actors leave.
+# preemption, requeue or scancel. SIGTERM goes to the steps' tasks through Slurm (srun itself
+# would end its step at once): `hercs up` stops in order, the actors leave.
 REASON="" UP="" ACTORS=""
 stop_run() {{
     REASON=$1
     log "got SIG$1, stopping the run in order"
-    if [ -n "$UP" ]; then kill -TERM "$UP" "$ACTORS" 2> /dev/null; fi
+    if [ -n "$UP" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
 }}
 trap 'stop_run USR1' USR1
 trap 'stop_run TERM' TERM
@@ -162,10 +162,10 @@ if [ -z "$REASON" ]; then
     srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \
         --run-dir {parent} --tls-dir "$CERTS" &
     ACTORS=$!
-    if [ -n "$REASON" ]; then kill -TERM "$UP" "$ACTORS" 2> /dev/null; fi
+    if [ -n "$REASON" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
     wait "$UP"; STATUS=$?
     while kill -0 "$UP" 2> /dev/null; do wait "$UP"; STATUS=$?; done  # a trap ended the wait
-    kill -TERM "$ACTORS" 2> /dev/null  # the run is over (its actors leave by themselves too)
+    kill -TERM "$ACTORS" 2> /dev/null  # the run is over: its actors have nothing to send
     wait "$ACTORS"
     while kill -0 "$ACTORS" 2> /dev/null; do wait "$ACTORS"; done
     log "hercs up exited with status $STATUS"

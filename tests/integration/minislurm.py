@@ -194,7 +194,8 @@ class MiniSlurm:
             # the munge socket of connections to slurmdbd (AuthInfo covers the others)
             f"AccountingStoragePass={self.munge_socket}",
             "MpiDefault=none", "MailProg=/bin/true", "SwitchType=switch/none",
-            "SchedulerType=sched/backfill",
+            # heterogeneous jobs start from the backfill scheduler: every 2 s, not 30
+            "SchedulerType=sched/backfill", "SchedulerParameters=bf_interval=2",
             "SelectType=select/cons_tres", "SelectTypeParameters=CR_CPU",
             "ReturnToService=2", "KillWait=10", "MinJobAge=600", "InactiveLimit=0",
             "SlurmdTimeout=60", "MessageTimeout=20", "JobRequeue=1",
