@@ -156,10 +156,10 @@ else
 fi
 STATUS=1
 if [ -z "$REASON" ]; then
-    srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \
+    srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \\
         --listen tls/0.0.0.0:0 --tls-dir "$CERTS" &
     UP=$!
-    srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \
+    srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \\
         --run-dir {parent} --tls-dir "$CERTS" &
     ACTORS=$!
     if [ -n "$REASON" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
