@@ -39,7 +39,7 @@ mujoco-py: $(STAMP)
 slurm:
 	bash deploy/install_slurm.sh
 
-# Only the Slurm test (a cluster of two namespaced nodes; about N minutes, docs/CLUSTER.md).
+# Only the Slurm test (a cluster of two namespaced nodes; 6 to 8 minutes on 2 cores, docs/CLUSTER.md §8).
 slurm-test: $(STAMP) slurm
 	$(PY) -m pytest -q -s tests/integration/test_slurm.py
 
