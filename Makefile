@@ -5,7 +5,8 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint proto install clean compose-test compose-clean figures mujoco-py
+.PHONY: run test lint proto install clean compose-test compose-clean figures mujoco-py slurm \
+	slurm-test
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -31,6 +32,16 @@ install: $(STAMP)
 # check (deploy/install_mujoco_py.sh). About a minute on a fresh machine; a second run checks.
 mujoco-py: $(STAMP)
 	VENV=$(abspath $(VENV)) bash deploy/install_mujoco_py.sh
+
+# A real Slurm for tests/integration/test_slurm.py: Debian's slurm-wlm, slurmdbd, munge and
+# mariadb-server when root and missing (deploy/install_slurm.sh; nothing is started). Without
+# them the test prints "SKIPPED: <reason>".
+slurm:
+	bash deploy/install_slurm.sh
+
+# Only the Slurm test (a cluster of two namespaced nodes; 6 to 8 minutes on 2 cores, docs/CLUSTER.md §8).
+slurm-test: $(STAMP) slurm
+	$(PY) -m pytest -q -s tests/integration/test_slurm.py
 
 # A short real run: router, replay, clusterer, learner, evaluator and two actors as separate
 # processes over Zenoh, FetchReach with HER-CS for 3 epochs; prints where the run directory is.

@@ -14,10 +14,16 @@ from typing import NoReturn
 
 import yaml
 
-from apps.cli_config import add_config_arguments, add_rerun_arguments, resolve_config
+from apps.cli_config import (
+    JOINERS,
+    add_config_arguments,
+    add_rerun_arguments,
+    join_endpoints,
+    resolve_config,
+)
 from apps.plots import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig
-from hercs.errors import ConfigError
+from hercs.errors import ConfigError, HercsError
 
 
 def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -38,6 +44,16 @@ def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
     from apps.launcher import run_up
 
     return run_up(config, resume=bool(args.resume))
+
+
+EXIT_NO_ROUTER = 3
+"""A joiner gave up waiting for the run's router (as a service does, `transport.wait_s`)."""
+
+
+def _cmd_slurm(args: argparse.Namespace, config: HercsConfig) -> int:
+    from apps.slurm import run_submit
+
+    return run_submit(args, config)
 
 
 def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -170,6 +186,23 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                         "stopped: the replay reloads its log, the learner its checkpoint, the "
                         "clusterer asks the replay; metrics.csv goes on from the last epoch")
     commands["up"] = _cmd_up
+
+    p = sub.add_parser("slurm", help="run on a Slurm cluster (docs/CLUSTER.md)",
+                       description="Slurm jobs of hercs runs (docs/CLUSTER.md).")
+    slurm = p.add_subparsers(dest="slurm_command", metavar="SLURM_COMMAND", required=True)
+    p = slurm.add_parser(
+        "submit", help="submit one run as one heterogeneous job",
+        description="Write runs/RUN/slurm/job.sbatch (component 0: `hercs up --actors 0` on "
+                    "one node; component 1: one actor per node over mutual TLS; a warning "
+                    "before the time limit stops the run in order and requeues the job, which "
+                    "then resumes) and submit it. Example: hercs slurm submit --task push "
+                    "--method her-cs --epochs 100 --actor-nodes 4 --actor-cpus 8 --gpus 1 "
+                    "--time 2:00:00")
+    add_config_arguments(p, "slurm")
+    from apps.slurm import add_submit_arguments
+
+    add_submit_arguments(p)
+    commands["slurm"] = _cmd_slurm
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
                                       "tcp/0.0.0.0:7447) until Ctrl-C",
@@ -318,6 +351,17 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
         return 2
+    if args.command in JOINERS:
+        try:
+            joined = join_endpoints(args, config)
+        except (ConfigError, HercsError) as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            return 128 + 2
+        if joined is None:
+            return EXIT_NO_ROUTER
+        config = joined
     if args.command in ENV_COMMANDS:
         from hercs.envs import check_env
 

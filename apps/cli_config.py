@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import yaml
@@ -32,6 +33,8 @@ RUN_FLAGS = ("task", "method", "seed", "epochs", "run", "run_dir", "actors", "wo
 FLAGS_OF: dict[str, tuple[str, ...]] = {
     "config": (*RUN_FLAGS, "connect", "listen", "security"),
     "up": (*RUN_FLAGS, "listen", "security"),
+    # a Slurm job's run: its router, actors and certificates are the job script's
+    "slurm": ("task", "method", "seed", "epochs", "run", "run_dir", "workers"),
     "router": ("listen", "security"),
     "replay": ("task", "method", "seed", "epochs", "run", "run_dir", "connect", "security"),
     # --workers shapes a run once, in the config `hercs up` saves: not a service flag
@@ -41,9 +44,11 @@ FLAGS_OF: dict[str, tuple[str, ...]] = {
     "evaluator": ("task", "method", "seed", "epochs", "run", "run_dir", "connect",
                   "security"),
     # actors and the live view take everything else from the run's replay
-    "actor": ("run", "connect", "security"),
-    "live": ("run", "connect", "security"),
+    "actor": ("run", "run_dir", "connect", "security"),
+    "live": ("run", "run_dir", "connect", "security"),
 }
+JOINERS = frozenset({"actor", "live"})
+"""Commands that join a running run and, without --connect, read its router.json."""
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
@@ -184,3 +189,37 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
             listed = yaml.safe_dump(endpoints, default_flow_style=True).strip()
             overrides.append(f"transport.{flag}={listed}")
     return apply_overrides(config, overrides + rerun_overrides(args) + list(args.overrides))
+
+
+def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig | None:
+    """An actor's or live view's config with `transport.connect` = the endpoints the run's
+    `hercs up` recorded in RUN_DIR/RUN/router.json, when --connect is not given.
+
+    With --run-dir given it waits for the file (`transport.wait_s`, 0 = for ever: a Slurm
+    job's actors start with the run, before its router listens); None when it gave up.
+    Without --run-dir it uses runs/RUN/router.json if there is one, else the config's
+    `connect` as before."""
+    from hercs.rundir import read_router, run_dir_of, wait_router
+
+    if getattr(args, "connect", None) or not config.run.name:
+        if getattr(args, "run_dir", None) is not None and not config.run.name:
+            raise ConfigError("--run-dir: give --run RUN too (the router is recorded in "
+                              "RUN_DIR/RUN/router.json)")
+        return config
+    run_dir = run_dir_of(config.run)
+    if args.run_dir is None:
+        record = read_router(run_dir)
+    else:
+        record = wait_router(run_dir, timeout_s=config.transport.wait_s,
+                             say=lambda line: print(f"hercs {args.command}: {line}",
+                                                    file=sys.stderr, flush=True))
+        if record is None:
+            print(f"hercs {args.command}: no router recorded in {run_dir} after "
+                  f"{config.transport.wait_s:g} s (transport.wait_s); is the run's `hercs up` "
+                  "running, and is RUN_DIR on storage this host shares with it?",
+                  file=sys.stderr, flush=True)
+            return None
+    if record is None:
+        return config
+    listed = yaml.safe_dump(record.endpoints_for(), default_flow_style=True).strip()
+    return apply_overrides(config, [f"transport.connect={listed}"])

@@ -10,10 +10,13 @@ What `run_up` does, in order:
    With `resume` (`hercs up --resume runs/RUN`) it is the other way round: the folder must
    hold a run, and every service continues it.
 2. Opens the router, embedded in this process (a router-mode `Transport` on
-   `transport.listen`); a taken port fails at once with a clear message (exit 1), before
-   anything is written.
+   `transport.listen`); port 0 (the default, `tcp/127.0.0.1:0`) means any free port, so two
+   runs on one host never collide; an explicit port that is taken fails at once with a clear
+   message (exit 1), before anything is written.
 3. Writes `runs/<run>/config.yaml` (the full resolved config, which every child reads with
-   `--config`) and `runs/<run>/logs/`.
+   `--config`; `listen` as asked, `connect` the router's concrete endpoints),
+   `runs/<run>/logs/` and `runs/<run>/router.json` (`hercs.rundir.RouterRecord`: where the
+   router listens, for `hercs actor`/`hercs live --run-dir`; removed when the run stops).
 4. Starts the services as child processes, `python -m apps.cli <role> --config … --id …`,
    each child's stdout and stderr to `logs/<id>.log`: the replay first (ids `replay-0`), and
    once its liveliness token is up the clusterer, learner, evaluator (`<role>-0`) and
@@ -75,10 +78,11 @@ from typing import IO
 
 from apps.child_process import describe_exit, log_tail, signal_group, start_child
 from apps.progress import Progress
-from apps.router import RouterListenError, open_router
+from apps.router import RouterListenError, open_router_anywhere
 from apps.run_plan import ChildSpec, CommandFactory, plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.rundir import RouterRecord, holds_a_run, remove_router, write_router
 from hercs.service import EXIT_CONFIG
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
@@ -401,7 +405,7 @@ def run_up(
         print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
               flush=True)
         return 2
-    if not resume and run_dir.exists() and any(run_dir.iterdir()):
+    if not resume and holds_a_run(run_dir):
         print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
               "(or leave it empty for a fresh name), or move that directory away",
               file=err, flush=True)
@@ -411,13 +415,14 @@ def run_up(
                           wake_on=(signal.SIGCHLD,))
     with signals:
         try:
-            router = open_router(config.transport.listen, config.security)
+            router, listening = open_router_anywhere(config.transport.listen, config.security)
         except ConfigError as exc:
             print(f"hercs up: {exc}", file=err, flush=True)
             return 2
         except RouterListenError as exc:
             print(f"hercs up: {exc}", file=err, flush=True)
             return 1
+        config = resolve_run(config, listening=listening)
         launcher = _Launcher(config=config, run_dir=run_dir, signals=signals, command=command,
                              stop_timeout_s=stop_timeout_s, ready_timeout_s=ready_timeout_s,
                              out=out, err=err)
@@ -425,8 +430,9 @@ def run_up(
         try:
             (run_dir / "logs").mkdir(parents=True, exist_ok=True)
             save_yaml(config, run_dir / "config.yaml")
+            write_router(run_dir, RouterRecord.for_listen(listening))
             launcher.say(f"hercs up: {'resuming ' if resume else ''}run {config.run.name}, "
-                         f"directory {run_dir}, router on {list(config.transport.listen)}")
+                         f"directory {run_dir}, router on {listening}")
             router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
             router.subscribe(launcher.keys.eval_result, launcher.on_eval)
             router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
@@ -438,6 +444,7 @@ def run_up(
             with launcher._print_lock:
                 launcher._say_all(launcher.progress.flush())
             router.close()
+            remove_router(run_dir)
         if status == 0:
             launcher.say(f"hercs up: run {config.run.name} finished; run directory: {run_dir}")
         else:

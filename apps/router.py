@@ -6,10 +6,11 @@ state, so services and actors may come and go (clients reconnect by themselves i
 from __future__ import annotations
 
 import logging
+import socket
 import sys
 from collections.abc import Sequence
 
-from hercs.config import HercsConfig, SecurityConfig
+from hercs.config import HercsConfig, SecurityConfig, endpoint_parts
 from hercs.errors import ConfigError
 from hercs.security import listen_problem, zenoh_settings
 from hercs.signals import StopSignals
@@ -21,6 +22,51 @@ log = logging.getLogger(__name__)
 
 class RouterListenError(TransportError):
     """The router could not listen on an endpoint; nothing was started."""
+
+
+class PortInUse(RouterListenError):
+    """An endpoint's port is taken by another process."""
+
+
+FREE_PORT_TRIES = 5
+"""How often `open_router_anywhere` picks new ports when a picked one was taken meanwhile."""
+
+
+def pick_free_ports(listen: Sequence[str]) -> list[str]:
+    """`listen` with every port 0 replaced by a port that is free on that address now (the
+    kernel's choice for a socket bound to port 0, which is then closed)."""
+    out = []
+    for endpoint in listen:
+        proto, host, port = endpoint_parts(endpoint)
+        if port != 0:
+            out.append(endpoint)
+            continue
+        family = socket.AF_INET6 if host.startswith("[") else socket.AF_INET
+        kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
+        with socket.socket(family, kind) as probe:
+            try:
+                probe.bind((host.strip("[]"), 0))
+            except OSError as exc:
+                raise RouterListenError(f"cannot listen on {endpoint}: {exc.strerror} (is "
+                                        f"{host} one of this host's addresses?)") from None
+            out.append(f"{proto}/{host}:{probe.getsockname()[1]}")
+    return out
+
+
+def open_router_anywhere(listen: Sequence[str], security: SecurityConfig | None = None
+                         ) -> tuple[Transport, list[str]]:
+    """`open_router` on `listen` where port 0 means "any free port": returns the router and
+    the endpoints it listens on. A picked port that another process took between the pick
+    and the bind is picked again (`FREE_PORT_TRIES` times); an explicit port that is taken
+    fails at once (`PortInUse`)."""
+    for attempt in range(FREE_PORT_TRIES):
+        concrete = pick_free_ports(listen)
+        try:
+            return open_router(concrete, security), concrete
+        except PortInUse:
+            if concrete == list(listen) or attempt == FREE_PORT_TRIES - 1:
+                raise
+    raise AssertionError("unreachable")
 
 
 def open_router(listen: Sequence[str],
@@ -44,10 +90,11 @@ def open_router(listen: Sequence[str],
     except TransportError as exc:
         text = str(exc)
         if "Address already in use" in text:
-            raise RouterListenError(
+            raise PortInUse(
                 f"cannot listen on {endpoints}: the port is already in use (another `hercs up` "
-                "or `hercs router`?). Stop that process, or pick a free port with "
-                "--listen tcp/127.0.0.1:PORT (remote actors then use --connect with that port)."
+                "or `hercs router`?). Stop that process, or leave --listen out (any free port), or "
+                "give port 0 (tcp/0.0.0.0:0: any free port, recorded in the run directory's "
+                "router.json) or another PORT."
             ) from None
         if "Cannot assign requested address" in text:
             raise RouterListenError(
@@ -75,7 +122,7 @@ def run_router(config: HercsConfig) -> int:
                         format="%(asctime)s router %(levelname)s %(message)s")
     with StopSignals() as signals:
         try:
-            router = open_router(config.transport.listen, config.security)
+            router, listening = open_router_anywhere(config.transport.listen, config.security)
         except ConfigError as exc:
             print(f"hercs router: {exc}", file=sys.stderr, flush=True)
             return 2
@@ -88,7 +135,7 @@ def run_router(config: HercsConfig) -> int:
                 lambda key, alive: log.info("%s %s", alive_label(key),
                                             "joined" if alive else "left"),
             )
-            print(f"hercs router: listening on {list(config.transport.listen)}; "
+            print(f"hercs router: listening on {listening}; "
                   "Ctrl-C to stop", flush=True)
             while not signals.stop_requested:
                 signals.wait(None)

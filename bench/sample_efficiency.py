@@ -378,7 +378,96 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train nothing: report the runs finished so far")
     p.add_argument("--quick", action="store_true",
                    help="CI mode: tiny runs in a temporary folder (seconds per run)")
+    slurm = p.add_argument_group(
+        "Slurm (docs/CLUSTER.md)", "--slurm submits one job array task per unfinished cell "
+        "instead of training here; each task runs its cell with `hercs up` on one node, "
+        "requeues itself before its time limit and resumes. The report is written by "
+        "--report-only once the tasks are done.")
+    slurm.add_argument("--slurm", action="store_true",
+                       help="submit the grid as a Slurm job array (needs sbatch)")
+    slurm.add_argument("--slurm-cpus", type=int, default=4, metavar="C",
+                       help="CPUs per array task (default 4)")
+    slurm.add_argument("--slurm-time", default="", metavar="LIMIT",
+                       help="each task's time limit (sbatch --time); a longer run requeues")
+    slurm.add_argument("--slurm-signal-before", type=int, default=300, metavar="S",
+                       help="seconds before the limit at which a task stops and requeues "
+                            "(default 300)")
+    slurm.add_argument("--slurm-partition", default="", help="sbatch --partition")
+    slurm.add_argument("--slurm-account", default="", help="sbatch --account")
+    slurm.add_argument("--slurm-sbatch", action="append", default=[], metavar="OPTION",
+                       help="one more sbatch option, e.g. --slurm-sbatch=--qos=high")
+    slurm.add_argument("--dry-run", action="store_true",
+                       help="with --slurm: write the array script and print it, submit nothing")
+    slurm.add_argument("--cell-index", type=int, default=None, help=argparse.SUPPRESS)
     return p
+
+
+def cell_command(args: argparse.Namespace, cells: Sequence[GridRun], *, run_root: Path,
+                 committed: Path | None, epochs: int, overrides: Sequence[str]) -> list[str]:
+    """This grid's command for one cell (`--cell-index` is appended by the array task)."""
+    cmd = [sys.executable, str(REPO / "bench" / "sample_efficiency.py"),
+           "--tasks", *sorted(dict.fromkeys(c.task for c in cells)),
+           "--methods", *args.methods,
+           "--seeds", str(args.seeds), "--schedule", args.schedule,
+           "--precision", args.precision, "--env-version", args.env_version,
+           "--weld-torquescale", f"{args.weld_torquescale:g}", "--epochs", str(epochs),
+           "--actors", str(args.actors), "--run-dir", str(run_root), "--jobs", "1"]
+    if committed is not None:
+        cmd += ["--committed", str(committed)]
+    for item in overrides:
+        cmd += ["--set", item]
+    return [*cmd, "--cell-index"]
+
+
+def submit_slurm(args: argparse.Namespace, cells: Sequence[GridRun], *, run_root: Path,
+                 committed: Path | None, epochs: int, overrides: Sequence[str]) -> int:
+    """Submit every unfinished cell as one task of a job array (apps.slurm)."""
+    from apps.slurm import ArrayPlan, render_array_script, submit_array
+
+    todo = [i for i, cell in enumerate(cells)
+            if finished_folder(cell, run_root, committed) is None]
+    if not todo:
+        print("every cell is finished; nothing to submit (--report-only writes the report)")
+        return 0
+    try:
+        plan = ArrayPlan(name=f"hercs-grid-{run_root.name}", folder=run_root / "_slurm",
+                         command=tuple(cell_command(args, cells, run_root=run_root,
+                                                    committed=committed, epochs=epochs,
+                                                    overrides=overrides)),
+                         indices=tuple(todo), cpus=args.slurm_cpus, time=args.slurm_time,
+                         signal_before_s=args.slurm_signal_before,
+                         partition=args.slurm_partition, account=args.slurm_account,
+                         sbatch=tuple(args.slurm_sbatch), workdir=REPO)
+        script, job = submit_array(plan, dry_run=args.dry_run)
+    except ConfigError as exc:
+        print(f"sample_efficiency: {exc}", file=sys.stderr)
+        return 2
+    if job is None:
+        print(render_array_script(plan), end="")
+        return 0
+    names = ", ".join(f"{i}: {cells[i].name}" for i in todo)
+    print(f"array job {job}: {len(todo)} tasks ({names}); script {script}; when they are "
+          "done: the same command with --report-only", flush=True)
+    return 0
+
+
+def run_one_cell(cells: Sequence[GridRun], index: int, *, run_root: Path, epochs: int,
+                 actors: int, overrides: Sequence[str], committed: Path | None) -> int:
+    """An array task: cell `index` alone. SIGTERM (Slurm's stop) stops its run in order,
+    as Ctrl-C does; the next attempt resumes it."""
+    import signal
+
+    if not 0 <= index < len(cells):
+        print(f"sample_efficiency: --cell-index {index}: the grid has cells 0..{len(cells) - 1}",
+              file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        results = run_grid([cells[index]], run_root=run_root, epochs=epochs, jobs=1,
+                           actors=actors, overrides=overrides, committed=committed)
+    except KeyboardInterrupt:
+        return 128 + signal.SIGTERM
+    return 1 if any(code != 0 for _, code in results) else 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -416,6 +505,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"grid: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "
           f"{args.seeds} seeds), {epochs} epochs each, {jobs} at a time, in {run_root}",
           flush=True)
+    if args.cell_index is not None:
+        return run_one_cell(cells, args.cell_index, run_root=run_root, epochs=epochs,
+                            actors=args.actors, overrides=overrides, committed=committed)
+    if args.slurm and not args.report_only:
+        return submit_slurm(args, cells, run_root=run_root, committed=committed,
+                            epochs=epochs, overrides=overrides)
     failed = 0
     if not args.report_only:
         results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,

@@ -440,8 +440,10 @@ class LaunchConfig:
 
 @dataclass
 class TransportConfig:
-    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    """Endpoints the router listens on (`hercs up`, `hercs router`)."""
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
+    """Endpoints the router listens on (`hercs up`, `hercs router`); port 0: any free port,
+    picked at start (so runs on one host never collide) and recorded in the run directory's
+    router.json, where `hercs actor`/`hercs live --run-dir` find it."""
     connect: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     """Endpoints clients connect to; they retry until the router is up."""
     wait_s: float = 0.0

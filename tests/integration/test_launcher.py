@@ -216,10 +216,12 @@ def up(tmp_path: Path):
     events = tmp_path / "events.txt"
     started: list[Launcher] = []
 
-    def start(behaviours: dict[str, str], *flags: str, stop_timeout_s: float = 5.0) -> Launcher:
+    def start(behaviours: dict[str, str], *flags: str, stop_timeout_s: float = 5.0,
+              listen: bool = True) -> Launcher:
+        """listen=False leaves --listen out: the router takes any free port."""
         argv = [sys.executable, str(driver), str(standin), str(events), json.dumps(behaviours),
                 str(stop_timeout_s), "--run-dir", str(tmp_path / "runs"),
-                "--listen", free_endpoint(), *flags]
+                *(["--listen", free_endpoint()] if listen else []), *flags]
         launcher = Launcher(argv, cwd=tmp_path)
         started.append(launcher)
         return launcher
@@ -374,6 +376,38 @@ def test_up_fails_clearly_when_the_router_port_is_taken(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------- processes
+
+
+def test_two_runs_without_listen_take_free_ports_and_record_them(up, tmp_path: Path) -> None:
+    """Two `hercs up` on one host at once, neither given --listen: each router takes its own
+    free port, records it in runs/<run>/router.json, a client that reads the file reaches
+    that run's services, and the file goes when the run stops."""
+    from hercs.rundir import read_router
+
+    launchers = {name: up({}, "--run", name, "--actors", "0", listen=False)
+                 for name in ("first", "second")}
+    records = {}
+    for name, launcher in launchers.items():
+        launcher.wait_for_line(f"run {name} is running")
+        records[name] = read_router(tmp_path / "runs" / name)
+        assert records[name] is not None, name
+        (endpoint,) = records[name].endpoints_for()
+        assert re.fullmatch(r"tcp/127\.0\.0\.1:\d+", endpoint) and not endpoint.endswith(":0")
+        config = load_yaml(tmp_path / "runs" / name / "config.yaml")
+        assert config.transport.listen == ["tcp/127.0.0.1:0"]  # as asked: a resume picks anew
+        assert config.transport.connect == [endpoint]  # what the children use
+    assert records["first"].local != records["second"].local
+    for name, record in records.items():
+        alive: queue.Queue[str] = queue.Queue()
+        with Transport.open(mode="client", connect=record.endpoints_for(),
+                            connect_timeout_s=5) as client:
+            client.watch_alive(RunKeys(name).all_alive, lambda key, _up, q=alive: q.put(key))
+            assert alive.get(timeout=WAIT_S).startswith(f"hercs/{name}/alive/"), name
+    for name, launcher in launchers.items():
+        launcher.proc.send_signal(signal.SIGTERM)
+        assert launcher.finish() == 128 + signal.SIGTERM
+        assert read_router(tmp_path / "runs" / name) is None, f"{name}: router.json left"
+
 
 
 def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:

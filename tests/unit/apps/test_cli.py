@@ -147,3 +147,44 @@ def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_p
                           "runs on mujoco-py (MuJoCo 2.1) and mujoco_py is not installed; "
                           "`make mujoco-py` in the hercs checkout installs it"), err
     assert not any(tmp_path.iterdir()), "nothing started"
+
+
+def _joined(argv: list[str]):
+    from apps.cli import join_endpoints, resolve_config
+
+    args = build_parser()[0].parse_args(argv)
+    return join_endpoints(args, resolve_config(args))
+
+
+def test_actor_and_live_find_the_router_in_the_run_directory(tmp_path: Path) -> None:
+    import socket
+
+    from hercs import rundir
+
+    run = tmp_path / "r1"
+    run.mkdir()
+    rundir.write_router(run, rundir.RouterRecord.for_listen(["tls/0.0.0.0:4321"]))
+    for command in ("actor", "live"):
+        joined = _joined([command, "--run", "r1", "--run-dir", str(tmp_path)])
+        assert joined.transport.connect == ["tls/127.0.0.1:4321"], command  # same host
+    rundir.write_router(run, rundir.RouterRecord.for_listen(
+        ["tls/0.0.0.0:4321"], host=f"not-{socket.gethostname()}"))
+    joined = _joined(["actor", "--run", "r1", "--run-dir", str(tmp_path)])
+    assert joined.transport.connect == [f"tls/not-{socket.gethostname()}:4321"]
+    # an explicit --connect wins over the file
+    joined = _joined(["actor", "--run", "r1", "--run-dir", str(tmp_path),
+                      "--connect", "tcp/10.0.0.9:1"])
+    assert joined.transport.connect == ["tcp/10.0.0.9:1"]
+
+
+def test_a_joiner_gives_up_after_transport_wait_s_without_a_router(tmp_path: Path,
+                                                                   capsys) -> None:
+    assert main(["actor", "--run", "gone", "--run-dir", str(tmp_path),
+                 "--set", "transport.wait_s=0.5"]) == 3
+    err = capsys.readouterr().err
+    assert f"no router recorded in {tmp_path / 'gone'} after 0.5 s" in err
+
+
+def test_run_dir_without_run_names_the_flag(capsys) -> None:
+    assert main(["live", "--run-dir", "runs"]) == 2
+    assert "--run-dir: give --run RUN too" in capsys.readouterr().err

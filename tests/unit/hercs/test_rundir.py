@@ -33,3 +33,61 @@ def test_kept_checkpoints_lists_best_latest_then_epochs(tmp_path: Path) -> None:
     assert rundir.kept_checkpoints(tmp_path) == {
         "best.pt": "best", "learner.pt": "latest", "epoch-0010.pt": "epoch-10",
         "epoch-0020.pt": "epoch-20", "mine.pt": ""}
+
+
+# -- router.json ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("listen", "local", "remote"), [
+    (["tcp/127.0.0.1:4100"], ["tcp/127.0.0.1:4100"], ["tcp/127.0.0.1:4100"]),
+    (["tls/0.0.0.0:4101"], ["tls/127.0.0.1:4101"], ["tls/node-a:4101"]),
+    (["tcp/[::]:4102", "tcp/10.0.0.5:4103"], ["tcp/[::1]:4102", "tcp/10.0.0.5:4103"],
+     ["tcp/node-a:4102", "tcp/10.0.0.5:4103"]),
+], ids=["loopback", "wildcard-v4", "wildcard-v6-and-address"])
+def test_router_record_gives_loopback_on_its_host_and_its_name_elsewhere(
+        tmp_path: Path, listen: list[str], local: list[str], remote: list[str]) -> None:
+    record = rundir.RouterRecord.for_listen(listen, host="node-a", pid=42)
+    rundir.write_router(tmp_path, record)
+    back = rundir.read_router(tmp_path)
+    assert back == record
+    assert back.endpoints_for("node-a") == local
+    assert back.endpoints_for("node-b") == remote
+    assert [p.name for p in tmp_path.iterdir()] == [rundir.ROUTER]  # no temporary left
+
+
+def test_only_the_writer_removes_the_router_record(tmp_path: Path) -> None:
+    rundir.write_router(tmp_path, rundir.RouterRecord.for_listen(["tcp/127.0.0.1:1"], pid=7))
+    rundir.remove_router(tmp_path, pid=8)  # another launcher's: kept
+    assert rundir.read_router(tmp_path) is not None
+    rundir.remove_router(tmp_path, pid=7)
+    assert rundir.read_router(tmp_path) is None
+    rundir.remove_router(tmp_path, pid=7)  # gone already: nothing to do
+
+
+def test_a_broken_router_record_is_an_error_naming_the_file(tmp_path: Path) -> None:
+    (tmp_path / rundir.ROUTER).write_text('{"host": "a"}')
+    with pytest.raises(rundir.RunDirError, match=r"router\.json: not a router record"):
+        rundir.read_router(tmp_path)
+
+
+def test_wait_router_returns_the_record_once_written_or_none_after_its_timeout(
+        tmp_path: Path) -> None:
+    import threading
+
+    assert rundir.wait_router(tmp_path, timeout_s=0.6) is None
+    record = rundir.RouterRecord.for_listen(["tcp/127.0.0.1:2"], host="h", pid=1)
+    writer = threading.Timer(0.3, rundir.write_router, args=(tmp_path, record))
+    writer.start()
+    try:
+        assert rundir.wait_router(tmp_path, timeout_s=10) == record
+    finally:
+        writer.join()
+    stopped = rundir.wait_router(tmp_path / "never", timeout_s=0, stop=lambda: True)
+    assert stopped is None
+
+
+def test_a_folder_holding_only_a_slurm_job_holds_no_run(tmp_path: Path) -> None:
+    assert not rundir.holds_a_run(tmp_path / "absent")
+    (tmp_path / rundir.SLURM).mkdir()
+    assert not rundir.holds_a_run(tmp_path)
+    (tmp_path / "episodes.mcap").write_bytes(b"")
+    assert rundir.holds_a_run(tmp_path)

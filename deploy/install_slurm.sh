@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# `make slurm`: what tests/integration/test_slurm.py runs a real Slurm cluster with, from
+# Debian's registry: slurm-wlm (slurmctld, slurmd, the client commands), slurmdbd and
+# mariadb-server (accounting, for sacct) and munge (authentication). As root with apt-get, the
+# missing ones are installed (about a minute on a fresh bookworm machine); otherwise it says
+# why not and succeeds, and the test prints "SKIPPED: <reason>". Nothing is started or
+# enabled here: the test starts its own daemons in network namespaces and stops them.
+set -euo pipefail
+
+BINARIES=(slurmctld slurmd slurmdbd sbatch sacct munged mariadbd mariadb-install-db)
+PACKAGES=(slurm-wlm slurmdbd munge mariadb-server mariadb-client)
+say() { echo "make slurm: $*"; }
+
+missing=()
+for b in "${BINARIES[@]}"; do
+    PATH=$PATH:/usr/sbin:/sbin command -v "$b" > /dev/null || missing+=("$b")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+    say "slurm-wlm, slurmdbd, munge and mariadb-server are installed"
+    exit 0
+fi
+if [ "$(id -u)" -ne 0 ]; then
+    say "SKIPPED: ${missing[*]} missing and not root: install ${PACKAGES[*]} to run the Slurm test"
+    exit 0
+fi
+if ! command -v apt-get > /dev/null; then
+    say "SKIPPED: ${missing[*]} missing and no apt-get: install Slurm, slurmdbd, munge and MariaDB"
+    exit 0
+fi
+say "installing ${PACKAGES[*]} (missing: ${missing[*]})"
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -qq
+# policy-rc.d exit 101: the packages' post-install scripts start no daemon
+policy=/usr/sbin/policy-rc.d
+made_policy=""
+if [ ! -e "$policy" ]; then
+    printf '#!/bin/sh\nexit 101\n' > "$policy" && chmod +x "$policy" && made_policy=1
+fi
+trap '[ -n "$made_policy" ] && rm -f "$policy"' EXIT
+apt-get install -y -qq --no-install-recommends "${PACKAGES[@]}" > /dev/null
+say "installed"

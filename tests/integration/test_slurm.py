@@ -1,0 +1,206 @@
+"""Runs as Slurm jobs on a real Slurm (tests/integration/minislurm.py: slurmctld, slurmdbd and
+two slurmd, each node in its own network and UTS namespace):
+
+(a) `hercs slurm submit`: a 2-epoch FetchReach heterogeneous job, component 0 on hercs-n1,
+    its actor on hercs-n2 joining over mutual TLS; metrics.csv, the episodes' actor and, with
+    `sacct`, where each step ran and how it ended;
+(b) a run longer than its job's time limit: Slurm's warning stops it in order, the job
+    requeues itself and the next attempt resumes it, to the end, every epoch once;
+(c) `bench/sample_efficiency.py --slurm`: a 2-task job array, one grid cell per task.
+
+Skipped, with the reason, where no cluster can run (not root, Slurm or MariaDB not
+installed: `make slurm`). Slurm tells a client of a job's end only by being asked, so the
+waits poll `sacct`, each with a deadline.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hercs.config import load_yaml
+from hercs.rundir import read_router
+from hercs.runlog.reader import read_episodes
+from tests.integration import minislurm
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parents[2]
+TINY = ("--set", "training.eval_episodes=2", "--set", "ddpg.hidden_size=64")
+"""What keeps a run small: 2 test episodes per epoch, small networks."""
+POLL_S = 2.0
+TERMINAL = {"COMPLETED", "FAILED", "CANCELLED", "TIMEOUT", "NODE_FAIL", "OUT_OF_MEMORY",
+            "BOOT_FAIL", "DEADLINE", "PREEMPTED"}
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[minislurm.MiniSlurm]:
+    reason = minislurm.problem()
+    if reason is not None:
+        print(f"SKIPPED: {reason}")
+        pytest.skip(reason)
+    slurm = minislurm.MiniSlurm().start()
+    try:
+        yield slurm
+    finally:
+        slurm.stop()
+
+
+def env_of(cluster: minislurm.MiniSlurm) -> dict[str, str]:
+    """The client commands' environment; sbatch passes it on to the job (PYTHONPATH: this
+    checkout's hercs on every node)."""
+    return dict(cluster.env, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+
+
+def slurm_submit(cluster: minislurm.MiniSlurm, *flags: str) -> str:
+    done = subprocess.run([sys.executable, "-m", "apps.cli", "slurm", "submit", *flags],
+                          capture_output=True, text=True, env=env_of(cluster), cwd=REPO,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    match = re.search(r"job (\d+) runs", done.stdout)
+    assert match, done.stdout
+    return match.group(1)
+
+
+def sacct(cluster: minislurm.MiniSlurm, job: str, *extra: str) -> list[dict[str, str]]:
+    fields = ["JobID", "JobName", "NodeList", "State", "ExitCode", "Elapsed", "Start", "End"]
+    out = subprocess.run(["sacct", "-j", job, "-P", "-n", "-o", ",".join(fields), *extra],
+                         capture_output=True, text=True, env=cluster.env, timeout=60,
+                         check=True).stdout
+    return [dict(zip(fields, line.split("|"), strict=True)) for line in out.splitlines()]
+
+
+def wait_job(cluster: minislurm.MiniSlurm, job: str, timeout_s: float,
+             output: Path | None = None) -> list[dict[str, str]]:
+    """Until every component of `job` (het components, array tasks) has ended for good
+    (a requeued job goes back to PENDING); its sacct lines."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        rows = [r for r in sacct(cluster, job, "-X") if r["JobID"].split(".")[0]]
+        states = {r["State"].split()[0] for r in rows}
+        if rows and states <= TERMINAL:
+            return sacct(cluster, job)
+        if time.monotonic() > deadline:
+            tail = output.read_text()[-4000:] if output and output.exists() else ""
+            raise AssertionError(f"job {job} not done after {timeout_s} s: {rows}\n{tail}\n"
+                                 f"{cluster.logs()}")
+        time.sleep(POLL_S)
+
+
+SPEED: dict[str, float] = {}
+"""Seconds per training cycle, measured by test (a) on this machine; test (b) sizes its run
+from it so that the run outlasts its first attempt wherever it runs."""
+DEFAULT_S_PER_CYCLE = 0.6
+"""What (b) assumes when (a) did not run (measured here: 2 cores shared with two runs)."""
+
+
+def metrics_epochs(run_dir: Path) -> list[int]:
+    with (run_dir / "metrics.csv").open() as f:
+        return [int(row["epoch"]) for row in csv.DictReader(f)]
+
+
+def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls(
+        cluster: minislurm.MiniSlurm, tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    job = slurm_submit(cluster, "--task", "reach", "--method", "her-cs", "--epochs", "2",
+                       "--run", "het", "--run-dir", str(runs), "--actor-nodes", "1",
+                       "--actor-cpus", "1", "--learner-cpus", "1",
+                       "--set", "training.cycles_per_epoch=3", *TINY)
+    run_dir = runs / "het"
+    output = run_dir / "slurm" / f"job-{job}.out"
+    rows = wait_job(cluster, job, timeout_s=300, output=output)
+    text = output.read_text()
+    print(f"sacct of job {job}:\n" + "\n".join("|".join(r.values()) for r in rows))
+
+    assert metrics_epochs(run_dir) == [1, 2], text
+    with (run_dir / "metrics.csv").open() as f:
+        SPEED["s_per_cycle"] = float(list(csv.DictReader(f))[-1]["wall_s"]) / (2 * 3)
+    # component 0: the allocation, the batch script and `hercs up`'s step on hercs-n1;
+    # component 1: the allocation and the actors' step on hercs-n2 (step numbers follow
+    # the order the two srun calls registered in); every one ended with exit code 0
+    placed = sorted((r["JobID"].partition("+")[2].partition(".")[0],
+                     re.sub(r"^\d+$", "step", r["JobID"].partition(".")[2]) or "job",
+                     r["NodeList"], r["State"], r["ExitCode"]) for r in rows)
+    assert placed == [("0", "batch", "hercs-n1", "COMPLETED", "0:0"),
+                      ("0", "job", "hercs-n1", "COMPLETED", "0:0"),
+                      ("0", "step", "hercs-n1", "COMPLETED", "0:0"),
+                      ("1", "job", "hercs-n2", "COMPLETED", "0:0"),
+                      ("1", "step", "hercs-n2", "COMPLETED", "0:0")], text
+    # every episode came from the actor on hercs-n2, which reached the router by its name
+    # over mutual TLS with this attempt's certificates
+    actors = {e.actor_id.partition("@")[0] for _, e in read_episodes(run_dir)}
+    assert actors and all(a.startswith("hercs-n2-") for a in actors), actors
+    assert re.search(r"remote actor hercs-n2-\S+ joined", text), text
+    config = load_yaml(run_dir / "config.yaml")
+    assert config.transport.listen == ["tls/0.0.0.0:0"]
+    assert config.security.tls_ca == str(run_dir / "slurm" / f"certs-{job}.0" / "ca.pem")
+    assert not (run_dir / "slurm" / f"certs-{job}.0" / "ca.key").exists()
+    assert config.actor.num_actors == 0 and config.actor.envs_per_process == 1
+    assert read_router(run_dir) is None  # removed when the run stopped
+
+
+def test_a_run_longer_than_its_time_limit_requeues_and_resumes_to_the_end(
+        cluster: minislurm.MiniSlurm, tmp_path: Path) -> None:
+    """2-minute attempts, the warning 30 s before the limit (Slurm may send it up to a
+    minute early: measured, 60 s into an attempt); the run needs about 150 s of training at
+    the speed test (a) measured, so at least one attempt ends by the warning."""
+    runs = tmp_path / "runs"
+    cycles = 10
+    s_per_cycle = SPEED.get("s_per_cycle", DEFAULT_S_PER_CYCLE)
+    epochs = min(40, max(8, math.ceil(150 / (cycles * s_per_cycle))))
+    print(f"{s_per_cycle:.2f} s per cycle: {epochs} epochs of {cycles} cycles")
+    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", str(epochs),
+                       "--run", "long", "--run-dir", str(runs), "--actor-nodes", "1",
+                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", "2",
+                       "--signal-before", "30", "--set", f"training.cycles_per_epoch={cycles}",
+                       *TINY)
+    run_dir = runs / "long"
+    output = run_dir / "slurm" / f"job-{job}.out"
+    wait_job(cluster, job, timeout_s=900, output=output)
+    text = output.read_text()
+    attempts = sacct(cluster, job, "-X", "--duplicates")
+    print(f"attempts of job {job}:\n" + "\n".join("|".join(r.values()) for r in attempts))
+
+    requeues = text.count("requeueing: the next attempt continues the run")
+    assert requeues >= 1, text
+    assert text.count("continuing run long (hercs up --resume)") == requeues, text
+    assert metrics_epochs(run_dir) == list(range(1, epochs + 1)), text
+    final = [r for r in attempts if r["JobID"] == f"{job}+0"]
+    assert final[-1]["State"] == "COMPLETED", attempts
+    assert len(final) == requeues + 1, attempts  # one accounting record per attempt
+    with (run_dir / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    print("epoch wall_s:", [(r["epoch"], r["wall_s"]) for r in rows])
+
+
+def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniSlurm,
+                                                        tmp_path: Path) -> None:
+    runs, committed = tmp_path / "grid", tmp_path / "committed"
+    done = subprocess.run(
+        [sys.executable, "bench/sample_efficiency.py", "--slurm", "--tasks", "reach",
+         "--methods", "her", "her-cs", "--seeds", "1", "--epochs", "1", "--run-dir", str(runs),
+         "--committed", str(committed), "--slurm-cpus", "1", "--slurm-time", "10",
+         *(item for o in ("training.cycles_per_epoch=2", "training.eval_episodes=2",
+                          "ddpg.hidden_size=64") for item in ("--set", o))],
+        capture_output=True, text=True, env=env_of(cluster), cwd=REPO, timeout=120)
+    assert done.returncode == 0, done.stderr
+    match = re.search(r"array job (\d+)", done.stdout)
+    assert match, done.stdout
+    job = match.group(1)
+    rows = wait_job(cluster, job, timeout_s=600)
+    tasks = {r["JobID"]: r for r in rows if re.fullmatch(rf"{job}_\d+", r["JobID"])}
+    assert {k: r["State"] for k, r in tasks.items()} == {f"{job}_0": "COMPLETED",
+                                                         f"{job}_1": "COMPLETED"}, rows
+    for name in ("reach-her-s1", "reach-her-cs-s1"):
+        assert metrics_epochs(runs / name) == [1], name
+        assert (committed / name / "bench_done.json").is_file(), name
+    assert os.path.isdir(runs)
