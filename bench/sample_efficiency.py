@@ -51,6 +51,7 @@ from apps.plot_figures import plot_figure
 from apps.plot_tables import tables
 from apps.plots import group, load_reference, load_run, method_key
 from bench.common import cpu_info, git_commit, machine_identity
+from bench.grid_slurm import run_one_cell, submit_slurm
 from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
 from hercs.errors import ConfigError
@@ -402,74 +403,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def cell_command(args: argparse.Namespace, cells: Sequence[GridRun], *, run_root: Path,
-                 committed: Path | None, epochs: int, overrides: Sequence[str]) -> list[str]:
-    """This grid's command for one cell (`--cell-index` is appended by the array task)."""
-    cmd = [sys.executable, str(REPO / "bench" / "sample_efficiency.py"),
-           "--tasks", *sorted(dict.fromkeys(c.task for c in cells)),
-           "--methods", *args.methods,
-           "--seeds", str(args.seeds), "--schedule", args.schedule,
-           "--precision", args.precision, "--env-version", args.env_version,
-           "--weld-torquescale", f"{args.weld_torquescale:g}", "--epochs", str(epochs),
-           "--actors", str(args.actors), "--run-dir", str(run_root), "--jobs", "1"]
-    if committed is not None:
-        cmd += ["--committed", str(committed)]
-    for item in overrides:
-        cmd += ["--set", item]
-    return [*cmd, "--cell-index"]
-
-
-def submit_slurm(args: argparse.Namespace, cells: Sequence[GridRun], *, run_root: Path,
-                 committed: Path | None, epochs: int, overrides: Sequence[str]) -> int:
-    """Submit every unfinished cell as one task of a job array (apps.slurm)."""
-    from apps.slurm import ArrayPlan, render_array_script, submit_array
-
-    todo = [i for i, cell in enumerate(cells)
-            if finished_folder(cell, run_root, committed) is None]
-    if not todo:
-        print("every cell is finished; nothing to submit (--report-only writes the report)")
-        return 0
-    try:
-        plan = ArrayPlan(name=f"hercs-grid-{run_root.name}", folder=run_root / "_slurm",
-                         command=tuple(cell_command(args, cells, run_root=run_root,
-                                                    committed=committed, epochs=epochs,
-                                                    overrides=overrides)),
-                         indices=tuple(todo), cpus=args.slurm_cpus, time=args.slurm_time,
-                         signal_before_s=args.slurm_signal_before,
-                         partition=args.slurm_partition, account=args.slurm_account,
-                         sbatch=tuple(args.slurm_sbatch), workdir=REPO)
-        script, job = submit_array(plan, dry_run=args.dry_run)
-    except ConfigError as exc:
-        print(f"sample_efficiency: {exc}", file=sys.stderr)
-        return 2
-    if job is None:
-        print(render_array_script(plan), end="")
-        return 0
-    names = ", ".join(f"{i}: {cells[i].name}" for i in todo)
-    print(f"array job {job}: {len(todo)} tasks ({names}); script {script}; when they are "
-          "done: the same command with --report-only", flush=True)
-    return 0
-
-
-def run_one_cell(cells: Sequence[GridRun], index: int, *, run_root: Path, epochs: int,
-                 actors: int, overrides: Sequence[str], committed: Path | None) -> int:
-    """An array task: cell `index` alone. SIGTERM (Slurm's stop) stops its run in order,
-    as Ctrl-C does; the next attempt resumes it."""
-    import signal
-
-    if not 0 <= index < len(cells):
-        print(f"sample_efficiency: --cell-index {index}: the grid has cells 0..{len(cells) - 1}",
-              file=sys.stderr)
-        return 2
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
-        results = run_grid([cells[index]], run_root=run_root, epochs=epochs, jobs=1,
-                           actors=actors, overrides=overrides, committed=committed)
-    except KeyboardInterrupt:
-        return 128 + signal.SIGTERM
-    return 1 if any(code != 0 for _, code in results) else 0
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.seeds < 1:
@@ -506,11 +439,19 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{args.seeds} seeds), {epochs} epochs each, {jobs} at a time, in {run_root}",
           flush=True)
     if args.cell_index is not None:
-        return run_one_cell(cells, args.cell_index, run_root=run_root, epochs=epochs,
-                            actors=args.actors, overrides=overrides, committed=committed)
+        if not 0 <= args.cell_index < len(cells):
+            print(f"sample_efficiency: --cell-index {args.cell_index}: the grid has cells "
+                  f"0..{len(cells) - 1}", file=sys.stderr)
+            return 2
+        return run_one_cell(lambda: run_grid(
+            [cells[args.cell_index]], run_root=run_root, epochs=epochs, jobs=1,
+            actors=args.actors, overrides=overrides, committed=committed))
     if args.slurm and not args.report_only:
-        return submit_slurm(args, cells, run_root=run_root, committed=committed,
-                            epochs=epochs, overrides=overrides)
+        todo = [i for i, cell in enumerate(cells)
+                if finished_folder(cell, run_root, committed) is None]
+        return submit_slurm(args, [c.name for c in cells], todo, tasks=tasks,
+                            run_root=run_root, committed=committed, epochs=epochs,
+                            overrides=overrides)
     failed = 0
     if not args.report_only:
         results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,

@@ -151,12 +151,13 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
 def test_a_run_longer_than_its_time_limit_requeues_and_resumes_to_the_end(
         cluster: minislurm.MiniSlurm, tmp_path: Path) -> None:
     """2-minute attempts, the warning 30 s before the limit (Slurm may send it up to a
-    minute early: measured, 60 s into an attempt); the run needs about 150 s of training at
-    the speed test (a) measured, so at least one attempt ends by the warning."""
+    minute early: measured, 60 s into an attempt), so an attempt trains at most ~80 s after
+    its start-up; the run needs about 100 s of training at the speed test (a) measured, so at
+    least one attempt ends by the warning."""
     runs = tmp_path / "runs"
     cycles = 10
     s_per_cycle = SPEED.get("s_per_cycle", DEFAULT_S_PER_CYCLE)
-    epochs = min(40, max(8, math.ceil(150 / (cycles * s_per_cycle))))
+    epochs = min(40, max(8, math.ceil(100 / (cycles * s_per_cycle))))
     print(f"{s_per_cycle:.2f} s per cycle: {epochs} epochs of {cycles} cycles")
     job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", str(epochs),
                        "--run", "long", "--run-dir", str(runs), "--actor-nodes", "1",
@@ -186,7 +187,7 @@ def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniS
                                                         tmp_path: Path) -> None:
     runs, committed = tmp_path / "grid", tmp_path / "committed"
     done = subprocess.run(
-        [sys.executable, "bench/sample_efficiency.py", "--slurm", "--tasks", "reach",
+        [sys.executable, "-m", "bench.sample_efficiency", "--slurm", "--tasks", "reach",
          "--methods", "her", "her-cs", "--seeds", "1", "--epochs", "1", "--run-dir", str(runs),
          "--committed", str(committed), "--slurm-cpus", "1", "--slurm-time", "10",
          *(item for o in ("training.cycles_per_epoch=2", "training.eval_episodes=2",
