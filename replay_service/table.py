@@ -1,12 +1,10 @@
 """The replay table: everything the replay service decides, with no transport (Reverb's
 `Table` is the model).
 
-`ReplayTable` owns the `ReplayCore` (store, sampler, normalisers, cluster model, counters),
-the sample-to-insert rate limiter, the queues of parked insert and sample calls, the
-deduplication of retries, the durable log and the policy-lag bookkeeping. The Zenoh shell
-(`replay_service.service`) decodes a query, calls `insert` or `sample` with a `Waiter` that
-answers that query, and encodes what the waiter is handed; unit tests drive this object
-directly, with plain waiters and a fake clock.
+`ReplayTable` owns the `ReplayCore`, the rate limiter, the queues of parked calls
+(replay_service.table_calls), the deduplication of retries, the durable log and the
+policy-lag bookkeeping. The Zenoh shell (`replay_service.service`) calls `insert` or `sample`
+with a `Waiter` that answers a query; unit tests drive it with plain waiters and a fake clock.
 
 Admission rules (every public method takes the table's lock, so calls from several threads
 are serialised):
@@ -53,8 +51,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -70,6 +67,21 @@ from replay_service.core import ReplayCore
 from replay_service.lag_bound import PolicyLagBound
 from replay_service.lockstep import LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
+from replay_service.table_calls import (
+    ClustererSnapshot,
+    EpisodeLogSink,
+    Parked,
+    ParkedInsert,
+    ParkedSample,
+    SampleCall,
+    SampleRefused,
+    Stored,
+    Waiter,
+    take_expired,
+)
+
+__all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "ReplayTable",
+           "SampleCall", "SampleRefused", "Stored", "Waiter"]  # calls and answers: table_calls
 
 log = logging.getLogger("hercs.replay")
 
@@ -82,95 +94,6 @@ INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
 """Lockstep: how long a sample waits for a cluster model that is due before it is served with
 the model at hand (the clusterer may be restarting)."""
-
-T_contra = TypeVar("T_contra", contravariant=True)
-T = TypeVar("T")
-
-
-class Waiter(Protocol[T_contra]):
-    """How the table answers one call, now or later, exactly once."""
-
-    def done(self, result: T_contra) -> None: ...
-
-    def fail(self, reason: Reason, detail: str) -> None: ...
-
-
-class EpisodeLogSink(Protocol):
-    """The durable log the table writes before it acknowledges (hercs.runlog's writer)."""
-
-    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None: ...
-
-    def append_cluster_model(self, msg: pb.ClusterModel) -> None: ...
-
-    def append_eval_result(self, msg: pb.EvalResult) -> None: ...
-
-
-@dataclass(frozen=True)
-class Stored:
-    """The answer to an insert."""
-
-    episode: EpisodeData
-    episode_id: int
-    duplicate: bool
-    energy: float = 0.0
-    cluster: int = -1
-    next_policy_version: int = 0
-    """Lockstep: the oldest weights version the actor's next episode may be acted with (0
-    otherwise)."""
-
-
-@dataclass(frozen=True)
-class SampleCall:
-    """A learner's request, decoded."""
-
-    num_minibatches: int
-    batch_size: int
-    weights_version: int = 0
-    request_id: int = 0
-
-
-class SampleRefused(ValueError):
-    """A sample call the rate limiter could never admit; nothing was parked."""
-
-
-@dataclass
-class _Parked(Generic[T]):
-    waiters: list[Waiter[T]]
-    deadline: float | None
-
-
-@dataclass
-class _ParkedInsert(_Parked[Stored]):
-    episode: EpisodeData = field(kw_only=True)
-    record: pb.Episode = field(kw_only=True)
-
-
-@dataclass
-class _ParkedSample(_Parked[ServedBatch]):
-    call: SampleCall = field(kw_only=True)
-
-
-P = TypeVar("P", bound=_Parked)
-
-
-def _take_expired(queue: deque[P], now: float) -> list[P]:
-    """Remove and return the calls past their deadline; the others keep their order."""
-    gone = [item for item in queue if item.deadline is not None and item.deadline <= now]
-    if gone:
-        keep = [item for item in queue if item.deadline is None or item.deadline > now]
-        queue.clear()
-        queue.extend(keep)
-    return gone
-
-
-@dataclass(frozen=True)
-class ClustererSnapshot:
-    failed_goals: np.ndarray
-    """(n, goal_dim) float32, n ≤ cluster.fgb_size, oldest first."""
-    failures_seen: int
-    episodes_seen: int
-    model_version: int
-
 
 class ReplayTable:
     def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
@@ -199,11 +122,11 @@ class ReplayTable:
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
-        self._ready: list[_ParkedInsert] = []
+        self._ready: list[ParkedInsert] = []
         """Admitted inserts, in admission order, waiting for the next group commit."""
-        self._inserts: deque[_ParkedInsert] = deque()
-        self._samples: deque[_ParkedSample] = deque()
-        self._parked_keys: dict[tuple[str, int], _ParkedInsert] = {}
+        self._inserts: deque[ParkedInsert] = deque()
+        self._samples: deque[ParkedSample] = deque()
+        self._parked_keys: dict[tuple[str, int], ParkedInsert] = {}
         # Policy lag of an episode = the learner's newest weights version when the episode
         # is stored (known from its latest sample call) minus the version the actor used.
         self._learner_version = 0
@@ -279,7 +202,7 @@ class ReplayTable:
                     waiter.fail(*refusal)
                     return
                 self.gate.admit(episode.policy_version)
-            item = _ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
+            item = ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
                                  record=record)
             self._inserts.append(item)
             self._parked_keys[key] = item
@@ -326,7 +249,7 @@ class ReplayTable:
                     self._refuse(group, failure)
                 self._drain()  # parked samples may wait for exactly these inserts
 
-    def _refuse(self, group: list[_ParkedInsert], exc: Exception) -> None:
+    def _refuse(self, group: list[ParkedInsert], exc: Exception) -> None:
         self.limiter.cancel_inserts(len(group))
         self.log_failures += len(group)
         for item in group:
@@ -336,7 +259,7 @@ class ReplayTable:
             for waiter in item.waiters:
                 waiter.fail(Reason.LOG_FAILED, f"episode not logged, so not stored: {exc}")
 
-    def _store(self, item: _ParkedInsert, episode_id: int) -> None:
+    def _store(self, item: ParkedInsert, episode_id: int) -> None:
         episode = item.episode
         del self._parked_keys[(episode.actor_id, int(episode.seq))]
         result = self.core.insert(episode)
@@ -381,7 +304,7 @@ class ReplayTable:
         not yet stored)."""
         return self.core.store.num_inserted + self.limiter.pending_inserts
 
-    def _refuse_stale(self, item: _ParkedInsert) -> bool:
+    def _refuse_stale(self, item: ParkedInsert) -> bool:
         """The lag bound's check of an insert the limiter admits: True if it was refused
         (answered `stale_policy`, counted, forgotten)."""
         if self.lag_bound is None or self._newest_request_version is None:
@@ -411,11 +334,11 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
-            self._samples.append(_ParkedSample([waiter], self._deadline(timeout_s), call=call))
+            self._samples.append(ParkedSample([waiter], self._deadline(timeout_s), call=call))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
-    def _serve(self, item: _ParkedSample) -> None:
+    def _serve(self, item: ParkedSample) -> None:
         call = item.call
         self._learner_version = max(self._learner_version, call.weights_version)
         if self._recovered_unplaced is not None:
@@ -457,8 +380,8 @@ class ReplayTable:
                 self._ready.append(parked)
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
             if self.gate is not None:
-                ready: list[_ParkedSample] = []
-                waiting: deque[_ParkedSample] = deque()
+                ready: list[ParkedSample] = []
+                waiting: deque[ParkedSample] = deque()
                 for item in self._samples:
                     (ready if self._can_serve(item) else waiting).append(item)
                 self._samples = waiting
@@ -470,7 +393,7 @@ class ReplayTable:
                 self._serve(self._samples.popleft())
                 progressed = True
 
-    def _can_serve(self, item: _ParkedSample) -> bool:
+    def _can_serve(self, item: ParkedSample) -> bool:
         if self.gate is None:
             return self.limiter.can_sample(item.call.num_minibatches)
         return self.gate.can_sample(item.call.weights_version, failures=self.core.failures,
@@ -493,10 +416,10 @@ class ReplayTable:
         many calls were dropped. The order of the calls that stay is unchanged."""
         now = self.clock()
         with self._lock:
-            inserts, samples = _take_expired(self._inserts, now), _take_expired(self._samples, now)
+            inserts, samples = take_expired(self._inserts, now), take_expired(self._samples, now)
             for item in inserts:
                 del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
-            expired: list[_Parked[Any]] = [*inserts, *samples]
+            expired: list[Parked[Any]] = [*inserts, *samples]
             for parked in expired:
                 for waiter in parked.waiters:
                     waiter.fail(Reason.EXPIRED, "the rate limiter held this call past its "
@@ -569,12 +492,9 @@ class ReplayTable:
             rejects=dict(core.rejects),
             cluster_sizes=[int(c) for c in core.cluster_sizes()],
             cluster_model_version=self._model_version(), env_steps=core.env_steps,
-            policy_lag=_mean(self._recent_schedule_lags),
-            policy_lag_request=_mean(self._recent_lags),
+            policy_lag=float(np.mean(self._recent_schedule_lags or [0])),
+            policy_lag_request=float(np.mean(self._recent_lags or [0])),
             buffer_moved_share=core.buffer_moved_share,
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )
 
-
-def _mean(values: deque[int]) -> float:
-    return float(np.mean(values)) if values else 0.0

@@ -1,0 +1,104 @@
+"""What the replay table (replay_service.table) is called with and answers: inserts and
+sample calls, the waiters that get each answer (now or once the rate limiter admits it), the
+parked calls in its queues, and the sink the episode log is."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Generic, Protocol, TypeVar
+
+import numpy as np
+
+from hercs.episode import EpisodeData
+from hercs.reasons import Reason
+from hercs.served import ServedBatch
+from proto import hercs_pb2 as pb
+
+T_contra = TypeVar("T_contra", contravariant=True)
+T = TypeVar("T")
+
+
+class Waiter(Protocol[T_contra]):
+    """How the table answers one call, now or later, exactly once."""
+
+    def done(self, result: T_contra) -> None: ...
+
+    def fail(self, reason: Reason, detail: str) -> None: ...
+
+
+class EpisodeLogSink(Protocol):
+    """The durable log the table writes before it acknowledges (hercs.runlog's writer)."""
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None: ...
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None: ...
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None: ...
+
+
+@dataclass(frozen=True)
+class Stored:
+    """The answer to an insert."""
+
+    episode: EpisodeData
+    episode_id: int
+    duplicate: bool
+    energy: float = 0.0
+    cluster: int = -1
+    next_policy_version: int = 0
+    """Lockstep: the oldest weights version the actor's next episode may be acted with (0
+    otherwise)."""
+
+
+@dataclass(frozen=True)
+class SampleCall:
+    """A learner's request, decoded."""
+
+    num_minibatches: int
+    batch_size: int
+    weights_version: int = 0
+    request_id: int = 0
+
+
+class SampleRefused(ValueError):
+    """A sample call the rate limiter could never admit; nothing was parked."""
+
+
+@dataclass
+class Parked(Generic[T]):
+    waiters: list[Waiter[T]]
+    deadline: float | None
+
+
+@dataclass
+class ParkedInsert(Parked[Stored]):
+    episode: EpisodeData = field(kw_only=True)
+    record: pb.Episode = field(kw_only=True)
+
+
+@dataclass
+class ParkedSample(Parked[ServedBatch]):
+    call: SampleCall = field(kw_only=True)
+
+
+P = TypeVar("P", bound=Parked)
+
+
+def take_expired(queue: deque[P], now: float) -> list[P]:
+    """Remove and return the calls past their deadline; the others keep their order."""
+    gone = [item for item in queue if item.deadline is not None and item.deadline <= now]
+    if gone:
+        keep = [item for item in queue if item.deadline is None or item.deadline > now]
+        queue.clear()
+        queue.extend(keep)
+    return gone
+
+
+@dataclass(frozen=True)
+class ClustererSnapshot:
+    failed_goals: np.ndarray
+    """(n, goal_dim) float32, n ≤ cluster.fgb_size, oldest first."""
+    failures_seen: int
+    episodes_seen: int
+    model_version: int
