@@ -144,6 +144,7 @@ class DDPGLearner:
     def update(self, batch: TransitionBatch) -> dict[str, float]:
         """One DDPG step on a minibatch; returns losses and means."""
         o, g, u, r, o2 = self._check_batch(batch)
+        r = r.reshape(-1, 1)  # (B, 1): so that y broadcasts row-wise, not to (B, B)
         cfg, max_action = self.config, self.spec.max_action
 
         # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
@@ -270,9 +271,9 @@ class DDPGLearner:
             return tensor
         return tensor.pin_memory().to(self.device, non_blocking=True)
 
-    def _check_batch(self, batch: TransitionBatch) -> tuple[np.ndarray, ...]:
-        """Arrays as float32 with shapes checked; r reshaped to (B, 1) so that y broadcasts
-        row-wise (a (B,) r plus a (B, 1) Q' would silently broadcast to (B, B))."""
+    def _check_batch(self, batch: TransitionBatch) -> TransitionBatch:
+        """The same minibatch with float32 arrays of checked shapes (r as (B,): a (B,) r plus
+        a (B, 1) Q' would silently broadcast to (B, B), so `update` reshapes it)."""
         o, g, u, r, o2 = (np.asarray(value, dtype=np.float32) for value in batch)
         b = o.shape[0] if o.ndim == 2 else -1
         want = transition_shapes(self.spec, b)
@@ -283,4 +284,4 @@ class DDPGLearner:
         if r.size != b or r.ndim > 2:
             raise ValueError(f"DDPGLearner.update: 'r' has shape {r.shape}, expected ({b},) "
                              f"or ({b}, 1)")
-        return o, g, u, np.ascontiguousarray(r.reshape(b, 1)), o2
+        return TransitionBatch(o=o, g=g, u=u, r=np.ascontiguousarray(r.reshape(b)), o2=o2)

@@ -145,7 +145,7 @@ class ReplayCore:
             moved += int(self.store.moved[slots].sum())
             sampled += len(slots)
             out.append(relabel(self.store, slots, future_p=self.config.her.future_p,
-                               reward_fn=self.spec.compute_reward, rng=self.rng).transitions)
+                               reward_fn=self.spec.compute_reward, rng=self.rng))
         self.samples += num_minibatches
         self.cluster_draws_total += draws
         o_stats, g_stats = self.normalizer_state()

@@ -60,17 +60,6 @@ class HERIndices:
     """(B,) bool: the goal of this transition is replaced by ag[future_t]."""
 
 
-@dataclass(frozen=True)
-class RelabelledBatch:
-    """One minibatch and the draws that made it (tests and analyses read the draws; only
-    `transitions` leaves the replay)."""
-
-    transitions: TransitionBatch
-    episode_idxs: np.ndarray
-    """(B,) store slots, as given."""
-    draw: HERIndices
-
-
 def _f32(x: np.ndarray) -> np.ndarray:
     return x.astype(np.float32, copy=False)
 
@@ -97,8 +86,22 @@ def relabel(
     future_p: float,
     reward_fn: RewardFn,
     rng: np.random.Generator,
-) -> RelabelledBatch:
+) -> TransitionBatch:
     """One HER minibatch from the episodes in `episode_idxs` (slots, repeats allowed)."""
+    return relabel_with_draw(arrays, episode_idxs, future_p=future_p, reward_fn=reward_fn,
+                             rng=rng)[0]
+
+
+def relabel_with_draw(
+    arrays: EpisodeArrays,
+    episode_idxs: np.ndarray,
+    *,
+    future_p: float,
+    reward_fn: RewardFn,
+    rng: np.random.Generator,
+) -> tuple[TransitionBatch, HERIndices]:
+    """`relabel`, and the timestep and future draws that made the minibatch (for tests and
+    analyses; only the minibatch leaves the replay)."""
     episode_idxs = np.asarray(episode_idxs, dtype=np.int64)
     ag_all = arrays.ag
     n_episodes, horizon = ag_all.shape[0], ag_all.shape[1] - 1
@@ -127,7 +130,7 @@ def relabel(
         o=_f32(obs.take(at_t, axis=0)), g=_f32(g),
         u=_f32(_rows(arrays.actions).take(ep * horizon + t, axis=0)), r=r,
         o2=_f32(obs.take(at_t + 1, axis=0)))
-    return RelabelledBatch(transitions=transitions, episode_idxs=ep, draw=draw)
+    return transitions, draw
 
 
 def normalizer_sample(

@@ -11,7 +11,7 @@ from hercs.envs import make_env
 from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
 from hercs.tasks import fetch_reward, task_spec
-from replay_service.her import her_indices, normalizer_sample, relabel
+from replay_service.her import her_indices, normalizer_sample, relabel, relabel_with_draw
 from replay_service.store import EpisodeStore
 
 SPEC = task_spec("push")
@@ -49,8 +49,9 @@ def test_relabel_fraction_is_future_p(store: EpisodeStore, replay_k: int) -> Non
     future_p = HERConfig(replay_k=replay_k).future_p
     rng = np.random.default_rng(0)
     idxs = rng.integers(0, store.size, 100_000)
-    batch = relabel(store, idxs, future_p=future_p, reward_fn=SPEC.compute_reward, rng=rng)
-    assert abs(batch.draw.her_mask.mean() - future_p) < 0.01
+    _, draw = relabel_with_draw(store, idxs, future_p=future_p, reward_fn=SPEC.compute_reward,
+                                rng=rng)
+    assert abs(draw.her_mask.mean() - future_p) < 0.01
 
 
 def test_timestep_and_future_index_ranges() -> None:
@@ -74,11 +75,9 @@ def test_batch_gathers_the_right_transition(store: EpisodeStore) -> None:
     g_before = store.g.copy()
     rng = np.random.default_rng(2)
     idxs = rng.integers(0, store.size, 4096)
-    relabelled = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward,
-                         rng=rng)
-    b, draw = relabelled.transitions, relabelled.draw
-    ep, t, m = relabelled.episode_idxs, draw.t, draw.her_mask
-    np.testing.assert_array_equal(ep, idxs)
+    b, draw = relabel_with_draw(store, idxs, future_p=FUTURE_P,
+                                reward_fn=SPEC.compute_reward, rng=rng)
+    ep, t, m = idxs, draw.t, draw.her_mask
     np.testing.assert_array_equal(b.o, store.obs[ep, t])
     np.testing.assert_array_equal(b.o2, store.obs[ep, t + 1])
     np.testing.assert_array_equal(b.u, store.actions[ep, t])
@@ -98,10 +97,9 @@ def test_rewards_match_the_real_env_compute_reward(store: EpisodeStore) -> None:
     try:
         rng = np.random.default_rng(3)
         idxs = rng.integers(0, store.size, 4096)
-        relabelled = relabel(store, idxs, future_p=FUTURE_P, reward_fn=SPEC.compute_reward,
-                             rng=rng)
-        b = relabelled.transitions
-        ag2 = store.ag[relabelled.episode_idxs, relabelled.draw.t + 1]
+        b, draw = relabel_with_draw(store, idxs, future_p=FUTURE_P,
+                                    reward_fn=SPEC.compute_reward, rng=rng)
+        ag2 = store.ag[idxs, draw.t + 1]
         env_r = env.unwrapped.compute_reward(ag2, b.g, None)
     finally:
         env.close()
