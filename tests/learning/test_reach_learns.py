@@ -29,7 +29,9 @@ CYCLES = 10
 K = 4
 
 
-def _hercs_pids() -> set[int]:
+def _hercs_pids(run_dir: Path) -> set[int]:
+    """The hercs processes of the run in `run_dir` (its services read run_dir/config.yaml);
+    other runs on the machine, a grid or another test's, are not this run's to leave."""
     pids = set()
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -38,7 +40,9 @@ def _hercs_pids() -> set[int]:
             cmdline = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"apps.cli" in b" ".join(cmdline) and int(entry.name) != os.getpid():
+        joined = b" ".join(cmdline)
+        if (b"apps.cli" in joined and str(run_dir).encode() in joined
+                and int(entry.name) != os.getpid()):
             pids.add(int(entry.name))
     return pids
 
@@ -47,7 +51,6 @@ def _hercs_pids() -> set[int]:
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
     endpoint = free_endpoint()
-    before = _hercs_pids()
     cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--actors", "2", "--epochs", str(EPOCHS), "--seed", "1", "--run", "reach-learns",
            "--run-dir", str(root), "--listen", endpoint,
@@ -61,7 +64,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert proc.returncode == 0, (
         f"hercs up failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}\n{logs}")
     assert str(path) in proc.stdout, "hercs up prints where the run directory is"
-    assert _hercs_pids() <= before, "hercs up left service processes behind"
+    assert not _hercs_pids(path), "hercs up left service processes behind"
     return path
 
 
