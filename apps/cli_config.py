@@ -13,6 +13,7 @@ import yaml
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
+from hercs.rundir import CONFIG
 from hercs.tasks import TASKS
 
 # Shortcut flags and the config field each one sets.
@@ -149,7 +150,7 @@ def resume_config(args: argparse.Namespace) -> HercsConfig:
         raise ConfigError(f"--resume continues a run with its saved config; {', '.join(given)} "
                           "cannot change it (--epochs, --actors, --listen and --set can)")
     run_dir = Path(args.resume)
-    saved = run_dir / "config.yaml"
+    saved = run_dir / CONFIG
     if not saved.is_file():
         raise ConfigError(f"--resume {args.resume}: no config.yaml there; give the folder of a "
                           "run that `hercs up` started (runs/RUN)")

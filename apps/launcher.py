@@ -80,9 +80,10 @@ from apps.child_process import describe_exit, log_tail, signal_group, start_chil
 from apps.progress import Progress
 from apps.router import RouterListenError, open_router_anywhere
 from apps.run_plan import ChildSpec, CommandFactory, plan_children, resolve_run, service_command
+from hercs.backoff import nth_delay
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.rundir import RouterRecord, holds_a_run, remove_router, write_router
+from hercs.rundir import CONFIG, LOGS, RouterRecord, holds_a_run, remove_router, write_router
 from hercs.service import EXIT_CONFIG
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
@@ -207,8 +208,8 @@ class _Launcher:
     # ------------------------------------------------------------------ processes
 
     def start(self, spec: ChildSpec, *, restarts: int = 0) -> _Child:
-        config_path = self.run_dir / "config.yaml"
-        log_path = self.run_dir / "logs" / spec.log_name
+        config_path = self.run_dir / CONFIG
+        log_path = self.run_dir / LOGS / spec.log_name
         proc = start_child(self.command(spec, config_path), log_path=log_path)
         child = _Child(spec, proc, log_path, restarts=restarts)
         self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]
@@ -266,7 +267,7 @@ class _Launcher:
                                                     "already, so the run stops")
                 failed = True
                 continue
-            delay = min(self.config.launch.restart_backoff_s * 2 ** restarts, MAX_BACKOFF_S)
+            delay = nth_delay(self.config.launch.restart_backoff_s, restarts, MAX_BACKOFF_S)
             self._report_exit(child, code, then=f"; restarting it in {delay:g} s "
                                                 f"({restarts + 1} of at most {limit})")
             self.scheduled.append((time.monotonic() + delay, child.spec, restarts + 1))
@@ -401,7 +402,7 @@ def run_up(
                            "PR_SET_PDEATHSIG fires when the forking thread exits)")
     config = resolve_run(config)
     run_dir = Path(config.run.run_dir) / config.run.name
-    if resume and not (run_dir / "config.yaml").is_file():
+    if resume and not (run_dir / CONFIG).is_file():
         print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
               flush=True)
         return 2
@@ -428,8 +429,8 @@ def run_up(
                              out=out, err=err)
         status = 1
         try:
-            (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-            save_yaml(config, run_dir / "config.yaml")
+            (run_dir / LOGS).mkdir(parents=True, exist_ok=True)
+            save_yaml(config, run_dir / CONFIG)
             write_router(run_dir, RouterRecord.for_listen(listening))
             launcher.say(f"hercs up: {'resuming ' if resume else ''}run {config.run.name}, "
                          f"directory {run_dir}, router on {listening}")

@@ -46,6 +46,7 @@ import yaml
 
 from hercs.errors import HercsError
 from hercs.methods import METHODS
+from hercs.rundir import CONFIG, METRICS
 
 REFERENCE_CSV = (Path(__file__).resolve().parents[1] / "docs" / "reference"
                  / "authors_success_rates.csv")
@@ -209,7 +210,7 @@ def load_run(run_dir: str | Path) -> Curve:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PlotError(f"{run_dir}: not a run directory")
-    config_path, metrics_path = run_dir / "config.yaml", run_dir / "metrics.csv"
+    config_path, metrics_path = run_dir / CONFIG, run_dir / METRICS
     for path in (config_path, metrics_path):
         if not path.is_file():
             raise PlotError(f"{run_dir}: no {path.name} in this run directory")

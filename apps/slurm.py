@@ -37,10 +37,9 @@ from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.errors import ConfigError
-from hercs.rundir import SLURM, holds_a_run
+from hercs.rundir import CONFIG, SLURM, holds_a_run
 
 SCRIPT = "job.sbatch"
-CONFIG = "config.yaml"
 TIME = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
 """Slurm's --time forms: M, M:S, H:M:S, D-H, D-H:M, D-H:M:S."""
 EXIT_REQUEUED = 0

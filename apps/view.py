@@ -58,7 +58,6 @@ before it (models are logged in order, interleaved with the episodes).
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import sys
@@ -87,6 +86,8 @@ from hercs.clustering import assign_clusters
 from hercs.codec import msg_to_array, msg_to_cluster_model
 from hercs.config import load_yaml
 from hercs.errors import HercsError
+from hercs.metrics import read_rows
+from hercs.rundir import CONFIG, METRICS
 from hercs.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
@@ -242,7 +243,7 @@ def read_run_log(path: Path) -> RunLog:
 def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
     """How many episodes one epoch of the run has (cycles × episodes per cycle in its
     config.yaml) and where that number comes from."""
-    config_path = run_dir / "config.yaml"
+    config_path = run_dir / CONFIG
     if config_path.is_file():
         try:
             training = load_yaml(config_path).training
@@ -254,10 +255,7 @@ def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
 
 def read_metrics(path: Path) -> dict[str, list[str]]:
     """metrics.csv as columns of strings ({} if absent)."""
-    if not path.is_file():
-        return {}
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_rows(path)
     if not rows:
         return {}
     return {key: [row.get(key) or "" for row in rows] for key in rows[0]}
@@ -386,7 +384,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
     except (ViewError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
-    metrics = read_metrics(run_dir / "metrics.csv")
+    metrics = read_metrics(run_dir / METRICS)
 
     import rerun as rr  # imported here: `hercs --help` stays fast
 

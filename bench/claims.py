@@ -57,6 +57,7 @@ from bench.claim_statistics import (
     side_stats,
 )
 from hercs.config import HercsConfig
+from hercs.rundir import CONFIG
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -142,7 +143,7 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> dict[Group
     found: list[tuple[Group, Run]] = []
     for curve in load_runs(runs_dir):
         source = Path(curve.source)
-        config = yaml.safe_load((source / "config.yaml").read_text()) or {}
+        config = yaml.safe_load((source / CONFIG).read_text()) or {}
         found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
                                             curve)))
     reference = load_reference() if reference_csv is None else load_reference(reference_csv)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import itertools
 import json
 import os
@@ -45,6 +44,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from bench.common import git_commit
+from hercs.metrics import recorded_epochs
+from hercs.rundir import METRICS
 from hercs.runlog import read_episodes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -155,11 +156,7 @@ def distinct_episodes(run_dir: Path) -> set[tuple[str, int]]:
 
 
 def epochs_recorded(run_dir: Path) -> list[int]:
-    path = run_dir / "metrics.csv"
-    if not path.exists():
-        return []
-    with path.open(newline="") as f:
-        return [int(row["epoch"]) for row in csv.DictReader(f)]
+    return recorded_epochs(run_dir / METRICS)
 
 
 def epoch_times(seen: list[tuple[float, str]]) -> list[float]:

@@ -25,7 +25,6 @@ Writes `docs/results/lag_sources.{json,md}` (`--out`).
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import json
 import statistics
@@ -39,6 +38,8 @@ from pathlib import Path
 
 from bench.common import git_commit, machine_identity
 from bench.sample_efficiency import free_port
+from hercs.metrics import read_rows
+from hercs.rundir import METRICS
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -97,11 +98,6 @@ class LagRow:
     run_s: float
 
 
-def read_rows(metrics: Path) -> list[dict[str, str]]:
-    with metrics.open(newline="") as f:
-        return list(csv.DictReader(f))
-
-
 def summarise(rows: list[dict[str, str]]) -> dict[str, float]:
     """Epoch time and lag figures over the epochs after the first (all of them if only one)."""
     walls = [float(r["wall_s"]) for r in rows]
@@ -147,7 +143,7 @@ def run_together(settings: list[LagSetting], *, root: Path, names: list[str],
         log.close()
         if code != 0:
             raise SystemExit(f"run {name} failed (exit {code}); log {root / (name + '.log')}")
-        out.append((summarise(read_rows(root / name / "metrics.csv")),
+        out.append((summarise(read_rows(root / name / METRICS)),
                     time.monotonic() - started))
     return out
 

@@ -56,6 +56,7 @@ from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
+from hercs.rundir import CONFIG, METRICS
 from hercs.tasks import ENV_VERSIONS, TASKS, task_spec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -127,7 +128,7 @@ def free_port() -> int:
 
 def can_resume(run_dir: Path) -> bool:
     """An unfinished run `hercs up --resume` can continue: it saved its config."""
-    return (run_dir / "config.yaml").is_file()
+    return (run_dir / CONFIG).is_file()
 
 
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
@@ -159,7 +160,7 @@ class _Running:
 
 
 COMMITTED = REPO / "docs" / "results" / "runs"
-SMALL_FILES = ("config.yaml", "metrics.csv", DONE_FILE)
+SMALL_FILES = (CONFIG, METRICS, DONE_FILE)
 """What is committed of a finished run (the episode log and checkpoints stay where it ran)."""
 
 
