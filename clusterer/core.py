@@ -10,9 +10,6 @@ is refitted and a new `ClusterModel` returned for publication. Refit `v` is seed
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 
 from clusterer.failed_goals import FailedGoalBuffer
@@ -90,23 +87,3 @@ class Clusterer:
                                   failures_seen=self.failures_seen)
         self.last_version = version
         return self.model
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "seed": self.seed,
-            "fgb": self.fgb.state_dict(),
-            "episodes_seen": self.episodes_seen,
-            "failures_seen": self.failures_seen,
-            "model": self.model,  # never changed in place: a refit makes a new one
-            "last_version": self.last_version,
-        }
-
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore a `state_dict()`; the seed is restored too, so later refits match."""
-        self.fgb.load_state_dict(state["fgb"])
-        self.seed = int(state["seed"])
-        self.episodes_seen = int(state["episodes_seen"])
-        self.failures_seen = int(state["failures_seen"])
-        self.model = state["model"]
-        self.last_version = int(state.get("last_version",
-                                          0 if self.model is None else self.model.version))

@@ -14,9 +14,6 @@ ring; the cadence (every `capacity` failed goals) is the same.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 
 
@@ -68,30 +65,3 @@ class FailedGoalBuffer:
         if self._size < self.capacity:
             return self._goals[: self._size].copy()
         return np.roll(self._goals, -self._next, axis=0)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "capacity": self.capacity,
-            "goal_dim": self.goal_dim,
-            "goals": self.goals(),
-            "total_added": self.total_added,
-            "new_since_fit": self.new_since_fit,
-        }
-
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore a `state_dict()` of a buffer with the same capacity and goal_dim."""
-        if (state["capacity"], state["goal_dim"]) != (self.capacity, self.goal_dim):
-            raise ValueError(
-                f"FailedGoalBuffer.load_state_dict: state has capacity {state['capacity']}, "
-                f"goal_dim {state['goal_dim']}; this buffer has {self.capacity}, {self.goal_dim}"
-            )
-        goals = np.asarray(state["goals"], dtype=np.float32).reshape(-1, self.goal_dim)
-        if len(goals) > self.capacity:
-            raise ValueError(f"FailedGoalBuffer.load_state_dict: {len(goals)} goals exceed "
-                             f"capacity {self.capacity}")
-        self._goals[:] = 0.0
-        self._goals[: len(goals)] = goals
-        self._size = len(goals)
-        self._next = len(goals) % self.capacity
-        self.total_added = int(state["total_added"])
-        self.new_since_fit = int(state["new_since_fit"])

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -159,35 +158,3 @@ class ReplayCore:
 
     def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         return self.o_norm.state_dict(), self.g_norm.state_dict()
-
-    # -- checkpoint ------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "store": self.store.state_dict(),
-            "o_norm": self.o_norm.state_dict(),
-            "g_norm": self.g_norm.state_dict(),
-            "cluster_model": self.cluster_model,  # never changed in place: a new model replaces it
-            "seen": list(self._seen.items()),
-            "counters": {"inserts": self.inserts, "duplicates": self.duplicates,
-                         "samples": self.samples, "env_steps": self.env_steps,
-                         "failures": self.failures},
-            "recent_failed_goals": [g.copy() for g in self.recent_failed_goals],
-            "rejects": dict(self.rejects),
-            "cluster_draws_total": self.cluster_draws_total.copy(),
-            "rng": self.rng.bit_generator.state,
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.store.load_state_dict(state["store"])
-        self.o_norm.load_state_dict(state["o_norm"])
-        self.g_norm.load_state_dict(state["g_norm"])
-        self.cluster_model = state["cluster_model"]
-        self._seen = OrderedDict((tuple(k), v) for k, v in state["seen"])
-        for name, value in state["counters"].items():
-            setattr(self, name, int(value))
-        self.rejects = Counter(state["rejects"])
-        self.recent_failed_goals.clear()
-        self.recent_failed_goals.extend(np.asarray(g, np.float32)
-                                        for g in state.get("recent_failed_goals", []))
-        self.cluster_draws_total = np.asarray(state["cluster_draws_total"], np.int64).copy()
-        self.rng.bit_generator.state = state["rng"]

@@ -22,8 +22,6 @@ Deviation from the reference HER buffer by default: once full, the reference ove
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from hercs.config import EVICTIONS
@@ -293,62 +291,3 @@ class EpisodeStore:
             seq=int(self._seq[slot]), success=bool(self._success[slot]),
             policy_version=int(self._policy_version[slot]),
         )
-
-    # ------------------------------------------------------------------ checkpoint
-
-    def state_dict(self) -> dict[str, Any]:
-        """A copy of the valid prefix and the counters (plain numpy arrays and ints)."""
-        n = self._size
-        state: dict[str, Any] = {
-            "task": self._spec.name,
-            "capacity_episodes": self._capacity,
-            "next_id": self._next_id,
-            "eviction": self._eviction,
-            "eviction_key": self._eviction_key,
-        }
-        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
-            state[name] = getattr(self, f"_{name}")[:n].copy()
-        state["actor_id"] = np.asarray([str(a) for a in self._actor_id[:n]], dtype=str)
-        return state
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore from `state_dict()`; refuses a different task or capacity, or broken ids."""
-        eviction = state.get("eviction", "fifo")
-        key = state.get("eviction_key", self._eviction_key)
-        if (state["task"] != self._spec.name or state["capacity_episodes"] != self._capacity
-                or eviction != self._eviction or (eviction == "random"
-                                                  and key != self._eviction_key)):
-            raise ConfigError(
-                f"EpisodeStore.load_state_dict: checkpoint is task {state['task']!r} with "
-                f"capacity {state['capacity_episodes']} and {eviction} eviction, this store is "
-                f"task {self._spec.name!r} with capacity {self._capacity} and "
-                f"{self._eviction} eviction (random: the same eviction seed); nothing loaded"
-            )
-        ids = np.asarray(state["episode_id"], np.int64)
-        n, next_id = len(ids), int(state["next_id"])
-        if (n > self._capacity or len(set(ids.tolist())) != n
-                or np.any((ids < 0) | (ids >= next_id))
-                or (n < self._capacity and (ids.tolist() != list(range(n)) or next_id != n))
-                or (self._eviction == "fifo"
-                    and sorted(ids.tolist()) != list(range(next_id - n, next_id)))
-                or any(self.slot_for(int(i)) != slot for slot, i in enumerate(ids))):
-            raise ConfigError(
-                f"EpisodeStore.load_state_dict: episode ids {ids[:5].tolist()}... with "
-                f"next_id {next_id} break the invariant slot = slot_for(id) ({self._eviction}"
-                f" eviction, capacity {self._capacity}); nothing loaded"
-            )
-        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
-            arr = np.asarray(state[name])
-            want = getattr(self, f"_{name}").shape[1:]
-            if arr.shape != (n, *want):
-                raise ConfigError(
-                    f"EpisodeStore.load_state_dict: {name} has shape {arr.shape}, expected "
-                    f"{(n, *want)}; nothing loaded"
-                )
-        for name in (*_ARRAY_FIELDS, *_META_FIELDS):
-            getattr(self, f"_{name}")[:n] = state[name]
-        self._actor_id[:n] = [str(a) for a in state["actor_id"]]
-        self._size = n
-        self._next_id = next_id
-        self.moved_count = int(self._moved[:n].sum())
-        self._index.rebuild(self._energy[:n], self._cluster[:n])
