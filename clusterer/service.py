@@ -38,6 +38,7 @@ from hercs.clustering import ClusterModel
 from hercs.codec import cluster_model_to_msg, msg_to_array
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
+from hercs.reasons import Reason
 from hercs.service import ServiceRuntime, service_main
 from hercs.transport import TransportError
 from hercs.validation import header_goals, parse_message
@@ -160,8 +161,9 @@ class ClustererService:
                 goals = msg_to_array(state.failed_goals, where="ClustererState.failed_goals")
                 if goals.ndim != 2 or goals.shape[1] != self.goal_dim or len(goals) > \
                         self.config.cluster.fgb_size or not np.isfinite(goals).all():
-                    raise InvalidMessage("bad_shape", f"ClustererState.failed_goals: shape "
-                                                      f"{goals.shape} or values unusable")
+                    raise InvalidMessage(Reason.BAD_SHAPE,
+                                         f"ClustererState.failed_goals: shape {goals.shape} "
+                                         "or values unusable")
             except (TransportError, InvalidMessage) as exc:
                 self._warn.warn("state", f"waiting for the replay's clusterer state: {exc}")
                 backoff.wait(stop)

@@ -137,7 +137,7 @@ def msg_to_cluster_model(msg: pb.ClusterModel) -> ClusterModel:
         return ClusterModel(version=int(msg.version), centroids=centroids,
                             n_goals=int(msg.fitted_on), failures_seen=int(msg.failures_seen))
     except ValueError as exc:
-        raise InvalidMessage("bad_value", str(exc)) from None
+        raise InvalidMessage(Reason.BAD_VALUE, str(exc)) from None
 
 
 NORMALIZER_ARRAYS = ("sum", "sumsq", "mean", "std")

@@ -262,7 +262,7 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
                 raise RemoteError(key, reason, detail)
             if text == "Timeout":
                 raise TransportTimeout(key, timeout_s, "no reply")
-            raise RemoteError(key, "transport", text)
+            raise RemoteError(key, Reason.TRANSPORT, text)
         if session.is_closed():
             raise TransportError(f"request to {key!r}: the session closed while it waited")
         remaining = deadline - time.monotonic()

@@ -67,6 +67,8 @@ class Reason(StrEnum):
     """The service is shutting down, or closed before answering."""
     INTERNAL = "internal", Disposition.RETRY
     """The handler raised; the error is logged where it happened."""
+    TRANSPORT = "transport", Disposition.RETRY
+    """Zenoh itself answered with an error (not a hercs reply); the detail is its text."""
 
 
 _BY_VALUE: dict[str, Reason] = {r.value: r for r in Reason}
