@@ -36,7 +36,7 @@ def sample_over_zenoh(bench: Harness, method: str) -> list[float]:
         if len(batch.minibatches) != p.sample_minibatches:
             raise BenchError(f"{method}: a Batch of {len(batch.minibatches)} minibatches, "
                              f"asked for {p.sample_minibatches}")
-        if method.endswith("-cs") and batch.cluster_model_version < 1:
+        if method.endswith("-cs") and batch.status.cluster_model_version < 1:
             raise BenchError(f"{method}: the replay sampled without a cluster model")
         if i >= p.sample_warmup_requests:
             out.append(elapsed)
