@@ -250,18 +250,19 @@ def test_iqm_equals_rliables(n: int) -> None:
 def test_command_writes_claims_md(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     _grid(runs, 2, 2)
-    done = subprocess.run([sys.executable, str(REPO / "bench" / "claims.py"), "--runs",
+    done = subprocess.run([sys.executable, "-m", "bench.claims", "--runs",
                            str(runs), "--out", str(tmp_path / "out"), "--reps", "200"],
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
     assert done.returncode == 0, done.stderr
     text = (tmp_path / "out" / "claims.md").read_text()
     assert text.startswith("# The claims, with intervals over seeds")
     assert f"--runs {runs} --out {tmp_path / 'out'} --reps 200`" in text
     assert "200 reps" in text
     assert "| HER-CS against HER, v4 | HER-CS, v4, async (legacy), fp32 |" in text
-    bad = subprocess.run([sys.executable, str(REPO / "bench" / "claims.py"), "--runs",
-                          str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
+    bad = subprocess.run([sys.executable, "-m", "bench.claims", "--runs",
+                          str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60,
+                         cwd=REPO)
     assert bad.returncode == 2 and "not a directory" in bad.stderr
-    few = subprocess.run([sys.executable, str(REPO / "bench" / "claims.py"), "--reps", "10"],
-                         capture_output=True, text=True, timeout=60)
+    few = subprocess.run([sys.executable, "-m", "bench.claims", "--reps", "10"],
+                         capture_output=True, text=True, timeout=60, cwd=REPO)
     assert few.returncode == 2 and "--reps must be at least 100, got 10" in few.stderr

@@ -115,10 +115,10 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     """Two real 1-epoch runs through `hercs up`; a second call skips the finished one and
     resumes the unfinished one; the report holds the table with our rows beside the
     authors'."""
-    cmd = [sys.executable, str(REPO / "bench" / "sample_efficiency.py"), "--quick",
+    cmd = [sys.executable, "-m", "bench.sample_efficiency", "--quick",
            "--methods", "her", "her-cs", "--seeds", "1", "--run-dir", str(tmp_path / "runs"),
            "--out", str(tmp_path / "results"), "--committed", str(tmp_path / "committed")]
-    first = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert first.returncode == 0, first.stdout + first.stderr
     for name in ("reach-her-s1", "reach-her-cs-s1"):
         done = json.loads((tmp_path / "runs" / name / se.DONE_FILE).read_text())
@@ -145,7 +145,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     (tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).unlink()  # as if interrupted,
     shutil.rmtree(tmp_path / "committed" / "reach-her-cs-s1")  # so never committed either
     shutil.rmtree(tmp_path / "runs" / "reach-her-s1")
-    second = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    second = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert second.returncode == 0, second.stdout + second.stderr
     assert "[skip] reach-her-s1: finished and committed" in second.stdout
     assert "| HER (ours) | 1 | 1 |" in (tmp_path / "results" / "reach.md").read_text()
@@ -157,9 +157,10 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
     # bench/sampler_mix.py reads a real run's log back: one row per epoch mark
-    mix = subprocess.run([sys.executable, str(REPO / "bench" / "sampler_mix.py"),
+    mix = subprocess.run([sys.executable, "-m", "bench.sampler_mix",
                           str(tmp_path / "runs" / "reach-her-cs-s1"), "--every-epochs", "1",
-                          "--minibatches", "4"], capture_output=True, text=True, timeout=120)
+                          "--minibatches", "4"], capture_output=True, text=True, timeout=120,
+                         cwd=REPO)
     assert mix.returncode == 0, mix.stderr
     rows = [line for line in mix.stdout.splitlines() if line.startswith("| 1 |")]
     assert len(rows) == 1, mix.stdout

@@ -89,13 +89,13 @@ def test_command_writes_the_report_and_refuses_a_bad_epoch(tmp_path: Path) -> No
     runs.mkdir()
     _run(runs, "push-her-cs-lockstep-s1", 1, [0.5] * 10, schedule="lockstep")
     _run(runs, "push-her-cs-s1", 1, [0.1] * 10)
-    script = str(REPO / "bench" / "schedule_effect.py")
-    done = subprocess.run([sys.executable, script, "--runs", str(runs), "--out",
-                           str(tmp_path / "out")], capture_output=True, text=True, timeout=60)
+    done = subprocess.run([sys.executable, "-m", "bench.schedule_effect", "--runs", str(runs),
+                           "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                          timeout=60, cwd=REPO)
     assert done.returncode == 0, done.stderr
     text = (tmp_path / "out" / "asynchrony.md").read_text()
     assert "## FetchPush HER-CS: lockstep against asynchronous, epoch 10" in text
     assert "+.40; one seed on each side: no spread to use." in text
-    bad = subprocess.run([sys.executable, script, "--epoch", "0"], capture_output=True,
-                         text=True, timeout=60)
+    bad = subprocess.run([sys.executable, "-m", "bench.schedule_effect", "--epoch", "0"],
+                         capture_output=True, text=True, timeout=60, cwd=REPO)
     assert bad.returncode == 2 and "--epoch must be at least 1, got 0" in bad.stderr
