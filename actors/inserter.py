@@ -95,14 +95,11 @@ class Inserter:
         thread (e.g. `ServiceRuntime.crashed`); without it the exception is only logged."""
         if capacity < 0:
             raise ValueError(f"Inserter capacity: got {capacity}, must be >= 0")
-        if not 0 < backoff_min_s <= backoff_max_s:
-            raise ValueError(f"Inserter backoff: got min {backoff_min_s}, max {backoff_max_s}; "
-                             "need 0 < min <= max")
         self.actor_id = actor_id
         self.capacity = capacity
         self.counters = InsertCounters()
         self._send = send
-        self._backoff = (backoff_min_s, backoff_max_s)
+        self._backoff = Backoff(backoff_min_s, backoff_max_s)  # checks the bounds now
         self._queue: collections.deque[tuple[int, bytes]] = collections.deque()
         self._cond = threading.Condition()
         self._closing = False
@@ -199,7 +196,8 @@ class Inserter:
     def _deliver(self, seq: int, payload: bytes) -> None:
         """Send until acked, dropped, superseded or aborted; counts the outcome."""
         c = self.counters
-        backoff = Backoff(*self._backoff)
+        backoff = self._backoff  # one sender thread: one delivery at a time
+        backoff.reset()
         attempt = 0
         while True:
             if self._abort.is_set():
