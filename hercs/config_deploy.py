@@ -62,7 +62,7 @@ class ActorConfig:
 
 
 LEARNER_DEVICES = ("auto", "cpu", "cuda")
-PRECISIONS = ("fp32", "bf16")
+PRECISIONS = ("fp32", "bf16", "tf32")
 
 
 @dataclass
@@ -75,7 +75,10 @@ class LearnerConfig:
     """fp32, or bf16: the online networks' passes (Q(s, u), μ(s), Q(s, μ(s))) under bf16
     autocast, with fp32 master weights, Adam, TD target y (the target networks run in fp32),
     losses and normaliser [DESIGN]. Pays only where bf16 matrix products are native (recent
-    GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4."""
+    GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4. tf32: every matrix product
+    rounds its operands to TF32's 10 mantissa bits and sums in fp32, on any device: the
+    arithmetic of the authors' runs (torch 1.10 on an Ampere GPU, TF32 on by default);
+    slower than fp32, for the comparison only."""
 
     prefetch_depth: int = 0
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and
@@ -89,7 +92,7 @@ class LearnerConfig:
         _check(self.prefetch_depth >= 0, "learner.prefetch_depth", self.prefetch_depth,
                "be >= 0 (0: ask for a batch only when the update loop wants it)")
         _check(self.precision in PRECISIONS, "learner.precision", self.precision,
-               "be fp32 or bf16")
+               f"be one of {', '.join(PRECISIONS)}")
         base, _, index = self.device.partition(":")
         _check(base in LEARNER_DEVICES and (not index or (base == "cuda" and index.isdigit())),
                "learner.device", self.device, "be auto, cpu, cuda or cuda:N")

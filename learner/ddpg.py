@@ -22,7 +22,9 @@ to the service (on the 2-core development machine, 1–2 threads for the learner
 Precision (`learner.precision`): with bf16 the online networks' passes run under
 `torch.autocast(dtype=bfloat16)`; the master weights and Adam stay fp32, the TD target y is
 computed by the target networks in fp32, and the losses are formed in fp32 from the
-networks' outputs cast back. With fp32 nothing changes.
+networks' outputs cast back. With tf32 every matrix product of the step (forward, target and
+backward) rounds its operands to TF32 first, as the authors' GPU did (`learner/tf32.py`). With
+fp32 nothing changes.
 
 Device (`learner.device`, `resolve_device`): the networks are created and seeded on the CPU,
 so a run's initial weights do not depend on the device, then moved. A minibatch goes to the
@@ -49,6 +51,7 @@ from hercs.normalizer import Normalizer, NormalizerState
 from hercs.policy import PolicyWeights
 from hercs.seeding import int_seed
 from hercs.tasks import TaskSpec
+from learner.tf32 import TF32Products
 
 
 def critic_target(
@@ -109,7 +112,8 @@ class DDPGLearner:
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
                  device: str | torch.device = "cpu", precision: str = "fp32") -> None:
         if precision not in PRECISIONS:
-            raise ConfigError(f"learner.precision: got {precision!r}, must be fp32 or bf16")
+            raise ConfigError(f"learner.precision: got {precision!r}, must be one of "
+                              f"{', '.join(PRECISIONS)}")
         self.spec = spec
         self.config = config
         self.precision = precision
@@ -143,6 +147,12 @@ class DDPGLearner:
 
     def update(self, batch: TransitionBatch) -> dict[str, float]:
         """One DDPG step on a minibatch; returns losses and means."""
+        if self.precision != "tf32":
+            return self._update(batch)
+        with TF32Products():  # every product of the step, the target and backward included
+            return self._update(batch)
+
+    def _update(self, batch: TransitionBatch) -> dict[str, float]:
         o, g, u, r, o2 = self._check_batch(batch)
         r = r.reshape(-1, 1)  # (B, 1): so that y broadcasts row-wise, not to (B, B)
         cfg, max_action = self.config, self.spec.max_action

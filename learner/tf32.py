@@ -1,0 +1,62 @@
+"""TF32 arithmetic of matrix products, emulated on any device (`learner.precision=tf32`).
+
+The authors trained on a GPU with torch 1.10, where a float32 matrix product on an Ampere (or
+newer) GPU ran in TF32 by default (torch 1.7–1.11; `torch.backends.cuda.matmul.allow_tf32`
+became False in 1.12): each input is rounded to TF32's 10 explicit mantissa bits (fp32 keeps
+23), the products are summed in fp32. Everything else (element-wise ops, Adam, the losses)
+stayed fp32. `TF32Products` reproduces that on any device: inside it, every matrix product
+torch dispatches — forward and backward, since the mode is below autograd — rounds its
+float32 operands to TF32 first and then multiplies in fp32.
+
+Rounding: to nearest, ties away from zero, on the magnitude's bit pattern (add half a unit
+of the 13 dropped bits, clear them) — NVIDIA's `cvt.rna.tf32.f32`, the conversion its TF32
+tensor-core path is documented to use. Infinities and NaNs pass unchanged; a finite value
+within half a TF32 unit of the largest float rounds to infinity, as the hardware's would.
+`bench.learner_cuda` measures how close this is to a GPU's own TF32 on the same updates.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+TF32_DROPPED_BITS = 13
+"""fp32's 23 mantissa bits less TF32's 10."""
+_HALF_UNIT = 1 << (TF32_DROPPED_BITS - 1)
+_KEEP_MASK = ~((1 << TF32_DROPPED_BITS) - 1)
+_EXPONENT_ALL_ONES = 0x7F800000
+
+_PRODUCTS = {
+    torch.ops.aten.mm.default: (0, 1),
+    torch.ops.aten.addmm.default: (1, 2),  # addmm(bias, a, b): the bias is added in fp32
+    torch.ops.aten.bmm.default: (0, 1),
+    torch.ops.aten.baddbmm.default: (1, 2),
+}
+"""The matrix products an MLP's forward and backward passes dispatch, and which of their
+arguments are the multiplied operands."""
+
+
+def round_to_tf32(tensor: torch.Tensor) -> torch.Tensor:
+    """A float32 tensor with each value rounded to TF32 (10 mantissa bits), still float32;
+    other dtypes are returned as they are."""
+    if tensor.dtype != torch.float32:
+        return tensor
+    bits = tensor.contiguous().view(torch.int32)
+    special = (bits & _EXPONENT_ALL_ONES) == _EXPONENT_ALL_ONES  # inf and NaN keep their bits
+    # the sign bit is untouched: adding to the magnitude's pattern rounds away from zero
+    rounded = (bits + _HALF_UNIT) & _KEEP_MASK
+    return torch.where(special, bits, rounded).view(torch.float32).view_as(tensor)
+
+
+class TF32Products(TorchDispatchMode):
+    """Within this mode, matrix products round their float32 operands to TF32 first."""
+
+    def __torch_dispatch__(self, func: Any, types: Any, args: tuple[Any, ...] = (),
+                           kwargs: dict[str, Any] | None = None) -> Any:
+        operands = _PRODUCTS.get(func)
+        if operands is not None:
+            args = tuple(round_to_tf32(a) if i in operands and isinstance(a, torch.Tensor)
+                         else a for i, a in enumerate(args))
+        return func(*args, **(kwargs or {}))
