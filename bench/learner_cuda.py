@@ -42,6 +42,7 @@ from hercs.config import DDPGConfig
 from hercs.networks import to_arrays
 from hercs.tasks import task_spec
 from learner.ddpg import DDPGLearner
+from learner.tf32 import round_to_tf32
 
 REPO = Path(__file__).resolve().parents[1]
 GPU_TF32 = "fp32+gpu-tf32"
@@ -102,24 +103,51 @@ def _flat(net: DDPGLearner) -> np.ndarray:
     return np.concatenate([a.ravel() for a in to_arrays(net.actor).values()]).astype(np.float64)
 
 
-def emulation(device: str, updates: int, spec, config: DDPGConfig) -> dict[str, float]:  # type: ignore[no-untyped-def]
-    """Distances between actor weights after `updates` identical updates."""
+CHECKPOINTS = (1, 10, 50, 200)
+"""After how many identical updates the emulation's weights are compared."""
+
+
+def emulation(device: str, updates: int, spec, config: DDPGConfig) -> dict[str, dict[str, float]]:  # type: ignore[no-untyped-def]
+    """Distances of the actor weights from the GPU-TF32 run's after k identical updates, for
+    each k in CHECKPOINTS up to `updates`. DDPG amplifies any rounding difference over a few
+    hundred updates (every run ends up far from every other); the early checkpoints show the
+    arithmetic itself."""
     rng = np.random.default_rng(1)
     batches = [make_batch(spec, config.batch_size, rng) for _ in range(20)]
-    finals: dict[str, np.ndarray] = {}
+    stops = [k for k in CHECKPOINTS if k <= updates]
+    snapshots: dict[str, dict[int, np.ndarray]] = {}
     start = _flat(learner(device, "fp32", spec, config))
     for precision in ("fp32", "tf32", GPU_TF32, "bf16"):
         net = learner(device, precision, spec, config)
+        snapshots[precision] = {}
         with gpu_tf32(precision == GPU_TF32):
-            for i in range(updates):
+            for i in range(1, stops[-1] + 1):
                 net.update(batches[i % len(batches)])
-                if i % 40 == 39:
+                if i % 40 == 0:
                     net.update_targets()
-        finals[precision] = _flat(net)
-    ref = finals[GPU_TF32]
-    return {"moved": float(np.linalg.norm(ref - start)),
-            **{f"{p}_from_gpu_tf32": float(np.linalg.norm(finals[p] - ref))
-               for p in ("fp32", "tf32", "bf16")}}
+                if i in stops:
+                    snapshots[precision][i] = _flat(net)
+    ref = snapshots[GPU_TF32]
+    return {str(k): {"moved": float(np.linalg.norm(ref[k] - start)),
+                     **{f"{p}_from_gpu_tf32": float(np.linalg.norm(snapshots[p][k] - ref[k]))
+                        for p in ("fp32", "tf32", "bf16")}} for k in stops}
+
+
+def product_check(size: int = 256) -> dict[str, float]:
+    """One (size × size)·(size × size) product of random normals on the GPU: the largest
+    difference of fp32 and of the emulation from the GPU's TF32 product, relative to the
+    largest entry. A rounding rule equal to the hardware's leaves only summation order."""
+    gen = torch.Generator(device="cuda").manual_seed(0)
+    a = torch.randn(size, size, device="cuda", generator=gen)
+    b = torch.randn(size, size, device="cuda", generator=gen)
+    with gpu_tf32(False):
+        fp32 = a @ b
+        emulated = round_to_tf32(a) @ round_to_tf32(b)
+    with gpu_tf32(True):
+        tf32 = a @ b
+    scale = float(tf32.abs().max())
+    return {"fp32": float((fp32 - tf32).abs().max()) / scale,
+            "tf32_emulated": float((emulated - tf32).abs().max()) / scale}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -150,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         summary["gpu_updates_per_s"] = speed("cuda", gpu_precisions, workers, updates, spec,
                                              config)
         summary["emulation"] = emulation("cuda", 10 if args.quick else 200, spec, config)
+        summary["product_check"] = product_check()
     summary["cpu_updates_per_s"] = speed("cpu", ["fp32", "bf16", "tf32"], workers[:2],
                                          max(3, updates // 4), spec, config)
     text = report(summary)
@@ -189,15 +218,21 @@ def report(s: dict) -> str:  # type: ignore[type-arg]
             lines.append(f"| {precision} | " + " | ".join(
                 f"{gpu[precision][n] / cpu[precision][n]:.1f}×" for n in workers
                 if n in cpu[precision]) + " |")
-        e = s["emulation"]
-        lines += ["", "TF32 emulation (`learner.precision=tf32`) against the GPU's own TF32, "
-                  "200 identical updates from one seed, distance of the actor weights (L2):", "",
-                  "| run | distance from GPU TF32 | ÷ fp32's |", "|---|---|---|"]
+        stops = list(s["emulation"])
+        lines += ["", "TF32 emulation (`learner.precision=tf32`) against the GPU's own TF32 "
+                  "(`fp32+gpu-tf32`): the same seed and minibatches, the L2 distance of the "
+                  "actor weights from the GPU-TF32 run's after k updates:", "",
+                  "| run | " + " | ".join(f"k = {k}" for k in stops) + " |",
+                  "|---|" + "---|" * len(stops)]
         for p in ("fp32", "tf32", "bf16"):
-            d = e[f"{p}_from_gpu_tf32"]
-            lines.append(f"| {p}{' (emulated TF32)' if p == 'tf32' else ''} | {d:.4g} | "
-                         f"{d / e['fp32_from_gpu_tf32']:.2f} |")
-        lines += ["", f"The weights moved {e['moved']:.4g} from their start."]
+            lines.append(f"| {p}{' (emulated)' if p == 'tf32' else ''} | " + " | ".join(
+                f"{s['emulation'][k][f'{p}_from_gpu_tf32']:.3g}" for k in stops) + " |")
+        lines.append("| (weights moved from the start) | " + " | ".join(
+            f"{s['emulation'][k]['moved']:.3g}" for k in stops) + " |")
+        pc = s["product_check"]
+        lines += ["", "One 256 × 256 product on the GPU, largest difference from its TF32 "
+                  f"product relative to the largest entry: fp32 {pc['fp32']:.2e}, emulated "
+                  f"TF32 {pc['tf32_emulated']:.2e}."]
     return "\n".join(lines) + "\n"
 
 

@@ -31,4 +31,7 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
         return
     gpu, emulation = summary["gpu_updates_per_s"], summary["emulation"]
     assert sorted(gpu) == ["bf16", "fp32", "fp32+gpu-tf32", "tf32"]
-    assert emulation["tf32_from_gpu_tf32"] < emulation["fp32_from_gpu_tf32"]
+    first = emulation["1"]
+    assert first["tf32_from_gpu_tf32"] < first["fp32_from_gpu_tf32"]
+    products = summary["product_check"]
+    assert products["tf32_emulated"] < products["fp32"]
