@@ -8,11 +8,13 @@ stayed fp32. `TF32Products` reproduces that on any device: inside it, every matr
 torch dispatches — forward and backward, since the mode is below autograd — rounds its
 float32 operands to TF32 first and then multiplies in fp32.
 
-Rounding: to nearest, ties away from zero, on the magnitude's bit pattern (add half a unit
-of the 13 dropped bits, clear them) — NVIDIA's `cvt.rna.tf32.f32`, the conversion its TF32
-tensor-core path is documented to use. Infinities and NaNs pass unchanged; a finite value
-within half a TF32 unit of the largest float rounds to infinity, as the hardware's would.
-`bench.learner_cuda` measures how close this is to a GPU's own TF32 on the same updates.
+Rounding: to nearest, ties to even, on the magnitude's bit pattern (add just under half a
+unit of the 13 dropped bits plus the kept last bit, clear them). Measured on an H200 (torch
+2.11, cuBLAS): against its own TF32 products of random 64–1024-square matrices, this rule
+leaves 1e-7 to 4e-6 of the largest entry (summation order alone), where ties away from zero
+leaves 4e-5 to 7e-5, truncation 9e-4 and plain fp32 3e-4 (docs/results/learner_cuda.md).
+Infinities and NaNs pass unchanged; a finite value within half a TF32 unit of the largest
+float rounds to infinity, as the hardware's would.
 """
 
 from __future__ import annotations
@@ -45,8 +47,9 @@ def round_to_tf32(tensor: torch.Tensor) -> torch.Tensor:
         return tensor
     bits = tensor.contiguous().view(torch.int32)
     special = (bits & _EXPONENT_ALL_ONES) == _EXPONENT_ALL_ONES  # inf and NaN keep their bits
-    # the sign bit is untouched: adding to the magnitude's pattern rounds away from zero
-    rounded = (bits + _HALF_UNIT) & _KEEP_MASK
+    # the sign bit is untouched (sign and magnitude): a tie goes to the even neighbour
+    kept_last_bit = (bits >> TF32_DROPPED_BITS) & 1
+    rounded = (bits + (_HALF_UNIT - 1) + kept_last_bit) & _KEEP_MASK
     return torch.where(special, bits, rounded).view(torch.float32).view_as(tensor)
 
 

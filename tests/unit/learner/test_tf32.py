@@ -22,7 +22,7 @@ def _mantissa_low_bits(x: torch.Tensor) -> torch.Tensor:
     return x.view(torch.int32) & ((1 << 13) - 1)
 
 
-def test_rounding_keeps_ten_mantissa_bits_to_nearest_with_ties_away_from_zero() -> None:
+def test_rounding_keeps_ten_mantissa_bits_to_nearest_with_ties_to_even() -> None:
     x = torch.from_numpy(np.random.default_rng(0).normal(size=10_000).astype(np.float32))
     r = round_to_tf32(x)
     assert r.dtype == torch.float32 and r.shape == x.shape
@@ -31,10 +31,11 @@ def test_rounding_keeps_ten_mantissa_bits_to_nearest_with_ties_away_from_zero() 
     assert float(((r - x).abs() / x.abs()).max()) <= 2.0 ** -11
     one = 1.0
     unit = 2.0 ** -10  # TF32's spacing just above 1
-    values = torch.tensor([one + unit / 2, -(one + unit / 2), one + unit / 4, 3 * unit / 4 + one],
-                          dtype=torch.float32)
+    # ties: 1 + u/2 lies between 1 (even) and 1 + u (odd); 1 + 3u/2 between 1 + u and 1 + 2u
+    values = torch.tensor([one + unit / 2, -(one + unit / 2), one + 3 * unit / 2,
+                           one + unit / 4, 3 * unit / 4 + one], dtype=torch.float32)
     np.testing.assert_array_equal(round_to_tf32(values).numpy(),
-                                  np.array([one + unit, -(one + unit), one, one + unit],
+                                  np.array([one, -one, one + 2 * unit, one, one + unit],
                                            dtype=np.float32))
     exact = torch.tensor([0.0, -0.0, 1.0, 0.5, -1024.0, 1.0 + unit], dtype=torch.float32)
     np.testing.assert_array_equal(round_to_tf32(exact).numpy(), exact.numpy())
