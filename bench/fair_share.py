@@ -47,6 +47,7 @@ from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
 from hercs.seeding import generator
+from hercs.tasks import TaskSpec
 from hercs.transport import Transport
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
@@ -85,7 +86,7 @@ def say(text: str) -> None:
 class Episodes:
     """Serialised synthetic Reach episodes under any (actor_id, seq), from a pool of 64."""
 
-    def __init__(self, spec: Any) -> None:
+    def __init__(self, spec: TaskSpec) -> None:
         rng = generator(1, "bench", "fair-share")
         self._pool = [episode_to_msg(random_episode(spec, rng, seq=i), run=RUN, task=TASK)
                       for i in range(64)]
@@ -148,7 +149,7 @@ class Actor:
         return sum(i.counters.acked - i.counters.duplicates for i in self.inserters)
 
     def refused(self) -> int:
-        """Attempts answered with a retry (`actor_queue_full` here) or timed out."""
+        """Attempts the inserters had to repeat (here: answered `actor_queue_full`)."""
         return sum(i.counters.retries for i in self.inserters)
 
     def latencies_between(self, start: float, end: float) -> list[float]:
