@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from hercs.errors import ConfigError
 from hercs.reasons import Disposition, Reason
 from tests.unit.replay_service.test_replay_table import Harness, Recorder, make
 
@@ -210,8 +209,3 @@ def test_expired_inserts_leave_the_ring_and_the_rest_keep_their_turns() -> None:
     assert [line for line in h.journal if line.startswith("done insert")] == [
         "done insert a/1", "done insert c/0"]
     assert a1.results and c0.results
-
-
-def test_the_bound_is_validated() -> None:
-    with pytest.raises(ConfigError, match=r"replay\.waiting_inserts_per_actor: got -1"):
-        make("replay.waiting_inserts_per_actor=-1")
