@@ -188,6 +188,7 @@ class Learner:
                                            num_minibatches=MINIBATCHES, batch_size=32)
                 self.transport.request(key, request.SerializeToString(),
                                        timeout_s=SAMPLE_TIMEOUT_S)
+                # a slow answer is made up for by at most one request at once
                 due = max(due + self.period_s, time.monotonic() - self.period_s)
         except BaseException as exc:  # reported by `stop`
             if not self._stop.is_set():
