@@ -210,6 +210,10 @@ class ReplayConfig:
     insert_workers: int = 4
     """Threads serving inserts: inserts that arrive while one group is being fsynced form the
     next group (group commit), so several workers share fsyncs [DESIGN]."""
+    waiting_inserts_per_actor: int = 4
+    """Fair sharing while the rate limiter holds inserts: they are admitted round-robin across
+    actor ids, and at most this many of one actor wait (more are answered `actor_queue_full`,
+    a retry) [DESIGN]. 0: arrival order, no bound (docs/DESIGN.md §3)."""
     log_scene: bool = True
     """Also log each episode's Foxglove scene (/scene, /scene/points), off the ack path
     [DESIGN]; false keeps only the episodes, for the highest insert rates."""
@@ -230,6 +234,8 @@ class ReplayConfig:
         _positive("replay.sample_timeout_s", self.sample_timeout_s)
         _check(self.insert_workers >= 1, "replay.insert_workers", self.insert_workers,
                "be >= 1")
+        _check(self.waiting_inserts_per_actor >= 0, "replay.waiting_inserts_per_actor",
+               self.waiting_inserts_per_actor, "be >= 0 (0: arrival order, no bound)")
         _check(self.eviction in EVICTIONS, "replay.eviction", self.eviction,
                "be fifo or random")
 

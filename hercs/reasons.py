@@ -9,7 +9,8 @@ A client decides from the tag alone:
 - `SUPERSEDED`: well formed but no longer wanted (the lockstep schedule or the lag bound has
   moved on): drop it quietly and act with newer weights;
 - `RETRY`: the service could not answer now (shutting down, a log write failed, held past
-  the caller's timeout, a handler error): send the same bytes again after a backoff.
+  the caller's timeout, too many of the actor's inserts already waiting, a handler error):
+  send the same bytes again after a backoff.
 
 A reason outside this enum (a newer peer's) is retried with a warning; with
 `HERCS_STRICT_REASONS=1` (set for the test suite) it raises instead, so that a new reason
@@ -69,6 +70,9 @@ class Reason(StrEnum):
     """The handler raised; the error is logged where it happened."""
     TRANSPORT = "transport", Disposition.RETRY
     """Zenoh itself answered with an error (not a hercs reply); the detail is its text."""
+    ACTOR_QUEUE_FULL = "actor_queue_full", Disposition.RETRY
+    """Fair sharing: this actor id already has `replay.waiting_inserts_per_actor` inserts
+    waiting for the rate limiter (replay_service.waiting_inserts); its backoff slows it."""
 
 
 _BY_VALUE: dict[str, Reason] = {r.value: r for r in Reason}

@@ -34,6 +34,10 @@ from collections.abc import Iterable
 
 from hercs.reasons import Reason
 
+LOCKSTEP_CLUSTER_WAIT_S = 30.0
+"""How long a sample waits for a cluster model that is due before it is served with the model
+at hand (the clusterer may be restarting)."""
+
 
 class LockstepGate:
     def __init__(self, *, episodes_per_cycle: int, fgb_size: int | None,

@@ -9,14 +9,15 @@ with a `Waiter` that answers a query; unit tests drive it with plain waiters and
 Admission rules (every public method takes the table's lock, so calls from several threads
 are serialised):
 - `insert`: a retry of a stored (actor_id, seq) is answered at once as a duplicate; a retry of
-  a parked one joins that parked call (both are answered when it is stored); anything else is
-  parked. Then the queues are drained.
+  a parked one joins that parked call (both are answered when it is stored); one more insert
+  of an actor with `replay.waiting_inserts_per_actor` waiting is answered `actor_queue_full`
+  (a retry); anything else is parked. Then the queues are drained.
 - `sample`: a request the limiter could never admit (more minibatches than its window holds)
   is refused at once (`SampleRefused`); anything else is parked, then the queues are drained.
-- drain: alternating sides, each oldest first, while the limiter admits the oldest call of
-  that side. An admitted sample is served at once; an admitted insert joins the next commit
-  group (the limiter counts it from then on). This terminates: every step removes one parked
-  call.
+- drain: alternating sides while the limiter admits the next call of that side (samples oldest
+  first, inserts round-robin across actor ids: replay_service.waiting_inserts). An admitted
+  sample is served at once; an admitted insert joins the next commit group (the limiter
+  counts it from then on). This terminates: every step removes one parked call.
 - commit (group commit, the calling thread after it has released the table's lock): the
   admitted inserts (counted by the limiter against the insert bound at once, towards samples
   only once stored) are appended to the log as one group, one chunk and one fsync, *before*
@@ -65,7 +66,7 @@ from hercs.served import ReplayCounters, ServedBatch
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
 from replay_service.lag_bound import PolicyLagBound
-from replay_service.lockstep import LockstepGate
+from replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
 from replay_service.rate_limiter import SampleToInsertRatio
 from replay_service.table_calls import (
     ClustererSnapshot,
@@ -79,6 +80,7 @@ from replay_service.table_calls import (
     Waiter,
     take_expired,
 )
+from replay_service.waiting_inserts import WaitingInserts
 
 __all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "ReplayTable",
            "SampleCall", "SampleRefused", "Stored", "Waiter"]  # calls and answers: table_calls
@@ -91,9 +93,6 @@ POLICY_LAGS_KEPT = 65536
 """At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
 the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
-LOCKSTEP_CLUSTER_WAIT_S = 30.0
-"""Lockstep: how long a sample waits for a cluster model that is due before it is served with
-the model at hand (the clusterer may be restarting)."""
 
 class ReplayTable:
     def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
@@ -124,7 +123,7 @@ class ReplayTable:
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
         self._ready: list[ParkedInsert] = []
         """Admitted inserts, in admission order, waiting for the next group commit."""
-        self._inserts: deque[ParkedInsert] = deque()
+        self._inserts = WaitingInserts(per_actor=config.replay.waiting_inserts_per_actor)
         self._samples: deque[ParkedSample] = deque()
         self._parked_keys: dict[tuple[str, int], ParkedInsert] = {}
         # Policy lag of an episode = the learner's newest weights version when the episode
@@ -195,12 +194,14 @@ class ReplayTable:
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
-            if self.gate is not None:
+            refusal = self._inserts.refusal(episode.actor_id)
+            if refusal is None and self.gate is not None:
                 refusal = self.gate.refuse_insert(episode.policy_version)
-                if refusal is not None:
-                    self.core.count_reject(refusal[0])
-                    waiter.fail(*refusal)
-                    return
+            if refusal is not None:
+                self.core.count_reject(refusal[0])
+                waiter.fail(*refusal)
+                return
+            if self.gate is not None:
                 self.gate.admit(episode.policy_version)
             item = ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
                                  record=record)
@@ -275,13 +276,12 @@ class ReplayTable:
         if self.gate is not None:
             self.gate.store(episode.policy_version)
         next_version = self._next_version(episode)
-        stored = Stored(episode, episode_id, duplicate=False, energy=result.energy,
-                        cluster=result.cluster, next_policy_version=next_version)
-        for i, waiter in enumerate(item.waiters):
-            if i:  # the retries that joined the first call
-                self.core.duplicates += 1
-            waiter.done(stored if i == 0 else Stored(episode, episode_id, duplicate=True,
-                                                     next_policy_version=next_version))
+        item.waiters[0].done(Stored(episode, episode_id, duplicate=False, energy=result.energy,
+                                    cluster=result.cluster, next_policy_version=next_version))
+        for waiter in item.waiters[1:]:  # the retries that joined the first call
+            self.core.duplicates += 1
+            waiter.done(Stored(episode, episode_id, duplicate=True,
+                               next_policy_version=next_version))
 
     def _next_version(self, episode: EpisodeData) -> int:
         """For an ack: the oldest weights version the actor's next episode may use (0
@@ -365,7 +365,7 @@ class ReplayTable:
 
     # -- the rate limiter's queues ---------------------------------------------------------
     def _drain(self) -> None:
-        """Serve parked calls, oldest first per side, while the limiter admits them. In
+        """Serve parked calls while the limiter admits them (module docstring, "drain"). In
         lockstep every parked sample that its cycle admits is served, in any order: each
         names its own cycle, and one that can no longer be served (a dead learner's, for a
         cycle no actor got the weights of) must not hold a restarted learner's behind it."""
@@ -416,7 +416,7 @@ class ReplayTable:
         many calls were dropped. The order of the calls that stay is unchanged."""
         now = self.clock()
         with self._lock:
-            inserts, samples = take_expired(self._inserts, now), take_expired(self._samples, now)
+            inserts, samples = self._inserts.take_expired(now), take_expired(self._samples, now)
             for item in inserts:
                 del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
             expired: list[Parked[Any]] = [*inserts, *samples]

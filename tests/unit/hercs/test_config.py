@@ -68,6 +68,8 @@ def test_overrides_are_typed() -> None:
         ("transport.listen=[tcp/0.0.0.0:70000]", "must have a port in 0..65535"),
         ("transport.connect=[tcp:7447]", "must be a Zenoh endpoint PROTOCOL/HOST:PORT"),
         ("energy.clip_energy=-1", "energy.clip_energy: got -1.0, must be > 0"),
+        ("replay.waiting_inserts_per_actor=-1",
+         "replay.waiting_inserts_per_actor: got -1, must be >= 0 (0: arrival order, no bound)"),
         ("view.episode_every=-1", "view.episode_every: got -1, must be >= 0"),
         ("view.viewer=http://host:9876", "view.viewer: got 'http://host:9876', must be 'spawn'"),
         ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
@@ -77,7 +79,7 @@ def test_overrides_are_typed() -> None:
          "max-policy-lag-0", "prefetch-negative", "insert-queue-negative", "torquescale-0",
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
-         "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy",
+         "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy", "waiting-inserts",
          "view-every", "view-url", "view-save"],
 )
 def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:

@@ -11,7 +11,8 @@ EXPECTED = {
                        "wrong_task", "missing_field", "bad_array", "bad_dtype", "bad_shape",
                        "bad_length", "non_finite", "bad_value", "unknown_episode"},
     Disposition.SUPERSEDED: {"stale_policy", "cycle_full"},
-    Disposition.RETRY: {"expired", "log_failed", "unavailable", "internal", "transport"},
+    Disposition.RETRY: {"expired", "log_failed", "unavailable", "internal", "transport",
+                        "actor_queue_full"},
 }
 
 
