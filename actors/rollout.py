@@ -1,4 +1,4 @@
-"""One Fetch episode with a given policy, as arrays (the pure core of actor and evaluator)."""
+"""Fixed-length episodes with a given policy, as arrays (the pure core of actor and evaluator)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ ActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 class VectorRollout:
     """Runs fixed-length episodes in n envs side by side: one batched `act` call per step for
     all of them (the actor's `actor.envs_per_process`), so the policy's per-call overhead is
-    paid once per step instead of n times. Fetch episodes have no early termination, so the
-    n envs stay in step from reset to step T.
+    paid once per step instead of n times. Episodes have no early termination (the goal
+    interface, hercs.goal_env), so the n envs stay in step from reset to step T.
 
     Env i is seeded once, with `seeds[i]`, at its first reset; later resets continue its own
     generator, so each env's stream of initial states and goals is reproducible from its seed.
@@ -80,7 +80,7 @@ class VectorRollout:
         self.env_steps += T * len(self.envs)
         return [EpisodeData(obs=self._obs[i].copy(), ag=self._ag[i].copy(), g=self._g[i].copy(),
                             actions=self._actions[i].copy(),
-                            success=bool(infos[i].get("is_success", 0.0)))
+                            success=bool(infos[i].get(self.spec.success_key, 0.0)))
                 for i in range(len(self.envs))]
 
     def close(self) -> None:

@@ -61,9 +61,11 @@ def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
                        metavar="SECTION.FIELD=VALUE",
                        help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
     helps = {
-        "task": dict(choices=sorted(TASKS),
-                     help="task preset (Fetch*-v4; --set task.env_version=v1: the authors' "
-                          "Fetch*-v1)"),
+        "task": dict(metavar="TASK",
+                     help=f"task: a Fetch preset {sorted(TASKS)} (Fetch*-v4; --set "
+                          "task.env_version=v1: the authors' Fetch*-v1), a gymnasium id of a "
+                          "goal environment (PointMaze_UMaze-v3, HandReach-v3, …) or "
+                          "package.module:factory"),
         "method": dict(choices=list(METHODS), help="sampling method"),
         "seed": dict(type=int, help="root seed"),
         "epochs": dict(type=int, help="training epochs"),

@@ -96,7 +96,10 @@ class RunConfig:
 @dataclass
 class TaskConfig:
     name: str = "push"
-    """Task preset: reach, push, pick (PickAndPlace) or slide."""
+    """The task: a Fetch preset (reach, push, pick = PickAndPlace, slide), a gymnasium id of
+    a goal environment (PointMaze_UMaze-v3, HandReach-v3, …; hercs.tasks.BUILT_IN have
+    specs written and tested here, any other is read from the env), or package.module:factory
+    for a user's own environment (docs/DESIGN.md §10)."""
     env_version: str = "v4"
     """v4: gymnasium-robotics Fetch*-v4 on MuJoCo 3 [DESIGN]; v1: the authors' Fetch*-v1 on
     mujoco-py and MuJoCo 2.1 [HER-py] (installed by `make mujoco-py`). Same shapes, horizon
@@ -108,7 +111,8 @@ class TaskConfig:
     turn and topple, as on v1 (docs/results/env_diff.md) [DESIGN]."""
 
     def __post_init__(self) -> None:
-        _check(self.name in TASKS, "task.name", self.name, f"be one of {sorted(TASKS)}")
+        _check(bool(self.name.strip()), "task.name", self.name,
+               f"name a task: one of {sorted(TASKS)}, a gymnasium id or module:factory")
         _check(self.env_version in ENV_VERSIONS, "task.env_version", self.env_version,
                f"be one of {list(ENV_VERSIONS)} (v1 is the authors' Fetch*-v1 on mujoco-py)")
         _check(math.isfinite(self.weld_torquescale) and self.weld_torquescale > 0,
@@ -259,6 +263,9 @@ class HercsConfig:
 
     def __post_init__(self) -> None:
         spec = self.task.spec
+        _check(spec.energy != "none" or not self.run.spec.energy_prioritised, "run.method",
+               self.run.method, f"be her or her-cs on {spec.name}: it has no trajectory energy "
+               "for EBP (hercs.tasks.ENERGIES; the Fetch and hand tasks have one)")
         _check(self.replay.buffer_transitions >= spec.episode_steps, "replay.buffer_transitions",
                self.replay.buffer_transitions, f"hold at least one episode ({spec.episode_steps})")
         _check(not (self.training.schedule == "lockstep" and self.replay.free_run),

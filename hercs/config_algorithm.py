@@ -105,6 +105,10 @@ class EnergyConfig:
     """Weight of the potential energy [EBP]."""
     w_kinetic: float = 1.0
     """Weight of the kinetic energy [EBP]."""
+    w_rotational: float = 1.0
+    """Weight of the rotational energy (hand manipulation tasks only) [EBP]."""
+    inertia: float = 1.0
+    """Moment of inertia I in the rotational term ½·I·‖Δθ/Δt‖² (hand tasks only) [EBP]."""
     epsilon: float = 1e-6
     """Added to every trajectory energy so no episode has p = 0 [DESIGN]."""
     temperature: float = 0.99
@@ -115,11 +119,12 @@ class EnergyConfig:
     uniformly (`uniform`, HER-CS's draw with EBP only in the whole-buffer fills) [DESIGN]."""
 
     def __post_init__(self) -> None:
-        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon", "temperature"):
+        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon", "temperature",
+                     "inertia"):
             _positive(f"energy.{name}", getattr(self, name))
         _check(self.cluster_fill in ("energy", "uniform"), "energy.cluster_fill",
                self.cluster_fill, "be energy or uniform")
-        for name in ("w_potential", "w_kinetic"):
+        for name in ("w_potential", "w_kinetic", "w_rotational"):
             _check(getattr(self, name) >= 0, f"energy.{name}", getattr(self, name), "be >= 0")
 
     @property

@@ -1,4 +1,5 @@
-"""Environment factory: gymnasium-robotics Fetch tasks, seeded, without the env checker.
+"""Environment factory: gymnasium-robotics tasks (or a user's module:factory), seeded, without
+the env checker.
 
 `Fetch*-v4` runs on the mujoco bindings (MuJoCo 3). The authors' `Fetch*-v1` runs on mujoco-py,
 which needs MuJoCo 2.1's binaries and a Cython extension compiled against them: `make mujoco-py`
@@ -20,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from hercs.errors import ConfigError
-from hercs.tasks import TaskSpec
+from hercs.tasks import FACTORY, TaskSpec
 
 MUJOCO210 = Path(sys.prefix) / "mujoco210"
 """Where `make mujoco-py` puts MuJoCo 2.1 (inside the virtualenv)."""
@@ -132,36 +133,72 @@ def check_env(spec: TaskSpec) -> None:
                           f"(MuJoCo 2.1) and {problem}; {INSTALL_HINT}")
 
 
-def make_env(spec: TaskSpec, *, render_mode: str | None = None,
-             size: tuple[int, int] | None = None) -> gym.Env:
-    """A fresh Fetch env for `spec` (its `env_id`). Seed it through the first
-    `reset(seed=...)`. With `render_mode='rgb_array'`, `render()` returns frames of `size`
-    (width, height); rendering does not change the dynamics or the env's random stream.
-    A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
+def register_envs() -> None:
+    """Register gymnasium-robotics' environments in this process (once), quietly."""
     global _registered
     if not _registered:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             _drop_adroit_notice()
-            mujoco_py_problem()  # the Fetch envs import mujoco_py: here, quietly
+            mujoco_py_problem()  # gymnasium-robotics imports mujoco_py: here, quietly
             import gymnasium_robotics
 
             gym.register_envs(gymnasium_robotics)
         _registered = True
+
+
+def make_env(spec: TaskSpec, *, render_mode: str | None = None,
+             size: tuple[int, int] | None = None) -> gym.Env:
+    """A fresh env for `spec` (its `env_id`, or its module:factory). Seed it through the
+    first `reset(seed=...)`. With `render_mode='rgb_array'`, `render()` returns frames of
+    `size` (width, height); rendering does not change the dynamics or the env's random
+    stream. A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
+    register_envs()
     check_env(spec)
     # The passive env checker only re-validates spaces on every step; it costs throughput.
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = dict(spec.make_kwargs)
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if size is not None:
         kwargs["width"], kwargs["height"] = size
+    if FACTORY.fullmatch(spec.env_id):
+        return make_from_factory(spec.env_id, kwargs)
     with warnings.catch_warnings():
         # v1 was chosen knowingly: not "out of date, upgrade to v4" and "mujoco-py is no
         # longer maintained" on every process's stderr.
         warnings.filterwarnings("ignore", message=".*(is out of date|mujoco-py bindings)")
-        env = gym.make(spec.env_id, disable_env_checker=True, **kwargs)
+        try:
+            env = gym.make(spec.env_id, disable_env_checker=True, **kwargs)
+        except gym.error.Error as exc:
+            raise ConfigError(f"task.name: gymnasium cannot make {spec.env_id!r} here "
+                              f"({exc}); is the package that registers it installed and "
+                              "imported? A user's own environment can be named "
+                              "package.module:factory") from None
     if spec.weld_torquescale != 1.0:
         set_weld_torquescale(env, spec.weld_torquescale)
+    return env
+
+
+def make_from_factory(target: str, kwargs: dict[str, Any]) -> gym.Env:
+    """`package.module:factory` called with `kwargs` (render_mode, width, height where asked):
+    a user's own environment. Its package must be importable in every process that makes it
+    (the actors, the evaluator, and the replay and clusterer for its reward)."""
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(
+            f"task.name: cannot import {module_name!r} for {target!r} ({exc}); the package "
+            "that defines the environment must be importable in every process of the run "
+            "(install it in this environment, or add it to PYTHONPATH; on remote actor hosts "
+            "and in compose images too)") from None
+    factory = getattr(module, attr, None)
+    if not callable(factory):
+        raise ConfigError(f"task.name: {module_name} has no callable {attr!r} (from {target!r})")
+    env = factory(**kwargs)
+    if not isinstance(env, gym.Env):
+        raise ConfigError(f"task.name: {target}() returned {type(env).__name__}, not a "
+                          "gymnasium.Env")
     return env
 
 

@@ -83,7 +83,8 @@ class ReplayCore:
             energy = float(self.store.energy[slot]) if slot is not None else 0.0
             cluster = int(self.store.cluster[slot]) if slot is not None else -1
             return InsertResult(known, True, energy, cluster)
-        energy = float(trajectory_energy(episode.ag, self.config.energy))
+        energy = (float(trajectory_energy(episode.ag, self.config.energy, self.spec.energy))
+                  if self.spec.energy != "none" else 0.0)
         cluster = -1
         if self.cluster_model is not None:
             cluster = int(self.cluster_model.assign(episode.ag[-1:])[0])
