@@ -19,6 +19,7 @@ import numpy as np
 
 from hercs.clustering import ClusterModel, assign_clusters
 from hercs.codec import msg_to_array
+from hercs.runlog.scene import episode_positions, goal_point
 from hercs.tasks import TaskSpec
 from proto import hercs_pb2 as pb
 
@@ -80,19 +81,19 @@ class LoggedModel:
 
 def summarize_episode(msg: pb.Episode, *, episode_id: int, spec: TaskSpec,
                       cluster: int) -> EpisodeSummary:
-    """An Episode message as drawn: positions from obs (gripper 0:3, object 3:6 for the tasks
-    with an object), success by the task's rule (`TaskSpec.is_success`)."""
+    """An Episode message as drawn: the positions the episode log's scene shows
+    (`hercs.runlog.scene.episode_positions`: gripper and object for Fetch, the achieved
+    goal's first point beyond it), success by the task's rule (`TaskSpec.is_success`)."""
     obs = msg_to_array(msg.obs, where="Episode.obs")
     ag = msg_to_array(msg.ag, where="Episode.ag")
     g = msg_to_array(msg.g, where="Episode.g")
     distance = float(np.linalg.norm(ag[-1] - g[-1]))
+    positions = episode_positions(obs, ag, g, spec)
     return EpisodeSummary(
         episode_id=episode_id, success=bool(spec.is_success(ag[-1], g[-1])),
         final_distance=distance, cluster=cluster, desired_goal=np.asarray(g[-1]),
         actor_id=msg.actor_id, seq=int(msg.seq), policy_version=int(msg.policy_version),
-        gripper=np.asarray(obs[:, 0:3], np.float32),
-        obj=np.asarray(obs[:, 3:6], np.float32) if spec.has_object else None,
-        goal=np.concatenate([g, g[-1:]]).astype(np.float32))
+        gripper=positions.gripper, obj=positions.obj, goal=positions.goal)
 
 
 # --------------------------------------------------------------------------------------------
@@ -182,7 +183,7 @@ def log_centroids(rr, rec, logged: LoggedModel) -> None:
     rec.set_time("episode", sequence=logged.at_episode)
     k = model.k
     rec.log("world/centroids", rr.Points3D(
-        model.centroids, colors=cluster_colors(np.arange(k)),
+        goal_point(model.centroids), colors=cluster_colors(np.arange(k)),
         radii=np.full(k, CENTROID_RADIUS, np.float32),
         labels=[f"c{i}" for i in range(k)]))
     rec.log("log/cluster_models", rr.TextLog(
@@ -192,15 +193,15 @@ def log_centroids(rr, rec, logged: LoggedModel) -> None:
 
 def log_failed_goals(rr, rec, *, at_episode: int, goals: np.ndarray,
                      centroids: np.ndarray | None) -> None:
-    """`world/failed_goals` at `at_episode`: `goals` (N, 3) coloured by their nearest centroid
-    (grey without a model)."""
+    """`world/failed_goals` at `at_episode`: `goals` (N, goal_dim) coloured by their nearest
+    centroid (grey without a model), drawn at their first 3-d point (`goal_point`)."""
     if centroids is not None and len(goals):
         colors = cluster_colors(assign_clusters(goals, centroids), 200)
     else:
         colors = cluster_colors(np.full(len(goals), -1), 200)
     rec.set_time("episode", sequence=at_episode)
     rec.log("world/failed_goals", rr.Points3D(
-        goals, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
+        goal_point(goals) if len(goals) else np.zeros((0, 3), np.float32), colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
 
 
 def declare_curve(rr, rec, name: str) -> str:

@@ -18,7 +18,8 @@ Timelines
 
 Entity paths
     world                                 static: right-handed, z up (MuJoCo world, metres)
-    world/episodes/<id:06d>/gripper       LineStrips3D: gripper path obs[:t+1, 0:3]
+    world/episodes/<id:06d>/gripper       LineStrips3D: gripper path obs[:t+1, 0:3] (beyond
+                                          Fetch: the achieved goal's first point)
     world/episodes/<id:06d>/object        LineStrips3D: object path obs[:t+1, 3:6]
                                           (push, pick, slide; absent for reach)
     world/episodes/<id:06d>/goal          Points3D: desired goal g_t (1.2 cm); green if the
@@ -269,8 +270,9 @@ def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
     """Centroids at each refit; the accumulated failed goals at each refit and each selected
     episode (so that scrubbing the `episode` timeline shows them grow)."""
     failed_ids = np.array([e.episode_id for e in run.episodes if not e.success], np.int64)
+    dim = len(run.episodes[0].desired_goal) if run.episodes else 3
     failed_goals = np.array([e.desired_goal for e in run.episodes if not e.success],
-                            np.float32).reshape(-1, 3)
+                            np.float32).reshape(-1, dim)
     for model in run.models:
         log_centroids(rr, rec, model)
     model_starts = np.array([m.at_episode for m in run.models], np.int64)

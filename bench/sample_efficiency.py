@@ -56,7 +56,7 @@ from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
-from hercs.rundir import CONFIG, METRICS
+from hercs.rundir import BEST, CHECKPOINTS, CONFIG, METRICS
 from hercs.tasks import ENV_VERSIONS, TASKS, task_spec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -173,13 +173,28 @@ def finished_folder(cell: GridRun, run_root: Path, committed: Path | None) -> Pa
 
 
 def copy_small_files(run_dir: Path, committed: Path) -> Path:
-    """Copy a finished run's small files into `committed/<run>/` (for `git add`)."""
+    """Copy a finished run's small files into `committed/<run>/` (for `git add`), and its best
+    policy (`checkpoints/best.pt`: actor and normaliser, under 1 MB) where no committed run of
+    the same task, method and variants publishes one yet (`publishes_policy`), so that
+    `hercs eval docs/results/runs/<run>` works on a fresh clone."""
     target = committed / run_dir.name
     target.mkdir(parents=True, exist_ok=True)
     for name in SMALL_FILES:
         if (run_dir / name).is_file():
             shutil.copyfile(run_dir / name, target / name)
+    best = run_dir / CHECKPOINTS / BEST
+    if best.is_file() and not any(publishes_policy(other, run_dir.name)
+                                  for other in committed.iterdir() if other != target):
+        (target / CHECKPOINTS).mkdir(exist_ok=True)
+        shutil.copyfile(best, target / CHECKPOINTS / BEST)
     return target
+
+
+def publishes_policy(committed_run: Path, run_name: str) -> bool:
+    """Whether `committed_run` holds a best policy for the cell `run_name` names (the same
+    name up to the seed: `push-v1-her-cs-s2` and `push-v1-her-cs-s1` are one cell)."""
+    same_cell = committed_run.name.rpartition("-s")[0] == run_name.rpartition("-s")[0]
+    return same_cell and (committed_run / CHECKPOINTS / BEST).is_file()
 
 
 def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,

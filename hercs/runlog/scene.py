@@ -1,5 +1,9 @@
 """Foxglove scene messages for one logged episode: gripper, object and goal per step.
 
+Beyond Fetch (no gripper in the observation) the moving body is the achieved goal's first
+point and the goal the desired goal's (`goal_point`); a task whose goal has no position part
+(`TaskSpec.goal_points` 0) gets no scene.
+
 Pure functions from an `Episode`'s arrays to Foxglove protobuf messages, so that
 `episodes.mcap` shows the episode in 3D without our code:
 
@@ -89,14 +93,23 @@ def episode_positions(obs: np.ndarray, ag: np.ndarray, g: np.ndarray,
     """Gripper, object and goal at each of the T+1 observations; the goal of o_T is g[T-1]."""
     if len(g) == 0:
         raise ValueError("an episode with no steps has no goal to show")
-    goal = np.concatenate([g, g[-1:]], axis=0).astype(np.float32, copy=False)
-    obj = obs[:, 3:6] if spec.has_object else None
-    return EpisodePositions(
-        gripper=np.asarray(obs[:, 0:3], dtype=np.float32),
-        obj=None if obj is None else np.asarray(obj, dtype=np.float32),
-        goal=goal,
-        reached=spec.is_success(ag, goal),
-    )
+    full_goal = np.concatenate([g, g[-1:]], axis=0)
+    if spec.gripper_position:
+        gripper = np.asarray(obs[:, 0:3], dtype=np.float32)
+        obj = np.asarray(obs[:, 3:6], dtype=np.float32) if spec.has_object else None
+    else:  # beyond Fetch: the achieved goal's first point is the body that moves
+        gripper, obj = goal_point(ag), None
+    return EpisodePositions(gripper=gripper, obj=obj, goal=goal_point(full_goal),
+                            reached=np.asarray(spec.is_success(ag, full_goal), bool))
+
+
+def goal_point(goals: np.ndarray) -> np.ndarray:
+    """The first 3-d position of each goal vector, (N, 3) float32: a 2-d goal (PointMaze)
+    lies in the plane z = 0; a longer one starts with a position (hand tasks)."""
+    goals = np.asarray(goals, dtype=np.float32)
+    if goals.shape[-1] == 2:
+        return np.concatenate([goals, np.zeros((*goals.shape[:-1], 1), np.float32)], axis=-1)
+    return goals[..., :3]
 
 
 def _color(rgba: tuple[float, float, float, float]) -> Color:

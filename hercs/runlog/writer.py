@@ -137,7 +137,7 @@ class EpisodeLogWriter:
             with contextlib.suppress(OSError):
                 self._file.close()
             raise
-        if scene:
+        if scene and self._spec.goal_points > 0:
             self._scene_queue = queue.Queue(maxsize=SCENE_BACKLOG)
             self._scene_thread = threading.Thread(target=self._write_scenes, daemon=True,
                                                   name=f"scene-writer:{self.path.name}")
