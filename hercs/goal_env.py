@@ -111,16 +111,21 @@ def inspect_goal_env(name: str) -> TaskSpec:
         problems, found = _problems(env)
         if not problems:
             obs, _ = env.reset(seed=0)
-            ag, g = (np.asarray(obs[k], np.float64) for k in ("achieved_goal", "desired_goal"))
+            g = np.asarray(obs["desired_goal"], np.float64)
             action = np.zeros(found["action_dim"], np.float32)
             *_, info = env.step(action)
             if "is_success" not in info:
                 problems.append(f'info["is_success"] on every step (a step\'s info has '
                                 f"{sorted(info)})")
-            batch = _batched_reward(env, np.stack([ag, g]), np.stack([g, g]))
+            # the rewards of a goal reached exactly and of one missed far away: the range the
+            # learner clips its TD targets to (sparse rewards, the setting HER is for)
+            far = g + 1e3 * (1.0 + np.abs(g))
+            batch = _batched_reward(env, np.stack([g, far]), np.stack([g, g]))
             if batch is None:
                 problems.append("compute_reward that works on batches: (2, goal_dim) goals "
                                 "must give 2 rewards")
+            else:
+                found["success_reward"], found["failure_reward"] = (float(v) for v in batch)
     finally:
         env.close()
     if problems:

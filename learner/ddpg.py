@@ -6,6 +6,8 @@ normalised, s' = [o', g] (the goal does not change within a transition), γ disc
 One `update(batch)` is one of the reference's `_update_network` calls:
 
     y   = clip(r + γ · Q'(s', μ'(s')), −1/(1−γ), 0)                       (clip_return)
+
+(the clip's bounds are the task's: [r_min/(1−γ), r_max/(1−γ)], `return_bounds`)
     L_Q = mean (y − Q(s, u))²
     L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s) / max_action)²
     Adam step on L_μ (actor), then Adam step on L_Q (critic)
@@ -61,19 +63,28 @@ def critic_target(
     actor_target: Actor,
     critic_target: Critic,
     gamma: float,
-    clip_return: float | None,
+    clip_return: tuple[float, float] | None,
 ) -> torch.Tensor:
-    """y = r + γ · Q'(s', μ'(s')), clipped to [−clip_return, 0] unless clip_return is None.
+    """y = r + γ · Q'(s', μ'(s')), clipped to the bounds `clip_return` = (low, high) unless
+    it is None.
 
     r: (B, 1); s2: (B, obs_dim + goal_dim) normalised next inputs. No gradient flows through
-    y. There is no terminal mask: Fetch episodes end by time limit only, as in the reference.
-    Rewards are ≤ 0, so 0 and −1/(1−γ) bound every true return.
+    y. There is no terminal mask: episodes end by time limit only, as in the reference.
+    With sparse rewards in [r_min, r_max], r_min/(1−γ) and r_max/(1−γ) bound every true
+    return (`return_bounds`; Fetch: −1/(1−γ) and 0).
     """
     with torch.no_grad():
         y = r + gamma * critic_target(s2, actor_target(s2))
         if clip_return is not None:
-            y = torch.clamp(y, -clip_return, 0.0)
+            y = torch.clamp(y, *clip_return)
     return y
+
+
+def return_bounds(spec: TaskSpec, gamma: float) -> tuple[float, float]:
+    """The range of a discounted return when every reward is the task's success or failure
+    reward: the reference's [−1/(1−γ), 0] for Fetch's −1/0, [0, 1/(1−γ)] for PointMaze's 0/1."""
+    low, high = sorted((spec.failure_reward, spec.success_reward))
+    return low / (1.0 - gamma), high / (1.0 - gamma)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -168,7 +179,7 @@ class DDPGLearner:
             r_t, s2,
             actor_target=self.actor_target, critic_target=self.critic_target,
             gamma=cfg.gamma,
-            clip_return=cfg.clip_return_value if cfg.clip_return else None,
+            clip_return=return_bounds(self.spec, cfg.gamma) if cfg.clip_return else None,
         )
 
         # Critic loss: L_Q = mean (y − Q(s, u))².

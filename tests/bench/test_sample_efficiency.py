@@ -190,3 +190,21 @@ def test_a_v4_grid_with_a_stiffer_gripper_weld_is_named_and_launched_apart() -> 
     plain = se.up_command(se.GridRun("push", "her", 1), epochs=3, run_root=Path("/r"), port=1,
                           actors=1, overrides=[])
     assert not any("weld_torquescale" in a for a in plain)
+
+
+def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Path) -> None:
+    runs, committed = tmp_path / "runs", tmp_path / "committed"
+    committed.mkdir()
+    for name in ("push-her-cs-s1", "push-her-cs-s2", "push-her-s1"):
+        (runs / name / "checkpoints").mkdir(parents=True)
+        (runs / name / "metrics.csv").write_text("epoch\n1\n")
+        (runs / name / "checkpoints" / "best.pt").write_bytes(name.encode())
+    for name in ("push-her-cs-s1", "push-her-cs-s2", "push-her-s1"):
+        se.copy_small_files(runs / name, committed)
+    published = sorted(p.parent.parent.name for p in committed.glob("*/checkpoints/best.pt"))
+    assert published == ["push-her-cs-s1", "push-her-s1"]  # one per cell, the first
+    assert (committed / "push-her-cs-s2" / "metrics.csv").is_file()
+    # copying the publishing run again keeps its own policy
+    se.copy_small_files(runs / "push-her-cs-s1", committed)
+    assert (committed / "push-her-cs-s1" / "checkpoints" / "best.pt").read_bytes() == \
+        b"push-her-cs-s1"

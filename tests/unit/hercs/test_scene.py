@@ -99,3 +99,28 @@ def test_times_must_match_the_observations() -> None:
         scene.scene_updates(p, list(range(50)), goal_diameter=0.1, labels=LABELS)
     with pytest.raises(ValueError, match="50 times for 51 observations"):
         scene.point_clouds(p, list(range(50)))
+
+
+@pytest.mark.parametrize("task", ["PointMaze_UMaze-v3", "HandReach-v3", "HandManipulateBlock-v1"])
+def test_beyond_fetch_the_body_is_the_achieved_goals_first_point(task: str) -> None:
+    """No gripper in the observation: the scene draws the achieved goal's first 3-d point
+    (a 2-d goal in the plane z = 0) and the desired goal's, and judges by the task's rule."""
+    spec = task_spec(task)
+    T, rng = spec.episode_steps, np.random.default_rng(4)
+    obs = rng.normal(size=(T + 1, spec.obs_dim)).astype(np.float32)
+    g = np.repeat(rng.normal(size=(1, spec.goal_dim)), T, axis=0).astype(np.float32)
+    ag = g[0] + rng.uniform(2.0, 3.0, size=(T + 1, spec.goal_dim)).astype(np.float32)
+    if spec.goal_dim == 7:  # unit quaternions
+        g[:, 3:] /= np.linalg.norm(g[0, 3:])
+        ag[:, 3:] /= np.linalg.norm(ag[:, 3:], axis=1, keepdims=True)
+    ag[3] = g[0]  # reached at step 3 only
+    p = scene.episode_positions(obs, ag, g, spec)
+    assert p.obj is None
+    assert p.gripper.shape == p.goal.shape == (T + 1, 3)
+    if spec.goal_dim == 2:
+        np.testing.assert_array_equal(p.gripper[:, :2], ag)
+        assert not p.gripper[:, 2].any() and not p.goal[:, 2].any()
+    else:
+        np.testing.assert_array_equal(p.gripper, ag[:, :3])
+    np.testing.assert_array_equal(p.goal[:T], g[:, :3] if spec.goal_dim > 2 else p.goal[:T])
+    assert p.reached.tolist() == [t == 3 for t in range(T + 1)]
