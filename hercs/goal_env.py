@@ -130,8 +130,7 @@ def inspect_goal_env(name: str) -> TaskSpec:
         env.close()
     if problems:
         raise ConfigError(f"task.name: {name} is not a goal environment hercs can train on; "
-                          "it lacks " + "; ".join(problems) + " (docs/DESIGN.md §10, 'Any "
-                          "goal environment')")
+                          "it lacks " + "; ".join(problems) + " (docs/DESIGN.md §4.9)")
     return TaskSpec(name=name, env_name=name, family="custom", reward_rule="env",
                     energy="none", has_object=False, gripper_position=False,
                     distance_threshold=float(getattr(env.unwrapped, "distance_threshold", 0.0)),
