@@ -162,7 +162,10 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
     if size is not None:
         kwargs["width"], kwargs["height"] = size
     if FACTORY.fullmatch(spec.env_id):
-        return make_from_factory(spec.env_id, kwargs)
+        steps = kwargs.pop("max_episode_steps", None)
+        env = make_from_factory(spec.env_id, kwargs)
+        # a factory takes its own arguments: the horizon is a TimeLimit around what it made
+        return env if steps is None else gym.wrappers.TimeLimit(env, max_episode_steps=steps)
     with warnings.catch_warnings():
         # v1 was chosen knowingly: not "out of date, upgrade to v4" and "mujoco-py is no
         # longer maintained" on every process's stderr.

@@ -196,10 +196,20 @@ FACTORY = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 """module:factory — an environment a user's own package makes."""
 
 
-def task_spec(name: str, env_version: str = "v4", weld_torquescale: float = 1.0) -> TaskSpec:
-    """The spec of `task.name`; a name with no spec here is read from its environment (made
-    once per process: `hercs.goal_env.inspect_goal_env`), which raises ConfigError saying what
-    is missing where it is not a goal environment."""
+def task_spec(name: str, env_version: str = "v4", weld_torquescale: float = 1.0,
+              episode_steps: int = 0) -> TaskSpec:
+    """The spec of `task.name` (with `episode_steps` > 0: made with that horizon); a name with
+    no spec here is read from its environment (made once per process:
+    `hercs.goal_env.inspect_goal_env`), which raises ConfigError saying what is missing where
+    it is not a goal environment."""
+    spec = _task_spec(name, env_version, weld_torquescale)
+    if episode_steps <= 0 or episode_steps == spec.episode_steps:
+        return spec
+    return dataclasses.replace(spec, episode_steps=episode_steps, make_kwargs=(
+        *spec.make_kwargs, ("max_episode_steps", episode_steps)))
+
+
+def _task_spec(name: str, env_version: str, weld_torquescale: float) -> TaskSpec:
     if env_version not in ENV_VERSIONS:
         raise ConfigError(f"task.env_version: got {env_version!r}, must be one of "
                           f"{list(ENV_VERSIONS)}")

@@ -109,3 +109,20 @@ def test_ebp_is_refused_on_a_task_without_an_energy() -> None:
     assert ok.task.spec.goal_dim == 2
     hand = apply_overrides(HercsConfig(), ["task.name=HandReach-v3", "run.method=her-ebp-cs"])
     assert hand.task.spec.energy == "points"
+
+
+def test_task_episode_steps_sets_the_horizon_of_any_task() -> None:
+    config = apply_overrides(HercsConfig(), ["task.name=PointMaze_UMaze-v3",
+                                             "task.episode_steps=100"])
+    spec = config.task.spec
+    assert spec.episode_steps == 100 and config.capacity_episodes == 10_000
+    env = make_env(spec)
+    assert env.spec is not None and env.spec.max_episode_steps == 100
+    env.close()
+    factory = task_spec("tests.goal_envs:point_on_a_plane", episode_steps=7)
+    env = make_env(factory)
+    env.reset(seed=0)
+    truncated = [env.step(np.zeros(2, np.float32))[3] for _ in range(7)]
+    assert truncated == [False] * 6 + [True]
+    with pytest.raises(ConfigError, match=r"task\.episode_steps.*be >= 0"):
+        apply_overrides(HercsConfig(), ["task.episode_steps=-1"])
