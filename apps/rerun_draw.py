@@ -200,8 +200,9 @@ def log_failed_goals(rr, rec, *, at_episode: int, goals: np.ndarray,
     else:
         colors = cluster_colors(np.full(len(goals), -1), 200)
     rec.set_time("episode", sequence=at_episode)
+    points = goal_point(goals) if len(goals) else np.zeros((0, 3), np.float32)
     rec.log("world/failed_goals", rr.Points3D(
-        goal_point(goals) if len(goals) else np.zeros((0, 3), np.float32), colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
+        points, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
 
 
 def declare_curve(rr, rec, name: str) -> str:

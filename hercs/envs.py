@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from hercs.errors import ConfigError
-from hercs.tasks import FACTORY, TaskSpec
+from hercs.task_spec import FACTORY, TaskSpec
 
 MUJOCO210 = Path(sys.prefix) / "mujoco210"
 """Where `make mujoco-py` puts MuJoCo 2.1 (inside the virtualenv)."""

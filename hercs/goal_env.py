@@ -34,7 +34,7 @@ import numpy as np
 
 from hercs.envs import make_env, register_envs
 from hercs.errors import ConfigError
-from hercs.tasks import EnvRule, TaskSpec, set_env_rule_maker
+from hercs.task_spec import EnvRule, TaskSpec, set_env_rule_maker
 
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
 
@@ -142,7 +142,8 @@ def _batched_reward(env: gym.Env, ag: np.ndarray, g: np.ndarray) -> np.ndarray |
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            r = np.asarray(env.unwrapped.compute_reward(ag, g, {}), np.float64)
+            r = np.asarray(env.unwrapped.compute_reward(ag, g, {}),  # type: ignore[attr-defined]
+                           np.float64)
     except Exception:  # a reward written for one pair raises anything on a batch
         return None
     return r if r.shape == (len(ag),) and np.all(np.isfinite(r)) else None

@@ -46,8 +46,8 @@ def test_built_in_spec_matches_the_env_and_its_reward(env_id: str) -> None:
         ag, g = _pairs(spec, obs, 2048, rng, scale)
         # pair by pair: the hand env's batched rule overwrites one row when it drops the pen's
         # z rotation (gymnasium-robotics 1.4.2)
-        expected = np.array([env.unwrapped.compute_reward(a, b, {}) for a, b in zip(ag, g)],
-                            np.float32)
+        expected = np.array([env.unwrapped.compute_reward(a, b, {})
+                             for a, b in zip(ag, g, strict=True)], np.float32)
         got = spec.compute_reward(ag, g)
         assert got.shape == (2048,) and got.dtype == np.float32
         np.testing.assert_array_equal(got, expected)
@@ -57,7 +57,7 @@ def test_built_in_spec_matches_the_env_and_its_reward(env_id: str) -> None:
             np.testing.assert_array_equal(hits, np.linalg.norm(ag - g, axis=1) <= 0.45)
         else:
             np.testing.assert_array_equal(hits, [bool(env.unwrapped._is_success(a, b))
-                                                 for a, b in zip(ag, g)])
+                                                 for a, b in zip(ag, g, strict=True)])
         # the step's own info agrees with the spec's rule
         obs, _, _, _, info = env.step(np.zeros(spec.action_dim, np.float32))
         assert bool(info[spec.success_key]) == bool(

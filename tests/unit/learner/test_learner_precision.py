@@ -54,7 +54,8 @@ def test_bf16_follows_the_fp32_trajectory_with_fp32_master_weights_and_losses() 
 
 
 def test_an_unknown_precision_is_refused_with_the_key_named() -> None:
-    with pytest.raises(ConfigError, match=r"learner\.precision: got 'fp16', must be one of fp32, bf16, tf32"):
+    with pytest.raises(ConfigError,
+                       match=r"learner\.precision: got 'fp16', must be one of fp32, bf16, tf32"):
         apply_overrides(HercsConfig(), ["learner.precision=fp16"])
     with pytest.raises(ConfigError, match=r"learner\.precision: got .int8."):
         DDPGLearner(spec=SPEC, config=SMALL, seed=0, precision="int8")
