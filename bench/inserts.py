@@ -81,6 +81,12 @@ class _SceneOnAckPath:
     def append_eval_result(self, msg: pb.EvalResult) -> None:
         self.log.append_eval_result(msg)
 
+    def rotation_due(self) -> bool:
+        return self.log.rotation_due()
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        self.log.start_segment(state)
+
 
 def measure(name: str, *, window_s: float, pool: list, workdir: Path) -> float:
     threads, scene, scene_on_path = VARIANTS[name]
