@@ -12,9 +12,11 @@ live segment. Until that works
 every append raises `EpisodeLogError` at once, saying since when and why: the replay refuses
 the insert (`log_failed`) and the actor retries it later. Nothing is acked that is not on disk.
 
-A bounded log (`segment_episodes` > 0, `replay.log_max_bytes` >= 0): once the live segment
-holds `segment_episodes` episodes, `rotation_due` says so and the replay calls `start_segment`
-with its state: the live file is numbered and a new one starts with that state. The old
+A bounded log (`segment_episodes` > 0, `replay.log_max_bytes` >= 0): once `segment_episodes`
+episodes have been logged since the newest replay state (in this life of the replay or an
+earlier one: restarts do not put it off), `rotation_due` says so and the replay calls
+`start_segment` with its state: the live file is numbered and a new one starts with that
+state. The old
 writer's closing (its pending scenes, summary and footer) and the pruning of old segments
 (`hercs.runlog.pruning`, while the log is above `max_bytes`) run on a background thread, so
 neither waits on an ack; `flush_upkeep` waits for them (tests). A crash at any point leaves
@@ -68,8 +70,10 @@ class RecoveringLogWriter:
         self._closed = False
         self.recoveries = 0
         """New segments started after a failure."""
-        self._live_episodes = 0
-        """Episodes appended to the live segment."""
+        self._state_from = 0
+        """The next_episode_id of the log's newest replay state (0: none)."""
+        self._appended_to = 0
+        """One past the last episode id appended in this life (0: none yet)."""
         self._upkeep_lock = threading.Lock()  # taken after _lock, never before it
         self._retiring: list[EpisodeLogWriter] = []
         """Writers of segments numbered by `start_segment`, not closed yet."""
@@ -93,7 +97,10 @@ class RecoveringLogWriter:
                                             scene=scene)
         except OSError as exc:
             self._fail(exc)
-        return self, EpisodeLog.recovered(sealed)
+        recovered = EpisodeLog.recovered(sealed)
+        if recovered.replay_state is not None:
+            self._state_from = int(recovered.replay_state.next_episode_id)
+        return self, recovered
 
     @property
     def failed(self) -> bool:
@@ -106,7 +113,8 @@ class RecoveringLogWriter:
 
     def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
         """Group commit: the episodes as one chunk with one fsync (`EpisodeLogWriter`)."""
-        self._append(lambda writer: writer.append_many(episodes), episodes=len(episodes))
+        self._append(lambda writer: writer.append_many(episodes),
+                     next_id=episodes[-1][0] + 1 if episodes else None)
 
     def append_cluster_model(self, msg: pb.ClusterModel) -> None:
         self._append(lambda writer: writer.append_cluster_model(msg))
@@ -115,9 +123,10 @@ class RecoveringLogWriter:
         self._append(lambda writer: writer.append_eval_result(msg))
 
     def rotation_due(self) -> bool:
-        """The live segment holds its `segment_episodes`: time for `start_segment`."""
+        """`segment_episodes` episodes logged since the newest state: time for
+        `start_segment`."""
         with self._lock:
-            return (0 < self.segment_episodes <= self._live_episodes
+            return (0 < self.segment_episodes <= self._appended_to - self._state_from
                     and self._writer is not None and self._failed_since is None)
 
     def start_segment(self, state: pb.ReplayState) -> None:
@@ -144,8 +153,9 @@ class RecoveringLogWriter:
                 writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
                                           task=self.task, start_time_ns=old.start_time_ns,
                                           scene=self.scene)
-                self._writer, self._live_episodes = writer, 0
+                self._writer = writer
                 writer.append_replay_state(state)
+                self._state_from = int(state.next_episode_id)
             except OSError as exc:  # appends fail and retry until a segment can be started
                 self._fail(exc)
                 raise EpisodeLogError(f"{self.run_dir}: cannot start a new log segment "
@@ -178,7 +188,8 @@ class RecoveringLogWriter:
         self.close()
 
     # -- internals ---------------------------------------------------------------------------
-    def _append(self, append: Callable[[EpisodeLogWriter], None], *, episodes: int = 0) -> None:
+    def _append(self, append: Callable[[EpisodeLogWriter], None], *,
+                next_id: int | None = None) -> None:
         with self._lock:
             writer = self._usable_writer()
             try:
@@ -187,7 +198,8 @@ class RecoveringLogWriter:
                 if writer.failed:  # torn: the next append after retry_s starts a new segment
                     self._fail(exc)
                 raise
-            self._live_episodes += episodes
+            if next_id is not None:
+                self._appended_to = next_id
 
     def _start_upkeep(self) -> None:
         """Close the numbered segments' writers, then prune the log, on a new thread that
@@ -253,7 +265,6 @@ class RecoveringLogWriter:
         log.warning("%s: episode log writable again after %.1f s; continuing in a new segment",
                     self.run_dir, down)
         self._writer, self._failed_since, self._error = writer, None, ""
-        self._live_episodes = 0
         self.recoveries += 1
         return writer
 

@@ -221,3 +221,32 @@ def test_resume_is_exact_with_random_eviction_and_in_lockstep(tmp_path: Path,
         log_a.close()
         log_b.close()
     shutil.rmtree(tmp_path)
+
+
+def test_restarts_do_not_put_off_the_next_state(tmp_path: Path) -> None:
+    """A replay restarted every 3 episodes (fewer than a segment's 5) still saves a state
+    once 5 episodes have been logged since the last one, so its log is pruned all the same,
+    and each restart resumes the buffer the log kept whole would give."""
+    bounded, kept = config(0), config(UNBOUNDED)
+    data = episodes(bounded, 60)
+    for start in range(0, 60, 3):
+        for cfg, name in ((bounded, "bounded"), (kept, "kept")):
+            table, log = open_table(cfg, tmp_path / name)
+            try:
+                for i in range(start, start + 3):
+                    answer = Answer()
+                    table.insert(data[i], record=episode_to_msg(data[i], run=RUN, task=TASK),
+                                 waiter=answer)
+                    assert isinstance(answer.result, Stored) and answer.result.episode_id == i
+            finally:
+                log.close()
+    saved = latest_replay_state(segment_paths(tmp_path / "bounded"))
+    assert saved is not None and saved.next_episode_id >= 60 - 5
+    assert next(read_episodes(tmp_path / "bounded"))[0] >= 60 - CAPACITY - 2 * 5
+    a, log_a = open_table(bounded, tmp_path / "bounded")
+    b, log_b = open_table(kept, tmp_path / "kept")
+    try:
+        assert_same_buffer(a.core, b.core)
+    finally:
+        log_a.close()
+        log_b.close()
