@@ -152,7 +152,7 @@ class ReplayCore:
         if self.store.num_inserted:
             raise ConfigError("ReplayCore.restore: this core has stored episodes already")
 
-        def with_energy():
+        def with_energy() -> Iterator[tuple[int, EpisodeData, float]]:
             for episode_id, episode in held:
                 self._remember((episode.actor_id, int(episode.seq)), episode_id)
                 yield episode_id, episode, float(trajectory_energy(episode.ag,

@@ -43,7 +43,8 @@ class EpisodeLogSink(Protocol):
     def append_eval_result(self, msg: pb.EvalResult) -> None: ...
 
     def rotation_due(self) -> bool:
-        """A bounded log's live segment is full: the table should `start_segment`."""
+        """A bounded log has logged a segment's episodes since its newest replay state: the
+        table should `start_segment`."""
         ...
 
     def start_segment(self, state: pb.ReplayState) -> None:
