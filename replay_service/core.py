@@ -151,6 +151,13 @@ class ReplayCore:
         lacks an episode the store held."""
         if self.store.num_inserted:
             raise ConfigError("ReplayCore.restore: this core has stored episodes already")
+        kept = state.next_episode_id - state.first_held_id
+        if kept < min(state.next_episode_id, self.store.capacity_episodes):
+            raise EpisodeLogError(
+                f"the episode log's newest replay state keeps the {kept} episodes from id "
+                f"{state.first_held_id} on, fewer than this replay's buffer of "
+                f"{self.store.capacity_episodes} holds: it was written with a smaller "
+                "replay.buffer_transitions; resume with the run's own, or start a new run")
 
         def with_energy() -> Iterator[tuple[int, EpisodeData, float]]:
             for episode_id, episode in held:

@@ -27,6 +27,7 @@ from hercs.codec import (
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
 from hercs.runlog import (
+    EpisodeLogError,
     RecoveringLogWriter,
     latest_replay_state,
     read_cluster_models,
@@ -250,3 +251,11 @@ def test_restarts_do_not_put_off_the_next_state(tmp_path: Path) -> None:
     finally:
         log_a.close()
         log_b.close()
+
+
+def test_a_bigger_buffer_than_the_log_kept_is_refused_with_the_reason(tmp_path: Path) -> None:
+    cfg = config(0)
+    run(cfg, tmp_path / "log", episodes(cfg, 40))
+    bigger = config(0, f"replay.buffer_transitions={2 * CAPACITY * 50}")
+    with pytest.raises(EpisodeLogError, match=r"written with a smaller replay\.buffer_trans"):
+        open_table(bigger, tmp_path / "log")
