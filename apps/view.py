@@ -55,6 +55,12 @@ share that colour.
 An episode failed if ‖ag_T − g_T‖ > the task's threshold (0.05 m); ag is the object (the
 gripper for reach). Its cluster is the nearest centroid of the latest cluster model logged
 before it (models are logged in order, interleaved with the episodes).
+
+A bounded log (`replay.log_max_bytes`, the default) has lost its oldest segments once a run
+is past 1.25 buffers: the view shows the episodes, models and results it still holds, from
+its first kept episode id on (`--episodes all` is all of those; ids before are not there),
+the first ones coloured by the model the kept segment's replay state holds. The curves come
+from metrics.csv, which keeps every epoch.
 """
 
 from __future__ import annotations
@@ -93,6 +99,7 @@ from hercs.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
+    TOPIC_REPLAY_STATE,
     EpisodeLogError,
     read_eval_results,
     read_messages,
@@ -214,12 +221,19 @@ def resolve_log_path(path: str | os.PathLike[str]) -> Path:
 
 def read_run_log(path: Path) -> RunLog:
     """One pass over the log: per episode its positions, success and cluster (under the latest
-    cluster model logged before it)."""
+    cluster model logged before it; in a log whose older segments were deleted, the first
+    ones kept are coloured by the model their segment's replay state holds)."""
     run = RunLog()
     centroids: np.ndarray | None = None
     next_id = 0
     spec = None
-    for message in read_messages(path, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
+    for message in read_messages(path, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL,
+                                        TOPIC_REPLAY_STATE]):
+        if message.topic == TOPIC_REPLAY_STATE:  # a bounded log: the model current here
+            state = message.decode_as(pb.ReplayState)
+            if centroids is None and state.HasField("cluster_model"):
+                centroids = msg_to_cluster_model(state.cluster_model).centroids
+            continue
         if message.topic == TOPIC_CLUSTER_MODEL:
             model = msg_to_cluster_model(message.decode_as(pb.ClusterModel))
             centroids = model.centroids

@@ -12,7 +12,11 @@ for the same wall-clock window, in alternating rounds:
   is written too (what the replay did before group commit);
 - serial: 1 thread, scenes written by the log's background thread;
 - group commit: `replay.insert_workers` (4) threads, scenes in the background;
-- group commit, no scene: the same with `replay.log_scene=false`.
+- group commit, no scene: the same with `replay.log_scene=false`;
+- group commit, bounded log: the replay's default log (`replay.log_max_bytes=0`) split every
+  `BOUNDED_SEGMENT` episodes instead of every 5,000, so that the new segments the committing
+  thread starts (a rename, a file, two fsyncs, the replay state) and the closing and pruning
+  on the log's thread fall inside the window many times.
 
 Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
 synthetic actor processes is bench/throughput's insert phase. Writes OUT.json and OUT.md.
@@ -42,13 +46,17 @@ from replay_service.table import ReplayTable, Stored
 
 REPO = Path(__file__).resolve().parents[1]
 
+BOUNDED_SEGMENT = 100
+"""Episodes per segment of the bounded-log variant (the default's 5,000 would start none)."""
 VARIANTS = {
-    "serial, scene on the ack path": (1, True, True),
-    "serial": (1, True, False),
-    "group commit": (4, True, False),
-    "group commit, no scene": (4, False, False),
+    "serial, scene on the ack path": (1, True, True, 0),
+    "serial": (1, True, False, 0),
+    "group commit": (4, True, False, 0),
+    "group commit, no scene": (4, False, False, 0),
+    "group commit, bounded log": (4, True, False, BOUNDED_SEGMENT),
 }
-"""name → (threads, log the scene, wait for the scene before the ack)."""
+"""name → (threads, log the scene, wait for the scene before the ack, episodes per segment:
+0 for one growing segment)."""
 
 
 class _Acked:
@@ -81,15 +89,23 @@ class _SceneOnAckPath:
     def append_eval_result(self, msg: pb.EvalResult) -> None:
         self.log.append_eval_result(msg)
 
+    def rotation_due(self) -> bool:
+        return self.log.rotation_due()
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        self.log.start_segment(state)
+
 
 def measure(name: str, *, window_s: float, pool: list, workdir: Path) -> float:
-    threads, scene, scene_on_path = VARIANTS[name]
+    threads, scene, scene_on_path, segment_episodes = VARIANTS[name]
     # synthetic episodes carry no weights version: no lag bound (the insert path is measured)
     config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=bench",
                                              "replay.free_run=true",
                                              "training.max_policy_lag=-1"])
     run_dir = Path(tempfile.mkdtemp(dir=workdir))
-    log, _ = RecoveringLogWriter.open(run_dir, run="bench", task="push", scene=scene)
+    log, _ = RecoveringLogWriter.open(run_dir, run="bench", task="push", scene=scene,
+                                      segment_episodes=segment_episodes,
+                                      max_bytes=0 if segment_episodes else -1)
     sink = _SceneOnAckPath(log) if scene_on_path else log
     table = ReplayTable(config=config, core=ReplayCore(config=config,
                                                        rng=np.random.default_rng(0)),

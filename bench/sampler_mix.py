@@ -12,6 +12,9 @@ such episodes in the buffer, and the spread of each draw (effective number of di
 episodes, relative to a uniform draw of the same size: 1.0 for HER, lower when a few
 episodes are drawn again and again). It answers "does cluster balancing change what the
 learner sees, and how", on the data of a real run, without training anything.
+
+It needs the whole log: a run longer than 1.25 buffers (epoch 125 of the FetchPush
+default) keeps one only with `replay.log_max_bytes=-1`, or a bound above its log's size.
 """
 
 from __future__ import annotations
@@ -76,6 +79,12 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
         if message.topic == TOPIC_CLUSTER_MODEL:
             core.set_cluster_model(msg_to_cluster_model(message.decode_as(pb.ClusterModel)))
             continue
+        if message.sequence != core.store.num_inserted:
+            raise ValueError(
+                f"{run_dir}: the log holds episode {message.sequence} where episode "
+                f"{core.store.num_inserted} belongs: its older segments were deleted "
+                "(replay.log_max_bytes), and this replays a whole log; keep one with "
+                "replay.log_max_bytes=-1")
         core.insert(msg_to_episode(message.decode_as(pb.Episode)))
         if core.store.num_inserted < next_mark:
             continue
@@ -124,8 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"sampler_mix: {args.run_dir} has no config.yaml (not a run directory)",
               file=sys.stderr)
         return 2
-    rows = analyse(args.run_dir, every_epochs=args.every_epochs, minibatches=args.minibatches,
-                   moved_m=args.moved)
+    try:
+        rows = analyse(args.run_dir, every_epochs=args.every_epochs,
+                       minibatches=args.minibatches, moved_m=args.moved)
+    except ValueError as exc:
+        print(f"sampler_mix: {exc}", file=sys.stderr)
+        return 2
     print(markdown(args.run_dir, rows, moved_m=args.moved), end="")
     return 0
 

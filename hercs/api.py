@@ -218,7 +218,9 @@ def read_episodes(run_dir: str | os.PathLike[str], *, ids: Iterable[int] | None 
 
     `ids`: only these episode ids; `last`: only the last N (of those selected by `ids`, if
     given). Only the selected episodes are decoded. Works while the run writes its log and on
-    a log whose writer was killed (up to its last complete record)."""
+    a log whose writer was killed (up to its last complete record). A bounded log
+    (`replay.log_max_bytes`, the default) deletes its oldest segments once their episodes
+    have left the buffer: it starts at a later id then, and ids before it are not there."""
     from hercs.codec import msg_to_episode
     from hercs.rundir import require_run_dir
     from hercs.runlog import LIVE_NAME, TOPIC_EPISODES, read_messages

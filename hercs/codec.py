@@ -19,6 +19,7 @@ from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.normalizer import NormalizerState
 from hercs.reasons import Reason
+from hercs.replay_state import ReplayState
 from proto import hercs_pb2 as pb
 from proto.schema import SCHEMA_VERSION
 
@@ -211,3 +212,38 @@ def msg_to_weight_arrays(
     return (named_to_arrays(msg.actor_params, where="Weights.actor_params"),
             msg_to_stats(msg.o_stats, where="Weights.o_stats"),
             msg_to_stats(msg.g_stats, where="Weights.g_stats"))
+
+
+def replay_state_to_msg(state: ReplayState) -> pb.ReplayState:
+    """The replay's state as its log keeps it (`/replay_state`)."""
+    versions = sorted(state.stored_per_version.items())
+    msg = pb.ReplayState(
+        schema_version=SCHEMA_VERSION, next_episode_id=state.next_episode_id,
+        first_held_id=state.first_held_id, failures=state.failures,
+        recent_failed_goals=array_to_msg(np.asarray(state.recent_failed_goals, np.float32)),
+        o_stats=stats_to_msg(state.o_stats), g_stats=stats_to_msg(state.g_stats),
+        lockstep_versions=[v for v, _ in versions], lockstep_counts=[n for _, n in versions])
+    if state.cluster_model is not None:
+        msg.cluster_model.CopyFrom(cluster_model_to_msg(state.cluster_model))
+    return msg
+
+
+def msg_to_replay_state(msg: pb.ReplayState) -> ReplayState:
+    """Raises `InvalidMessage` for an undecodable array or model, or counts that disagree."""
+    if len(msg.lockstep_versions) != len(msg.lockstep_counts):
+        raise InvalidMessage(Reason.BAD_VALUE, f"ReplayState: {len(msg.lockstep_versions)} "
+                             f"lockstep versions but {len(msg.lockstep_counts)} counts")
+    try:
+        return ReplayState(
+            next_episode_id=int(msg.next_episode_id), first_held_id=int(msg.first_held_id),
+            failures=int(msg.failures),
+            recent_failed_goals=msg_to_array(msg.recent_failed_goals,
+                                             where="ReplayState.recent_failed_goals").copy(),
+            o_stats=msg_to_stats(msg.o_stats, where="ReplayState.o_stats"),
+            g_stats=msg_to_stats(msg.g_stats, where="ReplayState.g_stats"),
+            cluster_model=(msg_to_cluster_model(msg.cluster_model)
+                           if msg.HasField("cluster_model") else None),
+            stored_per_version=dict(zip((int(v) for v in msg.lockstep_versions),
+                                        (int(n) for n in msg.lockstep_counts), strict=True)))
+    except ValueError as exc:
+        raise InvalidMessage(Reason.BAD_VALUE, str(exc)) from None

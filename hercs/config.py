@@ -25,7 +25,7 @@ from typing import Any
 import yaml
 
 from hercs.config_algorithm import ClusterConfig, DDPGConfig, EnergyConfig, HERConfig
-from hercs.config_checks import _check, _positive
+from hercs.config_checks import _check
 from hercs.config_deploy import (
     LEARNER_DEVICES,
     PRECISIONS,
@@ -39,6 +39,7 @@ from hercs.config_deploy import (
     endpoint_parts,
     endpoint_problem,
 )
+from hercs.config_replay import EVICTIONS, ReplayConfig
 from hercs.config_task import TaskConfig
 from hercs.errors import ConfigError
 from hercs.methods import METHODS, Method
@@ -50,9 +51,10 @@ __all__ = [
     "TaskConfig", "TrainingConfig", "TransportConfig", "ViewConfig", "apply_overrides",
     "endpoint_parts", "endpoint_problem", "load_yaml", "save_yaml", "workers_overrides",
 ]
-"""The sections of the tree live in four modules (this one: the run, training and the replay;
+"""The sections of the tree live in five modules (this one: the run and training;
 hercs.config_task: the task; hercs.config_algorithm: DDPG, HER, clusters, energy;
-hercs.config_deploy: the processes and how they connect); import them all from here."""
+hercs.config_replay: the replay and its episode log; hercs.config_deploy: the processes and
+how they connect); import them all from here."""
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +96,6 @@ class RunConfig:
 
 
 SCHEDULES = ("async", "lockstep")
-EVICTIONS = ("fifo", "random")
 
 
 @dataclass
@@ -157,57 +158,6 @@ class TrainingConfig:
     @property
     def episodes_per_epoch(self) -> int:
         return self.cycles_per_epoch * self.episodes_per_cycle
-
-
-@dataclass
-class ReplayConfig:
-    buffer_transitions: int = 1_000_000
-    """Capacity in transitions; the store holds buffer_transitions // T episodes [HER-py]."""
-    min_episodes_to_sample: int = 4
-    """Samples wait until this many episodes are stored (one cycle's worth) [DESIGN]."""
-    rate_tolerance_updates: float = 40.0
-    """How far updates may run ahead of or behind updates_per_episode × inserts, in
-    minibatches (Reverb's error_buffer); one cycle's worth by default. Each cycle of it is a
-    cycle of policy lag in the asynchronous schedule: 40 is the least stale setting that
-    kept the epoch time of the old default (80) side by side (docs/PERFORMANCE.md §2) [DESIGN]."""
-    free_run: bool = False
-    """Disable the rate limiter: inserts and samples never wait [DESIGN]."""
-    max_message_bytes: int = 8 * 1024 * 1024
-    """Larger wire messages are rejected as oversized [DESIGN]."""
-    sample_timeout_s: float = 600.0
-    """How long the learner waits for one Batch (the rate limiter may hold its request while
-    actors catch up) before it asks again; the replay drops a request parked longer [DESIGN]."""
-    insert_workers: int = 4
-    """Threads serving inserts: inserts that arrive while one group is being fsynced form the
-    next group (group commit), so several workers share fsyncs [DESIGN]."""
-    waiting_inserts_per_actor: int = 4
-    """Fair sharing while the rate limiter holds inserts: they are admitted round-robin across
-    actor ids, and at most this many of one actor wait (more are answered `actor_queue_full`,
-    a retry) [DESIGN]. 0: arrival order, no bound (docs/DESIGN.md §3)."""
-    log_scene: bool = True
-    """Also log each episode's Foxglove scene (/scene, /scene/points), off the ack path
-    [DESIGN]; false keeps only the episodes, for the highest insert rates."""
-    eviction: str = "fifo"
-    """Which episode a full buffer overwrites: `fifo` the oldest [DESIGN]; `random` a slot
-    drawn uniformly, as the reference does [HER-py] (reproducible: a hash of the run's seed
-    and the episode id, so a restarted replay rebuilds the same buffer from its log)."""
-
-    def __post_init__(self) -> None:
-        _check(self.buffer_transitions >= 1, "replay.buffer_transitions",
-               self.buffer_transitions, "be >= 1")
-        _check(self.min_episodes_to_sample >= 1, "replay.min_episodes_to_sample",
-               self.min_episodes_to_sample, "be >= 1")
-        _check(self.rate_tolerance_updates >= 0, "replay.rate_tolerance_updates",
-               self.rate_tolerance_updates, "be >= 0")
-        _check(self.max_message_bytes >= 1024, "replay.max_message_bytes",
-               self.max_message_bytes, "be >= 1024")
-        _positive("replay.sample_timeout_s", self.sample_timeout_s)
-        _check(self.insert_workers >= 1, "replay.insert_workers", self.insert_workers,
-               "be >= 1")
-        _check(self.waiting_inserts_per_actor >= 0, "replay.waiting_inserts_per_actor",
-               self.waiting_inserts_per_actor, "be >= 0 (0: arrival order, no bound)")
-        _check(self.eviction in EVICTIONS, "replay.eviction", self.eviction,
-               "be fifo or random")
 
 
 @dataclass

@@ -319,3 +319,27 @@ class ClustererState(_message.Message):
     episodes_seen: int
     model_version: int
     def __init__(self, schema_version: _Optional[int] = ..., failed_goals: _Optional[_Union[Array, _Mapping]] = ..., failures_seen: _Optional[int] = ..., episodes_seen: _Optional[int] = ..., model_version: _Optional[int] = ...) -> None: ...
+
+class ReplayState(_message.Message):
+    __slots__ = ("schema_version", "next_episode_id", "first_held_id", "failures", "recent_failed_goals", "o_stats", "g_stats", "cluster_model", "lockstep_versions", "lockstep_counts")
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    NEXT_EPISODE_ID_FIELD_NUMBER: _ClassVar[int]
+    FIRST_HELD_ID_FIELD_NUMBER: _ClassVar[int]
+    FAILURES_FIELD_NUMBER: _ClassVar[int]
+    RECENT_FAILED_GOALS_FIELD_NUMBER: _ClassVar[int]
+    O_STATS_FIELD_NUMBER: _ClassVar[int]
+    G_STATS_FIELD_NUMBER: _ClassVar[int]
+    CLUSTER_MODEL_FIELD_NUMBER: _ClassVar[int]
+    LOCKSTEP_VERSIONS_FIELD_NUMBER: _ClassVar[int]
+    LOCKSTEP_COUNTS_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    next_episode_id: int
+    first_held_id: int
+    failures: int
+    recent_failed_goals: Array
+    o_stats: NormalizerStats
+    g_stats: NormalizerStats
+    cluster_model: ClusterModel
+    lockstep_versions: _containers.RepeatedScalarFieldContainer[int]
+    lockstep_counts: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, schema_version: _Optional[int] = ..., next_episode_id: _Optional[int] = ..., first_held_id: _Optional[int] = ..., failures: _Optional[int] = ..., recent_failed_goals: _Optional[_Union[Array, _Mapping]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_model: _Optional[_Union[ClusterModel, _Mapping]] = ..., lockstep_versions: _Optional[_Iterable[int]] = ..., lockstep_counts: _Optional[_Iterable[int]] = ...) -> None: ...

@@ -16,7 +16,9 @@ Invariants:
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter, OrderedDict, deque
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +26,10 @@ import numpy as np
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
+from hercs.errors import ConfigError
 from hercs.normalizer import Normalizer, NormalizerState
+from hercs.replay_state import ReplayState
+from hercs.runlog.format import EpisodeLogError
 from hercs.seeding import int_seed
 from hercs.served import ServedBatch
 from replay_service.energy import trajectory_energy
@@ -98,6 +103,84 @@ class ReplayCore:
         self.env_steps += self.spec.episode_steps
         return InsertResult(episode_id, False, energy, cluster)
 
+    # -- a saved state (the bounded episode log) -----------------------------------------------
+    def state(self, stored_per_version: Mapping[int, int]) -> ReplayState:
+        """What this core derived from every episode inserted so far, beyond the episodes its
+        store holds (`hercs.replay_state`); `stored_per_version` is the lockstep gate's."""
+        held = self.store.episode_id
+        return ReplayState(
+            next_episode_id=self.store.num_inserted,
+            first_held_id=int(held.min()) if held.size else 0, failures=self.failures,
+            recent_failed_goals=self.failed_goals(), o_stats=self.o_norm.state_dict(),
+            g_stats=self.g_norm.state_dict(), cluster_model=self.cluster_model,
+            stored_per_version=dict(stored_per_version))
+
+    def recover(self, episodes: Iterable[tuple[int, EpisodeData]],
+                state: ReplayState | None = None) -> tuple[list[tuple[int, int]], Counter[int]]:
+        """Insert a restarted replay's logged (id, episode) pairs, or with the log's newest
+        `state`, restore that state (`restore`: the episodes before its first_held_id are
+        skipped, those up to its next_episode_id restored) and insert only the later ones.
+        Returns the (logged id, stored id) pairs that disagree and the episodes per policy
+        version (the lockstep gate's)."""
+        versions: Counter[int] = Counter()
+        if state is not None:
+            held, episodes = split_at_state(episodes, state)
+            self.restore(state, held)
+            versions.update(state.stored_per_version)
+        else:
+            source = iter(episodes)
+            first = next(source, None)
+            if first is not None and first[0] != 0:
+                raise EpisodeLogError(
+                    f"the episode log starts at episode {first[0]} and holds no replay state "
+                    "to start from: its first segments were removed by hand; put them back")
+            episodes = itertools.chain([first] if first is not None else [], source)
+        mismatched = []
+        for episode_id, episode in episodes:
+            stored = self.insert(episode)
+            if stored.episode_id != episode_id:
+                mismatched.append((episode_id, stored.episode_id))
+            versions[episode.policy_version] += 1
+        return mismatched, versions
+
+    def restore(self, state: ReplayState, held: Iterable[tuple[int, EpisodeData]]) -> None:
+        """Start a fresh core from `state` and the logged episodes from its `first_held_id` up
+        to its `next_episode_id` − 1, in order: the same store, dedup keys, counts, failed
+        goals and normalisers as the core that saved `state` (its cluster model is the
+        caller's to adopt, as after a replay of the whole log). Raises ConfigError if `held`
+        lacks an episode the store held."""
+        if self.store.num_inserted:
+            raise ConfigError("ReplayCore.restore: this core has stored episodes already")
+        kept = state.next_episode_id - state.first_held_id
+        if kept < min(state.next_episode_id, self.store.capacity_episodes):
+            raise EpisodeLogError(
+                f"the episode log's newest replay state keeps the {kept} episodes from id "
+                f"{state.first_held_id} on, fewer than this replay's buffer of "
+                f"{self.store.capacity_episodes} holds: it was written with a smaller "
+                "replay.buffer_transitions; resume with the run's own, or start a new run")
+
+        def with_energy() -> Iterator[tuple[int, EpisodeData, float]]:
+            for episode_id, episode in held:
+                self._remember((episode.actor_id, int(episode.seq)), episode_id)
+                yield episode_id, episode, float(trajectory_energy(episode.ag,
+                                                                   self.config.energy))
+
+        self.store.restore(with_energy(), next_id=state.next_episode_id)
+        self.o_norm.load_state_dict(state.o_stats)
+        self.g_norm.load_state_dict(state.g_stats)
+        self.failures = state.failures
+        self.recent_failed_goals.clear()
+        self.recent_failed_goals.extend(np.asarray(g, np.float32)
+                                        for g in state.recent_failed_goals)
+        self.inserts = state.next_episode_id
+        self.env_steps = state.next_episode_id * self.spec.episode_steps
+
+    def failed_goals(self) -> np.ndarray:
+        """(n ≤ fgb_size, goal_dim) float32: `recent_failed_goals` as one array."""
+        if not self.recent_failed_goals:
+            return np.zeros((0, self.spec.goal_dim), np.float32)
+        return np.stack(list(self.recent_failed_goals))
+
     def _remember(self, key: tuple[str, int], episode_id: int) -> None:
         self._seen[key] = episode_id
         # Forget pairs whose episode left the ring: the oldest entries go first.
@@ -159,3 +242,26 @@ class ReplayCore:
 
     def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
         return self.o_norm.state_dict(), self.g_norm.state_dict()
+
+
+def split_at_state(episodes: Iterable[tuple[int, EpisodeData]], state: ReplayState
+                   ) -> tuple[Iterator[tuple[int, EpisodeData]], Iterator[tuple[int, EpisodeData]]]:
+    """A restarted replay's logged episodes, in id order, as (those `state` held: from its
+    first_held_id to its next_episode_id − 1; the ones after it). Ids before first_held_id
+    (in segments not deleted yet) are skipped. Consume the first before the second."""
+    source = iter(episodes)
+    after: list[tuple[int, EpisodeData]] = []
+
+    def held() -> Iterator[tuple[int, EpisodeData]]:
+        for pair in source:
+            if pair[0] >= state.next_episode_id:
+                after.append(pair)
+                return
+            if pair[0] >= state.first_held_id:
+                yield pair
+
+    def later() -> Iterator[tuple[int, EpisodeData]]:
+        yield from after
+        yield from source
+
+    return held(), later()

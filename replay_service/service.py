@@ -24,9 +24,10 @@ Subscriptions: `cluster/model` (latest, so a restarted replay gets the current m
 and `eval/result` (logged). `replay/status` is put about once a second, and parked calls past
 their deadline are expired at the same pace.
 
-On start the episode log of the run directory is replayed into the table, so nothing acked is
-lost across a restart; the rate limiter restarts balanced at the recovered size, and the last
-logged cluster model is adopted again.
+On start the episode log of the run directory is replayed into the table (from its newest
+saved replay state on, if it has one: a bounded log, `replay.log_max_bytes`), so nothing acked
+is lost across a restart; the rate limiter restarts balanced at the recovered size, and the
+newest cluster model of the log is adopted again.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from hercs.codec import (
     episode_to_msg,
     msg_to_cluster_model,
     msg_to_episode,
+    msg_to_replay_state,
 )
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
@@ -108,9 +110,12 @@ class ReplayService:
         self.runtime = runtime
         self.spec = config.task.spec
         self.warn = WarnOncePerMinute(log)
-        self.log, recovered = RecoveringLogWriter.open(run_dir, run=config.run.name,
-                                                       task=self.spec.name,
-                                                       scene=config.replay.log_scene)
+        replay = config.replay
+        self.log, recovered = RecoveringLogWriter.open(
+            run_dir, run=config.run.name, task=self.spec.name, scene=replay.log_scene,
+            segment_episodes=replay.log_segment_episodes(config.capacity_episodes),
+            max_bytes=replay.log_max_bytes)
+        saved = recovered.replay_state
         self.table = ReplayTable(
             config=config, core=ReplayCore(config=config, rng=generator(config.run.seed,
                                                                        "replay")),
@@ -123,11 +128,16 @@ class ReplayService:
                 count += 1
                 yield episode_id, msg_to_episode(msg)
 
-        for logged, stored in self.table.recover(episodes()):
+        state = None if saved is None else msg_to_replay_state(saved)
+        for logged, stored in self.table.recover(episodes(), state=state):
             log.warning("recovered episode logged as id %d was stored as %d", logged, stored)
+        if state is not None:
+            log.info("started from the replay state the episode log saved at episode %d "
+                     "(its buffer's oldest episode: %d)", state.next_episode_id,
+                     state.first_held_id)
         if count:
             log.info("recovered %d acked episodes from the episode log", count)
-            self._restore_cluster_model(run_dir)
+            self._restore_cluster_model(run_dir, saved)
         self._config_yaml = yaml.safe_dump(config.to_dict(), sort_keys=False).encode()
 
         keys, transport = runtime.keys, runtime.transport
@@ -143,14 +153,16 @@ class ReplayService:
                                  workers=config.replay.insert_workers)
         transport.serve_deferred(keys.sample, self._on_sample, on_error=self._on_reject)
 
-    def _restore_cluster_model(self, run_dir: Path) -> None:
-        """The last cluster model of the log, so that a restarted replay samples by clusters
-        at once even if no clusterer republishes its model."""
-        last = None
-        for last in read_cluster_models(run_dir):  # noqa: B007 (the last one is wanted)
-            pass
-        if last is None:
+    def _restore_cluster_model(self, run_dir: Path, saved: pb.ReplayState | None) -> None:
+        """The newest cluster model of the log (logged, or held by its saved replay state),
+        so that a restarted replay samples by clusters at once even if no clusterer
+        republishes its model."""
+        models = list(read_cluster_models(run_dir))
+        if saved is not None and saved.HasField("cluster_model"):
+            models.append(saved.cluster_model)
+        if not models:
             return
+        last = max(models, key=lambda m: m.version)
         try:
             model = self._cluster_model(last)
         except InvalidMessage as exc:

@@ -1,7 +1,7 @@
 """A preallocated buffer of whole episodes, with per-episode metadata: a FIFO ring, or the
 reference's random overwrite once full.
 
-Invariants (enforced by `insert` and `load_state_dict`):
+Invariants (enforced by `insert` and `restore`):
 - Episode ids are global and monotonic from 0: the n-th inserted episode has id n-1. Episode
   `id < capacity_episodes` goes to slot `id`; a later one goes to `slot_for(id)`: with
   `eviction="fifo"` slot ``id % capacity_episodes`` (the oldest episode leaves), with
@@ -21,6 +21,8 @@ Deviation from the reference HER buffer by default: once full, the reference ove
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -142,6 +144,20 @@ class EpisodeStore:
         label under the current cluster model (-1 if there is none). Returns the episode id.
         Raises ConfigError, storing nothing, if a shape or a metadata value is wrong.
         """
+        arrays = self._checked_arrays(episode, energy, cluster)
+        episode_id = self._next_id
+        slot = self.slot_for(episode_id)
+        if episode_id >= self._capacity:  # the slot's episode leaves
+            self.moved_count -= int(self._moved[slot])
+        self._write(slot, episode_id, episode, arrays, energy=energy, cluster=cluster)
+        self.moved_count += int(self._moved[slot])
+        self._index.put(slot, energy=float(energy), label=int(cluster))
+        self._next_id += 1
+        self._size = min(self._size + 1, self._capacity)
+        return episode_id
+
+    def _checked_arrays(self, episode: EpisodeData, energy: float, cluster: int
+                        ) -> dict[str, np.ndarray]:
         arrays = {name: np.asarray(getattr(episode, name)) for name in _ARRAY_FIELDS}
         for name, arr in arrays.items():
             if arr.shape != self._shapes[name]:
@@ -160,14 +176,13 @@ class EpisodeStore:
                 f"EpisodeStore.insert: cluster got {cluster!r}, must be >= -1 (-1 = unassigned); "
                 "the episode is not stored"
             )
-        episode_id = self._next_id
-        slot = self.slot_for(episode_id)
+        return arrays
+
+    def _write(self, slot: int, episode_id: int, episode: EpisodeData,
+               arrays: dict[str, np.ndarray], *, energy: float, cluster: int) -> None:
+        """Write one checked episode into `slot` (the sampling index is the caller's)."""
         ag = arrays["ag"]
-        moved = bool(np.linalg.norm(ag - ag[:1], axis=-1).max() > MOVED_THRESHOLD_M)
-        if episode_id >= self._capacity:  # the slot's episode leaves
-            self.moved_count -= int(self._moved[slot])
-        self._moved[slot] = moved
-        self.moved_count += int(moved)
+        self._moved[slot] = bool(np.linalg.norm(ag - ag[:1], axis=-1).max() > MOVED_THRESHOLD_M)
         self._obs[slot] = arrays["obs"]
         self._ag[slot] = arrays["ag"]
         self._g[slot] = arrays["g"]
@@ -180,10 +195,39 @@ class EpisodeStore:
         self._energy[slot] = float(energy)
         self._cluster[slot] = int(cluster)
         self._policy_version[slot] = int(episode.policy_version)
-        self._index.put(slot, energy=float(energy), label=int(cluster))
-        self._next_id += 1
-        self._size = min(self._size + 1, self._capacity)
-        return episode_id
+
+    def restore(self, episodes: Iterable[tuple[int, EpisodeData, float]], *,
+                next_id: int) -> None:
+        """Refill an empty store as it was once `next_id` episodes had been inserted: a
+        restarted replay whose log starts from a saved state (`ReplayCore.restore`).
+
+        `episodes`: (id, episode, energy) in increasing id order, every id from the oldest one
+        the store held then up to `next_id` − 1 (the log's; a later id overwrites an earlier
+        one of the same slot, as `insert` would have). Labels are unassigned (a cluster model
+        relabels them). Raises ConfigError, leaving the store empty, if an episode is out of
+        range or a slot stays unfilled (the log lacks episodes the store held)."""
+        if self._next_id:
+            raise ConfigError(f"EpisodeStore.restore: the store holds {self._size} episodes "
+                              "already; only an empty store is restored")
+        size = min(int(next_id), self._capacity)
+        filled = np.zeros(self._capacity, bool)
+        last = -1
+        for episode_id, episode, energy in episodes:
+            if not last < episode_id < next_id:
+                raise ConfigError(f"EpisodeStore.restore: episode id {episode_id} after "
+                                  f"{last}: ids must increase and stay below {next_id}")
+            arrays = self._checked_arrays(episode, energy, UNASSIGNED)
+            slot = self.slot_for(episode_id)
+            self._write(slot, episode_id, episode, arrays, energy=energy, cluster=UNASSIGNED)
+            filled[slot], last = True, episode_id
+        if not filled[:size].all():
+            self._moved[:] = False
+            raise ConfigError(
+                f"EpisodeStore.restore: {int(size - filled[:size].sum())} of {size} slots got no "
+                f"episode (ids up to {last} given): the log lacks episodes the buffer held")
+        self._next_id, self._size = int(next_id), size
+        self.moved_count = int(self._moved[:size].sum())
+        self._index.rebuild(self._energy[:size].copy(), self._cluster[:size].astype(np.int64))
 
     def set_clusters(self, labels: np.ndarray) -> None:
         """Relabel every stored episode (a new cluster model): `labels` has shape (size,)."""

@@ -26,11 +26,14 @@ are serialised):
   at a time (a commit lock), so log order, episode ids and store order agree. Inserts that
   arrive while a group is in flight form the next group: the more concurrent inserters, the
   more episodes share one fsync. If the append fails, every call of the group is answered
-  `log_failed`, nothing is stored and the limiter takes the inserts back.
+  `log_failed`, nothing is stored and the limiter takes the inserts back. Once a bounded log's
+  segment is full, the committing thread starts the next with the core's state, still
+  holding the commit lock, so the state is exactly that of the episodes logged before it.
 - `expire`: parked calls whose deadline has passed are answered `expired` and dropped; their
   client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
-- `recover`: the episodes of the log go into the store without being logged again; the
-  limiter restarts balanced at the recovered count (as if the learner had used them all).
+- `recover`: the episodes of the log go into the store without being logged again (from the
+  log's newest saved state on, if it has one); the limiter restarts balanced at the
+  recovered count (as if the learner had used them all).
 - the lag bound (asynchronous, `training.max_policy_lag`, replay_service.lag_bound): an insert
   the limiter admits is first checked against the bound, with the id it would be stored under
   (those admitted before it counted); one it refuses is answered `stale_policy` at once,
@@ -62,6 +65,7 @@ from hercs.episode import EpisodeData
 from hercs.lockstep import schedule_cycle
 from hercs.methods import METHODS
 from hercs.reasons import Reason
+from hercs.replay_state import ReplayState
 from hercs.served import ReplayCounters, ServedBatch
 from proto import hercs_pb2 as pb
 from replay_service.core import ReplayCore
@@ -78,6 +82,7 @@ from replay_service.table_calls import (
     SampleRefused,
     Stored,
     Waiter,
+    start_segment,
     take_expired,
 )
 from replay_service.waiting_inserts import WaitingInserts
@@ -150,23 +155,16 @@ class ReplayTable:
         """Inserts refused because their log append failed."""
 
     # -- start-up --------------------------------------------------------------------------
-    def recover(self, episodes: Iterable[tuple[int, EpisodeData]]) -> list[tuple[int, int]]:
-        """Store the log's episodes (not logged again) and restart the limiter balanced.
-
-        Returns (logged id, stored id) pairs that disagree (a log written by another buffer
-        size); empty when the log and the store agree, which is the normal case."""
-        mismatched = []
+    def recover(self, episodes: Iterable[tuple[int, EpisodeData]], *,
+                state: ReplayState | None = None) -> list[tuple[int, int]]:
+        """Store the log's episodes (not logged again; from its newest saved `state` on, if
+        any: `ReplayCore.recover`) and restart the limiter balanced. Returns the (logged id,
+        stored id) pairs that disagree (a log written by another buffer size): none normally."""
         with self._lock:
-            count = 0
-            versions = []
-            for episode_id, episode in episodes:
-                stored = self.core.insert(episode)
-                if stored.episode_id != episode_id:
-                    mismatched.append((episode_id, stored.episode_id))
-                versions.append(episode.policy_version)
-                count += 1
+            mismatched, versions = self.core.recover(episodes, state)
             if self.gate is not None:
-                self.gate.recover(versions)
+                self.gate.recover(versions.elements())
+            count = self.core.store.num_inserted
             if count:
                 self.limiter.restart_balanced(count)
                 if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
@@ -249,6 +247,10 @@ class ReplayTable:
                 else:
                     self._refuse(group, failure)
                 self._drain()  # parked samples may wait for exactly these inserts
+                state = (self.core.state({} if self.gate is None else +self.gate.stored)
+                         if failure is None and self.log.rotation_due() else None)
+            if state is not None:  # a bounded log's next segment, while no group is in flight
+                start_segment(self.log, state)
 
     def _refuse(self, group: list[ParkedInsert], exc: Exception) -> None:
         self.limiter.cancel_inserts(len(group))
@@ -449,11 +451,9 @@ class ReplayTable:
     def clusterer_state(self) -> ClustererSnapshot:
         """What a (re)started clusterer continues from."""
         with self._lock:
-            core = self.core
-            goals = (np.stack(list(core.recent_failed_goals)) if core.recent_failed_goals
-                     else np.zeros((0, core.spec.goal_dim), np.float32))
-            return ClustererSnapshot(failed_goals=goals, failures_seen=core.failures,
-                                     episodes_seen=core.inserts,
+            return ClustererSnapshot(failed_goals=self.core.failed_goals(),
+                                     failures_seen=self.core.failures,
+                                     episodes_seen=self.core.inserts,
                                      model_version=self._model_version())
 
     def log_eval_result(self, record: pb.EvalResult) -> None:

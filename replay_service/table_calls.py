@@ -4,16 +4,22 @@ parked calls in its queues, and the sink the episode log is."""
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
+from hercs.codec import replay_state_to_msg
 from hercs.episode import EpisodeData
 from hercs.reasons import Reason
+from hercs.replay_state import ReplayState
+from hercs.runlog.format import EpisodeLogError
 from hercs.served import ServedBatch
 from proto import hercs_pb2 as pb
+
+log = logging.getLogger("hercs.replay")
 
 T_contra = TypeVar("T_contra", contravariant=True)
 T = TypeVar("T")
@@ -35,6 +41,25 @@ class EpisodeLogSink(Protocol):
     def append_cluster_model(self, msg: pb.ClusterModel) -> None: ...
 
     def append_eval_result(self, msg: pb.EvalResult) -> None: ...
+
+    def rotation_due(self) -> bool:
+        """A bounded log has logged a segment's episodes since its newest replay state: the
+        table should `start_segment`."""
+        ...
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        """Start the next segment with the replay's state (no episode is logged meanwhile)."""
+        ...
+
+
+def start_segment(sink: EpisodeLogSink, state: ReplayState) -> None:
+    """Start a bounded log's next segment with `state`; a failure is logged, and leaves the
+    log as after a failed append (the next one retries) or as it was."""
+    try:
+        sink.start_segment(replay_state_to_msg(state))
+    except (EpisodeLogError, ValueError) as exc:
+        log.warning("episode log: no new segment at episode %d (%s)", state.next_episode_id,
+                    exc)
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,8 @@ Contents (protobuf, schemas embedded):
     /eval_result     hercs.EvalResult     sequence = epoch
     /scene           foxglove.SceneUpdate gripper, object, goal per observation (Foxglove)
     /scene/points    foxglove.PointCloud  the same as coloured points (Rerun, Foxglove)
+    /replay_state    hercs.ReplayState    sequence = next episode id; the first message of a
+                                          segment the replay started while running (`pruning`)
 plus one metadata record `hercs.episode_log` {run, task, schema_version, start_time_ns} at the
 start.
 
@@ -20,8 +22,9 @@ EvalResult is the real wall-clock time of the append; scene messages repeat thei
 Logs written before `start_time_ns` existed start at 0 (1970 in a viewer).
 
 The log is split by job: this module (topics, constants, the error), `writer` (appends that
-are durable before an ack), `reader` (messages back, tolerant of a torn tail) and `segments`
-(the run directory's segments across restarts: sealing and recovery).
+are durable before an ack), `reader` (messages back, tolerant of a torn tail), `segments`
+(the run directory's segments across restarts: sealing and recovery) and `pruning` (which
+old segments a bounded log deletes).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ TOPIC_CLUSTER_MODEL = "/cluster_model"
 TOPIC_EVAL_RESULT = "/eval_result"
 TOPIC_SCENE = "/scene"
 TOPIC_SCENE_POINTS = "/scene/points"
+TOPIC_REPLAY_STATE = "/replay_state"
 
 LIVE_NAME = "episodes.mcap"
 SEGMENT_RE = re.compile(r"^episodes\.(\d+)\.mcap$")
@@ -60,7 +64,8 @@ CHUNK_BYTES = 8 * 2**20
 
 DECODABLE: dict[str, type[Message]] = {
     cls.DESCRIPTOR.full_name: cls
-    for cls in (pb.Episode, pb.ClusterModel, pb.EvalResult, SceneUpdate, PointCloud)
+    for cls in (pb.Episode, pb.ClusterModel, pb.EvalResult, pb.ReplayState, SceneUpdate,
+                PointCloud)
 }
 RECORD_HEADER = struct.Struct("<BQ")
 UNREADABLE_CHUNK = (McapError, ValueError, struct.error, ZstdError)

@@ -8,7 +8,9 @@ summary rebuilt from the scan, footer and magic, so Rerun and Foxglove open it w
 recovery mode), renames it to `episodes.<n>.mcap` (n = 000, 001, … in order of writing), then
 opens a new `episodes.mcap`. Readers of a run directory read the numbered segments in order,
 then `episodes.mcap`. Episode ids continue across segments (the caller assigns them: one more
-than the last recovered id).
+than the last recovered id). A replay with a bounded log also starts a new segment while it
+runs (`RecoveringLogWriter.start_segment`), and deletes old ones (`hercs.runlog.pruning`):
+the numbered segments then start above 000, and the episode ids above 0.
 
 """
 
@@ -36,6 +38,7 @@ from hercs.runlog.format import (
     EpisodeLogError,
     fsync_dir,
 )
+from hercs.runlog.pruning import latest_replay_state
 from hercs.runlog.reader import (
     IndexParts,
     SegmentReader,
@@ -182,15 +185,15 @@ class EpisodeLog:
 
     @classmethod
     def open(cls, run_dir: str | os.PathLike[str], *, run: str, task: str
-             ) -> tuple[EpisodeLogWriter, Iterator[tuple[int, pb.Episode]]]:
+             ) -> tuple[EpisodeLogWriter, RecoveredLog]:
         """Recover the run's log and start a new live segment.
 
         Seals and renames a previous `episodes.mcap` (deleted instead if it holds no message),
         checks every segment was written for this run and task, and opens a writer on a new
         `episodes.mcap`. Returns it with a lazy iterator over the recovered (episode_id,
-        Episode) pairs of the sealed segments, in order; those files no longer change, so the
-        iterator may be consumed while the writer appends. Consume it before assigning new
-        episode ids (they must exceed the last recovered one).
+        Episode) pairs of the sealed segments, in order (`RecoveredLog`); those files no
+        longer change, so the iterator may be consumed while the writer appends. Consume it
+        before assigning new episode ids (they must exceed the last recovered one).
         """
         sealed = cls.retire(run_dir, run=run, task=task)
         writer = EpisodeLogWriter(cls(run_dir).live_path, run=run, task=task,
@@ -219,10 +222,10 @@ class EpisodeLog:
         return log_dir.segments()
 
     @staticmethod
-    def recovered(segments: list[Path]) -> Iterator[tuple[int, pb.Episode]]:
-        """The (episode_id, Episode) pairs of `segments`, in order, read lazily."""
-        for segment in segments:
-            yield from read_episodes(segment)
+    def recovered(segments: list[Path]) -> RecoveredLog:
+        """The (episode_id, Episode) pairs of `segments`, in order, read lazily, with the
+        replay state a restarted replay starts from."""
+        return RecoveredLog(segments)
 
     @staticmethod
     def _retire_live(live: Path) -> None:
@@ -232,10 +235,32 @@ class EpisodeLog:
         if scan.messages == 0:
             live.unlink()
         else:
-            numbers = [int(m.group(1)) for p in live.parent.iterdir()
-                       if (m := SEGMENT_RE.match(p.name)) is not None]
-            os.rename(live, live.parent / f"episodes.{max(numbers, default=-1) + 1:03d}.mcap")
+            os.rename(live, next_segment_path(live.parent))
         fsync_dir(live.parent)
+
+
+def next_segment_path(run_dir: Path) -> Path:
+    """The name the live segment takes when it is sealed: one number above the highest."""
+    numbers = [int(m.group(1)) for p in run_dir.iterdir()
+               if (m := SEGMENT_RE.match(p.name)) is not None]
+    return run_dir / f"episodes.{max(numbers, default=-1) + 1:03d}.mcap"
+
+
+class RecoveredLog(Iterator[tuple[int, pb.Episode]]):
+    """The (episode_id, Episode) pairs of a run's sealed segments, in order, read lazily, and
+    `replay_state`: the newest `/replay_state` among them, which a restarted replay starts
+    from (None: none, it replays every episode from id 0; `hercs.runlog.pruning`)."""
+
+    def __init__(self, segments: list[Path]) -> None:
+        self.segments = list(segments)
+        self.replay_state: pb.ReplayState | None = latest_replay_state(self.segments)
+        self._pairs = (pair for segment in self.segments for pair in read_episodes(segment))
+
+    def __iter__(self) -> RecoveredLog:
+        return self
+
+    def __next__(self) -> tuple[int, pb.Episode]:
+        return next(self._pairs)
 
 
 def _seal_if_space(path: Path) -> SegmentScan:

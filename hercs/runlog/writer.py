@@ -47,6 +47,7 @@ from hercs.runlog.format import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
+    TOPIC_REPLAY_STATE,
     TOPIC_SCENE,
     TOPIC_SCENE_POINTS,
     EpisodeLogError,
@@ -158,6 +159,8 @@ class EpisodeLogWriter:
 
     @property
     def last_episode_id(self) -> int | None:
+        """The last episode id logged here (after a replay state: at least the one before
+        its next id); the next append's ids must be above it."""
         return self._last_episode_id
 
     def append_episode(self, msg: pb.Episode, *, episode_id: int,
@@ -203,6 +206,30 @@ class EpisodeLogWriter:
         """Log an evaluation result (sequence = its epoch); durable when this returns."""
         self._append_other(TOPIC_EVAL_RESULT, msg, u32(msg.epoch, "EvalResult.epoch"),
                            log_time_ns)
+
+    def append_replay_state(self, msg: pb.ReplayState) -> None:
+        """Log the replay's state as of episode `msg.next_episode_id` (its sequence); durable
+        when this returns. Later episodes of this file must have ids from that one on."""
+        next_id = u32(msg.next_episode_id, "ReplayState.next_episode_id")
+        wall = time.time_ns()
+        with self._lock:
+            self._check_writable()
+            if self._last_episode_id is not None and self._last_episode_id >= next_id:
+                raise ValueError(f"ReplayState.next_episode_id={next_id}: episode "
+                                 f"{self._last_episode_id} is logged here already; nothing "
+                                 "was written")
+            at = self.start_time_ns + (scene.episode_start_ns(next_id, self._spec.episode_steps)
+                                       - scene.STEP_NS if next_id else 0)
+            self._write_durably([(TOPIC_REPLAY_STATE, msg, at, wall, next_id)])
+            if next_id:
+                self._last_episode_id = next_id - 1
+
+    def move_to(self, path: str | os.PathLike[str]) -> None:
+        """Rename the file while it is open (a live segment becoming a numbered one); pending
+        scenes and `close()` go on writing to it. The caller fsyncs the directory."""
+        with self._lock:
+            os.rename(self.path, path)
+            self.path = Path(path)
 
     def close(self) -> None:
         """Write the pending scenes, the summary (index, statistics) and footer, fsync and

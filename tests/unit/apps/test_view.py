@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from apps.view import headless_problem, parse_selection, run_view, select_episodes
+from apps.view import (
+    headless_problem,
+    parse_selection,
+    read_run_log,
+    run_view,
+    select_episodes,
+)
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
@@ -127,3 +133,26 @@ def test_default_view_draws_the_last_epoch_on_the_runs_clock(tmp_path: Path) -> 
     assert drawn == {8, 9, 10, 11}
     # the episodes' insert times: the run's own clock (rrd print's column header)
     assert re.search(r"index_name: time\s", printed) and "Timestamp(ns)" in printed
+
+
+def test_a_pruned_log_colours_its_first_episodes_by_its_replay_states_model(
+        tmp_path: Path) -> None:
+    """A bounded log whose older segments were deleted starts with a segment that begins
+    with a replay state: its episodes get the clusters of the model that state holds, not -1
+    as if no model had been fitted yet."""
+    spec = task_spec("push")
+    rng = np.random.default_rng(0)
+    centroids = np.array([[-9, -9, -9], [9, 9, 9]], np.float32)  # every goal nearer centroid 0
+    state = pb.ReplayState(schema_version=SCHEMA_VERSION, next_episode_id=40, first_held_id=30,
+                           cluster_model=pb.ClusterModel(
+                               schema_version=SCHEMA_VERSION, version=3,
+                               centroids=array_to_msg(centroids), fitted_on=5,
+                               failures_seen=5))
+    with EpisodeLogWriter(tmp_path / "episodes.007.mcap", run="t", task="push") as writer:
+        writer.append_replay_state(state)
+        for i in range(40, 43):
+            writer.append_episode(episode_to_msg(random_episode(spec, rng, seq=i), run="t",
+                                                 task="push"), episode_id=i)
+    run = read_run_log(tmp_path)
+    assert [(e.episode_id, e.cluster) for e in run.episodes] == [(40, 0), (41, 0), (42, 0)]
+    assert run.models == [], "the state's model is no new model on the timeline"

@@ -25,6 +25,9 @@ def test_defaults_are_the_paper_reference_values() -> None:
             c.training.eval_episodes) == (50, 4, 40, 200, 20)
     assert c.training.updates_per_episode == 10.0
     assert c.replay.buffer_transitions == 1_000_000 and c.capacity_episodes == 20_000
+    # the log keeps what resume needs, in segments of a quarter buffer (docs/DESIGN.md §6)
+    assert (c.replay.log_max_bytes, c.replay.log_segment_episodes(c.capacity_episodes)) == (
+        0, 5_000)
     assert (c.cluster.k, c.cluster.fgb_size, c.cluster.small_cluster_repeat) == (8, 150, 4)
     assert c.task.spec.distance_threshold == 0.05, "success and failure: the Fetch radius"
     assert c.energy.clip_energy == 0.5 and (c.energy.delta_t, c.energy.gravity) == (0.04, 9.81)
@@ -73,6 +76,10 @@ def test_overrides_are_typed() -> None:
         ("view.episode_every=-1", "view.episode_every: got -1, must be >= 0"),
         ("view.viewer=http://host:9876", "view.viewer: got 'http://host:9876', must be 'spawn'"),
         ("view.save=run.txt", "view.save: got 'run.txt', must be '' or a path ending in .rrd"),
+        ("replay.log_max_bytes=-2", "replay.log_max_bytes: got -2, must be -1 (keep the whole "
+                                    "log), 0 (keep only what resume needs) or a size in bytes"),
+        ("replay.log_segments_per_buffer=0", "replay.log_segments_per_buffer: got 0, must be "
+                                             ">= 1"),
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "env-version", "fgb",
          "energy-weight",
@@ -80,7 +87,7 @@ def test_overrides_are_typed() -> None:
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
          "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy", "waiting-inserts",
-         "view-every", "view-url", "view-save"],
+         "view-every", "view-url", "view-save", "log-max-bytes", "log-segments"],
 )
 def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:
     with pytest.raises(ConfigError) as err:

@@ -74,6 +74,12 @@ class FakeLog:
     def append_eval_result(self, msg: pb.EvalResult) -> None:
         self.journal.append("log eval")
 
+    def rotation_due(self) -> bool:
+        return False
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        raise AssertionError("this log is never full")
+
 
 class Clock:
     def __init__(self) -> None:
