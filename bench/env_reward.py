@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+import hercs.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
 from bench.common import git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode

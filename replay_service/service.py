@@ -114,7 +114,7 @@ class ReplayService:
         self.log, recovered = RecoveringLogWriter.open(
             run_dir, run=config.run.name, task=self.spec.name, scene=replay.log_scene,
             segment_episodes=replay.log_segment_episodes(config.capacity_episodes),
-            max_bytes=replay.log_max_bytes)
+            max_bytes=replay.log_max_bytes, spec=self.spec)
         saved = recovered.replay_state
         self.table = ReplayTable(
             config=config, core=ReplayCore(config=config, rng=generator(config.run.seed,

@@ -17,13 +17,16 @@ class PointOnAPlane(gym.Env):
 
     threshold = 0.1
 
-    def __init__(self, batched_reward: bool = True) -> None:
+    def __init__(self, batched_reward: bool = True, goal_offset: float | None = None) -> None:
+        """`goal_offset`: goals within this much of the start in each coordinate (a reach),
+        else anywhere in [-1, 1]²."""
         box = gym.spaces.Box(-2.0, 2.0, (2,), np.float64)
         self.observation_space = gym.spaces.Dict(
             {"observation": gym.spaces.Box(-2.0, 2.0, (4,), np.float64),
              "achieved_goal": box, "desired_goal": box})
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._batched = batched_reward
+        self._offset = goal_offset
         self._pos = np.zeros(2)
         self._vel = np.zeros(2)
         self._goal = np.zeros(2)
@@ -36,7 +39,10 @@ class PointOnAPlane(gym.Env):
         super().reset(seed=seed)
         self._pos = self.np_random.uniform(-1, 1, 2)
         self._vel = np.zeros(2)
-        self._goal = self.np_random.uniform(-1, 1, 2)
+        if self._offset is None:
+            self._goal = self.np_random.uniform(-1, 1, 2)
+        else:
+            self._goal = self._pos + self.np_random.uniform(-self._offset, self._offset, 2)
         return self._obs(), {}
 
     def step(self, action):  # type: ignore[no-untyped-def]
@@ -56,6 +62,11 @@ class PointOnAPlane(gym.Env):
 
 def point_on_a_plane(**kwargs: Any) -> gym.Env:
     return TimeLimit(PointOnAPlane(), max_episode_steps=20)
+
+
+def reach_on_a_plane(**kwargs: Any) -> gym.Env:
+    """Goals within 0.4 of the start: at most 6 steps at full speed, 10 steps an episode."""
+    return TimeLimit(PointOnAPlane(goal_offset=0.4), max_episode_steps=10)
 
 
 def reward_for_one_pair_only(**kwargs: Any) -> gym.Env:

@@ -36,6 +36,7 @@ from hercs.runlog.format import EpisodeLogError
 from hercs.runlog.pruning import prune_log
 from hercs.runlog.segments import EpisodeLog, RecoveredLog, next_segment_path, run_start_ns
 from hercs.runlog.writer import EpisodeLogWriter
+from hercs.task_spec import TaskSpec
 from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
 
@@ -51,12 +52,15 @@ class RecoveringLogWriter:
 
     def __init__(self, run_dir: Path, *, run: str, task: str, retry_s: float = RETRY_S,
                  clock: Callable[[], float] = time.monotonic, scene: bool = True,
-                 segment_episodes: int = 0, max_bytes: int = -1) -> None:
+                 segment_episodes: int = 0, max_bytes: int = -1,
+                 spec: TaskSpec | None = None) -> None:
         """`segment_episodes`: episodes per segment before `rotation_due` (0: never);
-        `max_bytes`: the bound old segments are deleted under (-1: none; module docstring)."""
+        `max_bytes`: the bound old segments are deleted under (-1: none; module docstring);
+        `spec`: the run's task as configured (its horizon; default: `task_spec(task)`)."""
         self.run_dir = run_dir
         self.run = run
         self.task = task
+        self.spec = spec
         self.scene = scene
         self.segment_episodes = segment_episodes
         self.max_bytes = max_bytes
@@ -83,18 +87,19 @@ class RecoveringLogWriter:
     @classmethod
     def open(cls, run_dir: str | os.PathLike[str], *, run: str, task: str,
              retry_s: float = RETRY_S, clock: Callable[[], float] = time.monotonic,
-             scene: bool = True, segment_episodes: int = 0, max_bytes: int = -1
-             ) -> tuple[RecoveringLogWriter, RecoveredLog]:
+             scene: bool = True, segment_episodes: int = 0, max_bytes: int = -1,
+             spec: TaskSpec | None = None) -> tuple[RecoveringLogWriter, RecoveredLog]:
         """Like `EpisodeLog.open`, but a disk too full to start the new segment is not an
         error: the recovered episodes are returned all the same, and appends fail (and retry)
         until there is room."""
         self = cls(Path(run_dir), run=run, task=task, retry_s=retry_s, clock=clock,
-                   scene=scene, segment_episodes=segment_episodes, max_bytes=max_bytes)
+                   scene=scene, segment_episodes=segment_episodes, max_bytes=max_bytes,
+                   spec=spec)
         sealed = EpisodeLog.retire(self.run_dir, run=run, task=task)
         try:
             self._writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=run,
                                             task=task, start_time_ns=run_start_ns(sealed),
-                                            scene=scene)
+                                            scene=scene, spec=spec)
         except OSError as exc:
             self._fail(exc)
         recovered = EpisodeLog.recovered(sealed)
@@ -152,7 +157,7 @@ class RecoveringLogWriter:
             try:
                 writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
                                           task=self.task, start_time_ns=old.start_time_ns,
-                                          scene=self.scene)
+                                          scene=self.scene, spec=self.spec)
                 self._writer = writer
                 writer.append_replay_state(state)
                 self._state_from = int(state.next_episode_id)
@@ -256,7 +261,7 @@ class RecoveringLogWriter:
             sealed = EpisodeLog.retire(self.run_dir, run=self.run, task=self.task)
             writer = EpisodeLogWriter(EpisodeLog(self.run_dir).live_path, run=self.run,
                                       task=self.task, start_time_ns=run_start_ns(sealed),
-                                      scene=self.scene)
+                                      scene=self.scene, spec=self.spec)
         except OSError as exc:
             self._fail(exc)
             raise EpisodeLogError(f"{self.run_dir}: cannot start a new log segment ({exc}); "

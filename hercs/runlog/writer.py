@@ -54,6 +54,7 @@ from hercs.runlog.format import (
     fsync_dir,
     u32,
 )
+from hercs.task_spec import TaskSpec
 from hercs.tasks import task_spec
 from hercs.warn_once import WarnOncePerMinute
 from proto import hercs_pb2 as pb
@@ -94,17 +95,19 @@ class EpisodeLogWriter:
 
     def __init__(self, path: str | os.PathLike[str], *, run: str, task: str,
                  start_time_ns: int | None = None, scene: bool = True,
+                 spec: TaskSpec | None = None,
                  compression: CompressionType = CompressionType.ZSTD) -> None:
         """`start_time_ns` is the run's start (ns since the Unix epoch; default now): the
         origin of the synthetic timeline, kept in the metadata so that a later segment of the
-        same run continues it (`segments.run_start_ns`)."""
+        same run continues it (`segments.run_start_ns`). `spec`: the run's task as configured
+        (its horizon, `task.episode_steps`); default `task_spec(task)`."""
         self.path = Path(path)
         self.run = run
         self.task = task
         self.start_time_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
         if self.start_time_ns < 0:
             raise ValueError(f"start_time_ns={start_time_ns}: must be >= 0")
-        self._spec = task_spec(task)
+        self._spec = task_spec(task) if spec is None else spec
         self._lock = threading.Lock()
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
