@@ -360,8 +360,9 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", nargs="+", choices=sorted(TASKS), default=None,
-                   help="tasks (default: push; reach with --quick)")
+    p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
+                   help=f"tasks: Fetch presets {sorted(TASKS)} or any task.name, e.g. "
+                        "HandReach-v3 (default: push; reach with --quick)")
     p.add_argument("--methods", nargs="+", choices=list(METHODS), default=["her", "her-cs"])
     p.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
     p.add_argument("--schedule", choices=SCHEDULES, default="async",
@@ -428,6 +429,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("sample_efficiency: --jobs must be at least 1", file=sys.stderr)
         return 2
     tasks = args.tasks or (["reach"] if args.quick else ["push"])
+    for task in tasks:
+        try:
+            task_spec(task, args.env_version)
+        except ConfigError as exc:
+            print(f"sample_efficiency: --tasks {task}: {exc}", file=sys.stderr)
+            return 2
     epochs = args.epochs or (1 if args.quick else 100)
     overrides = list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
     tmp = tempfile.mkdtemp(prefix="hercs-se-") if args.quick and not args.run_dir else None
