@@ -48,6 +48,8 @@ class DelayRelay:
         self._tasks: set[asyncio.Task[None]] = set()
         self.connections = 0
         """Connections accepted so far."""
+        self.listen_address: tuple[str, int] = listen
+        """Where it listens (the port bound, once started)."""
 
     def start(self) -> tuple[str, int]:
         """Listen; returns the (host, port) bound."""
@@ -55,7 +57,8 @@ class DelayRelay:
         self._server = asyncio.run_coroutine_threadsafe(
             asyncio.start_server(self._accept, *self.listen), self._loop).result(10)
         host, port = self._server.sockets[0].getsockname()[:2]
-        return str(host), int(port)
+        self.listen_address = (str(host), int(port))
+        return self.listen_address
 
     def close(self) -> None:
         """Stop listening, close every relayed connection, end the thread."""

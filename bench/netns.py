@@ -53,18 +53,21 @@ def _quiet(*argv: str) -> None:
     subprocess.run(list(argv), capture_output=True)
 
 
-def problem(subnet: str = SUBNET) -> str | None:
-    """Why namespaced hosts with these faults cannot be made here, or None. Probes the kernel
-    with a throwaway namespace: a `statistic` match rule and a `tbf` qdisc on its loopback."""
+def problem(subnet: str = SUBNET, *, faults: bool = True) -> str | None:
+    """Why namespaced hosts (with `faults`, and the faults) cannot be made here, or None.
+    For the faults it probes the kernel with a throwaway namespace: a `statistic` match rule
+    and a `tbf` qdisc on its loopback."""
     if os.geteuid() != 0:
         return f"network namespaces and iptables need root; this is uid {os.geteuid()}"
-    missing = [t for t in TOOLS if shutil.which(t) is None]
+    missing = [t for t in (TOOLS if faults else ("ip",)) if shutil.which(t) is None]
     if missing:
         return (f"{', '.join(missing)} not installed (Debian: iproute2 gives ip and tc, "
                 "iptables gives iptables; `make netfault-tools` installs them)")
     if subprocess.run(["ip", "-o", "addr", "show", "to", f"{subnet}.0.0/16"],
                       capture_output=True, text=True).stdout.strip():
         return f"{subnet}.0.0/16 is already in use on this host; not touching it"
+    if not faults:
+        return None
     probe = f"hnf-probe-{os.getpid()}"
     try:
         _run("ip", "netns", "add", probe)
@@ -91,7 +94,9 @@ class Host:
     """The root namespace's end of the link: where a router listens for this host."""
     ns_ip: str
     chain: str
-    """The iptables chain (in both namespaces) this host's drops go in."""
+    """The iptables chain (in both namespaces) this host's drops go in, made by the first
+    drop (a host without faults needs no iptables)."""
+    _chains: bool = False
 
     def exec_argv(self, argv: list[str]) -> list[str]:
         """`argv` run inside the namespace (same file system, environment and user)."""
@@ -110,15 +115,20 @@ class Host:
         _run("ip", "-n", self.name, "addr", "add", f"{self.ns_ip}/24", "dev", self.ns_if)
         _run("ip", "-n", self.name, "link", "set", self.ns_if, "up")
         _run("ip", "-n", self.name, "link", "set", "lo", "up")
-        for side, iface in (("root", self.host_if), ("ns", self.ns_if)):
-            self._iptables(side, "-N", self.chain)
-            self._iptables(side, "-I", "INPUT", "-i", iface, "-j", self.chain)
+
+    def _drop_chains(self) -> None:
+        if not self._chains:
+            for side, iface in (("root", self.host_if), ("ns", self.ns_if)):
+                self._iptables(side, "-N", self.chain)
+                self._chains = True  # from here on `remove` has a chain to delete
+                self._iptables(side, "-I", "INPUT", "-i", iface, "-j", self.chain)
 
     def remove(self) -> None:
         """Undo `create` as far as it got (each step may find its object gone)."""
-        _quiet("iptables", "-w", "-D", "INPUT", "-i", self.host_if, "-j", self.chain)
-        _quiet("iptables", "-w", "-F", self.chain)
-        _quiet("iptables", "-w", "-X", self.chain)
+        if self._chains:
+            _quiet("iptables", "-w", "-D", "INPUT", "-i", self.host_if, "-j", self.chain)
+            _quiet("iptables", "-w", "-F", self.chain)
+            _quiet("iptables", "-w", "-X", self.chain)
         _quiet("ip", "netns", "del", self.name)  # takes its veth end, and so the pair
         _quiet("ip", "link", "del", self.host_if)
 
@@ -128,12 +138,14 @@ class Host:
         """Drop each packet with `probability`, independently, in both directions."""
         if not 0.0 < probability < 1.0:
             raise ValueError(f"loss probability: got {probability}, must be in (0, 1)")
+        self._drop_chains()
         for side in ("root", "ns"):
             self._iptables(side, "-A", self.chain, "-m", "statistic", "--mode", "random",
                            "--probability", f"{probability:.6f}", "-j", "DROP")
 
     def cut(self, *, both_ways: bool = True) -> None:
         """Drop every packet towards the namespace and, with `both_ways`, from it too."""
+        self._drop_chains()
         for side in ("root", "ns") if both_ways else ("ns",):
             self._iptables(side, "-I", self.chain, "-j", "DROP")
 
@@ -155,8 +167,9 @@ class Host:
 
     def clear(self) -> None:
         """Remove every fault: the link is as `create` left it."""
-        for side in ("root", "ns"):
-            self._iptables(side, "-F", self.chain)
+        if self._chains:
+            for side in ("root", "ns"):
+                self._iptables(side, "-F", self.chain)
         _quiet("tc", "qdisc", "del", "dev", self.host_if, "root")
         _quiet("ip", "netns", "exec", self.name, "tc", "qdisc", "del", "dev", self.ns_if,
                "root")
@@ -172,10 +185,10 @@ def make_host(index: int, *, subnet: str = SUBNET, tag: str | None = None) -> Ho
 
 
 @contextlib.contextmanager
-def hosts(count: int, *, subnet: str = SUBNET) -> Iterator[list[Host]]:
-    """`count` namespaced hosts, removed (with their chains and links) however the body
-    ends."""
-    made = [make_host(i, subnet=subnet) for i in range(1, count + 1)]
+def hosts(count: int, *, subnet: str = SUBNET, first: int = 1) -> Iterator[list[Host]]:
+    """`count` namespaced hosts (indices `first`, `first` + 1, …), removed with their chains
+    and links however the body ends."""
+    made = [make_host(i, subnet=subnet) for i in range(first, first + count)]
     try:
         for host in made:
             host.create()

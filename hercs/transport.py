@@ -11,9 +11,11 @@ What it guarantees, and the Zenoh 1.x facts it rests on (verified on eclipse-zen
   the wait. The window also bounds one handshake (TCP, TLS, Zenoh's open: about four round
   trips), which Zenoh abandons when the window ends: the windows double from 1 s to 4 s, so
   that a router across a slow link is reached too (bench.net_faults measured it: with 1 s
-  windows a TLS client never joined across 200 ms of one-way delay). Once connected, a client reconnects by itself (and redeclares its entities) if the
-  router restarts. Timestamping is on (AdvancedPublisher refuses to start without it); the
-  500 ms scouting delay is off (it only serves multicast scouting).
+  windows a TLS client never joined across 200 ms of one-way delay). Once connected, a client
+  reconnects by itself (and redeclares its entities) if the router restarts or the link is
+  cut for longer than Zenoh's 10 s lease (tests/fault/test_network_faults.py). Timestamping
+  is on (AdvancedPublisher refuses to start without it); the 500 ms scouting delay is off (it
+  only serves multicast scouting).
 - **Never block inside Zenoh.** Every queryable and subscriber uses a channel handler and is
   drained by our own daemon thread(s). The threads read the channel object (`entity.handler`),
   never `entity.recv()`: calling `undeclare()` while another thread sits in
