@@ -1,9 +1,9 @@
 """Network faults between hosts: a real `hercs up` run over mutual TLS whose actors are on
 "other hosts" (network namespaces behind veth links, bench.netns), one network fault per run.
 
-    sudo python -m bench.net_faults            # ~20 min: 8 settings, FetchReach, 2 actors
-    sudo python -m bench.net_faults --settings loss-10 partition --cut-s 90
-    sudo python -m bench.net_faults --quick    # CI size: 1 actor, loss 10 % + a 15 s cut
+    python -m bench.net_faults            # as root, ~15 min: 8 settings, FetchReach, 2 actors
+    python -m bench.net_faults --settings loss-10 partition --cut-s 90
+    python -m bench.net_faults --quick    # CI size: 1 actor, loss 10 % + a 15 s cut (~1 min)
 
 The router (`hercs up --actors 0`, its services on this host) listens on each link's host
 end with TLS; each actor (`hercs actor --connect tls/HOST:PORT --tls-dir …`) runs in its own
@@ -21,19 +21,13 @@ is on every actor's link, from before the actors start to the end of the run unl
 - `partition-acks`: the same cut in one direction only, towards the actors: requests
   arrive, replies are lost — the case the replay's deduplication exists for.
 
-Reported per setting (docs/results/net_faults.{md,json}):
-- the run finishes: `hercs up`'s and each actor's exit status, `metrics.csv` holds every
-  epoch once;
-- acked episodes lost: every `(actor_id, seq)` an actor logged as acked (its inserter's
-  DEBUG line, HERCS_LOG=DEBUG) that is missing from the episode log at the end (target 0);
-- retried inserts deduplicated: the log's records against its distinct `(actor_id, seq)`
-  (target: equal), beside the actors' retries and the acks of retries that found their
-  episode already stored (`duplicate`);
-- policy lag (`metrics.csv`: the median of the epochs' `policy_lag_p50`, the largest
-  `policy_lag_p95`), inserts/s (stored episodes over the span of their insert times; a cut
-  is inside that span), the longest time between two inserts, and epoch time (median and
-  largest gap between progress lines); after a cut, the time from the heal to the first
-  insert and to the next epoch line.
+Reported per setting (docs/results/net_faults.{md,json}; read back by bench.net_measure):
+the run finishes (`hercs up`'s and each actor's exit status, every epoch once in
+`metrics.csv`); acked episodes lost (acked by an actor's own log, missing from the episode
+log; target 0); retried inserts stored once (the log's records against its distinct
+`(actor_id, seq)`), beside the retries and the acks of retries the replay had stored
+already; policy lag, inserts/s, the longest time without an insert and epoch time; after a
+cut, the time from the heal to the first insert and to the next epoch line.
 """
 
 from __future__ import annotations
@@ -46,13 +40,12 @@ import platform
 import re
 import signal
 import socket
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -61,19 +54,11 @@ import numpy as np
 from apps.certs import make_certs
 from bench.common import git_commit
 from bench.delay_relay import DelayRelay
-from bench.faults import EPOCH, Up, epoch_times, epochs_recorded
+from bench.faults import EPOCH, Up
+from bench.net_measure import NetResult, measure
 from bench.netns import Host, hosts, problem
-from hercs.metrics import read_rows
-from hercs.rundir import METRICS
-from hercs.runlog import TOPIC_EPISODES, read_messages
-from proto import hercs_pb2 as pb
 
 REPO = Path(__file__).resolve().parents[1]
-ACKED = re.compile(r"episode \((?P<actor>\S+), seq (?P<seq>\d+)\) acked(?P<dup> \(duplicate\))?$")
-STOPPING = re.compile(
-    r"stopping: (?P<episodes>\d+) episodes, (?P<acked>\d+) acked \((?P<duplicates>\d+) "
-    r"duplicate[^)]*\), (?P<superseded>\d+) superseded, (?P<dropped>\d+) dropped, "
-    r"(?P<unacked>\d+) given up unacked, (?P<retries>\d+) retries")
 ACTOR_EXIT_S = 60.0
 """How long an actor may take to stop by itself once `hercs up` has exited (it stops when
 the learner says the run is finished); then it gets SIGTERM."""
@@ -140,53 +125,6 @@ class Shape:
     seed: int = 1
 
 
-@dataclass
-class NetResult:
-    setting: str
-    injected: str
-    exit_status: int
-    actor_exits: list[int]
-    epochs_expected: int
-    epochs_recorded: list[int]
-    episodes: int
-    """Episodes the actors collected (their stopping lines)."""
-    acked: int
-    """Distinct (actor_id, seq) the actors logged as acked."""
-    lost: int
-    stored_records: int
-    stored_distinct: int
-    duplicate_acks: int
-    retries: int
-    superseded: int
-    unacked: int
-    lag_p50: float | None
-    lag_p95: float | None
-    inserts_per_s: float | None
-    longest_insert_gap_s: float | None
-    median_epoch_s: float | None
-    max_epoch_s: float | None
-    wall_s: float
-    load_before: float
-    load_after: float
-    first_insert_after_heal_s: float | None = None
-    next_epoch_after_heal_s: float | None = None
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def stored_twice(self) -> int:
-        return self.stored_records - self.stored_distinct
-
-    @property
-    def epochs_ok(self) -> bool:
-        return self.epochs_recorded == list(range(1, self.epochs_expected + 1))
-
-    @property
-    def ok(self) -> bool:
-        return (self.exit_status == 0 and all(c == 0 for c in self.actor_exits)
-                and self.epochs_ok and self.acked > 0 and self.lost == 0
-                and self.stored_twice == 0)
-
-
 def free_port() -> int:
     """A port free on every address of this namespace (the router listens on each link)."""
     with socket.socket() as sock:
@@ -226,49 +164,6 @@ def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
                                 stdin=subprocess.DEVNULL, cwd=REPO, start_new_session=True,
                                 env=dict(os.environ, HERCS_LOG="DEBUG"))
     return Actor(host, ident, log, proc)
-
-
-@dataclass
-class ActorLog:
-    acked: set[tuple[str, int]] = field(default_factory=set)
-    duplicate_acks: int = 0
-    counts: dict[str, int] | None = None
-    """The stopping line's counts (None if the actor never wrote it)."""
-
-
-def read_actor_log(path: Path) -> ActorLog:
-    parsed = ActorLog()
-    for line in path.read_text(errors="replace").splitlines():
-        if m := ACKED.search(line):
-            parsed.acked.add((m["actor"], int(m["seq"])))
-            parsed.duplicate_acks += bool(m["dup"])
-        elif m := STOPPING.search(line):
-            parsed.counts = {k: int(v) for k, v in m.groupdict().items()}
-    return parsed
-
-
-def stored_episodes(run_dir: Path) -> tuple[list[tuple[str, int]], list[float]]:
-    """Every episode record of the log as (actor_id, seq), and their insert times (s)."""
-    pairs, times = [], []
-    for message in read_messages(run_dir, [TOPIC_EPISODES]):
-        episode = message.decode_as(pb.Episode)
-        pairs.append((episode.actor_id, int(episode.seq)))
-        times.append(message.publish_time_ns / 1e9)
-    return pairs, times
-
-
-def lag_summary(run_dir: Path) -> tuple[float | None, float | None]:
-    """(median of the epochs' policy_lag_p50, largest policy_lag_p95) of metrics.csv."""
-    def column(name: str) -> list[float]:
-        values = [float(row.get(name) or "nan") for row in read_rows(run_dir / METRICS)]
-        return [v for v in values if not np.isnan(v)]
-
-    p50, p95 = column("policy_lag_p50"), column("policy_lag_p95")
-    return (statistics.median(p50) if p50 else None, max(p95) if p95 else None)
-
-
-def _rounded(value: float | None, digits: int = 2) -> float | None:
-    return None if value is None else round(value, digits)
 
 
 def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
@@ -352,44 +247,14 @@ def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
                 actor.proc.kill()
                 actor.proc.wait()
     exits = exits or [-1 if a.proc.returncode is None else a.proc.returncode for a in actors]
-    wall_s = time.monotonic() - started
-
-    logs = [read_actor_log(actor.log) for actor in actors]
-    acked = set().union(*(log.acked for log in logs))
-    pairs, times = stored_episodes(run_dir)
-    stored = set(pairs)
-    totals = {k: sum((log.counts or {}).get(k, 0) for log in logs)
-              for k in ("episodes", "acked", "retries", "superseded", "unacked")}
-    for actor, log in zip(actors, logs, strict=True):
-        if log.counts is None:
-            notes.append(f"{actor.ident} wrote no stopping line (see {actor.log.name})")
-        elif log.counts["acked"] != len({p for p in log.acked}):
-            notes.append(f"{actor.ident}: {log.counts['acked']} acked by its count, "
-                         f"{len(log.acked)} ack lines")
-    times.sort()
-    gaps = np.diff(times) if len(times) > 1 else np.zeros(0)
-    durations = epoch_times(up.seen) if up is not None else []
-    first_after = None
-    if healed_at is not None:
-        after = [t for t in times if t >= healed_at[1]]
-        first_after = after[0] - healed_at[1] if after else None
-    lag_p50, lag_p95 = lag_summary(run_dir)
-    return NetResult(
-        setting=setting.name, injected=setting.describe(shape.cut_s), exit_status=status,
-        actor_exits=exits, epochs_expected=shape.epochs,
-        epochs_recorded=epochs_recorded(run_dir), episodes=totals["episodes"],
-        acked=len(acked), lost=len(acked - stored), stored_records=len(pairs),
-        stored_distinct=len(stored), duplicate_acks=sum(log.duplicate_acks for log in logs),
-        retries=totals["retries"], superseded=totals["superseded"],
-        unacked=totals["unacked"], lag_p50=_rounded(lag_p50), lag_p95=_rounded(lag_p95),
-        inserts_per_s=(_rounded((len(times) - 1) / (times[-1] - times[0]))
-                       if len(times) > 1 and times[-1] > times[0] else None),
-        longest_insert_gap_s=_rounded(float(gaps.max())) if gaps.size else None,
-        median_epoch_s=_rounded(statistics.median(durations)) if durations else None,
-        max_epoch_s=_rounded(max(durations)) if durations else None,
-        wall_s=round(wall_s, 1), load_before=round(load_before, 2),
-        load_after=round(os.getloadavg()[0], 2), first_insert_after_heal_s=_rounded(first_after),
-        next_epoch_after_heal_s=_rounded(next_epoch_s), notes=notes)
+    return measure(
+        setting=setting.name, injected=setting.describe(shape.cut_s), run_dir=run_dir,
+        actor_logs={actor.ident: actor.log for actor in actors},
+        epochs_expected=shape.epochs, exit_status=status, actor_exits=exits,
+        progress=up.seen if up is not None else [],
+        healed_wall_s=None if healed_at is None else healed_at[1],
+        next_epoch_after_heal_s=next_epoch_s, wall_s=time.monotonic() - started,
+        load_before=load_before, load_after=os.getloadavg()[0], notes=notes)
 
 
 def report(results: list[NetResult], *, command: str, shape: Shape, note: str,

@@ -1,5 +1,6 @@
-"""bench/net_faults.py without a network: it reads the acks an actor's inserter really logs,
-and a row that lost an acked episode or stored one twice is not ok. The run itself is
+"""bench/net_faults.py and bench/net_measure.py without a network: the acks an actor's
+inserter really logs are read back, and a row that lost an acked episode or stored one twice
+is not ok. The run itself is
 tests/fault/test_network_faults.py."""
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from actors.inserter import Inserter
-from bench import net_faults
+from bench import net_faults, net_measure
 from hercs.transport import TransportTimeout
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
@@ -41,13 +42,13 @@ def test_the_acks_an_inserter_logs_are_read_back(caplog: pytest.LogCaptureFixtur
     log = tmp_path / "actor.log"
     log.write_text("".join(f"2026-01-01 00:00:00,000 actor {r.levelname} {r.name}: "
                            f"{r.getMessage()}\n" for r in caplog.records))
-    parsed = net_faults.read_actor_log(log)
+    parsed = net_measure.read_actor_log(log)
     assert parsed.acked == {("far@1", 0), ("far@1", 1)}
     assert parsed.duplicate_acks == 1
     assert inserter.counters.retries == 1
 
 
-def row(**changes: object) -> net_faults.NetResult:
+def row(**changes: object) -> net_measure.NetResult:
     fields: dict[str, object] = dict(
         setting="loss-2", injected="2% loss each way", exit_status=0, actor_exits=[0, 0],
         epochs_expected=3, epochs_recorded=[1, 2, 3], episodes=40, acked=38, lost=0,
@@ -55,7 +56,7 @@ def row(**changes: object) -> net_faults.NetResult:
         unacked=0, lag_p50=2.0, lag_p95=3.0, inserts_per_s=1.5, longest_insert_gap_s=4.0,
         median_epoch_s=8.0, max_epoch_s=9.0, wall_s=60.0, load_before=4.0, load_after=5.0)
     fields.update(changes)
-    return net_faults.NetResult(**fields)  # type: ignore[arg-type]
+    return net_measure.NetResult(**fields)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("changes", [
