@@ -64,6 +64,9 @@ ACTOR_EXIT_S = 60.0
 the learner says the run is finished); then it gets SIGTERM."""
 
 
+CUTS = ("", "both", "to-actors")
+
+
 @dataclass(frozen=True)
 class Setting:
     """One network fault, on every actor's link."""
@@ -80,6 +83,13 @@ class Setting:
     cut: str = ""
     """"both": every packet dropped both ways for `cut_s` mid-run; "to-actors": only
     towards the actors (replies lost, requests arrive); "": no cut."""
+
+    def __post_init__(self) -> None:
+        if self.cut not in CUTS or not 0 <= self.loss < 1 or min(
+                self.rate_mbit, self.delay_ms, self.jitter_ms) < 0:
+            raise ValueError(f"setting {self.name}: got cut {self.cut!r} (one of {CUTS}), "
+                             f"loss {self.loss} (in [0, 1)), rate {self.rate_mbit}, delay "
+                             f"{self.delay_ms} ± {self.jitter_ms} (>= 0)")
 
     def describe(self, cut_s: float) -> str:
         parts = []
@@ -123,6 +133,10 @@ class Shape:
     timeout_s: float = 600.0
     """Per wait (a progress line, the run's end)."""
     seed: int = 1
+
+
+QUICK_SHAPE = Shape(epochs=3, cycles=2, actors=1, cut_at=1, cut_s=15.0)
+"""The quick run: one actor, a 15 s cut (longer than the lease) after epoch 1 of 3."""
 
 
 def free_port() -> int:
@@ -329,7 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cut-at", type=int, default=Shape.cut_at,
                         help="cut right after this epoch's progress line")
     parser.add_argument("--cut-s", type=float, default=Shape.cut_s,
-                        help="how long a cut lasts, seconds (30–120 is the issue's range)")
+                        help="how long a cut lasts, seconds (beyond Zenoh's 10 s lease the "
+                        "sessions end and reopen)")
     parser.add_argument("--timeout", type=float, default=Shape.timeout_s,
                         help="per wait, seconds")
     parser.add_argument("--note", default="", help="a line about the machine for the report "
@@ -349,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
                   cut_at=min(args.cut_at, args.epochs - 1), cut_s=args.cut_s,
                   timeout_s=args.timeout)
     if args.quick:
-        settings, shape = [QUICK], Shape(epochs=3, cycles=2, actors=1, cut_at=1, cut_s=15)
+        settings, shape = [QUICK], QUICK_SHAPE
     if shape.cut_at < 1 or shape.cut_s <= 0:
         parser.error(f"a cut needs --cut-at >= 1 with --epochs >= 2 and --cut-s > 0; got "
                      f"cut-at {shape.cut_at}, cut-s {shape.cut_s}")

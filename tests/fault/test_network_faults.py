@@ -11,6 +11,7 @@ and the root namespace's iptables chain are removed however the test ends.
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import time
 from pathlib import Path
@@ -36,8 +37,7 @@ def test_a_run_rides_out_loss_and_a_partition_and_loses_no_acked_episode(
         tmp_path: Path) -> None:
     if (why := problem()) is not None:
         pytest.skip(why)
-    shape = net_faults.Shape(epochs=3, cycles=2, actors=1, cut_at=1, cut_s=15.0,
-                             timeout_s=180.0)
+    shape = dataclasses.replace(net_faults.QUICK_SHAPE, timeout_s=180.0)
     with hosts(shape.actors) as links:
         names = [(host.name, host.chain) for host in links]
         make_certs(tmp_path / "certs", hosts=[host.host_ip for host in links])
@@ -51,7 +51,7 @@ def test_a_run_rides_out_loss_and_a_partition_and_loses_no_acked_episode(
     assert result.acked > 0 and result.lost == 0, "every acked episode is in the log"
     assert result.stored_records == result.stored_distinct, "retries stored once"
     # the cut was felt: no insert crossed it, the actor retried, and inserts came back
-    assert result.longest_insert_gap_s is not None and result.longest_insert_gap_s >= 15.0
+    assert result.longest_insert_gap_s is not None and result.longest_insert_gap_s >= shape.cut_s
     assert result.retries >= 1
     assert result.first_insert_after_heal_s is not None
     # nothing of the fault is left on this machine
