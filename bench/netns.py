@@ -160,7 +160,7 @@ class Host:
         link's router."""
         if rate_mbit <= 0:
             raise ValueError(f"rate: got {rate_mbit} Mbit/s, must be > 0")
-        spec = ["tbf", "rate", f"{rate_mbit}mbit", "burst", "32kbit", "latency", "100ms"]
+        spec = ["tbf", "rate", f"{rate_mbit:g}mbit", "burst", "32kbit", "latency", "100ms"]
         _run("tc", "qdisc", "replace", "dev", self.host_if, "root", *spec)
         _run("ip", "netns", "exec", self.name, "tc", "qdisc", "replace", "dev", self.ns_if,
              "root", *spec)
