@@ -6,7 +6,7 @@ PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
 .PHONY: run test lint proto install clean compose-test compose-clean figures mujoco-py slurm \
-	slurm-test
+	slurm-test netfault-tools
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -38,6 +38,13 @@ mujoco-py: $(STAMP)
 # them the test prints "SKIPPED: <reason>".
 slurm:
 	bash deploy/install_slurm.sh
+
+# What tests/fault/test_network_faults.py and bench/net_faults.py build a network between
+# namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root and missing
+# (deploy/install_netfault_tools.sh; nothing is configured). Without them, or without root,
+# the test prints "SKIPPED: <reason>".
+netfault-tools:
+	bash deploy/install_netfault_tools.sh
 
 # Only the Slurm test (a cluster of two namespaced nodes; 6 to 8 minutes on 2 cores, docs/CLUSTER.md §8).
 slurm-test: $(STAMP) slurm

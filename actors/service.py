@@ -224,8 +224,10 @@ class ActorService:
             self.inserter.close(timeout_s=STOP_FLUSH_S)
             self.publish_metrics(steps_per_s=0.0)
         c = self.inserter.counters
-        log.info("actor %s stopping: %d episodes, %d acked, %d dropped, %d given up unacked",
-                 self.ident, self.episodes, c.acked, c.dropped, self.unacked)
+        log.info("actor %s stopping: %d episodes, %d acked (%d duplicate: a retry of one "
+                 "already stored), %d superseded, %d dropped, %d given up unacked, %d retries",
+                 self.ident, self.episodes, c.acked, c.duplicates, c.superseded, c.dropped,
+                 self.unacked, c.retries)
         return 0
 
     def _submit(self, episodes: list[EpisodeData], acted_with: int) -> bool:

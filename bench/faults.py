@@ -228,6 +228,10 @@ def report(results: list[FaultResult], *, command: str, quick: bool) -> str:
         "distinct (actor, seq) in the episode log at the kill (the log is written before the "
         "ack); lost = those missing from the log at the end. Times are from the kill.",
         "",
+        "Faults of the network between hosts (loss, a narrow link, latency, partitions; "
+        "actors in network namespaces over TLS) are in [net_faults.md](net_faults.md) "
+        "(`python -m bench.net_faults`).",
+        "",
         "| fault | exit | acked before kill | lost | epochs (expected) | missing / twice | "
         "restarted after | next epoch after | median epoch | wall | verdict |",
         "|---|---|---|---|---|---|---|---|---|---|---|",

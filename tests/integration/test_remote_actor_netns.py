@@ -1,7 +1,8 @@
 """A process in another network namespace joins a run through a router it reaches over a
 veth pair — what an actor on another host does with `hercs actor --connect tcp/HOST:7447`.
 
-The namespace has only its loopback and the veth end 10.123.0.2/24; the router listens on the
+The namespace (bench.netns, which bench.net_faults and tests/fault/test_network_faults.py
+use too) has only its loopback and the veth end 10.123.0.2/24; the router listens on the
 host end 10.123.0.1 (these two test addresses are the only ones touched). Needs root and
 `ip`; skipped with the reason when namespaces cannot be made. Every wait is on a queue, a
 Zenoh event or a process exit, with a timeout.
@@ -11,7 +12,6 @@ from __future__ import annotations
 
 import os
 import queue
-import shutil
 import signal
 import socket
 import subprocess
@@ -25,6 +25,7 @@ import pytest
 import yaml
 
 from apps.router import open_router
+from bench.netns import Host, hosts, problem
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
 from hercs.transport import PendingReply, Transport
 from hercs.validation import parse_message
@@ -34,55 +35,31 @@ from proto.keys import RunKeys
 
 pytestmark = pytest.mark.integration
 
-HOST_IP = "10.123.0.1"
-NS_IP = "10.123.0.2"
+SUBNET = "10.123"
 WAIT_S = 20.0
 
 
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    done = subprocess.run(["ip", *args], capture_output=True, text=True)
-    if check and done.returncode != 0:
-        raise RuntimeError(f"ip {' '.join(args)}: {done.stderr.strip()}")
-    return done
-
-
 @pytest.fixture(scope="module")
-def netns() -> Iterator[str]:
+def netns() -> Iterator[Host]:
     """A namespace reached over a veth pair: host 10.123.0.1/24, namespace 10.123.0.2/24."""
-    if os.geteuid() != 0:
-        pytest.skip("network namespaces need root; this test runs as uid "
-                    f"{os.geteuid()}")
-    if shutil.which("ip") is None:
-        pytest.skip("network namespaces need iproute2's `ip`, which is not installed")
-    if _ip("-o", "addr", "show", "to", f"{HOST_IP}/32", check=False).stdout.strip():
-        pytest.skip(f"{HOST_IP} is already assigned on this host; not touching it")
-    tag = os.getpid()
-    ns, host_if, ns_if = f"hercs-t{tag}", f"hv{tag}h", f"hv{tag}n"
+    if (why := problem(SUBNET, faults=False)) is not None:
+        pytest.skip(why)
     try:
-        try:
-            _ip("netns", "add", ns)
-        except RuntimeError as exc:
-            pytest.skip(f"cannot create a network namespace here: {exc}")
-        _ip("link", "add", host_if, "type", "veth", "peer", "name", ns_if)
-        _ip("link", "set", ns_if, "netns", ns)
-        _ip("addr", "add", f"{HOST_IP}/24", "dev", host_if)
-        _ip("link", "set", host_if, "up")
-        _ip("-n", ns, "addr", "add", f"{NS_IP}/24", "dev", ns_if)
-        _ip("-n", ns, "link", "set", ns_if, "up")
-        _ip("-n", ns, "link", "set", "lo", "up")
-        yield ns
-    finally:
-        _ip("netns", "del", ns, check=False)  # takes its veth end, and so the pair, with it
-        _ip("link", "del", host_if, check=False)
+        with hosts(1, subnet=SUBNET, first=0) as (host,):
+            yield host
+    except RuntimeError as exc:
+        if "netns add" not in str(exc):
+            raise
+        pytest.skip(f"cannot create a network namespace here: {exc}")
 
 
 @pytest.fixture
-def router(netns: str) -> Iterator[tuple[Transport, str]]:
+def router(netns: Host) -> Iterator[tuple[Transport, str]]:
     """A router listening only on the host end of the veth pair."""
     with socket.socket() as sock:
-        sock.bind((HOST_IP, 0))
+        sock.bind((netns.host_ip, 0))
         port = sock.getsockname()[1]
-    endpoint = f"tcp/{HOST_IP}:{port}"
+    endpoint = f"tcp/{netns.host_ip}:{port}"
     # a private veth pair nobody else reaches: plain TCP on purpose (the secured set-up is
     # tests/fault/test_security.py); a non-loopback listen address needs the explicit opt-in
     transport = open_router([endpoint], SecurityConfig(allow_insecure=True))
@@ -90,10 +67,10 @@ def router(netns: str) -> Iterator[tuple[Transport, str]]:
     transport.close()
 
 
-def in_netns(ns: str, argv: list[str], log: Path) -> subprocess.Popen[bytes]:
+def in_netns(host: Host, argv: list[str], log: Path) -> subprocess.Popen[bytes]:
     with log.open("wb") as out:
-        return subprocess.Popen(["ip", "netns", "exec", ns, *argv], stdout=out,
-                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        return subprocess.Popen(host.exec_argv(argv), stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL)
 
 
 def get(q: queue.Queue, what: str) -> object:
@@ -115,7 +92,7 @@ CLIENT = textwrap.dedent('''
 ''')
 
 
-def test_client_in_another_namespace_reaches_the_router(netns: str, tmp_path: Path,
+def test_client_in_another_namespace_reaches_the_router(netns: Host, tmp_path: Path,
                                                         router: tuple[Transport, str]) -> None:
     transport, endpoint = router
     keys = RunKeys("netns")
@@ -130,8 +107,8 @@ def test_client_in_another_namespace_reaches_the_router(netns: str, tmp_path: Pa
     transport.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
     token = keys.alive("actor", "netns-1")
     client = subprocess.Popen(
-        ["ip", "netns", "exec", netns, sys.executable, "-c", CLIENT, endpoint, keys.config,
-         token], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        netns.exec_argv([sys.executable, "-c", CLIENT, endpoint, keys.config, token]),
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         assert get(alive, "the namespaced client's liveliness token") == (token, True)
         their_netns = get(requests, "the namespaced client's request")
@@ -148,7 +125,7 @@ def test_client_in_another_namespace_reaches_the_router(netns: str, tmp_path: Pa
 
 @pytest.mark.skipif(find_spec("actors.service") is None, reason="hercs actor not written yet")
 def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
-        netns: str, tmp_path: Path, router: tuple[Transport, str]) -> None:
+        netns: Host, tmp_path: Path, router: tuple[Transport, str]) -> None:
     """`hercs actor --connect … --run …` from the namespace: the test plays the replay (serves
     the run's config, acks inserts)."""
     transport, endpoint = router

@@ -1,0 +1,88 @@
+"""A real network between hosts, over mutual TLS: a run whose actor is on another "host" (a
+network namespace behind a veth link, bench.netns) rides out packet loss and a partition;
+and a client joins a router across a slow link.
+
+The run is bench.net_faults' quick setting (`QUICK`): 10 % of packets dropped each way for
+the whole run, and after epoch 1 of 3 every packet dropped both ways for 15 s (longer than
+Zenoh's 10 s lease: the sessions end and the actor reconnects). Needs root, iproute2 and
+iptables (`make netfault-tools`); otherwise skipped with the reason. The namespace, its link
+and the root namespace's iptables chain are removed however the test ends.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apps.certs import make_certs
+from apps.router import open_router
+from bench import net_faults
+from bench.delay_relay import DelayRelay
+from bench.netns import hosts, problem
+from hercs.config import SecurityConfig
+from hercs.security import zenoh_settings
+from hercs.transport import Transport
+from proto.keys import RunKeys
+from tests.support import free_tcp_port
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+
+
+def test_a_run_rides_out_loss_and_a_partition_and_loses_no_acked_episode(
+        tmp_path: Path) -> None:
+    if (why := problem()) is not None:
+        pytest.skip(why)
+    shape = dataclasses.replace(net_faults.QUICK_SHAPE, timeout_s=180.0)
+    with hosts(shape.actors) as links:
+        names = [(host.name, host.chain) for host in links]
+        make_certs(tmp_path / "certs", hosts=[host.host_ip for host in links])
+        result = net_faults.run_setting(net_faults.QUICK, links=links, certs=tmp_path / "certs",
+                                        root=tmp_path / "runs", shape=shape)
+    print(net_faults.report([result], command="tests/fault/test_network_faults.py",
+                            shape=shape, note="", quick=True))
+    assert (result.exit_status, result.actor_exits) == (0, [0]), result.notes
+    assert result.epochs_recorded == [1, 2, 3], "every epoch once"
+    assert result.notes == []
+    assert result.acked > 0 and result.lost == 0, "every acked episode is in the log"
+    assert result.stored_records == result.stored_distinct, "retries stored once"
+    # the cut was felt: no insert crossed it, the actor retried, and inserts came back
+    assert result.longest_insert_gap_s is not None and result.longest_insert_gap_s >= shape.cut_s
+    assert result.retries >= 1
+    assert result.first_insert_after_heal_s is not None
+    # nothing of the fault is left on this machine
+    netns = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    rules = subprocess.run(["iptables", "-w", "-S"], capture_output=True, text=True).stdout
+    for name, chain in names:
+        assert name not in netns and chain not in rules
+
+
+def test_a_tls_client_joins_across_200_ms_of_one_way_delay(tmp_path: Path) -> None:
+    """A handshake (TCP, TLS, Zenoh's open) across a slow link takes about four round trips,
+    1.6 s here: more than one connect window used to allow."""
+    certs = tmp_path / "certs"
+    make_certs(certs)
+    security = SecurityConfig(tls_ca=str(certs / "ca.pem"), tls_cert=str(certs / "{role}.pem"),
+                              tls_key=str(certs / "{role}.key"))
+    port = free_tcp_port()
+    router = open_router([f"tls/127.0.0.1:{port}"], security)
+    keys = RunKeys("slow")
+    try:
+        router.serve(keys.config, lambda payload: b"pong " + payload)
+        with DelayRelay(listen=("127.0.0.1", 0), target=("127.0.0.1", port), delay_s=0.2,
+                        rng=np.random.default_rng(0)) as relay:
+            endpoint = f"tls/127.0.0.1:{relay.listen_address[1]}"
+            settings = zenoh_settings(security, mode="client", role="actor",
+                                      endpoints=[endpoint])
+            started = time.monotonic()
+            with Transport.open(mode="client", connect=[endpoint], connect_timeout_s=30,
+                                settings=settings) as client:
+                joined_s = time.monotonic() - started
+                assert client.request(keys.config, b"ping", timeout_s=10) == b"pong ping"
+    finally:
+        router.close()
+    print(f"joined across the 200 ms link after {joined_s:.1f} s")
