@@ -1,0 +1,26 @@
+"""bench/memory.py quick mode: a real 2-epoch run sampled from /proc, every service found by
+its command line, every sample a positive RSS, and the report's row per role."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+ROLES = {"up", "replay", "clusterer", "learner", "evaluator", "actor"}
+
+
+def test_quick_mode_samples_every_service_of_a_run(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "bench.memory", "--quick", "--out",
+                           str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    rows = list(csv.DictReader(open(tmp_path / "memory-quick.csv")))
+    assert {r["role"] for r in rows} == ROLES
+    assert all(float(r["rss_mb"]) > 0 for r in rows)
+    # once warm every service holds its interpreter and imports: tens of MB at least
+    assert all(max(float(r["rss_mb"]) for r in rows if r["role"] == role) > 20 for role in ROLES)
+    assert max(int(r["epoch"]) for r in rows) >= 1
+    text = (tmp_path / "memory.md").read_text()
+    assert all(f"| memory-quick | {role} |" in text for role in ROLES)
