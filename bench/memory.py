@@ -122,7 +122,7 @@ def store_mb_per_episode(config: HercsConfig) -> float:
 
 
 def summarize(csv_path: Path) -> list[dict[str, object]]:
-    rows = list(csv.DictReader(open(csv_path)))
+    rows = list(csv.DictReader(csv_path.read_text().splitlines()))
     by_role: dict[str, list[tuple[int, float]]] = defaultdict(list)
     for r in rows:
         by_role[r["role"]].append((int(r["epoch"]), float(r["rss_mb"])))

@@ -16,7 +16,7 @@ def test_quick_mode_samples_every_service_of_a_run(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.memory", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
-    rows = list(csv.DictReader(open(tmp_path / "memory-quick.csv")))
+    rows = list(csv.DictReader((tmp_path / "memory-quick.csv").read_text().splitlines()))
     assert {r["role"] for r in rows} == ROLES
     assert all(float(r["rss_mb"]) > 0 for r in rows)
     # once warm every service holds its interpreter and imports: tens of MB at least
