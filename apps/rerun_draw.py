@@ -54,7 +54,7 @@ class EpisodeOutcome:
     success: bool  # ‖ag_T − g_T‖ ≤ the task's threshold
     final_distance: float
     cluster: int  # of ag_T under the cluster model current at insert; −1 before the first
-    desired_goal: np.ndarray  # g_T, (3,)
+    desired_goal: np.ndarray  # g_T, (goal_dim,)
     actor_id: str
     seq: int
     policy_version: int

@@ -2,8 +2,8 @@
 
 Shapes, with T = spec.episode_steps:
     obs      (T+1, obs_dim) float32   o_0 .. o_T
-    ag       (T+1, 3)       float32   achieved goal ag_0 .. ag_T
-    g        (T, 3)         float32   desired goal at each step (constant in Fetch)
+    ag       (T+1, goal_dim) float32  achieved goal ag_0 .. ag_T (Fetch: 3-d)
+    g        (T, goal_dim)  float32   desired goal at each step (constant in Fetch)
     actions  (T, action_dim) float32  u_0 .. u_{T-1}
 """
 
