@@ -127,8 +127,10 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
         rows = (tmp_path / "runs" / name / "metrics.csv").read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch
         committed = tmp_path / "committed" / name  # the small files, ready to commit
+        # the small files, and the first (here: only) run of its cell publishes its policy
         assert sorted(p.name for p in committed.iterdir()) == [
-            "bench_done.json", "config.yaml", "metrics.csv"]
+            "bench_done.json", "checkpoints", "config.yaml", "metrics.csv"]
+        assert [p.name for p in (committed / "checkpoints").iterdir()] == ["best.pt"]
         assert (committed / "metrics.csv").read_text() == (
             tmp_path / "runs" / name / "metrics.csv").read_text()
 
