@@ -167,10 +167,17 @@ class Actor:
                 return self.proc.wait(), True
 
 
+def actor_ident(index: int) -> str:
+    """The `--id` of the actor on host `index` (its wire id adds `@<incarnation>`)."""
+    return f"net-{index}"
+
+
 def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
-                out: Path) -> Actor:
-    ident = f"net-{index}"
-    log = out / f"{run}.{ident}.log"
+                out: Path, log_name: str | None = None) -> Actor:
+    """`hercs actor` in `host`'s namespace, its output (DEBUG: one line per ack) in
+    `out/log_name` (default `<run>.<ident>.log`)."""
+    ident = actor_ident(index)
+    log = out / (log_name or f"{run}.{ident}.log")
     argv = host.exec_argv([sys.executable, "-m", "apps.cli", "actor", "--connect", endpoint,
                            "--run", run, "--tls-dir", str(certs), "--id", ident])
     with log.open("wb") as sink:
