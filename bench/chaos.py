@@ -95,10 +95,11 @@ class Shape:
         return f"{kind}-{self.task}-{self.method}-s{self.seed}"
 
 
-QUICK_SHAPE = Shape(task="reach", method="her-cs", epochs=3, stall_s=240.0,
-                    sets=("training.cycles_per_epoch=4", "training.eval_episodes=5",
+QUICK_SHAPE = Shape(task="reach", method="her-cs", epochs=5, stall_s=240.0,
+                    sets=("training.cycles_per_epoch=8", "training.eval_episodes=5",
                           "cluster.fgb_size=40"))
-"""CI: FetchReach, 3 epochs of 4 cycles: long enough (~1 min) for QUICK_PLAN's kill and cut."""
+"""CI: FetchReach, 5 epochs of 8 cycles (~1 min): QUICK_PLAN's kill and cut, and the
+recovery from both, fall well inside it."""
 
 
 @dataclass
@@ -155,6 +156,7 @@ class Soak:
         self.state, self.shape, self.links, self.certs = state, shape, links, certs
         self.run_root = work / "runs"
         self.run_dir = self.run_root / state.name
+        self.run_root.mkdir(parents=True, exist_ok=True)
         self.state_path = work / f"{state.name}.state.json"
         self.port = free_port()
         self.offset, self.started = state.elapsed_s, time.monotonic()
@@ -271,7 +273,7 @@ class Soak:
         for ident, at in restarted:
             for record in reversed(self.state.injections):
                 if record["target"] == ident and record["kind"] == "kill":
-                    record.setdefault("back_at_s", round(at, 2))
+                    record.setdefault("restarted_at_s", round(at, 2))
                     break
 
     # ----------------------------------------------------------------------- run
@@ -285,10 +287,10 @@ class Soak:
                 "wall": datetime.now(UTC).isoformat(timespec="seconds"),
                 "outcome": "the soak was stopped; continued with hercs up --resume"})
         self.state.loads.append(os.getloadavg()[0])
-        self.up = self.launch(resume=resume)
-        self.actors.start_all(self.now())
         last_line, last_count, last_save = self.now(), 0, self.now()
         try:
+            self.up = self.launch(resume=resume)
+            self.actors.start_all(self.now())
             while True:
                 now = self.now()
                 for ident in [i for i, (due, _) in self.cuts.items() if due <= now]:

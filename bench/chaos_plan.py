@@ -65,10 +65,10 @@ class ChaosPlan:
                 raise ValueError(f"{name}: got {value}, expected >= 0 or None")
 
 
-QUICK_PLAN = ChaosPlan(kill_gap_s=(20.0, 25.0), cut_gap_s=(30.0, 35.0), cut_s=(12.0, 12.0),
+QUICK_PLAN = ChaosPlan(kill_gap_s=(12.0, 15.0), cut_gap_s=(20.0, 24.0), cut_s=(12.0, 12.0),
                        targets=("actor",), max_kills=1, max_cuts=1)
-"""CI: one remote actor killed (the bench's own supervisor path) 20–25 s after the launch,
-one host cut for 12 s (beyond Zenoh's 10 s lease) 30–35 s after it."""
+"""CI: one remote actor killed (the bench's own supervisor path) 12–15 s after the launch,
+one host cut for 12 s (beyond Zenoh's 10 s lease) 20–24 s after it."""
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,12 @@
 of the soaks and their fault-free seeds (docs/results/chaos.{md,json}).
 
 A record holds the schedule and every injection, each with what followed it: `back` (a
-killed service's "started … again" line, a remote actor's restart by the bench, a killed
-launcher's "resuming run" line, a cut actor's "remote actor … joined" line after the heal),
-the next insert (of that actor for an actor's kill or cut, of anyone otherwise) and the next
-epoch line, all from the end of the injection; and bench.net_measure's row of the whole run
-(exit statuses, epochs, acked / lost / stored twice, retries, lag, inserts/s, epoch times).
+killed service's "started … again" line, a killed launcher's "resuming run" line, a killed
+or cut actor's "remote actor … joined" line: the router sees its session again),
+the next insert (of that actor's new incarnation after its kill, of that actor after a cut,
+of anyone otherwise) and the next epoch line, all from the end of the injection; and
+bench.net_measure's row of the whole run (exit statuses, epochs, acked / lost / stored
+twice, retries, lag, inserts/s, epoch times).
 """
 
 from __future__ import annotations
@@ -57,21 +58,21 @@ def annotate(state: SoakState, run_dir: Path) -> list[dict[str, Any]]:
             target, start = record["target"], record["at_s"]
             end = record.get("healed_at_s", start)
             end_wall = record.get("healed_wall_s", record["wall_s"])
-            if record["kind"] == "cut":
-                back = re.compile(rf"^hercs up: remote actor {re.escape(target)}@\S+ joined")
+            if target in actors:  # its session (a new one after a kill) seen by the router
+                back = re.compile(rf"^hercs up: remote actor {re.escape(target)}(@\S+)? joined")
             elif target == "launcher":
                 back = re.compile(r"^hercs up: resuming run")
             else:
                 back = re.compile(rf"^hercs up: started \w+ {re.escape(target)} again")
+            record["back_s"] = _first([t for t, line in state.progress if back.match(line)],
+                                      end)
+            ours = [(actor_id, t) for (actor_id, _), t in zip(pairs, times, strict=True)
+                    if target not in actors or actor_id.startswith(f"{target}@")]
             if record["kind"] == "kill" and target in actors:
-                at = record.get("back_at_s")
-                record["back_s"] = None if at is None else round(at - start, 2)
-            else:
-                record["back_s"] = _first([t for t, line in state.progress if back.match(line)],
-                                          end)
-            inserts = [t for (actor_id, _), t in zip(pairs, times, strict=True)
-                       if target not in actors or actor_id.startswith(f"{target}@")]
-            record["next_insert_s"] = _first(inserts, end_wall)
+                # a new incarnation's: the replay may still store what the killed one sent
+                old = {actor_id for actor_id, t in ours if t < end_wall}
+                ours = [(actor_id, t) for actor_id, t in ours if actor_id not in old]
+            record["next_insert_s"] = _first([t for _, t in ours], end_wall)
             record["next_epoch_s"] = _first(epochs, end)
         annotated.append(record)
     return annotated
@@ -222,9 +223,12 @@ def _injections(r: dict[str, Any]) -> list[str]:
              f"{plan.get('targets')}, cuts of {plan.get('cut_s')} s every {plan.get('cut_gap_s')}"
              f" s after the previous heal ({r['schedule_drawn']} events drawn up to "
              f"{plan.get('horizon_s', 0) / 3600:g} h; {len(r['schedule'])} fell within the "
-             "run). Back = the target running again (a cut: the actor's session seen again by "
-             "the router); next insert = of that actor for an actor's kill or cut, of any "
-             "actor otherwise; all from the kill or the heal.", "",
+             "run). Back = the target running again: a service's \"started … again\" line, "
+             "a launcher's \"resuming run\", an actor's session seen by the router "
+             "(\"remote actor … joined\"; after a kill, its new incarnation's, started 1 s "
+             "after the kill; after a cut, – if the session outlived the cut); next insert = "
+             "of the killed actor's new incarnation, of the cut actor, of any actor after a "
+             "service's kill; all from the kill or the heal.", "",
              "| at (planned) | injection | pid | back after | next insert after | next epoch "
              "after | outcome |", "|---|---|---|---|---|---|---|"]
     for i in r["injections"]:
