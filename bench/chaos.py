@@ -355,12 +355,17 @@ def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: 
     name = shape.run_name(chaos_seed)
     state_path = work / f"{name}.state.json"
     work.mkdir(parents=True, exist_ok=True)
+    state = new_state(shape, chaos_seed=chaos_seed, plan=plan, quick=quick)
     if state_path.is_file():
-        state = SoakState.load(state_path)
+        saved = SoakState.load(state_path)
+        asked = json.loads(json.dumps([state.shape, state.plan]))  # tuples as lists
+        if [saved.shape, saved.plan] != asked:
+            raise SystemExit(f"chaos: {state_path} is a soak of another shape or schedule "
+                             f"({saved.shape}, {saved.plan}); give the same options to continue "
+                             "it, or another --work (or remove it) to start afresh")
+        state = saved
         print(f"chaos: {name}: {'finished earlier' if state.finished else 'continuing'} "
               f"({state_path})", flush=True)
-    else:
-        state = new_state(shape, chaos_seed=chaos_seed, plan=plan, quick=quick)
     if not state.finished:
         with sigterm_as_exit(), hosts(shape.actors, subnet=SUBNET) as links:
             certs = work / "certs"
@@ -391,6 +396,12 @@ def main(argv: list[str] | None = None) -> int:
                         metavar="SECTION.FIELD=VALUE", help="passed to hercs up (and to the "
                         "fault-free seeds: give both the same)")
     parser.add_argument("--targets", nargs="+", choices=TARGETS, default=list(ChaosPlan.targets))
+    for flag, default, what in (("--kill-gap", ChaosPlan.kill_gap_s, "between two kills"),
+                                ("--cut-gap", ChaosPlan.cut_gap_s, "from a heal to the next cut"),
+                                ("--cut-s", ChaosPlan.cut_s, "how long a cut lasts")):
+        parser.add_argument(flag, nargs=2, type=float, default=list(default),
+                            metavar=("LOW", "HIGH"), help=f"seconds {what}, drawn uniformly "
+                            f"(default {default[0]:g} {default[1]:g})")
     parser.add_argument("--fault-free", nargs="+", type=int, metavar="SEED",
                         help="run these training seeds without faults (the envelope), not the "
                         "soak")
@@ -418,7 +429,11 @@ def main(argv: list[str] | None = None) -> int:
     else:
         shape = Shape(task=args.task, method=args.method, epochs=args.epochs, seed=args.seed,
                       sets=tuple(args.sets))
-        plan = ChaosPlan(targets=tuple(args.targets))
+        try:
+            plan = ChaosPlan(kill_gap_s=tuple(args.kill_gap), cut_gap_s=tuple(args.cut_gap),
+                             cut_s=tuple(args.cut_s), targets=tuple(args.targets))
+        except ValueError as exc:
+            parser.error(str(exc))
     work = args.work or (Path(tmp.name) if args.quick else WORK)
     committed = args.committed or (None if args.quick else COMMITTED)
     out = args.out or (Path(tmp.name) if args.quick else REPO / "docs" / "results")

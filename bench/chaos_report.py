@@ -218,10 +218,17 @@ def report(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
 
 def _injections(r: dict[str, Any]) -> list[str]:
     plan = r["plan"] or {}
+
+    def span(key: str) -> str:
+        low, high = plan.get(key, (0, 0))
+        return f"{low:g}–{high:g} s"
+
     lines = ["", f"## What was injected: {r['name']}", "",
-             f"Chaos seed {r['chaos_seed']}: kills every {plan.get('kill_gap_s')} s among "
-             f"{plan.get('targets')}, cuts of {plan.get('cut_s')} s every {plan.get('cut_gap_s')}"
-             f" s after the previous heal ({r['schedule_drawn']} events drawn up to "
+             f"Chaos seed {r['chaos_seed']}: a kill every {span('kill_gap_s')} among "
+             f"{', '.join(plan.get('targets', []))}; a cut of {span('cut_s')}, "
+             f"{span('cut_gap_s')} after the launch or the previous heal "
+             f"({r['schedule_drawn']} events "
+             "drawn up to "
              f"{plan.get('horizon_s', 0) / 3600:g} h; {len(r['schedule'])} fell within the "
              "run). Back = the target running again: a service's \"started … again\" line, "
              "a launcher's \"resuming run\", an actor's session seen by the router "
