@@ -344,8 +344,11 @@ def new_state(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None,
     actors = [actor_ident(i + 1) for i in range(shape.actors)]
     events = ([] if plan is None or chaos_seed is None else
               draw_events(plan, actors=actors, rng=np.random.default_rng(chaos_seed)))
+    def plain(value: Any) -> Any:  # as it reads back from JSON (tuples as lists)
+        return json.loads(json.dumps(value))
+
     return SoakState(name=shape.run_name(chaos_seed), chaos_seed=chaos_seed, quick=quick,
-                     shape=asdict(shape), plan=None if plan is None else asdict(plan),
+                     shape=plain(asdict(shape)), plan=None if plan is None else plain(asdict(plan)),
                      events=[asdict(e) for e in events])
 
 
@@ -358,8 +361,7 @@ def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: 
     state = new_state(shape, chaos_seed=chaos_seed, plan=plan, quick=quick)
     if state_path.is_file():
         saved = SoakState.load(state_path)
-        asked = json.loads(json.dumps([state.shape, state.plan]))  # tuples as lists
-        if [saved.shape, saved.plan] != asked:
+        if (saved.shape, saved.plan) != (state.shape, state.plan):
             raise SystemExit(f"chaos: {state_path} is a soak of another shape or schedule "
                              f"({saved.shape}, {saved.plan}); give the same options to continue "
                              "it, or another --work (or remove it) to start afresh")

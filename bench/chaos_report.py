@@ -85,8 +85,11 @@ def measure_soak(state: SoakState, *, run_root: Path) -> dict[str, Any]:
     kills = [r for r in state.injections if r["kind"] == "kill"]
     cuts = [r for r in state.injections if r["kind"] == "cut"]
     done = [r for r in kills if r["outcome"] == "done"]
+    stops = sum(r["kind"] == "interrupted" for r in state.injections)
     injected = (f"{len(done)} kills ({len(kills) - len(done)} skipped), {len(cuts)} cuts"
                 if state.chaos_seed is not None else "nothing")
+    if stops:
+        injected += f"; the bench itself stopped {stops}× and resumed"
     notes = list(state.notes)
     if not state.finished:
         notes.append("the soak has not finished (an interrupted state read back)")
@@ -240,8 +243,9 @@ def _injections(r: dict[str, Any]) -> list[str]:
              "after | outcome |", "|---|---|---|---|---|---|---|"]
     for i in r["injections"]:
         if i["kind"] == "cut":
-            what = f"cut {i['target']} both ways {i['duration_s']:g} s (healed at " \
-                   f"{i.get('healed_at_s', '–')} s)"
+            healed = i.get("healed_at_s")
+            what = (f"cut {i['target']} both ways {i['duration_s']:g} s (healed at "
+                    f"{'–' if healed is None else f'{healed:g}'} s)")
         elif i["kind"] == "kill":
             what = f"SIGKILL {i['target']}"
         else:
