@@ -100,8 +100,8 @@ def measure_soak(state: SoakState, *, run_root: Path) -> dict[str, Any]:
         exit_status=state.up_exits[-1] if state.up_exits else -1,
         actor_exits=[-1 if i.exit is None else i.exit for i in history if not i.killed_by],
         progress=state.progress, healed_wall_s=None, next_epoch_after_heal_s=None,
-        wall_s=state.elapsed_s, load_before=state.loads[0] if state.loads else 0.0,
-        load_after=max(state.loads, default=0.0), notes=notes,
+        wall_s=state.elapsed_s, load_before=min(state.loads, default=0.0),
+        load_after=max(state.loads, default=0.0), notes=notes,  # the range over its sessions
         killed=frozenset(i.key for i in history if i.killed_by))
     ok = result.ok and state.finished
     horizon = state.elapsed_s
