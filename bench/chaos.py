@@ -22,8 +22,12 @@ Resumable: the run folder, logs and the soak's state (`<work>/<run>.state.json`:
 what was injected, each actor incarnation) live under `--work` (default runs/chaos). A soak
 stopped midway (Ctrl-C, SIGTERM, a crash of the bench) is continued by the same command: the
 run with `hercs up --resume`, new actor incarnations, the schedule where its clock stopped
-(the interruption itself is recorded as an injection). A finished run gets `chaos.json` and
-is copied (config.yaml, metrics.csv, chaos.json) to `--committed` (docs/results/runs/).
+(the interruption itself is recorded as an injection). A bench that is SIGKILLed takes its
+run and actors with it (the parent-death signal) but cannot remove its namespaces and
+iptables chains: the next start refuses the subnet until they are gone (`ip netns del
+hnf<pid>-<n>`; `iptables -D INPUT -i hnf<pid>h<n> -j HNF<pid>-<n>`, `-F`, `-X`). A finished
+run gets `chaos.json` and is copied (config.yaml, metrics.csv, chaos.json) to
+`--committed` (docs/results/runs/).
 
 Asserted and reported (bench.chaos_report, docs/results/chaos.{md,json}): `hercs up` exits
 0 and every actor that was not killed on purpose exits 0; every epoch once in metrics.csv;

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from apps.certs import make_certs
+from apps.child_process import pdeathsig_preexec
 from bench.common import git_commit
 from bench.delay_relay import DelayRelay
 from bench.faults import EPOCH, Up
@@ -183,7 +184,8 @@ def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
     with log.open("wb") as sink:
         proc = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, cwd=REPO, start_new_session=True,
-                                env=dict(os.environ, HERCS_LOG="DEBUG"))
+                                env=dict(os.environ, HERCS_LOG="DEBUG"),
+                                preexec_fn=pdeathsig_preexec())  # dies with the bench
     return Actor(host, ident, log, proc)
 
 
