@@ -49,19 +49,18 @@ import signal
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from apps.certs import make_certs
 from bench.chaos_actors import Incarnation, RemoteActors
-from bench.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan, Event, draw_events
+from bench.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan, Event
 from bench.chaos_report import measure_soak, write_report
+from bench.chaos_state import QUICK_SHAPE, Shape, SoakState, new_state
 from bench.faults import Up
-from bench.net_faults import ACTOR_EXIT_S, actor_ident, free_port, sigterm_as_exit
+from bench.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.netns import Host, hosts, problem
 from hercs.rundir import CONFIG
 
@@ -77,71 +76,6 @@ MAX_RESTARTS = 1000
 """`launch.max_restarts` of a soak's run. The default (5 deaths of one child without 5 min of
 uptime in between) would end a soak that happens to draw one service 6 times in a row; the
 give-up rule is tested elsewhere (tests/integration/test_launcher.py), not here."""
-
-
-@dataclass(frozen=True)
-class Shape:
-    """What the soak's run is."""
-
-    task: str = "push"
-    method: str = "her-ebp-cs"
-    epochs: int = 20
-    actors: int = 2
-    seed: int = 1
-    sets: tuple[str, ...] = ()
-    """Extra `--set section.field=value` of the run (the fault-free seeds get the same)."""
-    stall_s: float = 1800.0
-    """No line from `hercs up` for this long (it prints one a minute while it runs): the run
-    is given up and the soak fails."""
-
-    def run_name(self, chaos_seed: int | None) -> str:
-        kind = "nofault" if chaos_seed is None else f"chaos{chaos_seed}"
-        return f"{kind}-{self.task}-{self.method}-s{self.seed}"
-
-
-QUICK_SHAPE = Shape(task="reach", method="her-cs", epochs=5, stall_s=240.0,
-                    sets=("training.cycles_per_epoch=8", "training.eval_episodes=5",
-                          "cluster.fgb_size=40"))
-"""CI: FetchReach, 5 epochs of 8 cycles (~1 min): QUICK_PLAN's kill and cut, and the
-recovery from both, fall well inside it."""
-
-
-@dataclass
-class SoakState:
-    """Everything a stopped soak needs to go on, and a finished one to be reported."""
-
-    name: str
-    chaos_seed: int | None
-    quick: bool
-    shape: dict[str, Any]
-    plan: dict[str, Any] | None
-    events: list[dict[str, Any]]
-    next_event: int = 0
-    elapsed_s: float = 0.0
-    """The run's clock when the state was saved (time the bench was stopped is not on it)."""
-    injections: list[dict[str, Any]] = field(default_factory=list)
-    progress: list[tuple[float, str]] = field(default_factory=list)
-    """`hercs up`'s stdout lines, each at its time on the run's clock."""
-    actors: list[dict[str, Any]] = field(default_factory=list)
-    up_exits: list[int] = field(default_factory=list)
-    """The exit status of each `hercs up` (one per launch; a killed launcher's -9)."""
-    launches: list[str] = field(default_factory=list)
-    """When `hercs up` was started, and its command line."""
-    notes: list[str] = field(default_factory=list)
-    """What went wrong (a stall, an actor that died unasked); empty in a clean soak."""
-    loads: list[float] = field(default_factory=list)
-    finished: bool = False
-
-    def save(self, path: Path) -> None:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(asdict(self), indent=1) + "\n")
-        tmp.replace(path)
-
-    @classmethod
-    def load(cls, path: Path) -> SoakState:
-        data = json.loads(path.read_text())
-        data["progress"] = [(float(t), str(line)) for t, line in data["progress"]]
-        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
 
 def _cmdline(pid: int) -> list[str]:
@@ -343,19 +277,6 @@ class Soak:
             self.save()
 
 
-def new_state(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None,
-              quick: bool) -> SoakState:
-    actors = [actor_ident(i + 1) for i in range(shape.actors)]
-    events = ([] if plan is None or chaos_seed is None else
-              draw_events(plan, actors=actors, rng=np.random.default_rng(chaos_seed)))
-    def plain(value: Any) -> Any:  # as it reads back from JSON (tuples as lists)
-        return json.loads(json.dumps(value))
-
-    return SoakState(name=shape.run_name(chaos_seed), chaos_seed=chaos_seed, quick=quick,
-                     shape=plain(asdict(shape)), plan=None if plan is None else plain(asdict(plan)),
-                     events=[asdict(e) for e in events])
-
-
 def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: Path,
          committed: Path | None, quick: bool) -> dict[str, Any]:
     """Run (or continue, or only read back) one soak; its record (chaos.json)."""
@@ -453,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
             records.append(soak(shape, chaos_seed=args.chaos_seed, plan=plan, work=work,
                                 committed=committed, quick=args.quick))
     command = "python -m bench.chaos " + " ".join(sys.argv[1:] if argv is None else argv)
-    ok = write_report(records, shape=shape, work=work, committed=committed,
+    ok = write_report(records, task=shape.task, method=shape.method, work=work, committed=committed,
                       baselines=args.baseline, window=args.window, out=out,
                       command=command.strip())
     tmp.cleanup()

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from bench.chaos_actors import Incarnation
 from bench.chaos_envelope import (
@@ -31,12 +31,10 @@ from bench.chaos_envelope import (
     smoothed,
     success_curve,
 )
+from bench.chaos_state import SoakState
 from bench.common import git_commit, machine_identity
 from bench.faults import EPOCH
 from bench.net_measure import measure, stored_episodes
-
-if TYPE_CHECKING:
-    from bench.chaos import Shape, SoakState
 
 RECORD = "chaos.json"
 
@@ -86,7 +84,7 @@ def measure_soak(state: SoakState, *, run_root: Path) -> dict[str, Any]:
     cuts = [r for r in state.injections if r["kind"] == "cut"]
     done = [r for r in kills if r["outcome"] == "done"]
     stops = sum(r["kind"] == "interrupted" for r in state.injections)
-    injected = (f"{len(done)} kills ({len(kills) - len(done)} skipped), {len(cuts)} cuts"
+    injected = (f"kills: {len(done)} ({len(kills) - len(done)} skipped), cuts: {len(cuts)}"
                 if state.chaos_seed is not None else "nothing")
     if stops:
         injected += f"; the bench itself stopped {stops}× and resumed"
@@ -224,7 +222,7 @@ def _injections(r: dict[str, Any]) -> list[str]:
 
     def span(key: str) -> str:
         low, high = plan.get(key, (0, 0))
-        return f"{low:g}–{high:g} s"
+        return f"{low:g} s" if low == high else f"{low:g}–{high:g} s"
 
     lines = ["", f"## What was injected: {r['name']}", "",
              f"Chaos seed {r['chaos_seed']}: a kill every {span('kill_gap_s')} among "
@@ -294,13 +292,13 @@ def _curves(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
     return lines
 
 
-def write_report(records: list[dict[str, Any]], *, shape: Shape, work: Path,
+def write_report(records: list[dict[str, Any]], *, task: str, method: str, work: Path,
                  committed: Path | None, baselines: list[Path] | None, window: int, out: Path,
                  command: str) -> bool:
     """chaos.md and chaos.json in `out`: the soaks just run and every committed soak of
-    `shape`'s task and method, against `baselines` (default: the fault-free seeds committed
-    or under `work`). Returns whether every soak kept every promise."""
-    stem = f"{shape.task}-{shape.method}-s"
+    `task` and `method`, against `baselines` (default: the fault-free seeds committed or
+    under `work`). Returns whether every soak kept every promise."""
+    stem = f"{task}-{method}-s"
     roots = [committed, work / "runs"]
     chaos = {r["name"]: r for r in records if r["chaos_seed"] is not None}
     for name, folder in _folders(roots, f"chaos*-{stem}*").items():

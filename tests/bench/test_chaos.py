@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from bench import chaos, chaos_report
+from bench import chaos_report
 from bench.chaos_envelope import (
     check,
     config_differences,
@@ -23,6 +23,7 @@ from bench.chaos_envelope import (
     success_curve,
 )
 from bench.chaos_plan import QUICK_PLAN, ChaosPlan, Event, draw_events
+from bench.chaos_state import QUICK_SHAPE, SoakState, new_state
 
 ACTORS = ["net-1", "net-2"]
 
@@ -119,8 +120,8 @@ def test_a_curve_and_the_configuration_are_read_from_a_run_folder(tmp_path: Path
     assert config_differences(a, c) == ["training.cycles_per_epoch: 50 ≠ 10"]
 
 
-def soak_state(**changes: Any) -> chaos.SoakState:
-    state = chaos.new_state(chaos.QUICK_SHAPE, chaos_seed=1, plan=QUICK_PLAN, quick=True)
+def soak_state(**changes: Any) -> SoakState:
+    state = new_state(QUICK_SHAPE, chaos_seed=1, plan=QUICK_PLAN, quick=True)
     for key, value in changes.items():
         setattr(state, key, value)
     return state
@@ -130,16 +131,16 @@ def test_a_soak_state_survives_a_round_trip(tmp_path: Path) -> None:
     state = soak_state(next_event=1, elapsed_s=42.5, progress=[(1.5, "epoch 1/5  success 0.1")],
                        injections=[{"at_s": 14.0, "kind": "kill", "target": "net-2"}])
     state.save(tmp_path / "state.json")
-    assert chaos.SoakState.load(tmp_path / "state.json") == state
+    assert SoakState.load(tmp_path / "state.json") == state
     assert state.name == "chaos1-reach-her-cs-s1"
-    assert chaos.new_state(chaos.QUICK_SHAPE, chaos_seed=None, plan=None,
+    assert new_state(QUICK_SHAPE, chaos_seed=None, plan=None,
                            quick=True).events == []
 
 
 def record(name: str, *, rates: list[float], chaos_seed: int | None = 1,
            **result: Any) -> dict[str, Any]:
     row: dict[str, Any] = dict(
-        setting=name, injected="3 kills (0 skipped), 1 cuts", exit_status=0,
+        setting=name, injected="kills: 3 (0 skipped), cuts: 1", exit_status=0,
         actor_exits=[0, 0], epochs_expected=len(rates),
         epochs_recorded=list(range(1, len(rates) + 1)), episodes=100, acked=90, lost=0,
         stored_records=90, stored_distinct=90, duplicate_acks=1, retries=5, superseded=2,

@@ -20,6 +20,7 @@ import pytest
 
 from bench import chaos
 from bench.chaos_plan import QUICK_PLAN
+from bench.chaos_state import QUICK_SHAPE
 from bench.netns import make_host, problem
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
@@ -28,7 +29,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
 def test_a_run_rides_out_a_killed_actor_and_a_cut_and_loses_nothing(tmp_path: Path) -> None:
     if (why := problem(chaos.SUBNET)) is not None:
         pytest.skip(why)
-    record = chaos.soak(chaos.QUICK_SHAPE, chaos_seed=1, plan=QUICK_PLAN, work=tmp_path,
+    record = chaos.soak(QUICK_SHAPE, chaos_seed=1, plan=QUICK_PLAN, work=tmp_path,
                         committed=None, quick=True)
     result = record["result"]
     print(record["injections"], result)
@@ -49,7 +50,7 @@ def test_a_run_rides_out_a_killed_actor_and_a_cut_and_loses_nothing(tmp_path: Pa
     assert cut["next_insert_s"] is not None, "the cut actor inserted after the heal"
     assert record["ok"]
     # nothing of the faults is left: the namespaces, their links, the iptables chains
-    ours = [make_host(i + 1, subnet=chaos.SUBNET) for i in range(chaos.QUICK_SHAPE.actors)]
+    ours = [make_host(i + 1, subnet=chaos.SUBNET) for i in range(QUICK_SHAPE.actors)]
     netns = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     rules = subprocess.run(["iptables", "-w", "-S"], capture_output=True, text=True).stdout
     assert problem(chaos.SUBNET) is None, "the soak's subnet is free again"
