@@ -81,14 +81,20 @@ class SoakState:
         return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
 
+def _plain(value: Any) -> Any:
+    """`value` as it reads back from JSON (tuples as lists), so that a saved state and a new
+    one of the same options compare equal."""
+    return json.loads(json.dumps(value))
+
+
 def new_state(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None,
               quick: bool) -> SoakState:
+    """A soak not yet started: its whole schedule drawn from `chaos_seed` (none for a
+    fault-free seed, `chaos_seed` None)."""
     actors = [actor_ident(i + 1) for i in range(shape.actors)]
     events = ([] if plan is None or chaos_seed is None else
               draw_events(plan, actors=actors, rng=np.random.default_rng(chaos_seed)))
-    def plain(value: Any) -> Any:  # as it reads back from JSON (tuples as lists)
-        return json.loads(json.dumps(value))
-
     return SoakState(name=shape.run_name(chaos_seed), chaos_seed=chaos_seed, quick=quick,
-                     shape=plain(asdict(shape)), plan=None if plan is None else plain(asdict(plan)),
+                     shape=_plain(asdict(shape)),
+                     plan=None if plan is None else _plain(asdict(plan)),
                      events=[asdict(e) for e in events])
