@@ -5,7 +5,7 @@ service is SIGKILLed every 60–120 s and an actor's host is cut off every few m
     python -m bench.chaos --fault-free 1 2 3   # fault-free seeds of the soak's configuration
     python -m bench.chaos                      # the soak (chaos seed 1, training seed 1)
     python -m bench.chaos --report-only        # docs/results/chaos.md from the committed runs
-    python -m bench.chaos --quick              # CI: FetchReach, 3 short epochs, 1 kill, 1 cut
+    python -m bench.chaos --quick              # CI (~80 s): FetchReach, 5 short epochs, 1 kill, 1 cut
 
 The run (`Shape`; default FetchPush, HER-EBP-CS, 20 epochs, seed 1) is `hercs up --actors 0`
 on this host, listening with TLS on each link's host end, and 2 `hercs actor` each in its own
@@ -344,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="where chaos.md and chaos.json go (default "
                         "docs/results; a temp folder with --quick)")
     parser.add_argument("--report-only", action="store_true")
-    parser.add_argument("--quick", action="store_true", help="CI: FetchReach 3 × 4 cycles, "
+    parser.add_argument("--quick", action="store_true", help="CI: FetchReach 5 × 8 cycles, "
                         "one remote actor killed, one host cut for 12 s")
     args = parser.parse_args(argv)
     if not args.report_only and (why := problem(SUBNET)) is not None:
