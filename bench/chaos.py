@@ -5,7 +5,7 @@ service is SIGKILLed every 60–120 s and an actor's host is cut off every few m
     python -m bench.chaos --fault-free 1 2 3   # fault-free seeds of the soak's configuration
     python -m bench.chaos                      # the soak (chaos seed 1, training seed 1)
     python -m bench.chaos --report-only        # docs/results/chaos.md from the committed runs
-    python -m bench.chaos --quick              # CI (~80 s): FetchReach, 5 short epochs, 1 kill, 1 cut
+    python -m bench.chaos --quick              # CI, ~80 s: FetchReach, 1 kill, 1 cut
 
 The run (`Shape`; default FetchPush, HER-EBP-CS, 20 epochs, seed 1) is `hercs up --actors 0`
 on this host, listening with TLS on each link's host end, and 2 `hercs actor` each in its own
@@ -282,6 +282,10 @@ def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: 
     """Run (or continue, or only read back) one soak; its record (chaos.json)."""
     name = shape.run_name(chaos_seed)
     state_path = work / f"{name}.state.json"
+    done = None if committed is None else committed / name / "chaos.json"
+    if done is not None and done.is_file() and not state_path.is_file():
+        print(f"chaos: {name}: finished and committed ({done.parent})", flush=True)
+        return dict(json.loads(done.read_text()))
     work.mkdir(parents=True, exist_ok=True)
     state = new_state(shape, chaos_seed=chaos_seed, plan=plan, quick=quick)
     if state_path.is_file():
