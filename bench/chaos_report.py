@@ -271,8 +271,8 @@ def _curves(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
                   "; ".join(f"{n}: {c.describe()}" for n, c in calibration.items()) +
                   ". A soak passes when it is inside, or outside at no more epochs than a "
                   "fault-free seed is.", ""]
-    lines += [f"| epoch | {' | '.join(r['name'] + ' (smoothed)' for r in chaos)} | envelope "
-              f"| {' | '.join(names)} |",
+    lines += [f"| epoch | {' | '.join(r['name'] + ' raw (smoothed)' for r in chaos)} | "
+              f"envelope (smoothed) | {' | '.join(n + ' raw' for n in names)} |",
               "|---|" + "---|" * (len(chaos) + 1 + len(names))]
     smooth = {n: smoothed(c, window) for n, c in baselines.items()}
     length = max([len(c) for c in baselines.values()] + [len(r["success"]) for r in chaos])
