@@ -37,6 +37,8 @@ from bench.faults import EPOCH
 from bench.net_measure import measure, stored_episodes
 
 RECORD = "chaos.json"
+VALIDATION = "chaos_validation.md"
+"""Runs of the machinery (written by hand): linked from the report when beside it."""
 
 
 def _first(times: Sequence[float], after: float) -> float | None:
@@ -147,9 +149,11 @@ def _envelope_verdict(result: EnvelopeCheck, calibration: dict[str, EnvelopeChec
 
 def report(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
            free_records: list[dict[str, Any]], *, command: str, window: int,
-           config_notes: list[str], full_commands: list[str]) -> tuple[str, bool]:
-    """The markdown of the soaks in `chaos` against the fault-free curves `baselines`; and
-    whether every soak kept every promise."""
+           config_notes: list[str], full_commands: list[str],
+           validation: str = "") -> tuple[str, bool]:
+    """The markdown of the soaks in `chaos` against the fault-free curves `baselines` (and a
+    link to the `validation` runs' page, if any); and whether every soak kept every
+    promise."""
     quick = any(r["quick"] for r in chaos)
     loads = [v for r in chaos + free_records for v in (r["result"]["load_before"],
                                                        r["result"]["load_after"])]
@@ -208,12 +212,22 @@ def report(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
         lines += _injections(r)
     if baselines:
         lines += _curves(chaos, baselines, checks, calibration, window, config_notes)
+    if validation:
+        lines += ["", "The machinery's validation runs (the quick mode, a 10-epoch FetchReach "
+                  "soak at four times the pace with the launcher among the targets, a bench "
+                  f"stopped and resumed): [{validation}]({validation})."]
     if not any(not r["quick"] for r in chaos):
         lines += ["", "## Full soak: not yet run", "",
-                  "The FetchPush soak and its fault-free seeds take hours of a machine's two "
-                  "cores; they are run by these commands, as root, from the repository root "
-                  "(each skips what is committed already and continues where it was stopped):",
-                  "", "```", *full_commands, "```"]
+                  "The issue's soak (FetchPush, HER-EBP-CS, 20 epochs, 2 remote actors over "
+                  "TLS, chaos seed 1) and its fault-free seeds (the same run with nothing "
+                  "injected, seeds 1–3) are four runs of 20 epochs: about 10 min each on 2 "
+                  "idle cores, 20–40 min beside other runs. They are run as root from the "
+                  "repository root by the commands below. Each run lives in runs/chaos/ and, "
+                  "once finished, is copied to docs/results/runs/ (`config.yaml`, "
+                  "`metrics.csv`, `chaos.json`; commit them); a command stopped midway "
+                  "continues where it stopped when given again, and a committed run is "
+                  "skipped. The last command writes this file and chaos.json anew from the "
+                  "committed runs.", "", "```", *full_commands, "```"]
     return "\n".join(lines) + "\n", all_ok
 
 
@@ -325,7 +339,8 @@ def write_report(records: list[dict[str, Any]], *, task: str, method: str, work:
             "python -m bench.chaos --report-only        # this file, from docs/results/runs/"]
     text, ok = report(sorted(chaos.values(), key=lambda r: r["name"]), curves, free_records,
                       command=command, window=window, config_notes=config_notes,
-                      full_commands=full)
+                      full_commands=full,
+                      validation=VALIDATION if (out / VALIDATION).is_file() else "")
     out.mkdir(parents=True, exist_ok=True)
     (out / "chaos.md").write_text(text)
     (out / "chaos.json").write_text(json.dumps(
