@@ -41,8 +41,8 @@ slurm:
 
 # What tests/fault/test_network_faults.py, bench/net_faults.py and bench/chaos.py build a
 # network between namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root
-# and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or without root,
-# the test prints "SKIPPED: <reason>".
+# and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or
+# without root, the tests print "SKIPPED: <reason>".
 netfault-tools:
 	bash deploy/install_netfault_tools.sh
 
