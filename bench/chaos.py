@@ -219,6 +219,15 @@ class Soak:
         """Launch (or resume) and inject until `hercs up` ends; the state is saved after each
         injection and on the way out, finished or not."""
         resume = (self.run_dir / CONFIG).is_file()
+        if resume and not (self.state.injections
+                           and self.state.injections[-1]["kind"] == "interrupted"):
+            self.state.injections.append({  # the bench died without its `finally` (SIGKILL)
+                "at_s": round(self.now(), 2), "kind": "interrupted", "target": "bench",
+                "wall": datetime.now(UTC).isoformat(timespec="seconds"),
+                "outcome": "the soak stopped without saving its end (its last save is here)"})
+        for incarnation in self.history:
+            if incarnation.exit is None and not incarnation.killed_by:  # died with that bench
+                incarnation.killed_by = "bench stopped"
         if resume:
             self.state.injections.append({
                 "at_s": round(self.now(), 2), "kind": "resume", "target": "bench",
