@@ -228,6 +228,9 @@ class Soak:
         for incarnation in self.history:
             if incarnation.exit is None and not incarnation.killed_by:  # died with that bench
                 incarnation.killed_by = "bench stopped"
+        for record in self.state.injections:
+            if record["kind"] == "cut" and "healed_at_s" not in record:
+                record["outcome"] = "done; ended with the bench (its namespace went with it)"
         if resume:
             self.state.injections.append({
                 "at_s": round(self.now(), 2), "kind": "resume", "target": "bench",
