@@ -39,10 +39,10 @@ mujoco-py: $(STAMP)
 slurm:
 	bash deploy/install_slurm.sh
 
-# What tests/fault/test_network_faults.py and bench/net_faults.py build a network between
-# namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root and missing
-# (deploy/install_netfault_tools.sh; nothing is configured). Without them, or without root,
-# the test prints "SKIPPED: <reason>".
+# What tests/fault/test_network_faults.py, bench/net_faults.py and bench/chaos.py build a
+# network between namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root
+# and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or
+# without root, the tests print "SKIPPED: <reason>".
 netfault-tools:
 	bash deploy/install_netfault_tools.sh
 

@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
+from apps.child_process import pdeathsig_preexec
 from bench.common import git_commit
 from hercs.metrics import recorded_epochs
 from hercs.rundir import METRICS
@@ -96,8 +97,9 @@ class Up:
         """The output ended (the launcher exited); every later wait fails at once."""
         self.seen: list[tuple[float, str]] = []
         self._log = log_path.open("a")
+        # the parent-death signal: a bench that dies (even by SIGKILL) takes its run with it
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=self._log, text=True,
-                                     cwd=REPO)
+                                     cwd=REPO, preexec_fn=pdeathsig_preexec())
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from apps.certs import make_certs
+from apps.child_process import pdeathsig_preexec
 from bench.common import git_commit
 from bench.delay_relay import DelayRelay
 from bench.faults import EPOCH, Up
@@ -167,16 +168,24 @@ class Actor:
                 return self.proc.wait(), True
 
 
+def actor_ident(index: int) -> str:
+    """The `--id` of the actor on host `index` (its wire id adds `@<incarnation>`)."""
+    return f"net-{index}"
+
+
 def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
-                out: Path) -> Actor:
-    ident = f"net-{index}"
-    log = out / f"{run}.{ident}.log"
+                out: Path, log_name: str | None = None) -> Actor:
+    """`hercs actor` in `host`'s namespace, its output (DEBUG: one line per ack) in
+    `out/log_name` (default `<run>.<ident>.log`)."""
+    ident = actor_ident(index)
+    log = out / (log_name or f"{run}.{ident}.log")
     argv = host.exec_argv([sys.executable, "-m", "apps.cli", "actor", "--connect", endpoint,
                            "--run", run, "--tls-dir", str(certs), "--id", ident])
     with log.open("wb") as sink:
         proc = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, cwd=REPO, start_new_session=True,
-                                env=dict(os.environ, HERCS_LOG="DEBUG"))
+                                env=dict(os.environ, HERCS_LOG="DEBUG"),
+                                preexec_fn=pdeathsig_preexec())  # dies with the bench
     return Actor(host, ident, log, proc)
 
 

@@ -127,9 +127,12 @@ def measure(*, setting: str, injected: str, run_dir: Path, actor_logs: dict[str,
             epochs_expected: int, exit_status: int, actor_exits: list[int],
             progress: list[tuple[float, str]], healed_wall_s: float | None,
             next_epoch_after_heal_s: float | None, wall_s: float, load_before: float,
-            load_after: float, notes: list[str]) -> NetResult:
+            load_after: float, notes: list[str],
+            killed: frozenset[str] = frozenset()) -> NetResult:
     """The row of one run: `actor_logs` by actor id, `progress` the launcher's timestamped
-    lines, `healed_wall_s` the wall-clock time a cut ended (None: no cut)."""
+    lines, `healed_wall_s` the wall-clock time a cut ended (None: no cut). The logs named in
+    `killed` are of actor processes SIGKILLed on purpose (bench.chaos): they end without a
+    stopping line, and only their ack lines count."""
     logs = {ident: read_actor_log(path) for ident, path in actor_logs.items()}
     acked = set().union(*(log.acked for log in logs.values()))
     pairs, times = stored_episodes(run_dir)
@@ -137,9 +140,9 @@ def measure(*, setting: str, injected: str, run_dir: Path, actor_logs: dict[str,
     totals = {k: sum((log.counts or {}).get(k, 0) for log in logs.values())
               for k in ("episodes", "retries", "superseded", "unacked")}
     for ident, log in logs.items():
-        if log.counts is None:
+        if log.counts is None and ident not in killed:
             notes.append(f"{ident} wrote no stopping line (see {actor_logs[ident].name})")
-        elif log.counts["acked"] != len(log.acked):
+        elif log.counts is not None and log.counts["acked"] != len(log.acked):
             notes.append(f"{ident}: {log.counts['acked']} acked by its count, "
                          f"{len(log.acked)} ack lines")
     times.sort()
