@@ -64,7 +64,9 @@ def run_processes(run_dir: Path) -> dict[int, str]:
             < len(argv) else ""
         if config_path in argv:
             found[int(entry.name)] = command
-        elif command == "up" and b"--run" in argv and argv[argv.index(b"--run") + 1] == name:
+        elif command == "up" and (str(run_dir).encode() in argv  # `up --resume RUN_DIR`
+                                  or (b"--run" in argv
+                                      and argv[argv.index(b"--run") + 1] == name)):
             found[int(entry.name)] = "up"
     return found
 
