@@ -156,21 +156,21 @@ def make_env_rule(spec: TaskSpec) -> EnvRule:
     compute = unwrapped.compute_reward  # type: ignore[attr-defined]
     is_success = getattr(unwrapped, "_is_success", None)
 
-    def reward(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    def pairwise(fn: Any, dtype: type, achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
+        """`fn` of the env on the goal pairs flattened to rows, shaped back to the leading
+        axes the two broadcast to."""
         achieved, desired = np.asarray(achieved), np.asarray(desired)
         lead = np.broadcast_shapes(achieved.shape[:-1], desired.shape[:-1])
-        flat_a = np.broadcast_to(achieved, (*lead, spec.goal_dim)).reshape(-1, spec.goal_dim)
-        flat_d = np.broadcast_to(desired, (*lead, spec.goal_dim)).reshape(-1, spec.goal_dim)
-        r = np.asarray(compute(flat_a, flat_d, {}), np.float32)
-        return r.reshape(lead)
+        rows = [np.broadcast_to(x, (*lead, spec.goal_dim)).reshape(-1, spec.goal_dim)
+                for x in (achieved, desired)]
+        return np.asarray(fn(*rows), dtype).reshape(lead)
+
+    def reward(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
+        return pairwise(lambda a, d: compute(a, d, {}), np.float32, achieved, desired)
 
     def success(achieved: np.ndarray, desired: np.ndarray) -> np.ndarray:
         if is_success is not None:
-            achieved, desired = np.asarray(achieved), np.asarray(desired)
-            lead = np.broadcast_shapes(achieved.shape[:-1], desired.shape[:-1])
-            flat_a = np.broadcast_to(achieved, (*lead, spec.goal_dim)).reshape(-1, spec.goal_dim)
-            flat_d = np.broadcast_to(desired, (*lead, spec.goal_dim)).reshape(-1, spec.goal_dim)
-            return np.asarray(is_success(flat_a, flat_d), bool).reshape(lead)
+            return pairwise(is_success, bool, achieved, desired)
         return reward(achieved, desired) >= reward(desired, desired)
 
     return EnvRule(reward=reward, success=success)
