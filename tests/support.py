@@ -93,3 +93,16 @@ def skip_without_mujoco_py() -> None:
     problem = mujoco_py_problem()
     if problem is not None:
         pytest.skip(f"Fetch*-v1 needs mujoco-py and {problem}; `make mujoco-py` installs it")
+
+
+def reset_and_check_spec(spec, env) -> dict:  # type: ignore[no-untyped-def]
+    """Reset `env` (seed 0) and assert it has `spec`'s id, shapes, action size and horizon;
+    returns the first observation."""
+    assert env.spec is not None and env.spec.id == spec.env_id
+    obs, _ = env.reset(seed=0)
+    assert obs["observation"].shape == (spec.obs_dim,)
+    assert obs["achieved_goal"].shape == obs["desired_goal"].shape == (spec.goal_dim,)
+    assert env.action_space.shape == (spec.action_dim,)
+    assert env.spec.max_episode_steps == spec.episode_steps
+    return obs
+

@@ -11,6 +11,7 @@ from hercs.config import HercsConfig, apply_overrides
 from hercs.envs import make_env
 from hercs.errors import ConfigError
 from hercs.tasks import task_spec
+from tests.support import reset_and_check_spec
 
 BUILT_IN_IDS = ["PointMaze_UMaze-v3", "PointMaze_Medium-v3", "HandReach-v3",
                 "HandManipulateBlock-v1", "HandManipulateEgg-v1", "HandManipulatePen-v1"]
@@ -31,14 +32,9 @@ def test_built_in_spec_matches_the_env_and_its_reward(env_id: str) -> None:
     spec = task_spec(env_id)
     env = make_env(spec)
     try:
-        assert env.spec is not None and env.spec.id == spec.env_id
-        obs, _ = env.reset(seed=0)
-        assert obs["observation"].shape == (spec.obs_dim,)
-        assert obs["achieved_goal"].shape == obs["desired_goal"].shape == (spec.goal_dim,)
-        assert env.action_space.shape == (spec.action_dim,)
+        obs = reset_and_check_spec(spec, env)
         assert np.all(env.action_space.high == spec.max_action)
         assert np.all(env.action_space.low == -spec.max_action)
-        assert env.spec.max_episode_steps == spec.episode_steps
         rng = np.random.default_rng(1)
         # per-coordinate noise that puts about half the pairs within the threshold
         scale = spec.distance_threshold / np.sqrt(min(spec.goal_dim, 3) if

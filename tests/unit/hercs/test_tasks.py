@@ -6,7 +6,7 @@ import pytest
 
 from hercs.envs import make_env
 from hercs.tasks import ENV_VERSIONS, TASKS, fetch_reward, task_spec
-from tests.support import skip_without_mujoco_py
+from tests.support import reset_and_check_spec, skip_without_mujoco_py
 
 
 @pytest.mark.parametrize("version", list(ENV_VERSIONS))
@@ -17,12 +17,7 @@ def test_spec_matches_env_and_reward_agrees(name: str, version: str) -> None:
     spec = task_spec(name, version)
     env = make_env(spec)
     try:
-        assert env.spec is not None and env.spec.id == spec.env_id
-        obs, _ = env.reset(seed=0)
-        assert obs["observation"].shape == (spec.obs_dim,)
-        assert obs["achieved_goal"].shape == obs["desired_goal"].shape == (spec.goal_dim,)
-        assert env.action_space.shape == (spec.action_dim,)
-        assert env.spec.max_episode_steps == spec.episode_steps
+        reset_and_check_spec(spec, env)
         assert env.unwrapped.distance_threshold == spec.distance_threshold
         assert env.unwrapped.has_object == spec.has_object
         rng = np.random.default_rng(3)
