@@ -13,7 +13,6 @@ limiter runs free (`replay.free_run`), and synthetic episodes act with no weight
 from __future__ import annotations
 
 import contextlib
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
 from tests.integration.conftest import free_endpoint
-from tests.integration.services import ServiceProcess, make_test_config
+from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -77,17 +76,7 @@ def log_bytes(run_dir: Path) -> int:
 
 
 def status(client: Transport) -> pb.ReplayStatus:
-    got = threading.Event()
-    box: list[pb.ReplayStatus] = []
-
-    def on_status(key: str, payload: bytes) -> None:
-        box.append(pb.ReplayStatus.FromString(payload))
-        got.set()
-
-    sub = client.subscribe(KEYS.status, on_status)
-    assert got.wait(TIMEOUT_S), "no ReplayStatus within the timeout"
-    sub.close()
-    return box[-1]
+    return next_replay_status(client, KEYS.status, TIMEOUT_S)
 
 
 def test_a_killed_replay_resumes_the_same_buffer_from_a_bounded_log(

@@ -7,11 +7,14 @@ import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.transport import Transport
+from proto import hercs_pb2 as pb
 
 WAIT_S = 15.0
 STOP_WITHIN_S = 5.0
@@ -92,3 +95,19 @@ def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) 
     assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
     assert time.monotonic() - started < STOP_WITHIN_S
     wait_for(alive, lambda c: c == (key, False), f"{key} to vanish")
+
+
+def next_replay_status(client: Transport, key: str, timeout_s: float) -> pb.ReplayStatus:
+    """The next ReplayStatus the replay publishes on `key` (asserted within `timeout_s`)."""
+    got = threading.Event()
+    box: list[pb.ReplayStatus] = []
+
+    def on_status(_key: str, payload: bytes) -> None:
+        box.append(pb.ReplayStatus.FromString(payload))
+        got.set()
+
+    sub = client.subscribe(key, on_status)
+    assert got.wait(timeout_s), "no ReplayStatus within the timeout"
+    sub.close()
+    return box[-1]
+

@@ -16,7 +16,7 @@ from hercs.transport import RemoteError, Transport
 from proto import SCHEMA_VERSION
 from proto import hercs_pb2 as pb
 from proto.keys import RunKeys
-from tests.integration.services import ServiceProcess, make_test_config
+from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
 
 pytestmark = pytest.mark.integration
 KEYS = RunKeys("t")
@@ -47,17 +47,7 @@ def episode_msg(spec, seq: int, actor: str = "a0") -> pb.Episode:
 
 
 def status(client: Transport) -> pb.ReplayStatus:
-    got = threading.Event()
-    box: list[pb.ReplayStatus] = []
-
-    def on_status(key: str, payload: bytes) -> None:
-        box.append(pb.ReplayStatus.FromString(payload))
-        got.set()
-
-    sub = client.subscribe(KEYS.status, on_status)
-    assert got.wait(TIMEOUT), "no ReplayStatus within the timeout"
-    sub.close()
-    return box[-1]
+    return next_replay_status(client, KEYS.status, TIMEOUT)
 
 
 def test_config_is_served_for_remote_actors(replay, open_client) -> None:
