@@ -71,13 +71,7 @@ ARG PIP_TRUSTED_HOST
 ARG PIP_NO_INDEX
 ARG PIP_FIND_LINKS
 COPY README.md ./
-COPY proto proto
 COPY hercs hercs
-COPY actors actors
-COPY learner learner
-COPY replay_service replay_service
-COPY clusterer clusterer
-COPY apps apps
 RUN pip install --no-deps --target /opt/hercs .
 
 # -- services: what docker-compose.yml runs -----------------------------------------------------

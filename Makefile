@@ -77,14 +77,14 @@ lint: $(STAMP)
 
 # Redraw the figures that are drawn from committed runs (tests/unit/apps/test_committed_results.py).
 figures: $(STAMP)
-	$(PY) -m apps.cli plot --figure 2 $$(ls -d docs/results/runs/*/) -o docs/results/fig2.png \
+	$(PY) -m hercs.apps.cli plot --figure 2 $$(ls -d docs/results/runs/*/) -o docs/results/fig2.png \
 		--table docs/results/fig2.md > /dev/null
 	$(PY) -m bench.schedule_effect > /dev/null
 	$(PY) -m bench.claims > /dev/null
 
-# Regenerate proto/hercs_pb2.py(.pyi) from proto/hercs.proto with the pinned grpcio-tools.
+# Regenerate hercs/proto/hercs_pb2.py(.pyi) from hercs/proto/hercs.proto with the pinned grpcio-tools.
 proto: $(STAMP)
-	cd proto && ../$(PY) -m grpc_tools.protoc -I. --python_out=. --pyi_out=. hercs.proto
+	cd hercs/proto && ../../$(PY) -m grpc_tools.protoc -I. --python_out=. --pyi_out=. hercs.proto
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

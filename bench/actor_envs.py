@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from actors.rollout import VectorRollout
 from bench.common import git_commit
+from hercs.actors.rollout import VectorRollout
 from hercs.codec import episode_to_msg
 from hercs.config import DDPGConfig
 from hercs.envs import make_env

@@ -6,6 +6,7 @@ service is SIGKILLed every 60–120 s and an actor's host is cut off every few m
     python -m bench.chaos                      # the soak (chaos seed 1, training seed 1)
     python -m bench.chaos --report-only        # docs/results/chaos.md from the committed runs
     python -m bench.chaos --quick              # CI, ~80 s: FetchReach, 1 kill, 1 cut
+    python -m bench.chaos --fault-free 3 --subnet 10.127   # beside another soak (own links)
 
 The run (`Shape`; default FetchPush, HER-EBP-CS, 20 epochs, seed 1) is `hercs up --actors 0`
 on this host, listening with TLS on each link's host end, and 2 `hercs actor` each in its own
@@ -54,7 +55,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from apps.certs import make_certs
 from bench.chaos_actors import Incarnation, RemoteActors
 from bench.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan, Event
 from bench.chaos_report import measure_soak, write_report
@@ -62,6 +62,7 @@ from bench.chaos_state import QUICK_SHAPE, Shape, SoakState, new_state
 from bench.faults import Up
 from bench.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.netns import Host, hosts, problem
+from hercs.apps.certs import make_certs
 from hercs.rundir import CONFIG
 
 REPO = Path(__file__).resolve().parents[1]
@@ -128,7 +129,7 @@ class Soak:
                   *[a for h in self.links for a in ("--listen", f"tls/{h.host_ip}:{self.port}")],
                   "--set", f"training.epochs={self.shape.epochs}",
                   "--set", f"launch.max_restarts={MAX_RESTARTS}"]
-        argv = [sys.executable, "-m", "apps.cli", "up"]
+        argv = [sys.executable, "-m", "hercs.apps.cli", "up"]
         if resume:
             argv += ["--resume", str(self.run_dir), *common]
         else:
@@ -153,7 +154,7 @@ class Soak:
 
     def _stop_up(self, sig: int) -> None:
         """Signal the launcher and wait until it and its children are gone (they die with
-        it: PR_SET_PDEATHSIG, apps/child_process.py)."""
+        it: PR_SET_PDEATHSIG, hercs/apps/child_process.py)."""
         assert self.up is not None
         children = [pid for ident in self.up.pids if (pid := self._child(ident)) is not None]
         with contextlib.suppress(ProcessLookupError):
@@ -290,8 +291,9 @@ class Soak:
 
 
 def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: Path,
-         committed: Path | None, quick: bool) -> dict[str, Any]:
-    """Run (or continue, or only read back) one soak; its record (chaos.json)."""
+         committed: Path | None, quick: bool, subnet: str = SUBNET) -> dict[str, Any]:
+    """Run (or continue, or only read back) one soak; its record (chaos.json). Soaks on
+    different subnets may run side by side (each its own namespaces, chains and certificates)."""
     name = shape.run_name(chaos_seed)
     state_path = work / f"{name}.state.json"
     done = None if committed is None else committed / name / "chaos.json"
@@ -310,8 +312,9 @@ def soak(shape: Shape, *, chaos_seed: int | None, plan: ChaosPlan | None, work: 
         print(f"chaos: {name}: {'finished earlier' if state.finished else 'continuing'} "
               f"({state_path})", flush=True)
     if not state.finished:
-        with sigterm_as_exit(), hosts(shape.actors, subnet=SUBNET) as links:
-            certs = work / "certs"
+        with sigterm_as_exit(), hosts(shape.actors, subnet=subnet) as links:
+            # the certificates name the link addresses, so each subnet has its own
+            certs = work / ("certs" if subnet == SUBNET else f"certs-{subnet}")
             if not (certs / "ca.pem").is_file():
                 make_certs(certs, hosts=[host.host_ip for host in links])
             Soak(state, links=links, certs=certs, work=work, shape=shape).run()
@@ -360,10 +363,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="where chaos.md and chaos.json go (default "
                         "docs/results; a temp folder with --quick)")
     parser.add_argument("--report-only", action="store_true")
+    parser.add_argument("--subnet", default=SUBNET, help="the /16 the actors' links use, as "
+                        f"A.B (default {SUBNET}); another lets a second soak run beside this one")
     parser.add_argument("--quick", action="store_true", help="CI: FetchReach 5 × 8 cycles, "
                         "one remote actor killed, one host cut for 12 s")
     args = parser.parse_args(argv)
-    if not args.report_only and (why := problem(SUBNET)) is not None:
+    if re.fullmatch(r"(25[0-5]|2[0-4]\d|1?\d?\d)\.(25[0-5]|2[0-4]\d|1?\d?\d)", args.subnet) is None:
+        parser.error(f"--subnet {args.subnet!r}: give the first two octets of a /16, e.g. 10.127")
+    if not args.report_only and (why := problem(args.subnet)) is not None:
         print(f"chaos: cannot run here: {why}", file=sys.stderr)
         return 2
     tmp = tempfile.TemporaryDirectory(prefix="hercs-chaos-")
@@ -385,10 +392,10 @@ def main(argv: list[str] | None = None) -> int:
         for seed in args.fault_free or []:
             free = Shape(**{**asdict(shape), "seed": seed})
             records.append(soak(free, chaos_seed=None, plan=None, work=work,
-                                committed=committed, quick=args.quick))
+                                committed=committed, quick=args.quick, subnet=args.subnet))
         if not args.fault_free:
             records.append(soak(shape, chaos_seed=args.chaos_seed, plan=plan, work=work,
-                                committed=committed, quick=args.quick))
+                                committed=committed, quick=args.quick, subnet=args.subnet))
     command = "python -m bench.chaos " + " ".join(sys.argv[1:] if argv is None else argv)
     ok = write_report(records, task=shape.task, method=shape.method, work=work, committed=committed,
                       baselines=args.baseline, window=args.window, out=out,

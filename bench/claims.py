@@ -15,7 +15,7 @@ whose measured policy lag was 7 cycles); one with them is grouped by their value
 default*. A claim whose sides run asynchronously takes the new default when every
 asynchronous side has at least MIN_SEEDS runs of it, else the legacy runs, and says which.
 
-Per run, with apps/plots.py's rule (the Fig. 2 tables'): its success after epoch EPOCH (the
+Per run, with hercs/apps/plots.py's rule (the Fig. 2 tables'): its success after epoch EPOCH (the
 10-epoch trailing mean there) and the epoch its 10-epoch trailing mean first exceeds 0.5,
 counted from 0; a run that never does by epoch EPOCH counts as EPOCH, one more than the
 last epoch in that count (censored: a lower bound). Every run is cut at EPOCH (the authors'
@@ -38,15 +38,6 @@ from pathlib import Path
 
 import yaml
 
-from apps.plots import (
-    Curve,
-    aggregate,
-    load_reference,
-    load_runs,
-    method_label,
-    milestones,
-    task_title,
-)
 from bench.claim_statistics import (
     REPS,
     RNG_SEED,
@@ -55,6 +46,15 @@ from bench.claim_statistics import (
     SideStats,
     improvement,
     side_stats,
+)
+from hercs.apps.plots import (
+    Curve,
+    aggregate,
+    load_reference,
+    load_runs,
+    method_label,
+    milestones,
+    task_title,
 )
 from hercs.config import HercsConfig
 from hercs.rundir import CONFIG
@@ -361,7 +361,7 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         f"Drawn by `{command}` from the committed runs (docs/results/runs/) and the authors' "
         "per-seed curves (docs/reference/authors_success_rates.csv); also `make figures`, and "
         "a test checks this file against them. All on FetchPush.", "",
-        "**Per run** (apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
+        "**Per run** (hercs/apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
         f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
         f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "
         f"counted from 0 (epochs completed before it). A run that never does by epoch {epoch} "

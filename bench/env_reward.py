@@ -38,8 +38,8 @@ import hercs.goal_env  # noqa: F401  (installs the env rule that reward_rule="en
 from bench.common import git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
+from hercs.replay_service.core import ReplayCore
 from hercs.tasks import TaskSpec, task_spec
-from replay_service.core import ReplayCore
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")

@@ -3,7 +3,7 @@ sharing off (arrival order, the replay before) and on (round-robin across actor 
 
     python -m bench.fair_share [--quick] [--out docs/results/fair_share]
 
-A real replay service (`python -m apps.cli replay`, started with the launcher's process
+A real replay service (`python -m hercs.apps.cli replay`, started with the launcher's process
 handling) behind a Zenoh router on loopback; every client here has its own Zenoh session:
 
 - the learner's stand-in asks for `MINIBATCHES` minibatches at a fixed pace, so the rate
@@ -39,19 +39,19 @@ from typing import Any
 
 import numpy as np
 
-from actors.inserter import Inserter
-from apps.router import open_router
 from bench.common import REPO, git_commit, machine_identity
 from bench.throughput.harness import Child, Latest, free_endpoint
+from hercs.actors.inserter import Inserter
+from hercs.apps.router import open_router
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.seeding import generator
 from hercs.tasks import TaskSpec
 from hercs.transport import Transport
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 
 RUN = "fair-share"
 TASK = "reach"
@@ -338,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     plan = QUICK if args.quick else FULL
     logging.basicConfig(level=logging.WARNING)
-    logging.getLogger("actors.inserter").setLevel(logging.ERROR)  # the flooder's retries
+    logging.getLogger("hercs.actors.inserter").setLevel(logging.ERROR)  # the flooder's retries
     spec = apply_overrides(HercsConfig(), [f"task.name={TASK}"]).task.spec
     episodes = Episodes(spec)
     endpoint = free_endpoint()

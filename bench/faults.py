@@ -43,8 +43,8 @@ from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from apps.child_process import pdeathsig_preexec
 from bench.common import git_commit
+from hercs.apps.child_process import pdeathsig_preexec
 from hercs.metrics import recorded_epochs
 from hercs.rundir import METRICS
 from hercs.runlog import read_episodes
@@ -170,7 +170,7 @@ def run_fault(fault: str, *, root: Path, epochs: int, cycles: int, kill_at: int,
               timeout_s: float) -> FaultResult:
     run = f"fault-{fault}"
     run_dir = root / run
-    base = [sys.executable, "-m", "apps.cli", "up"]
+    base = [sys.executable, "-m", "hercs.apps.cli", "up"]
     options = ["--listen", f"tcp/127.0.0.1:{free_port()}",
                "--set", f"training.epochs={epochs}",
                "--set", "launch.restart_backoff_s=0.5"]

@@ -36,8 +36,8 @@ def submit_slurm(args: argparse.Namespace, names: Sequence[str], todo: Sequence[
                  tasks: Sequence[str], run_root: Path, committed: Path | None, epochs: int,
                  overrides: Sequence[str]) -> int:
     """Submit the unfinished cells `todo` (indices into `names`) as one job array
-    (apps.slurm)."""
-    from apps.slurm import ArrayPlan, render_array_script, submit_array
+    (hercs.apps.slurm)."""
+    from hercs.apps.slurm import ArrayPlan, render_array_script, submit_array
 
     if not todo:
         print("every cell is finished; nothing to submit (--report-only writes the report)")

@@ -39,10 +39,10 @@ from bench.common import git_commit
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.table import ReplayTable, Stored
 from hercs.runlog import RecoveringLogWriter
-from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore
-from replay_service.table import ReplayTable, Stored
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -118,7 +118,7 @@ def summarise(rows: list[dict[str, str]]) -> dict[str, float]:
 
 def up_command(setting: LagSetting, *, task: str, epochs: int, cycles: int, root: Path,
                name: str, extra: list[str]) -> list[str]:
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", task, "--epochs", str(epochs),
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", task, "--epochs", str(epochs),
            "--actors", "1", "--run", name, "--run-dir", str(root),
            "--listen", f"tcp/127.0.0.1:{free_port()}",
            "--set", f"training.cycles_per_epoch={cycles}"]

@@ -42,8 +42,8 @@ import torch
 from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
+from hercs.learner.ddpg import DDPGLearner
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner
 
 REPO = Path(__file__).resolve().parents[1]
 

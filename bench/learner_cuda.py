@@ -10,7 +10,7 @@ Two questions, measured in one process:
    each `learner.precision` and for fp32 with the GPU's own TF32 products on (what torch 1.10
    did by default on Ampere); beside the same updates on this machine's CPU with one torch
    thread (the learner's setting on a small box), timed in the same run.
-2. **TF32 emulation.** `learner.precision=tf32` (learner/tf32.py) rounds every product's
+2. **TF32 emulation.** `learner.precision=tf32` (hercs/learner/tf32.py) rounds every product's
    operands to TF32 on any device. From the same seed and minibatches, 200 updates on the GPU
    in fp32, in emulated TF32 and with the GPU's TF32: the distance of the emulation's actor
    weights from the GPU TF32 run's, beside fp32's distance from it and beside how far the
@@ -39,10 +39,10 @@ from bench.common import git_commit
 from bench.learner import make_batch
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.tf32 import round_to_tf32
 from hercs.networks import to_arrays
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner
-from learner.tf32 import round_to_tf32
 
 REPO = Path(__file__).resolve().parents[1]
 GPU_TF32 = "fp32+gpu-tf32"

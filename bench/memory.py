@@ -58,10 +58,10 @@ def run_processes(run_dir: Path) -> dict[int, str]:
             argv = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"apps.cli" not in argv:
+        if b"hercs.apps.cli" not in argv:
             continue
-        command = argv[argv.index(b"apps.cli") + 1].decode() if argv.index(b"apps.cli") + 1 \
-            < len(argv) else ""
+        at = argv.index(b"hercs.apps.cli") + 1
+        command = argv[at].decode() if at < len(argv) else ""
         if config_path in argv:
             found[int(entry.name)] = command
         elif command == "up" and (str(run_dir).encode() in argv  # `up --resume RUN_DIR`
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         root = Path(tempfile.mkdtemp(prefix="hercs-memory-"))
         out = args.out if args.out != OUT else root / "memory"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", "2",
+            [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "2",
              "--run", "memory-quick", "--run-dir", str(root), "--set",
              "training.cycles_per_epoch=3", "--set", "training.eval_episodes=2"],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -51,13 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
-from apps.certs import make_certs
-from apps.child_process import pdeathsig_preexec
 from bench.common import git_commit
 from bench.delay_relay import DelayRelay
 from bench.faults import EPOCH, Up
 from bench.net_measure import NetResult, measure
 from bench.netns import Host, hosts, problem
+from hercs.apps.certs import make_certs
+from hercs.apps.child_process import pdeathsig_preexec
 
 REPO = Path(__file__).resolve().parents[1]
 ACTOR_EXIT_S = 60.0
@@ -179,7 +179,7 @@ def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
     `out/log_name` (default `<run>.<ident>.log`)."""
     ident = actor_ident(index)
     log = out / (log_name or f"{run}.{ident}.log")
-    argv = host.exec_argv([sys.executable, "-m", "apps.cli", "actor", "--connect", endpoint,
+    argv = host.exec_argv([sys.executable, "-m", "hercs.apps.cli", "actor", "--connect", endpoint,
                            "--run", run, "--tls-dir", str(certs), "--id", ident])
     with log.open("wb") as sink:
         proc = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT,
@@ -223,7 +223,7 @@ def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
             else:
                 endpoints.append(f"tls/{host.host_ip}:{port}")
         listen = [a for host in links for a in ("--listen", f"tls/{host.host_ip}:{port}")]
-        up = Up([sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method",
+        up = Up([sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method",
                  "her-cs", "--actors", "0", "--seed", str(shape.seed), "--run", run,
                  "--run-dir", str(root), "--tls-dir", str(certs), *listen,
                  "--set", f"training.epochs={shape.epochs}",

@@ -22,9 +22,9 @@ import numpy as np
 
 from bench.faults import epoch_times, epochs_recorded
 from hercs.metrics import read_rows
+from hercs.proto import hercs_pb2 as pb
 from hercs.rundir import METRICS
 from hercs.runlog import TOPIC_EPISODES, read_messages
-from proto import hercs_pb2 as pb
 
 ACKED = re.compile(r"episode \((?P<actor>\S+), seq (?P<seq>\d+)\) acked(?P<dup> \(duplicate\))?$")
 STOPPING = re.compile(

@@ -8,7 +8,7 @@ with `learner.precision=bf16` (`bench/sample_efficiency.py --precision bf16` tra
 
 The rule (the performance issue): bf16 may become the default only if its seeds stay inside
 the fp32 seeds' band. Band, at each epoch: min–max over the fp32 seeds of their 10-epoch
-trailing mean (the tables' smoothing, apps/plots.py); a bf16 seed is inside at an epoch when
+trailing mean (the tables' smoothing, hercs/apps/plots.py); a bf16 seed is inside at an epoch when
 its own trailing mean is within it. Per seed the report gives the share of epochs inside,
 how many of the others it spent above the band (faster than every fp32 seed) and below it,
 the epochs at 0.5 and 0.9 (the tables' rule) and the success at the last compared epoch;
@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from apps.plot_figures import plot_figure
-from apps.plots import (
+from bench.common import git_commit
+from hercs.apps.plot_figures import plot_figure
+from hercs.apps.plots import (
     LEGACY_LAG,
     Curve,
     PlotError,
@@ -45,7 +46,6 @@ from apps.plots import (
     moving_average,
     task_title,
 )
-from bench.common import git_commit
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -105,7 +105,7 @@ def _cut(curve: Curve, epochs: np.ndarray) -> Curve:
 def load_pair(runs: Path, task: str, method: str) -> tuple[list[Curve], list[Curve]]:
     """(fp32 seeds, bf16 seeds) of one task and method in the asynchronous schedule: those of
     the current default where both precisions have runs of it, else those of the old, staler
-    default (`apps.plots.LEGACY_LAG`), never one of each."""
+    default (`hercs.apps.plots.LEGACY_LAG`), never one of each."""
     title = task_title(task)
     mine = group(c for c in load_runs(runs) if c.task == title).get(title, {})
     for lag in ("", LEGACY_LAG):

@@ -47,11 +47,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from apps.plot_figures import plot_figure
-from apps.plot_tables import tables
-from apps.plots import group, load_reference, load_run, method_key
 from bench.common import cpu_info, git_commit, machine_identity
 from bench.grid_slurm import run_one_cell, submit_slurm
+from hercs.apps.plot_figures import plot_figure
+from hercs.apps.plot_tables import tables
+from hercs.apps.plots import group, load_reference, load_run, method_key
 from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
 from hercs.errors import ConfigError
@@ -134,11 +134,11 @@ def can_resume(run_dir: Path) -> bool:
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
                overrides: Sequence[str], resume: bool = False) -> list[str]:
     if resume:  # task, method, seed and name come from the run's saved config
-        cmd = [sys.executable, "-m", "apps.cli", "up", "--resume", str(run_root / cell.name),
+        cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--resume", str(run_root / cell.name),
                "--epochs", str(epochs), "--actors", str(actors),
                "--listen", f"tcp/127.0.0.1:{port}"]
     else:
-        cmd = [sys.executable, "-m", "apps.cli", "up", "--task", cell.task, "--method",
+        cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", cell.task, "--method",
                cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
                cell.name, "--run-dir", str(run_root), "--actors", str(actors),
                "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}",
@@ -300,7 +300,7 @@ def machine_description() -> str:
 
 
 def done_key(record: dict) -> str:
-    """The method key (apps.plots.method_key) of a `bench_done.json` record; older records
+    """The method key (hercs.apps.plots.method_key) of a `bench_done.json` record; older records
     have no schedule, precision or env version (async, fp32, v4)."""
     return method_key(record["method"], record.get("schedule", "async"),
                       record.get("precision", "fp32"), record.get("env_version", "v4"))

@@ -28,15 +28,15 @@ import numpy as np
 
 from hercs.codec import msg_to_cluster_model, msg_to_episode
 from hercs.config import apply_overrides, load_yaml
+from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.samplers import make_sampler
 from hercs.rundir import CONFIG
 from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,
 )
-from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore
-from replay_service.samplers import make_sampler
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,7 @@ A store of 20,000 FetchPush episodes (1e6 transitions; --quick: 500) with random
 method, in alternating rounds on the same store and generator:
 
 - ours: `sampler.sample` (the draw from the store's `SamplingIndex`, kept up to date on
-  insert; replay_service/sampling_index.py), `relabel` (HER future relabelling and the gather
+  insert; hercs/replay_service/sampling_index.py), `relabel` (HER future relabelling and the gather
   of o, g, u, r, o2), and both together, i.e. one minibatch of `ReplayCore.sample`;
 - reference: the same draw made the way the samplers made it before the index, rebuilding
   its structures from the store on every call (a bincount and a stable argsort of the labels
@@ -34,10 +34,10 @@ import numpy as np
 from bench.common import git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
-from replay_service.her import relabel
-from replay_service.samplers import make_sampler
-from replay_service.samplers.base import make_info
-from replay_service.store import EpisodeStore
+from hercs.replay_service.her import relabel
+from hercs.replay_service.samplers import make_sampler
+from hercs.replay_service.samplers.base import make_info
+from hercs.replay_service.store import EpisodeStore
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,7 +9,7 @@ reference's schedule; `bench/sample_efficiency.py --schedule lockstep` trains th
 needs at least one run on each side.
 
 Per run: the epoch its own 10-epoch trailing mean of the test success first exceeds 0.5 (the
-tables' rule, apps/plots.py) and that mean after epoch E, where E is the last epoch every run
+tables' rule, hercs/apps/plots.py) and that mean after epoch E, where E is the last epoch every run
 of the pair reached (at most `--epoch`, default 50). Per schedule: mean ± sample s.d. over
 seeds at E. The difference lockstep − asynchronous gets a standard error and a 95 % interval
 from Welch's t (each side's own variance); when one side has a single seed, its spread is
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from apps.plots import (
+from hercs.apps.plots import (
     LEGACY_LAG,
     Curve,
     aggregate,
@@ -143,7 +143,8 @@ def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
                 continue
             # lockstep ignores the asynchronous lag settings: old and new defaults alike pair
             # with the lockstep runs of the same precision and environment (v1, a v4 weld
-            # setting), whose key is theirs with /lockstep first (apps.plots.method_key's order)
+            # setting), whose key is theirs with /lockstep first (the order of
+            # hercs.apps.plots.method_key)
             partner = "/".join((method, "lockstep", *(v for v in variants if v != LEGACY_LAG)))
             lock_curves = methods.get(partner, [])
             if not lock_curves:

@@ -347,8 +347,8 @@ build_image() {
     # The services image starts the CLI and its service modules, without the view/plot deps.
     docker run --rm --network none --entrypoint python3 "$IMAGE" -c '
 import importlib, sys
-for m in ("apps.cli", "apps.router", "replay_service.service", "clusterer.service",
-          "learner.service", "actors.service", "actors.evaluator"):
+for m in ("hercs.apps.cli", "hercs.apps.router", "hercs.replay_service.service", "hercs.clusterer.service",
+          "hercs.learner.service", "hercs.actors.service", "hercs.actors.evaluator"):
     importlib.import_module(m)
 heavy = sorted({"rerun", "matplotlib", "pyarrow", "imageio_ffmpeg"} & set(sys.modules))
 assert not heavy, heavy

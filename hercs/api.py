@@ -222,9 +222,9 @@ def read_episodes(run_dir: str | os.PathLike[str], *, ids: Iterable[int] | None 
     (`replay.log_max_bytes`, the default) deletes its oldest segments once their episodes
     have left the buffer: it starts at a later id then, and ids before it are not there."""
     from hercs.codec import msg_to_episode
+    from hercs.proto import hercs_pb2 as pb
     from hercs.rundir import require_run_dir
     from hercs.runlog import LIVE_NAME, TOPIC_EPISODES, read_messages
-    from proto import hercs_pb2 as pb
 
     path = Path(run_dir)
     if not path.is_file():

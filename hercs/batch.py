@@ -1,5 +1,5 @@
 """The one transition batch type: what HER relabelling produces, what a `Minibatch` message
-carries (hercs.codec) and what one DDPG update consumes (learner.ddpg).
+carries (hercs.codec) and what one DDPG update consumes (hercs.learner.ddpg).
 
 Its field list is the single source for all three; the wire carries nothing the learner does
 not read (the achieved goals used to compute r stay in the replay).
@@ -49,7 +49,7 @@ class _Dims(Protocol):
 
 def transition_shapes(spec: _Dims, batch_size: int) -> dict[str, tuple[int, ...]]:
     """The one shape table of a `TransitionBatch` of `batch_size` rows for a task: the wire's
-    checks (hercs.validation) and the update's (learner.ddpg) both read it."""
+    checks (hercs.validation) and the update's (hercs.learner.ddpg) both read it."""
     return {"o": (batch_size, spec.obs_dim), "g": (batch_size, spec.goal_dim),
             "u": (batch_size, spec.action_dim), "r": (batch_size,),
             "o2": (batch_size, spec.obs_dim)}

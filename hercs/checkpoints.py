@@ -2,10 +2,10 @@
 `hercs eval` and `hercs.load_policy` share.
 
 Two kinds of file hold a policy (`hercs.rundir` names them):
-- a policy file (`best.pt`, `epoch-NNNN.pt`, written by `learner.checkpoint.save_policy`):
+- a policy file (`best.pt`, `epoch-NNNN.pt`, written by `hercs.learner.checkpoint.save_policy`):
   the serialised `Weights` message the run's evaluator received for that epoch, its epoch and
   success, and the run's config. Decoded here as the evaluator decodes what it receives
-  (`actors.weights.WeightsDecoder`: schema, array codec, loaded into a policy of the task's
+  (`hercs.actors.weights.WeightsDecoder`: schema, array codec, loaded into a policy of the task's
   sizes), so a policy read from it acts exactly as the evaluator's did;
 - the learner's checkpoint (`learner.pt`): the actor's parameters and the normaliser
   statistics are taken from the DDPG state; the config from the run's config.yaml.
@@ -100,8 +100,8 @@ def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
 def _decode_weights(raw: bytes, config: HercsConfig, path: Path) -> PolicyWeights:
     """A policy file's `Weights` bytes as the evaluator decodes them."""
     from hercs.codec import msg_to_weight_arrays
+    from hercs.proto import hercs_pb2 as pb
     from hercs.validation import parse_message
-    from proto import hercs_pb2 as pb
 
     try:
         msg = parse_message(raw, pb.Weights, max_bytes=config.replay.max_message_bytes)

@@ -18,10 +18,10 @@ from hercs.clustering import ClusterModel
 from hercs.episode import EpisodeData
 from hercs.errors import InvalidMessage
 from hercs.normalizer import NormalizerState
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.replay_state import ReplayState
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 WIRE_DTYPES = frozenset({"float32", "float64", "int32", "int64", "uint8", "bool"})
 MAX_NDIM = 8

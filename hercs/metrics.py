@@ -26,7 +26,7 @@ sample request when they were stored (the measure before the lockstep schedule e
 `policy_lag_p50`, `_p95`, `_max`: the distribution of `policy_lag` over the episodes stored
 during the epoch (nan when none was placed, e.g. right after a replay restart).
 `sampled_moved_share`: the share of the epoch's sampled transitions whose episode's achieved
-goal moved (the object, in the object tasks: replay_service.store.MOVED_THRESHOLD_M);
+goal moved (the object, in the object tasks: hercs.replay_service.store.MOVED_THRESHOLD_M);
 `buffer_moved_share`: that share among the replay's stored episodes, averaged over the
 epoch's batches — what HER-CS and EBP exist to raise the first above."""
 

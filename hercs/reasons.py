@@ -54,12 +54,12 @@ class Reason(StrEnum):
     UNKNOWN_EPISODE = "unknown_episode", Disposition.DROP
     """An `EpisodeRequest` for an id the replay does not hold (never inserted, or overwritten
     by the ring): a miss, not bad input, so it is not counted in `ReplayStatus.rejects`."""
-    # well formed, not wanted (hercs.lockstep, replay_service.lag_bound)
+    # well formed, not wanted (hercs.lockstep, hercs.replay_service.lag_bound)
     STALE_POLICY = "stale_policy", Disposition.SUPERSEDED
     """Acted with weights older than the lockstep cycle or the lag bound allows."""
     CYCLE_FULL = "cycle_full", Disposition.SUPERSEDED
     """Lockstep: its cycle already has its `episodes_per_cycle` episodes."""
-    # not now (replay_service.table, hercs.transport)
+    # not now (hercs.replay_service.table, hercs.transport)
     EXPIRED = "expired", Disposition.RETRY
     """The rate limiter held the call past its caller's timeout."""
     LOG_FAILED = "log_failed", Disposition.RETRY
@@ -72,7 +72,7 @@ class Reason(StrEnum):
     """Zenoh itself answered with an error (not a hercs reply); the detail is its text."""
     ACTOR_QUEUE_FULL = "actor_queue_full", Disposition.RETRY
     """Fair sharing: this actor id already has `replay.waiting_inserts_per_actor` inserts
-    waiting for the rate limiter (replay_service.waiting_inserts); its backoff slows it."""
+    waiting for the rate limiter (hercs.replay_service.waiting_inserts); its backoff slows it."""
 
 
 _BY_VALUE: dict[str, Reason] = {r.value: r for r in Reason}

@@ -14,7 +14,7 @@ it holds, and checks whose errors say what a folder lacks and what to do.
     slurm/                              a Slurm job's script, certificates and logs (`hercs
                                         slurm submit`); present before the run starts
 
-The checkpoint names repeat `learner.checkpoint`'s (which writes them; a unit test keeps the
+The checkpoint names repeat `hercs.learner.checkpoint`'s (which writes them; a unit test keeps the
 two equal) so that readers in the library layer need not import the learner.
 """
 

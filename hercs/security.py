@@ -39,7 +39,7 @@ from typing import Any
 
 from hercs.config import SecurityConfig, endpoint_parts
 from hercs.errors import ConfigError
-from proto.keys import ROOT
+from hercs.proto.keys import ROOT
 
 ROLES = ("replay", "learner", "clusterer", "evaluator", "actor", "live")
 """The identities a client can authenticate as: its certificate's common name and its user."""

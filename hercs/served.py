@@ -3,7 +3,7 @@ type with one field list shared with its wire message, and its one encode/decode
 
 Forms from the store to an update (docs/DESIGN.md §3, "One served batch"): the sampler's
 slots → `TransitionBatch` (HER relabelling, hercs.batch) → `ServedBatch` (here) → `Batch`
-bytes → the same `ServedBatch` in the learner → tensors (learner.ddpg).
+bytes → the same `ServedBatch` in the learner → tensors (hercs.learner.ddpg).
 
 `ReplayCounters` mirrors `ReplayStatus` field for field (a test holds them equal): the replay
 puts it on `replay/status` about once a second and nests the same snapshot in every `Batch`,
@@ -22,11 +22,11 @@ from hercs.batch import TransitionBatch
 from hercs.codec import batch_to_bytes, msg_to_stats, stats_to_msg
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer, NormalizerState
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.tasks import TaskSpec
 from hercs.validation import MAX_INT64, decode_minibatch, parse_message
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 MAX_BATCH_BYTES = 1 << 30
 """A Batch reply larger than this is refused unread (40 × 256 FetchPush transitions: ~2.4 MB)."""

@@ -22,13 +22,13 @@ import yaml
 from hercs.backoff import Backoff
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, Unreachable
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import ROOT, RunKeys
 from hercs.security import zenoh_settings
 from hercs.signals import StopSignals
 from hercs.threads import single_threaded_numerics
 from hercs.transport import ConnectAborted, Transport, TransportError
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import ROOT, RunKeys
 
 log = logging.getLogger(__name__)
 

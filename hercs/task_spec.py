@@ -33,7 +33,7 @@ ENERGIES: dict[str, str] = {
             "energy plus the EBP reference's rotational term, from Euler-angle rates",
     "none": "no trajectory energy is defined: her-ebp and her-ebp-cs are refused",
 }
-"""How EBP's trajectory energy reads a task's achieved goals (replay_service/energy.py)."""
+"""How EBP's trajectory energy reads a task's achieved goals (hercs/replay_service/energy.py)."""
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,10 @@ from hercs.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
 from hercs.codec import msg_to_array, msg_to_episode, msg_to_minibatch
 from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import InvalidMessage
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.tasks import TaskSpec
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 M = TypeVar("M", bound=Message)
 

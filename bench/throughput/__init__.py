@@ -12,7 +12,7 @@ run, for the two throughput pairs in short alternating slices (the system's proc
 with SIGSTOP while the reference runs), and the ratio is what the target is about.
 
 Figures (the system is real: an embedded Zenoh router on a free loopback port, and
-`python -m apps.cli <role>` child processes connected to it):
+`python -m hercs.apps.cli <role>` child processes connected to it):
 
 1. **Env steps/s.** ours: one `hercs actor` (policy inference, exploration noise, acked
    inserts over Zenoh) counted at the replay — acked episodes × T per second from the
@@ -30,7 +30,7 @@ Figures (the system is real: an embedded Zenoh router on a free loopback port, a
    alternating slices as above (full mode: 8 of 4 s). Target ratio ≥ 0.95. Also per
    CPU-second of the learner process (all its threads) and of the updating thread.
 3. **Insert throughput** with 1, 2, 4, 8, 16 concurrent synthetic actors (quick: 1, 2): each
-   has its own Zenoh client session and one insert in flight, as `actors.inserter` delivers;
+   has its own Zenoh client session and one insert in flight, as `hercs.actors.inserter` delivers;
    episodes are pre-generated random Push episodes (`hercs.episode.random_episode`). ratio =
    speed-up over one actor; target ≥ 1,000 acked episodes/s from 8 actors. At the end of the
    run the largest levels (8, 16; quick: 2) are measured again into a replay of its own with

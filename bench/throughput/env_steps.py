@@ -46,7 +46,7 @@ def measure(bench: Harness) -> None:
     actor = bench.start("actor", ACTOR_ID)
 
     def is_ours(actor_id: str) -> bool:
-        # The wire id is `<ident>@<incarnation>` (actors/service.py).
+        # The wire id is `<ident>@<incarnation>` (hercs/actors/service.py).
         return actor_id.partition("@")[0] == ACTOR_ID
 
     try:

@@ -1,6 +1,6 @@
 """The system under test: an embedded Zenoh router on a free loopback port, an observing
-client, `python -m apps.cli <role>` children (started and stopped with the launcher's
-apps/child_process.py), the synthetic actors, and the measurements so far."""
+client, `python -m hercs.apps.cli <role>` children (started and stopped with the launcher's
+hercs/apps/child_process.py), the synthetic actors, and the measurements so far."""
 
 from __future__ import annotations
 
@@ -15,8 +15,6 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from apps.child_process import log_tail, service_argv, signal_group, start_child
-from apps.router import open_router
 from bench.common import REPO
 from bench.throughput import BenchError, say
 from bench.throughput.plan import (
@@ -33,11 +31,13 @@ from bench.throughput.plan import (
 from bench.throughput.rates import Alternation
 from bench.throughput.report import Figure, parse_proc_status_kib
 from bench.throughput.synthetic import SyntheticFleet, episode_pool
+from hercs.apps.child_process import log_tail, service_argv, signal_group, start_child
+from hercs.apps.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.transport import Transport
 from hercs.validation import parse_message
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 
 
 def free_endpoint() -> str:
@@ -51,8 +51,9 @@ def free_endpoint() -> str:
 
 
 class Child:
-    """One service process of the run (apps/child_process.py: `python -m apps.cli <role>` in
-    its own process group, killed if this process dies), with what the phases read of it."""
+    """One service process of the run (hercs/apps/child_process.py: `python -m hercs.apps.cli
+    <role>` in its own process group, killed if this process dies), with what the phases read of
+    it."""
 
     def __init__(self, *, role: str, ident: str, config_path: Path, log_dir: Path) -> None:
         self.role = role

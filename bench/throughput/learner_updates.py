@@ -15,11 +15,11 @@ from bench.throughput.harness import Child, Harness
 from bench.throughput.plan import EPISODE_POOL, READY_TIMEOUT_S, SEED
 from bench.throughput.report import Figure, Target
 from bench.throughput.synthetic import fill_core
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.loop import LearnerLoop
+from hercs.replay_service.core import ReplayCore
 from hercs.seeding import generator
 from hercs.served import ServedBatch
-from learner.ddpg import DDPGLearner
-from learner.loop import LearnerLoop
-from replay_service.core import ReplayCore
 
 
 def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
@@ -56,7 +56,7 @@ def local_batches(bench: Harness, count: int) -> list[ServedBatch]:
 
 def measure(bench: Harness, replay: Child) -> None:
     p = bench.plan
-    torch.set_num_threads(1)  # as learner.service does
+    torch.set_num_threads(1)  # as hercs.learner.service does
     bench.top_up(replay, p.learner_min_episodes)
     reference = reference_learner(bench, local_batches(bench, 4))
     bench.weights.clear()

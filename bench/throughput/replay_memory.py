@@ -7,9 +7,9 @@ from bench.throughput.harness import Harness
 from bench.throughput.plan import SEED
 from bench.throughput.report import Figure, Target
 from hercs.episode import random_episode
+from hercs.replay_service.store import EpisodeStore
 from hercs.seeding import generator
 from hercs.tasks import TaskSpec
-from replay_service.store import EpisodeStore
 
 STORE_COLUMNS = ("obs", "ag", "g", "actions", "episode_id", "actor_id", "seq", "success",
                  "final_ag", "energy", "cluster", "policy_version")

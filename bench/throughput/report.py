@@ -215,8 +215,9 @@ NOTES = [
     "Per CPU-second rows divide the same work by the CPU time used for it (/proc/<pid>/stat "
     "of the system's process, all threads; `time.thread_time()` of the reference loop): on a "
     "loaded machine they show the cost per step or update without the scheduling noise.",
-    "Every service is a real process (`python -m apps.cli <role> --config … --id …`) connected "
-    "as a client to a Zenoh router embedded in the benchmark process on a free loopback port.",
+    "Every service is a real process (`python -m hercs.apps.cli <role> --config … --id …`) "
+    "connected as a client to a Zenoh router embedded in the benchmark process on a free "
+    "loopback port.",
     "Env steps/s of the actor are counted where they become useful: acked episodes on "
     "`replay/inserted`, (n − 1) episodes × 50 steps over the time between the first and the "
     "last one in the window. No learner runs then, so the actor acts with its initial "

@@ -13,11 +13,11 @@ from bench.throughput.report import Figure, Target
 from bench.throughput.synthetic import cluster_centroids, fill_core
 from hercs.clustering import ClusterModel
 from hercs.codec import cluster_model_to_msg
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.core import ReplayCore
 from hercs.seeding import generator
 from hercs.validation import parse_message
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore
 
 
 def sample_over_zenoh(bench: Harness, method: str) -> list[float]:

@@ -1,5 +1,5 @@
 """Synthetic actors: pre-generated random Push episodes inserted over Zenoh one at a time,
-each awaited until acked (as `actors.inserter` delivers); and the same episodes put into a
+each awaited until acked (as `hercs.actors.inserter` delivers); and the same episodes put into a
 local `ReplayCore` for the in-process references."""
 
 from __future__ import annotations
@@ -16,18 +16,18 @@ from bench.throughput import BenchError
 from bench.throughput.plan import K_CLUSTERS, REQUEST_TIMEOUT_S, RUN, SEED
 from hercs.codec import episode_to_msg
 from hercs.episode import EpisodeData, random_episode
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
+from hercs.replay_service.core import ReplayCore
 from hercs.seeding import generator
 from hercs.tasks import TaskSpec
 from hercs.transport import Transport
 from hercs.validation import parse_message
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
-from replay_service.core import ReplayCore
 
 
 class SyntheticActor:
     """Inserts pre-generated episodes one at a time, each awaited until acked (as
-    `actors.inserter` delivers), over its own Zenoh client session; acks are timestamped.
+    `hercs.actors.inserter` delivers), over its own Zenoh client session; acks are timestamped.
 
     The session stays open across `start`/`stop` runs: every new local session that sends
     large messages gives the replay one more Zenoh shared-memory pool to map (see

@@ -42,7 +42,7 @@ from mcap.opcode import Opcode
 from zstandard import ZstdError
 
 from hercs.errors import HercsError
-from proto import hercs_pb2 as pb
+from hercs.proto import hercs_pb2 as pb
 
 TOPIC_EPISODES = "/episodes"
 TOPIC_CLUSTER_MODEL = "/cluster_model"

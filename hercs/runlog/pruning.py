@@ -36,9 +36,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog.format import TOPIC_EPISODES, TOPIC_REPLAY_STATE, fsync_dir
 from hercs.runlog.reader import SegmentReader, segment_paths
-from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 

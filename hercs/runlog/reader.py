@@ -33,6 +33,7 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog.format import (
     DECODABLE,
     LIVE_NAME,
@@ -45,7 +46,6 @@ from hercs.runlog.format import (
     UNREADABLE_CHUNK,
     EpisodeLogError,
 )
-from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 

@@ -32,13 +32,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog.format import EpisodeLogError
 from hercs.runlog.pruning import prune_log
 from hercs.runlog.segments import EpisodeLog, RecoveredLog, next_segment_path, run_start_ns
 from hercs.runlog.writer import EpisodeLogWriter
 from hercs.task_spec import TaskSpec
 from hercs.warn_once import WarnOncePerMinute
-from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 

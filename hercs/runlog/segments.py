@@ -27,6 +27,7 @@ from mcap.opcode import Opcode
 from mcap.records import DataEnd, Footer, Statistics
 from mcap.writer import MCAP0_MAGIC
 
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog.format import (
     FOOTER_PREFIX,
     FOOTER_RECORD_BYTES,
@@ -48,7 +49,6 @@ from hercs.runlog.reader import (
     segment_paths,
 )
 from hercs.runlog.writer import EpisodeLogWriter
-from proto import hercs_pb2 as pb
 
 log = logging.getLogger(__name__)
 

@@ -38,6 +38,8 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from hercs.codec import msg_to_array
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.runlog import scene
 from hercs.runlog.format import (
     CHUNK_BYTES,
@@ -57,8 +59,6 @@ from hercs.runlog.format import (
 from hercs.task_spec import TaskSpec
 from hercs.tasks import task_spec
 from hercs.warn_once import WarnOncePerMinute
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 log = logging.getLogger(__name__)
 

@@ -13,8 +13,8 @@ import pytest
 import yaml
 from rliable import metrics
 
-from apps.plots import Curve
 from bench import claim_statistics
+from hercs.apps.plots import Curve
 from tests.support import load_bench
 
 claims = load_bench("claims")

@@ -41,8 +41,8 @@ def test_recorded_gemms_are_the_flops_torch_counts() -> None:
     import numpy as np
 
     from hercs.config import DDPGConfig
+    from hercs.learner.ddpg import DDPGLearner
     from hercs.tasks import task_spec
-    from learner.ddpg import DDPGLearner
 
     spec = task_spec("push")
     learner = DDPGLearner(spec=spec, config=DDPGConfig(), seed=0)

@@ -14,9 +14,9 @@ from bench.log_size import measure, project
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.runlog import EpisodeLogWriter, segment_paths
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 from tests.support import REPO
 
 

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from actors.inserter import Inserter
 from bench import net_faults, net_measure
+from hercs.actors.inserter import Inserter
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
 from hercs.transport import TransportTimeout
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
 
 
 def test_the_acks_an_inserter_logs_are_read_back(caplog: pytest.LogCaptureFixture,
@@ -32,7 +32,7 @@ def test_the_acks_an_inserter_logs_are_read_back(caplog: pytest.LogCaptureFixtur
         return pb.InsertAck(schema_version=SCHEMA_VERSION, actor_id="far@1", seq=seq,
                             duplicate=attempts[seq] > 1).SerializeToString()
 
-    caplog.set_level(logging.DEBUG, logger="actors.inserter")
+    caplog.set_level(logging.DEBUG, logger="hercs.actors.inserter")
     inserter = Inserter(send=send, actor_id="far@1", capacity=2, backoff_min_s=0.01)
     stop = threading.Event()
     for seq in (0, 1):

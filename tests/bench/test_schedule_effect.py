@@ -13,7 +13,7 @@ import pytest
 import yaml
 from scipy import stats
 
-from apps.plots import load_run
+from hercs.apps.plots import load_run
 from tests.support import load_bench
 
 effect = load_bench("schedule_effect")

@@ -16,6 +16,7 @@ import pytest
 
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog import (
     EpisodeLog,
     EpisodeLogError,
@@ -26,7 +27,6 @@ from hercs.runlog import (
     segment_paths,
 )
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
 
 RUN, TASK = "disk-test", "push"
 RETRY_S = 1.0

@@ -59,10 +59,10 @@ import yaml
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from actors.weights import WeightsDecoder
-from clusterer.service import decode_header
 from hercs import pbwire
+from hercs.actors.weights import WeightsDecoder
 from hercs.batch import TransitionBatch
+from hercs.clusterer.service import decode_header
 from hercs.clustering import ClusterModel
 from hercs.codec import (
     array_to_msg,
@@ -78,7 +78,15 @@ from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
 from hercs.policy import Policy
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.reasons import Reason
+from hercs.replay_service.service import (
+    MAX_BATCH_SIZE,
+    MAX_MINIBATCHES_PER_REQUEST,
+    MAX_ROWS_PER_REQUEST,
+)
 from hercs.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
 from hercs.served import decode_served_batch
 from hercs.transport import PendingReply, RemoteError, Transport, TransportError
@@ -88,14 +96,6 @@ from hercs.validation import (
     validate_centroids,
     validate_eval_result,
     validate_sample_request,
-)
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
-from replay_service.service import (
-    MAX_BATCH_SIZE,
-    MAX_MINIBATCHES_PER_REQUEST,
-    MAX_ROWS_PER_REQUEST,
 )
 from tests.integration.services import ServiceProcess
 from tests.support import free_tcp_port
@@ -107,8 +107,8 @@ KR, KA, KL = RunKeys(RUN_R), RunKeys(RUN_A), RunKeys(RUN_L)
 MAX_BYTES = 64 * 1024
 """`replay.max_message_bytes` of the runs (the default is 8 MiB; a small limit makes oversized
 payloads cheap)."""
-HEADER_MAX_BYTES = 64 * 1024  # clusterer.service._HEADER_MAX_BYTES
-LEARNER_EVAL_MAX_BYTES = 1 << 20  # learner.service: EvalResult and ReplayStatus
+HEADER_MAX_BYTES = 64 * 1024  # hercs.clusterer.service._HEADER_MAX_BYTES
+LEARNER_EVAL_MAX_BYTES = 1 << 20  # hercs.learner.service: EvalResult and ReplayStatus
 REQUEST_TIMEOUT_S = 15.0
 WAIT_S = 30.0
 ACK_EVERY_S = 0.05

@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apps.certs import make_certs
-from apps.router import open_router
 from bench import net_faults
 from bench.delay_relay import DelayRelay
 from bench.netns import hosts, problem
+from hercs.apps.certs import make_certs
+from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
+from hercs.proto.keys import RunKeys
 from hercs.security import zenoh_settings
 from hercs.transport import Transport
-from proto.keys import RunKeys
 from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]

@@ -25,8 +25,9 @@ RUN_S = 240.0
 
 
 def up_argv(tmp_path: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", str(EPOCHS),
-            "--actors", "2", "--run-dir", str(tmp_path / "runs"), "--listen", free_endpoint(),
+    return [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach",
+            "--epochs", str(EPOCHS), "--actors", "2", "--run-dir", str(tmp_path / "runs"),
+            "--listen", free_endpoint(),
             "--set", "training.cycles_per_epoch=3", "--set", "training.eval_episodes=2",
             "--set", "launch.restart_backoff_s=0.2", *extra]
 
@@ -134,7 +135,7 @@ def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path
     recorded_before = epochs_recorded(run_dir)
     assert recorded_before[:2] == [1, 2]
 
-    again = Launcher([sys.executable, "-m", "apps.cli", "up", "--resume", str(run_dir),
+    again = Launcher([sys.executable, "-m", "hercs.apps.cli", "up", "--resume", str(run_dir),
                       "--listen", free_endpoint()], cwd=tmp_path)
     try:
         assert again.finish(timeout_s=RUN_S) == 0, "\n".join(again.out + again.err)

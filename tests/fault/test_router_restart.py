@@ -25,7 +25,7 @@ TIMEOUT_S = 240.0
 
 def router(endpoint: str, log: Path) -> subprocess.Popen[bytes]:
     with log.open("ab") as out:
-        return subprocess.Popen([sys.executable, "-m", "apps.cli", "router", "--listen",
+        return subprocess.Popen([sys.executable, "-m", "hercs.apps.cli", "router", "--listen",
                                  endpoint], stdout=out, stderr=subprocess.STDOUT)
 
 

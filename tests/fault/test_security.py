@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from apps.certs import make_certs
-from apps.router import open_router
+from hercs.apps.certs import make_certs
+from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
+from hercs.proto.keys import RunKeys
 from hercs.security import listen_problem, zenoh_settings
 from hercs.transport import RouterUnreachable, Transport, TransportError
-from proto.keys import RunKeys
 from tests.integration.conftest import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
@@ -174,8 +174,8 @@ def test_a_router_reachable_from_other_hosts_needs_tls(certs: Path) -> None:
     assert listen_problem(SecurityConfig(allow_insecure=True), exposed) is None
     assert listen_problem(SecurityConfig(), ["tcp/127.0.0.1:7447", "tcp/[::1]:7447"]) is None
     assert listen_problem(_security(certs), [f"tls/0.0.0.0:{free_tcp_port()}"]) is None
-    done = subprocess.run([sys.executable, "-m", "apps.cli", "router", "--listen", exposed[0]],
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "router", "--listen",
+                           exposed[0]], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, done.stderr
     assert "--tls-ca" in done.stderr and "allow_insecure" in done.stderr
 
@@ -183,7 +183,7 @@ def test_a_router_reachable_from_other_hosts_needs_tls(certs: Path) -> None:
 def test_hercs_up_with_tls_passwords_and_access_control(certs: Path, tmp_path: Path) -> None:
     """A whole run (router, replay, clusterer, learner, evaluator, actor) with every process
     on its own certificate and password: it trains its epoch and finishes."""
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--epochs", "1", "--run", "secure", "--run-dir", str(tmp_path),
            "--listen", f"tls/127.0.0.1:{free_tcp_port()}", "--tls-dir", str(certs),
            "--credentials", str(certs / "credentials.txt"),

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.integration
 @pytest.mark.parametrize("service", ["clusterer", "actor"])
 def test_sigterm_while_waiting_for_router(service: str) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "apps.cli", service, "--run", "nobody",
+        [sys.executable, "-m", "hercs.apps.cli", service, "--run", "nobody",
          "--connect", free_endpoint(), "--id", "x"],
         stderr=subprocess.PIPE, text=True)
     try:

@@ -11,9 +11,9 @@ from collections.abc import Iterator
 
 import pytest
 
+from hercs.proto.keys import RunKeys
 from hercs.service import EXIT_UNREACHABLE
 from hercs.transport import Transport
-from proto.keys import RunKeys
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
@@ -21,7 +21,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 def _actor(endpoint: str, run: str, *extra: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "apps.cli", "actor", "--run", run, "--connect", endpoint,
+        [sys.executable, "-m", "hercs.apps.cli", "actor", "--run", run, "--connect", endpoint,
          "--id", "lost", *extra], stderr=subprocess.PIPE, text=True)
 
 

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.proto import hercs_pb2 as pb
 from hercs.transport import Transport
-from proto import hercs_pb2 as pb
 
 WAIT_S = 15.0
 STOP_WITHIN_S = 5.0
@@ -41,7 +41,7 @@ class ServiceProcess:
         self._log = open(self.log_path, "wb")  # noqa: SIM115 (closed in stop())
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "apps.cli", service, "--config", str(config_path),
+            [sys.executable, "-m", "hercs.apps.cli", service, "--config", str(config_path),
              "--id", ident], stdout=self._log, stderr=subprocess.STDOUT, env=env)
 
     def log_text(self) -> str:
@@ -72,7 +72,7 @@ def start_service(role: str, config: HercsConfig, ident: str, tmp_path: Path) ->
     save_yaml(config, path)
     with (tmp_path / f"{role}.log").open("w") as log:  # the child keeps its own copy
         return subprocess.Popen(
-            [sys.executable, "-m", "apps.cli", role, "--config", str(path), "--id", ident],
+            [sys.executable, "-m", "hercs.apps.cli", role, "--config", str(path), "--id", ident],
             stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "HERCS_LOG": "INFO"},
         )
 

@@ -18,14 +18,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from actors.inserter import Inserter
+from hercs.actors.inserter import Inserter
 from hercs.codec import msg_to_array, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.transport import PendingReply, Transport, TransportError
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

@@ -76,7 +76,7 @@ json.dump({"epoch": policy.epoch, "success_rate": sum(successes) / len(successes
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", "1",
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "1",
            "--actors", "1", "--run", "api", "--run-dir", str(root), "--listen",
            free_endpoint(), "--set", "training.cycles_per_epoch=2",
            "--set", f"training.eval_episodes={EVAL_EPISODES}"]
@@ -117,8 +117,8 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
         run_dir: Path, observations: dict[str, np.ndarray], user) -> None:
     import torch
 
-    from actors.weights import WeightsDecoder
-    from apps.policy_eval import load_policy as eval_loads
+    from hercs.actors.weights import WeightsDecoder
+    from hercs.apps.policy_eval import load_policy as eval_loads
     from hercs.config import HercsConfig
     from hercs.policy import Policy
 

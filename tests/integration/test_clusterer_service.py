@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clusterer.core import Clusterer
+from hercs.clusterer.core import Clusterer
 from hercs.codec import array_to_msg, msg_to_array
 from hercs.config import HercsConfig, apply_overrides
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.transport import Transport
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 import yaml
 
-from apps.cli import SERVICES, build_parser, resolve_config
+from hercs.apps.cli import SERVICES, build_parser, resolve_config
 from hercs.config import HercsConfig
 from hercs.security import listen_problem
 
@@ -267,8 +267,8 @@ def test_dockerfile_installs_cpu_torch_then_every_package() -> None:
 def test_services_import_no_view_dependency() -> None:
     """The services image lacks rerun-sdk, matplotlib and imageio-ffmpeg: no module a service
     command imports may import them at module level (only `hercs view|plot|live|eval` do)."""
-    modules = ["apps.cli", "apps.router", "apps.certs", *(m for m, _ in SERVICES.values()
-                                                          if m != "apps.live_view")]
+    modules = ["hercs.apps.cli", "hercs.apps.router", "hercs.apps.certs",
+               *(m for m, _ in SERVICES.values() if m != "hercs.apps.live_view")]
     heavy = [*VIEW_ONLY.values(), "pyarrow"]
     # pandas is a dev-only package here (rliable's, for bench/claims.py), absent from the
     # image; where installed, scikit-learn imports it and it imports pyarrow: block it so the

@@ -18,9 +18,9 @@ import pytest
 from hercs.codec import weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.policy import Policy
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.transport import Transport
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

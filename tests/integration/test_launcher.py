@@ -1,4 +1,4 @@
-"""`hercs up` (apps.launcher): run directory, start order, progress lines, failure reports,
+"""`hercs up` (hercs.apps.launcher): run directory, start order, progress lines, failure reports,
 shutdown order and no orphan processes — with real processes and a real embedded router.
 
 Most tests inject stand-in children (a small script per service that joins the run over
@@ -30,13 +30,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from apps.cli import build_parser, main, resolve_config
-from apps.progress import Progress
-from apps.run_plan import plan_children, resolve_run, service_command
+from hercs.apps.cli import build_parser, main, resolve_config
+from hercs.apps.progress import Progress
+from hercs.apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, load_yaml
+from hercs.proto.keys import RunKeys
 from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
-from proto.keys import RunKeys
 from tests.support import skip_without_mujoco_py
 
 pytestmark = pytest.mark.integration
@@ -67,8 +67,8 @@ signal.signal(signal.SIGTERM, on_term)
 
 from hercs.config import load_yaml
 from hercs.transport import Transport
-from proto import SCHEMA_VERSION, hercs_pb2 as pb
-from proto.keys import RunKeys
+from hercs.proto import SCHEMA_VERSION, hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 
 config = load_yaml(config_path)
 keys = RunKeys(config.run.name)
@@ -112,8 +112,8 @@ while True:
 # Runs `hercs up` (argv after the first four) with the stand-ins as children.
 DRIVER = r'''
 import sys
-from apps.cli import build_parser, resolve_config
-from apps.launcher import run_up
+from hercs.apps.cli import build_parser, resolve_config
+from hercs.apps.launcher import run_up
 standin, events, behaviours, stop_timeout = sys.argv[1:5]
 args = build_parser()[0].parse_args(["up", *sys.argv[5:]])
 
@@ -347,7 +347,7 @@ def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: P
     parser, commands = build_parser()
     for spec in specs:
         argv = service_command(spec, tmp_path / "config.yaml")
-        assert argv[:3] == [sys.executable, "-m", "apps.cli"]
+        assert argv[:3] == [sys.executable, "-m", "hercs.apps.cli"]
         args = parser.parse_args(argv[3:])
         assert (args.command, args.ident, args.config) == (spec.role, spec.ident,
                                                            str(tmp_path / "config.yaml"))
@@ -367,7 +367,7 @@ def test_up_fails_clearly_when_the_router_port_is_taken(tmp_path: Path) -> None:
         holder.bind(("127.0.0.1", port))
         holder.listen()
         done = subprocess.run(
-            [sys.executable, "-m", "apps.cli", "up", "--run", "x", "--run-dir",
+            [sys.executable, "-m", "hercs.apps.cli", "up", "--run", "x", "--run-dir",
              str(tmp_path), "--listen", f"tcp/127.0.0.1:{port}"],
             capture_output=True, text=True, timeout=WAIT_S, cwd=REPO)
     assert done.returncode == 1
@@ -585,8 +585,8 @@ def test_sigkilled_launcher_leaves_no_orphans(up) -> None:
 
 # --------------------------------------------------------------------------- real services
 
-SERVICE_MODULES = ("replay_service.service", "clusterer.service", "learner.service",
-                   "actors.service", "actors.evaluator")
+SERVICE_MODULES = ("hercs.replay_service.service", "hercs.clusterer.service",
+                   "hercs.learner.service", "hercs.actors.service", "hercs.actors.evaluator")
 
 
 @pytest.mark.slow
@@ -594,7 +594,7 @@ SERVICE_MODULES = ("replay_service.service", "clusterer.service", "learner.servi
                     reason="a service module is not written yet")
 def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     launcher = Launcher(
-        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--epochs", "2",
+        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "2",
          "--actors", "2", "--run", "e2e", "--run-dir", str(tmp_path / "runs"),
          "--listen", free_endpoint(), "--set", "training.cycles_per_epoch=2",
          "--set", "training.eval_episodes=2"],
@@ -631,7 +631,7 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     for name in ("LD_LIBRARY_PATH", "MUJOCO_PY_MUJOCO_PATH", "MUJOCO_PY_FORCE_CPU"):
         monkeypatch.delenv(name, raising=False)  # hercs.envs set them in this process
     launcher = Launcher(
-        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
          "--epochs", "1", "--run", "v1", "--run-dir", str(tmp_path / "runs"),
          "--listen", free_endpoint(), "--set", "task.env_version=v1",
          "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2"],
@@ -659,7 +659,7 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     with weights version i // 4 (the reference's schedule), and metrics.csv's policy lag
     against that schedule is 0."""
     launcher = Launcher(
-        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
          "--epochs", "2", "--actors", "2", "--run", "lockstep", "--run-dir",
          str(tmp_path / "runs"), "--listen", free_endpoint(),
          "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
@@ -703,7 +703,7 @@ def test_lockstep_runs_with_one_seed_compute_the_same_numbers(tmp_path: Path) ->
     weights version) and write the same losses, Q, evaluations and cluster model versions."""
     names = ("twin-a", "twin-b")
     launchers = [Launcher(
-        [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
          "--epochs", "2", "--actors", "1", "--seed", "7", "--run", name, "--run-dir",
          str(tmp_path / "runs"), "--listen", free_endpoint(),
          "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",

@@ -39,7 +39,7 @@ def test_a_published_policy_loads_and_acts(run: Path) -> None:
 
 def test_hercs_eval_runs_a_published_v4_policy() -> None:
     run = next(p for p in PUBLISHED if "-v1-" not in p.name)
-    done = subprocess.run([sys.executable, "-m", "apps.cli", "eval", str(run), "--episodes",
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "eval", str(run), "--episodes",
                            "3"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert re.search(r"success [01]\.\d\d \([0-3]/3\)", done.stdout), done.stdout
@@ -48,7 +48,7 @@ def test_hercs_eval_runs_a_published_v4_policy() -> None:
 def test_hercs_eval_runs_a_published_v1_policy() -> None:
     skip_without_mujoco_py()
     run = next(p for p in PUBLISHED if "-v1-" in p.name)
-    done = subprocess.run([sys.executable, "-m", "apps.cli", "eval", str(run), "--episodes",
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "eval", str(run), "--episodes",
                            "2"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert re.search(r"success [01]\.\d\d \([0-2]/2\)", done.stdout), done.stdout

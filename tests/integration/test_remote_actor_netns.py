@@ -24,14 +24,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from apps.router import open_router
 from bench.netns import Host, hosts, problem
+from hercs.apps.router import open_router
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.transport import PendingReply, Transport
 from hercs.validation import parse_message
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from proto.keys import RunKeys
 
 pytestmark = pytest.mark.integration
 
@@ -123,7 +123,7 @@ def test_client_in_another_namespace_reaches_the_router(netns: Host, tmp_path: P
             client.wait()
 
 
-@pytest.mark.skipif(find_spec("actors.service") is None, reason="hercs actor not written yet")
+@pytest.mark.skipif(find_spec("hercs.actors.service") is None, reason="hercs actor not written yet")
 def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
         netns: Host, tmp_path: Path, router: tuple[Transport, str]) -> None:
     """`hercs actor --connect … --run …` from the namespace: the test plays the replay (serves
@@ -149,7 +149,7 @@ def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
     transport.serve_deferred(keys.insert, ack)
     transport.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
     log = tmp_path / "actor.log"
-    actor = in_netns(netns, [sys.executable, "-m", "apps.cli", "actor", "--connect", endpoint,
+    actor = in_netns(netns, [sys.executable, "-m", "hercs.apps.cli", "actor", "--connect", endpoint,
                              "--run", run, "--id", "far-actor"], log)
     try:
         assert get(alive, "the actor's liveliness token") == (keys.alive("actor", "far-actor"),

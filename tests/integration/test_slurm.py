@@ -62,7 +62,7 @@ def env_of(cluster: minislurm.MiniSlurm) -> dict[str, str]:
 
 
 def slurm_submit(cluster: minislurm.MiniSlurm, *flags: str) -> str:
-    done = subprocess.run([sys.executable, "-m", "apps.cli", "slurm", "submit", *flags],
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "slurm", "submit", *flags],
                           capture_output=True, text=True, env=env_of(cluster), cwd=REPO,
                           timeout=120)
     assert done.returncode == 0, done.stderr

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
-from apps.view import read_run_log
+from hercs.apps.view import read_run_log
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 from tests.support import free_tcp_port, rerun_viewer
 
@@ -33,7 +33,7 @@ def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
     saved = tmp_path / "live.rrd"
     with rerun_viewer(port, tmp_path / "received.rrd"):  # ends its file on exit
         launcher = Launcher(
-            [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+            [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
              "--epochs", "1", "--run", "live", "--run-dir", str(tmp_path / "runs"),
              "--listen", free_endpoint(), "--rerun", str(port), "--rerun-save", str(saved),
              "--rerun-every", str(EVERY),

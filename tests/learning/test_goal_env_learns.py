@@ -28,7 +28,7 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", TASK, "--method", "her-cs",
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", TASK, "--method", "her-cs",
            "--epochs", str(EPOCHS), "--seed", "1", "--run", "goal-env-learns",
            "--run-dir", str(root), "--listen", free_endpoint(),
            "--set", "training.cycles_per_epoch=10", "--set", "training.eval_episodes=20",

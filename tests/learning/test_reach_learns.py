@@ -41,7 +41,7 @@ def _hercs_pids(run_dir: Path) -> set[int]:
         except OSError:
             continue
         joined = b" ".join(cmdline)
-        if (b"apps.cli" in joined and str(run_dir).encode() in joined
+        if (b"hercs.apps.cli" in joined and str(run_dir).encode() in joined
                 and int(entry.name) != os.getpid()):
             pids.add(int(entry.name))
     return pids
@@ -51,7 +51,7 @@ def _hercs_pids(run_dir: Path) -> set[int]:
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
     endpoint = free_endpoint()
-    cmd = [sys.executable, "-m", "apps.cli", "up", "--task", "reach", "--method", "her-cs",
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--actors", "2", "--epochs", str(EPOCHS), "--seed", "1", "--run", "reach-learns",
            "--run-dir", str(root), "--listen", endpoint,
            "--set", f"training.cycles_per_epoch={CYCLES}",
@@ -130,7 +130,7 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
 def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: str) -> None:
     """The kept policy, on the goals the run's evaluator used for its epoch, scores exactly
     the success and final distance in metrics.csv."""
-    from apps.policy_eval import evaluate, load_policy
+    from hercs.apps.policy_eval import evaluate, load_policy
 
     policy = load_policy(run_dir, checkpoint)
     recorded = {int(r["epoch"]): r for r in rows(run_dir)}
@@ -146,7 +146,7 @@ def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: 
 
 
 def test_eval_records_a_video_of_every_step(run_dir: Path, tmp_path: Path) -> None:
-    from apps.policy_eval import EvalError, choose_gl
+    from hercs.apps.policy_eval import EvalError, choose_gl
 
     try:
         choose_gl()
@@ -155,7 +155,7 @@ def test_eval_records_a_video_of_every_step(run_dir: Path, tmp_path: Path) -> No
     import imageio_ffmpeg
 
     video = tmp_path / "policy.mp4"
-    done = subprocess.run([sys.executable, "-m", "apps.cli", "eval", str(run_dir),
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "eval", str(run_dir),
                            "--episodes", "2", "--video", str(video)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr

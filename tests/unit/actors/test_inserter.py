@@ -1,15 +1,15 @@
-"""actors.inserter: an episode refused for fair sharing (`actor_queue_full`) is kept and sent
+"""hercs.actors.inserter: an episode refused for fair sharing (`actor_queue_full`) is kept and sent
 again, the same bytes after the backoff, until it is acked; never dropped."""
 
 from __future__ import annotations
 
 import threading
 
-from actors.inserter import Inserter
+from hercs.actors.inserter import Inserter
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.transport import RemoteError
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
 
 WAIT_S = 15.0
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from actors.rollout import RolloutWorker, VectorRollout
+from hercs.actors.rollout import RolloutWorker, VectorRollout
 from hercs.envs import make_env
 from hercs.episode import expected_shapes
 from hercs.tasks import task_spec

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from apps.cli import build_parser, main
+from hercs.apps.cli import build_parser, main
 
 
 def test_config_command_resolves_shortcuts_and_overrides(capsys) -> None:
@@ -27,7 +27,7 @@ def test_bad_config_value_exits_2_with_field_named(capsys) -> None:
 
 
 def test_console_script_help_lists_commands() -> None:
-    out = subprocess.run([sys.executable, "-m", "apps.cli", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
     assert "config" in out
 
@@ -109,7 +109,7 @@ def test_workers_preset_scales_episodes_batch_and_actors(capsys, tmp_path: Path)
 
 EXIT_AFTER_CLOSE_SCRIPT = """
 import logging, sys, threading
-from apps.cli import exit_after_close
+from hercs.apps.cli import exit_after_close
 logging.basicConfig(level=logging.INFO, format="%(message)s")
 release = threading.Event()
 def late_writer():
@@ -150,7 +150,7 @@ def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_p
 
 
 def _joined(argv: list[str]):
-    from apps.cli import join_endpoints, resolve_config
+    from hercs.apps.cli import join_endpoints, resolve_config
 
     args = build_parser()[0].parse_args(argv)
     return join_endpoints(args, resolve_config(args))

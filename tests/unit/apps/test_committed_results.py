@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from apps import plot_tables, plots
+from hercs.apps import plot_tables, plots
 from tests.support import load_bench
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"

@@ -18,17 +18,17 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from apps.cli import main
-from apps.live_recorder import LiveRecorder, header_outcome
-from apps.live_view import ViewerHealth
+from hercs.apps.cli import main
+from hercs.apps.live_recorder import LiveRecorder, header_outcome
+from hercs.apps.live_view import ViewerHealth
 from hercs.clustering import assign_clusters
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 from tests.support import free_tcp_port, rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from apps.cli import main
+from hercs.apps.cli import main
 from hercs.config import HercsConfig, save_yaml
 
 CONFIG_HINT = "(`hercs config -o FILE` writes the full default config to start from)"

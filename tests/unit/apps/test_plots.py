@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from apps import plot_figures, plot_tables, plots
-from apps.cli import main
+from hercs.apps import plot_figures, plot_tables, plots
+from hercs.apps.cli import main
 
 # Hand-made curves. her: seed 1 succeeds from epoch 5, seed 2 from epoch 7 (15 epochs each).
 # her-cs: seeds of different lengths (8 and 6 epochs) -> aggregated over the 6 common epochs.

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apps.cli import main
-from apps.view import (
+from hercs.apps.cli import main
+from hercs.apps.view import (
     headless_problem,
     parse_selection,
     read_run_log,
@@ -21,10 +21,10 @@ from apps.view import (
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -83,7 +83,7 @@ def test_bad_selection_exits_2(tmp_path: Path, capsys) -> None:
 def test_view_saves_a_valid_rrd_with_the_documented_entities(tmp_path: Path) -> None:
     _write_run(tmp_path)
     out = tmp_path / "out.rrd"
-    result = subprocess.run([sys.executable, "-m", "apps.cli", "view", str(tmp_path),
+    result = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "view", str(tmp_path),
                              "--save", str(out), "--episodes", "0,1,10:12"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
@@ -122,7 +122,7 @@ def test_default_view_draws_the_last_epoch_on_the_runs_clock(tmp_path: Path) -> 
                                              "training.episodes_per_cycle=2"])
     save_yaml(config, tmp_path / "config.yaml")
     out = tmp_path / "default.rrd"
-    result = subprocess.run([sys.executable, "-m", "apps.cli", "view", str(tmp_path),
+    result = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "view", str(tmp_path),
                              "--save", str(out)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "drawing the last 4 episodes (one epoch, config.yaml)" in result.stderr

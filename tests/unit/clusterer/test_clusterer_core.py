@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clusterer.core import Clusterer
+from hercs.clusterer.core import Clusterer
 from hercs.config import ClusterConfig
 from hercs.tasks import task_spec
 

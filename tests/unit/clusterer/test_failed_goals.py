@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clusterer.failed_goals import FailedGoalBuffer
+from hercs.clusterer.failed_goals import FailedGoalBuffer
 
 
 def _goal(i: int) -> np.ndarray:

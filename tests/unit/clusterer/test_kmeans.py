@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from sklearn.cluster import KMeans
 
-from clusterer.kmeans import fit_cluster_model
+from hercs.clusterer.kmeans import fit_cluster_model
 from hercs.clustering import ClusterModel, assign_clusters
 
 

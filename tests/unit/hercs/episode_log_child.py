@@ -21,8 +21,8 @@ import numpy as np
 
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
 
 RUN = "log-test"
 SEED = 20240917

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 
 import hercs
-from actors.weights import WeightsDecoder
+from hercs.actors.weights import WeightsDecoder
 from hercs.codec import episode_to_msg, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
+from hercs.learner.checkpoint import save_policy
 from hercs.metrics import METRICS_COLUMNS
 from hercs.policy import Policy
 from hercs.rundir import RunDirError
 from hercs.runlog import EpisodeLog, segment_paths
-from learner.checkpoint import save_policy
 
 REPO = Path(__file__).resolve().parents[3]
 RUN = "api-test"
@@ -93,7 +93,7 @@ def observations(spec, n: int, seed: int = 0) -> dict[str, np.ndarray]:
 
 def test_the_loaded_policy_acts_as_the_evaluator_acts_on_the_same_weights(run_dir: Path) -> None:
     """Against the evaluator's own path: the policy file's Weights bytes through
-    actors.weights.WeightsDecoder into a Policy, acting with explore=False."""
+    hercs.actors.weights.WeightsDecoder into a Policy, acting with explore=False."""
     import torch
 
     policy = hercs.load_policy(run_dir)

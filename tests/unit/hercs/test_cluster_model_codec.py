@@ -11,8 +11,8 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from apps.view import read_run_log
-from clusterer.core import Clusterer
+from hercs.apps.view import read_run_log
+from hercs.clusterer.core import Clusterer
 from hercs.clustering import ClusterModel
 from hercs.codec import (
     array_to_msg,
@@ -23,10 +23,10 @@ from hercs.codec import (
 from hercs.config import ClusterConfig
 from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
 from hercs.runlog import EpisodeLogWriter, read_cluster_models
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
-from proto.schema import SCHEMA_VERSION
 
 SPEC = task_spec("push")
 CENTROIDS = np.random.default_rng(3).uniform(-1, 1, (8, 3)).astype(np.float32)

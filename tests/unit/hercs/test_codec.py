@@ -19,9 +19,9 @@ from hercs.codec import (
 )
 from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
 from hercs.tasks import task_spec
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
 
 
 @pytest.mark.parametrize(

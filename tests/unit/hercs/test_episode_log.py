@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from hercs.codec import array_to_msg, msg_to_array
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -41,7 +42,6 @@ from hercs.runlog import (
     segment_paths,
 )
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
 
 CHILD = Path(__file__).with_name("episode_log_child.py")
 RERUN = Path(sys.executable).with_name("rerun")

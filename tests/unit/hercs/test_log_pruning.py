@@ -10,6 +10,7 @@ import pytest
 
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
+from hercs.proto import hercs_pb2 as pb
 from hercs.runlog import (
     EpisodeLogWriter,
     SegmentHead,
@@ -20,7 +21,6 @@ from hercs.runlog import (
     segments_to_delete,
 )
 from hercs.tasks import task_spec
-from proto import hercs_pb2 as pb
 
 MB = 1_000_000
 

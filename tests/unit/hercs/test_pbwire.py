@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hercs import pbwire
-from proto import hercs_pb2 as pb
+from hercs.proto import hercs_pb2 as pb
 
 
 @given(st.integers(min_value=0, max_value=2**64 - 1))

@@ -10,6 +10,7 @@ from hercs.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.normalizer import Normalizer
+from hercs.proto import hercs_pb2 as pb
 from hercs.served import (
     BATCH_FIELDS,
     COUNTER_FIELDS,
@@ -20,7 +21,6 @@ from hercs.served import (
     msg_to_counters,
     served_batch_to_bytes,
 )
-from proto import hercs_pb2 as pb
 
 SPEC = HercsConfig().task.spec
 ENVELOPE = {"schema_version", "request_id"}

@@ -8,6 +8,7 @@ import pytest
 from hercs.codec import array_to_msg, episode_to_msg
 from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
+from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.tasks import task_spec
 from hercs.validation import (
@@ -17,7 +18,6 @@ from hercs.validation import (
     validate_episode,
     validate_sample_request,
 )
-from proto import hercs_pb2 as pb
 
 
 def rejected(check: Callable[[], object]) -> InvalidMessage | None:

@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from hercs.config import DDPGConfig
+from hercs.learner.ddpg import DDPGLearner, critic_target
 from hercs.networks import Actor, Critic, preprocess
 from hercs.normalizer import Normalizer
 from hercs.policy import Policy
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner, critic_target
 from tests.support import random_transition_batch as _batch
 
 SPEC = task_spec("push")
@@ -242,7 +242,7 @@ def test_update_rejects_malformed_batches(key: str, value: np.ndarray, match: st
 def test_the_return_clip_follows_the_tasks_rewards() -> None:
     """Fetch's −1/0 rewards bound returns to [−1/(1−γ), 0] (the reference's clip);
     PointMaze's 0/1 rewards to [0, 1/(1−γ)]: a Fetch clip there would zero every target."""
-    from learner.ddpg import return_bounds
+    from hercs.learner.ddpg import return_bounds
 
     assert return_bounds(task_spec("push"), 0.98) == pytest.approx((-50.0, 0.0))
     assert return_bounds(task_spec("PointMaze_UMaze-v3"), 0.98) == pytest.approx((0.0, 50.0))

@@ -1,10 +1,10 @@
-"""learner.evaluations: the pending evaluation requests and the policies kept, driven with a
+"""hercs.learner.evaluations: the pending evaluation requests and the policies kept, driven with a
 fake clock (no Zenoh)."""
 
 from __future__ import annotations
 
+from hercs.learner.evaluations import EvalRequests, PolicyKeeper
 from hercs.rundir import BEST
-from learner.evaluations import EvalRequests, PolicyKeeper
 
 
 class Clock:

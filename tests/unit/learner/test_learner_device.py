@@ -10,8 +10,8 @@ import torch
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
 from hercs.errors import ConfigError
+from hercs.learner.ddpg import DDPGLearner, resolve_device
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner, resolve_device
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

@@ -11,9 +11,9 @@ import torch
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
 from hercs.errors import ConfigError
+from hercs.learner.ddpg import DDPGLearner
 from hercs.networks import to_arrays
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

@@ -9,12 +9,12 @@ import torch
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
+from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.loop import LearnerLoop
 from hercs.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
+from hercs.replay_service.core import ReplayCore
 from hercs.served import ReplayCounters, ServedBatch
-from learner.checkpoint import load_checkpoint, save_checkpoint
-from learner.ddpg import DDPGLearner
-from learner.loop import LearnerLoop
-from replay_service.core import ReplayCore
 
 
 def config() -> HercsConfig:
@@ -111,7 +111,7 @@ def test_checkpoint_write_failure_keeps_the_previous_one(tmp_path, monkeypatch) 
     def full_disk(fd: int) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("learner.checkpoint.os.fsync", full_disk)
+    monkeypatch.setattr("hercs.learner.checkpoint.os.fsync", full_disk)
     assert not save_checkpoint(tmp_path, {"learner": {}, "loop": {"epoch": 2}})
     monkeypatch.undo()
     state = load_checkpoint(tmp_path)

@@ -13,10 +13,10 @@ import pytest
 from hercs.codec import batch_to_bytes, stats_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
-from learner.prefetch import Prefetcher
-from proto import SCHEMA_VERSION
-from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore
+from hercs.learner.prefetch import Prefetcher
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.core import ReplayCore
 
 WAIT_S = 10.0
 

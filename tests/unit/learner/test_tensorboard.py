@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("tensorboard", reason="the tensorboard extra is not installed")
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from learner.tensorboard import TensorBoardScalars
+from hercs.learner.tensorboard import TensorBoardScalars
 
 
 def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:

@@ -1,5 +1,5 @@
 """learner.precision=tf32: matrix products with operands rounded to TF32's 10 mantissa bits,
-forward and backward, the rest fp32 (learner/tf32.py)."""
+forward and backward, the rest fp32 (hercs/learner/tf32.py)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import torch
 
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.tf32 import TF32Products, round_to_tf32
 from hercs.networks import to_arrays
 from hercs.tasks import task_spec
-from learner.ddpg import DDPGLearner
-from learner.tf32 import TF32Products, round_to_tf32
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

@@ -1,4 +1,4 @@
-"""The committed proto/hercs_pb2.py must be what `make proto` generates from hercs.proto."""
+"""The committed hercs/proto/hercs_pb2.py must be what `make proto` generates from hercs.proto."""
 
 import shutil
 import subprocess
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-PROTO_DIR = Path(__file__).resolve().parents[3] / "proto"
+PROTO_DIR = Path(__file__).resolve().parents[3] / "hercs" / "proto"
 
 
 @pytest.mark.parametrize("generated", ["hercs_pb2.py", "hercs_pb2.pyi"])
@@ -20,4 +20,4 @@ def test_committed_module_is_fresh(tmp_path: Path, generated: str) -> None:
     )
     fresh = (tmp_path / generated).read_text()
     committed = (PROTO_DIR / generated).read_text()
-    assert committed == fresh, f"proto/{generated} is stale: run `make proto` and commit it"
+    assert committed == fresh, f"hercs/proto/{generated} is stale: run `make proto` and commit it"

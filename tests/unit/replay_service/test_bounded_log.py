@@ -26,6 +26,8 @@ from hercs.codec import (
 )
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
+from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.table import ReplayTable, SampleCall, Stored
 from hercs.runlog import (
     EpisodeLogError,
     RecoveringLogWriter,
@@ -35,8 +37,6 @@ from hercs.runlog import (
     segment_paths,
 )
 from hercs.served import ServedBatch
-from replay_service.core import ReplayCore
-from replay_service.table import ReplayTable, SampleCall, Stored
 
 RUN, TASK = "t", "reach"
 EPISODES = 120

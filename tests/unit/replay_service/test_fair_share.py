@@ -1,4 +1,4 @@
-"""Fair sharing of the insert capacity between actors (replay_service.waiting_inserts), on the
+"""Fair sharing of the insert capacity between actors (hercs.replay_service.waiting_inserts), on the
 ReplayTable without any transport: while the rate limiter holds inserts they are admitted
 round-robin across actor ids, one actor's excess is refused as a retry and comes back, and an
 actor alone is admitted exactly as in arrival order."""

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from hercs.errors import ConfigError
-from replay_service.rate_limiter import SampleToInsertRatio
+from hercs.replay_service.rate_limiter import SampleToInsertRatio
 
 
 def insert(limiter: SampleToInsertRatio) -> None:

@@ -7,7 +7,7 @@ import pytest
 from hercs.clustering import ClusterModel, assign_clusters
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
-from replay_service.core import ReplayCore
+from hercs.replay_service.core import ReplayCore
 
 
 def make_core(method: str = "her-cs", **extra: str) -> ReplayCore:

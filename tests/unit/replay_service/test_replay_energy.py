@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hercs.config import EnergyConfig
-from replay_service.energy import trajectory_energy, transition_energy
+from hercs.replay_service.energy import trajectory_energy, transition_energy
 
 # Lifted 4 cm in one step (v_z = 1 m/s), held, nudged 2 cm sideways (v_x = 0.5 m/s), held:
 #   E_1 = 9.81·0.04 + ½·1²   = 0.8924   → e_1 = E_1 (the first transition's energy is its total)

@@ -10,9 +10,9 @@ from hercs.config import HERConfig
 from hercs.envs import make_env
 from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
+from hercs.replay_service.her import her_indices, normalizer_sample, relabel, relabel_with_draw
+from hercs.replay_service.store import EpisodeStore
 from hercs.tasks import fetch_reward, task_spec
-from replay_service.her import her_indices, normalizer_sample, relabel, relabel_with_draw
-from replay_service.store import EpisodeStore
 
 SPEC = task_spec("push")
 T = SPEC.episode_steps

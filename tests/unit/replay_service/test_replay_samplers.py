@@ -17,15 +17,15 @@ from hercs.config import HercsConfig
 from hercs.episode import random_episode
 from hercs.errors import ConfigError, SamplingError
 from hercs.methods import METHODS
-from hercs.tasks import task_spec
-from replay_service.samplers import (
+from hercs.replay_service.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
     EnergySampler,
     UniformSampler,
     make_sampler,
 )
-from replay_service.store import EpisodeStore
+from hercs.replay_service.store import EpisodeStore
+from hercs.tasks import task_spec
 
 SPEC = task_spec("push")
 K = 8

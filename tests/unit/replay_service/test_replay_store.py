@@ -11,8 +11,8 @@ import pytest
 
 from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError
+from hercs.replay_service.store import EpisodeStore
 from hercs.tasks import task_spec
-from replay_service.store import EpisodeStore
 
 SPEC = task_spec("push")
 T = SPEC.episode_steps
@@ -171,7 +171,7 @@ def test_random_eviction_is_a_function_of_the_seed() -> None:
 
 _MEASURE_EMPTY_STORE = """
 from hercs.tasks import task_spec
-from replay_service.store import EpisodeStore
+from hercs.replay_service.store import EpisodeStore
 
 def rss():
     with open("/proc/self/statm") as f:
@@ -205,7 +205,7 @@ def _still(seq: int, *, moved_by: float) -> EpisodeData:
 
 
 def test_moved_flags_and_their_count_follow_inserts_and_evictions() -> None:
-    from replay_service.store import MOVED_THRESHOLD_M
+    from hercs.replay_service.store import MOVED_THRESHOLD_M
 
     store = EpisodeStore(capacity_episodes=3, spec=SPEC)
     for seq, moved_by in enumerate([0.0, 2 * MOVED_THRESHOLD_M, MOVED_THRESHOLD_M / 2]):

@@ -14,17 +14,17 @@ import pytest
 from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData, random_episode
+from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.served import ServedBatch
-from proto import hercs_pb2 as pb
-from replay_service.core import ReplayCore
-from replay_service.table import (
+from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.table import (
     LOCKSTEP_CLUSTER_WAIT_S,
     ReplayTable,
     SampleCall,
     SampleRefused,
     Stored,
 )
+from hercs.served import ServedBatch
 
 # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 8: d = 2·I − S stays in [0, 16].
 # Inserts are admitted while d + 2 ≤ 16, a request of n while I ≥ 4 and d − n ≥ 0.
@@ -519,7 +519,7 @@ def test_lockstep_serves_a_restarted_learners_request_past_a_dead_learners() -> 
     assert again.results and not dead.results
 
 
-# -- the policy-lag bound (training.max_policy_lag, replay_service.lag_bound) ----------------
+# -- the policy-lag bound (training.max_policy_lag, hercs.replay_service.lag_bound) ----------------
 # 4 episodes per cycle: episode i lies in cycle i // 4 of the lockstep schedule; its lag is
 # that cycle minus the weights version it was acted with.
 
@@ -584,7 +584,7 @@ def test_the_lag_bound_refuses_nothing_before_the_learner_first_asks() -> None:
 
 def test_a_lag_beyond_int64_is_clipped_not_an_error() -> None:
     """A valid episode may carry any int64 weights version; its lag still fits the wire."""
-    from replay_service.table import INT64_MAX
+    from hercs.replay_service.table import INT64_MAX
 
     h = make()
     for seq in range(4):

@@ -1,0 +1,45 @@
+"""Weights messages as the actor and the evaluator take them: parsed, decoded and checked to
+load into a policy of the run's task before anything adopts them."""
+
+from __future__ import annotations
+
+from hercs.codec import msg_to_weight_arrays
+from hercs.config import HercsConfig
+from hercs.errors import InvalidMessage
+from hercs.policy import Policy, PolicyWeights
+from hercs.proto import hercs_pb2 as pb
+from hercs.reasons import Reason
+from hercs.tasks import TaskSpec
+from hercs.validation import MAX_INT64, parse_message
+
+
+class WeightsDecoder:
+    """Bytes from `keys.weights` → `pb.Weights` (`parse`) → checked `PolicyWeights` (`decode`);
+    both raise `InvalidMessage`.
+
+    Beyond the schema and array codec, `decode` loads the weights into a scratch `Policy` of
+    this task's sizes (names, shapes, finiteness, positive std), so the `PolicyWeights` it
+    returns always loads. Use from one thread.
+    """
+
+    def __init__(self, *, spec: TaskSpec, config: HercsConfig) -> None:
+        self._scratch = Policy(spec=spec, config=config.ddpg, seed=0)
+        self._max_bytes = config.replay.max_message_bytes
+
+    def parse(self, raw: bytes) -> pb.Weights:
+        """Schema only (size, protobuf, schema_version): enough to read `evaluate`/`epoch`."""
+        return parse_message(raw, pb.Weights, max_bytes=self._max_bytes)
+
+    def decode(self, msg: pb.Weights) -> PolicyWeights:
+        if msg.version > MAX_INT64:  # episodes carry it as their int64 policy_version
+            raise InvalidMessage(Reason.BAD_VALUE,
+                                 f"Weights version {msg.version} is above {MAX_INT64}")
+        actor, o_stats, g_stats = msg_to_weight_arrays(msg)
+        weights = PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
+                                g_stats=g_stats)
+        try:
+            self._scratch.load(weights)
+        except ValueError as exc:
+            raise InvalidMessage(Reason.BAD_VALUE,
+                                 f"Weights version {msg.version}: {exc}") from None
+        return weights

@@ -1,0 +1,92 @@
+"""Service child processes, as `hercs up` (hercs/apps/launcher.py) and the benchmarks start them.
+
+A child is `python -m hercs.apps.cli <role> --config FILE --id ID` with its stdout and stderr in a
+log file. It leads a process group of its own, so that Ctrl-C at a terminal reaches only the
+parent (which then stops the children in order) and a signal to the group also reaches what
+the child forked. With `PR_SET_PDEATHSIG` = SIGKILL set between fork and exec, the kernel
+kills the child if the parent dies (SIGKILL, crash). That signal fires when the *thread* that
+forked the child exits, so children must be started from the main thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+_PR_SET_PDEATHSIG = 1
+
+
+def service_argv(role: str, ident: str, config_path: Path) -> list[str]:
+    """The argv of one service: `python -m hercs.apps.cli <role> --config <file> --id <ident>`."""
+    return [sys.executable, "-m", "hercs.apps.cli", role, "--config", str(config_path),
+            "--id", ident]
+
+
+def pdeathsig_preexec() -> Callable[[], None] | None:
+    """A `preexec_fn` making the child get SIGKILL when its parent dies (Linux only).
+
+    Runs in the forked child before exec, so it only calls what was resolved here, in the
+    parent. If the parent died before the prctl took effect the child is already
+    re-parented: it exits at once.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
+                      ctypes.c_ulong]
+    sigkill = int(signal.SIGKILL)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(_PR_SET_PDEATHSIG, sigkill, 0, 0, 0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return preexec
+
+
+def start_child(argv: Sequence[str], *, log_path: Path,
+                cwd: Path | None = None) -> subprocess.Popen[bytes]:
+    """Start `argv` in a process group of its own, with the parent-death signal, stdin from
+    /dev/null and stdout and stderr appended to `log_path` (unbuffered Python output)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    with log_path.open("ab") as log_file:
+        return subprocess.Popen(
+            list(argv), stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
+            env=env, cwd=cwd, close_fds=True, process_group=0,
+            preexec_fn=pdeathsig_preexec())
+
+
+def signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
+    """Signal the child's whole process group (it leads it); a group already gone is fine."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, sig)
+
+
+def describe_exit(code: int) -> str:
+    """`exit code 3`, or `killed by SIGKILL` for a negative return code."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+def log_tail(path: Path, lines: int) -> list[str]:
+    """The last `lines` lines of a child's log (read from its last 64 KiB), or one line
+    saying why it cannot be read."""
+    try:
+        with path.open("rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 64 * 1024))
+            text = f.read().decode("utf-8", errors="replace")
+    except OSError as exc:
+        return [f"(cannot read {path}: {exc})"]
+    return text.splitlines()[-lines:]

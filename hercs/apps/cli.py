@@ -1,0 +1,378 @@
+"""The `hercs` command line. Every command resolves one `HercsConfig` the same way:
+defaults (docs/DESIGN.md §4) ← `--config FILE.yaml` ← shortcut flags (`--task`, `--method`, …) ←
+`--set section.field=value` (repeatable). Bad values exit with status 2 and a message naming
+the field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from collections.abc import Callable
+from typing import NoReturn
+
+import yaml
+
+from hercs.apps.cli_config import (
+    JOINERS,
+    add_config_arguments,
+    add_rerun_arguments,
+    join_endpoints,
+    resolve_config,
+)
+from hercs.apps.plots import BANDS, DEFAULT_BAND
+from hercs.config import HercsConfig
+from hercs.errors import ConfigError, HercsError
+
+
+def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
+    text = yaml.safe_dump(config.to_dict(), sort_keys=False)
+    if args.output:
+        with open(args.output, "w") as f:
+            f.write(text)
+        print(f"wrote {args.output}")
+    else:
+        print(text, end="")
+    return 0
+
+
+Command = Callable[[argparse.Namespace, HercsConfig], int]
+
+
+def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
+    from hercs.apps.launcher import run_up
+
+    return run_up(config, resume=bool(args.resume))
+
+
+EXIT_NO_ROUTER = 3
+"""A joiner gave up waiting for the run's router (as a service does, `transport.wait_s`)."""
+
+
+def _cmd_slurm(args: argparse.Namespace, config: HercsConfig) -> int:
+    from hercs.apps.slurm import run_submit
+
+    return run_submit(args, config)
+
+
+def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
+    from hercs.apps.router import run_router
+
+    return run_router(config)
+
+
+# Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
+# when used, so `hercs --help` stays fast.
+SERVICE_EXAMPLES = {
+    "replay": "hercs replay --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "clusterer": "hercs clusterer --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "learner": "hercs learner --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "evaluator": "hercs evaluator --connect tcp/127.0.0.1:7447 --run myrun --task push",
+    "actor": "hercs actor --connect tcp/LEARNER_HOST:7447 --run myrun",
+    "live": "hercs live --connect tcp/LEARNER_HOST:7447 --run myrun --rerun",
+}
+
+SERVICES: dict[str, tuple[str, str]] = {
+    "replay": ("hercs.replay_service.service",
+               "run the replay service (episode store, HER, samplers)"),
+    "clusterer": ("hercs.clusterer.service", "run the clusterer (failed goals, k-means refits)"),
+    "learner": ("hercs.learner.service", "run the DDPG learner (updates, weights, epochs)"),
+    "actor": ("hercs.actors.service", "run a rollout actor (join a run with --connect and --run)"),
+    "evaluator": ("hercs.actors.evaluator", "run the evaluator (deterministic test episodes)"),
+    "live": ("hercs.apps.live_view", "stream a run to Rerun while it trains (what `hercs up "
+                                "--rerun` starts; join a run with --connect and --run)"),
+}
+
+
+HARD_EXIT_SERVICES = frozenset(module for role, (module, _) in SERVICES.items()
+                               if role != "live")
+"""Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
+flushes its recording in an exit handler)."""
+
+
+def exit_after_close(code: int) -> NoReturn:
+    """End a service process as soon as its orderly close is done, without interpreter
+    teardown.
+
+    When a service's `run` returns it has closed its Zenoh session, joined its threads (up
+    to `hercs.service.THREAD_JOIN_S`) and made everything it acknowledged durable; teardown
+    adds nothing but the finalisation of native threads, and there a clusterer stopped with
+    SIGTERM once aborted (SIGABRT, glibc's "FATAL: exception not rethrown": a native thread
+    unwound by the exiting interpreter; seen once in `make test` on a loaded machine, after
+    a clean stop). So: wait for non-daemon threads as a normal exit would, flush the logs
+    and the standard streams, and `os._exit`."""
+    import logging
+    import os
+    import threading
+
+    for thread in threading.enumerate():
+        if thread is not threading.current_thread() and not thread.daemon:
+            thread.join()
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+def _service_command(module: str) -> Command:
+    def command(args: argparse.Namespace, config: HercsConfig) -> int:
+        from importlib import import_module
+
+        code = int(import_module(module).run(config, ident=args.ident))
+        if module in HARD_EXIT_SERVICES:
+            exit_after_close(code)
+        return code
+
+    return command
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from hercs.apps.plot_figures import run_plot
+    from hercs.errors import HercsError
+    from hercs.rundir import METRICS, require_run_dir
+
+    try:
+        for run_dir in args.run_dirs:  # what a folder lacks, before plots reads any
+            require_run_dir(run_dir, needs=(METRICS,))
+        return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
+                        xmax=args.xmax, figure=args.figure, band=args.band)
+    except HercsError as exc:
+        print(f"hercs plot: {exc}", file=sys.stderr)
+        return 2
+
+
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from hercs.apps.view import run_view
+
+    return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
+                    web_port=args.web_port, grpc_port=args.grpc_port,
+                    open_browser=not args.no_browser)
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
+    parser = argparse.ArgumentParser(
+        prog="hercs",
+        description="Hindsight Experience Replay with Cluster-based Sampling, as distributed "
+                    "services over Eclipse Zenoh.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    commands: dict[str, Command] = {}
+
+    p = sub.add_parser("config", help="print (or save) the fully resolved configuration")
+    add_config_arguments(p, "config")
+    add_rerun_arguments(p)
+    p.add_argument("-o", "--output", metavar="FILE", help="write the YAML here instead")
+    commands["config"] = _cmd_config
+
+    p = sub.add_parser(
+        "up", help="run everything on this machine: embedded router, replay, clusterer, "
+                   "learner, evaluator and --actors actors; Ctrl-C stops the run",
+        description="Start a whole run locally. The router is embedded and listens on --listen "
+                    "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
+                    "connect to it on this host. --rerun adds the "
+                    "live view (hercs/apps/live_view.py), which training never waits for. Example: "
+                    "hercs up --task push --method her-cs --epochs 50 --seed 1",
+    )
+    add_config_arguments(p, "up")
+    add_rerun_arguments(p)
+    p.add_argument("--tensorboard", action="store_true",
+                   help="also write TensorBoard event files to RUN/tensorboard/ (the scalars "
+                        "of metrics.csv; view with `tensorboard --logdir runs/`)")
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help="continue the run in RUN_DIR (e.g. runs/push-her-cs-s1-…) where it "
+                        "stopped: the replay reloads its log, the learner its checkpoint, the "
+                        "clusterer asks the replay; metrics.csv goes on from the last epoch")
+    commands["up"] = _cmd_up
+
+    p = sub.add_parser("slurm", help="run on a Slurm cluster (docs/CLUSTER.md)",
+                       description="Slurm jobs of hercs runs (docs/CLUSTER.md).")
+    slurm = p.add_subparsers(dest="slurm_command", metavar="SLURM_COMMAND", required=True)
+    p = slurm.add_parser(
+        "submit", help="submit one run as one heterogeneous job",
+        description="Write runs/RUN/slurm/job.sbatch (component 0: `hercs up --actors 0` on "
+                    "one node; component 1: one actor per node over mutual TLS; a warning "
+                    "before the time limit stops the run in order and requeues the job, which "
+                    "then resumes) and submit it. Example: hercs slurm submit --task push "
+                    "--method her-cs --epochs 100 --actor-nodes 4 --actor-cpus 8 --gpus 1 "
+                    "--time 2:00:00")
+    add_config_arguments(p, "slurm")
+    from hercs.apps.slurm import add_submit_arguments
+
+    add_submit_arguments(p)
+    commands["slurm"] = _cmd_slurm
+
+    p = sub.add_parser("router", help="run a standalone Zenoh router (e.g. --listen "
+                                      "tcp/0.0.0.0:7447) until Ctrl-C",
+                       description="Route one or more runs' traffic; logs every hercs process "
+                                   "that joins or leaves. Example: hercs router --tls-dir certs "
+                                   "--listen tls/0.0.0.0:7447")
+    add_config_arguments(p, "router")
+    commands["router"] = _cmd_router
+
+    for name, (module, help_text) in SERVICES.items():
+        p = sub.add_parser(name, help=help_text,
+                           description=f"{help_text[0].upper()}{help_text[1:]}: one process of "
+                                       "a run, what `hercs up` and docker-compose.yml start. "
+                                       f"Example: {SERVICE_EXAMPLES[name]}")
+        add_config_arguments(p, name)
+        if name == "live":
+            add_rerun_arguments(p)
+        p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
+        commands[name] = _service_command(module)
+
+    p = sub.add_parser("plot", help="learning curves (PNG) and milestone tables of run folders",
+                       description="10-epoch mean of the seed mean of the success rate per "
+                                   "epoch, with a bootstrap 95 % interval band (and/or the "
+                                   "min–max band), one panel per task, the legend beside it; "
+                                   "milestone tables on stdout. A folder named twice is read "
+                                   "once.")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (config.yaml + "
+                   "metrics.csv)")
+    p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
+    p.add_argument("--reference", action="store_true",
+                   help="overlay the authors' curves (docs/reference/authors_success_rates.csv)")
+    p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
+    p.add_argument("--xmax", type=int, metavar="EPOCH",
+                   help="x axis end (default: the last epoch of our runs; 200 with --figure 2)")
+    p.add_argument("--band", choices=BANDS, default=DEFAULT_BAND,
+                   help="ci: bootstrap 95 %% interval of the seed mean (default); minmax: "
+                        "min–max over seeds; both: the interval and, lighter, the min–max")
+    p.add_argument("--figure", type=int, choices=[2],
+                   help="the paper's figure layout: 2 = Fig. 2 (2x3 panels: HER vs HER-CS and "
+                        "HER-EBP vs HER-EBP-CS on Push, PickAndPlace, Slide; authors dashed)")
+
+    p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
+                       description="3D trajectories of gripper, object and goal per episode, "
+                                   "success, clusters, failed goals, centroids and the learning "
+                                   "curve (entity paths: see hercs/apps/view.py).")
+    p.add_argument("path", metavar="PATH", help="episodes.mcap or a run directory")
+    p.add_argument("--save", metavar="OUT.rrd", help="write an .rrd file instead of a viewer")
+    p.add_argument("--episodes", metavar="SELECTION",
+                   help="episode ids: '0:100', '5,7,9', '0:2000:10', 'last:20', "
+                        "'spread:200' (every n-th, at most 200), 'all' (default: the last "
+                        "epoch's episodes)")
+    p.add_argument("--web", action="store_true",
+                   help="serve the web viewer (http://localhost:9090) until Ctrl-C")
+    p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer's HTTP port "
+                   "(9090)")
+    p.add_argument("--grpc-port", type=int, metavar="PORT", help="with --web: the port the "
+                   "recording is served on to the viewer (9876)")
+    p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
+
+    p = sub.add_parser("eval", help="evaluate a run's trained policy; record a video",
+                       description="Loads a checkpoint (no service needed), runs deterministic "
+                                   "episodes and reports success and final distance; --video "
+                                   "records them (MuJoCo offscreen: EGL, else OSMesa). Example: "
+                                   "hercs eval runs/RUN --video policy.mp4")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder (runs/RUN)")
+    p.add_argument("--checkpoint", metavar="NAME", help="best (default when kept), latest, "
+                   "epoch-N, or a file")
+    p.add_argument("--episodes", type=int, default=20, help="episodes to run (default 20)")
+    p.add_argument("--seed", type=int, help="draw goals from this seed (default: the goals "
+                   "the run's evaluator used for that epoch)")
+    p.add_argument("--video", metavar="OUT.mp4", help="record the episodes (25 fps)")
+    p.add_argument("--rerun-save", metavar="OUT.rrd", help="record the camera images in Rerun")
+
+    p = sub.add_parser("certs", help="make a CA and the certificates of a secured run",
+                       description="Writes DIR/ca.pem (+ ca.key), DIR/router.pem (+ .key) and "
+                                   "DIR/<role>.pem (+ .key) for every role; then run "
+                                   "`hercs up --tls-dir DIR --listen tls/0.0.0.0:7447`. See "
+                                   "docs/SECURITY.md.")
+    p.add_argument("out", metavar="DIR", help="folder to write into (files are never "
+                   "overwritten)")
+    p.add_argument("--host", dest="hosts", action="append", default=[], metavar="NAME",
+                   help="a name or address clients use to reach the router (repeatable; "
+                        "localhost and 127.0.0.1 are always included)")
+    p.add_argument("--credentials", action="store_true",
+                   help="also write credentials.txt: a random password per role")
+    return parser, commands
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from hercs.apps.policy_eval import run_eval
+
+    return run_eval(args.run_dir, checkpoint=args.checkpoint, episodes=args.episodes,
+                    seed=args.seed, video=args.video, rerun_save=args.rerun_save)
+
+
+def _cmd_certs(args: argparse.Namespace) -> int:
+    from hercs.apps.certs import run_certs
+
+    try:
+        return run_certs(args.out, hosts=args.hosts, credentials=args.credentials)
+    except ConfigError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+
+
+def _needs_extras(command: Callable[[argparse.Namespace], int]
+                 ) -> Callable[[argparse.Namespace], int]:
+    """A command whose optional libraries (rerun-sdk, matplotlib, imageio-ffmpeg) may be absent,
+    as in the compose `services` image: say so instead of a traceback (exit 2)."""
+
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return command(args)
+        except ModuleNotFoundError as exc:
+            print(f"hercs {args.command}: needs the Python package {exc.name!r}, which this "
+                  "installation lacks (the compose `services` image leaves out the viewers: "
+                  "use the full image, `docker build -t hercs:full .`, or pip install it)",
+                  file=sys.stderr)
+            return 2
+
+    return run
+
+
+# Commands that read existing run directories or make files, and need no config.
+NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "plot": _needs_extras(_cmd_plot), "view": _needs_extras(_cmd_view), "certs": _cmd_certs,
+    "eval": _needs_extras(_cmd_eval)}
+
+
+ENV_COMMANDS = frozenset({"up", "actor", "evaluator"})
+"""Commands that make envs, themselves or in their children: before anything starts they check
+that the task's env can be made here (the v1 envs need `make mujoco-py`). A remote actor, which
+learns its task from the run, meets a missing mujoco-py when it makes its envs instead."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, commands = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    if args.command in NO_CONFIG_COMMANDS:
+        return NO_CONFIG_COMMANDS[args.command](args)
+    try:
+        config = resolve_config(args)
+    except ConfigError as exc:
+        print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
+        return 2
+    if args.command in JOINERS:
+        try:
+            joined = join_endpoints(args, config)
+        except (ConfigError, HercsError) as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            return 128 + 2
+        if joined is None:
+            return EXIT_NO_ROUTER
+        config = joined
+    if args.command in ENV_COMMANDS:
+        from hercs.envs import check_env
+
+        try:
+            check_env(config.task.spec)
+        except ConfigError as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
+    return commands[args.command](args, config)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

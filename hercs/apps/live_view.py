@@ -1,0 +1,318 @@
+"""`hercs live`: a run streamed to Rerun while it trains (docs/DESIGN.md §6), `hercs up --rerun`.
+
+This module is the shell (recording sinks, subscriptions, episode queries, the loop); the
+core that draws is `LiveRecorder` (hercs/apps/live_recorder.py). The recording has the entity paths
+and timelines of `hercs view` (see hercs/apps/view.py; both draw with
+hercs/apps/rerun_draw.py), so the live view of a run and an offline view of its episode log look
+alike. What each message becomes:
+
+    metrics/**        the learner's per-epoch `Metrics` (service `learner/…`, with `epoch`):
+                      every finite value but `epoch`/`epochs` → `curves/<name>` on `epoch`, and
+                      on `episode` at the epoch's last episode (`episodes` − 1): the numeric
+                      columns of metrics.csv. Other services' metrics carry no epoch: ignored.
+    replay/status     the latest cluster sizes → `curves/cluster_sizes` at each learner epoch
+    replay/inserted   every `EpisodeHeader` → `episodes/success`, `episodes/final_distance`,
+                      `episodes/cluster` on `episode`; a failed episode's g_T joins the failed
+                      goals
+    cluster/model     (latest, as a late joiner) → `world/centroids`, `log/cluster_models`, and
+                      the failed goals recoloured, at the episode after the last header seen
+                      (a model that came before any header: at the first header)
+    replay/episode    (query) the `Episode` of every id that is a multiple of
+                      `view.episode_every` → `world/episodes/<id>/{gripper,object,goal}` on
+                      `step` and `episode`, `log/episodes`; `world/failed_goals` is logged at
+                      those ids too (and at each model), so scrubbing `episode` shows it grow
+
+So `hercs view RUN --episodes 0::N` later draws the same trajectories. Differences from the
+offline view: `world/failed_goals` holds the newest `live_recorder.MAX_FAILED_GOALS` failed
+goals (offline: all of them), so that a long run's recording stays bounded;
+`curves/cluster_share` is absent (the learner publishes it only in metrics.csv); the
+EvalResults are not read (the learner's metrics carry `success_rate` once the epoch is
+evaluated); a cluster model applies from the episode after the last header seen when it arrives
+(offline: after the last episode logged before it; the two can differ by the episodes in
+flight). A live view started late shows the run from then on (and the current cluster model at
+once); `hercs view` of the episode log has everything. The recording id is the run name, so a
+restarted live view continues the same recording in a viewer.
+
+Where it goes (`view` config section; `hercs up --rerun [URL] --rerun-save FILE.rrd`):
+`view.viewer` 'spawn' starts a local viewer (rerun-sdk, port 9876, its own session so it
+outlives the run; one already listening there is reused), a gRPC URL streams to a running
+viewer, 'none' streams nowhere; `view.save` also writes an .rrd file (finished on SIGTERM).
+
+It never holds up or fails training: subscriptions only queue raw bytes (the main loop decodes,
+logs and queries); a viewer that cannot be reached or goes away is reported once (and again
+only after it came back), the loop keeps draining and the .rrd file keeps being written; a
+bad message or a failed episode query is logged once per minute and skipped. `hercs up`
+treats this process as optional: if it exits, training goes on without it.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from hercs.apps.live_recorder import LiveRecorder
+from hercs.apps.rerun_draw import APP_ID, blueprint, rerun_executable
+from hercs.config import HercsConfig
+from hercs.errors import ConfigError, InvalidMessage
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.service import ServiceRuntime, join_run, service_main
+from hercs.transport import RemoteError, TransportError
+from hercs.validation import (
+    parse_message,
+    validate_episode,
+)
+from hercs.warn_once import WarnOncePerMinute
+
+log = logging.getLogger("hercs.live")
+
+SPAWN_PORT = 9876
+"""Port of the viewer that `view.viewer: spawn` starts (rerun-sdk's default)."""
+EPISODE_TIMEOUT_S = 2.0
+FLUSH_PERIOD_S = 5.0
+FLUSH_TIMEOUT_S = 1.0
+METRICS_PERIOD_S = 5.0
+_POLL_S = 0.25
+_MAX_BATCH = 512
+_HEADER_MAX_BYTES = 64 * 1024
+
+
+# --------------------------------------------------------------------------------------------
+# Where the recording goes
+
+
+def open_recording(rr: Any, config: HercsConfig) -> Any:
+    """A `RecordingStream` (id = the run name) with the sinks `config.view` asks for and the
+    `hercs view` layout. A viewer that cannot be spawned is logged, not raised: the .rrd file,
+    if any, is still written."""
+    view = config.view
+    if view.viewer == "none" and not view.save:
+        raise ConfigError("view.viewer: got 'none' with view.save '', the live view would show "
+                          "nothing; give a viewer ('spawn' or a URL) or a file to save")
+    rec = rr.RecordingStream(APP_ID, recording_id=config.run.name)
+    rec.send_recording_name(f"{config.run.name} ({config.task.name}, {config.run.method}, "
+                            "live)")
+    sinks = []
+    if view.viewer == "spawn":
+        try:
+            rr.spawn(port=SPAWN_PORT, connect=False, recording=rec,
+                     executable_path=rerun_executable())
+        except Exception as exc:  # e.g. no rerun executable: keep the file sink going
+            log.warning("could not start a Rerun viewer (%s); streaming to port %d anyway, "
+                        "connect one with `rerun --port %d`", exc, SPAWN_PORT, SPAWN_PORT)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
+    elif view.viewer != "none":
+        sinks.append(rr.GrpcSink(view.viewer))
+    if view.save:
+        Path(view.save).parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(view.save))
+    rec.set_sinks(*sinks, default_blueprint=blueprint())
+    return rec
+
+
+class ViewerHealth:
+    """Notices a viewer that cannot be reached or went away, without ever raising: rerun-sdk
+    keeps accepting log calls then (the .rrd file sink keeps being written), only a flush
+    reports the broken gRPC sink. Warns once, and again only after the viewer came back."""
+
+    def __init__(self, rec: Any, *, viewer: str, save: str) -> None:
+        self.rec = rec
+        self.viewer = viewer
+        self.save = save
+        self.ok = True
+        self.errors = 0
+
+    def check(self) -> bool:
+        """Flush (at most `FLUSH_TIMEOUT_S`); True if everything buffered went out."""
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except Exception as exc:  # rerun-sdk raises RuntimeError; nothing here may escape
+            self.errors += 1
+            if self.ok:
+                self.ok = False
+                log.warning("the Rerun viewer (%s) cannot be reached or went away: %s; the live "
+                            "view keeps draining%s, training is not affected", self.viewer, exc,
+                            f" and writing {self.save}" if self.save else "")
+            return False
+        if not self.ok:
+            self.ok = True
+            log.info("the Rerun viewer (%s) is reachable again", self.viewer)
+        return True
+
+
+def close_recording(rec: Any) -> None:
+    """Flush what is buffered (bounded) and close the sinks; the .rrd gets its footer."""
+    try:
+        rec.flush(timeout_sec=2 * FLUSH_TIMEOUT_S)
+    except Exception as exc:  # the viewer is gone; the file sink is still closed below
+        log.info("final flush: %s", exc)
+    rec.disconnect()
+
+
+# --------------------------------------------------------------------------------------------
+# The shell: Zenoh subscriptions, the episode queries, the loop
+
+
+class Inbox:
+    """The subscriptions; their threads only queue `(kind, payload)` (never block, never
+    decode), so a slow viewer or query never holds up Zenoh."""
+
+    def __init__(self, runtime: ServiceRuntime) -> None:
+        self.items: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        keys, transport = runtime.keys, runtime.transport
+        transport.subscribe(keys.inserted, self._put("header"), capacity=1024)
+        transport.subscribe(keys.cluster_model, self._put("model"), latest=True)
+        transport.subscribe(keys.all_metrics, self._put("metrics"))
+        transport.subscribe(keys.status, self._put("status"), drop_oldest=True, capacity=4)
+
+    def _put(self, kind: str) -> Callable[[str, bytes], None]:
+        def put(key: str, payload: bytes) -> None:
+            self.items.put((kind, payload))
+
+        return put
+
+    def take(self, timeout_s: float) -> list[tuple[str, bytes]]:
+        """What arrived, up to `_MAX_BATCH` items; waits up to `timeout_s` for the first."""
+        try:
+            batch = [self.items.get(timeout=timeout_s) if timeout_s > 0
+                     else self.items.get_nowait()]
+        except queue.Empty:
+            return []
+        while len(batch) < _MAX_BATCH:
+            try:
+                batch.append(self.items.get_nowait())
+            except queue.Empty:
+                break
+        return batch
+
+
+class LiveViewService:
+    """The main loop around a `LiveRecorder`; `run()` returns when `runtime.stop` is set."""
+
+    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig, inbox: Inbox,
+                 recorder: LiveRecorder) -> None:
+        self.runtime = runtime
+        self.config = config
+        self.inbox = inbox
+        self.recorder = recorder
+        self.max_bytes = config.replay.max_message_bytes
+        self.rejected = 0
+        self.fetch_failures = 0
+        self.viewer = ViewerHealth(recorder.rec, viewer=config.view.viewer,
+                                   save=config.view.save)
+        self._warn = WarnOncePerMinute(log)
+
+    def step(self, timeout_s: float, *, fetch: bool = True) -> int:
+        """Handle what arrived (waiting up to `timeout_s` for something); returns how many
+        messages. Wanted trajectories are fetched after the batch, unless `fetch` is False."""
+        batch = self.inbox.take(timeout_s)
+        wanted = []
+        for kind, payload in batch:
+            try:
+                if kind == "header":
+                    header = parse_message(payload, pb.EpisodeHeader,
+                                           max_bytes=_HEADER_MAX_BYTES)
+                    if self.recorder.on_header(header):
+                        wanted.append(int(header.episode_id))
+                elif kind == "model":
+                    self.recorder.on_cluster_model(
+                        parse_message(payload, pb.ClusterModel, max_bytes=self.max_bytes))
+                elif kind == "metrics":
+                    self.recorder.on_metrics(
+                        parse_message(payload, pb.Metrics, max_bytes=self.max_bytes))
+                else:
+                    self.recorder.on_status(
+                        parse_message(payload, pb.ReplayStatus, max_bytes=self.max_bytes))
+            except InvalidMessage as exc:
+                self.rejected += 1
+                self._warn.warn(f"{kind}:{exc.reason}", f"skipped a {kind} message: {exc}")
+        self.recorder.commit()
+        for episode_id in wanted:
+            if fetch:
+                self.fetch(episode_id)
+            else:
+                self.recorder.forget(episode_id)
+        return len(batch)
+
+    def fetch(self, episode_id: int) -> bool:
+        """Ask the replay for episode `episode_id` and draw it; False (logged) if it could not."""
+        request = pb.EpisodeRequest(schema_version=SCHEMA_VERSION, episode_id=episode_id)
+        try:
+            raw = self.runtime.transport.request(self.runtime.keys.episode,
+                                                 request.SerializeToString(),
+                                                 timeout_s=EPISODE_TIMEOUT_S)
+            msg = parse_message(raw, pb.Episode, max_bytes=self.max_bytes)
+            validate_episode(msg, self.recorder.spec)
+        except (TransportError, InvalidMessage) as exc:
+            self.fetch_failures += 1
+            self.recorder.forget(episode_id)
+            reason = exc.reason if isinstance(exc, RemoteError | InvalidMessage) else "transport"
+            self._warn.warn(f"fetch:{reason}", f"no trajectory for episode {episode_id}: {exc}")
+            return False
+        self.recorder.on_episode(msg, episode_id=episode_id)
+        return True
+
+    def publish_metrics(self) -> None:
+        values = {"headers": self.recorder.headers, "trajectories": self.recorder.trajectories,
+                  "models": self.recorder.models, "epochs": self.recorder.epochs,
+                  "rejected": self.rejected, "fetch_failures": self.fetch_failures,
+                  "viewer_errors": self.viewer.errors, "inbox": self.inbox.items.qsize()}
+        try:
+            self.runtime.publish_metrics(values)
+        except TransportError as exc:  # metrics are best effort
+            self._warn.warn("metrics", f"could not publish metrics: {exc}")
+
+    def run(self) -> int:
+        stop = self.runtime.stop
+        self.recorder.start()
+        now = time.monotonic()
+        next_flush, next_metrics = now + FLUSH_PERIOD_S, now + METRICS_PERIOD_S
+        while not stop.is_set():
+            self.step(_POLL_S)
+            now = time.monotonic()
+            if now >= next_flush:
+                self.viewer.check()
+                next_flush = now + FLUSH_PERIOD_S
+            if now >= next_metrics:
+                self.publish_metrics()
+                next_metrics = now + METRICS_PERIOD_S
+        while self.step(0.0, fetch=False):  # what already arrived; no more queries
+            pass
+        self.publish_metrics()
+        log.info("live view done: %d episodes, %d trajectories, %d cluster models, %d epochs",
+                 self.recorder.headers, self.recorder.trajectories, self.recorder.models,
+                 self.recorder.epochs)
+        return 0
+
+
+def run(config: HercsConfig, *, ident: str | None = None) -> int:
+    """`hercs live`: stream `config.run.name` to Rerun until SIGTERM/SIGINT. The run's config
+    comes from its replay (as for a remote actor); the local `view` section is kept."""
+    return service_main(role="live", config=config, ident=ident, body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    inbox = Inbox(runtime)  # before anything slow: headers from now on are kept
+    joined = join_run(runtime, runtime.config, keep=("transport", "security", "view"))
+    if joined is None:  # stopped first
+        return 0
+    import rerun as rr  # imported here: `hercs --help` stays fast
+
+    rec = open_recording(rr, joined)
+    try:
+        recorder = LiveRecorder(rr, rec, spec=joined.task.spec, k=joined.cluster.k,
+                                episode_every=joined.view.episode_every)
+        log.info("live view of run %s (%s, %s): viewer %s%s, trajectories of the episode ids "
+                 "that are multiples of %d (0 = none)", joined.run.name, joined.task.name,
+                 joined.run.method, joined.view.viewer,
+                 f", saving {joined.view.save}" if joined.view.save else "",
+                 joined.view.episode_every)
+        return LiveViewService(runtime=runtime, config=joined, inbox=inbox,
+                               recorder=recorder).run()
+    finally:
+        runtime.close()
+        close_recording(rec)

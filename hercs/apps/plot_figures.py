@@ -1,0 +1,267 @@
+"""`hercs plot`: the learning-curve figures (one panel per task, or the paper's Fig. 2)
+and the run that writes them with their tables."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hercs.apps.plot_tables import (
+    FIG2_EPOCHS,
+    FIG2_ROWS,
+    FIG2_TASKS,
+    fig2_keys,
+    fig2_text,
+    has_ours,
+    panel_title,
+    tables,
+)
+from hercs.apps.plots import (
+    BANDS,
+    CI_LEVEL,
+    CI_SEED,
+    DEFAULT_BAND,
+    DPI,
+    LEGEND_W,
+    PANEL_H,
+    PANEL_W,
+    REFERENCE_CSV,
+    WINDOW,
+    Bands,
+    Curve,
+    PlotError,
+    aggregate,
+    group,
+    load_reference,
+    load_run,
+    method_color,
+    method_label,
+    method_linestyle,
+    method_rank,
+    moving_average,
+    seed_bands,
+)
+
+
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend (files only; imported when a figure is drawn)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save_figure(plt: Any, fig: Any, output: str | Path) -> Path:
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=DPI)
+    plt.close(fig)
+    return output
+
+
+def _check_band(band: str) -> None:
+    if band not in BANDS:
+        raise PlotError(f"band must be one of {', '.join(BANDS)}, got {band!r}")
+
+
+def _band_rng() -> np.random.Generator:
+    """A fresh generator per drawn method, so that its band does not depend on what else
+    the figure draws."""
+    return np.random.default_rng(CI_SEED)
+
+
+def _fill_bands(ax: Any, b: Bands, color: str | None, band: str, *, strength: float = 1.0,
+                right: float | None = None) -> None:
+    """`band` of ci|minmax|both; the min–max lighter than the interval (`strength` scales
+    both, for the authors' bands)."""
+    keep = b.epochs <= right if right is not None else np.ones(len(b.epochs), dtype=bool)
+    if band in ("minmax", "both"):
+        ax.fill_between(b.epochs[keep], b.low[keep], b.high[keep], color=color,
+                        alpha=(0.10 if band == "both" else 0.18) * strength, linewidth=0)
+    if band in ("ci", "both"):
+        ax.fill_between(b.epochs[keep], b.ci_low[keep], b.ci_high[keep], color=color,
+                        alpha=0.25 * strength, linewidth=0)
+
+
+
+
+def _band_words(band: str) -> str:
+    return {"ci": f"band: {CI_LEVEL * 100:.0f} % CI of the seed mean",
+            "minmax": "band: min–max over seeds",
+            "both": f"bands: {CI_LEVEL * 100:.0f} % CI of the seed mean,\n"
+                    "min–max over seeds (lighter)"}[band]
+
+
+def _legend_title(keys: set[str], reference: bool, band: str) -> str:
+    """What the line styles and bands mean, for the styles drawn."""
+    lines = ["solid: ours" + ("; dashed: the authors'" if reference else "")]
+    variants = {v for key in keys for v in key.split("/")[1:]}
+    styles = [f"{style}: {v}" for v, style in (("lockstep", "dash-dot"), ("bf16", "dotted"))
+              if v in variants]
+    if styles:
+        lines.append("; ".join(styles))
+    if "v1" in variants:
+        lines.append("(v1): on the authors' Fetch*-v1")
+    return "\n".join([*lines, _band_words(band)])
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed{'s' if n != 1 else ''}"
+
+
+def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
+                reference: dict[str, dict[str, list[Curve]]] | None = None,
+                xmax: int | None = None, band: str = DEFAULT_BAND) -> Path:
+    """One panel per task, its legend beside it: per method the 10-epoch moving average of
+    the seed mean with its bands (`seed_bands`; ours solid, the authors' dashed and smoothed
+    alike; the authors' bands only for the methods we ran, the other methods' reference
+    means thin). The x axis spans our epochs unless `xmax` is given."""
+    from matplotlib.ticker import MaxNLocator
+
+    _check_band(band)
+    plt = _pyplot()
+    tasks = list(ours)
+    fig, axes = plt.subplots(1, len(tasks), figsize=((PANEL_W + LEGEND_W) * len(tasks), PANEL_H),
+                             dpi=DPI, squeeze=False, layout="constrained")
+    for ax, task in zip(axes[0], tasks, strict=True):
+        ref = (reference or {}).get(task, {})
+        right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
+        for method in sorted(set(ours[task]) | set(ref), key=method_rank):
+            color = method_color(method)
+            label = method_label(method)
+            mine = method in ours[task]
+            if mine:
+                a = aggregate(ours[task][method], every_seed=False)
+                _fill_bands(ax, seed_bands(ours[task][method], _band_rng()), color, band)
+                ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
+                        linestyle=method_linestyle(method), linewidth=2.0, zorder=3,
+                        label=f"{label}, {_seeds(a.n_seeds)}")
+            if method in ref:
+                a = aggregate(ref[method])
+                keep = a.epochs <= right
+                if mine:  # the authors' band only where it compares to ours
+                    _fill_bands(ax, seed_bands(ref[method], _band_rng(), every_seed=True),
+                                color, band, strength=0.6, right=right)
+                ax.plot(a.epochs[keep], moving_average(a.epochs, a.mean)[keep], "--",
+                        color=color, linewidth=1.4 if mine else 1.0,
+                        alpha=0.9 if mine else 0.6,
+                        label=f"{label}, authors' ({_seeds(a.n_seeds)})")
+        ax.set_title(task)
+        ax.set_xlabel("epoch")
+        ax.set_ylabel(f"success rate ({WINDOW}-epoch mean)")
+        ax.set_xlim(1 if right > 1 else 0, right)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # epochs are whole numbers
+        ax.set_ylim(-0.01, 1.01)  # curves at exactly 0 or 1 stay visible
+        ax.set_yticks(np.linspace(0.0, 1.0, 6))
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8,
+                  frameon=False, title=_legend_title(set(ours[task]), bool(ref), band),
+                  title_fontsize=7, alignment="left")
+    return _save_figure(plt, fig, output)
+
+
+def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
+              reference: dict[str, dict[str, list[Curve]]], output: str | Path,
+              xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND) -> Path:
+    """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`."""
+    _check_band(band)
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
+                             figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
+                             dpi=DPI, squeeze=False)
+    for r, pair in enumerate(FIG2_ROWS):
+        for c, task in enumerate(FIG2_TASKS):
+            ax = axes[r][c]
+            mine, ref = ours.get(task, {}), reference.get(task, {})
+            for key in fig2_keys(pair, mine, ref):
+                color = method_color(key)
+                label = method_label(key)
+                if key in ref:
+                    a = aggregate(ref[key])
+                    _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
+                                band, strength=0.4)
+                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), "--", color=color,
+                            linewidth=1.3, label=f"{label} (authors, {_seeds(a.n_seeds)})")
+                if key in mine:
+                    a = aggregate(mine[key], every_seed=False)
+                    _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
+                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
+                            linestyle=method_linestyle(key), linewidth=2.0,
+                            label=f"{label} (ours, {_seeds(a.n_seeds)})")
+            if not has_ours(pair, mine):
+                ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
+                        ha="left", va="top", fontsize=10, color="0.4")
+            ax.set_title(panel_title(task, pair), fontsize=10)
+            ax.set_xlim(0, xmax)
+            ax.set_ylim(-0.01, 1.01)
+            ax.set_xlabel("epoch")
+            ax.set_ylabel("success rate")
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    return _save_figure(plt, fig, output)
+
+
+# ------------------------------------------------------------------------------------- CLI
+
+def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:
+    """The run folders in the order given, each once (the shell glob `push-her-*` also
+    matches `push-her-cs-*`, so a command line can name a folder twice), and how many
+    folders were named more than once."""
+    counts = Counter(Path(d).resolve() for d in run_dirs)
+    seen: set[Path] = set()
+    out = []
+    for d in run_dirs:
+        key = Path(d).resolve()
+        if key not in seen:
+            seen.add(key)
+            out.append(Path(d))
+    return out, sum(1 for n in counts.values() if n > 1)
+
+
+def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
+             table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
+             xmax: int | None = None, figure: int | None = None,
+             band: str = DEFAULT_BAND) -> int:
+    """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`);
+    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours).
+    A folder named twice is read once, with one line on stderr saying how many were."""
+    _check_band(band)
+    folders, repeated = distinct_run_dirs(run_dirs)
+    notes: list[str] = []
+    if repeated:
+        notes.append(f"{repeated} run folder{'s' if repeated != 1 else ''} named more than "
+                     "once (overlapping globs?): each read once")
+    ours = group((load_run(d) for d in folders), notes)
+    if figure == 2:
+        for note in notes:
+            print(f"hercs plot: {note}", file=sys.stderr)
+        authors = group(load_reference(reference_csv))
+        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band),
+                              fig2_text(ours, authors, band), table)
+    ref = group(load_reference(reference_csv)) if reference else None
+    if ref is not None:
+        missing = sorted(set(ours) - set(ref))
+        if missing:
+            notes.append(f"--reference: the authors published no curves for {', '.join(missing)}"
+                         f" (they did for {', '.join(sorted(ref))}); drawn without them")
+    for note in notes:
+        print(f"hercs plot: {note}", file=sys.stderr)
+    return _write_outputs(plot_figure(ours, output, ref, xmax, band), tables(ours, ref), table)
+
+
+def _write_outputs(path: Path, text: str, table: str | None) -> int:
+    print(text, end="")
+    if table:
+        Path(table).write_text(text)
+        print(f"wrote {table}")
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,376 @@
+"""Learning curves and milestone tables from run directories (`hercs plot`), optionally next
+to the authors' published per-seed results (`docs/reference/authors_success_rates.csv`).
+
+This module holds the runs as curves and the rule below; hercs/apps/plot_tables.py writes the
+milestone tables with it and hercs/apps/plot_figures.py draws the figures (`hercs plot`). Everything
+but the drawing is a pure function over numbers, so the tests pin the curves and the table
+without drawing.
+
+Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exactly):
+
+* seeds are aggregated over the epochs that *every* seed of the group reached (a seed that
+  stopped at epoch 125 cuts the group at 125, so "success at epoch 200" is "–");
+* the smoothed curve is the trailing 10-epoch moving average of the seed mean, the mean of
+  epochs max(1, e-9)..e;
+* "epoch at 0.5 / 0.9" is the first epoch whose moving average *exceeds* the threshold,
+  numbered from 0 as in the authors' (OpenAI baselines) logs, i.e. the number of epochs
+  completed before it. Counting from 1 or accepting equality would give docs/DESIGN.md §5 + 1
+  (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
+* "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
+
+Figure rule: each method's 10-epoch moving average of the seed mean (solid) and bands over the
+seeds' own 10-epoch moving averages (`seed_bands`; `--band ci|minmax|both`): the bootstrap 95 %
+interval of their mean (resampling seeds, a fixed RNG seed; the default) and/or, lighter, their
+min–max; the authors' curves dashed, smoothed alike. Every run is drawn to its own end (at each
+epoch, over the seeds that reached it); the legend sits beside the panel, not over the curves.
+Runs with the same task, method and seed are one seed (the longest is kept, with a note on
+stderr); a folder named twice on the command line is read once. A run trained in the lockstep
+schedule (`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so
+that it is compared with the asynchronous runs instead of averaged into them; likewise a run
+whose learner ran in bf16 (`learner.precision`) is `<method>/bf16`, and a run on the authors'
+Fetch*-v1 (`task.env_version`) is `<method>/v1` ("HER-CS (v1)"), never averaged with v4 runs.
+Fig. 2 draws the paper's methods, their lockstep variants and their v1 runs, not the precision
+variants (a speed option, compared in docs/PERFORMANCE.md).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from hercs.errors import HercsError
+from hercs.methods import METHODS
+from hercs.rundir import CONFIG, METRICS
+
+REFERENCE_CSV = (Path(__file__).resolve().parents[2] / "docs" / "reference"
+                 / "authors_success_rates.csv")
+
+TASK_TITLES: dict[str, str] = {
+    "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",
+    "slide": "FetchSlide",
+}
+METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
+METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
+METHOD_COLORS: dict[str, str] = {
+    "her": "tab:blue", "her-cs": "tab:red", "her-ebp": "tab:green", "her-ebp-cs": "tab:orange",
+}
+VARIANT_COLORS: dict[str, str] = {
+    "her/lockstep": "tab:cyan", "her-cs/lockstep": "tab:purple",
+    "her-ebp/lockstep": "tab:olive", "her-ebp-cs/lockstep": "tab:brown",
+    "her/bf16": "tab:gray", "her-cs/bf16": "tab:pink",
+    "her-ebp/bf16": "darkgreen", "her-ebp-cs/bf16": "goldenrod",
+    "her/lockstep/bf16": "slategray", "her-cs/lockstep/bf16": "darkmagenta",
+    "her-ebp/lockstep/bf16": "yellowgreen", "her-ebp-cs/lockstep/bf16": "darkslateblue",
+    "her/v1": "navy", "her-cs/v1": "darkred", "her-ebp/v1": "seagreen",
+    "her-ebp-cs/v1": "chocolate",
+    "her/lag7": "lightsteelblue", "her-cs/lag7": "lightcoral", "her-ebp/lag7": "lightgreen",
+    "her-ebp-cs/lag7": "burlywood", "her-ebp-cs/bf16/lag7": "khaki",
+}
+ENV_VERSION_DEFAULT = "v4"
+"""`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
+WINDOW = 10
+THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
+AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
+_EPS = 1e-9  # "exceeds": float noise around an exact tie (e.g. 25/50) does not count
+
+# Figure geometry: `hercs plot`'s PNG is exactly ((PANEL_W + LEGEND_W) * panels) x PANEL_H
+# inches at DPI, the legend beside each panel; Fig. 2's (PANEL_W * 3) x (PANEL_H * 2).
+PANEL_W, PANEL_H, DPI = 5.0, 4.0, 100
+LEGEND_W = 3.2
+BANDS: tuple[str, ...] = ("ci", "minmax", "both")
+DEFAULT_BAND = "ci"  # a dozen curves' min–max bands cover one another; `--band both` adds them
+CI_LEVEL = 0.95
+CI_REPS = 2000
+CI_SEED = 0
+
+
+class PlotError(HercsError):
+    """A run directory or reference file cannot be read; the message names it."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One seed's test success rate per epoch."""
+
+    task: str  # display name, e.g. "FetchPush"
+    method: str
+    seed: int
+    epochs: np.ndarray  # int, increasing
+    success: np.ndarray  # float, same length
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Aggregate:
+    """Seed statistics per epoch, over the epochs every seed reached."""
+
+    epochs: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    n_seeds: int
+
+
+@dataclass(frozen=True)
+class Milestones:
+    crossing: dict[float, int | None] = field(default_factory=dict)
+    at: dict[int, float | None] = field(default_factory=dict)
+    n_seeds: int = 0
+    n_epochs: int = 0
+    final: float | None = None  # the moving average at the last common epoch
+
+
+# ---------------------------------------------------------------------------------- loading
+
+def task_title(name: str) -> str:
+    return TASK_TITLES.get(name, name)
+
+
+def method_key(method: str, schedule: str = "async", precision: str = "fp32",
+               env_version: str = ENV_VERSION_DEFAULT, lag: str = "",
+               torquescale: float = 1.0) -> str:
+    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
+    for the learner's mixed precision, `/lag7` for an asynchronous run made with the old,
+    staler default (`lag`, see `legacy_lag`) and `/v1` for the authors' Fetch*-v1
+    environment, or `/ts4` for v4 with the gripper weld's torquescale 4
+    (`her-cs/lockstep/bf16/v1` has three)."""
+    env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
+    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (lag, ""),
+                                     (env, ENV_VERSION_DEFAULT)) if v != default)
+    return "/".join((method, *variants))
+
+
+LEGACY_LAG = "lag7"
+"""The variant of asynchronous runs made before the lag sources were settings (2026-11-25):
+rate tolerance 80, two batches prefetched plus one held, two episodes queued per actor, a
+policy lag of 7 cycles (docs/results/lag_sources_beside.md) against 2–3 since."""
+
+
+def legacy_lag(config: dict[str, Any]) -> str:
+    """`LEGACY_LAG` for an asynchronous run whose resolved config.yaml (one with a `replay`
+    section, as every run saves) predates `learner.prefetch_depth`, else ""."""
+    schedule = (config.get("training") or {}).get("schedule", "async")
+    resolved = "rate_tolerance_updates" in (config.get("replay") or {})
+    new = "prefetch_depth" in (config.get("learner") or {})
+    return LEGACY_LAG if schedule == "async" and resolved and not new else ""
+
+
+def _env_version(variant: str) -> bool:
+    return variant in ("v1", ENV_VERSION_DEFAULT) or variant.startswith("ts")
+
+
+def method_label(key: str) -> str:
+    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
+    "HER-CS (v1)", `her-cs/lag7` → "HER-CS (lag 7)"."""
+    method, *variants = key.split("/")
+    inline = (v for v in variants if not _env_version(v) and v != LEGACY_LAG)
+    label = " ".join((METHOD_LABELS.get(method, method), *inline))
+    notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
+             for v in variants if _env_version(v)]
+    if LEGACY_LAG in variants:
+        notes.append("lag 7")
+    return "".join((label, *(f" ({v})" for v in notes)))
+
+
+def method_color(key: str) -> str | None:
+    """A colour per method and variant; a v1 combination without its own colour takes its
+    v4 twin's (the label tells them apart)."""
+    color = METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
+    method, *variants = key.split("/")
+    if color is None and variants and _env_version(variants[-1]):
+        return method_color("/".join((method, *variants[:-1])))
+    return color
+
+
+def method_linestyle(key: str) -> str | tuple[int, tuple[int, ...]]:
+    """Our curves: solid, a lockstep variant dash-dotted, a bf16 one dotted (the authors'
+    are dashed), so that variants read apart where their colours are close."""
+    variants = key.split("/")[1:]
+    if "lockstep" in variants:
+        return (0, (5, 1, 1, 1, 1, 1)) if "bf16" in variants else "-."
+    return ":" if "bf16" in variants else "-"
+
+
+def _curve(task: str, method: str, seed: int, points: dict[int, float], source: str) -> Curve:
+    epochs = np.array(sorted(points), dtype=int)
+    return Curve(task, method, seed, epochs, np.array([points[e] for e in epochs], dtype=float),
+                 source)
+
+
+def load_run(run_dir: str | Path) -> Curve:
+    """`config.yaml` (task.name, run.method, run.seed; the variants of `method_key`) and
+    `metrics.csv` (epoch, success_rate) of one run directory. A repeated epoch keeps its last
+    row."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise PlotError(f"{run_dir}: not a run directory")
+    config_path, metrics_path = run_dir / CONFIG, run_dir / METRICS
+    for path in (config_path, metrics_path):
+        if not path.is_file():
+            raise PlotError(f"{run_dir}: no {path.name} in this run directory")
+    try:
+        config = yaml.safe_load(config_path.read_text()) or {}
+        task, method = config["task"]["name"], config["run"]["method"]
+        seed = int(config["run"]["seed"])
+        method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
+                            (config.get("learner") or {}).get("precision", "fp32"),
+                            config["task"].get("env_version", ENV_VERSION_DEFAULT),
+                            legacy_lag(config),
+                            float(config["task"].get("weld_torquescale", 1.0)))
+    except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+        raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
+                        ) from exc
+    points: dict[int, float] = {}
+    with metrics_path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        missing = {"epoch", "success_rate"} - set(reader.fieldnames or ())
+        if missing:
+            raise PlotError(f"{metrics_path}: missing column(s) {sorted(missing)}")
+        for line, row in enumerate(reader, start=2):
+            try:
+                points[int(row["epoch"])] = float(row["success_rate"])
+            except (TypeError, ValueError) as exc:
+                raise PlotError(f"{metrics_path}:{line}: bad epoch/success_rate") from exc
+    if not points:
+        raise PlotError(f"{metrics_path}: no epochs yet")
+    return _curve(task_title(task), method, seed, points, str(run_dir))
+
+
+def load_runs(folder: str | Path) -> list[Curve]:
+    """Every run directly under `folder`, by name; folders that are not runs, or have no
+    metrics yet, are passed over (a grid's run-dir holds logs and unfinished runs too)."""
+    curves = []
+    for run_dir in sorted(p for p in Path(folder).iterdir() if p.is_dir()):
+        try:
+            curves.append(load_run(run_dir))
+        except PlotError:
+            continue
+    return curves
+
+
+def load_reference(path: str | Path = REFERENCE_CSV) -> list[Curve]:
+    """The authors' curves: columns task, method, seed, epoch, success_rate."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlotError(f"{path}: reference CSV not found")
+    series: dict[tuple[str, str, int], dict[int, float]] = {}
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            key = (row["task"], row["method"], int(row["seed"]))
+            series.setdefault(key, {})[int(row["epoch"])] = float(row["success_rate"])
+    return [_curve(t, m, s, pts, str(path)) for (t, m, s), pts in sorted(series.items())]
+
+
+def group(curves: Iterable[Curve], notes: list[str] | None = None
+          ) -> dict[str, dict[str, list[Curve]]]:
+    """task → method → one curve per seed, methods in the paper's order (unknown ones last).
+
+    Runs of the same task, method and seed are one seed, not several: the one with the most
+    epochs is kept (a note in `notes` names the others)."""
+    by_seed: dict[tuple[str, str, int], Curve] = {}
+    for c in curves:
+        key = (c.task, c.method, c.seed)
+        kept = by_seed.get(key)
+        if kept is not None:
+            longer, other = (c, kept) if len(c.epochs) > len(kept.epochs) else (kept, c)
+            if notes is not None:
+                notes.append(f"{other.source or 'a run'} has the same task, method and seed "
+                             f"({c.task}, {c.method}, seed {c.seed}) as {longer.source}: "
+                             "counted once, with the longer run")
+            c = longer
+        by_seed[key] = c
+    out: dict[str, dict[str, list[Curve]]] = {}
+    for c in by_seed.values():
+        out.setdefault(c.task, {}).setdefault(c.method, []).append(c)
+    return {t: dict(sorted(ms.items(), key=lambda kv: method_rank(kv[0])))
+            for t, ms in out.items()}
+
+
+# ------------------------------------------------------------------------------ arithmetic
+
+def aggregate(curves: Sequence[Curve], *, every_seed: bool = True) -> Aggregate:
+    """Mean, min and max across seeds at each epoch that every seed reached (the table's
+    rule), or with `every_seed=False` at each epoch any seed reached, over the seeds that
+    reached it (the figure: each run is drawn to its end)."""
+    if not curves:
+        raise ValueError("aggregate needs at least one curve")
+    tables = [dict(zip(c.epochs.tolist(), c.success.tolist(), strict=True)) for c in curves]
+    epoch_sets = [set(t) for t in tables]
+    chosen = set.intersection(*epoch_sets) if every_seed else set.union(*epoch_sets)
+    epochs = np.array(sorted(chosen), dtype=int)
+    rows = [[t[e] for t in tables if e in t] for e in epochs]
+    return Aggregate(epochs, np.array([np.mean(r) for r in rows], dtype=float).reshape(-1),
+                     np.array([min(r) for r in rows], dtype=float).reshape(-1),
+                     np.array([max(r) for r in rows], dtype=float).reshape(-1), len(curves))
+
+
+def moving_average(epochs: np.ndarray, values: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """Trailing mean at each epoch e over the available epochs in [e - window + 1, e]."""
+    epochs, values = np.asarray(epochs), np.asarray(values, dtype=float)
+    return np.array([values[(epochs > e - window) & (epochs <= e)].mean() for e in epochs])
+
+
+@dataclass(frozen=True)
+class Bands:
+    """Per epoch, over the seeds that reached it, statistics of the seeds' own 10-epoch
+    moving averages: their mean, the bootstrap interval of that mean, their min and max."""
+
+    epochs: np.ndarray
+    mean: np.ndarray
+    ci_low: np.ndarray
+    ci_high: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    n_seeds: int
+
+
+def seed_bands(curves: Sequence[Curve], rng: np.random.Generator, *, window: int = WINDOW,
+               reps: int = CI_REPS, level: float = CI_LEVEL, every_seed: bool = False) -> Bands:
+    """The figure's bands (module docstring). The interval is the percentile interval of
+    the mean over `reps` resamples of the seeds, drawn with replacement; one draw of seed
+    indices serves every epoch that the same seeds reached, so the band is as smooth as the
+    curves. With one seed the interval and the min–max are the curve itself."""
+    if not curves:
+        raise ValueError("seed_bands needs at least one curve")
+    smoothed = [dict(zip(c.epochs.tolist(), moving_average(c.epochs, c.success, window).tolist(),
+                         strict=True)) for c in curves]
+    sets = [set(t) for t in smoothed]
+    epochs = np.array(sorted(set.intersection(*sets) if every_seed else set.union(*sets)),
+                      dtype=int)
+    tail = (1.0 - level) / 2.0 * 100.0
+    draws: dict[tuple[int, ...], np.ndarray] = {}
+    out = np.empty((5, len(epochs)))
+    for i, e in enumerate(epochs.tolist()):
+        present = tuple(k for k, t in enumerate(smoothed) if e in t)
+        values = np.array([smoothed[k][e] for k in present])
+        if present not in draws:
+            draws[present] = rng.integers(0, len(present), size=(reps, len(present)))
+        low, high = np.percentile(values[draws[present]].mean(axis=1), [tail, 100.0 - tail])
+        out[:, i] = values.mean(), low, high, values.min(), values.max()
+    mean, ci_low, ci_high, low, high = out
+    return Bands(epochs, mean, ci_low, ci_high, low, high, len(curves))
+
+
+def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
+               at_epochs: Sequence[int] = AT_EPOCHS, window: int = WINDOW) -> Milestones:
+    """docs/DESIGN.md §5's numbers for one aggregated method (rule: module docstring)."""
+    ma = moving_average(agg.epochs, agg.mean, window)
+    crossing: dict[float, int | None] = {}
+    for t in thresholds:
+        hit = np.nonzero(ma > t + _EPS)[0]
+        crossing[t] = int(agg.epochs[hit[0]]) - 1 if len(hit) else None
+    lookup = dict(zip(agg.epochs.tolist(), ma.tolist(), strict=True))
+    return Milestones(crossing, {e: lookup.get(e) for e in at_epochs}, agg.n_seeds,
+                      len(agg.epochs), float(ma[-1]) if len(ma) else None)
+
+
+def method_rank(key: str) -> tuple[int, str]:
+    """The paper's order; a variant right after its method."""
+    method = key.partition("/")[0]
+    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), key)

@@ -1,0 +1,194 @@
+"""`hercs eval RUN`: load a trained policy and evaluate, watch or record it, with no service
+running.
+
+    hercs eval runs/RUN                                  # the best policy, 20 episodes
+    hercs eval runs/RUN --checkpoint latest --episodes 50
+    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa)
+    hercs eval runs/RUN --rerun-save reach.rrd           # the camera images in Rerun
+
+Checkpoints (`RUN/checkpoints/`): `best` (`best.pt`, the epoch with the highest evaluation
+success, the default when present), `latest` (`learner.pt`, the learner's state at its last
+epoch end), `epoch-N` (`epoch-NNNN.pt`, kept every `training.checkpoint_every` epochs), or a
+file path.
+
+By default the episodes are the ones the run's evaluator used for that epoch (its env, seeded
+from the run seed, advanced by the episodes of the earlier epochs), so for a run evaluated in
+order the first `training.eval_episodes` episodes reproduce the success in `metrics.csv`;
+`--seed S` draws other goals. Actions are deterministic (μ without noise), as in evaluation.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hercs.checkpoints import LoadedPolicy, read_policy
+from hercs.errors import HercsError
+from hercs.seeding import int_seed
+from hercs.tasks import goal_distance
+
+log = logging.getLogger(__name__)
+
+FPS = 25
+"""Video frame rate: the Fetch control period is 0.04 s, so the video plays in real time."""
+FRAME_SIZE = (480, 360)
+GL_BACKENDS = ("egl", "osmesa")
+
+
+class EvalError(HercsError):
+    """The run, checkpoint or renderer cannot be used as asked; the message says what to do."""
+
+
+@dataclass
+class EvalSummary:
+    episodes: int
+    successes: int
+    mean_final_distance: float
+    frames: int
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.episodes
+
+
+def load_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = None) -> LoadedPolicy:
+    """The policy of a run folder's checkpoint (see the module docstring for the names; None:
+    best if present, else latest): `hercs.checkpoints.read_policy`, which `hercs.load_policy`
+    uses too. Its errors (`RunDirError`, `CheckpointError`) are `HercsError`s."""
+    return read_policy(run_dir, checkpoint)
+
+
+def choose_gl() -> str:
+    """The MuJoCo offscreen backend: MUJOCO_GL if set, else the first of EGL, OSMesa that can
+    make a context here (each tried in a child process: MuJoCo fixes it at import)."""
+    if os.environ.get("MUJOCO_GL"):
+        return os.environ["MUJOCO_GL"]
+    probe = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
+    errors = []
+    for backend in GL_BACKENDS:
+        with tempfile.TemporaryDirectory() as scratch:  # MuJoCo logs failures to its cwd
+            done = subprocess.run([sys.executable, "-c", probe], capture_output=True,
+                                  text=True, cwd=scratch, timeout=120,
+                                  env={**os.environ, "MUJOCO_GL": backend,
+                                       "PYOPENGL_PLATFORM": backend})
+        if done.returncode == 0:
+            return backend
+        errors.append(f"{backend}: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+    raise EvalError("no offscreen OpenGL for MuJoCo here (" + "; ".join(errors) + "); install "
+                    "EGL (libegl1) or OSMesa (libosmesa6), or evaluate without --video")
+
+
+def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
+             render: bool = False, on_frame: Any = None) -> EvalSummary:
+    """Run `episodes` deterministic episodes; with `render`, `on_frame(episode, step, rgb)`
+    gets T + 1 frames per episode (the start and after every step)."""
+    from hercs.actors.rollout import RolloutWorker
+    from hercs.envs import make_env
+
+    config, spec = policy.config, policy.config.task.spec
+    actor = policy.policy()
+    size = FRAME_SIZE if render else None
+    env = make_env(spec, render_mode="rgb_array" if render else None, size=size)
+    if seed is None:  # the evaluator's stream: its seed, past the earlier epochs' episodes
+        worker = RolloutWorker(spec=spec, env=env, seed=int_seed(config.run.seed, "evaluator"))
+        worker.skip((policy.epoch - 1) * config.training.eval_episodes)
+    else:
+        worker = RolloutWorker(spec=spec, env=env, seed=seed)
+    successes, distances, frames = 0, [], 0
+    try:
+        for n in range(episodes):
+            step = 0
+
+            def act(o: np.ndarray, g: np.ndarray, n: int = n) -> np.ndarray:
+                nonlocal step, frames
+                if render:
+                    on_frame(n, step, env.render())
+                    frames += 1
+                step += 1
+                return actor.act(o, g, explore=False)
+
+            episode = worker.run_episode(act)
+            if render:
+                on_frame(n, step, env.render())
+                frames += 1
+            successes += int(episode.success)
+            distances.append(float(goal_distance(episode.final_ag, episode.desired_goal)))
+    finally:
+        worker.close()
+    return EvalSummary(episodes=episodes, successes=successes,
+                       mean_final_distance=float(np.mean(distances)), frames=frames)
+
+
+def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int | None,
+             video: str | None, rerun_save: str | None) -> int:
+    """`hercs eval`: prints the summary; 0 on success, 2 for a bad run/checkpoint/renderer."""
+    if episodes < 1:
+        print(f"hercs eval: --episodes {episodes}: must be >= 1", file=sys.stderr)
+        return 2
+    closers: list[Any] = []
+    try:
+        render = video is not None or rerun_save is not None
+        if render:
+            os.environ["MUJOCO_GL"] = choose_gl()
+        policy = load_policy(run_dir, checkpoint)
+        sinks, closers = _sinks(video, rerun_save)
+        summary = evaluate(policy, episodes=episodes, seed=seed, render=render,
+                           on_frame=lambda n, t, rgb: [sink(n, t, rgb) for sink in sinks])
+    except HercsError as exc:  # a bad run, checkpoint or renderer; a v1 run without mujoco-py
+        print(f"hercs eval: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        for close in closers:
+            close()
+    spec = policy.config.task.spec
+    print(f"hercs eval: {policy.config.run.name} ({spec.name}, {policy.config.run.method}), "
+          f"policy of epoch {policy.epoch} from {policy.source.name}: success "
+          f"{summary.success_rate:.2f} ({summary.successes}/{summary.episodes}), mean final "
+          f"distance {summary.mean_final_distance:.3f} m")
+    if video:
+        print(f"hercs eval: video {video}: {summary.frames} frames at {FPS} fps "
+              f"({summary.frames / FPS:.1f} s)")
+    if rerun_save:
+        print(f"hercs eval: Rerun recording {rerun_save} (camera images on the `step` timeline)")
+    return 0
+
+
+def _sinks(video: str | None, rerun_save: str | None) -> tuple[list[Any], list[Any]]:
+    """(frame sinks, their close functions) for --video and --rerun-save."""
+    sinks: list[Any] = []
+    closers: list[Any] = []
+    if video:
+        import imageio_ffmpeg
+
+        writer = imageio_ffmpeg.write_frames(video, FRAME_SIZE, fps=FPS, quality=7,
+                                             macro_block_size=8)
+        writer.send(None)  # start the generator
+
+        def to_video(n: int, t: int, rgb: np.ndarray) -> None:
+            writer.send(np.ascontiguousarray(rgb))
+
+        sinks.append(to_video)
+        closers.append(writer.close)
+    if rerun_save:
+        import rerun as rr
+
+        recording = rr.RecordingStream("hercs-eval")
+        recording.save(rerun_save)
+        step_total = [0]
+
+        def to_rerun(n: int, t: int, rgb: np.ndarray) -> None:
+            recording.set_time("step", sequence=step_total[0])
+            recording.set_time("episode", sequence=n)
+            recording.log("camera", rr.Image(rgb))
+            step_total[0] += 1
+
+        sinks.append(to_rerun)
+        closers.append(recording.flush)
+    return sinks, closers

@@ -1,0 +1,141 @@
+"""The progress lines of `hercs up` (hercs/apps/launcher.py): one per evaluated epoch, and one
+while an epoch runs long, from the learner's `Metrics`, the evaluator's `EvalResult`s, the
+replay's status and the stored episodes' headers. Pure bookkeeping with an injected clock.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _duration(seconds: float) -> str:
+    """1h02m, 3m20s or 45s."""
+    seconds = max(round(seconds), 0)
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
+
+
+FIRST_LINE_S = 5.0
+"""The first progress line comes this long after the run starts (before epoch 1 ends)."""
+INTERIM_EVERY_S = 60.0
+"""While an epoch runs, a progress line at least this often."""
+
+
+class Progress:
+    """Turns the learner's per-epoch `Metrics` (and `EvalResult`s) into one line per epoch.
+
+    Pure bookkeeping, no I/O: each method returns the lines now ready, in epoch order. A line
+    without `success_rate` waits for its epoch's `EvalResult` until a later epoch's metrics
+    arrive (or `flush()`); each epoch is printed once.
+    """
+
+    def __init__(self, total_epochs: int, *,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.total_epochs = total_epochs
+        self.last_printed = 0
+        self._pending: dict[int, dict[str, float]] = {}
+        self._success: dict[int, float] = {}
+        self._replay_size: float | None = None
+        self.restarts = 0
+        """Children restarted so far (shown on the line when not 0)."""
+        self.actors: int | None = None
+        """Actors whose liveliness token the router sees (local and remote)."""
+        self._episodes_by_actor: Counter[str] = Counter()
+        """Episodes stored per actor since the last epoch line (from replay/inserted)."""
+        self._clock = clock
+        self.started = clock()
+        self.last_line_at: float | None = None
+        self._first_epoch: int | None = None  # the first epoch this launcher saw (resume)
+
+    def interim(self) -> str | None:
+        """A line for an epoch still running: the first `FIRST_LINE_S` after start (so a
+        user sees the run is alive long before epoch 1 ends), then whenever no line was
+        printed for `INTERIM_EVERY_S`; None otherwise."""
+        now = self._clock()
+        quiet_since = self.last_line_at if self.last_line_at is not None else (
+            self.started - INTERIM_EVERY_S + FIRST_LINE_S)
+        if now - quiet_since < INTERIM_EVERY_S:
+            return None
+        self.last_line_at = now
+        epoch = self.last_printed + 1
+        return (f"epoch {epoch}/{self.total_epochs} running  {_duration(now - self.started)} "
+                f"since start  replay {_fmt(self._replay_size, '.0f')} episodes"
+                + (f"  actors {self.actors}" if self.actors is not None else "")
+                + (f"  restarts {self.restarts}" if self.restarts else ""))
+
+    def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
+        if not service.startswith("learner/") or "epoch" not in values:
+            return []
+        epoch = int(values["epoch"])
+        if epoch <= self.last_printed:
+            return []
+        self._pending[epoch] = dict(values)
+        return self._release(final=False)
+
+    def on_eval(self, epoch: int, success_rate: float) -> list[str]:
+        self._success[epoch] = success_rate
+        return self._release(final=False)
+
+    def on_replay_size(self, size: float) -> None:
+        self._replay_size = size
+
+    def on_inserted(self, actor_id: str) -> None:
+        """One more episode stored, from `actor_id` (its share shows on the next line)."""
+        self._episodes_by_actor[actor_id] += 1
+
+    def _actors_text(self) -> str:
+        """`  actors N`, with each actor's share of the episodes since the last line when
+        more than one actor contributed (in actor-id order), e.g. `  actors 2 (61/39 %)`."""
+        if self.actors is None:
+            return ""
+        counts = [n for _, n in sorted(self._episodes_by_actor.items())]
+        self._episodes_by_actor.clear()
+        if len(counts) < 2:
+            return f"  actors {self.actors}"
+        total = sum(counts)
+        shares = "/".join(f"{round(100 * n / total)}" for n in counts)
+        return f"  actors {self.actors} ({shares} %)"
+
+    def flush(self) -> list[str]:
+        """Every line still waiting, with `success -` where no result came."""
+        return self._release(final=True)
+
+    def _release(self, *, final: bool) -> list[str]:
+        lines = []
+        for epoch in sorted(self._pending):
+            values = self._pending[epoch]
+            has_success = "success_rate" in values or epoch in self._success
+            later = any(e > epoch for e in self._pending)
+            if not (has_success or later or final):
+                break
+            del self._pending[epoch]
+            lines.append(self._line(epoch, values))
+            self.last_printed = epoch
+        return lines
+
+    def _line(self, epoch: int, values: Mapping[str, float]) -> str:
+        now = self._clock()
+        total = int(values.get("epochs", self.total_epochs))
+        success = values.get("success_rate", self._success.get(epoch))
+        replay = values.get("replay_size", self._replay_size)
+        if self._first_epoch is None:
+            self._first_epoch = epoch
+        done_here = epoch - self._first_epoch + 1  # epochs this launcher watched end
+        eta = (now - self.started) / done_here * (total - epoch) if done_here > 0 else None
+        self.last_line_at = now
+        return (f"epoch {epoch}/{total}  success {_fmt(success, '.2f')}  "
+                f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
+                f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
+                f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
+                + self._actors_text()
+                + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
+                + (f"  restarts {self.restarts}" if self.restarts else ""))

@@ -1,0 +1,357 @@
+"""`hercs slurm submit`: one run as one heterogeneous Slurm job (docs/CLUSTER.md).
+
+The job script is written into the run directory, `runs/<run>/slurm/job.sbatch`, beside the
+config it starts the run with (`slurm/config.yaml`); it is meant to be read, edited and
+submitted by hand (`sbatch runs/<run>/slurm/job.sbatch`) as well. What it does:
+
+- component 0 (one node, `--learner-cpus`, `--gpus`): `hercs up --actors 0` — the embedded
+  router on any free port of every interface over mutual TLS, the replay, clusterer,
+  learner and evaluator; the router's endpoint goes to `runs/<run>/router.json`;
+- component 1 (`--actor-nodes` nodes, `--actor-cpus` each): one `hercs actor` per node in
+  one `srun` step, with `actor.envs_per_process` = `--actor-cpus`; each waits for
+  router.json and connects to component 0's host by name;
+- certificates for this attempt of the job (`slurm/certs-<job>.<restarts>/`, the router's
+  naming component 0's host; the CA key is deleted once they are made);
+- Slurm's warning `--signal-before` seconds before the time limit (`--signal=B:USR1@S`)
+  stops the run in order (`hercs up` gets SIGTERM: actors, then learner/evaluator/clusterer,
+  then the replay; every acknowledged episode is logged, the learner's checkpoint is its last
+  epoch end) and requeues the job (`scontrol requeue`); a requeued job finds the run's
+  config.yaml and continues it with `hercs up --resume`, so metrics.csv keeps one row per
+  epoch and a run longer than the time limit ends across several attempts. SIGTERM from
+  Slurm (preemption, `scontrol requeue`, `scancel`) stops it the same way; Slurm then
+  requeues or cancels it.
+
+This module only writes text and calls `sbatch`; the run itself is `hercs up` and
+`hercs actor` as on any machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.errors import ConfigError
+from hercs.rundir import CONFIG, SLURM, holds_a_run
+
+SCRIPT = "job.sbatch"
+TIME = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
+"""Slurm's --time forms: M, M:S, H:M:S, D-H, D-H:M, D-H:M:S."""
+EXIT_REQUEUED = 0
+"""The batch script's status after it requeued its job (Slurm starts it again)."""
+
+
+@dataclass(frozen=True)
+class JobPlan:
+    """What the job asks of Slurm and where the run lives."""
+
+    run: str
+    run_dir: Path
+    """The run's folder (absolute, on storage every node shares)."""
+    hercs: tuple[str, ...]
+    """The command that runs `hercs` on the nodes."""
+    actor_nodes: int = 1
+    actor_cpus: int = 8
+    learner_cpus: int = 4
+    gpus: int = 0
+    time: str = ""
+    signal_before_s: int = 300
+    partition: str = ""
+    account: str = ""
+    sbatch: tuple[str, ...] = ()
+    """More sbatch options for the whole job (each becomes a `#SBATCH` line)."""
+    workdir: Path = Path(".")
+    """The job's working directory (`--chdir`; `plan_from_args` gives the submitting
+    shell's)."""
+
+    def __post_init__(self) -> None:
+        for flag, value, least in (("--actor-nodes", self.actor_nodes, 1),
+                                   ("--actor-cpus", self.actor_cpus, 1),
+                                   ("--learner-cpus", self.learner_cpus, 1),
+                                   ("--gpus", self.gpus, 0),
+                                   ("--signal-before", self.signal_before_s, 10)):
+            if value < least:
+                raise ConfigError(f"{flag}: got {value}, must be >= {least}")
+        if self.time and TIME.fullmatch(self.time) is None:
+            raise ConfigError(f"--time: got {self.time!r}, must be a Slurm time limit: "
+                              "MINUTES, H:MM:SS or D-HH:MM:SS")
+        for option in self.sbatch:
+            if not option.startswith("--") or "\n" in option:
+                raise ConfigError(f"--sbatch: got {option!r}, must be one long sbatch option "
+                                  "such as --qos=high")
+
+    @property
+    def folder(self) -> Path:
+        return self.run_dir / SLURM
+
+
+def render_script(plan: JobPlan) -> str:
+    """The batch script of `plan` (see the module docstring)."""
+    q = shlex.quote
+    run_dir, parent, run = q(str(plan.run_dir)), q(str(plan.run_dir.parent)), q(plan.run)
+    hercs = " ".join(q(part) for part in plan.hercs)
+    whole = [f"--job-name=hercs-{plan.run}", f"--output={plan.folder}/job-%j.out",
+             "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
+             f"--chdir={plan.workdir}"]
+    whole += [f"--time={plan.time}"] if plan.time else []
+    whole += [f"--partition={plan.partition}"] if plan.partition else []
+    whole += [f"--account={plan.account}"] if plan.account else []
+    whole += list(plan.sbatch)
+    learner = ["--nodes=1", "--ntasks=1", f"--cpus-per-task={plan.learner_cpus}"]
+    learner += [f"--gres=gpu:{plan.gpus}"] if plan.gpus else []
+    actors = [f"--nodes={plan.actor_nodes}", "--ntasks-per-node=1",
+              f"--cpus-per-task={plan.actor_cpus}"]
+    head = "\n".join(f"#SBATCH {option}" for option in whole)
+    return f"""#!/bin/bash
+# hercs run {plan.run} as one heterogeneous Slurm job, written by `hercs slurm submit`
+# (docs/CLUSTER.md). Edit it and submit it again with: sbatch {plan.folder / SCRIPT}
+#   component 0: router, replay, clusterer, learner, evaluator (`hercs up --actors 0`)
+#   component 1: one actor per node, {plan.actor_cpus} envs each, over mutual TLS
+# Slurm warns {plan.signal_before_s} s before the time limit: the run stops in order and the
+# job requeues itself; the next attempt resumes the run (`hercs up --resume`).
+{head}
+# component 0
+{chr(10).join(f"#SBATCH {option}" for option in learner)}
+#SBATCH hetjob
+# component 1
+{chr(10).join(f"#SBATCH {option}" for option in actors)}
+
+set -u
+RUN_DIR={run_dir}
+HERCS=({hercs})
+ATTEMPT="$SLURM_JOB_ID.${{SLURM_RESTART_COUNT:-0}}"
+CERTS="$RUN_DIR/{SLURM}/certs-$ATTEMPT"
+log() {{ echo "[$(date +%FT%T)] job $ATTEMPT: $*"; }}
+
+# USR1: Slurm's warning before the time limit (it may come up to a minute early); TERM:
+# preemption, requeue or scancel. SIGTERM goes to the steps' tasks through Slurm (srun itself
+# would end its step at once): `hercs up` stops in order, the actors leave.
+REASON="" UP="" ACTORS=""
+stop_run() {{
+    REASON=$1
+    log "got SIG$1, stopping the run in order"
+    if [ -n "$UP" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
+}}
+trap 'stop_run USR1' USR1
+trap 'stop_run TERM' TERM
+
+# This attempt's certificates: the router's names this host, where component 0 runs.
+# An earlier attempt's router.json names a router that is gone.
+rm -f "$RUN_DIR/router.json"
+"${{HERCS[@]}}" certs "$CERTS" --host "$(hostname)" > /dev/null || exit 1
+rm -f "$CERTS/ca.key"
+
+if [ -f "$RUN_DIR/config.yaml" ]; then
+    log "continuing run {run} (hercs up --resume)"
+    START=(--resume "$RUN_DIR")
+else
+    log "starting run {run}"
+    START=(--config "$RUN_DIR/{SLURM}/{CONFIG}")
+fi
+STATUS=1
+if [ -z "$REASON" ]; then
+    srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \\
+        --listen tls/0.0.0.0:0 --tls-dir "$CERTS" &
+    UP=$!
+    srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \\
+        --run-dir {parent} --tls-dir "$CERTS" &
+    ACTORS=$!
+    if [ -n "$REASON" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
+    wait "$UP"; STATUS=$?
+    while kill -0 "$UP" 2> /dev/null; do wait "$UP"; STATUS=$?; done  # a trap ended the wait
+    kill -TERM "$ACTORS" 2> /dev/null  # the run is over: its actors have nothing to send
+    wait "$ACTORS"
+    while kill -0 "$ACTORS" 2> /dev/null; do wait "$ACTORS"; done
+    log "hercs up exited with status $STATUS"
+fi
+if [ "$STATUS" -ne 0 ] && [ "$REASON" = USR1 ]; then
+    log "requeueing: the next attempt continues the run"
+    scontrol requeue "$SLURM_JOB_ID"
+    exit {EXIT_REQUEUED}
+fi
+exit "$STATUS"
+"""
+
+
+def write_job(config: HercsConfig, plan: JobPlan) -> Path:
+    """Write `slurm/config.yaml` and `slurm/job.sbatch` into the run's folder; returns the
+    script's path. Refuses a folder that already holds a run."""
+    if holds_a_run(plan.run_dir):
+        raise ConfigError(f"{plan.run_dir} already holds a run; pick another --run (or "
+                          f"submit its script again: sbatch {plan.folder / SCRIPT})")
+    plan.folder.mkdir(parents=True, exist_ok=True)
+    save_yaml(config, plan.folder / CONFIG)
+    script = plan.folder / SCRIPT
+    script.write_text(render_script(plan))
+    return script
+
+
+def submit(script: Path) -> str:
+    """`sbatch --parsable script`; returns the job id."""
+    try:
+        done = subprocess.run(["sbatch", "--parsable", str(script)], capture_output=True,
+                              text=True, timeout=60)
+    except FileNotFoundError:
+        raise ConfigError("sbatch not found: run `hercs slurm submit` on a host of a Slurm "
+                          f"cluster (the script is written: {script})") from None
+    if done.returncode != 0:
+        raise ConfigError(f"sbatch {script} failed (exit {done.returncode}): "
+                          f"{done.stderr.strip()}")
+    return done.stdout.strip().split(";")[0]
+
+
+def plan_from_args(args: argparse.Namespace, config: HercsConfig) -> tuple[HercsConfig, JobPlan]:
+    """The run's config (named, absolute run_dir, no local actors, the actor nodes' cores as
+    envs per process) and the job's plan, from `hercs slurm submit`'s flags."""
+    from hercs.apps.run_plan import default_run_name
+
+    name = config.run.name or default_run_name(config)
+    parent = Path(config.run.run_dir).absolute()
+    config = apply_overrides(config, [f"run.name={name}", f"run.run_dir={parent}",
+                                      "actor.num_actors=0",
+                                      f"actor.envs_per_process={args.actor_cpus}"])
+    plan = JobPlan(run=name, run_dir=parent / name,
+                   hercs=tuple(args.hercs.split()) if args.hercs else
+                   (sys.executable, "-m", "hercs.apps.cli"),
+                   actor_nodes=args.actor_nodes, actor_cpus=args.actor_cpus,
+                   learner_cpus=args.learner_cpus, gpus=args.gpus, time=args.time or "",
+                   signal_before_s=args.signal_before, partition=args.partition or "",
+                   account=args.account or "", sbatch=tuple(args.sbatch),
+                   workdir=Path.cwd())
+    return config, plan
+
+
+def add_submit_arguments(parser: argparse.ArgumentParser) -> None:
+    job = parser.add_argument_group("Slurm job")
+    job.add_argument("--actor-nodes", type=int, default=1, metavar="N",
+                     help="nodes of component 1, one actor process each (default 1)")
+    job.add_argument("--actor-cpus", type=int, default=8, metavar="C",
+                     help="CPUs per actor node, = the envs each actor steps "
+                          "(actor.envs_per_process; default 8)")
+    job.add_argument("--learner-cpus", type=int, default=4, metavar="C",
+                     help="CPUs of component 0 (router, replay, clusterer, learner, "
+                          "evaluator; default 4)")
+    job.add_argument("--gpus", type=int, default=0, metavar="G",
+                     help="GPUs for component 0's learner (--gres=gpu:G; default none)")
+    job.add_argument("--time", metavar="LIMIT", help="the job's time limit (sbatch --time); a "
+                     "longer run requeues and resumes")
+    job.add_argument("--signal-before", type=int, default=300, metavar="S",
+                     help="seconds before the time limit at which the run stops in order and "
+                          "requeues (default 300)")
+    job.add_argument("--partition", help="sbatch --partition")
+    job.add_argument("--account", help="sbatch --account")
+    job.add_argument("--sbatch", action="append", default=[], metavar="OPTION",
+                     help="one more sbatch option for the whole job, e.g. --sbatch=--qos=high "
+                          "(repeatable)")
+    job.add_argument("--hercs", metavar="COMMAND",
+                     help="how the nodes run hercs (default: this Python, -m hercs.apps.cli)")
+    job.add_argument("--dry-run", action="store_true",
+                     help="print the batch script; write and submit nothing")
+
+
+def run_submit(args: argparse.Namespace, config: HercsConfig) -> int:
+    try:
+        config, plan = plan_from_args(args, config)
+        if args.dry_run:
+            print(render_script(plan), end="")
+            return 0
+        script = write_job(config, plan)
+        job = submit(script)
+    except ConfigError as exc:
+        print(f"hercs slurm submit: {exc}", file=sys.stderr)
+        return 2
+    print(f"hercs slurm submit: job {job} runs {plan.run}; script {script}; output "
+          f"{plan.folder}/job-{job}.out; watch it with `hercs live --run {plan.run} --run-dir "
+          f"{plan.run_dir.parent}`")
+    return 0
+
+
+# ------------------------------------------------------------------------------ job arrays
+
+ARRAY_SCRIPT = "grid.sbatch"
+
+
+@dataclass(frozen=True)
+class ArrayPlan:
+    """A job array whose task i runs `command i` (i = `$SLURM_ARRAY_TASK_ID`) on one node,
+    requeueing itself on Slurm's warning before the time limit (the command must stop in
+    order on SIGTERM and continue where it stopped when started again)."""
+
+    name: str
+    folder: Path
+    """Where the script and the tasks' output go."""
+    command: tuple[str, ...]
+    indices: tuple[int, ...]
+    cpus: int = 4
+    time: str = ""
+    signal_before_s: int = 300
+    partition: str = ""
+    account: str = ""
+    sbatch: tuple[str, ...] = ()
+    workdir: Path = Path(".")
+
+    def __post_init__(self) -> None:
+        if not self.indices:
+            raise ConfigError("a job array needs at least one task")
+        # the resources are checked as a run's job checks them
+        JobPlan(run=self.name, run_dir=self.folder, hercs=(), learner_cpus=self.cpus,
+                time=self.time, signal_before_s=self.signal_before_s, sbatch=self.sbatch)
+
+
+def render_array_script(plan: ArrayPlan) -> str:
+    options = [f"--job-name={plan.name}", f"--output={plan.folder}/task-%A_%a.out",
+               "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
+               f"--chdir={plan.workdir}", f"--array={','.join(map(str, plan.indices))}",
+               "--nodes=1", "--ntasks=1", f"--cpus-per-task={plan.cpus}"]
+    options += [f"--time={plan.time}"] if plan.time else []
+    options += [f"--partition={plan.partition}"] if plan.partition else []
+    options += [f"--account={plan.account}"] if plan.account else []
+    options += list(plan.sbatch)
+    head = "\n".join(f"#SBATCH {option}" for option in options)
+    command = " ".join(shlex.quote(part) for part in plan.command)
+    return f"""#!/bin/bash
+# {plan.name}: one array task per index, written by hercs (docs/CLUSTER.md). Task i runs the
+# command below with SLURM_ARRAY_TASK_ID=i; Slurm's warning {plan.signal_before_s} s before the
+# time limit stops it in order and requeues the task, which then continues where it stopped.
+{head}
+
+set -u
+TASK="${{SLURM_ARRAY_JOB_ID}}_${{SLURM_ARRAY_TASK_ID}}"
+log() {{ echo "[$(date +%FT%T)] task $TASK.${{SLURM_RESTART_COUNT:-0}}: $*"; }}
+REASON="" PID=""
+stop_task() {{
+    REASON=$1
+    log "got SIG$1, stopping in order"
+    if [ -n "$PID" ]; then kill -TERM "$PID" 2> /dev/null; fi
+}}
+trap 'stop_task USR1' USR1
+trap 'stop_task TERM' TERM
+
+STATUS=1
+if [ -z "$REASON" ]; then
+    {command} "$SLURM_ARRAY_TASK_ID" &
+    PID=$!
+    wait "$PID"; STATUS=$?
+    while kill -0 "$PID" 2> /dev/null; do wait "$PID"; STATUS=$?; done  # a trap ended the wait
+    log "exited with status $STATUS"
+fi
+if [ "$STATUS" -ne 0 ] && [ "$REASON" = USR1 ]; then
+    log "requeueing: the next attempt continues"
+    scontrol requeue "$TASK"
+    exit {EXIT_REQUEUED}
+fi
+exit "$STATUS"
+"""
+
+
+def submit_array(plan: ArrayPlan, *, dry_run: bool = False) -> tuple[Path, str | None]:
+    """Write `folder/grid.sbatch` and submit it (not with `dry_run`); (script, job id)."""
+    plan.folder.mkdir(parents=True, exist_ok=True)
+    script = plan.folder / ARRAY_SCRIPT
+    script.write_text(render_array_script(plan))
+    return script, None if dry_run else submit(script)

@@ -1,0 +1,437 @@
+"""`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
+
+Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
+`episodes.mcap`) with `hercs.runlog`, and `metrics.csv` when it sits beside the
+log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
+the web viewer (`--web`).
+
+The live view (`hercs up --rerun`, hercs/apps/live_view.py) logs the same entities on the same
+timelines while a run trains: both draw with hercs/apps/rerun_draw.py.
+
+Timelines
+    episode   the episode id (sequence). Every per-episode entity, the failed goals and the
+              centroids are on it.
+    step      the observation index t = 0..T within an episode (sequence). Only the 3D
+              trajectories are on it: at step t every selected episode shows its path up to t,
+              so all selected episodes replay side by side.
+    epoch     the training epoch (sequence): the learning curves.
+
+Entity paths
+    world                                 static: right-handed, z up (MuJoCo world, metres)
+    world/episodes/<id:06d>/gripper       LineStrips3D: gripper path obs[:t+1, 0:3] (beyond
+                                          Fetch: the achieved goal's first point)
+    world/episodes/<id:06d>/object        LineStrips3D: object path obs[:t+1, 3:6]
+                                          (push, pick, slide; absent for reach)
+    world/episodes/<id:06d>/goal          Points3D: desired goal g_t (1.2 cm); green if the
+                                          episode succeeded, red if not
+    world/failed_goals                    Points3D on `episode`: desired goals g_T of every
+                                          failed episode logged up to this one (all episodes
+                                          of the log, not only the selected ones), coloured by
+                                          their cluster under the model current at that time
+    world/centroids                       Points3D on `episode`: the k-means centroids, logged
+                                          when a refit lands (labels c0..c{k-1})
+    episodes/success                      Scalars on `episode`: 1 success, 0 failure (all
+                                          episodes)
+    episodes/final_distance               Scalars on `episode`: ‖ag_T − g_T‖ (metres)
+    episodes/cluster                      Scalars on `episode`: cluster index of ag_T (−1 before
+                                          the first cluster model)
+    log/episodes                          TextLog on `episode`: one line per selected episode
+                                          (success, distance, cluster, actor, policy version)
+    log/cluster_models                    TextLog on `episode`: one line per cluster model
+    curves/<column>                       Scalars on `epoch` (and on `episode` at each epoch's
+                                          last episode, from the `episodes` column): every
+                                          numeric column of
+                                          metrics.csv (success_rate, env_steps_per_s,
+                                          updates_per_s, replay_size, policy_lag, losses, …);
+                                          without metrics.csv, success_rate and
+                                          mean_final_distance from the log's EvalResults
+    curves/cluster_sizes, curves/cluster_share
+                                          Scalars on `epoch`: one series per cluster
+
+Colours: a trajectory's colour is its cluster's (grey before the first cluster model; the
+gripper path is the same colour, translucent). A centroid and the failed goals of its cluster
+share that colour.
+
+An episode failed if ‖ag_T − g_T‖ > the task's threshold (0.05 m); ag is the object (the
+gripper for reach). Its cluster is the nearest centroid of the latest cluster model logged
+before it (models are logged in order, interleaved with the episodes).
+
+A bounded log (`replay.log_max_bytes`, the default) has lost its oldest segments once a run
+is past 1.25 buffers: the view shows the episodes, models and results it still holds, from
+its first kept episode id on (`--episodes all` is all of those; ids before are not there),
+the first ones coloured by the model the kept segment's replay state holds. The curves come
+from metrics.csv, which keeps every epoch.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hercs.apps.rerun_draw import (
+    APP_ID,
+    EpisodeSummary,
+    LoggedModel,
+    blueprint,
+    declare_curve,
+    log_centroids,
+    log_episode,
+    log_episode_scalars,
+    log_failed_goals,
+    log_world,
+    rerun_executable,
+    summarize_episode,
+)
+from hercs.clustering import assign_clusters
+from hercs.codec import msg_to_array, msg_to_cluster_model
+from hercs.config import load_yaml
+from hercs.errors import HercsError
+from hercs.metrics import read_rows
+from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import CONFIG, METRICS
+from hercs.runlog import (
+    LIVE_NAME,
+    TOPIC_CLUSTER_MODEL,
+    TOPIC_EPISODES,
+    TOPIC_REPLAY_STATE,
+    EpisodeLogError,
+    read_eval_results,
+    read_messages,
+    segment_paths,
+)
+from hercs.tasks import task_spec
+
+FALLBACK_EPISODES_PER_EPOCH = 200
+"""Without --episodes the view draws the last epoch's episodes; this many when the run's
+config.yaml cannot tell how many an epoch has (the reference's 50 cycles × 4 episodes)."""
+
+
+class ViewError(HercsError):
+    """The log cannot be shown as asked; the message says what to change."""
+
+
+# --------------------------------------------------------------------------------------------
+# Episode selection
+
+
+def parse_selection(text: str) -> list[tuple[str, int | None, int | None, int]]:
+    """Parse `--episodes`: comma-separated items, each one of
+
+        N          the episode with id N
+        A:B        ids A ≤ id < B (either bound may be omitted)
+        A:B:S      every S-th id from A (S ≥ 1)
+        last:N     the last N episodes of the log
+        spread:N   every n-th episode so that at most N are drawn, plus the last one
+        all        every episode
+
+    Returns a list of ("ids", start, stop, step), ("last", None, None, n) and
+    ("spread", None, None, n) items.
+    Raises ValueError with a message naming the bad item.
+    """
+    items: list[tuple[str, int | None, int | None, int]] = []
+    for raw in text.split(","):
+        item = raw.strip()
+        try:
+            if not item:
+                raise ValueError("empty item")
+            if item == "all":
+                items.append(("ids", None, None, 1))
+            elif item.startswith(("last:", "spread:")):
+                kind, _, count = item.partition(":")
+                n = int(count)
+                if n < 1:
+                    raise ValueError("N must be ≥ 1")
+                items.append((kind, None, None, n))
+            elif ":" in item:
+                parts = item.split(":")
+                if len(parts) > 3:
+                    raise ValueError("too many ':'")
+                start = int(parts[0]) if parts[0] else None
+                stop = int(parts[1]) if parts[1] else None
+                step = int(parts[2]) if len(parts) == 3 and parts[2] else 1
+                if step < 1 or (start is not None and start < 0) or (stop is not None
+                                                                      and stop < 0):
+                    raise ValueError("bounds must be ≥ 0 and the step ≥ 1")
+                items.append(("ids", start, stop, step))
+            else:
+                n = int(item)
+                if n < 0:
+                    raise ValueError("ids are ≥ 0")
+                items.append(("ids", n, n + 1, 1))
+        except ValueError as exc:
+            raise ValueError(
+                f"--episodes: bad item {item!r} ({exc}); use ids and ranges like '0:100', "
+                "'5,7,9', '0:2000:10', 'last:20', 'spread:200' or 'all'") from None
+    return items
+
+
+def select_episodes(text: str | None, ids: Sequence[int], *,
+                    last_epoch: int = FALLBACK_EPISODES_PER_EPOCH) -> list[int]:
+    """The episode ids to draw, in log order. `text` is the `--episodes` value; None means the
+    last epoch's episodes (`last_epoch` of them): a readable picture of where training is,
+    each trajectory coloured by the cluster model of its time."""
+    if text is None:
+        return list(ids[-last_epoch:])
+    chosen: set[int] = set()
+    for kind, start, stop, step in parse_selection(text):
+        if kind == "last":
+            chosen.update(ids[-step:])
+            continue
+        if kind == "spread":
+            chosen.update(ids[::math.ceil(len(ids) / step)] if ids else [])
+            chosen.update(ids[-1:])
+            continue
+        lo = 0 if start is None else start
+        for i in ids:
+            if i >= lo and (stop is None or i < stop) and (i - lo) % step == 0:
+                chosen.add(i)
+    return [i for i in ids if i in chosen]
+
+
+# --------------------------------------------------------------------------------------------
+# Reading the log
+
+
+@dataclass
+class RunLog:
+    task: str = ""
+    threshold: float = 0.05
+    episodes: list[EpisodeSummary] = field(default_factory=list)
+    models: list[LoggedModel] = field(default_factory=list)
+
+
+def resolve_log_path(path: str | os.PathLike[str]) -> Path:
+    """Check that `path` is an episode log file or a run directory holding one."""
+    p = Path(path)
+    if not p.exists():
+        raise ViewError(f"{p}: no such file or directory; give an episodes.mcap file or a run "
+                        "directory (e.g. runs/<run>/)")
+    if p.is_dir() and not segment_paths(p):
+        raise ViewError(f"{p} holds no episode log ({LIVE_NAME} or episodes.NNN.mcap); is it "
+                        "a run directory?")
+    return p
+
+
+def read_run_log(path: Path) -> RunLog:
+    """One pass over the log: per episode its positions, success and cluster (under the latest
+    cluster model logged before it; in a log whose older segments were deleted, the first
+    ones kept are coloured by the model their segment's replay state holds)."""
+    run = RunLog()
+    centroids: np.ndarray | None = None
+    next_id = 0
+    spec = None
+    for message in read_messages(path, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL,
+                                        TOPIC_REPLAY_STATE]):
+        if message.topic == TOPIC_REPLAY_STATE:  # a bounded log: the model current here
+            state = message.decode_as(pb.ReplayState)
+            if centroids is None and state.HasField("cluster_model"):
+                centroids = msg_to_cluster_model(state.cluster_model).centroids
+            continue
+        if message.topic == TOPIC_CLUSTER_MODEL:
+            model = msg_to_cluster_model(message.decode_as(pb.ClusterModel))
+            centroids = model.centroids
+            run.models.append(LoggedModel(at_episode=next_id, model=model))
+            continue
+        msg = message.decode_as(pb.Episode)
+        if spec is None:
+            spec = task_spec(msg.task)
+            run.task, run.threshold = spec.name, spec.distance_threshold
+        cluster = -1
+        if centroids is not None:
+            ag_final = msg_to_array(msg.ag, where="Episode.ag")[-1:]
+            cluster = int(assign_clusters(ag_final, centroids)[0])
+        summary = summarize_episode(msg, episode_id=message.sequence, spec=spec,
+                                    cluster=cluster)
+        summary.inserted_ns = message.publish_time_ns
+        run.episodes.append(summary)
+        next_id = message.sequence + 1
+    return run
+
+
+def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
+    """How many episodes one epoch of the run has (cycles × episodes per cycle in its
+    config.yaml) and where that number comes from."""
+    config_path = run_dir / CONFIG
+    if config_path.is_file():
+        try:
+            training = load_yaml(config_path).training
+            return training.episodes_per_epoch, f"one epoch, {config_path.name}"
+        except HercsError as exc:
+            return FALLBACK_EPISODES_PER_EPOCH, f"{config_path} unreadable: {exc}"
+    return FALLBACK_EPISODES_PER_EPOCH, "no config.yaml beside the log"
+
+
+def read_metrics(path: Path) -> dict[str, list[str]]:
+    """metrics.csv as columns of strings ({} if absent)."""
+    rows = read_rows(path)
+    if not rows:
+        return {}
+    return {key: [row.get(key) or "" for row in rows] for key in rows[0]}
+
+
+# --------------------------------------------------------------------------------------------
+# Logging
+
+
+def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
+    """Centroids at each refit; the accumulated failed goals at each refit and each selected
+    episode (so that scrubbing the `episode` timeline shows them grow)."""
+    failed_ids = np.array([e.episode_id for e in run.episodes if not e.success], np.int64)
+    dim = len(run.episodes[0].desired_goal) if run.episodes else 3
+    failed_goals = np.array([e.desired_goal for e in run.episodes if not e.success],
+                            np.float32).reshape(-1, dim)
+    for model in run.models:
+        log_centroids(rr, rec, model)
+    model_starts = np.array([m.at_episode for m in run.models], np.int64)
+    times = sorted(set(selected) | {m.at_episode for m in run.models})
+    for t in times:
+        current = np.searchsorted(model_starts, t, side="right") - 1
+        log_failed_goals(rr, rec, at_episode=t, goals=failed_goals[failed_ids <= t],
+                         centroids=run.models[current].model.centroids if current >= 0
+                         else None)
+
+
+def _floats(values: Sequence[str]) -> np.ndarray | None:
+    try:
+        return np.array([float(v) if v != "" else np.nan for v in values], np.float64)
+    except ValueError:
+        return None
+
+
+def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[str]:
+    """Learning curves on the `epoch` timeline; returns the entity paths logged."""
+    logged: list[str] = []
+    if metrics and "epoch" in metrics:
+        epochs = _floats(metrics["epoch"])
+        if epochs is None or np.isnan(epochs).any():
+            return logged
+        indexes = [rr.TimeColumn("epoch", sequence=epochs.astype(np.int64))]
+        done = _floats(metrics.get("episodes", []))
+        if done is not None and len(done) == len(epochs) and not np.isnan(done).any():
+            # also on `episode`, at the last episode of each epoch: next to the trajectories
+            indexes.append(rr.TimeColumn("episode", sequence=done.astype(np.int64) - 1))
+        for name, values in metrics.items():
+            if name == "epoch":
+                continue
+            numbers = _floats(values)
+            if numbers is not None:
+                if np.isnan(numbers).all():
+                    continue
+                entity = declare_curve(rr, rec, name)
+                rec.send_columns(entity, indexes=indexes,
+                                 columns=rr.Scalars.columns(scalars=numbers))
+                logged.append(entity)
+            elif any(";" in v for v in values):  # per-cluster lists, e.g. "31;23;32"
+                for epoch, value in zip(epochs.astype(np.int64), values, strict=True):
+                    parts = _floats(value.split(";")) if value else None
+                    if parts is None:
+                        continue
+                    rec.set_time("epoch", sequence=int(epoch))
+                    rec.log(f"curves/{name}", rr.Scalars(parts))
+                logged.append(f"curves/{name}")
+        return logged
+    results = list(read_eval_results(log_path))  # no metrics.csv: the evaluator's results
+    if results:
+        index = rr.TimeColumn("epoch", sequence=[int(r.epoch) for r in results])
+        for name in ("success_rate", "mean_final_distance"):
+            entity = declare_curve(rr, rec, name)
+            rec.send_columns(entity, indexes=[index], columns=rr.Scalars.columns(
+                scalars=[float(getattr(r, name)) for r in results]))
+            logged.append(entity)
+    return logged
+
+
+def build_recording(rr, rec, run: RunLog, selected: Sequence[int],
+                    metrics: dict[str, list[str]], log_path: Path) -> None:
+    log_world(rr, rec)
+    by_id = {e.episode_id: e for e in run.episodes}
+    for episode_id in selected:
+        log_episode(rr, rec, by_id[episode_id])
+    log_episode_scalars(rr, rec, run.episodes)
+    log_clusters(rr, rec, run, selected)
+    log_curves(rr, rec, metrics, log_path)
+
+
+# --------------------------------------------------------------------------------------------
+# Entry point
+
+
+def headless_problem(env: Mapping[str, str]) -> str | None:
+    """Why a native viewer window cannot open here (no display), or None."""
+    if sys.platform.startswith("linux") and not (env.get("DISPLAY") or
+                                                 env.get("WAYLAND_DISPLAY")):
+        return ("no display here (neither DISPLAY nor WAYLAND_DISPLAY is set), so no viewer "
+                "window can open: write a recording with --save RUN.rrd (open it elsewhere "
+                "with `rerun RUN.rrd`), or serve the web viewer with --web and open its URL")
+    return None
+
+
+def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
+             web: bool = False, web_port: int | None = None, grpc_port: int | None = None,
+             open_browser: bool = True) -> int:
+    """`hercs view`: 0 on success, 2 on a bad path or selection, or a viewer that cannot
+    open (message on stderr)."""
+    try:
+        if not (save or web):
+            problem = headless_problem(os.environ)
+            if problem is not None:
+                raise ViewError(problem)
+        log_path = resolve_log_path(path)
+        if episodes is not None:
+            parse_selection(episodes)  # fail before reading the log
+        t0 = time.perf_counter()
+        run = read_run_log(log_path)
+        if not run.episodes:
+            raise ViewError(f"{log_path}: the log holds no episode")
+        ids = [e.episode_id for e in run.episodes]
+        run_dir = log_path if log_path.is_dir() else log_path.parent
+        per_epoch, per_epoch_source = episodes_per_epoch(run_dir)
+        selected = select_episodes(episodes, ids, last_epoch=per_epoch)
+        if not selected:
+            raise ViewError(f"--episodes {episodes!r} selects none of the {len(ids)} episodes "
+                            f"(ids {ids[0]}..{ids[-1]})")
+    except (ViewError, ValueError, EpisodeLogError) as exc:
+        print(f"hercs view: {exc}", file=sys.stderr)
+        return 2
+    metrics = read_metrics(run_dir / METRICS)
+
+    import rerun as rr  # imported here: `hercs --help` stays fast
+
+    rec = rr.RecordingStream(APP_ID)
+    rec.send_recording_name(f"{run_dir.name} ({run.task})")
+    layout = blueprint(selected, has_object=task_spec(run.task).has_object)
+    if save:
+        rec.save(save, default_blueprint=layout)
+    elif web:
+        url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=layout)
+        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
+    else:
+        rr.spawn(recording=rec, default_blueprint=layout, executable_path=rerun_executable())
+    build_recording(rr, rec, run, selected, metrics, log_path)
+    rec.flush()
+    if episodes is None:
+        print(f"hercs view: drawing the last {len(selected)} episodes ({per_epoch_source}); "
+              "--episodes all draws the whole log, --episodes spread:200 a sample of it",
+              file=sys.stderr)
+    print(f"hercs view: {len(selected)} of {len(ids)} episodes, {len(run.models)} cluster "
+          f"models, {len(next(iter(metrics.values()), []))} epochs of metrics "
+          f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    if save:
+        rec.disconnect()
+        print(f"wrote {save}")
+    elif web:
+        port = 9090 if web_port is None else web_port
+        print(f"serving the web viewer at http://localhost:{port}/?url={url} (Ctrl-C stops)")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0

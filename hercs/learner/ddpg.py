@@ -1,0 +1,308 @@
+"""DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
+
+Notation (the DDPG paper's): μ actor, Q critic, μ' and Q' their target copies, s = [o, g]
+normalised, s' = [o', g] (the goal does not change within a transition), γ discount.
+
+One `update(batch)` is one of the reference's `_update_network` calls:
+
+    y   = clip(r + γ · Q'(s', μ'(s')), −1/(1−γ), 0)                       (clip_return)
+
+(the clip's bounds are the task's: [r_min/(1−γ), r_max/(1−γ)], `return_bounds`)
+    L_Q = mean (y − Q(s, u))²
+    L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s) / max_action)²
+    Adam step on L_μ (actor), then Adam step on L_Q (critic)
+
+Both losses are computed from the parameters before either step, as in the reference.
+`update_targets()` is the once-per-cycle Polyak average θ' ← polyak·θ' + (1−polyak)·θ.
+
+The normalisers live in the replay (it sees every stored episode); the learner only adopts the
+statistics it is sent (`set_normalizer_state`) and forwards them with the actor weights.
+
+Threads: this module never calls `torch.set_num_threads`; that process-wide choice belongs
+to the service (on the 2-core development machine, 1–2 threads for the learner).
+
+Precision (`learner.precision`): with bf16 the online networks' passes run under
+`torch.autocast(dtype=bfloat16)`; the master weights and Adam stay fp32, the TD target y is
+computed by the target networks in fp32, and the losses are formed in fp32 from the
+networks' outputs cast back. With tf32 every matrix product of the step (forward, target and
+backward) rounds its operands to TF32 first, as the authors' GPU did (`hercs/learner/tf32.py`). With
+fp32 nothing changes.
+
+Device (`learner.device`, `resolve_device`): the networks are created and seeded on the CPU,
+so a run's initial weights do not depend on the device, then moved. A minibatch goes to the
+device as one pinned host copy per array (`non_blocking`, so the copy overlaps the previous
+step on a GPU); weights come back to the host only when asked for (`actor_weights`, once per
+cycle for the broadcast) and checkpoints are written with host tensors, so they load on any
+machine.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from hercs.batch import TransitionBatch, transition_shapes
+from hercs.config import PRECISIONS, DDPGConfig
+from hercs.errors import ConfigError
+from hercs.learner.tf32 import TF32Products
+from hercs.networks import Actor, Critic, preprocess, to_arrays
+from hercs.normalizer import Normalizer, NormalizerState
+from hercs.policy import PolicyWeights
+from hercs.seeding import int_seed
+from hercs.tasks import TaskSpec
+
+
+def critic_target(
+    r: torch.Tensor,
+    s2: torch.Tensor,
+    *,
+    actor_target: Actor,
+    critic_target: Critic,
+    gamma: float,
+    clip_return: tuple[float, float] | None,
+) -> torch.Tensor:
+    """y = r + γ · Q'(s', μ'(s')), clipped to the bounds `clip_return` = (low, high) unless
+    it is None.
+
+    r: (B, 1); s2: (B, obs_dim + goal_dim) normalised next inputs. No gradient flows through
+    y. There is no terminal mask: episodes end by time limit only, as in the reference.
+    With sparse rewards in [r_min, r_max], r_min/(1−γ) and r_max/(1−γ) bound every true
+    return (`return_bounds`; Fetch: −1/(1−γ) and 0).
+    """
+    with torch.no_grad():
+        y = r + gamma * critic_target(s2, actor_target(s2))
+        if clip_return is not None:
+            y = torch.clamp(y, *clip_return)
+    return y
+
+
+def return_bounds(spec: TaskSpec, gamma: float) -> tuple[float, float]:
+    """The range of a discounted return when every reward is the task's success or failure
+    reward: the reference's [−1/(1−γ), 0] for Fetch's −1/0, [0, 1/(1−γ)] for PointMaze's 0/1."""
+    low, high = sorted((spec.failure_reward, spec.success_reward))
+    return low / (1.0 - gamma), high / (1.0 - gamma)
+
+
+def resolve_device(name: str) -> torch.device:
+    """`learner.device` as a torch device: auto = the first CUDA GPU if torch sees one, else
+    the CPU. Asking for CUDA where there is none is a ConfigError that says so."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(
+                f"learner.device={name}: torch sees no CUDA device (torch "
+                f"{torch.__version__}, CUDA build {torch.version.cuda or 'none'}); use "
+                "learner.device=auto or cpu, or install a CUDA build of torch (README, "
+                "'GPU')")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ConfigError(f"learner.device={name}: only {torch.cuda.device_count()} "
+                              "CUDA device(s) visible")
+    return device
+
+
+def _to_host(value: Any) -> Any:
+    """A state-dict tree with every tensor copied to the CPU (checkpoints load anywhere)."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().to("cpu", copy=True)
+    if isinstance(value, Mapping):
+        return {key: _to_host(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_to_host(item) for item in value)
+    return copy.deepcopy(value)
+
+
+class DDPGLearner:
+    """Actor, critic, their targets and optimisers; one `update` per minibatch."""
+
+    def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
+                 device: str | torch.device = "cpu", precision: str = "fp32") -> None:
+        if precision not in PRECISIONS:
+            raise ConfigError(f"learner.precision: got {precision!r}, must be one of "
+                              f"{', '.join(PRECISIONS)}")
+        self.spec = spec
+        self.config = config
+        self.precision = precision
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
+        self.actor = Actor(spec=spec, config=config, seed=int_seed(seed, "learner", "actor"))
+        self.critic = Critic(spec=spec, config=config, seed=int_seed(seed, "learner", "critic"))
+        self.actor.to(self.device)
+        self.critic.to(self.device)
+        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        # fused: one kernel per step instead of a loop over the parameters (measured +9 % of
+        # updates per CPU-second on this machine's CPU); the same Adam, up to float rounding
+        self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.lr_actor,
+                                            fused=True)
+        self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.lr_critic,
+                                             fused=True)
+        self._critic_params = list(self.critic.parameters())
+        self.o_norm = Normalizer(spec.obs_dim, eps=config.norm_eps, clip_range=config.norm_clip)
+        self.g_norm = Normalizer(spec.goal_dim, eps=config.norm_eps, clip_range=config.norm_clip)
+        self.updates = 0
+        """Minibatch updates done (Adam steps per network)."""
+        self.target_updates = 0
+        """Polyak updates done (one per cycle)."""
+
+    def set_normalizer_state(
+        self, o_state: Mapping[str, np.ndarray | float], g_state: Mapping[str, np.ndarray | float]
+    ) -> None:
+        """Adopt the replay's normaliser statistics (`Normalizer.state_dict()` form)."""
+        o_norm, g_norm = self.o_norm.with_state(o_state), self.g_norm.with_state(g_state)
+        self.o_norm, self.g_norm = o_norm, g_norm
+
+    def update(self, batch: TransitionBatch) -> dict[str, float]:
+        """One DDPG step on a minibatch; returns losses and means."""
+        if self.precision != "tf32":
+            return self._update(batch)
+        with TF32Products():  # every product of the step, the target and backward included
+            return self._update(batch)
+
+    def _update(self, batch: TransitionBatch) -> dict[str, float]:
+        o, g, u, r, o2 = self._check_batch(batch)
+        r = r.reshape(-1, 1)  # (B, 1): so that y broadcasts row-wise, not to (B, B)
+        cfg, max_action = self.config, self.spec.max_action
+
+        # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
+        s = self._on_device(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        s2 = self._on_device(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        u_t = self._on_device(np.array(u))  # a copy: wire arrays are read-only views
+        r_t = self._on_device(np.array(r))
+
+        # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
+        y = critic_target(
+            r_t, s2,
+            actor_target=self.actor_target, critic_target=self.critic_target,
+            gamma=cfg.gamma,
+            clip_return=return_bounds(self.spec, cfg.gamma) if cfg.clip_return else None,
+        )
+
+        # Critic loss: L_Q = mean (y − Q(s, u))².
+        with self._autocast():
+            q = self.critic(s, u_t).float()
+        critic_loss = (y - q).pow(2).mean()
+
+        # Actor loss: L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s)/max_action)².
+        # The critic's weights are frozen for this pass: L_μ's gradient with respect to them
+        # was computed and thrown away before; now it is not computed at all.
+        with self._autocast():
+            pi = self.actor(s)
+        pi = pi.float()
+        action_l2 = (pi / max_action).pow(2).mean()
+        for param in self._critic_params:
+            param.requires_grad_(False)
+        try:
+            with self._autocast():
+                actor_q = self.critic(s, pi).float()
+        finally:
+            for param in self._critic_params:
+                param.requires_grad_(True)
+        actor_loss = -actor_q.mean() + cfg.action_l2 * action_l2
+
+        # Adam steps, actor then critic.
+        self.actor_optim.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_optim.step()
+        self.critic_optim.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_optim.step()
+
+        self.updates += 1
+        return {
+            "critic_loss": critic_loss.item(),
+            "actor_loss": actor_loss.item(),
+            "q_mean": q.mean().item(),
+            "y_mean": y.mean().item(),
+            "action_l2": action_l2.item(),
+        }
+
+    def _autocast(self) -> torch.autocast:
+        """bf16 autocast of the online networks' passes, or a disabled one (fp32)."""
+        return torch.autocast(self.device.type, dtype=torch.bfloat16,
+                              enabled=self.precision == "bf16")
+
+    def update_targets(self) -> None:
+        """Polyak averaging θ' ← polyak·θ' + (1−polyak)·θ for μ' and Q' (once per cycle)."""
+        rho = self.config.polyak
+        with torch.no_grad():
+            for net, target in ((self.actor, self.actor_target),
+                                (self.critic, self.critic_target)):
+                for p, p_targ in zip(net.parameters(), target.parameters(), strict=True):
+                    p_targ.copy_((1.0 - rho) * p + rho * p_targ)
+        self.target_updates += 1
+
+    def actor_weights(self) -> dict[str, np.ndarray]:
+        """μ's parameters as float32 numpy arrays, for the `Weights` broadcast."""
+        return to_arrays(self.actor)
+
+    def normalizer_state(self) -> tuple[NormalizerState, NormalizerState]:
+        """(o_state, g_state) the learner currently uses, to broadcast with the weights."""
+        return self.o_norm.state_dict(), self.g_norm.state_dict()
+
+    def policy_weights(self, version: int) -> PolicyWeights:
+        """Everything an actor needs, tagged with `version`."""
+        o_state, g_state = self.normalizer_state()
+        return PolicyWeights(version=version, actor=self.actor_weights(),
+                             o_stats=o_state, g_stats=g_state)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Checkpoint: nets, targets, optimisers, normaliser stats, counters (copies, every
+        tensor on the CPU)."""
+        return _to_host({
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "actor_target": self.actor_target.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "actor_optim": self.actor_optim.state_dict(),
+            "critic_optim": self.critic_optim.state_dict(),
+            "o_norm": self.o_norm.state_dict(),
+            "g_norm": self.g_norm.state_dict(),
+            "updates": self.updates,
+            "target_updates": self.target_updates,
+        })
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore a `state_dict()` checkpoint of a learner with the same spec and config."""
+        expected = {"actor", "critic", "actor_target", "critic_target", "actor_optim",
+                    "critic_optim", "o_norm", "g_norm", "updates", "target_updates"}
+        missing = sorted(expected - set(state))
+        if missing:
+            raise ValueError(f"DDPGLearner.load_state_dict: missing key(s) {missing}; "
+                             "is this a learner checkpoint?")
+        self.set_normalizer_state(state["o_norm"], state["g_norm"])
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.actor_target.load_state_dict(state["actor_target"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.actor_optim.load_state_dict(state["actor_optim"])
+        self.critic_optim.load_state_dict(state["critic_optim"])
+        self.updates = int(state["updates"])
+        self.target_updates = int(state["target_updates"])
+
+    def _on_device(self, array: np.ndarray) -> torch.Tensor:
+        """A host array as a tensor on the learner's device: shared memory on the CPU; on a
+        GPU one pinned copy, sent without blocking the host."""
+        tensor = torch.from_numpy(array)
+        if self.device.type == "cpu":
+            return tensor
+        return tensor.pin_memory().to(self.device, non_blocking=True)
+
+    def _check_batch(self, batch: TransitionBatch) -> TransitionBatch:
+        """The same minibatch with float32 arrays of checked shapes (r as (B,): a (B,) r plus
+        a (B, 1) Q' would silently broadcast to (B, B), so `update` reshapes it)."""
+        o, g, u, r, o2 = (np.asarray(value, dtype=np.float32) for value in batch)
+        b = o.shape[0] if o.ndim == 2 else -1
+        want = transition_shapes(self.spec, b)
+        for key, arr in zip(("o", "g", "u", "o2"), (o, g, u, o2), strict=True):
+            if b < 1 or arr.shape != want[key]:
+                raise ValueError(f"DDPGLearner.update: {key!r} has shape {arr.shape}, "
+                                 f"expected {want[key]} (B from 'o')")
+        if r.size != b or r.ndim > 2:
+            raise ValueError(f"DDPGLearner.update: 'r' has shape {r.shape}, expected ({b},) "
+                             f"or ({b}, 1)")
+        return TransitionBatch(o=o, g=g, u=u, r=np.ascontiguousarray(r.reshape(b)), o2=o2)

@@ -1,0 +1,200 @@
+"""The learner's loop as a pure object: cycles, epochs, weights versions and metrics rows.
+
+`LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one cycle = one pulled
+`ServedBatch` (hercs.served) of `minibatches_per_cycle` minibatches → that many DDPG updates →
+one Polyak target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
+caller broadcasts the epoch-end policy for evaluation and checkpoints. When the evaluator's
+result for epoch e arrives, `record_eval` completes the epoch's metrics row.
+
+The service (hercs.learner.service) runs this object in a loop with Zenoh around it; tests drive it
+directly with locally built batches.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hercs.config import HercsConfig
+from hercs.learner.ddpg import DDPGLearner
+from hercs.served import ServedBatch
+
+
+@dataclass
+class CycleResult:
+    version: int
+    """Weights version after this cycle's updates (broadcast it)."""
+    epoch_ended: int | None
+    """The epoch (1-based) that this cycle completed, else None."""
+
+
+@dataclass
+class EpochSnapshot:
+    """Training-side figures at the end of an epoch, waiting for its evaluation."""
+
+    epoch: int
+    version: int
+    env_steps: int
+    inserts: int
+    updates: int
+    wall_s: float
+    env_steps_per_s: float
+    updates_per_s: float
+    policy_lag: float
+    cluster_model_version: int
+    cluster_share: list[float]
+    losses: dict[str, float]
+    policy_lag_request: float = 0.0
+    policy_lag_p50: float = float("nan")
+    policy_lag_p95: float = float("nan")
+    policy_lag_max: float = float("nan")
+    sampled_moved_share: float = float("nan")
+    buffer_moved_share: float = float("nan")
+    replay_size: int = 0
+    """Transitions stored at the epoch's last batch."""
+    cluster_sizes: list[int] = field(default_factory=list)
+    rejects: dict[str, int] = field(default_factory=dict)
+
+
+class LearnerLoop:
+    def __init__(self, *, config: HercsConfig, learner: DDPGLearner,
+                 clock=time.monotonic) -> None:
+        self.config = config
+        self.learner = learner
+        self.clock = clock
+        self.cycle = 0
+        self.version = 0
+        """Weights version: 0 = initial weights, +1 per cycle."""
+        self.epoch = 0
+        self._start = clock()
+        self._epoch_start = self._start
+        self._epoch_start_steps = 0
+        self._epoch_start_updates = 0
+        self._epoch_draws = np.zeros(config.cluster.k, np.int64)
+        self._epoch_lags: list[np.ndarray] = []
+        self._epoch_moved = np.zeros(2, np.int64)  # sampled moved, sampled transitions
+        self._epoch_buffer_share: list[float] = []
+        self._loss_sums: dict[str, float] = {}
+        self._loss_count = 0
+        self._last: ServedBatch | None = None
+        self.pending: dict[int, EpochSnapshot] = {}
+
+    @property
+    def done(self) -> bool:
+        return self.epoch >= self.config.training.epochs
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the loop stands, taken at an epoch end (what a resumed learner continues
+        from); the learner's own state is `DDPGLearner.state_dict()`."""
+        return {
+            "cycle": self.cycle, "version": self.version, "epoch": self.epoch,
+            "wall_s": self.clock() - self._start,
+            "epoch_start_steps": self._epoch_start_steps,
+            "epoch_start_updates": self._epoch_start_updates,
+            "pending": {e: dataclasses.asdict(s) for e, s in self.pending.items()},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from `state_dict()`: counters, the run's wall time so far, and the
+        epochs still waiting for their evaluation."""
+        self.cycle, self.version, self.epoch = (int(state[k]) for k in ("cycle", "version",
+                                                                        "epoch"))
+        now = self.clock()
+        self._start = now - float(state["wall_s"])
+        self._epoch_start = now
+        self._epoch_start_steps = int(state["epoch_start_steps"])
+        self._epoch_start_updates = int(state["epoch_start_updates"])
+        self.pending = {int(e): EpochSnapshot(**s) for e, s in state["pending"].items()}
+
+    def step(self, batch: ServedBatch) -> CycleResult:
+        """One cycle: adopt the replay's normaliser stats, update on every minibatch, update
+        the targets, bump the version."""
+        self.learner.set_normalizer_state(batch.o_stats, batch.g_stats)
+        for minibatch in batch.minibatches:
+            for name, value in self.learner.update(minibatch).items():
+                self._loss_sums[name] = self._loss_sums.get(name, 0.0) + value
+            self._loss_count += 1
+        self.learner.update_targets()
+        self.version += 1
+        self.cycle += 1
+        if batch.cluster_draws.shape == self._epoch_draws.shape:
+            self._epoch_draws += batch.cluster_draws
+        self._epoch_lags.append(batch.policy_lags)
+        self._epoch_moved += (batch.sampled_moved, batch.sampled_transitions)
+        if batch.sampled_transitions:
+            self._epoch_buffer_share.append(batch.status.buffer_moved_share)
+        self._last = batch
+        ended = None
+        if self.cycle % self.config.training.cycles_per_epoch == 0:
+            self.epoch += 1
+            ended = self.epoch
+            self.pending[self.epoch] = self._snapshot()
+        return CycleResult(self.version, ended)
+
+    def _snapshot(self) -> EpochSnapshot:
+        now = self.clock()
+        batch = self._last
+        assert batch is not None
+        elapsed = max(now - self._epoch_start, 1e-9)
+        updates = self.learner.updates
+        draws = self._epoch_draws
+        share = (draws / draws.sum()).tolist() if draws.sum() else [0.0] * len(draws)
+        losses = {k: v / max(self._loss_count, 1) for k, v in self._loss_sums.items()}
+        lags = np.concatenate(self._epoch_lags) if self._epoch_lags else np.zeros(0)
+        p50, p95, top = ((float(np.percentile(lags, 50)), float(np.percentile(lags, 95)),
+                          float(lags.max())) if lags.size else (float("nan"),) * 3)
+        moved, sampled = (int(v) for v in self._epoch_moved)
+        status = batch.status
+        snap = EpochSnapshot(
+            epoch=self.epoch, version=self.version, env_steps=status.env_steps,
+            inserts=status.inserts, updates=updates, wall_s=now - self._start,
+            env_steps_per_s=(status.env_steps - self._epoch_start_steps) / elapsed,
+            updates_per_s=(updates - self._epoch_start_updates) / elapsed,
+            policy_lag=status.policy_lag, cluster_model_version=status.cluster_model_version,
+            cluster_share=share, losses=losses, policy_lag_request=status.policy_lag_request,
+            policy_lag_p50=p50, policy_lag_p95=p95, policy_lag_max=top,
+            sampled_moved_share=moved / sampled if sampled else float("nan"),
+            buffer_moved_share=(float(np.mean(self._epoch_buffer_share))
+                                if self._epoch_buffer_share else float("nan")),
+            replay_size=status.size_transitions, cluster_sizes=list(status.cluster_sizes),
+            rejects=dict(status.rejects),
+        )
+        self._epoch_lags, self._epoch_moved = [], np.zeros(2, np.int64)
+        self._epoch_buffer_share = []
+        self._epoch_start, self._epoch_start_steps = now, status.env_steps
+        self._epoch_start_updates = updates
+        self._epoch_draws = np.zeros_like(self._epoch_draws)
+        self._loss_sums, self._loss_count = {}, 0
+        return snap
+
+    def record_eval(self, *, epoch: int, success_rate: float,
+                    mean_final_distance: float) -> dict[str, Any] | None:
+        """Complete epoch `epoch`'s metrics row; None if that epoch is unknown or done."""
+        snap = self.pending.pop(epoch, None)
+        if snap is None:
+            return None
+        return {
+            "epoch": snap.epoch, "env_steps": snap.env_steps, "episodes": snap.inserts,
+            "updates": snap.updates, "success_rate": success_rate,
+            "mean_final_distance": mean_final_distance, "wall_s": round(snap.wall_s, 3),
+            "env_steps_per_s": round(snap.env_steps_per_s, 2),
+            "updates_per_s": round(snap.updates_per_s, 2),
+            "replay_size": snap.replay_size,
+            "policy_lag": round(snap.policy_lag, 3), "weights_version": snap.version,
+            "policy_lag_request": round(snap.policy_lag_request, 3),
+            "policy_lag_p50": snap.policy_lag_p50, "policy_lag_p95": snap.policy_lag_p95,
+            "policy_lag_max": snap.policy_lag_max,
+            "sampled_moved_share": round(snap.sampled_moved_share, 4),
+            "buffer_moved_share": round(snap.buffer_moved_share, 4),
+            "cluster_model_version": snap.cluster_model_version,
+            "cluster_sizes": ";".join(str(c) for c in snap.cluster_sizes),
+            "cluster_share": ";".join(f"{s:.4f}" for s in snap.cluster_share),
+            "rejects": ";".join(f"{k}:{v}" for k, v in sorted(snap.rejects.items())),
+            "critic_loss": round(snap.losses.get("critic_loss", float("nan")), 6),
+            "actor_loss": round(snap.losses.get("actor_loss", float("nan")), 6),
+            "q_mean": round(snap.losses.get("q_mean", float("nan")), 6),
+        }

@@ -1,0 +1,132 @@
+"""The learner's prefetcher: sample requests sent ahead of the update loop, on its own thread,
+within a credit of `learner.prefetch_depth` batches (docs/DESIGN.md §9.1)."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+
+from hercs.config import HercsConfig
+from hercs.errors import InvalidMessage
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.served import ServedBatch, decode_served_batch
+from hercs.service import ServiceRuntime
+from hercs.transport import RemoteError, TransportError, TransportTimeout
+from hercs.warn_once import WarnOncePerMinute
+
+log = logging.getLogger("hercs.learner")
+
+_POLL_S = 0.5
+
+
+class Prefetcher:
+    """Requests batches ahead of the update loop on its own thread.
+
+    At most `learner.prefetch_depth` batches are sampled and not yet taken by the loop: each
+    request takes a credit, each `get` gives one back before it waits, so with depth 0 a
+    batch is asked for only when the loop wants it. Every batch sampled ahead lets the rate
+    limiter admit a cycle of episodes more before their weights exist: one cycle of policy lag
+    per batch of depth (docs/DESIGN.md §9.1).
+
+    In the lockstep schedule it asks for nothing ahead: cycle c's request (weights_version c)
+    is sent once the loop has reached version c (`cycle_done` wakes it), and the replay holds
+    it until cycle c's episodes are stored."""
+
+    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig,
+                 version: Callable[[], int]) -> None:
+        self.runtime = runtime
+        self.config = config
+        self.version = version
+        self.lockstep = config.training.schedule == "lockstep"
+        self._advanced = threading.Condition()
+        self.batches: queue.Queue[ServedBatch] = queue.Queue()  # bounded by the credits
+        self._credits = threading.Semaphore(config.learner.prefetch_depth)
+        self.warn = WarnOncePerMinute(log)
+        self._request_id = 0
+        self.waiting_s = 0.0
+        self.bad_batches: Counter[str] = Counter()
+        """Batch replies skipped because they failed validation, by reason."""
+        self._thread = runtime.start_thread(self._run, name="prefetch")
+
+    def cycle_done(self) -> None:
+        """The loop finished a cycle and broadcast its weights (lockstep's cue)."""
+        with self._advanced:
+            self._advanced.notify_all()
+
+    def _wait_for_version(self, wanted: int) -> bool:
+        """Lockstep: wait until the loop is at `wanted`; False if stopped first."""
+        stop = self.runtime.stop
+        with self._advanced:
+            while self.version() < wanted:
+                if stop.is_set():
+                    return False
+                self._advanced.wait(_POLL_S)
+        return not stop.is_set()
+
+    def _run(self) -> None:
+        stop = self.runtime.stop
+        wanted = self.version()  # lockstep: the cycle the next request is for
+        while not stop.is_set():
+            if not self._credits.acquire(timeout=_POLL_S):
+                continue
+            if self.lockstep and not self._wait_for_version(wanted):
+                return
+            if not self._fetch(wanted):
+                self._credits.release()  # nothing was sampled with it
+                continue
+            wanted += 1
+
+    def _fetch(self, wanted: int) -> bool:
+        """One request for cycle `wanted`; True once its batch is queued, False if it failed
+        (counted and warned; the caller asks again) or the service is stopping."""
+        stop = self.runtime.stop
+        self._request_id += 1
+        request = pb.SampleRequest(
+            schema_version=SCHEMA_VERSION, run=self.config.run.name,
+            learner_id=self.runtime.ident, request_id=self._request_id,
+            num_minibatches=self.config.training.minibatches_per_cycle,
+            batch_size=self.config.ddpg.batch_size,
+            weights_version=wanted if self.lockstep else self.version())
+        try:
+            raw = self.runtime.transport.request(
+                self.runtime.keys.sample, request.SerializeToString(),
+                timeout_s=self.config.replay.sample_timeout_s)
+            batch = decode_served_batch(
+                raw, spec=self.config.task.spec, k=self.config.cluster.k,
+                batch_size=self.config.ddpg.batch_size,
+                num_minibatches=self.config.training.minibatches_per_cycle)
+        except InvalidMessage as exc:  # a reply no update may see: counted, skipped
+            self.bad_batches[exc.reason] += 1
+            self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")
+            return False
+        except (TransportTimeout, RemoteError, TransportError) as exc:
+            if not stop.is_set():
+                self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
+                stop.wait(0.5)
+            return False
+        self.batches.put(batch)
+        return True
+
+    def get(self) -> ServedBatch | None:
+        """The next batch, or None once the service is stopping. Time spent waiting for one
+        adds to `waiting_s`: the update loop idles then, so it is what prefetch failed to hide."""
+        self._credits.release()  # room for the batch after the ones already sampled
+        try:
+            return self.batches.get_nowait()
+        except queue.Empty:
+            pass
+        started = time.monotonic()
+        try:
+            while not self.runtime.stop.is_set():
+                try:
+                    return self.batches.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+            return None
+        finally:
+            self.waiting_s += time.monotonic() - started

@@ -1,0 +1,62 @@
+"""A learner's state across restarts: what its checkpoint holds and how a restarted learner
+continues from it, with the run's metrics.csv made to agree.
+
+If `checkpoints/learner.pt` exists the learner continues from it (the end of the last
+checkpointed epoch): DDPG state, counters, weights version, the run's wall time and the epochs
+waiting for evaluation; `metrics.csv` keeps its rows up to that epoch (rows of later epochs,
+possible only after a failed checkpoint write, are dropped: those epochs are trained again)
+and a pending epoch that already has its row is not evaluated again.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from hercs.config import HercsConfig
+from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.evaluations import EvalRequests
+from hercs.learner.loop import LearnerLoop
+from hercs.metrics import recorded_epochs, truncate_metrics
+
+log = logging.getLogger("hercs.learner")
+
+
+def save_learner_state(checkpoints: Path, *, learner: DDPGLearner, loop: LearnerLoop,
+                       eval_requests: EvalRequests, config: HercsConfig) -> None:
+    state: dict[str, Any] = {
+        "learner": learner.state_dict(), "loop": loop.state_dict(),
+        "torch_rng": torch.get_rng_state(), "eval_requests": eval_requests.state_dict(),
+        "config": config.to_dict()}
+    save_checkpoint(checkpoints, state)
+
+
+def resume_learner_state(checkpoints: Path, metrics_path: Path, *, learner: DDPGLearner,
+                         loop: LearnerLoop, eval_requests: EvalRequests) -> int | None:
+    """Load the checkpoint into `learner`, `loop` and `eval_requests` and trim metrics.csv to
+    it; the epoch resumed from, or None (no checkpoint: a fresh start, rows dropped)."""
+    state = load_checkpoint(checkpoints)
+    if state is None:
+        dropped = truncate_metrics(metrics_path, through_epoch=0)
+        if dropped:
+            log.warning("no checkpoint: metrics.csv rows of epochs %s dropped (retrained)",
+                        dropped)
+        return None
+    learner.load_state_dict(state["learner"])
+    loop.load_state_dict(state["loop"])
+    torch.set_rng_state(state["torch_rng"])
+    epoch = loop.epoch
+    dropped = truncate_metrics(metrics_path, through_epoch=epoch)
+    recorded = set(recorded_epochs(metrics_path))
+    for pending in [e for e in loop.pending if e in recorded]:
+        del loop.pending[pending]  # its row was written after the checkpoint
+    eval_requests.load_state_dict(state["eval_requests"], pending=loop.pending)
+    log.info("resumed from the checkpoint of epoch %d (weights version %d, %d updates)%s%s",
+             epoch, loop.version, learner.updates,
+             f"; metrics rows of epochs {dropped} dropped (retrained)" if dropped else "",
+             f"; epochs {sorted(loop.pending)} still to be evaluated" if loop.pending else "")
+    return epoch

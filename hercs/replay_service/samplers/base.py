@@ -1,0 +1,90 @@
+"""The episode-sampler protocol, what a draw reports, and shared vectorised draw primitives.
+
+A sampler chooses which *episodes* (store slots) go into a minibatch: HER's first sampling.
+It returns slot indices plus a `SampleInfo`, never data; timesteps and goal relabelling are
+hercs.replay_service.her's. Samplers hold no state between calls (so they have no
+``state_dict``): everything they use is read from the store at call time — its
+`SamplingIndex` (hercs.replay_service.sampling_index), which the store keeps up to date, so a draw
+costs O(k + B log N) rather than O(N) — and randomness comes from the injected generator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from hercs.errors import ConfigError, SamplingError
+from hercs.replay_service.sampling_index import SamplingIndex
+
+
+class SampleSource(Protocol):
+    """What samplers read from the store: `EpisodeStore` satisfies it."""
+
+    @property
+    def size(self) -> int: ...
+    @property
+    def cluster(self) -> np.ndarray: ...  # (size,) int32, -1 = unassigned
+    @property
+    def energy(self) -> np.ndarray: ...  # (size,) float64 trajectory energies
+    @property
+    def sampling_index(self) -> SamplingIndex: ...
+
+
+@dataclass(frozen=True)
+class SampleInfo:
+    """What one draw did, for the per-cluster-share metric and `Batch.cluster_draws`."""
+
+    cluster_counts: np.ndarray
+    """(num_clusters,) int64: drawn episodes per stored cluster label, whichever route drew
+    them (own-cluster share or whole-buffer fill)."""
+    unassigned: int
+    """Drawn episodes with no cluster label (-1)."""
+    whole_buffer_draws: int
+    """Draws taken from the whole buffer rather than from one cluster's members (all of them
+    for her / her-ebp; remainders, small- and empty-cluster fills for the -cs methods)."""
+    balanced: bool
+    """True when the cluster-balanced rule was applied (a cluster model exists)."""
+
+
+class EpisodeSampler(Protocol):
+    def sample(
+        self, store: SampleSource, batch_size: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, SampleInfo]:
+        """Draw `batch_size` slots (int64, in [0, store.size), with replacement)."""
+        ...
+
+
+def check_request(store: SampleSource, batch_size: int) -> None:
+    """Refuse a draw that cannot be made, naming the value."""
+    if batch_size < 1:
+        raise SamplingError(f"batch_size got {batch_size!r}, must be >= 1; no batch drawn")
+    if store.size < 1:
+        raise SamplingError(
+            f"cannot draw {batch_size} episodes: the store is empty; the request waits for "
+            "inserts"
+        )
+
+
+def check_epsilon(epsilon: float) -> None:
+    if not epsilon > 0:
+        raise ConfigError(f"energy.epsilon: got {epsilon!r}, must be > 0 (no episode may have p=0)")
+
+
+def make_info(
+    labels: np.ndarray,
+    idxs: np.ndarray,
+    *,
+    num_clusters: int,
+    whole_buffer_draws: int,
+    balanced: bool,
+) -> SampleInfo:
+    drawn = labels[idxs]
+    assigned = drawn[drawn >= 0]
+    return SampleInfo(
+        cluster_counts=np.bincount(assigned, minlength=num_clusters).astype(np.int64),
+        unassigned=int(drawn.size - assigned.size),
+        whole_buffer_draws=int(whole_buffer_draws),
+        balanced=balanced,
+    )

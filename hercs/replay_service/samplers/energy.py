@@ -1,0 +1,42 @@
+"""HER-EBP's episode draw: p(slot) ∝ trajectory energy + ε, with replacement.
+
+The reference (ruizhaogit/EnergyBasedPrioritization, her.py) draws with
+p ∝ e^(1/(temperature+0.01)) (default temperature 1, rank_method 'none', so an exponent of
+0.990) and no ε, so an all-zero buffer divides by zero there. docs/DESIGN.md §4 fixes p ∝ e + ε: the
+exponent is 1, and ε (config.energy.epsilon) keeps every episode drawable and makes an
+all-zero buffer uniform.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hercs.replay_service.samplers.base import (
+    SampleInfo,
+    SampleSource,
+    check_epsilon,
+    check_request,
+    make_info,
+)
+from hercs.replay_service.sampling_index import WHOLE_BUFFER
+
+
+class EnergySampler:
+    """p(slot) = (e_slot + ε) / Σ (e + ε). Stateless."""
+
+    def __init__(self, *, epsilon: float, num_clusters: int = 0, exponent: float = 1.0) -> None:
+        check_epsilon(epsilon)
+        self.epsilon = epsilon
+        self.exponent = exponent
+        self.num_clusters = num_clusters
+
+    def sample(
+        self, store: SampleSource, batch_size: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, SampleInfo]:
+        check_request(store, batch_size)
+        idxs = store.sampling_index.draw(np.full(batch_size, WHOLE_BUFFER), rng,
+                                         epsilon=self.epsilon, exponent=self.exponent)
+        return idxs, make_info(
+            store.cluster, idxs, num_clusters=self.num_clusters,
+            whole_buffer_draws=batch_size, balanced=False,
+        )

@@ -1,0 +1,81 @@
+"""HER-EBP-CS's episode draw: cluster-balanced shares, energy-prioritised inside them.
+
+No public code combines the two; this is our definition. With w = trajectory energy + ε:
+
+- How many draws each cluster gets is exactly HER-CS's plan (samplers.cluster_balanced:
+  share ⌊B/k⌋, small clusters repeat·n_c, empty clusters and the remainder go to the whole
+  buffer). Balancing *which regions of goal space* are replayed stays HER-CS's job.
+- Inside cluster c, a member i is drawn with p = w_i / Σ_{j∈c} w_j (EBP within the cluster), so
+  a small cluster's repeat·n_c draws also favour its energetic members.
+- Every whole-buffer fill is drawn with p ∝ w over the whole buffer (EBP), not uniformly.
+- Before any cluster model (every label −1) the draw is plain HER-EBP: p ∝ w over the buffer.
+
+So the expected count of episode i in cluster c per batch is
+member_draws_c · w_i / W_c + fill · w_i / W, with W_c and W the cluster and buffer masses.
+
+Implementation: the store's `SamplingIndex` keeps one energy sum tree per cluster and one over
+the buffer; the batch is one descent with each draw in its own tree (O(k + B log N)).
+Stateless.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hercs.errors import ConfigError
+from hercs.replay_service.samplers.base import (
+    SampleInfo,
+    SampleSource,
+    check_epsilon,
+    check_request,
+    make_info,
+)
+from hercs.replay_service.samplers.cluster_balanced import (
+    check_cluster_args,
+    plan_shares,
+    share_rows,
+)
+from hercs.replay_service.sampling_index import WHOLE_BUFFER
+
+
+class EnergyClusterSampler:
+    """HER-EBP-CS as defined in the module docstring."""
+
+    def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4,
+                 exponent: float = 1.0, cluster_fill: str = "energy") -> None:
+        check_cluster_args(k, small_cluster_repeat)
+        check_epsilon(epsilon)
+        if cluster_fill not in ("energy", "uniform"):
+            raise ConfigError(f"energy.cluster_fill: got {cluster_fill!r}, must be energy or "
+                              "uniform")
+        self.k = k
+        self.epsilon = epsilon
+        self.exponent = exponent
+        self.cluster_fill = cluster_fill
+        self.small_cluster_repeat = small_cluster_repeat
+
+    def sample(
+        self, store: SampleSource, batch_size: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, SampleInfo]:
+        check_request(store, batch_size)
+        index = store.sampling_index
+        plan = plan_shares(index, k=self.k, repeat=self.small_cluster_repeat,
+                           batch_size=batch_size)
+        if plan is None:
+            rows = np.full(batch_size, WHOLE_BUFFER)
+            fill, balanced = batch_size, False
+        else:
+            rows = share_rows(plan)
+            fill, balanced = plan.fill, True
+        if balanced and self.cluster_fill == "uniform":  # members uniform, fills by energy
+            members = rows != WHOLE_BUFFER
+            idxs = np.empty(rows.size, np.int64)
+            idxs[members] = index.draw(rows[members], rng)
+            idxs[~members] = index.draw(rows[~members], rng, epsilon=self.epsilon,
+                                        exponent=self.exponent)
+        else:
+            idxs = index.draw(rows, rng, epsilon=self.epsilon, exponent=self.exponent)
+        return idxs, make_info(
+            store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
+            balanced=balanced
+        )

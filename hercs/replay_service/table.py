@@ -1,0 +1,500 @@
+"""The replay table: everything the replay service decides, with no transport (Reverb's
+`Table` is the model).
+
+`ReplayTable` owns the `ReplayCore`, the rate limiter, the queues of parked calls
+(hercs.replay_service.table_calls), the deduplication of retries, the durable log and the
+policy-lag bookkeeping. The Zenoh shell (`hercs.replay_service.service`) calls `insert` or `sample`
+with a `Waiter` that answers a query; unit tests drive it with plain waiters and a fake clock.
+
+Admission rules (every public method takes the table's lock, so calls from several threads
+are serialised):
+- `insert`: a retry of a stored (actor_id, seq) is answered at once as a duplicate; a retry of
+  a parked one joins that parked call (both are answered when it is stored); one more insert
+  of an actor with `replay.waiting_inserts_per_actor` waiting is answered `actor_queue_full`
+  (a retry); anything else is parked. Then the queues are drained.
+- `sample`: a request the limiter could never admit (more minibatches than its window holds)
+  is refused at once (`SampleRefused`); anything else is parked, then the queues are drained.
+- drain: alternating sides while the limiter admits the next call of that side (samples oldest
+  first, inserts round-robin across actor ids: hercs.replay_service.waiting_inserts). An admitted
+  sample is served at once; an admitted insert joins the next commit group (the limiter
+  counts it from then on). This terminates: every step removes one parked call.
+- commit (group commit, the calling thread after it has released the table's lock): the
+  admitted inserts (counted by the limiter against the insert bound at once, towards samples
+  only once stored) are appended to the log as one group, one chunk and one fsync, *before*
+  they are stored and acknowledged, so nothing acknowledged is lost by a crash. The table's
+  lock is not held across the append, so samples are served meanwhile; one group is in flight
+  at a time (a commit lock), so log order, episode ids and store order agree. Inserts that
+  arrive while a group is in flight form the next group: the more concurrent inserters, the
+  more episodes share one fsync. If the append fails, every call of the group is answered
+  `log_failed`, nothing is stored and the limiter takes the inserts back. Once a bounded log's
+  segment is full, the committing thread starts the next with the core's state, still
+  holding the commit lock, so the state is exactly that of the episodes logged before it.
+- `expire`: parked calls whose deadline has passed are answered `expired` and dropped; their
+  client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
+- `recover`: the episodes of the log go into the store without being logged again (from the
+  log's newest saved state on, if it has one); the limiter restarts balanced at the
+  recovered count (as if the learner had used them all).
+- the lag bound (asynchronous, `training.max_policy_lag`, hercs.replay_service.lag_bound): an insert
+  the limiter admits is first checked against the bound, with the id it would be stored under
+  (those admitted before it counted); one it refuses is answered `stale_policy` at once,
+  counted as a reject, and neither logged nor stored.
+- lockstep (`training.schedule: lockstep`): `LockstepGate` (hercs.replay_service.lockstep) decides
+  instead of the limiter's window: an insert it refuses is answered at once with its reason
+  (`stale_policy`, `cycle_full`) and counted as a reject; a sample waits for its cycle's
+  episodes and the cluster model due.
+
+Waiters are called under the lock: they must only hand their answer over (a Zenoh deferred
+reply queues bytes) and never call back into the table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from hercs.clustering import ClusterModel
+from hercs.config import HercsConfig
+from hercs.episode import EpisodeData
+from hercs.lockstep import schedule_cycle
+from hercs.methods import METHODS
+from hercs.proto import hercs_pb2 as pb
+from hercs.reasons import Reason
+from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.lag_bound import PolicyLagBound
+from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
+from hercs.replay_service.rate_limiter import SampleToInsertRatio
+from hercs.replay_service.table_calls import (
+    ClustererSnapshot,
+    EpisodeLogSink,
+    Parked,
+    ParkedInsert,
+    ParkedSample,
+    SampleCall,
+    SampleRefused,
+    Stored,
+    Waiter,
+    start_segment,
+    take_expired,
+)
+from hercs.replay_service.waiting_inserts import WaitingInserts
+from hercs.replay_state import ReplayState
+from hercs.served import ReplayCounters, ServedBatch
+
+__all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "ReplayTable",
+           "SampleCall", "SampleRefused", "Stored", "Waiter"]  # calls and answers: table_calls
+
+log = logging.getLogger("hercs.replay")
+
+POLICY_LAG_WINDOW = 64
+"""Recent episodes whose policy lags are averaged into each served batch's counters."""
+POLICY_LAGS_KEPT = 65536
+"""At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
+the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+
+class ReplayTable:
+    def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.config = config
+        self.core = core
+        self.log = log
+        self.clock = clock
+        lockstep = config.training.schedule == "lockstep"
+        self.gate = LockstepGate(
+            episodes_per_cycle=config.training.episodes_per_cycle,
+            fgb_size=(config.cluster.fgb_size if METHODS[config.run.method].cluster_balanced
+                      else None),
+            cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S) if lockstep else None
+        """Lockstep's admission rules; None in the asynchronous schedule."""
+        self.lag_bound = (PolicyLagBound(max_lag=config.training.max_policy_lag)
+                          if not lockstep and config.training.max_policy_lag >= 1 else None)
+        """`training.max_policy_lag` (hercs.replay_service.lag_bound); None: no bound."""
+        self.limiter = SampleToInsertRatio(  # in lockstep it only counts
+            samples_per_insert=config.training.updates_per_episode,
+            min_size_to_sample=config.replay.min_episodes_to_sample,
+            error_buffer=config.replay.rate_tolerance_updates,
+            max_request=config.training.minibatches_per_cycle,
+            free_run=config.replay.free_run or lockstep,
+        )
+        self._lock = threading.Lock()
+        self._commit_lock = threading.Lock()
+        """Held by the one thread whose group is being logged (taken before `_lock`)."""
+        self._ready: list[ParkedInsert] = []
+        """Admitted inserts, in admission order, waiting for the next group commit."""
+        self._inserts = WaitingInserts(per_actor=config.replay.waiting_inserts_per_actor)
+        self._samples: deque[ParkedSample] = deque()
+        self._parked_keys: dict[tuple[str, int], ParkedInsert] = {}
+        # Policy lag of an episode = the learner's newest weights version when the episode
+        # is stored (known from its latest sample call) minus the version the actor used.
+        self._learner_version = 0
+        self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
+        self._lags_since_sample: deque[int] = deque(maxlen=POLICY_LAGS_KEPT)
+        self._newest_request_version: int | None = None
+        """The weights version of the latest sample call served (not the highest ever: a
+        restarted learner counts from its checkpoint again); None before the first, when the
+        lag bound refuses nothing (actors act with their own initial policy until then) and
+        after a recovery until that call places the recovered episodes in the schedule."""
+        self._schedule_offset = 0
+        """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
+        after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
+        the resumed learner's weights version (episodes acted after its last checkpoint), so
+        that a restart does not read as 50 cycles of lag. The limiter restarts balanced for
+        the same reason."""
+        self._recovered_unplaced: int | None = None
+        """Recovered episodes whose place in the schedule waits for the learner's first
+        sample call (its weights version); no schedule lag is recorded until then."""
+        self.log_failures = 0
+        """Inserts refused because their log append failed."""
+
+    # -- start-up --------------------------------------------------------------------------
+    def recover(self, episodes: Iterable[tuple[int, EpisodeData]], *,
+                state: ReplayState | None = None) -> list[tuple[int, int]]:
+        """Store the log's episodes (not logged again; from its newest saved `state` on, if
+        any: `ReplayCore.recover`) and restart the limiter balanced. Returns the (logged id,
+        stored id) pairs that disagree (a log written by another buffer size): none normally."""
+        with self._lock:
+            mismatched, versions = self.core.recover(episodes, state)
+            if self.gate is not None:
+                self.gate.recover(versions.elements())
+            count = self.core.store.num_inserted
+            if count:
+                self.limiter.restart_balanced(count)
+                if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
+                    self._recovered_unplaced = count
+        return mismatched
+
+    # -- inserts ---------------------------------------------------------------------------
+    def insert(self, episode: EpisodeData, *, record: pb.Episode, waiter: Waiter[Stored],
+               timeout_s: float | None = None) -> None:
+        """Store `episode` when the limiter admits it, then `waiter.done(Stored)`.
+
+        `record` is what goes into the log (the message as received). `timeout_s`: the
+        caller's own timeout; a call still parked after it is answered `expired`.
+        """
+        key = (episode.actor_id, int(episode.seq))
+        with self._lock:
+            known = self.core.lookup(*key)
+            if known is not None:
+                self.core.duplicates += 1
+                waiter.done(Stored(episode, known, duplicate=True,
+                                   next_policy_version=self._next_version(episode)))
+                return
+            parked = self._parked_keys.get(key)
+            if parked is not None:  # a retry of a call still waiting: answer both together
+                parked.waiters.append(waiter)
+                parked.deadline = self._deadline(timeout_s)
+                return
+            refusal = self._inserts.refusal(episode.actor_id)
+            if refusal is None and self.gate is not None:
+                refusal = self.gate.refuse_insert(episode.policy_version)
+            if refusal is not None:
+                self.core.count_reject(refusal[0])
+                waiter.fail(*refusal)
+                return
+            if self.gate is not None:
+                self.gate.admit(episode.policy_version)
+            item = ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
+                                 record=record)
+            self._inserts.append(item)
+            self._parked_keys[key] = item
+            self._drain()
+        self._commit()
+
+    def _commit(self) -> None:
+        """Log, store and acknowledge the admitted inserts, group by group, until none is left
+        (module docstring, "commit"). Called without the table's lock held.
+
+        Never waits for another thread's group: if one is in flight, that thread commits
+        what this one admitted (it looks at the ready list again after releasing the commit
+        lock), so a sample or insert worker returns at once."""
+        while True:
+            if not self._commit_lock.acquire(blocking=False):
+                return
+            try:
+                self._commit_groups()
+            finally:
+                self._commit_lock.release()
+            with self._lock:  # admitted while we held the commit lock, after our last look?
+                if not self._ready:
+                    return
+
+    def _commit_groups(self) -> None:
+        while True:
+            with self._lock:
+                group, self._ready = self._ready, []
+                if not group:
+                    return
+                first_id = self.core.store.num_inserted
+            records = [(first_id + i, item.record) for i, item in enumerate(group)]
+            try:
+                self.log.append_many(records)  # durable (fsync) before any ack
+                failure: Exception | None = None
+            except Exception as exc:
+                failure = exc
+            with self._lock:
+                if failure is None:
+                    for episode_id, item in zip(range(first_id, first_id + len(group)), group,
+                                                strict=True):
+                        self._store(item, episode_id)
+                else:
+                    self._refuse(group, failure)
+                self._drain()  # parked samples may wait for exactly these inserts
+                state = (self.core.state({} if self.gate is None else +self.gate.stored)
+                         if failure is None and self.log.rotation_due() else None)
+            if state is not None:  # a bounded log's next segment, while no group is in flight
+                start_segment(self.log, state)
+
+    def _refuse(self, group: list[ParkedInsert], exc: Exception) -> None:
+        self.limiter.cancel_inserts(len(group))
+        self.log_failures += len(group)
+        for item in group:
+            del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
+            if self.gate is not None:
+                self.gate.cancel(item.episode.policy_version)
+            for waiter in item.waiters:
+                waiter.fail(Reason.LOG_FAILED, f"episode not logged, so not stored: {exc}")
+
+    def _store(self, item: ParkedInsert, episode_id: int) -> None:
+        episode = item.episode
+        del self._parked_keys[(episode.actor_id, int(episode.seq))]
+        result = self.core.insert(episode)
+        assert result.episode_id == episode_id, "log and store disagree on episode ids"
+        self.limiter.store_admitted()
+        self._recent_lags.append(self._learner_version - episode.policy_version)
+        if self._recovered_unplaced is None:
+            # an int64 version far below -1 (valid on the wire) must not overflow the Batch
+            lag = min(max(self._cycle_of(episode_id) - episode.policy_version, INT64_MIN),
+                      INT64_MAX)
+            self._recent_schedule_lags.append(lag)
+            self._lags_since_sample.append(lag)
+        if self.gate is not None:
+            self.gate.store(episode.policy_version)
+        next_version = self._next_version(episode)
+        item.waiters[0].done(Stored(episode, episode_id, duplicate=False, energy=result.energy,
+                                    cluster=result.cluster, next_policy_version=next_version))
+        for waiter in item.waiters[1:]:  # the retries that joined the first call
+            self.core.duplicates += 1
+            waiter.done(Stored(episode, episode_id, duplicate=True,
+                               next_policy_version=next_version))
+
+    def _next_version(self, episode: EpisodeData) -> int:
+        """For an ack: the oldest weights version the actor's next episode may use (0
+        asynchronously without a lag bound)."""
+        if self.gate is not None:
+            return self.gate.next_policy_version(episode.policy_version)
+        if self.lag_bound is not None and self._newest_request_version is not None:
+            return self.lag_bound.next_policy_version(
+                next_cycle=self._cycle_of(self._next_episode_id()),
+                newest_version=self._newest_request_version)
+        return 0
+
+    def _cycle_of(self, episode_id: int) -> int:
+        """The lockstep-schedule cycle that policy lag measures episode `episode_id` against."""
+        return schedule_cycle(episode_id - self._schedule_offset,
+                              self.config.training.episodes_per_cycle)
+
+    def _next_episode_id(self) -> int:
+        """The id the next admitted insert will be stored under (after those admitted and
+        not yet stored)."""
+        return self.core.store.num_inserted + self.limiter.pending_inserts
+
+    def _refuse_stale(self, item: ParkedInsert) -> bool:
+        """The lag bound's check of an insert the limiter admits: True if it was refused
+        (answered `stale_policy`, counted, forgotten)."""
+        if self.lag_bound is None or self._newest_request_version is None:
+            return False
+        episode = item.episode
+        refusal = self.lag_bound.refusal(
+            policy_version=episode.policy_version,
+            cycle=self._cycle_of(self._next_episode_id()),
+            newest_version=self._newest_request_version)
+        if refusal is None:
+            return False
+        del self._parked_keys[(episode.actor_id, int(episode.seq))]
+        self.core.count_reject(refusal[0])
+        for waiter in item.waiters:
+            waiter.fail(*refusal)
+        return True
+
+    # -- samples ---------------------------------------------------------------------------
+    def sample(self, call: SampleCall, *, waiter: Waiter[ServedBatch],
+               timeout_s: float | None = None) -> None:
+        """Draw `call.num_minibatches` minibatches when the limiter admits them, then
+        `waiter.done(ServedBatch)`. Raises `SampleRefused` (nothing parked) for a call no state of
+        the limiter could ever admit."""
+        if not self.limiter.could_ever_sample(call.num_minibatches):
+            raise SampleRefused(
+                f"SampleRequest.num_minibatches {call.num_minibatches}: the rate limiter "
+                f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
+                "request (replay.rate_tolerance_updates sets its window); ask for fewer")
+        with self._lock:
+            self._samples.append(ParkedSample([waiter], self._deadline(timeout_s), call=call))
+            self._drain()
+        self._commit()  # the samples served may have admitted parked inserts
+
+    def _serve(self, item: ParkedSample) -> None:
+        call = item.call
+        self._learner_version = max(self._learner_version, call.weights_version)
+        if self._recovered_unplaced is not None:
+            per_cycle = self.config.training.episodes_per_cycle
+            surplus = self._recovered_unplaced // per_cycle - call.weights_version
+            self._schedule_offset = max(0, surplus) * per_cycle
+            self._recovered_unplaced = None
+        self._newest_request_version = call.weights_version
+        served = self.core.sample(call.num_minibatches, call.batch_size)
+        self.limiter.record_sample(call.num_minibatches)
+        fitted_at = self._fitted_at()
+        if self.gate is not None and self.gate.served(
+                call.weights_version, failures=self.core.failures, fitted_at=fitted_at):
+            log.warning("lockstep: cycle %d served with cluster model v%d: the refit due at %s "
+                        "failed goals did not arrive within %.0f s (is the clusterer running?)",
+                        call.weights_version, self._model_version(),
+                        self.gate.next_fit(fitted_at), self.gate.cluster_wait_s)
+        served = dataclasses.replace(
+            served, policy_lags=np.asarray(self._lags_since_sample, np.int64),
+            status=self._counters())
+        self._lags_since_sample.clear()
+        for waiter in item.waiters:
+            waiter.done(served)
+
+    # -- the rate limiter's queues ---------------------------------------------------------
+    def _drain(self) -> None:
+        """Serve parked calls while the limiter admits them (module docstring, "drain"). In
+        lockstep every parked sample that its cycle admits is served, in any order: each
+        names its own cycle, and one that can no longer be served (a dead learner's, for a
+        cycle no actor got the weights of) must not hold a restarted learner's behind it."""
+        progressed = True
+        while progressed:
+            progressed = False
+            while self._inserts and self.limiter.can_insert():
+                parked = self._inserts.popleft()
+                progressed = True
+                if self._refuse_stale(parked):
+                    continue
+                self._ready.append(parked)
+                self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
+            if self.gate is not None:
+                ready: list[ParkedSample] = []
+                waiting: deque[ParkedSample] = deque()
+                for item in self._samples:
+                    (ready if self._can_serve(item) else waiting).append(item)
+                self._samples = waiting
+                for item in ready:
+                    self._serve(item)
+                progressed = progressed or bool(ready)
+                continue
+            while self._samples and self._can_serve(self._samples[0]):
+                self._serve(self._samples.popleft())
+                progressed = True
+
+    def _can_serve(self, item: ParkedSample) -> bool:
+        if self.gate is None:
+            return self.limiter.can_sample(item.call.num_minibatches)
+        return self.gate.can_sample(item.call.weights_version, failures=self.core.failures,
+                                    fitted_at=self._fitted_at(), now=self.clock())
+
+    def _model_version(self) -> int:
+        model = self.core.cluster_model
+        return 0 if model is None else model.version
+
+    def _fitted_at(self) -> int | None:
+        """The failure count the current cluster model was fitted at (None: no model)."""
+        model = self.core.cluster_model
+        return None if model is None else model.failures_seen
+
+    def _deadline(self, timeout_s: float | None) -> float | None:
+        return None if timeout_s is None else self.clock() + timeout_s
+
+    def expire(self) -> int:
+        """Answer `expired` to every parked call past its deadline and drop it; returns how
+        many calls were dropped. The order of the calls that stay is unchanged."""
+        now = self.clock()
+        with self._lock:
+            inserts, samples = self._inserts.take_expired(now), take_expired(self._samples, now)
+            for item in inserts:
+                del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
+            expired: list[Parked[Any]] = [*inserts, *samples]
+            for parked in expired:
+                for waiter in parked.waiters:
+                    waiter.fail(Reason.EXPIRED, "the rate limiter held this call past its "
+                                                "caller's timeout; the caller retries")
+            if inserts or samples or self.gate is not None:
+                # A dropped head of a queue may have held admissible calls; in lockstep a
+                # sample may have waited long enough for a late cluster model.
+                self._drain()
+        self._commit()
+        return len(inserts) + len(samples)
+
+    # -- cluster model, eval results, stored episodes ---------------------------------------
+    def adopt_cluster_model(self, model: ClusterModel, record: pb.ClusterModel | None) -> bool:
+        """Adopt a newer model (relabelling the store) and log `record` (None: it is already
+        in the log, e.g. recovered from it); False if not newer. Raises ValueError for a model
+        of the wrong k (nothing changes)."""
+        with self._lock:
+            if not self.core.set_cluster_model(model):
+                return False
+            if record is not None:
+                self.log.append_cluster_model(record)
+            if self.gate is not None:
+                self._drain()  # a lockstep sample may wait for exactly this model
+        self._commit()
+        return True
+
+    def clusterer_state(self) -> ClustererSnapshot:
+        """What a (re)started clusterer continues from."""
+        with self._lock:
+            return ClustererSnapshot(failed_goals=self.core.failed_goals(),
+                                     failures_seen=self.core.failures,
+                                     episodes_seen=self.core.inserts,
+                                     model_version=self._model_version())
+
+    def log_eval_result(self, record: pb.EvalResult) -> None:
+        with self._lock:
+            self.log.append_eval_result(record)
+
+    def stored_episode(self, episode_id: int) -> tuple[EpisodeData | None, int, int]:
+        """(the episode or None, first stored id, one past the last id)."""
+        with self._lock:
+            store = self.core.store
+            return (store.episode(episode_id), store.num_inserted - store.size,
+                    store.num_inserted)
+
+    def count_reject(self, reason: str) -> None:
+        with self._lock:
+            self.core.count_reject(reason)
+
+    def cluster_sizes(self) -> list[int]:
+        with self._lock:
+            return [int(c) for c in self.core.cluster_sizes()]
+
+    def status(self) -> ReplayCounters:
+        """The counters as one consistent snapshot (`ReplayStatus`, and each served batch's)."""
+        with self._lock:
+            return self._counters()
+
+    def _counters(self) -> ReplayCounters:
+        core = self.core
+        waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
+        return ReplayCounters(
+            size_episodes=core.store.size, size_transitions=core.store.num_transitions,
+            inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
+            rate_limiter=("lockstep" if self.gate is not None else
+                          self.limiter.describe(inserts_waiting=waiting_inserts,
+                                                samples_waiting=waiting_samples)),
+            rejects=dict(core.rejects),
+            cluster_sizes=[int(c) for c in core.cluster_sizes()],
+            cluster_model_version=self._model_version(), env_steps=core.env_steps,
+            policy_lag=float(np.mean(self._recent_schedule_lags or [0])),
+            policy_lag_request=float(np.mean(self._recent_lags or [0])),
+            buffer_moved_share=core.buffer_moved_share,
+            inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
+        )
+

@@ -1,8 +1,0 @@
-"""The learner service: DDPG updates, target nets, checkpoints, weight broadcast.
-
-`learner.ddpg` is the pure core (no Zenoh); the service module wraps it.
-"""
-
-from learner.ddpg import DDPGLearner, critic_target
-
-__all__ = ["DDPGLearner", "critic_target"]
