@@ -129,13 +129,21 @@ def _load(folder: Path) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
+LEARNED = 0.5
+"""A fault-free seed whose smoothed success never reaches this has not taken off: the report
+says that its envelope cannot judge learning then."""
+
+
 def _folders(roots: Sequence[Path | None], pattern: str) -> dict[str, Path]:
-    """Run folders matching `pattern` under each root (an earlier root wins a name)."""
+    """Run folders matching `pattern` under each root (an earlier root wins a name); the
+    actors' logs and the launcher's output beside them (`<run>.net-1.0.log`, `<run>.out`)
+    match the pattern too and are not runs."""
     found: dict[str, Path] = {}
     for root in roots:
         if root is not None and root.is_dir():
             for folder in sorted(root.glob(pattern)):
-                found.setdefault(folder.name, folder)
+                if folder.is_dir():
+                    found.setdefault(folder.name, folder)
     return found
 
 
@@ -285,6 +293,13 @@ def _curves(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
                   "; ".join(f"{n}: {c.describe()}" for n, c in calibration.items()) +
                   ". A soak passes when it is inside, or outside at no more epochs than a "
                   "fault-free seed is.", ""]
+    best = max((max(smoothed(c, window)) for c in baselines.values() if c), default=None)
+    if best is not None and best < LEARNED:
+        lines += [f"What this check can tell: no fault-free seed got past a smoothed success of "
+                  f"{best:.2f} (< {LEARNED}) in these epochs: the runs are still before the "
+                  "take-off, so the envelope shows that the faults did not break the run's "
+                  "early course, but it cannot tell a soak that goes on to learn from one that "
+                  "does not.", ""]
     lines += [f"| epoch | {' | '.join(r['name'] + ' raw (smoothed)' for r in chaos)} | "
               f"envelope (smoothed) | {' | '.join(n + ' raw' for n in names)} |",
               "|---|" + "---|" * (len(chaos) + 1 + len(names))]

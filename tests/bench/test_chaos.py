@@ -120,6 +120,16 @@ def test_a_curve_and_the_configuration_are_read_from_a_run_folder(tmp_path: Path
     assert config_differences(a, c) == ["training.cycles_per_epoch: 50 ≠ 10"]
 
 
+def test_only_run_folders_are_runs_not_the_logs_beside_them(tmp_path: Path) -> None:
+    """The soak leaves `<run>.out` and each actor's `<run>.net-N.I.log` beside the run folder;
+    they match the run's name pattern and once made the report compare configurations with a
+    log file."""
+    run = write_run(tmp_path / "nofault-push-x-s1", [0.0, 0.1])
+    (tmp_path / "nofault-push-x-s1.out").write_text("hercs up: …\n")
+    (tmp_path / "nofault-push-x-s1.net-1.0.log").write_text("actor: …\n")
+    assert chaos_report._folders([tmp_path], "nofault-push-x*") == {run.name: run}
+
+
 def soak_state(**changes: Any) -> SoakState:
     state = new_state(QUICK_SHAPE, chaos_seed=1, plan=QUICK_PLAN, quick=True)
     for key, value in changes.items():
@@ -194,6 +204,18 @@ def test_a_soak_outside_no_more_often_than_a_fault_free_seed_passes() -> None:
     _, far_ok = chaos_report.report([record("chaos1", rates=far)], SEEDS, [], command="c",
                                     window=1, config_notes=[], full_commands=[])
     assert (near_ok, far_ok) == (True, False)
+
+
+def test_the_report_says_when_the_fault_free_seeds_never_took_off() -> None:
+    """Before the take-off every curve is noise near 0: the envelope then cannot judge
+    learning, and the report says so; once a seed passes 0.5 it does not."""
+    early = {"nofault-s1": [0.0, 0.1, 0.05], "nofault-s2": [0.05, 0.0, 0.1]}
+    text, _ = chaos_report.report([record("chaos1", rates=[0.05, 0.05, 0.1])], early, [],
+                                  command="c", window=1, config_notes=[], full_commands=[])
+    assert "no fault-free seed got past a smoothed success of 0.10 (< 0.5)" in text
+    text, _ = chaos_report.report([record("chaos1", rates=[0.05, 0.15, 0.3, 0.4])], SEEDS, [],
+                                  command="c", window=1, config_notes=[], full_commands=[])
+    assert "cannot tell a soak that goes on to learn" not in text
 
 
 def test_a_quick_report_says_so_and_gives_the_soak_s_commands() -> None:
