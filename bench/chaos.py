@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ipaddress
 import json
 import os
 import re
@@ -368,7 +369,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="CI: FetchReach 5 × 8 cycles, "
                         "one remote actor killed, one host cut for 12 s")
     args = parser.parse_args(argv)
-    if re.fullmatch(r"(25[0-5]|2[0-4]\d|1?\d?\d)\.(25[0-5]|2[0-4]\d|1?\d?\d)", args.subnet) is None:
+    try:
+        ipaddress.IPv4Network(f"{args.subnet}.0.0/16")
+    except ValueError:
         parser.error(f"--subnet {args.subnet!r}: give the first two octets of a /16, e.g. 10.127")
     if not args.report_only and (why := problem(args.subnet)) is not None:
         print(f"chaos: cannot run here: {why}", file=sys.stderr)
