@@ -234,7 +234,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    "metrics.csv)")
     p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
     p.add_argument("--reference", action="store_true",
-                   help="overlay the authors' curves (docs/reference/authors_success_rates.csv)")
+                   help="overlay the authors' per-seed curves (installed with hercs: "
+                        "hercs/apps/data/authors_success_rates.csv)")
     p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
     p.add_argument("--xmax", type=int, metavar="EPOCH",
                    help="x axis end (default: the last epoch of our runs; 200 with --figure 2)")

@@ -48,8 +48,7 @@ from hercs.errors import HercsError
 from hercs.methods import METHODS
 from hercs.rundir import CONFIG, METRICS
 
-REFERENCE_CSV = (Path(__file__).resolve().parents[2] / "docs" / "reference"
-                 / "authors_success_rates.csv")
+REFERENCE_CSV = Path(__file__).resolve().parent / "data" / "authors_success_rates.csv"
 
 TASK_TITLES: dict[str, str] = {
     "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",

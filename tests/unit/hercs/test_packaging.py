@@ -1,7 +1,7 @@
 """What `pip install` puts on a lab's path: the one package `hercs`, whole (every subpackage, the
-.proto file, the console script), and nothing that clashes with a lab's own `learner` or
-`proto` (issue: a library that lives beside a lab's code). The wheel is built from a copy of the
-sources, as pip builds it, and installed into a folder of its own."""
+.proto file, the authors' reference curves, the console script), and nothing that clashes with a
+lab's own `learner` or `proto` (issue: a library that lives beside a lab's code). The wheel is
+built from a copy of the sources, as pip builds it, and installed into a folder of its own."""
 
 from __future__ import annotations
 
@@ -47,6 +47,7 @@ def test_the_wheel_installs_one_top_level_package_hercs_with_every_subpackage(wh
     missing = sorted(p for p in packages if f"{p}/__init__.py" not in names)
     assert missing == [], f"packages missing from the wheel: {missing}"
     assert "hercs/proto/hercs.proto" in names  # package data: the schema beside its code
+    assert "hercs/apps/data/authors_success_rates.csv" in names  # hercs plot --reference
     [entry_points] = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
     text = zipfile.ZipFile(wheel).read(entry_points).decode()
     assert "hercs = hercs.apps.cli:main" in text
@@ -70,7 +71,10 @@ def test_hercs_runs_beside_a_labs_own_learner_and_proto(wheel: Path, tmp_path: P
         "from hercs.proto import hercs_pb2\n"
         "assert learner.WHOSE == 'lab' and proto.WHOSE == 'lab', (learner, proto)\n"
         "assert hercs_pb2.Episode(run='r').run == 'r'\n"
-        "print(hercs.__file__); print(hercs.learner.ddpg.__file__)\n"
+        "from hercs.apps.plots import REFERENCE_CSV, load_reference\n"
+        "runs = {(c.task, c.method) for c in load_reference()}\n"
+        "assert ('FetchPush', 'her-cs') in runs and len(runs) == 12, runs\n"
+        "print(hercs.__file__); print(hercs.learner.ddpg.__file__); print(REFERENCE_CSV)\n"
     )
     # the target folder first on the path, before this checkout's editable install
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(target), "HOME": str(tmp_path)}
