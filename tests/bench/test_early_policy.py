@@ -1,0 +1,136 @@
+"""bench/early_policy.py: the facts of an episode are what its observations say, the logged
+episodes are counted per epoch block, the committed moved shares are read per run, open-loop
+replay is deterministic in a real FetchPush, and the committed report's findings hold in its
+own data."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.early_policy import (
+    committed_moved_shares,
+    episode_blocks,
+    episode_facts,
+    replay_open_loop,
+    run_environment,
+)
+from hercs.codec import episode_to_msg
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.episode import EpisodeData
+from hercs.runlog import EpisodeLogWriter
+from tests.support import REPO
+
+REPORT = REPO / "docs" / "results" / "early_policy.json"
+
+
+def fetch_obs(grip: np.ndarray, cube: np.ndarray) -> np.ndarray:
+    """(T+1, 25) observations with the gripper at 0:3 and the cube at 3:6."""
+    obs = np.zeros((len(grip), 25), np.float32)
+    obs[:, 0:3], obs[:, 3:6] = grip, cube
+    return obs
+
+
+def test_an_episodes_facts_are_what_its_observations_say() -> None:
+    grip = np.array([[0, 0, 0], [0.3, 0, 0], [0.3, 0.4, 0], [0.3, 0.4, 0.3]], float)
+    cube = np.array([[1, 1, 0]] * 3 + [[1, 1.004, 0]], float)
+    f = episode_facts(fetch_obs(grip, cube))
+    assert not f.moved  # 4 mm is under the replay's 5 mm
+    assert f.path_m == pytest.approx(1.0, abs=1e-6)
+    assert f.travel_m == pytest.approx(np.sqrt(0.09 + 0.16 + 0.09), abs=1e-6)
+    assert f.height_m == pytest.approx(0.075, abs=1e-6)
+    assert f.end_to_cube_m == pytest.approx(np.hypot(0.7, 0.6), abs=1e-6)
+    cube[-1] = [1, 1.006, 0]
+    assert episode_facts(fetch_obs(grip, cube)).moved
+
+
+def test_logged_episodes_are_counted_per_epoch_block(tmp_path: Path) -> None:
+    config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=t",
+                                             "training.cycles_per_epoch=1",
+                                             "training.episodes_per_cycle=4"])
+    save_yaml(config, tmp_path / "config.yaml")
+    spec = config.task.spec
+    steps = spec.episode_steps
+    with EpisodeLogWriter(tmp_path / "episodes.mcap", run="t", task="push") as writer:
+        for i in range(10):  # blocks of 4 ids: 0-3, 4-7, 8-9
+            cube = np.zeros((steps + 1, 3))
+            if i in (1, 4, 5, 6):  # the cube is pushed 1 cm in these
+                cube[-1, 0] = 0.01
+            ep = EpisodeData(obs=fetch_obs(np.zeros((steps + 1, 3)), cube),
+                             ag=cube.astype(np.float32),
+                             g=np.zeros((steps, 3), np.float32),
+                             actions=np.full((steps, 4), float(i), np.float32),
+                             actor_id="a", seq=i)
+            writer.append_episode(episode_to_msg(ep, run="t", task="push"), episode_id=i)
+    blocks, actions = episode_blocks(tmp_path, blocks=3)
+    assert {b: f["episodes"] for b, f in blocks.items()} == {0: 4, 1: 4, 2: 2}
+    assert {b: f["moved_share"] for b, f in blocks.items()} == {0: 0.25, 1: 0.75, 2: 0.0}
+    assert actions == []
+    # the open loop's actions come from the same pass, past the last block too
+    blocks, actions = episode_blocks(tmp_path, blocks=1, actions_of=range(6, 9))
+    assert blocks.keys() == {0} and [a[0, 0] for a in actions] == [6.0, 7.0, 8.0]
+
+
+def write_run(folder: Path, name: str, overrides: list[str], shares: list[str] | None) -> None:
+    run = folder / name
+    run.mkdir()
+    save_yaml(apply_overrides(HercsConfig(), overrides), run / "config.yaml")
+    header = "epoch,success_rate" + (",buffer_moved_share" if shares is not None else "")
+    rows = [f"{e + 1},0.0" + (f",{s}" if shares is not None else "")
+            for e, s in enumerate(shares or ["x"] * 3)]
+    (run / "metrics.csv").write_text("\n".join([header, *rows]) + "\n")
+
+
+def test_committed_moved_shares_are_read_per_push_run(tmp_path: Path) -> None:
+    write_run(tmp_path, "push-v1-her-s1", ["task.name=push", "task.env_version=v1",
+                                           "run.method=her"], ["0.1", "0.2", "0.3"])
+    write_run(tmp_path, "push-ts4-her-s1", ["task.name=push", "task.weld_torquescale=4",
+                                            "run.method=her"], ["0.1", "0.05", "0.04"])
+    write_run(tmp_path, "push-old-s1", ["task.name=push"], None)  # before the column existed
+    write_run(tmp_path, "pick-her-s1", ["task.name=pick"], ["0.5", "0.5", "0.5"])
+    rows = committed_moved_shares(tmp_path, epochs=(1, 3, 5))
+    assert rows == [
+        {"run": "push-ts4-her-s1", "env": "v4 torquescale 4", "method": "her",
+         "share": {"1": 0.1, "3": 0.04}},
+        {"run": "push-v1-her-s1", "env": "v1", "method": "her",
+         "share": {"1": 0.1, "3": 0.3}}]
+    assert run_environment({}) == "v4"
+
+
+def test_open_loop_replay_in_a_real_fetchpush_is_deterministic() -> None:
+    from hercs.envs import make_env
+    from hercs.tasks import task_spec
+
+    env = make_env(task_spec("push", "v4"))
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-1, 1, (50, 4)) for _ in range(2)]
+    first = replay_open_loop(env, actions)
+    assert replay_open_loop(env, actions) == first
+    assert first["episodes"] == 2 and first["path_m"] > 0.1
+    still = replay_open_loop(env, [np.zeros((50, 4))])
+    assert still["moved_share"] == 0.0 and still["path_m"] < 0.01
+
+
+@pytest.mark.skipif(not REPORT.exists(), reason="docs/results/early_policy.json not committed")
+def test_the_committed_reports_findings_hold_in_its_data() -> None:
+    result = json.loads(REPORT.read_text())
+
+    def late(run: dict, key: str) -> float:
+        return float(np.mean([b[key] for k, b in run["blocks"].items() if 3 <= int(k) <= 11]))
+
+    runs = result["episodes"]
+    v1 = [r for r in runs.values() if r["env"] == "v1"]
+    v4 = [r for r in runs.values() if r["env"] == "v4"]
+    assert len(v1) >= 5 and len(v4) >= 5
+    # every v1 run's early policy moves the cube more often and ends nearer it than any v4 run's
+    assert min(late(r, "moved_share") for r in v1) > max(late(r, "moved_share") for r in v4)
+    assert max(late(r, "end_to_cube_m") for r in v1) < min(late(r, "end_to_cube_m") for r in v4)
+    assert max(late(r, "path_m") for r in v1) < min(late(r, "path_m") for r in v4)
+    # the same actions without feedback: the simulators agree within 10 %
+    for name, per_env in result["open_loop"].items():
+        for key in ("path_m", "travel_m"):
+            assert per_env["v4"][key] == pytest.approx(per_env["v1"][key], rel=0.10), name
+        assert abs(per_env["v4"]["moved_share"] - per_env["v1"]["moved_share"]) <= 0.05, name
