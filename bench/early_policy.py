@@ -50,8 +50,33 @@ SHARE_EPOCHS = (1, 5, 10, 15, 20)
 BLOCKS = 12
 MOVED_M = 0.005  # the replay's MOVED_THRESHOLD_M: an episode moved the cube when it went >5 mm
 OPEN_LOOP_FIRST, OPEN_LOOP_COUNT = 1000, 100
-FINDINGS = "(written from the first full run's tables; tests/bench/test_early_policy.py checks "\
-    "its claims against docs/results/early_policy.json)"
+FINDINGS = """\
+Written from the tables above (2026-11-26); tests/bench/test_early_policy.py checks each claim
+against docs/results/early_policy.json and the committed runs.
+
+- **On v4 the early policies move the cube about a third as often, in every seed and method.**
+  At epoch 10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 11 runs) has moved the cube
+  in 13–18 % of its stored episodes and every v4 run (11 runs, the chaos soaks' and the
+  torquescale-4 run included) in 5–10 %. The v4 share even falls after epoch 1 (random
+  exploration moves the cube about as often on both, docs/results/env_diff.md), while v1's
+  rises from epoch 5. HER-EBP-CS draws almost only such episodes on both (sampled share
+  .92–.99), so on v4 it learns from 2–3× fewer of them for its first 20 epochs.
+- **Because the v4 policies wander off.** Over epochs 3–11 the v4 policies' gripper path is
+  1.0–1.1 m per episode against 0.85–0.93 on v1, it ends 0.36–0.37 m from the cube's start
+  against 0.18–0.20, and it rides 10–13 cm above its start against 6–8: the v1 policies have
+  begun to go to the cube, the v4 ones have not.
+- **Not because the simulators answer actions differently.** The same logged action sequences
+  replayed without feedback move the cube in the same episodes in both (equal shares in 5 of 6
+  runs, .10 against .09 in the sixth) and carry the gripper 2–5 % farther along its path on
+  v4 (3–10 % net: v4's mocap tracks a full action further per step, env_diff.md item 1),
+  against 67 % more net travel in closed loop. So the difference is in what the two simulators' data
+  teach the critic and actor in the first epochs, not in the arm's reach; and not in the
+  weld's tilt either, since the torquescale-4 run (v1's tilt, env_diff.md item 2) behaves like
+  v4 (5.9 % at epoch 10).
+- **Next step, not taken here.** Train offline on one simulator's logged episodes of epochs
+  0–5 and act in the other (or swap the cube's contact parameters only), to find which part of
+  the data turns the policy away from the cube.
+"""
 
 
 def run_environment(config: dict) -> str:

@@ -129,8 +129,23 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
     assert min(late(r, "moved_share") for r in v1) > max(late(r, "moved_share") for r in v4)
     assert max(late(r, "end_to_cube_m") for r in v1) < min(late(r, "end_to_cube_m") for r in v4)
     assert max(late(r, "path_m") for r in v1) < min(late(r, "path_m") for r in v4)
-    # the same actions without feedback: the simulators agree within 10 %
-    for name, per_env in result["open_loop"].items():
-        for key in ("path_m", "travel_m"):
-            assert per_env["v4"][key] == pytest.approx(per_env["v1"][key], rel=0.10), name
-        assert abs(per_env["v4"]["moved_share"] - per_env["v1"]["moved_share"]) <= 0.05, name
+    assert min(late(r, "height_m") for r in v4) > max(late(r, "height_m") for r in v1)
+    # the same actions without feedback: the cube moves in as many episodes, the gripper's
+    # path is 0-6 % longer on v4 and its net travel 0-12 %, a tenth of the closed-loop gap
+    loop = result["open_loop"]
+    assert len(loop) >= 6
+    for name, per_env in loop.items():
+        assert abs(per_env["v4"]["moved_share"] - per_env["v1"]["moved_share"]) <= 0.02, name
+        assert 1.0 <= per_env["v4"]["path_m"] / per_env["v1"]["path_m"] <= 1.06, name
+        assert 1.0 <= per_env["v4"]["travel_m"] / per_env["v1"]["travel_m"] <= 1.12, name
+    closed = np.mean([late(r, "travel_m") for r in v4]) / np.mean(
+        [late(r, "travel_m") for r in v1])
+    opened = max(per_env["v4"]["travel_m"] / per_env["v1"]["travel_m"] for per_env in loop.values())
+    assert closed - 1 > 5 * (opened - 1)
+    # the committed runs: at epoch 10 every v1 run has moved the cube in more of its stored
+    # episodes than any v4 run, torquescale 4 included
+    shares = {r["run"]: (r["env"], r["share"]["10"]) for r in result["committed"]}
+    v1_shares = [v for env, v in shares.values() if env == "v1"]
+    v4_shares = [v for env, v in shares.values() if env.startswith("v4")]
+    assert len(v1_shares) >= 11 and len(v4_shares) >= 11
+    assert min(v1_shares) > max(v4_shares)
