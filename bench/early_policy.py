@@ -54,12 +54,12 @@ FINDINGS = """\
 Written from the tables above (2026-11-26); tests/bench/test_early_policy.py checks each claim
 against docs/results/early_policy.json and the committed runs.
 
-- **On v4 the early policies move the cube about a third as often, in every seed and method.**
-  At epoch 10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 11 runs) has moved the cube
+- **On v4 the early policies move the cube about a third as often, in every seed.** At epoch
+  10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 11 runs) has moved the cube
   in 13–18 % of its stored episodes and every v4 run (11 runs, the chaos soaks' and the
-  torquescale-4 run included) in 5–10 %. The v4 share even falls after epoch 1 (random
-  exploration moves the cube about as often on both, docs/results/env_diff.md), while v1's
-  rises from epoch 5. HER-EBP-CS draws almost only such episodes on both (sampled share
+  torquescale-4 run included; all HER-EBP-CS: no v4 HER or HER-CS run logs the share yet) in
+  5–10 %. The v4 share even falls after epoch 1 (random exploration moves the cube about as
+  often on both, docs/results/env_diff.md), while v1's rises from epoch 5. HER-EBP-CS draws almost only such episodes on both (sampled share
   .92–.99), so on v4 it learns from 2–3× fewer of them for its first 20 epochs.
 - **Because the v4 policies wander off.** Over epochs 3–11 the v4 policies' gripper path is
   1.0–1.1 m per episode against 0.85–0.93 on v1, it ends 0.36–0.37 m from the cube's start
