@@ -100,9 +100,11 @@ def read_metrics(path: Path) -> list[dict[str, str]]:
 
 
 def run_spec(spec: Spec, run_dir: Path, timeout_s: float, extra: list[str],
-             keep: Path | None) -> RunSummary | None:
-    """`hercs up` for one spec; stopped with SIGINT (a clean stop) at timeout_s."""
-    name = f"w{spec.workers}-{spec.device.replace(':', '')}"
+             keep: Path | None, repeat: int = 0) -> RunSummary | None:
+    """`hercs up` for one spec; stopped with SIGINT (a clean stop) at timeout_s. A spec given
+    again runs again under the name `w<N>-<device>-repeat<k>`."""
+    name = f"w{spec.workers}-{spec.device.replace(':', '')}" + (
+        f"-repeat{repeat}" if repeat else "")
     cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "push", "--method", "her-cs",
            "--seed", "1", "--epochs", str(spec.epochs), "--workers", str(spec.workers),
            "--set", f"learner.device={spec.device}", "--run-dir", str(run_dir), "--run", name,
@@ -212,8 +214,9 @@ def main(argv: list[str] | None = None) -> int:
             keep = args.out
             if keep is not None:
                 keep.mkdir(parents=True, exist_ok=True)
-            for spec in specs:
-                summary = run_spec(spec, Path(tmp), args.timeout, extra, keep)
+            for i, spec in enumerate(specs):
+                summary = run_spec(spec, Path(tmp), args.timeout, extra, keep,
+                                   repeat=specs[:i].count(spec))
                 if summary is not None:
                     runs.append(summary)
         if not runs:
