@@ -59,8 +59,9 @@ against docs/results/early_policy.json and the committed runs.
   in 13–18 % of its stored episodes and every v4 run (11 runs, the chaos soaks' and the
   torquescale-4 run included; all HER-EBP-CS: no v4 HER or HER-CS run logs the share yet) in
   5–10 %. The v4 share even falls after epoch 1 (random exploration moves the cube about as
-  often on both, docs/results/env_diff.md), while v1's rises from epoch 5. HER-EBP-CS draws almost only such episodes on both (sampled share
-  .92–.99), so on v4 it learns from 2–3× fewer of them for its first 20 epochs.
+  often on both, docs/results/env_diff.md), while v1's rises from epoch 5. HER-EBP-CS draws
+  almost only such episodes on both (sampled share .92–.99), so on v4 it learns from 2–3×
+  fewer of them for its first 20 epochs.
 - **Because the v4 policies wander off.** Over epochs 3–11 the v4 policies' gripper path is
   1.0–1.1 m per episode against 0.85–0.93 on v1, it ends 0.36–0.37 m from the cube's start
   against 0.18–0.20, and it rides 10–13 cm above its start against 6–8: the v1 policies have
