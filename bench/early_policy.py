@@ -28,7 +28,6 @@ Writes docs/results/early_policy.{json,md} (or --out DIR).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import warnings
 from collections.abc import Iterable, Sequence
@@ -40,6 +39,7 @@ import numpy as np
 import yaml
 
 from bench.common import REPO, git_commit
+from hercs.api import read_metrics
 from hercs.codec import msg_to_episode
 from hercs.runlog import read_episodes
 
@@ -103,12 +103,13 @@ def committed_moved_shares(folder: Path, epochs: Sequence[int] = SHARE_EPOCHS
         config = read_config(run)
         if config.get("task", {}).get("name") != "push":
             continue
-        with (run / "metrics.csv").open(newline="") as f:
-            metrics = list(csv.DictReader(f))
-        if not metrics or not metrics[0].get("buffer_moved_share"):
+        metrics = read_metrics(run)
+        if "buffer_moved_share" not in metrics.columns or not len(metrics):
+            continue  # a run from before the column
+        moved = metrics.column("buffer_moved_share")
+        if np.isnan(moved[0]):
             continue
-        share = {str(e): float(metrics[e - 1]["buffer_moved_share"]) for e in epochs
-                 if e <= len(metrics)}
+        share = {str(e): float(moved[e - 1]) for e in epochs if e <= len(moved)}
         rows.append({"run": run.name, "env": run_environment(config),
                      "method": config.get("run", {}).get("method", "?"), "share": share})
     return rows

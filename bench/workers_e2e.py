@@ -20,7 +20,6 @@ Writes docs/results/workers_e2e.{json,md} (or --out DIR); with --quick only wher
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import platform
@@ -30,12 +29,15 @@ import signal
 import subprocess
 import sys
 import tempfile
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from statistics import median
+from typing import Any
 
 from bench.common import REPO, git_commit
+from hercs.api import read_metrics
 
 DEFAULT_SPECS = ("1:cuda:3", "8:cuda:3", "1:cpu:3", "8:cpu:1")
 METRICS_NAME = re.compile(r"^w(\d+)-([a-z0-9:]+?)(?:-([A-Za-z0-9_]+))?-metrics\.csv$")
@@ -76,8 +78,10 @@ class RunSummary:
     lag_p95: float
 
 
-def summarise(name: str, workers: int, device: str, rows: list[dict[str, str]]) -> RunSummary:
-    """One run's figures from its metrics.csv rows (epoch times from the cumulative wall_s)."""
+def summarise(name: str, workers: int, device: str,
+              rows: Sequence[Mapping[str, Any]]) -> RunSummary:
+    """One run's figures from its metrics.csv rows (`hercs.read_metrics(...).rows`; epoch times
+    from the cumulative wall_s)."""
     if not rows:
         raise ValueError(f"{name}: metrics.csv has no finished epoch")
     walls = [float(r["wall_s"]) for r in rows]
@@ -92,11 +96,6 @@ def summarise(name: str, workers: int, device: str, rows: list[dict[str, str]]) 
         updates_per_s=round(median(float(r["updates_per_s"]) for r in rows), 1),
         lag_p50=median(float(r["policy_lag_p50"]) for r in rows),
         lag_p95=median(float(r["policy_lag_p95"]) for r in rows))
-
-
-def read_metrics(path: Path) -> list[dict[str, str]]:
-    with path.open(newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def run_spec(spec: Spec, run_dir: Path, timeout_s: float, extra: list[str],
@@ -118,7 +117,7 @@ def run_spec(spec: Spec, run_dir: Path, timeout_s: float, extra: list[str],
         proc.wait(timeout=120)
     log.close()
     metrics = run_dir / name / "metrics.csv"
-    rows = read_metrics(metrics) if metrics.exists() else []
+    rows = read_metrics(metrics).rows if metrics.exists() else ()
     print(f"{name}: exit {proc.returncode}, {len(rows)} epochs", flush=True)
     if keep is not None and metrics.exists():
         shutil.copy(metrics, keep / f"{name}-metrics.csv")
@@ -185,7 +184,7 @@ def runs_from_dir(folder: Path) -> list[RunSummary]:
         m = METRICS_NAME.match(path.name)
         if m:
             name = path.name.removesuffix("-metrics.csv")
-            runs.append(summarise(name, int(m.group(1)), m.group(2), read_metrics(path)))
+            runs.append(summarise(name, int(m.group(1)), m.group(2), read_metrics(path).rows))
     if not runs:
         raise SystemExit(f"--report {folder}: no w<N>-<device>[-tag]-metrics.csv there")
     return runs

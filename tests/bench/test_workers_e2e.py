@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.workers_e2e import Spec, main, ratios, read_metrics, runs_from_dir, summarise
+from bench.workers_e2e import Spec, main, ratios, runs_from_dir, summarise
+from hercs import read_metrics
 from tests.support import REPO
 
 COMMITTED = REPO / "docs" / "results" / "workers_e2e"
@@ -26,7 +27,7 @@ def test_a_two_worker_run_takes_twice_the_episodes_through_the_same_updates(
     # The epoch's 200 updates need its 40 episodes; the actors may run ahead of the updates
     # by what the rate limiter tolerates (at most training.max_policy_lag = 3 cycles).
     assert 2 * 4 * 5 <= run["episodes_per_epoch"] <= 2 * 4 * (5 + 3)
-    rows = read_metrics(tmp_path / "w2-cpu-metrics.csv")
+    rows = read_metrics(tmp_path / "w2-cpu-metrics.csv").rows
     assert int(rows[-1]["updates"]) == 40 * 5
     assert run["episodes_per_s"] > 0 and run["updates_per_s"] > 0
     assert "| w2-cpu | 2 | cpu | 1 |" in (tmp_path / "workers_e2e.md").read_text()
