@@ -27,8 +27,10 @@ What `run` does, in order:
    episode; an episode refused as stale is dropped.
 4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
    finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
-   queued inserts for at most `STOP_FLUSH_S`, gives up the rest, closes the env and the
-   transport, returns 0. A dead inserter thread stops the actor with status 1.
+   queued inserts for at most `STOP_FLUSH_S` (not at all once the run is finished: no learner
+   will sample them, and the replay is closing, so retries would only keep the process alive
+   past its run, which a scheduler then records as cancelled), gives up the rest, closes the
+   env and the transport, returns 0. A dead inserter thread stops the actor with status 1.
 
 Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
 `generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")` for the
@@ -221,7 +223,7 @@ class ActorService:
                     window = (now, self.worker.env_steps)
                     self.publish_metrics(steps_per_s=rate)
         finally:
-            self.inserter.close(timeout_s=STOP_FLUSH_S)
+            self.inserter.close(timeout_s=0.0 if self.run_finished.is_set() else STOP_FLUSH_S)
             self.publish_metrics(steps_per_s=0.0)
         c = self.inserter.counters
         log.info("actor %s stopping: %d episodes, %d acked (%d duplicate: a retry of one "

@@ -67,18 +67,27 @@ def weights_msg(policy: Policy, *, version: int) -> bytes:
 
 class FakeReplay:
     """`replay/insert` that acks, except: seq 1's first attempt is never answered (a timeout),
-    seq 2's first is answered `unavailable`, seq 3 is rejected `bad_shape` (to be dropped)."""
+    seq 2's first is answered `unavailable`, seq 3 is rejected `bad_shape` (to be dropped).
+    Once `closing` is set, every attempt is answered `unavailable`, as a replay shutting down
+    answers, and counted in `attempts_while_closing`."""
 
     def __init__(self, transport: Transport, keys: RunKeys) -> None:
         self.attempts: Counter[int] = Counter()
         self.acks: Counter[int] = Counter()
         self.acked: queue.Queue[pb.Episode] = queue.Queue()
         self.held: list[PendingReply] = []
+        self.closing = threading.Event()
+        self.attempts_while_closing: Counter[int] = Counter()
         self._lock = threading.Lock()
         transport.serve_deferred(keys.insert, self.handle)
 
     def handle(self, pending: PendingReply) -> None:
         episode = pb.Episode.FromString(pending.payload)
+        if self.closing.is_set():
+            with self._lock:
+                self.attempts_while_closing[episode.seq] += 1
+            pending.reply_error("unavailable", "replay closing")
+            return
         with self._lock:
             self.attempts[episode.seq] += 1
             first = self.attempts[episode.seq] == 1
@@ -188,9 +197,14 @@ def test_a_remote_actor_exits_by_itself_when_the_learner_says_the_run_is_finishe
     progress.put(b"garbage is ignored")
     replay.acked.get(timeout=WAIT_S)  # still rolling out: the run is not finished
     assert procs[0].poll() is None
+    replay.closing.set()  # from here the replay refuses inserts, as one shutting down does
     progress.put(pb.RunProgress(schema_version=SCHEMA_VERSION, epoch=3, epochs=3,
                                 finished=True).SerializeToString())
     assert procs[0].wait(timeout=WAIT_S) == 0
+    # The run is over: an episode refused now is given up, never retried (a retry would keep
+    # the process alive past its run; under Slurm its step would end `CANCELLED`).
+    assert max(replay.attempts_while_closing.values(), default=1) == 1, \
+        replay.attempts_while_closing
 
 
 def test_an_inserter_of_capacity_0_holds_the_next_episode_until_the_last_is_acked() -> None:
