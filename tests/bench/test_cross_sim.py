@@ -1,0 +1,98 @@
+"""bench/cross_sim.py: targets parse or are refused with the reason, one policy meets the same
+episodes on every target (the pairing the report rests on), results accumulate and resume,
+and the committed report is what its JSON gives."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.cross_sim import act_on, on_target, parse_target, render, run_bench
+from hercs.checkpoints import CheckpointError, LoadedPolicy
+from hercs.config import HercsConfig, apply_overrides
+from hercs.errors import ConfigError
+from hercs.policy import Policy
+from tests.support import REPO
+
+REPORT = REPO / "docs" / "results" / "cross_sim.json"
+
+
+def fresh_policy() -> LoadedPolicy:
+    """An untrained FetchPush-v4 policy, as a checkpoint would hold one."""
+    config = apply_overrides(HercsConfig(), ["task.name=push", "ddpg.hidden_size=32"])
+    policy = Policy(spec=config.task.spec, config=config.ddpg, seed=3)
+    return LoadedPolicy(config=config, epoch=1, source=Path("none"), weights=policy.weights())
+
+
+def test_targets_parse_or_are_refused_with_what_was_expected() -> None:
+    assert parse_target("v1") == ("v1", 1.0)
+    assert parse_target("v4") == ("v4", 1.0)
+    assert parse_target("v4-ts4") == ("v4", 4.0)
+    assert parse_target("v4-ts2.5") == ("v4", 2.5)
+    for bad in ("v1-ts4", "v5", "v4-ts", "v4-ts0", "V4"):
+        with pytest.raises(ConfigError, match="--targets"):
+            parse_target(bad)
+    policy = fresh_policy()
+    moved = on_target(policy, "v4-ts4")
+    assert moved.config.task.spec.weld_torquescale == 4.0 and moved.weights is policy.weights
+    assert policy.config.task.weld_torquescale == 1.0  # the run's own config is left alone
+
+
+def test_one_policy_meets_the_same_episodes_on_every_target() -> None:
+    policy = fresh_policy()
+    plain = act_on(policy, "v4", episodes=10, seed=5)
+    tilted = act_on(policy, "v4-ts4", episodes=10, seed=5)
+    assert plain.goals.shape == (10, 3)
+    np.testing.assert_array_equal(plain.goals, tilted.goals)
+    assert len({tuple(g) for g in plain.goals}) == 10  # ten envs, ten goals
+    other = act_on(policy, "v4", episodes=10, seed=6)
+    assert not np.array_equal(other.goals, plain.goals)
+    # deterministic actions: the same target and seed repeat exactly
+    again = act_on(policy, "v4", episodes=10, seed=5)
+    assert again.success == plain.success and again.moved == plain.moved
+    with pytest.raises(ConfigError, match="multiple of 10"):
+        act_on(policy, "v4", episodes=15)
+
+
+def test_results_accumulate_and_an_interrupted_bench_continues(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    run = tmp_path / "push-her-ebp-cs-s1"
+    run.mkdir()
+    (run / "config.yaml").write_text("task:\n  name: push\n")
+    calls: list[tuple[str, int]] = []
+
+    def fake_read(folder: Path, checkpoint: str) -> LoadedPolicy:
+        epoch = int(checkpoint.split("-")[1])
+        if epoch == 30:
+            raise CheckpointError("no epoch-30 checkpoint")
+        return fresh_policy()
+
+    def fake_act(policy: LoadedPolicy, target: str, *, episodes: int):
+        calls.append((target, episodes))
+        return act_on(policy, target, episodes=10)
+
+    monkeypatch.setattr("bench.cross_sim.read_policy", fake_read)
+    monkeypatch.setattr("bench.cross_sim.act_on", fake_act)
+    out = tmp_path / "out"
+    first = run_bench([run], [10], ["v4"], 10, out)
+    assert calls == [("v4", 10)]
+    assert first["runs"]["push-her-ebp-cs-s1"]["trained_on"] == "v4"
+    # again with one more epoch and target: only the new cells run; a missing checkpoint skips
+    second = run_bench([run], [10, 30], ["v4", "v4-ts4"], 10, out)
+    assert calls == [("v4", 10), ("v4-ts4", 10)]
+    assert set(second["runs"]["push-her-ebp-cs-s1"]["epochs"]) == {"10"}
+    assert (out / "cross_sim.md").read_text() == render(json.loads(
+        (out / "cross_sim.json").read_text()))
+    with pytest.raises(ConfigError, match="holds 10 per cell"):
+        run_bench([run], [10], ["v4"], 20, out)
+    with pytest.raises(ConfigError, match="--targets"):
+        run_bench([run], [10], ["v9"], 10, out)
+
+
+@pytest.mark.skipif(not REPORT.exists(), reason="docs/results/cross_sim.json not committed")
+def test_the_committed_report_is_what_its_json_gives() -> None:
+    result = json.loads(REPORT.read_text())
+    assert (REPORT.with_suffix(".md")).read_text() == render(result)
