@@ -18,6 +18,11 @@ target (env seeds `SEED`, `SEED + 1`, …; both versions draw the same object an
 same seed, env_diff.md), so each policy's success on two targets is a paired comparison.
 Per (run, epoch, target): the success rate and the share of episodes that moved the cube.
 
+Part 2, *what the networks see*: the same uniform random actions (exploration's kind of
+episode) stepped from the same reset seeds on each target; per observation field, the standard
+deviation over all steps (what the observation normaliser divides by), and per target how many
+episodes turned the cube by more than 0.1 rad or dropped it off the table.
+
 Needs the runs' checkpoints (`runs/sample_efficiency/`, not committed) and, for the v1
 target, mujoco-py (`make mujoco-py`): without it v1 is left out with the reason printed.
 Results accumulate in docs/results/cross_sim.json (or --out DIR): a (run, epoch, target)
@@ -114,6 +119,51 @@ def act_on(policy: LoadedPolicy, target: str, *, episodes: int, seed: int = SEED
     return TargetResult(success=success, moved=cube_moved, goals=np.stack(goals))
 
 
+FETCH_OBS_FIELDS = (("grip_pos", 0, 3), ("object_pos", 3, 6), ("object_rel_pos", 6, 9),
+                    ("gripper_state", 9, 11), ("object_rot", 11, 14), ("object_velp", 14, 17),
+                    ("object_velr", 17, 20), ("grip_velp", 20, 23), ("gripper_vel", 23, 25))
+"""The 25 dimensions of a Fetch object task's observation (gymnasium-robotics' `_get_obs`)."""
+TABLE_TOP_Z = 0.4
+"""Below this the cube (resting at z 0.425) has left the table."""
+TURNED_RAD = 0.1
+
+
+def random_action_stats(targets: Sequence[str], *, episodes: int, seed: int = SEED
+                        ) -> dict[str, dict[str, object]]:
+    """Per target: per-dimension std of the observation under the same uniform random
+    actions from the same reset seeds, and the episodes that turned or dropped the cube."""
+    from hercs.envs import make_env
+    from hercs.tasks import task_spec
+
+    rng = np.random.default_rng(seed)
+    actions = [rng.uniform(-1.0, 1.0, (50, 4)) for _ in range(episodes)]
+    out: dict[str, dict[str, object]] = {}
+    for target in targets:
+        version, scale = parse_target(target)
+        env = make_env(task_spec("push", version, scale))
+        try:
+            runs = []
+            for i, seq in enumerate(actions):
+                obs, _ = env.reset(seed=seed + i)
+                steps = [obs["observation"]]
+                for a in seq:
+                    obs, *_ = env.step(a)
+                    steps.append(obs["observation"])
+                runs.append(np.asarray(steps, np.float64))
+        finally:
+            env.close()
+        o = np.stack(runs)  # (episodes, T + 1, 25)
+        turned = np.abs(o[:, :, 11:14] - o[:, :1, 11:14]).max(axis=(1, 2)) > TURNED_RAD
+        out[target] = {
+            "std": [round(float(x), 5) for x in o.reshape(-1, o.shape[-1]).std(axis=0)],
+            "turned": int(turned.sum()), "fell": int((o[:, :, 5].min(axis=1)
+                                                       < TABLE_TOP_Z).sum()),
+            "moved": int(sum(episode_facts(r).moved for r in o)), "episodes": episodes}
+        print(f"random actions on {target}: turned {out[target]['turned']}, fell "
+              f"{out[target]['fell']}, moved {out[target]['moved']} of {episodes}", flush=True)
+    return out
+
+
 def v1_available() -> str | None:
     """None if the v1 (mujoco-py) simulation loads here, else why not."""
     from hercs.envs import make_env
@@ -175,6 +225,23 @@ def render(result: dict) -> str:
             if d:
                 lines.append(f"| {trained} | {epoch} | {np.mean(d):+.2f} [{min(d):+.2f}, "
                              f"{max(d):+.2f}] | {sum(x > 0 for x in d)} of {len(d)} |")
+    stats = result.get("random_actions") or {}
+    if stats:
+        some = next(iter(stats.values()))
+        lines += ["", "## What the networks see: the same random actions on each target", "",
+                  f"{some['episodes']} episodes of uniform random actions, the same on every "
+                  f"target, from reset seeds {SEED}, {SEED + 1}, …: per observation field the "
+                  "standard deviation over all steps, per dimension (what the observation "
+                  f"normaliser divides by); *turned*: episodes whose cube turned > {TURNED_RAD} "
+                  "rad about some axis; *fell*: the cube left the table; *moved*: > 5 mm.", "",
+                  "| field | " + " | ".join(stats) + " |", "|---|" + "---|" * len(stats)]
+        for name, lo, hi in FETCH_OBS_FIELDS:
+            cells = " | ".join(" ".join(f"{x:.4f}" for x in st["std"][lo:hi])
+                               for st in stats.values())
+            lines.append(f"| {name} | {cells} |")
+        for key in ("moved", "turned", "fell"):
+            lines.append(f"| *{key}* | " + " | ".join(f"{st[key]} of {st['episodes']}"
+                                                     for st in stats.values()) + " |")
     if result.get("findings"):
         lines += ["", "## What it shows", "", result["findings"]]
     return "\n".join(lines) + "\n"
@@ -197,7 +264,9 @@ def group_means(result: dict) -> list[tuple[str, int, list[list[float]]]]:
 
 
 def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str],
-              episodes: int, out: Path) -> dict:
+              episodes: int, out: Path, random_episodes: int = 0) -> dict:
+    """Part 1 for `runs` × `epochs` × `targets` (cells already in `out` are kept), then part 2
+    with `random_episodes` episodes per target (0: left as it is)."""
     for t in targets:
         parse_target(t)  # a bad target fails before any work
     left_out = None
@@ -212,6 +281,7 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
                           "cell; use the same, or another --out")
     result = {"when": "", "commit": "", "episodes": episodes, "targets": list(targets),
               "left_out": left_out, "runs": previous.get("runs", {}),
+              "random_actions": previous.get("random_actions", {}),
               "findings": previous.get("findings", "")}
     for run in runs:
         entry = result["runs"].setdefault(run.name, {
@@ -232,6 +302,8 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
                 result["commit"] = git_commit()
                 out.mkdir(parents=True, exist_ok=True)
                 path.write_text(json.dumps(result, indent=1) + "\n")  # resumable
+    if set(result.get("random_actions") or {}) != set(targets) and random_episodes:
+        result["random_actions"] = random_action_stats(targets, episodes=random_episodes)
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=1) + "\n")
     (out / "cross_sim.md").write_text(render(result))
@@ -248,12 +320,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="v1, v4 or v4-tsK (default: %(default)s)")
     p.add_argument("--episodes", type=int, default=50,
                    help=f"per (run, epoch, target), a multiple of {PARALLEL_ENVS}")
+    p.add_argument("--random-episodes", type=int, default=100,
+                   help="part 2's random-action episodes per target (0: leave part 2 out)")
     p.add_argument("--out", type=Path, default=REPO / "docs" / "results")
     args = p.parse_args(argv)
     runs = args.runs if args.runs is not None else [
         LOCAL / n for n in DEFAULT_RUNS if (LOCAL / n / "checkpoints").is_dir()]
     try:
-        result = run_bench(runs, args.epochs, args.targets, args.episodes, args.out)
+        result = run_bench(runs, args.epochs, args.targets, args.episodes, args.out,
+                           args.random_episodes)
     except ConfigError as exc:
         p.error(str(exc))
     print(render(result))

@@ -10,7 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.cross_sim import act_on, on_target, parse_target, render, run_bench
+from bench.cross_sim import (
+    FETCH_OBS_FIELDS,
+    act_on,
+    on_target,
+    parse_target,
+    random_action_stats,
+    render,
+    run_bench,
+)
 from hercs.checkpoints import CheckpointError, LoadedPolicy
 from hercs.config import HercsConfig, apply_overrides
 from hercs.errors import ConfigError
@@ -90,6 +98,20 @@ def test_results_accumulate_and_an_interrupted_bench_continues(
         run_bench([run], [10], ["v4"], 20, out)
     with pytest.raises(ConfigError, match="--targets"):
         run_bench([run], [10], ["v9"], 10, out)
+
+
+def test_random_action_statistics_cover_every_observation_dimension_and_repeat() -> None:
+    stats = random_action_stats(["v4", "v4-ts4"], episodes=4, seed=11)
+    assert set(stats) == {"v4", "v4-ts4"}
+    assert FETCH_OBS_FIELDS[-1][2] == 25
+    for st in stats.values():
+        assert len(st["std"]) == 25 and st["episodes"] == 4
+        assert st["std"][0] > 0.005  # the gripper moves under random actions
+        assert 0 <= st["fell"] <= st["moved"] <= 4 and 0 <= st["turned"] <= 4
+    assert random_action_stats(["v4"], episodes=4, seed=11)["v4"] == stats["v4"]
+    text = render({"when": "w", "commit": "c", "episodes": 10, "targets": ["v4", "v4-ts4"],
+                   "runs": {}, "random_actions": stats})
+    assert "| object_rot |" in text and "| *fell* | " in text
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/cross_sim.json not committed")
