@@ -12,6 +12,7 @@ import pytest
 
 from bench.cross_sim import (
     FETCH_OBS_FIELDS,
+    TargetResult,
     act_on,
     on_target,
     parse_target,
@@ -51,15 +52,15 @@ def test_targets_parse_or_are_refused_with_what_was_expected() -> None:
 
 def test_one_policy_meets_the_same_episodes_on_every_target() -> None:
     policy = fresh_policy()
-    plain = act_on(policy, "v4", episodes=10, seed=5)
-    tilted = act_on(policy, "v4-ts4", episodes=10, seed=5)
-    assert plain.goals.shape == (10, 3)
+    plain = act_on(policy, "v4", episodes=4, seed=5, parallel=2)
+    tilted = act_on(policy, "v4-ts4", episodes=4, seed=5, parallel=2)
+    assert plain.goals.shape == (4, 3)
     np.testing.assert_array_equal(plain.goals, tilted.goals)
-    assert len({tuple(g) for g in plain.goals}) == 10  # ten envs, ten goals
-    other = act_on(policy, "v4", episodes=10, seed=6)
+    assert len({tuple(g) for g in plain.goals}) == 4  # each episode its own goal
+    other = act_on(policy, "v4", episodes=4, seed=6, parallel=2)
     assert not np.array_equal(other.goals, plain.goals)
     # deterministic actions: the same target and seed repeat exactly
-    again = act_on(policy, "v4", episodes=10, seed=5)
+    again = act_on(policy, "v4", episodes=4, seed=5, parallel=2)
     assert again.success == plain.success and again.moved == plain.moved
     with pytest.raises(ConfigError, match="multiple of 10"):
         act_on(policy, "v4", episodes=15)
@@ -78,16 +79,18 @@ def test_results_accumulate_and_an_interrupted_bench_continues(
             raise CheckpointError("no epoch-30 checkpoint")
         return fresh_policy()
 
-    def fake_act(policy: LoadedPolicy, target: str, *, episodes: int):
+    def fake_act(policy: LoadedPolicy, target: str, *, episodes: int) -> TargetResult:
         calls.append((target, episodes))
-        return act_on(policy, target, episodes=10)
+        return TargetResult(success=[True] + [False] * 9, moved=[True] * 10,
+                            goals=np.zeros((10, 3)))
 
     monkeypatch.setattr("bench.cross_sim.read_policy", fake_read)
     monkeypatch.setattr("bench.cross_sim.act_on", fake_act)
     out = tmp_path / "out"
     first = run_bench([run], [10], ["v4"], 10, out)
     assert calls == [("v4", 10)]
-    assert first["runs"]["push-her-ebp-cs-s1"]["trained_on"] == "v4"
+    assert first["runs"]["push-her-ebp-cs-s1"] == {"trained_on": "v4", "epochs": {"10": {
+        "v4": {"episodes": 10, "success_rate": 0.1, "moved_share": 1.0}}}}
     # again with one more epoch and target: only the new cells run; a missing checkpoint skips
     second = run_bench([run], [10, 30], ["v4", "v4-ts4"], 10, out)
     assert calls == [("v4", 10), ("v4-ts4", 10)]
@@ -101,14 +104,14 @@ def test_results_accumulate_and_an_interrupted_bench_continues(
 
 
 def test_random_action_statistics_cover_every_observation_dimension_and_repeat() -> None:
-    stats = random_action_stats(["v4", "v4-ts4"], episodes=4, seed=11)
+    stats = random_action_stats(["v4", "v4-ts4"], episodes=3, seed=11)
     assert set(stats) == {"v4", "v4-ts4"}
     assert FETCH_OBS_FIELDS[-1][2] == 25
     for st in stats.values():
-        assert len(st["std"]) == 25 and st["episodes"] == 4
+        assert len(st["std"]) == 25 and st["episodes"] == 3
         assert st["std"][0] > 0.005  # the gripper moves under random actions
-        assert 0 <= st["fell"] <= st["moved"] <= 4 and 0 <= st["turned"] <= 4
-    assert random_action_stats(["v4"], episodes=4, seed=11)["v4"] == stats["v4"]
+        assert 0 <= st["fell"] <= st["moved"] <= 3 and 0 <= st["turned"] <= 3
+    assert random_action_stats(["v4"], episodes=3, seed=11)["v4"] == stats["v4"]
     text = render({"when": "w", "commit": "c", "episodes": 10, "targets": ["v4", "v4-ts4"],
                    "runs": {}, "random_actions": stats})
     assert "| object_rot |" in text and "| *fell* | " in text
