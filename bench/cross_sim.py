@@ -1,6 +1,6 @@
 """Trained in one simulation, acting in the other: is FetchPush-v4 harder to act in, or to learn?
 
-    python -m bench.cross_sim                     # the local 5 + 5 HER-EBP-CS runs: ~30 min
+    python -m bench.cross_sim                     # the local 5 + 5 + 1 HER-EBP-CS runs: ~1 h
     python -m bench.cross_sim --runs RUN ... --epochs 10 20 --episodes 50 --targets v1 v4
 
 On v1 our HER-EBP-CS passes 0.5 some 17 epochs before v4 (docs/results/claims.md), and the
@@ -50,7 +50,7 @@ from hercs.errors import ConfigError, HercsError
 LOCAL = REPO / "runs" / "sample_efficiency"
 DEFAULT_RUNS = (*(f"push-{v}her-ebp-cs-s{s}" for v in ("v1-", "") for s in range(1, 6)),
                 "push-ts4-her-ebp-cs-s1")
-DEFAULT_EPOCHS = (10, 20, 30, 40, 50)
+DEFAULT_EPOCHS = (10, 20, 30, 40)
 DEFAULT_TARGETS = ("v1", "v4", "v4-ts4")
 SEED = 777_000
 """Env seeds of the evaluation episodes: SEED + i for parallel env i (none of a run's own
@@ -279,7 +279,8 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
     if previous.get("episodes") not in (None, episodes):
         raise ConfigError(f"--episodes {episodes}: {path} holds {previous['episodes']} per "
                           "cell; use the same, or another --out")
-    result = {"when": "", "commit": "", "episodes": episodes, "targets": list(targets),
+    result = {"when": previous.get("when", ""), "commit": previous.get("commit", ""),
+              "episodes": episodes, "targets": list(targets),
               "left_out": left_out, "runs": previous.get("runs", {}),
               "random_actions": previous.get("random_actions", {}),
               "findings": previous.get("findings", "")}
@@ -304,6 +305,8 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
                 path.write_text(json.dumps(result, indent=1) + "\n")  # resumable
     if set(result.get("random_actions") or {}) != set(targets) and random_episodes:
         result["random_actions"] = random_action_stats(targets, episodes=random_episodes)
+        result["when"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        result["commit"] = git_commit()
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=1) + "\n")
     (out / "cross_sim.md").write_text(render(result))
