@@ -136,7 +136,9 @@ def random_action_stats(targets: Sequence[str], *, episodes: int, seed: int = SE
     from hercs.tasks import task_spec
 
     rng = np.random.default_rng(seed)
-    actions = [rng.uniform(-1.0, 1.0, (50, 4)) for _ in range(episodes)]
+    push = task_spec("push")
+    actions = [rng.uniform(-1.0, 1.0, (push.episode_steps, push.action_dim))
+               for _ in range(episodes)]
     out: dict[str, dict[str, object]] = {}
     for target in targets:
         version, scale = parse_target(target)
