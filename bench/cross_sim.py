@@ -43,7 +43,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import REPO, git_commit
-from bench.early_policy import episode_facts, read_config, run_environment
+from bench.early_policy import (
+    episode_facts,
+    open_loop_observations,
+    read_config,
+    run_environment,
+)
 from hercs.checkpoints import LoadedPolicy, read_policy
 from hercs.errors import ConfigError, HercsError
 
@@ -144,17 +149,10 @@ def random_action_stats(targets: Sequence[str], *, episodes: int, seed: int = SE
         version, scale = parse_target(target)
         env = make_env(task_spec("push", version, scale))
         try:
-            runs = []
-            for i, seq in enumerate(actions):
-                obs, _ = env.reset(seed=seed + i)
-                steps = [obs["observation"]]
-                for a in seq:
-                    obs, *_ = env.step(a)
-                    steps.append(obs["observation"])
-                runs.append(np.asarray(steps, np.float64))
+            runs = open_loop_observations(env, actions, first_seed=seed)
         finally:
             env.close()
-        o = np.stack(runs)  # (episodes, T + 1, 25)
+        o = np.stack(runs).astype(np.float64)  # (episodes, T + 1, 25)
         turned = np.abs(o[:, :, 11:14] - o[:, :1, 11:14]).max(axis=(1, 2)) > TURNED_RAD
         out[target] = {
             "std": [round(float(x), 5) for x in o.reshape(-1, o.shape[-1]).std(axis=0)],
@@ -164,18 +162,6 @@ def random_action_stats(targets: Sequence[str], *, episodes: int, seed: int = SE
         print(f"random actions on {target}: turned {out[target]['turned']}, fell "
               f"{out[target]['fell']}, moved {out[target]['moved']} of {episodes}", flush=True)
     return out
-
-
-def v1_available() -> str | None:
-    """None if the v1 (mujoco-py) simulation loads here, else why not."""
-    from hercs.envs import make_env
-    from hercs.tasks import task_spec
-
-    try:
-        make_env(task_spec("push", "v1")).close()
-    except Exception as exc:  # any failure to load means "not installed here"
-        return f"{type(exc).__name__}: {exc}"
-    return None
 
 
 # ------------------------------------------------------------------ report
@@ -271,8 +257,10 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
     with `random_episodes` episodes per target (0: left as it is)."""
     for t in targets:
         parse_target(t)  # a bad target fails before any work
+    from hercs.envs import mujoco_py_problem
+
     left_out = None
-    if "v1" in targets and (why := v1_available()) is not None:
+    if "v1" in targets and (why := mujoco_py_problem()) is not None:
         left_out = f"the v1 target (mujoco-py does not load here: {why}; `make mujoco-py`)"
         print(f"[skip] {left_out}", flush=True)
         targets = [t for t in targets if t != "v1"]
@@ -301,18 +289,22 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
                     continue
                 cells[target] = act_on(policy, target, episodes=episodes).summary()
                 print(f"{run.name} epoch {epoch} on {target}: {cells[target]}", flush=True)
-                result["when"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-                result["commit"] = git_commit()
-                out.mkdir(parents=True, exist_ok=True)
-                path.write_text(json.dumps(result, indent=1) + "\n")  # resumable
-    if set(result.get("random_actions") or {}) != set(targets) and random_episodes:
+                save(result, path, new_results=True)  # resumable
+    if set(result["random_actions"]) != set(targets) and random_episodes:
         result["random_actions"] = random_action_stats(targets, episodes=random_episodes)
-        result["when"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-        result["commit"] = git_commit()
-    out.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=1) + "\n")
+        save(result, path, new_results=True)
+    save(result, path, new_results=False)
     (out / "cross_sim.md").write_text(render(result))
     return result
+
+
+def save(result: dict, path: Path, *, new_results: bool) -> None:
+    """Write the JSON; with `new_results`, first stamp it with the time and commit."""
+    if new_results:
+        result["when"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        result["commit"] = git_commit()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -172,18 +172,26 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
 # ------------------------------------------------------------------ 3. open loop
 
 
-def replay_open_loop(env, action_sequences: Sequence[np.ndarray], first_seed: int = 1000
-                     ) -> dict[str, float]:
-    """Each sequence stepped without feedback from reset(seed=first_seed + i)."""
-    facts = []
+def open_loop_observations(env, action_sequences: Sequence[np.ndarray], first_seed: int = 1000
+                           ) -> list[np.ndarray]:
+    """Each sequence stepped without feedback from reset(seed=first_seed + i): its (T+1,
+    obs_dim) observations."""
+    out = []
     for i, actions in enumerate(action_sequences):
         obs, _ = env.reset(seed=first_seed + i)
         seen = [obs["observation"]]
         for action in actions:
             obs, *_ = env.step(np.asarray(action, dtype=np.float64))
             seen.append(obs["observation"])
-        facts.append(episode_facts(np.asarray(seen)))
-    return mean_facts(facts)
+        out.append(np.asarray(seen))
+    return out
+
+
+def replay_open_loop(env, action_sequences: Sequence[np.ndarray], first_seed: int = 1000
+                     ) -> dict[str, float]:
+    """Each sequence stepped without feedback from reset(seed=first_seed + i): mean facts."""
+    return mean_facts(episode_facts(o) for o in
+                      open_loop_observations(env, action_sequences, first_seed))
 
 
 def open_loop(actions_by_run: dict[str, list[np.ndarray]]) -> dict[str, object]:
