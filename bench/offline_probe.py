@@ -1,6 +1,6 @@
 """Does the same exploration teach a different policy in FetchPush-v1 and v4? (offline probe)
 
-    python -m bench.offline_probe                # ~10 min on 2 cores: 400 episodes per sim, 3 seeds
+    python -m bench.offline_probe                # ~35 min beside two runs on 2 cores
     python -m bench.offline_probe --quick        # CI: a few episodes and updates, v4 only
 
 `bench.cross_sim` found that a pushing policy acts as well in either simulation and that the
@@ -206,8 +206,8 @@ def render(result: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--episodes", type=int, default=400, help="data episodes per simulation")
-    parser.add_argument("--cycles", type=int, default=50,
+    parser.add_argument("--episodes", type=int, default=600, help="data episodes per simulation")
+    parser.add_argument("--cycles", type=int, default=150,
                         help="training cycles of 40 minibatches (50 = one epoch)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--eval-episodes", type=int, default=50)

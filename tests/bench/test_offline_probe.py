@@ -66,3 +66,14 @@ def test_committed_report_is_its_json() -> None:
         return
     result = json.loads(REPORT.read_text())
     assert REPORT.with_suffix(".md").read_text() == render(result)
+    findings = result["findings"]
+    for sim in ("v1", "v4"):
+        assert f"{result['data'][sim]['moved_share']:.3f}".lstrip("0") in findings
+        own = [p["acted_in"][sim] for p in result["policies"] if p["trained_on"] == sim]
+        assert f"{np.mean([f['end_to_cube_m'] for f in own]):.3f} m" in findings
+        assert f"{np.mean([f['travel_m'] for f in own]):.3f}" in findings
+        for f in own:  # each seed's figure, as the text lists them
+            assert f"{f['end_to_cube_m']:.3f}".lstrip("0") in findings
+    across = max(abs(p["acted_in"]["v1"][k] - p["acted_in"]["v4"][k])
+                 for p in result["policies"] for k in ("end_to_cube_m", "travel_m"))
+    assert across <= 0.03, "the text says one policy's facts differ by at most 0.03 m"
