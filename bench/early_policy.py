@@ -2,10 +2,10 @@
 
     python -m bench.early_policy                      # committed runs + local logs: ~15 min
     python -m bench.early_policy --runs RUN_DIR ...   # logs of these runs (default: the local
-                                                      # logs of the committed 5 + 5 HER-EBP-CS)
+                                                      # logs of DEFAULT_RUNS that are here)
 
 On v1 our HER-EBP-CS passes 0.5 some 17 epochs before v4 (docs/results/claims.md) and nothing
-in the simulation's parameters explains it (docs/results/env_diff.md). Three measurements:
+in the simulation's parameters explains it (docs/results/env_diff.md). Four measurements:
 
 1. **Committed runs** (`docs/results/runs/*/metrics.csv`, no logs needed): the replay's
    `buffer_moved_share` — the share of stored episodes in which the object moved more than
@@ -21,6 +21,9 @@ in the simulation's parameters explains it (docs/results/env_diff.md). Three mea
    answered the same actions differently, the travel and the cube's motion would differ here;
    if they agree, the difference in part 2 is in what the policies learned. Needs v1 (`make
    mujoco-py`); left out, with the reason printed, where it is not installed.
+4. **EBP's view** of the HER-EBP(-CS) runs' first six blocks: the trajectory energy of the
+   episodes that left the cube still and of the others, and the share of draws the still
+   ones would get from EBP's p ∝ energy + ε.
 
 Writes docs/results/early_policy.{json,md} (or --out DIR).
 """
@@ -41,42 +44,61 @@ import yaml
 from bench.common import REPO, git_commit
 from hercs.api import read_metrics
 from hercs.codec import msg_to_episode
+from hercs.config import EnergyConfig
+from hercs.replay_service.energy import trajectory_energy
 from hercs.runlog import read_episodes
 
 COMMITTED = REPO / "docs" / "results" / "runs"
 LOCAL = REPO / "runs" / "sample_efficiency"
-DEFAULT_RUNS = tuple(f"push-{v}her-ebp-cs-s{s}" for v in ("v1-", "") for s in range(1, 6))
+DEFAULT_RUNS = (*(f"push-{v}her-ebp-cs-s{s}" for v in ("v1-", "") for s in range(1, 6)),
+                "push-ts4-her-ebp-cs-s1", "push-eps1e-3-her-ebp-cs-s1",
+                *(f"push-v1-{m}-s{s}" for m in ("her", "her-cs") for s in range(1, 7)),
+                *(f"push-{m}-s{s}" for m in ("her", "her-cs") for s in range(1, 3)))
+"""The HER-EBP-CS runs first: part 3 replays the first runs of each environment."""
 SHARE_EPOCHS = (1, 5, 10, 15, 20)
+SAMPLED_EPOCHS = 10
+"""Epochs 1–10: the mean `sampled_moved_share` of each committed run in part 4."""
+ENERGY = EnergyConfig()
+"""EBP's energy with the defaults the committed runs used (clip 0.5, ε 1e-6)."""
+ENERGY_BLOCKS = range(0, 6)
+"""Blocks (epochs' worth of episodes) 0–5: part 4's early view of EBP's energies."""
 BLOCKS = 12
 MOVED_M = 0.005  # the replay's MOVED_THRESHOLD_M: an episode moved the cube when it went >5 mm
 OPEN_LOOP_FIRST, OPEN_LOOP_COUNT = 1000, 100
 FINDINGS = """\
-Written from the tables above (2026-11-26); tests/bench/test_early_policy.py checks each claim
-against docs/results/early_policy.json and the committed runs.
+Written from the tables above (2026-11-26, evening); tests/bench/test_early_policy.py checks
+each claim against docs/results/early_policy.json and the committed runs.
 
-- **On v4 the early policies move the cube about a third as often, in every seed.** At epoch
-  10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 11 runs) has moved the cube
-  in 13–18 % of its stored episodes and every v4 run (11 runs, the chaos soaks' and the
-  torquescale-4 run included; all HER-EBP-CS: no v4 HER or HER-CS run logs the share yet) in
-  5–10 %. The v4 share even falls after epoch 1 (random exploration moves the cube about as
-  often on both, docs/results/env_diff.md), while v1's rises from epoch 5. HER-EBP-CS draws
-  almost only such episodes on both (sampled share .92–.99), so on v4 it learns from 2–3×
-  fewer of them for its first 20 epochs.
-- **Because the v4 policies wander off.** Over epochs 3–11 the v4 policies' gripper path is
+- **On v4 the early HER-EBP-CS policies move the cube about a third as often, in every seed;
+  HER and HER-CS do not.** At epoch 10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 17
+  runs) has moved the cube in 12.8–18.5 % of its stored episodes, every v4 HER-EBP-CS run (11
+  runs, the chaos soaks' and the torquescale-4 run included) in 5.1–9.7 %, and every v4 HER or
+  HER-CS run (6, the new default) in 14.0–17.9 %, inside v1's range.
+- **Because the v4 HER-EBP-CS policies wander off.** Over epochs 3–11 their gripper path is
   1.0–1.1 m per episode against 0.85–0.93 on v1, it ends 0.36–0.37 m from the cube's start
-  against 0.18–0.20, and it rides 10–13 cm above its start against 6–8: the v1 policies have
-  begun to go to the cube, the v4 ones have not.
+  against 0.18–0.20, and it rides 10–13 cm above its start against 6–8. The v4 HER and HER-CS
+  policies end 0.18–0.21 m from it (v1's HER and HER-CS: 0.17–0.19) and move it in 16–19 % of
+  their episodes (v1: 15–23 %): the wandering is EBP's on v4, not v4's.
 - **Not because the simulators answer actions differently.** The same logged action sequences
   replayed without feedback move the cube in the same episodes in both (equal shares in 5 of 6
   runs, .10 against .09 in the sixth) and carry the gripper 2–5 % farther along its path on
   v4 (3–10 % net: v4's mocap tracks a full action further per step, env_diff.md item 1),
-  against 67 % more net travel in closed loop. So the difference is in what the two simulators' data
-  teach the critic and actor in the first epochs, not in the arm's reach; and not in the
-  weld's tilt either, since the torquescale-4 run (v1's tilt, env_diff.md item 2) behaves like
-  v4 (5.9 % at epoch 10).
-- **Next step, not taken here.** Train offline on one simulator's logged episodes of epochs
-  0–5 and act in the other (or swap the cube's contact parameters only), to find which part of
-  the data turns the policy away from the cube.
+  against 67 % more net travel in closed loop; nor because of the weld's tilt, since the
+  torquescale-4 run (v1's tilt, env_diff.md item 2) wanders like v4 (0.34 m).
+- **What EBP sees differently: the still cube.** On v1 the resting cube is never quite still
+  (MuJoCo 2.1's contact lets it settle and tremble, by a median 0.08 mm of height in seed
+  1's first 400 episodes), so an episode that leaves it where it was still carries about
+  1e-3 of trajectory energy
+  (0.87–1.04e-3 in every v1 run, blocks 0–5); on v4 it carries 4e-6 to 4e-5. EBP draws
+  p ∝ energy + ε with ε = 1e-6, so on v1 those episodes, in which only the gripper moved,
+  would get 2.7–4.5 % of the draws and on v4 0.1–0.3 % (the committed EBP-CS sampler, with
+  its clusters: moved-object episodes are 93–94 % of v1's samples over epochs 1–10 and
+  94–98 % of v4's). A screening run with `energy.epsilon=1e-3` on v4
+  (push-eps1e-3-her-ebp-cs-s1: v1's floor for every episode, seed 1) does not wander: over
+  epochs 3–11 it moves the cube in 14 % of its episodes and ends 0.24 m from it, outside
+  every plain v4 HER-EBP-CS run's range on every fact and most of the way to v1's. One seed:
+  a lead on the mechanism, not yet a setting that closes the gap (its 50-epoch curve is in
+  docs/results/runs/README.md once done).
 """
 
 
@@ -86,6 +108,13 @@ def run_environment(config: dict) -> str:
     version = task.get("env_version", "v4")
     scale = float(task.get("weld_torquescale", 1.0))
     return version if scale == 1.0 else f"{version} torquescale {scale:g}"
+
+
+def run_method(config: dict) -> str:
+    """The run's method, and EBP's ε where the run set one other than the default."""
+    method = str(config.get("run", {}).get("method", "?"))
+    epsilon = float(config.get("energy", {}).get("epsilon", ENERGY.epsilon))
+    return method if epsilon == ENERGY.epsilon else f"{method}, ε {epsilon:g}"
 
 
 def read_config(run: Path) -> dict:
@@ -110,8 +139,12 @@ def committed_moved_shares(folder: Path, epochs: Sequence[int] = SHARE_EPOCHS
         if np.isnan(moved[0]):
             continue
         share = {str(e): float(moved[e - 1]) for e in epochs if e <= len(moved)}
+        sampled = (metrics.column("sampled_moved_share")[:SAMPLED_EPOCHS]
+                   if "sampled_moved_share" in metrics.columns else np.array([np.nan]))
         rows.append({"run": run.name, "env": run_environment(config),
-                     "method": config.get("run", {}).get("method", "?"), "share": share})
+                     "method": run_method(config), "share": share,
+                     "sampled_early": None if np.isnan(sampled).all()
+                     else round(float(np.nanmean(sampled)), 4)})
     return rows
 
 
@@ -152,10 +185,13 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
     """Per block of one epoch's episode ids (0-based), the mean facts of its episodes; and,
     from the same pass over the log, the actions of the episodes whose ids are in
     `actions_of` (for the open-loop replay)."""
-    training = read_config(run).get("training", {})
+    config = read_config(run)
+    training = config.get("training", {})
+    epsilon = float(config.get("energy", {}).get("epsilon", ENERGY.epsilon))
     per_epoch = int(training.get("cycles_per_epoch", 50)) * int(
         training.get("episodes_per_cycle", 4))
     out: dict[int, list[EpisodeFacts]] = {}
+    energies: dict[int, list[float]] = {}
     actions: list[np.ndarray] = []
     for episode_id, msg in read_episodes(run):
         block = episode_id // per_epoch
@@ -164,9 +200,30 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
         episode = msg_to_episode(msg)
         if block < blocks:
             out.setdefault(block, []).append(episode_facts(episode.obs))
+            energies.setdefault(block, []).append(float(trajectory_energy(episode.ag, ENERGY)))
         if episode_id in actions_of:
             actions.append(episode.actions)
-    return {b: mean_facts(f) for b, f in sorted(out.items())}, actions
+    return {b: mean_facts(f) | energy_view(f, energies[b], epsilon)
+            for b, f in sorted(out.items())}, actions
+
+
+def energy_view(facts: Sequence[EpisodeFacts], energy: Sequence[float],
+                epsilon: float = ENERGY.epsilon) -> dict[str, float]:
+    """What EBP makes of a block's episodes: the mean trajectory energy of those that left
+    the cube still and of those that moved it, and the share of the block's draws the still
+    ones would get from a sampler with p ∝ energy + ε (EBP's, leaving out EBP-CS's clusters;
+    ε the run's `energy.epsilon`)."""
+    e = np.asarray(energy, np.float64)
+    still = ~np.array([f.moved for f in facts])
+    weight = e + epsilon
+    out = {"still_energy": float(e[still].mean()) if still.any() else 0.0,
+            "moved_energy": float(e[~still].mean()) if (~still).any() else 0.0,
+            "still_draw_share": float(weight[still].sum() / weight.sum())}
+    return {k: _sig(v) for k, v in out.items()}
+
+
+def _sig(x: float) -> float:
+    return float(f"{x:.4g}")
 
 
 # ------------------------------------------------------------------ 3. open loop
@@ -231,15 +288,16 @@ def render(result: dict) -> str:
               "> 5 mm; *path*, the gripper's path length; *travel*, its start-to-end distance; "
               "*height*, its mean height above its start; *end to cube*, its final horizontal "
               "distance from the cube's start (m). Blocks 3–11, mean of the run's blocks:", "",
-              "| run | environment | moved | path | travel | height | end to cube |",
-              "|---|---|---|---|---|---|---|"]
+              "| run | environment | method | moved | path | travel | height | end to cube |",
+              "|---|---|---|---|---|---|---|---|"]
     for name, run in result["episodes"].items():
         late = [b for k, b in run["blocks"].items() if 3 <= int(k) <= 11]
         if not late:
             continue
         m = {k: np.mean([b[k] for b in late]) for k in ("moved_share", "path_m", "travel_m",
                                                        "height_m", "end_to_cube_m")}
-        lines.append(f"| {name} | {run['env']} | {m['moved_share']:.3f} | {m['path_m']:.3f} | "
+        lines.append(f"| {name} | {run['env']} | {run.get('method', '?')} | "
+                     f"{m['moved_share']:.3f} | {m['path_m']:.3f} | "
                      f"{m['travel_m']:.3f} | {m['height_m']:.3f} | {m['end_to_cube_m']:.3f} |")
     lines += ["", "## 3. The same actions without feedback, in v1 and in v4", ""]
     loop = result["open_loop"]
@@ -256,6 +314,27 @@ def render(result: dict) -> str:
                 lines.append(f"| {name} | {env} | {f['moved_share']:.3f} | {f['path_m']:.3f} | "
                              f"{f['travel_m']:.3f} | {f['height_m']:.3f} | "
                              f"{f['end_to_cube_m']:.3f} |")
+    lines += ["", "## 4. What EBP makes of the episodes that leave the cube still", "",
+              "Blocks 0–5 of each run's log (mean of the blocks): *still*, the share of "
+              "episodes in which the cube moved ≤ 5 mm; their mean trajectory energy "
+              "(hercs.replay_service.energy, the runs' settings) and that of the others; "
+              "*still draws*, the share of draws the still episodes would get from p ∝ "
+              "energy + ε (EBP's rule without EBP-CS's clusters); *sampled moved*, the run's "
+              f"committed `sampled_moved_share`, mean of epochs 1–{SAMPLED_EPOCHS}.", "",
+              "| run | environment | method | still | still energy | moved energy | "
+              "still draws | sampled moved |", "|---|---|---|---|---|---|---|---|"]
+    sampled = {r["run"]: r.get("sampled_early") for r in result["committed"]}
+    for name, run in result["episodes"].items():
+        early = [b for k, b in run["blocks"].items() if int(k) in ENERGY_BLOCKS
+                 and "still_energy" in b]
+        if not early or "ebp" not in str(run.get("method")):
+            continue
+        m = {k: np.mean([b[k] for b in early]) for k in ("moved_share", "still_energy",
+                                                        "moved_energy", "still_draw_share")}
+        s = sampled.get(name)
+        lines.append(f"| {name} | {run['env']} | {run['method']} | {1 - m['moved_share']:.3f} | "
+                     f"{m['still_energy']:.2e} | {m['moved_energy']:.3f} | "
+                     f"{m['still_draw_share']:.3f} | {'–' if s is None else f'{s:.3f}'} |")
     lines += ["", "## What it shows", "", FINDINGS]
     return "\n".join(lines) + "\n"
 
@@ -286,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
                   < args.open_loop_runs)
         blocks, actions[run.name] = episode_blocks(run, actions_of=range(
             OPEN_LOOP_FIRST, OPEN_LOOP_FIRST + args.open_loop_count) if replay else range(0))
-        episodes[run.name] = {"env": env, "blocks": {str(b): f for b, f in blocks.items()}}
+        episodes[run.name] = {"env": env, "method": run_method(read_config(run)),
+                              "blocks": {str(b): f for b, f in blocks.items()}}
         print(f"episodes {run.name}: {len(blocks)} blocks", flush=True)
     actions = {name: a for name, a in actions.items() if a}
     loop = ({"skipped": "--no-open-loop"} if args.no_open_loop or not actions

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from bench.early_policy import (
+    EpisodeFacts,
     committed_moved_shares,
+    energy_view,
     episode_blocks,
     episode_facts,
     replay_open_loop,
@@ -74,14 +76,32 @@ def test_logged_episodes_are_counted_per_epoch_block(tmp_path: Path) -> None:
     assert blocks.keys() == {0} and [a[0, 0] for a in actions] == [6.0, 7.0, 8.0]
 
 
-def write_run(folder: Path, name: str, overrides: list[str], shares: list[str] | None) -> None:
+def write_run(folder: Path, name: str, overrides: list[str], shares: list[str] | None,
+              sampled: list[str] | None = None) -> None:
     run = folder / name
     run.mkdir()
     save_yaml(apply_overrides(HercsConfig(), overrides), run / "config.yaml")
-    header = "epoch,success_rate" + (",buffer_moved_share" if shares is not None else "")
+    header = ("epoch,success_rate" + (",buffer_moved_share" if shares is not None else "")
+              + (",sampled_moved_share" if sampled is not None else ""))
     rows = [f"{e + 1},0.0" + (f",{s}" if shares is not None else "")
+            + (f",{sampled[e]}" if sampled is not None else "")
             for e, s in enumerate(shares or ["x"] * 3)]
     (run / "metrics.csv").write_text("\n".join([header, *rows]) + "\n")
+
+
+def test_energy_view_splits_a_blocks_draws_between_still_and_moved_episodes() -> None:
+    def facts(moved: bool) -> EpisodeFacts:
+        return EpisodeFacts(moved=moved, path_m=0.0, travel_m=0.0, height_m=0.0,
+                            end_to_cube_m=0.0)
+
+    block = [facts(False), facts(False), facts(True)]
+    view = energy_view(block, [1e-3, 3e-3, 0.2], epsilon=1e-6)
+    assert view["still_energy"] == 2e-3 and view["moved_energy"] == 0.2
+    # p ∝ e + ε: the two still episodes hold (4e-3 + 2e-6) of (0.204 + 3e-6)
+    assert abs(view["still_draw_share"] - (4e-3 + 2e-6) / (0.204 + 3e-6)) < 1e-5
+    # a larger ε lifts the still episodes' share even where their energy is nil
+    assert energy_view(block, [0.0, 0.0, 0.2], epsilon=1e-3)["still_draw_share"] > 0.009
+    assert energy_view([facts(True)], [0.1])["still_energy"] == 0.0
 
 
 def test_committed_moved_shares_are_read_per_push_run(tmp_path: Path) -> None:
@@ -91,12 +111,17 @@ def test_committed_moved_shares_are_read_per_push_run(tmp_path: Path) -> None:
                                             "run.method=her"], ["0.1", "0.05", "0.04"])
     write_run(tmp_path, "push-old-s1", ["task.name=push"], None)  # before the column existed
     write_run(tmp_path, "pick-her-s1", ["task.name=pick"], ["0.5", "0.5", "0.5"])
+    write_run(tmp_path, "push-eps-s1", ["task.name=push", "run.method=her-ebp-cs",
+                                        "energy.epsilon=0.001"], ["0.1", "0.1", "0.2"],
+              sampled=["0.9", "0.95", "1.0"])
     rows = committed_moved_shares(tmp_path, epochs=(1, 3, 5))
     assert rows == [
+        {"run": "push-eps-s1", "env": "v4", "method": "her-ebp-cs, ε 0.001",
+         "share": {"1": 0.1, "3": 0.2}, "sampled_early": 0.95},
         {"run": "push-ts4-her-s1", "env": "v4 torquescale 4", "method": "her",
-         "share": {"1": 0.1, "3": 0.04}},
+         "share": {"1": 0.1, "3": 0.04}, "sampled_early": None},
         {"run": "push-v1-her-s1", "env": "v1", "method": "her",
-         "share": {"1": 0.1, "3": 0.3}}]
+         "share": {"1": 0.1, "3": 0.3}, "sampled_early": None}]
     assert run_environment({}) == "v4"
 
 
@@ -122,14 +147,43 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
         return float(np.mean([b[key] for k, b in run["blocks"].items() if 3 <= int(k) <= 11]))
 
     runs = result["episodes"]
-    v1 = [r for r in runs.values() if r["env"] == "v1"]
-    v4 = [r for r in runs.values() if r["env"] == "v4"]
+
+    def group(env: str, *methods: str) -> list[dict]:
+        return [r for r in runs.values() if r["env"] == env and r.get("method") in methods]
+
+    v1, v4 = group("v1", "her-ebp-cs"), group("v4", "her-ebp-cs")
     assert len(v1) >= 5 and len(v4) >= 5
-    # every v1 run's early policy moves the cube more often and ends nearer it than any v4 run's
+    # HER-EBP-CS: every v1 run's early policy moves the cube more often and ends nearer it
+    # than any v4 run's
     assert min(late(r, "moved_share") for r in v1) > max(late(r, "moved_share") for r in v4)
     assert max(late(r, "end_to_cube_m") for r in v1) < min(late(r, "end_to_cube_m") for r in v4)
     assert max(late(r, "path_m") for r in v1) < min(late(r, "path_m") for r in v4)
     assert min(late(r, "height_m") for r in v4) > max(late(r, "height_m") for r in v1)
+    # HER and HER-CS do not wander on v4: their v4 runs end as near the cube as the v1 runs
+    # of any method, and move it as often as v1's HER-EBP-CS
+    plain_v1, plain_v4 = group("v1", "her", "her-cs"), group("v4", "her", "her-cs")
+    assert len(plain_v1) >= 6 and len(plain_v4) >= 4
+    v1_ends = [late(r, "end_to_cube_m") for r in v1 + plain_v1]
+    assert max(late(r, "end_to_cube_m") for r in plain_v4) < min(
+        late(r, "end_to_cube_m") for r in v4)
+    assert max(late(r, "end_to_cube_m") for r in plain_v4) <= max(v1_ends) + 0.01
+    assert min(late(r, "moved_share") for r in plain_v4) > max(late(r, "moved_share") for r in v4)
+    # EBP's energy: the still episodes' mean energy in blocks 0-5 is >= 10x higher on v1 in
+    # every HER-EBP-CS run, and their share of p ∝ energy + ε draws >= 4x
+    def early(run: dict, key: str) -> float:
+        return float(np.mean([b[key] for k, b in run["blocks"].items() if int(k) <= 5]))
+
+    assert min(early(r, "still_energy") for r in v1) > 10 * max(
+        early(r, "still_energy") for r in v4)
+    assert min(early(r, "still_draw_share") for r in v1) > 4 * max(
+        early(r, "still_draw_share") for r in v4)
+    # ε 1e-3 on v4 (v1's floor): the screening run's early policy is outside every v4 run's
+    # range on each fact, towards v1's
+    screened = [r for r in runs.values() if r["env"] == "v4" and "ε 0.001" in r["method"]]
+    if screened:
+        for key in ("end_to_cube_m", "travel_m", "height_m"):
+            assert late(screened[0], key) < min(late(r, key) for r in v4), key
+        assert late(screened[0], "moved_share") > max(late(r, "moved_share") for r in v4)
     # the same actions without feedback: the cube moves in as many episodes, the gripper's
     # path is 0-6 % longer on v4 and its net travel 0-12 %, a tenth of the closed-loop gap
     loop = result["open_loop"]
@@ -143,9 +197,14 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
     opened = max(per_env["v4"]["travel_m"] / per_env["v1"]["travel_m"] for per_env in loop.values())
     assert closed - 1 > 5 * (opened - 1)
     # the committed runs: at epoch 10 every v1 run has moved the cube in more of its stored
-    # episodes than any v4 run, torquescale 4 included
-    shares = {r["run"]: (r["env"], r["share"]["10"]) for r in result["committed"]}
-    v1_shares = [v for env, v in shares.values() if env == "v1"]
-    v4_shares = [v for env, v in shares.values() if env.startswith("v4")]
-    assert len(v1_shares) >= 11 and len(v4_shares) >= 11
-    assert min(v1_shares) > max(v4_shares)
+    # episodes than any v4 HER-EBP-CS run, torquescale 4 included; v4's HER and HER-CS runs
+    # are within v1's range
+    rows = result["committed"]
+    v1_shares = [r["share"]["10"] for r in rows if r["env"] == "v1"]
+    v4_ebp = [r["share"]["10"] for r in rows
+              if r["env"].startswith("v4") and r["method"] == "her-ebp-cs"]
+    v4_plain = [r["share"]["10"] for r in rows
+                if r["env"] == "v4" and r["method"] in ("her", "her-cs")]
+    assert len(v1_shares) >= 11 and len(v4_ebp) >= 11 and len(v4_plain) >= 4
+    assert min(v1_shares) > max(v4_ebp)
+    assert min(v4_plain) > max(v4_ebp) and max(v4_plain) <= max(v1_shares) + 0.01
