@@ -48,8 +48,10 @@ from bench.claim_statistics import (
     side_stats,
 )
 from hercs.apps.plots import (
+    EPSILON_DEFAULT,
     Curve,
     aggregate,
+    energy_epsilon,
     load_reference,
     load_runs,
     method_label,
@@ -86,6 +88,7 @@ class Group:
     schedule: str = "async"  # training.schedule; "authors" for the published curves
     precision: str = "fp32"  # learner.precision
     lag: str = ""  # asynchronous only: LEGACY or "prefetch_depth=3, max_policy_lag=…, …"
+    setting: str = ""  # other experiment settings: "torquescale 4", "ε 0.001"
 
     @property
     def label(self) -> str:
@@ -94,7 +97,8 @@ class Group:
         if self.schedule == "authors":
             return f"{name}, authors' ({self.env})"
         schedule = f"async ({lag_label(self.lag)})" if self.schedule == "async" else self.schedule
-        return f"{name}, {self.env}, {schedule}, {self.precision}"
+        setting = f", {self.setting}" if self.setting else ""
+        return f"{name}, {self.env}, {schedule}, {self.precision}{setting}"
 
 
 @functools.cache
@@ -125,7 +129,18 @@ def group_of(config: dict) -> Group:
     return Group(task=task_title(task["name"]), method=run["method"],
                  env=task.get("env_version", DEFAULT_ENV), schedule=schedule,
                  precision=(config.get("learner") or {}).get("precision", "fp32"),
-                 lag=lag_setting(config) if schedule == "async" else "")
+                 lag=lag_setting(config) if schedule == "async" else "",
+                 setting=experiment_setting(config))
+
+
+def experiment_setting(config: dict) -> str:
+    """What else a run's config.yaml changes that makes it another experiment than its
+    method's: the v4 weld's torquescale and EBP's ε where not the defaults ("" for none), so
+    that such a run is never taken for a seed of the plain group."""
+    scale = float((config.get("task") or {}).get("weld_torquescale", 1.0))
+    eps = energy_epsilon(config)
+    return ", ".join(s for s in (f"torquescale {scale:g}" if scale != 1.0 else "",
+                                 f"ε {eps:g}" if eps != EPSILON_DEFAULT else "") if s)
 
 
 @dataclass(frozen=True)

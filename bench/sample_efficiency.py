@@ -51,7 +51,7 @@ from bench.common import cpu_info, git_commit, machine_identity
 from bench.grid_slurm import run_one_cell, submit_slurm
 from hercs.apps.plot_figures import plot_figure
 from hercs.apps.plot_tables import tables
-from hercs.apps.plots import group, load_reference, load_run, method_key
+from hercs.apps.plots import EPSILON_DEFAULT, group, load_reference, load_run, method_key
 from hercs.config import PRECISIONS, SCHEDULES
 from hercs.envs import check_env
 from hercs.errors import ConfigError
@@ -80,17 +80,21 @@ class GridRun:
     precision: str = "fp32"
     env_version: str = "v4"
     weld_torquescale: float = 1.0
+    energy_epsilon: float = EPSILON_DEFAULT
 
     @property
     def name(self) -> str:
         """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
-        version (or a v4 env's weld torquescale, `-ts4`) after the task:
-        `push-v1-her-cs-lockstep-s2`."""
+        version (or a v4 env's weld torquescale, `-ts4`) and EBP's ε other than the default
+        (`-eps1e-3`) after the task: `push-v1-her-cs-lockstep-s2`."""
         variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
                                                      (self.precision, "fp32")) if v != default)
         env = "" if self.env_version == "v4" else f"-{self.env_version}"
         if self.weld_torquescale != 1.0:
             env += f"-ts{self.weld_torquescale:g}"
+        if self.energy_epsilon != EPSILON_DEFAULT:
+            mantissa, exponent = f"{self.energy_epsilon:e}".split("e")
+            env += f"-eps{float(mantissa):g}e{int(exponent)}"
         return f"{self.task}{env}-{self.method}{variant}-s{self.seed}"
 
     @property
@@ -100,9 +104,10 @@ class GridRun:
 
 def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
               schedule: str = "async", precision: str = "fp32", env_version: str = "v4",
-              weld_torquescale: float = 1.0) -> list[GridRun]:
+              weld_torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT
+              ) -> list[GridRun]:
     """Every cell, seed-major: all methods of seed 1 before any of seed 2."""
-    return [GridRun(t, m, s, schedule, precision, env_version, weld_torquescale)
+    return [GridRun(t, m, s, schedule, precision, env_version, weld_torquescale, energy_epsilon)
             for s in seeds for t in tasks for m in methods]
 
 
@@ -146,6 +151,8 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
                "--set", f"task.env_version={cell.env_version}"]
         if cell.weld_torquescale != 1.0:
             cmd += ["--set", f"task.weld_torquescale={cell.weld_torquescale:g}"]
+        if cell.energy_epsilon != EPSILON_DEFAULT:
+            cmd += ["--set", f"energy.epsilon={cell.energy_epsilon!r}"]
     for item in overrides:
         cmd += ["--set", item]
     return cmd
@@ -259,6 +266,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "schedule": r.cell.schedule, "precision": r.cell.precision,
                               "env_version": r.cell.env_version, "env_id": r.cell.env_id,
                               "weld_torquescale": r.cell.weld_torquescale,
+                              "energy_epsilon": r.cell.energy_epsilon,
                               "epochs": epochs,
                               "wall_s": round(wall, 1), "commit": commit,
                               "resumed": r.cell in resumed,
@@ -303,7 +311,9 @@ def done_key(record: dict) -> str:
     """The method key (hercs.apps.plots.method_key) of a `bench_done.json` record; older records
     have no schedule, precision or env version (async, fp32, v4)."""
     return method_key(record["method"], record.get("schedule", "async"),
-                      record.get("precision", "fp32"), record.get("env_version", "v4"))
+                      record.get("precision", "fp32"), record.get("env_version", "v4"),
+                      torquescale=float(record.get("weld_torquescale", 1.0)),
+                      energy_epsilon=float(record.get("energy_epsilon", EPSILON_DEFAULT)))
 
 
 def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, command: str,
@@ -374,6 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-version", choices=list(ENV_VERSIONS), default="v4",
                    help="task.env_version of every run (default v4; v1, the authors' Fetch*-v1 "
                         "on mujoco-py after `make mujoco-py`: runs named T-v1-M-sS)")
+    p.add_argument("--energy-epsilon", type=float, default=EPSILON_DEFAULT,
+                   help=f"energy.epsilon of every run (default {EPSILON_DEFAULT:g}; EBP's floor "
+                        "added to every trajectory energy; 1e-3 gives v4's still episodes "
+                        "v1's energy, docs/results/early_policy.md: runs named T-eps1e-3-M-sS)")
     p.add_argument("--weld-torquescale", type=float, default=1.0,
                    help="task.weld_torquescale of every run (v4 only; default 1, MuJoCo 3's; "
                         "4 tilts the gripper as v1 does, docs/results/env_diff.md: runs named "
@@ -448,8 +462,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"sample_efficiency: --weld-torquescale {args.weld_torquescale:g} needs "
               "--env-version v4 and a value > 0", file=sys.stderr)
         return 2
+    if not args.energy_epsilon > 0:
+        print(f"sample_efficiency: --energy-epsilon {args.energy_epsilon:g} must be > 0",
+              file=sys.stderr)
+        return 2
     cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule,
-                      args.precision, args.env_version, args.weld_torquescale)
+                      args.precision, args.env_version, args.weld_torquescale,
+                      args.energy_epsilon)
     if not args.report_only:
         try:  # once here, not a failed `hercs up` per cell
             check_env(task_spec(tasks[0], args.env_version))

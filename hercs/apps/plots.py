@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from hercs.config_algorithm import EnergyConfig
 from hercs.errors import HercsError
 from hercs.methods import METHODS
 from hercs.rundir import CONFIG, METRICS
@@ -72,6 +73,8 @@ VARIANT_COLORS: dict[str, str] = {
     "her-ebp-cs/lag7": "burlywood", "her-ebp-cs/bf16/lag7": "khaki",
 }
 ENV_VERSION_DEFAULT = "v4"
+EPSILON_DEFAULT = EnergyConfig().epsilon
+"""EBP's ε added to every trajectory energy; a run with another is its own experiment."""
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
@@ -133,16 +136,22 @@ def task_title(name: str) -> str:
 
 def method_key(method: str, schedule: str = "async", precision: str = "fp32",
                env_version: str = ENV_VERSION_DEFAULT, lag: str = "",
-               torquescale: float = 1.0) -> str:
+               torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT) -> str:
     """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
     for the learner's mixed precision, `/lag7` for an asynchronous run made with the old,
-    staler default (`lag`, see `legacy_lag`) and `/v1` for the authors' Fetch*-v1
-    environment, or `/ts4` for v4 with the gripper weld's torquescale 4
-    (`her-cs/lockstep/bf16/v1` has three)."""
+    staler default (`lag`, see `legacy_lag`), `/eps0.001` for EBP's `energy.epsilon` other
+    than the default, and `/v1` for the authors' Fetch*-v1 environment, or `/ts4` for v4 with
+    the gripper weld's torquescale 4 (`her-cs/lockstep/bf16/v1` has three)."""
     env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
+    eps = "" if energy_epsilon == EPSILON_DEFAULT else f"eps{energy_epsilon:g}"
     variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (lag, ""),
-                                     (env, ENV_VERSION_DEFAULT)) if v != default)
+                                     (eps, ""), (env, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
+
+
+def energy_epsilon(config: dict[str, Any]) -> float:
+    """A resolved config.yaml's `energy.epsilon` (absent: the default, as before it was saved)."""
+    return float((config.get("energy") or {}).get("epsilon", EPSILON_DEFAULT))
 
 
 LEGACY_LAG = "lag7"
@@ -168,7 +177,8 @@ def method_label(key: str) -> str:
     """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
     "HER-CS (v1)", `her-cs/lag7` → "HER-CS (lag 7)"."""
     method, *variants = key.split("/")
-    inline = (v for v in variants if not _env_version(v) and v != LEGACY_LAG)
+    inline = (f"ε {v[3:]}" if v.startswith("eps") else v
+              for v in variants if not _env_version(v) and v != LEGACY_LAG)
     label = " ".join((METHOD_LABELS.get(method, method), *inline))
     notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
              for v in variants if _env_version(v)]
@@ -221,7 +231,8 @@ def load_run(run_dir: str | Path) -> Curve:
                             (config.get("learner") or {}).get("precision", "fp32"),
                             config["task"].get("env_version", ENV_VERSION_DEFAULT),
                             legacy_lag(config),
-                            float(config["task"].get("weld_torquescale", 1.0)))
+                            float(config["task"].get("weld_torquescale", 1.0)),
+                            energy_epsilon(config))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc

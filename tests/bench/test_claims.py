@@ -117,6 +117,28 @@ def test_groups_follow_the_config_and_missing_keys_take_the_old_defaults(tmp_pat
     assert [r.seed for r in authors] == [121, 123, 125, 127, 133]
 
 
+def test_a_run_with_another_weld_or_energy_floor_is_never_a_seed_of_the_plain_group(
+        tmp_path: Path) -> None:
+    # before the setting was part of the group, the ε run (its name sorts first) stood in
+    # for the plain run of its seed, and the torquescale run could have
+    _run(tmp_path, "push-eps1e-3-her-ebp-cs-s1", "her-ebp-cs", 1, _ramp(30, 50), **NEW_LAG,
+         energy={"epsilon": 0.001})
+    _run(tmp_path, "push-her-ebp-cs-s1", "her-ebp-cs", 1, _ramp(30, 50), **NEW_LAG)
+    _run(tmp_path, "push-ts4-her-ebp-cs-s1", "her-ebp-cs", 1, _ramp(30, 60),
+         **_deep_merge(NEW_LAG, {"task": {"weld_torquescale": 4.0}}))
+    groups = claims.load_groups(tmp_path)
+    lag = claims.lag_setting(NEW_LAG)
+    names = {g: [r.name for r in rs] for g, rs in groups.items() if g.schedule != "authors"}
+    assert names == {
+        claims.Group("FetchPush", "her-ebp-cs", lag=lag): ["push-her-ebp-cs-s1"],
+        claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001"): [
+            "push-eps1e-3-her-ebp-cs-s1"],
+        claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="torquescale 4"): [
+            "push-ts4-her-ebp-cs-s1"]}
+    assert claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001").label == (
+        "HER-EBP-CS, v4, async (new default), fp32, ε 0.001")
+
+
 def test_two_runs_of_one_group_and_seed_are_one_seed_the_longer(tmp_path: Path) -> None:
     _run(tmp_path / "a", "push-her-s1", "her", 1, _ramp(30, 20))
     _run(tmp_path / "a", "push-her-s1-again", "her", 1, _ramp(30, 50))

@@ -194,6 +194,19 @@ def test_a_v4_grid_with_a_stiffer_gripper_weld_is_named_and_launched_apart() -> 
     assert not any("weld_torquescale" in a for a in plain)
 
 
+def test_a_grid_with_another_energy_floor_is_named_and_launched_apart() -> None:
+    cell = se.GridRun("push", "her-ebp-cs", 3, energy_epsilon=1e-3)
+    assert cell.name == "push-eps1e-3-her-ebp-cs-s3"
+    assert se.GridRun("push", "her-ebp", 1, energy_epsilon=2.5e-4).name == (
+        "push-eps2.5e-4-her-ebp-s1")
+    cmd = se.up_command(cell, epochs=3, run_root=Path("/r"), port=1, actors=1, overrides=[])
+    assert cmd[-2:] == ["--set", "energy.epsilon=0.001"]
+    plain = se.up_command(se.GridRun("push", "her-ebp-cs", 3), epochs=3, run_root=Path("/r"),
+                          port=1, actors=1, overrides=[])
+    assert not any("energy.epsilon" in a for a in plain)
+    assert se.main(["--energy-epsilon", "0", "--report-only", "--tasks", "push"]) == 2
+
+
 def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Path) -> None:
     runs, committed = tmp_path / "runs", tmp_path / "committed"
     committed.mkdir()

@@ -334,6 +334,11 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     assert plots.method_key("her-cs", "lockstep", "bf16", "v1") == "her-cs/lockstep/bf16/v1"
     assert plots.method_label("her-cs/lockstep/bf16/v1") == "HER-CS lockstep bf16 (v1)"
     assert plots.method_key("her-cs", env_version="v4") == "her-cs"
+    eps = plots.method_key("her-ebp-cs", energy_epsilon=1e-3, torquescale=4.0)
+    assert eps == "her-ebp-cs/eps0.001/ts4"
+    assert plots.method_label(eps) == "HER-EBP-CS ε 0.001 (torquescale 4)"
+    assert plots.energy_epsilon({"energy": {"epsilon": 0.001}}) == 0.001
+    assert plots.energy_epsilon({}) == plots.EPSILON_DEFAULT
     assert all(plots.method_color(f"{m}/v1") != plots.method_color(m)
                for m in plots.METHOD_ORDER)
     assert all(plots.method_color(f"{m}/lockstep/bf16/v1") for m in plots.METHOD_ORDER)
