@@ -43,6 +43,7 @@ import yaml
 
 from bench.common import REPO, git_commit
 from hercs.api import read_metrics
+from hercs.apps.plots import energy_epsilon
 from hercs.codec import msg_to_episode
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
@@ -88,8 +89,8 @@ each claim against docs/results/early_policy.json and the committed runs.
 - **What EBP sees differently: the still cube.** On v1 the resting cube is never quite still
   (MuJoCo 2.1's contact lets it settle and tremble, by a median 0.08 mm of height in seed
   1's first 400 episodes), so an episode that leaves it where it was still carries about
-  1e-3 of trajectory energy
-  (0.87–1.04e-3 in every v1 run, blocks 0–5); on v4 it carries 4e-6 to 4e-5. EBP draws
+  1e-3 of trajectory energy (0.87–1.04e-3 in every v1 run, blocks 0–5); on v4 it carries
+  4e-6 to 4e-5. EBP draws
   p ∝ energy + ε with ε = 1e-6, so on v1 those episodes, in which only the gripper moved,
   would get 2.7–4.5 % of the draws and on v4 0.1–0.3 % (the committed EBP-CS sampler, with
   its clusters: moved-object episodes are 93–94 % of v1's samples over epochs 1–10 and
@@ -113,7 +114,7 @@ def run_environment(config: dict) -> str:
 def run_method(config: dict) -> str:
     """The run's method, and EBP's ε where the run set one other than the default."""
     method = str(config.get("run", {}).get("method", "?"))
-    epsilon = float(config.get("energy", {}).get("epsilon", ENERGY.epsilon))
+    epsilon = energy_epsilon(config)
     return method if epsilon == ENERGY.epsilon else f"{method}, ε {epsilon:g}"
 
 
@@ -187,7 +188,7 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
     `actions_of` (for the open-loop replay)."""
     config = read_config(run)
     training = config.get("training", {})
-    epsilon = float(config.get("energy", {}).get("epsilon", ENERGY.epsilon))
+    epsilon = energy_epsilon(config)
     per_epoch = int(training.get("cycles_per_epoch", 50)) * int(
         training.get("episodes_per_cycle", 4))
     out: dict[int, list[EpisodeFacts]] = {}
