@@ -22,7 +22,6 @@ ratio = actor steps per CPU-second ÷ raw steps per CPU-second (CPU time of this
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import git_commit
+from bench.common import git_commit, write_report
 from hercs.actors.rollout import VectorRollout
 from hercs.codec import episode_to_msg
 from hercs.config import DDPGConfig
@@ -140,11 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {r['envs']} | {r['actor_steps_per_cpu_s']:.0f} | "
                      f"{r['raw_steps_per_cpu_s']:.0f} | {r['ratio']:.3f} | ≥ {TARGET} ({met}) |")
     out = args.out if args.out is not None else (None if args.quick else REPO / "docs/results")
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "actor_envs.json").write_text(json.dumps(summary, indent=2) + "\n")
-        (out / "actor_envs.md").write_text("\n".join(lines) + "\n")
-        print(f"wrote {out / 'actor_envs.md'}")
+    write_report(out, "actor_envs", summary, "\n".join(lines) + "\n")
     return 0
 
 

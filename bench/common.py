@@ -1,9 +1,12 @@
-"""What every benchmark script shares: the commit its results were measured at."""
+"""What every benchmark script shares: the commit its results were measured at, and how a
+report is written."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -55,3 +58,14 @@ def machine_identity() -> dict[str, str]:
     except OSError:
         boot = "unknown"
     return {"cpu": cpu, "boot_id": boot}
+
+
+def write_report(out: Path | None, name: str, summary: Any, text: str) -> None:
+    """`<out>/<name>.json` (the summary) and `<out>/<name>.md` (the rendered text), the folder
+    made if need be; nothing where `out` is None (a quick run without --out)."""
+    if out is None:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / f"{name}.md").write_text(text)
+    print(f"wrote {out / (name + '.md')}")

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import platform
 import sys
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 import hercs.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
-from bench.common import git_commit
+from bench.common import git_commit, write_report
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
 from hercs.replay_service.core import ReplayCore
@@ -135,11 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     text = report(summary)
     print(text)
     out = args.out or (None if args.quick else REPO / "docs" / "results")
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "env_reward.json").write_text(json.dumps(summary, indent=2) + "\n")
-        (out / "env_reward.md").write_text(text)
-        print(f"wrote {out / 'env_reward.md'}")
+    write_report(out, "env_reward", summary, text)
     return 0
 
 

@@ -27,7 +27,6 @@ Writes docs/results/learner.{json,md} (or --out).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -39,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit
+from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit, write_report
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
@@ -264,11 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines) + "\n"
     print(text)
     out = args.out or (None if args.quick else REPO / "docs" / "results")
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "learner.json").write_text(json.dumps(summary, indent=2) + "\n")
-        (out / "learner.md").write_text(text)
-        print(f"wrote {out / 'learner.md'}")
+    write_report(out, "learner", summary, text)
     return 0
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import platform
 import sys
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import git_commit
+from bench.common import git_commit, write_report
 from bench.learner import make_batch
 from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
@@ -184,11 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     text = report(summary)
     print(text)
     out = args.out or (None if args.quick else REPO / "docs" / "results")
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "learner_cuda.json").write_text(json.dumps(summary, indent=2) + "\n")
-        (out / "learner_cuda.md").write_text(text)
-        print(f"wrote {out / 'learner_cuda.md'}")
+    write_report(out, "learner_cuda", summary, text)
     return 0
 
 

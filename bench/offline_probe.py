@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import REPO, git_commit
+from bench.common import REPO, git_commit, write_report
 from bench.early_policy import EpisodeFacts, episode_facts, mean_facts
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import EpisodeData
@@ -133,11 +133,12 @@ def evaluate(weights: PolicyWeights, target: str, episodes: int) -> dict[str, fl
 
 def run(*, sims: Sequence[str], episodes: int, cycles: int, seeds: Sequence[int],
         eval_episodes: int) -> dict[str, Any]:
-    spec = probe_config("v4", 0).task.spec
+    config = probe_config("v4", 0)
+    spec = config.task.spec
     actions = random_actions(episodes, spec.episode_steps, spec.action_dim)
     result: dict[str, Any] = {"date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                     "commit": git_commit(), "episodes": episodes, "cycles": cycles,
-                    "updates": cycles * probe_config("v4", 0).training.minibatches_per_cycle,
+                    "updates": cycles * config.training.minibatches_per_cycle,
                     "seeds": list(seeds), "eval_episodes": eval_episodes, "data": {},
                     "policies": []}
     data: dict[str, list[EpisodeData]] = {}
@@ -238,11 +239,7 @@ def main(argv: list[str] | None = None) -> int:
             "findings", "")
     text = render(result)
     print(text)
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "offline_probe.json").write_text(json.dumps(result, indent=2) + "\n")
-        (out / "offline_probe.md").write_text(text)
-        print(f"wrote {out / 'offline_probe.md'}")
+    write_report(out, "offline_probe", result, text)
     return 0
 
 
