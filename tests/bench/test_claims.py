@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -183,6 +184,27 @@ def test_a_side_whose_runs_stopped_early_says_so(tmp_path: Path) -> None:
     text = claims.report([r], groups, "cmd", reps=REPS)
     assert "not enough seeds (X n=0, 2 shorter than 50 epochs)" in text
     assert "| cs-1 | stopped before epoch 50: left out | – |" in text
+
+
+def test_a_claim_with_its_own_epoch_cuts_both_sides_there(tmp_path: Path) -> None:
+    """The bf16 runs are 40 epochs: their claim cuts both sides at 40, where a 50-epoch run
+    that crosses at 45 is censored (at 40), and the runs' table says at which epoch."""
+    _run(tmp_path, "cs-1", "her-cs", 1, _ramp(10, 40))
+    _run(tmp_path, "cs-2", "her-cs", 2, _ramp(12, 40))
+    _run(tmp_path, "her-1", "her", 1, _ramp(40))
+    _run(tmp_path, "her-2", "her", 2, _ramp(20))
+    groups = claims.load_groups(tmp_path)
+    at40 = replace(CS_VS_HER, title="HER-CS against HER, at epoch 40", epoch=40)
+    [r] = claims.evaluate([at40], groups, reps=REPS)
+    assert (r.x.n, r.y.n, r.x.epoch) == (2, 2, 40)
+    assert [s.at_half for s in r.x.scores] == [15, 17]
+    assert [(s.at_half, s.censored) for s in r.y.scores] == [(40, True), (25, False)]
+    text = claims.report([r], groups, "cmd", reps=REPS)
+    assert "| HER (at epoch 40) | her-1 | .00 | never (40, censored) |" in text.replace(
+        ", v4, async (legacy), fp32", "")
+    # the same runs at the report's epoch 50: the HER-CS side is too short
+    [r50] = claims.evaluate([CS_VS_HER], groups, reps=REPS)
+    assert (r50.x.n, r50.x.short) == (0, ["cs-1", "cs-2"])
 
 
 def test_numbers_by_hand_for_two_against_two(tmp_path: Path) -> None:
