@@ -230,6 +230,11 @@ CLAIMS: tuple[Claim, ...] = (
     # results/early_policy.md part 4); ε 1e-3 on v4 restores that share of the draws
     Claim("energy ε 1e-3 against the default, HER-EBP-CS, v4",
           _push("her-ebp-cs", setting="ε 0.001"), _push("her-ebp-cs")),
+    Claim("v4 with ε 1e-3 against v1, HER-EBP-CS: does the setting close the gap?",
+          _push("her-ebp-cs", setting="ε 0.001"), _push("her-ebp-cs", env="v1")),
+    Claim("ours against the authors', HER-EBP-CS, v4 with ε 1e-3",
+          _push("her-ebp-cs", setting="ε 0.001"),
+          _push("her-ebp-cs", env="v1", schedule="authors", lag="")),
     *(Claim(f"ours against the authors', {method_label(m)}, {env}", _push(m, env=env),
             _push(m, env="v1", schedule="authors", lag=""))
       for env in ("v4", "v1") for m in ("her", "her-cs", "her-ebp", "her-ebp-cs")),
