@@ -177,13 +177,15 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
         early(r, "still_energy") for r in v4)
     assert min(early(r, "still_draw_share") for r in v1) > 4 * max(
         early(r, "still_draw_share") for r in v4)
-    # ε 1e-3 on v4 (v1's floor): the screening run's early policy is outside every v4 run's
-    # range on each fact, towards v1's
+    # ε 1e-3 on v4 (v1's floor): every such run's early policy is outside every plain v4
+    # run's range on each fact, towards v1's, and its still episodes get v1's share of draws
     screened = [r for r in runs.values() if r["env"] == "v4" and "ε 0.001" in r["method"]]
-    if screened:
+    for run in screened:
         for key in ("end_to_cube_m", "travel_m", "height_m"):
-            assert late(screened[0], key) < min(late(r, key) for r in v4), key
-        assert late(screened[0], "moved_share") > max(late(r, "moved_share") for r in v4)
+            assert late(run, key) < min(late(r, key) for r in v4), key
+        assert late(run, "moved_share") > max(late(r, "moved_share") for r in v4)
+        assert early(run, "still_draw_share") > 4 * max(early(r, "still_draw_share")
+                                                         for r in v4)
     # the same actions without feedback: the cube moves in as many episodes, the gripper's
     # path is 0-6 % longer on v4 and its net travel 0-12 %, a tenth of the closed-loop gap
     loop = result["open_loop"]
@@ -198,7 +200,7 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
     assert closed - 1 > 5 * (opened - 1)
     # the committed runs: at epoch 10 every v1 run has moved the cube in more of its stored
     # episodes than any v4 HER-EBP-CS run, torquescale 4 included; v4's HER and HER-CS runs
-    # are within v1's range
+    # are within v1's range or above it, never below
     rows = result["committed"]
     v1_shares = [r["share"]["10"] for r in rows if r["env"] == "v1"]
     v4_ebp = [r["share"]["10"] for r in rows
@@ -207,4 +209,4 @@ def test_the_committed_reports_findings_hold_in_its_data() -> None:
                 if r["env"] == "v4" and r["method"] in ("her", "her-cs")]
     assert len(v1_shares) >= 11 and len(v4_ebp) >= 11 and len(v4_plain) >= 4
     assert min(v1_shares) > max(v4_ebp)
-    assert min(v4_plain) > max(v4_ebp) and max(v4_plain) <= max(v1_shares) + 0.01
+    assert min(v4_plain) > max(v4_ebp) and min(v4_plain) >= min(v1_shares) - 0.01
