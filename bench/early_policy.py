@@ -67,8 +67,9 @@ BLOCKS = 12
 MOVED_M = 0.005  # the replay's MOVED_THRESHOLD_M: an episode moved the cube when it went >5 mm
 OPEN_LOOP_FIRST, OPEN_LOOP_COUNT = 1000, 100
 FINDINGS = """\
-Written from the tables above (2026-11-26, evening; the ε runs at night); tests/bench/test_early_policy.py checks
-each claim against docs/results/early_policy.json and the committed runs.
+Written from the tables above (2026-11-26, evening; the ε runs at night);
+tests/bench/test_early_policy.py checks each claim against docs/results/early_policy.json and
+the committed runs.
 
 - **On v4 the early HER-EBP-CS policies move the cube about a third as often, in every seed;
   HER and HER-CS do not.** At epoch 10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 17
