@@ -73,9 +73,9 @@ VARIANT_COLORS: dict[str, str] = {
     "her-ebp-cs/lag7": "burlywood", "her-ebp-cs/bf16/lag7": "khaki",
 }
 ENV_VERSION_DEFAULT = "v4"
+"""`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 EPSILON_DEFAULT = EnergyConfig().epsilon
 """EBP's ε added to every trajectory energy; a run with another is its own experiment."""
-"""`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
