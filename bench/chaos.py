@@ -60,7 +60,7 @@ from bench.chaos_actors import Incarnation, RemoteActors
 from bench.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan, Event
 from bench.chaos_report import measure_soak, write_report
 from bench.chaos_state import QUICK_SHAPE, Shape, SoakState, new_state
-from bench.faults import Up
+from bench.faults import EPOCH, Up
 from bench.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
@@ -168,6 +168,18 @@ class Soak:
         self.state.progress += self._clocked(self.up)
         self.up = None
 
+    def _due(self, event: Event, now: float) -> bool:
+        """On the clock, or (an epoch-gated plan) once its epoch is recorded."""
+        if event.after_epoch:
+            return self._epochs_recorded() >= event.after_epoch
+        return event.at_s <= now
+
+    def _epochs_recorded(self) -> int:
+        """The last epoch `hercs up` has printed, over every launch of this soak."""
+        live = [] if self.up is None else self.up.seen
+        return max((int(m["epoch"]) for _, line in (*self.state.progress, *live)
+                    if (m := EPOCH.match(line))), default=0)
+
     def _child_alive(self, pid: int) -> bool:
         return str(self.run_dir / CONFIG) in _cmdline(pid)
 
@@ -249,7 +261,7 @@ class Soak:
                     self.heal(ident)
                 self._note_restarts(self.actors.tend(now))
                 while (self.state.next_event < len(self.events)
-                       and self.events[self.state.next_event].at_s <= now):
+                       and self._due(self.events[self.state.next_event], now)):
                     self.inject(self.events[self.state.next_event])
                     self.state.next_event += 1
                     self.save()

@@ -124,8 +124,16 @@ class TransportConfig:
     replay, before it exits with status 3 saying what it waited for and which runs the router
     knows. 0 waits for ever (a log line every 10 s says what for): actors may be started
     before the run."""
+    rediscover_s: float = 20.0
+    """A service whose requests on a key that answered before find no queryable for this
+    long, while its session has a router, reopens its session and declares everything again
+    (a session that reconnected after a cut but never relearned the router's declarations:
+    hercs.rediscovery); repeated reopens of one outage wait twice as long each time, up to
+    160 s. 0: never."""
 
     def __post_init__(self) -> None:
+        _check(math.isfinite(self.rediscover_s) and self.rediscover_s >= 0,
+               "transport.rediscover_s", self.rediscover_s, "be a finite number >= 0 (0: never)")
         for name in ("listen", "connect"):
             for endpoint in getattr(self, name):
                 problem = endpoint_problem(endpoint)

@@ -127,17 +127,37 @@ class QueryServer:
         self._lock = threading.Lock()
         self._pending: set[PendingReply] = set()
         self._closing = threading.Event()
-        self._queryable = session.declare_queryable(
-            key, zenoh.handlers.FifoChannel(capacity), complete=True
+        self._capacity = capacity
+        self._workers = workers
+        self._threads: list[threading.Thread] = []
+        self._queryable = self._declare(session)
+
+    def _declare(self, session: zenoh.Session) -> Any:
+        """Declare the queryable on `session` and start its workers (they end when it is
+        undeclared or its session closes)."""
+        queryable = session.declare_queryable(
+            self.key, zenoh.handlers.FifoChannel(self._capacity), complete=True
         )
-        channel = self._queryable.handler
-        self._threads = [
+        channel = queryable.handler
+        threads = [
             threading.Thread(target=self._run, args=(channel,), daemon=True,
-                             name=f"hercs-query-{key}-{i}")
-            for i in range(workers)
+                             name=f"hercs-query-{self.key}-{i}")
+            for i in range(self._workers)
         ]
-        for thread in self._threads:
+        for thread in threads:
             thread.start()
+        self._threads.extend(threads)
+        return queryable
+
+    def rebind(self, session: zenoh.Session) -> None:
+        """Serve the same key on `session` instead (a reopened session): the new queryable is
+        declared before the old one goes. Queries parked on the old session are answered as
+        before, for as long as that session is open."""
+        with self._lock:
+            if self._closing.is_set():
+                return
+            old, self._queryable = self._queryable, self._declare(session)
+        undeclare(old)
 
     @property
     def pending(self) -> int:
@@ -181,7 +201,8 @@ class QueryServer:
                 return
             self._closing.set()
             parked = list(self._pending)
-        undeclare(self._queryable)
+            queryable = self._queryable
+        undeclare(queryable)
         for pending in parked:
             pending.reply_error(Reason.UNAVAILABLE, f"{self.key} closed before answering")
         join_threads(self._threads)
@@ -272,7 +293,7 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
         if not _wait_for_queryable(session, key, remaining):
             why = "no queryable appeared"
             break
-    raise TransportTimeout(key, timeout_s, why)
+    raise TransportTimeout(key, timeout_s, why, no_queryable=True)
 
 
 def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> bool:

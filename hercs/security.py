@@ -69,6 +69,10 @@ _GRANTS: dict[str, list[tuple[list[str], list[str], str | None]]] = {
     "token": [(["liveliness_token"], ["ingress"], None)],
     "watch": [(["declare_liveliness_subscriber", "liveliness_query"], ["ingress"], None),
               (["liveliness_token"], ["egress"], None)],
+    # An advanced publisher's cache answers a late joiner's query on `<key>/@adv/...` with
+    # the cached sample, whose key is the plain `<key>`: the reply needs its own grant.
+    "answer_cached": [(["reply"], ["ingress"], None)],
+    "receive_cached": [(["reply"], ["egress"], None)],
 }
 
 _ADV = "@adv/**"
@@ -84,7 +88,7 @@ def _latest_publish(suffix: str) -> list[tuple[str, list[str]]]:
     """A `publisher(latest=True)`: puts, its cache queryable and its liveliness token."""
     adv = _run_key(f"{suffix}/{_ADV}")
     return [("publish", [_run_key(suffix)]), ("serve", [adv]), ("token", [adv]),
-            ("watch", [adv])]
+            ("watch", [adv]), ("answer_cached", [_run_key(suffix)])]
 
 
 def _latest_subscribe(suffix: str) -> list[tuple[str, list[str]]]:
@@ -92,7 +96,7 @@ def _latest_subscribe(suffix: str) -> list[tuple[str, list[str]]]:
     for publishers (and their own detection token)."""
     adv = _run_key(f"{suffix}/{_ADV}")
     return [("subscribe", [_run_key(suffix)]), ("subscribe", [adv]), ("query", [adv]),
-            ("watch", [adv])]
+            ("watch", [adv]), ("receive_cached", [_run_key(suffix)])]
 
 
 def _common(role: str) -> list[tuple[str, list[str]]]:

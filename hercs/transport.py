@@ -60,6 +60,7 @@ What it guarantees, and the Zenoh 1.x facts it rests on (verified on eclipse-zen
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import threading
@@ -80,6 +81,7 @@ from hercs.queries import (
     serve_queryable,
     undeclare,
 )
+from hercs.rediscovery import Rediscovery
 from hercs.transport_errors import (
     ConnectAborted,
     RemoteError,
@@ -243,25 +245,48 @@ class Publisher:
                  block: bool = False) -> None:
         self.key = key
         self._lock = threading.Lock()
-        congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-        if latest:
-            self._pub: Any = zext.declare_advanced_publisher(
-                session, key, congestion_control=congestion,
+        self._latest = latest
+        self._congestion = (zenoh.CongestionControl.BLOCK if block
+                            else zenoh.CongestionControl.DROP)
+        self._last: bytes | None = None
+        """The last payload put (latest=True), put again on a reopened session's publisher."""
+        self._matched: threading.Event | None = None if latest else threading.Event()
+        self._listener: Any = None
+        self._pub: Any = self._declare(session)
+        self._closed = False
+
+    def _declare(self, session: zenoh.Session) -> Any:
+        if self._latest:
+            return zext.declare_advanced_publisher(
+                session, self.key, congestion_control=self._congestion,
                 cache=zext.CacheConfig(1), publisher_detection=True,
             )
-            self._matched: threading.Event | None = None
-            self._listener: Any = None
-        else:
-            self._pub = session.declare_publisher(key, congestion_control=congestion)
-            matched = self._matched = threading.Event()
+        pub = session.declare_publisher(self.key, congestion_control=self._congestion)
+        matched = self._matched
+        assert matched is not None
+        matched.clear()
 
-            def on_status(status: zenoh.MatchingStatus) -> None:  # only flips an Event
-                (matched.set if status.matching else matched.clear)()
+        def on_status(status: zenoh.MatchingStatus) -> None:  # only flips an Event
+            (matched.set if status.matching else matched.clear)()
 
-            self._listener = self._pub.declare_matching_listener(on_status)
-            if self._pub.matching_status.matching:  # a MatchingStatus, always truthy itself
-                matched.set()
-        self._closed = False
+        self._listener = pub.declare_matching_listener(on_status)
+        if pub.matching_status.matching:  # type: ignore[attr-defined]  # a MatchingStatus
+            matched.set()
+        return pub
+
+    def rebind(self, session: zenoh.Session) -> None:
+        """Publish on `session` instead (a reopened session); a `latest` publisher puts its
+        last value again, so that late joiners still find it."""
+        with self._lock:
+            if self._closed:
+                return
+            if self._listener is not None:
+                undeclare(self._listener)
+            undeclare(self._pub)
+            self._pub = self._declare(session)
+            if self._last is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    self._pub.put(self._last)
 
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Block until some subscriber matches this key (True) or `timeout_s` passes (False).
@@ -282,6 +307,8 @@ class Publisher:
                 self._pub.put(payload)
             except zenoh.ZError as exc:  # e.g. its session was closed
                 raise TransportError(f"put on {self.key!r} failed: {exc}") from None
+            if self._latest:
+                self._last = payload
 
     def close(self) -> None:
         with self._lock:
@@ -303,18 +330,37 @@ def declare_publisher(session: zenoh.Session, key: str, *, latest: bool = False,
 
 class Subscription:
     """Samples from a channel handler, dispatched on our own daemon thread; `close()`
-    undeclares and joins it. Exceptions from the callback are logged and skipped."""
+    undeclares and joins it. Exceptions from the callback are logged and skipped.
 
-    def __init__(self, entity: Any, dispatch: Callable[[zenoh.Sample], None], *,
-                 name: str) -> None:
+    `declare(session)` makes the Zenoh entity (a subscriber with a channel handler); it is
+    called again by `rebind` on a reopened session."""
+
+    def __init__(self, session: zenoh.Session, declare: Callable[[zenoh.Session], Any],
+                 dispatch: Callable[[zenoh.Sample], None], *, name: str) -> None:
         self.name = name
-        self._entity = entity
+        self._declare = declare
         self._dispatch = dispatch
         self._lock = threading.Lock()
         self._closing = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(entity.handler,),
-                                        name=f"hercs-sub-{name}", daemon=True)
-        self._thread.start()
+        self._threads: list[threading.Thread] = []
+        self._entity = self._start(session)
+
+    def _start(self, session: zenoh.Session) -> Any:
+        entity = self._declare(session)
+        thread = threading.Thread(target=self._run, args=(entity.handler,),
+                                  name=f"hercs-sub-{self.name}", daemon=True)
+        thread.start()
+        self._threads.append(thread)
+        return entity
+
+    def rebind(self, session: zenoh.Session) -> None:
+        """Receive from `session` instead (a reopened session): declared there before the old
+        entity goes, whose thread then ends."""
+        with self._lock:
+            if self._closing.is_set():
+                return
+            old, self._entity = self._entity, self._start(session)
+        undeclare(old)
 
     def _run(self, channel: Any) -> None:
         while True:
@@ -335,7 +381,7 @@ class Subscription:
                 return
             self._closing.set()
             undeclare(self._entity)
-        join_threads([self._thread])
+        join_threads(self._threads)
 
 
 def _channel(capacity: int, drop_oldest: bool) -> Any:
@@ -361,20 +407,22 @@ def subscribe(
     `drop_oldest=True`: when `capacity` samples wait, the oldest is dropped instead of
     stalling the session (for "only the newest matters" streams).
     """
-    channel = _channel(capacity, drop_oldest)
-    if latest:
-        entity: Any = zext.declare_advanced_subscriber(
-            session, key, channel,
-            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1),
-        )
-    else:
-        entity = session.declare_subscriber(key, channel)
+    _channel(capacity, drop_oldest)  # checks capacity now, not at the first declare
+
+    def declare(session: zenoh.Session) -> Any:
+        channel = _channel(capacity, drop_oldest)
+        if latest:
+            return zext.declare_advanced_subscriber(
+                session, key, channel,
+                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            )
+        return session.declare_subscriber(key, channel)
 
     def dispatch(sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
             on_sample(str(sample.key_expr), sample.payload.to_bytes())
 
-    return Subscription(entity, dispatch, name=key)
+    return Subscription(session, declare, dispatch, name=key)
 
 
 # --------------------------------------------------------------------------- liveliness
@@ -385,10 +433,23 @@ class AliveToken:
 
     def __init__(self, session: zenoh.Session, key: str) -> None:
         self.key = key
+        self._lock = threading.Lock()
+        self._closed = False
         self._token = session.liveliness().declare_token(key)
 
+    def rebind(self, session: zenoh.Session) -> None:
+        """Declare the token on `session` instead (a reopened session); the old one goes
+        first, so that watchers see it leave and come back rather than two of it."""
+        with self._lock:
+            if self._closed:
+                return
+            undeclare(self._token)
+            self._token = session.liveliness().declare_token(self.key)
+
     def close(self) -> None:
-        undeclare(self._token)
+        with self._lock:
+            self._closed = True
+            undeclare(self._token)
 
 
 def declare_alive(session: zenoh.Session, key: str) -> AliveToken:
@@ -400,14 +461,15 @@ def watch_alive(session: zenoh.Session, key_expr: str,
                 on_change: Callable[[str, bool], None]) -> Subscription:
     """Call `on_change(key, alive)` when a token matching `key_expr` (e.g. `…/alive/**`)
     appears (True) or disappears (False); tokens present already are reported at once."""
-    entity = session.liveliness().declare_subscriber(
-        key_expr, zenoh.handlers.FifoChannel(256), history=True
-    )
+    def declare(session: zenoh.Session) -> Any:
+        return session.liveliness().declare_subscriber(
+            key_expr, zenoh.handlers.FifoChannel(256), history=True
+        )
 
     def dispatch(sample: zenoh.Sample) -> None:
         on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
-    return Subscription(entity, dispatch, name=key_expr)
+    return Subscription(session, declare, dispatch, name=key_expr)
 
 
 def alive_keys(session: zenoh.Session, key_expr: str, *, timeout_s: float = 2.0) -> list[str]:
@@ -426,29 +488,58 @@ def alive_keys(session: zenoh.Session, key_expr: str, *, timeout_s: float = 2.0)
 # --------------------------------------------------------------------------- the owner
 
 
+REDISCOVER_S = 20.0
+"""A client session whose requests on a key answered before have found no queryable for this
+long, while it had a router, is reopened (`hercs.rediscovery`); 0 turns it off."""
+REDISCOVER_MAX_S = 160.0
+"""The longest wait between two reopens of one streak (the waits double up to it)."""
+
+
 class Transport:
     """One process's Zenoh session and everything declared through it.
 
     The methods are the module functions bound to this session; every handle they return is
     also closed by `close()` (servers first, so parked queries get `unavailable`, then
     subscriptions, publishers and tokens, then the session). Use it as a context manager.
+
+    A client transport reopens its session when it has gone blind (`hercs.rediscovery`: a
+    key answered before finds no queryable for `rediscover_s` although the session has a
+    router): a new session is opened (waiting for the router as `open` does), every handle is
+    declared again on it, and the old one is closed. Handles stay valid throughout; requests
+    in flight on the old session end with `TransportError` (callers retry them).
     """
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, *,
+                 reopen: Callable[[], zenoh.Session] | None = None,
+                 rediscover_s: float = 0.0) -> None:
         self.session = session
         self._lock = threading.Lock()
         self._owned: list[Any] = []
         self._closed = False
+        self._reopen_session = reopen
+        self._reopen_lock = threading.Lock()
+        self._rediscovery_lock = threading.Lock()
+        self._rediscovery = (Rediscovery(after_s=rediscover_s,
+                                         max_after_s=max(REDISCOVER_MAX_S, rediscover_s))
+                             if reopen is not None and rediscover_s > 0 else None)
+        self.reopens = 0
+        """Times this transport reopened its session."""
 
     @classmethod
     def open(cls, *, mode: Mode, connect: Sequence[str] = (), listen: Sequence[str] = (),
              connect_timeout_s: float | None = None,
              stop: threading.Event | None = None,
-             settings: Mapping[str, Any] | None = None) -> Transport:
-        """`settings`: extra Zenoh config entries (`hercs.security.zenoh_settings`)."""
-        return cls(open_session(mode=mode, connect=connect, listen=listen,
+             settings: Mapping[str, Any] | None = None,
+             rediscover_s: float = REDISCOVER_S) -> Transport:
+        """`settings`: extra Zenoh config entries (`hercs.security.zenoh_settings`).
+        `rediscover_s`: see the class (clients with `connect` endpoints only; 0: never)."""
+        def opener() -> zenoh.Session:
+            return open_session(mode=mode, connect=connect, listen=listen,
                                 connect_timeout_s=connect_timeout_s, stop=stop,
-                                settings=settings))
+                                settings=settings)
+
+        reopen = opener if mode != "router" and connect else None
+        return cls(opener(), reopen=reopen, rediscover_s=rediscover_s)
 
     def _own(self, declare: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         with self._lock:
@@ -466,7 +557,73 @@ class Transport:
         return self._own(serve_deferred, key, handler, **kwargs)
 
     def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
-        return request(self.session, key, payload, timeout_s=timeout_s)
+        try:
+            reply = request(self.session, key, payload, timeout_s=timeout_s)
+        except RemoteError:
+            self._answered(key)
+            raise
+        except TransportTimeout as exc:
+            if exc.no_queryable and self._blind(key):
+                self.reopen(f"no queryable on {key!r} for "
+                            f"{self._rediscovery_wait_s(key):.0f} s although it answered "
+                            "before and the session has a router")
+            raise
+        self._answered(key)
+        return reply
+
+    def _answered(self, key: str) -> None:
+        if self._rediscovery is not None:
+            with self._rediscovery_lock:
+                self._rediscovery.answered(key)
+
+    def _rediscovery_wait_s(self, key: str) -> float:
+        assert self._rediscovery is not None
+        with self._rediscovery_lock:
+            return self._rediscovery.missing_for_s(key)
+
+    def _blind(self, key: str) -> bool:
+        """Whether a request on `key` that found no queryable calls for a reopen now."""
+        if self._rediscovery is None or self._closed:
+            return False
+        try:
+            has_router = any(True for _ in self.session.info.routers_zid())
+        except zenoh.ZError:  # closed meanwhile
+            return False
+        if not has_router:  # cut off: Zenoh reconnects by itself, and a reopen would wait too
+            return False
+        with self._rediscovery_lock:
+            return self._rediscovery.missing(key)
+
+    def reopen(self, why: str) -> None:
+        """Open a new session, declare every handle on it, close the old one.
+
+        Blocks until the router answers (as `open` does; `ConnectAborted` if the stop event is
+        set meanwhile). Concurrent calls reopen once.
+        """
+        if self._reopen_session is None:
+            raise TransportError("this transport cannot reopen its session (a router, or a "
+                                 "session opened without connect endpoints)")
+        with self._reopen_lock:
+            if self._closed:
+                return
+            log.warning("reopening this process's Zenoh session: %s", why)
+            started = time.monotonic()
+            new = self._reopen_session()
+            with self._lock:
+                if self._closed:
+                    new.close()
+                    return
+                old, self.session = self.session, new
+                owned = list(self._owned)
+            for handle in owned:
+                handle.rebind(new)
+            try:
+                old.close()
+            except zenoh.ZError as exc:
+                log.info("closing the old Zenoh session: %s", exc)
+            self.reopens += 1
+            log.warning("Zenoh session reopened in %.1f s; %d declarations renewed",
+                        time.monotonic() - started, len(owned))
 
     def publisher(self, key: str, *, latest: bool = False, block: bool = False) -> Publisher:
         return self._own(declare_publisher, key, latest=latest, block=block)

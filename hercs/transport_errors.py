@@ -22,11 +22,14 @@ class TransportTimeout(TransportError):
     deduplicates by `(actor_id, seq)`).
     """
 
-    def __init__(self, key: str, timeout_s: float, why: str) -> None:
+    def __init__(self, key: str, timeout_s: float, why: str, *,
+                 no_queryable: bool = False) -> None:
         super().__init__(f"request to {key!r}: {why} within {timeout_s:g} s; the caller "
                          "may retry")
         self.key = key
         self.timeout_s = timeout_s
+        self.no_queryable = no_queryable
+        """No queryable matched the key (rather than one that held the query too long)."""
 
 
 class RouterUnreachable(TransportError, Unreachable):

@@ -58,6 +58,10 @@ def test_the_quick_plan_is_one_actor_kill_then_one_cut() -> None:
     events = draw_events(QUICK_PLAN, actors=ACTORS, rng=np.random.default_rng(1))
     assert [(e.kind, e.target in ACTORS) for e in events] == [("kill", True), ("cut", True)]
     assert events[1].duration_s == 12.0
+    assert [e.after_epoch for e in events] == [1, 2], "held until epochs 1 and 2"
+    assert all(e.after_epoch == 0 for e in draw_events(ChaosPlan(max_kills=3, max_cuts=3),
+                                                       actors=ACTORS,
+                                                       rng=np.random.default_rng(1)))
 
 
 @pytest.mark.parametrize("changes", [

@@ -1,14 +1,15 @@
 """The chaos soak's quick mode end to end (bench.chaos): a FetchReach run over mutual TLS
-whose two actors are on other "hosts" (network namespaces), one of them SIGKILLed and
-started again by the bench's supervisor, then one host's link cut both ways for 12 s.
+whose one actor is on another "host" (a network namespace), SIGKILLed and started again by
+the bench's supervisor, then its host's link cut both ways for 12 s.
 
 Asserted: the run finishes and every actor not killed on purpose exits 0; every epoch is in
 metrics.csv once; every episode an actor logged as acked (the killed incarnation's too) is
 in the episode log, none twice; the killed actor came back under a new incarnation and
 inserted again, and so did the cut one after the heal; nothing of the faults is left on
 this machine. Needs root, iproute2 and iptables (`make netfault-tools`); otherwise skipped
-with the reason. The schedule is on the clock, so the run is sized (~80 s on 2 cores) to
-outlast it with room to recover.
+with the reason. The run cannot outpace the schedule on a fast machine: each injection
+waits for an epoch too, and the actor is the run's only source of episodes, so the run waits
+out each fault (~1.5 min on 2 cores).
 """
 
 from __future__ import annotations
@@ -33,13 +34,11 @@ def test_a_run_rides_out_a_killed_actor_and_a_cut_and_loses_nothing(tmp_path: Pa
                         committed=None, quick=True)
     result = record["result"]
     print(record["injections"], result)
-    assert record["up_exits"] == [0] and result["actor_exits"] == [0, 0], result["notes"]
+    assert record["up_exits"] == [0] and result["actor_exits"] == [0], result["notes"]
     assert result["epochs_recorded"] == [1, 2, 3, 4, 5], "every epoch once"
     assert result["acked"] > 0 and result["lost"] == 0, "every acked episode is in the log"
     assert result["stored_twice"] == 0
-    assert len(record["injections"]) == 2, (
-        "the run ended before the schedule's cut (~21 s after the launch): this machine is "
-        "faster than QUICK_SHAPE was sized for (a 2-core machine: ~80 s); give it more cycles")
+    assert len(record["injections"]) == 2, "each injection is held until its epoch"
     kill, cut = record["injections"]
     assert (kill["kind"], kill["outcome"], cut["kind"]) == ("kill", "done", "cut")
     assert cut["healed_at_s"] >= cut["at_s"] + 12.0

@@ -165,6 +165,27 @@ def test_an_authenticated_actor_inserts_and_reads_weights(run: dict[str, Transpo
     assert got.get(timeout=10) == b"weights v1"
 
 
+@pytest.mark.parametrize(("key", "owner", "joiner"), [
+    (KEYS.weights, "learner", "actor"),
+    (KEYS.weights, "learner", "evaluator"),
+    (KEYS.progress, "learner", "actor"),
+    (KEYS.cluster_model, "clusterer", "replay"),
+], ids=["weights-actor", "weights-evaluator", "progress-actor", "model-replay"])
+def test_a_late_joiner_gets_the_latest_value_through_access_control(
+        clients: Clients, run: dict[str, Transport], key: str, owner: str,
+        joiner: str) -> None:
+    """A restarted actor (or replay) must find the last weights (model) at once, not at the
+    next put: a lone actor restarted while the learner waits for its episodes would otherwise
+    never act with weights, and its episodes would be refused as stale for ever. The cache's
+    reply carries the plain key, which access control must let through."""
+    pub = run[owner].publisher(key, latest=True, block=True)
+    pub.put(b"v1")  # into the publisher's own cache at once
+    late = clients.open(joiner)
+    got: queue.Queue[bytes] = queue.Queue()
+    late.subscribe(key, lambda _, payload: got.put(payload), latest=True)
+    assert got.get(timeout=10) == b"v1"
+
+
 # -- exposure -------------------------------------------------------------------------------
 
 

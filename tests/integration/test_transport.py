@@ -431,3 +431,64 @@ def test_senders_that_come_and_go_leave_no_shared_memory_behind(
         client.close()
     grown_mib = (_rss_shmem_kib() - before) / 1024
     assert grown_mib < 8, f"shared memory grew by {grown_mib:.0f} MiB for 4 short-lived senders"
+
+
+def test_a_blind_client_reopens_its_session_and_every_handle_works_on_the_new_one(
+        open_client: OpenClient, endpoint: str) -> None:
+    """A key that answered before finds no queryable for `rediscover_s` while the session has
+    its router: the client reopens its session (hercs.rediscovery); its subscription,
+    `latest` publisher, queryable and liveliness token then work on the new session."""
+    replay, monitor = open_client(), open_client()
+    client = Transport.open(mode="client", connect=[endpoint], connect_timeout_s=5.0,
+                            rediscover_s=1.0)
+    try:
+        got: queue.Queue[bytes] = queue.Queue()
+        client.subscribe(f"{RUN}/progress", lambda key, payload: got.put(payload))
+        weights = client.publisher(f"{RUN}/weights", latest=True)
+        weights.put(b"w1")
+        client.serve(f"{RUN}/learner/state", _echo)
+        client.declare_alive(f"{RUN}/alive/actor/1")
+        changes: queue.Queue[tuple[str, bool]] = queue.Queue()
+        monitor.watch_alive(f"{RUN}/alive/actor/*", lambda key, alive: changes.put((key, alive)))
+        assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/actor/1", True)
+
+        server = replay.serve(f"{RUN}/replay/insert", _echo)
+        assert client.request(f"{RUN}/replay/insert", b"1", timeout_s=WAIT_S) == b"echo:1"
+        server.close()  # the key now finds no queryable; the session still has its router
+        deadline = time.monotonic() + 20 * WAIT_S
+        while client.reopens == 0:
+            assert time.monotonic() < deadline, "never reopened"
+            with pytest.raises(TransportError):
+                client.request(f"{RUN}/replay/insert", b"2", timeout_s=0.3)
+        assert client.reopens == 1
+        # the token left with the old session and came back with the new one
+        assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/actor/1", False)
+        assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/actor/1", True)
+
+        replay.serve(f"{RUN}/replay/insert", _echo)
+        assert client.request(f"{RUN}/replay/insert", b"3", timeout_s=WAIT_S) == b"echo:3"
+        assert monitor.request(f"{RUN}/learner/state", b"q", timeout_s=WAIT_S) == b"echo:q"
+        progress = monitor.publisher(f"{RUN}/progress", block=True)
+        assert progress.wait_for_subscribers(WAIT_S)
+        progress.put(b"p")
+        assert got.get(timeout=WAIT_S) == b"p"
+        late: queue.Queue[bytes] = queue.Queue()  # a late joiner finds the last weights again
+        monitor.subscribe(f"{RUN}/weights", lambda key, payload: late.put(payload), latest=True)
+        assert late.get(timeout=WAIT_S) == b"w1"
+    finally:
+        client.close()
+
+
+def test_a_key_that_never_answered_does_not_reopen(open_client: OpenClient,
+                                                   endpoint: str) -> None:
+    """An actor started before its run waits for the replay without reopening anything."""
+    client = Transport.open(mode="client", connect=[endpoint], connect_timeout_s=5.0,
+                            rediscover_s=0.2)
+    try:
+        started = time.monotonic()
+        while time.monotonic() - started < 1.0:  # five bounds' worth of misses
+            with pytest.raises(TransportTimeout):
+                client.request(f"{RUN}/config", b"", timeout_s=0.2)
+        assert client.reopens == 0
+    finally:
+        client.close()
