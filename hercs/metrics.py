@@ -5,9 +5,13 @@ keeps its file's columns (older runs may have fewer)."""
 from __future__ import annotations
 
 import csv
+import io
 import os
+import shutil
 from pathlib import Path
 from typing import Any
+
+from hercs.errors import HercsError
 
 METRICS_COLUMNS = [
     "epoch", "env_steps", "episodes", "updates", "success_rate", "mean_final_distance",
@@ -44,9 +48,66 @@ def recorded_epochs(path: Path) -> list[int]:
     return [int(row["epoch"]) for row in read_rows(path) if row.get("epoch")]
 
 
-def truncate_metrics(path: Path, *, through_epoch: int) -> list[int]:
+class MetricsFileError(HercsError):
+    """A metrics.csv is not whole (cut short, a row malformed, an epoch twice); the message
+    names the file, what is wrong and where."""
+
+
+def checked_epochs(path: Path) -> list[int]:
+    """The epochs metrics.csv holds rows for, in file order, after checking the whole file
+    (empty if no file, or a header alone). Raises `MetricsFileError` for a file cut short
+    (its last row without its line end, or a row with other than the header's number of
+    fields), a row whose epoch is not an integer >= 1, or an epoch recorded twice (two
+    learners wrote the file)."""
+    if not path.exists():
+        return []
+    text = path.read_text(errors="replace")
+    if not text:
+        return []
+    if not text.endswith("\n"):
+        raise MetricsFileError(f"{path}: cut short: its last line has no line end (a write "
+                               "was interrupted, or the file was truncated)")
+    rows = list(csv.reader(io.StringIO(text, newline="")))
+    header, body = rows[0], rows[1:]
+    if "epoch" not in header:
+        raise MetricsFileError(f"{path}: no 'epoch' column in its first line; not a hercs "
+                               "metrics.csv, or its header was lost")
+    column = header.index("epoch")
+    epochs: list[int] = []
+    for line, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise MetricsFileError(f"{path}, line {line}: {len(row)} fields where the header "
+                                   f"has {len(header)} (a row cut short or damaged)")
+        try:
+            epoch = int(row[column])
+        except ValueError:
+            epoch = 0
+        if epoch < 1:
+            raise MetricsFileError(f"{path}, line {line}: epoch {row[column]!r}, not an "
+                                   "integer >= 1")
+        epochs.append(epoch)
+    twice = sorted({e for e in epochs if epochs.count(e) > 1})
+    if twice:
+        raise MetricsFileError(f"{path}: epochs {epoch_spans(twice)} recorded more than once (two "
+                               "runs wrote into this folder at the same time?)")
+    return epochs
+
+
+def epoch_spans(epochs: list[int]) -> str:
+    """[1, 2, 3, 7] → '1..3, 7'."""
+    spans: list[list[int]] = []
+    for epoch in sorted(epochs):
+        if spans and epoch == spans[-1][1] + 1:
+            spans[-1][1] = epoch
+        else:
+            spans.append([epoch, epoch])
+    return ", ".join(f"{a}..{b}" if b > a else f"{a}" for a, b in spans)
+
+
+def truncate_metrics(path: Path, *, through_epoch: int, aside: Path) -> list[int]:
     """Drop the rows of epochs after `through_epoch` (a resumed learner trains them again),
-    rewriting the file atomically; returns the epochs dropped."""
+    rewriting the file atomically, after copying the whole old file to `aside/metrics.csv`
+    (made only then): rows are never lost. Returns the epochs dropped."""
     if not path.exists():
         return []
     with path.open(newline="") as f:
@@ -56,6 +117,8 @@ def truncate_metrics(path: Path, *, through_epoch: int) -> list[int]:
     keep = [r for r in rows if r.get("epoch") and int(r["epoch"]) <= through_epoch]
     dropped = [int(r["epoch"]) for r in rows if r not in keep and r.get("epoch")]
     if dropped or len(keep) != len(rows):
+        aside.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(path, aside / path.name)
         tmp = path.with_suffix(".csv.tmp")
         with tmp.open("w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=fields)

@@ -7,10 +7,16 @@ it holds, and checks whose errors say what a folder lacks and what to do.
     checkpoints/learner.pt              the learner's state at its last epoch end ("latest")
     checkpoints/best.pt                 the policy of the best-evaluated epoch ("best")
     checkpoints/epoch-NNNN.pt           the policy every `training.checkpoint_every` epochs
-    logs/<service>.log                  each process's log
+    logs/<service>.log                  each process's log (logs/router.log: the Zenoh
+                                        log of the router inside `hercs up`)
     tensorboard/                        TensorBoard scalars (with `run.tensorboard`)
     router.json                         where the run's router listens, while it runs
                                         (`RouterRecord`; `hercs up` writes and removes it)
+    owner.lock                          locked (flock) by the run's `hercs up` while it runs,
+                                        naming it: one owner at a time (hercs.apps.run_lock)
+    previous/<time>/                    what was set aside, never deleted: the old files of
+                                        `hercs up --resume RUN --restart`, or metrics rows past
+                                        the checkpoint a learner continued from
     slurm/                              a Slurm job's script, certificates and logs (`hercs
                                         slurm submit`); present before the run starts
 
@@ -29,10 +35,12 @@ import socket
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 from hercs.config import RunConfig, endpoint_parts
 from hercs.errors import HercsError
+from hercs.metrics import recorded_epochs
 from hercs.runlog.format import LIVE_NAME, SEGMENT_RE
 
 CONFIG = "config.yaml"
@@ -45,7 +53,11 @@ BEST = "best.pt"
 EPOCH_FILE = re.compile(r"^epoch-(\d+)\.pt$")
 ROUTER = "router.json"
 SLURM = "slurm"
-BEFORE_START = frozenset({SLURM})
+LOCK = "owner.lock"
+PREVIOUS = "previous"
+ROUTER_LOG = "router.log"
+"""`logs/router.log`: what the Zenoh router embedded in `hercs up` logs itself."""
+BEFORE_START = frozenset({SLURM, LOCK})
 """What a run directory may hold before its run first starts (a fresh `hercs up` refuses a
 folder holding anything else: its replay would load an old episode log)."""
 
@@ -108,11 +120,29 @@ def require_run_dir(path: str | os.PathLike[str], *, needs: tuple[str, ...] = ()
     for name in needs:
         present = has_episode_log(path) if name == LIVE_NAME else (path / name).exists()
         if not present:
-            what = "an episode log (episodes.mcap or episodes.NNN.mcap)" if name == LIVE_NAME \
+            what = "episode log (episodes.mcap or episodes.NNN.mcap)" if name == LIVE_NAME \
                 else name
+            trained = recorded_count(path)
+            if trained:
+                raise RunDirError(
+                    f"{path}: this run has no {what}, and never will here: its {METRICS} "
+                    f"records {trained} trained epochs, so the run wrote its files where it "
+                    f"trained, and this folder is a copy without them ({COPY_HOLDS}); use the "
+                    "folder where it trained, or a run that has one")
             raise RunDirError(f"{path}: this run has no {what} yet; "
                               f"{NOT_YET.get(name, 'was it made by this version of hercs?')}")
     return path
+
+
+COPY_HOLDS = "a copied or committed run often keeps only config.yaml and metrics.csv"
+
+
+def recorded_count(run_dir: Path) -> int:
+    """How many epochs `run_dir`'s metrics.csv records (0: none, no file or unreadable)."""
+    try:
+        return len(set(recorded_epochs(run_dir / METRICS)))
+    except (OSError, ValueError):
+        return 0
 
 
 def _runs_in(folder: Path) -> list[str]:
@@ -182,6 +212,15 @@ def missing_checkpoint(run_dir: Path, checkpoint: str | None, path: Path) -> Run
     asked = (f"best ({BEST}, the default) and no {LATEST}" if checkpoint is None
              else f"{checkpoint} ({path.name})")
     kept = kept_checkpoints(run_dir)
+    trained = recorded_count(run_dir)
+    if not kept and trained:
+        where = "holds none" if folder.is_dir() else "does not exist"
+        return RunDirError(
+            f"{run_dir}: no checkpoint {asked}: {folder} {where}, though {METRICS} records "
+            f"{trained} trained epochs: this folder is a copy of the run without its "
+            f"checkpoints ({COPY_HOLDS}). Evaluate the folder where it trained, or give a "
+            f"policy file (--checkpoint FILE.pt){_runs_with_policies(run_dir)}; its learning "
+            f"curve is in {METRICS} (hercs plot {run_dir} -o fig.png)")
     if not kept:
         return RunDirError(
             f"{run_dir}: no checkpoint {asked} yet: {folder} holds none. {BEST} (best, the "
@@ -191,6 +230,36 @@ def missing_checkpoint(run_dir: Path, checkpoint: str | None, path: Path) -> Run
     offers = ", ".join(f"{ask} ({name})" if ask else name for name, ask in kept.items())
     return RunDirError(f"{run_dir}: no checkpoint {asked}; {folder} holds {offers}: ask for "
                        f"one of those ({CHECKPOINT_NAMES})")
+
+
+def _runs_with_policies(run_dir: Path, most: int = 3) -> str:
+    """'; runs beside it with a policy: …' (the same run name up to its seed first), or ''."""
+    parent = run_dir.resolve().parent
+    cell = run_dir.resolve().name.rpartition("-s")[0]
+    try:
+        kept = sorted(p for p in parent.iterdir()
+                      if p.is_dir() and p.name != run_dir.resolve().name
+                      and (p / CHECKPOINTS / BEST).is_file())
+    except OSError:
+        return ""
+    kept.sort(key=lambda p: p.name.rpartition("-s")[0] != cell)  # stable: the same cell first
+    if not kept:
+        return ""
+    shown = [str(run_dir.parent / p.name) for p in kept[:most]]
+    more = f" and {len(kept) - most} more" if len(kept) > most else ""
+    return f"; runs beside it with a policy ({BEST}): {', '.join(shown)}{more}"
+
+
+def aside_folder(run_dir: Path, now: datetime | None = None) -> Path:
+    """A new `run_dir/previous/<YYYYmmdd-HHMMSS>[-n]` (not made yet) to set old files aside in:
+    what would be replaced is moved there, never deleted."""
+    stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
+    folder = run_dir / PREVIOUS / stamp
+    n = 1
+    while folder.exists():
+        n += 1
+        folder = run_dir / PREVIOUS / f"{stamp}-{n}"
+    return folder
 
 
 def holds_a_run(path: Path) -> bool:

@@ -43,7 +43,7 @@ Command = Callable[[argparse.Namespace, HercsConfig], int]
 def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
     from hercs.apps.launcher import run_up
 
-    return run_up(config, resume=bool(args.resume))
+    return run_up(config, resume=bool(args.resume), restart=args.restart)
 
 
 EXIT_NO_ROUTER = 3
@@ -185,7 +185,14 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue the run in RUN_DIR (e.g. runs/push-her-cs-s1-…) where it "
                         "stopped: the replay reloads its log, the learner its checkpoint, the "
-                        "clusterer asks the replay; metrics.csv goes on from the last epoch")
+                        "clusterer asks the replay; metrics.csv goes on from the last epoch. "
+                        "Refused (exit 2, nothing started) when that would lose results: no "
+                        "checkpoint to continue from, or files that disagree; a finished run "
+                        "says so and starts nothing")
+    p.add_argument("--restart", action="store_true",
+                   help="with --resume: start the run over from epoch 1 with its saved "
+                        "config; what it made (metrics.csv, checkpoints/, the episode log) "
+                        "is moved to RUN_DIR/previous/<time>/ first, never deleted")
     commands["up"] = _cmd_up
 
     p = sub.add_parser("slurm", help="run on a Slurm cluster (docs/CLUSTER.md)",
@@ -353,6 +360,14 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
         return 2
+    if args.command in ENV_COMMANDS:
+        from hercs.envs import check_env
+
+        try:
+            check_env(config.task.spec)
+        except ConfigError as exc:
+            print(f"hercs {args.command}: {exc}", file=sys.stderr)
+            return 2
     if args.command in JOINERS:
         try:
             joined = join_endpoints(args, config)
@@ -364,14 +379,6 @@ def main(argv: list[str] | None = None) -> int:
         if joined is None:
             return EXIT_NO_ROUTER
         config = joined
-    if args.command in ENV_COMMANDS:
-        from hercs.envs import check_env
-
-        try:
-            check_env(config.task.spec)
-        except ConfigError as exc:
-            print(f"hercs {args.command}: {exc}", file=sys.stderr)
-            return 2
     return commands[args.command](args, config)
 
 

@@ -13,7 +13,7 @@ import yaml
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
-from hercs.rundir import CONFIG
+from hercs.rundir import CONFIG, ROUTER
 from hercs.tasks import TASKS
 
 # Shortcut flags and the config field each one sets.
@@ -162,6 +162,9 @@ def resume_config(args: argparse.Namespace) -> HercsConfig:
 
 
 def resolve_config(args: argparse.Namespace) -> HercsConfig:
+    if getattr(args, "restart", False) and not getattr(args, "resume", None):
+        raise ConfigError("--restart starts a run over in its folder: give it with --resume "
+                          "RUN_DIR (hercs up --resume runs/RUN --restart)")
     if getattr(args, "resume", None):
         config = resume_config(args)
     else:
@@ -223,6 +226,12 @@ def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig
                   file=sys.stderr, flush=True)
             return None
     if record is None:
+        default = config.transport.connect == HercsConfig().transport.connect
+        print(f"hercs {args.command}: no {run_dir / ROUTER} (no run {config.run.name} is "
+              f"running in {run_dir.parent}): connecting to {', '.join(config.transport.connect)}"
+              f" ({'the default ' if default else ''}transport.connect) and waiting for a router "
+              "there; give --connect ENDPOINT (the run's router, e.g. tls/HOST:7447), or "
+              "--run-dir DIR if the run's folder is elsewhere", file=sys.stderr, flush=True)
         return config
     listed = yaml.safe_dump(record.endpoints_for(), default_flow_style=True).strip()
     return apply_overrides(config, [f"transport.connect={listed}"])

@@ -5,10 +5,15 @@ What `run_up` does, in order:
 1. (hercs/apps/run_plan.py) Names the run if `run.name` is empty
    (`<task>-<method>-s<seed>-<YYYYmmdd-HHMMSS>`) and points the children's
    `transport.connect` at the embedded router (every `listen` endpoint, with a wildcard host
-   0.0.0.0 / [::] replaced by loopback). Refuses a run directory that
-   already holds files (exit 2): a replay would load the old episode log into the new run.
-   With `resume` (`hercs up --resume runs/RUN`) it is the other way round: the folder must
-   hold a run, and every service continues it.
+   0.0.0.0 / [::] replaced by loopback). Takes the run directory's lock
+   (hercs/apps/run_lock.py, held for the launcher's life): a folder another `hercs up` runs
+   is refused at once, naming it (exit 2). Refuses a run directory that already holds files
+   (exit 2): a replay would load the old episode log into the new run. With `resume`
+   (`hercs up --resume runs/RUN`) it is the other way round: the folder must hold a run that
+   can continue without losing results (hercs/apps/resume_check.py: else exit 2, saying why
+   and what would work; a finished run exits 0 with nothing started), and every service
+   continues it. `restart` (`--resume RUN --restart`) moves what the run made into
+   `previous/<time>/` first and starts it over.
 2. Opens the router, embedded in this process (a router-mode `Transport` on
    `transport.listen`); port 0 (the default, `tcp/127.0.0.1:0`) means any free port, so two
    runs on one host never collide; an explicit port that is taken fails at once with a clear
@@ -17,6 +22,8 @@ What `run_up` does, in order:
    `--config`; `listen` as asked, `connect` the router's concrete endpoints),
    `runs/<run>/logs/` and `runs/<run>/router.json` (`hercs.rundir.RouterRecord`: where the
    router listens, for `hercs actor`/`hercs live --run-dir`; removed when the run stops).
+   From here on the embedded router's own Zenoh log lines go to `logs/router.log`
+   (`native_output_to`), not among the progress lines.
 4. Starts the services as child processes, `python -m hercs.apps.cli <role> --config … --id …`,
    each child's stdout and stderr to `logs/<id>.log`: the replay first (ids `replay-0`), and
    once its liveliness token is up the clusterer, learner, evaluator (`<role>-0`) and
@@ -66,19 +73,22 @@ waits for it until the next epoch's metrics arrive); a missing `replay_size` fro
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
 from hercs.apps.child_process import describe_exit, log_tail, signal_group, start_child
 from hercs.apps.progress import Progress
+from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
 from hercs.apps.router import RouterListenError, open_router_anywhere
+from hercs.apps.run_lock import RunBusy, RunLock
 from hercs.apps.run_plan import (
     ChildSpec,
     CommandFactory,
@@ -91,7 +101,15 @@ from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.rundir import CONFIG, LOGS, RouterRecord, holds_a_run, remove_router, write_router
+from hercs.rundir import (
+    CONFIG,
+    LOGS,
+    ROUTER_LOG,
+    RouterRecord,
+    holds_a_run,
+    remove_router,
+    write_router,
+)
 from hercs.service import EXIT_CONFIG
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
@@ -396,11 +414,14 @@ def run_up(
     out: IO[str] | None = None,
     err: IO[str] | None = None,
     resume: bool = False,
+    restart: bool = False,
 ) -> int:
     """Run a whole experiment locally (see the module docstring); returns the exit status:
-    0 done, 1 a service failed or the router could not listen, 2 the run directory is taken
-    (or, with `resume`, holds no run), 128 + n after signal n. Must be called on the main
-    thread."""
+    0 done (or, with `resume`, finished already), 1 a service failed or the router could not
+    listen, 2 the run directory is taken, is in use by another `hercs up`, or (with
+    `resume`) holds no run or one that cannot continue without losing results (`restart`:
+    start it over, its old files set aside), 128 + n after signal n. Must be called on the
+    main thread."""
     out = out or sys.stdout
     err = err or sys.stderr
     if threading.current_thread() is not threading.main_thread():
@@ -412,12 +433,46 @@ def run_up(
         print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
               flush=True)
         return 2
-    if not resume and holds_a_run(run_dir):
-        print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
-              "(or leave it empty for a fresh name), or move that directory away",
-              file=err, flush=True)
+    made = [p for p in (run_dir, *run_dir.parents) if not p.exists()]
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock = RunLock.take(run_dir)
+    except (RunBusy, OSError) as exc:
+        print(f"hercs up: {exc}", file=err, flush=True)
         return 2
+    try:
+        if not resume and holds_a_run(run_dir):
+            print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
+                  "(or leave it empty for a fresh name), or move that directory away",
+                  file=err, flush=True)
+            return 2
+        if resume and restart:
+            aside = set_aside_for_restart(run_dir)
+            print(f"hercs up: --restart: run {config.run.name} starts over from epoch 1"
+                  + (f"; what it held is kept in {aside}" if aside else ""), file=out,
+                  flush=True)
+        elif resume:
+            plan = plan_resume(run_dir, epochs=config.training.epochs)
+            if plan.finished:
+                print(f"hercs up: {plan.describe(config.run.name)}", file=out, flush=True)
+                return 0
+        return _run(config, run_dir, command=command, stop_timeout_s=stop_timeout_s,
+                    ready_timeout_s=ready_timeout_s, out=out, err=err, resume=resume)
+    except CannotResume as exc:
+        print(f"hercs up: {exc}", file=err, flush=True)
+        return 2
+    finally:
+        lock.release()
+        if made and not holds_a_run(run_dir):  # made here, nothing written (no router)
+            with contextlib.suppress(OSError):
+                for folder in made:
+                    folder.rmdir()
 
+
+def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
+         stop_timeout_s: float, ready_timeout_s: float, out: IO[str], err: IO[str],
+         resume: bool) -> int:
+    """`run_up` once the run directory is this process's: router, children, progress."""
     signals = StopSignals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP),
                           wake_on=(signal.SIGCHLD,))
     with signals:
@@ -430,31 +485,78 @@ def run_up(
             print(f"hercs up: {exc}", file=err, flush=True)
             return 1
         config = resolve_run(config, listening=listening)
-        launcher = _Launcher(config=config, run_dir=run_dir, signals=signals, command=command,
-                             stop_timeout_s=stop_timeout_s, ready_timeout_s=ready_timeout_s,
-                             out=out, err=err)
-        status = 1
+        (run_dir / LOGS).mkdir(parents=True, exist_ok=True)
+        with native_output_to(run_dir / LOGS / ROUTER_LOG, out, err) as (out, err):
+            launcher = _Launcher(config=config, run_dir=run_dir, signals=signals,
+                                 command=command, stop_timeout_s=stop_timeout_s,
+                                 ready_timeout_s=ready_timeout_s, out=out, err=err)
+            status = 1
+            try:
+                save_yaml(config, run_dir / CONFIG)
+                write_router(run_dir, RouterRecord.for_listen(listening))
+                launcher.say(f"hercs up: {'resuming ' if resume else ''}run "
+                             f"{config.run.name}, directory {run_dir}, router on {listening}")
+                router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
+                router.subscribe(launcher.keys.eval_result, launcher.on_eval)
+                router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
+                router.subscribe(launcher.keys.inserted, launcher.on_inserted,
+                                 drop_oldest=True)
+                router.watch_alive(launcher.keys.all_alive, launcher.on_alive)
+                status = launcher.run()
+            finally:
+                launcher.stop_all()
+                with launcher._print_lock:
+                    launcher._say_all(launcher.progress.flush())
+                router.close()
+                remove_router(run_dir)
+            if status == 0:
+                launcher.say(f"hercs up: run {config.run.name} finished; run directory: "
+                             f"{run_dir}")
+            else:
+                launcher.say(f"hercs up: run {config.run.name} stopped; run directory: "
+                             f"{run_dir}", error=status == 1)
+            return status
+
+
+@contextlib.contextmanager
+def native_output_to(path: Path, out: IO[str], err: IO[str]
+                     ) -> Iterator[tuple[IO[str], IO[str]]]:
+    """Point file descriptors 1 and 2 at `path` for the block and yield streams on the
+    terminal's stdout and stderr for hercs's own lines (also `sys.stdout`/`sys.stderr`
+    meanwhile).
+
+    The Zenoh router inside `hercs up` logs through Rust, which writes to descriptor 1
+    (`RUST_LOG`'s lines, errors included) or 2, not through Python's streams: its lines
+    (e.g. `ERROR … Unknown id` after a query that access control denied) would land among the
+    progress lines. With this they go to `logs/router.log`, as every child's output goes to
+    its own log, while every line hercs prints still reaches the terminal. A stream that is
+    not this process's own stdout/stderr (a test's) is kept as it is."""
+    redirected: list[tuple[int, str, IO[str], IO[str]]] = []
+    try:
+        log_fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         try:
-            (run_dir / LOGS).mkdir(parents=True, exist_ok=True)
-            save_yaml(config, run_dir / CONFIG)
-            write_router(run_dir, RouterRecord.for_listen(listening))
-            launcher.say(f"hercs up: {'resuming ' if resume else ''}run {config.run.name}, "
-                         f"directory {run_dir}, router on {listening}")
-            router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
-            router.subscribe(launcher.keys.eval_result, launcher.on_eval)
-            router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
-            router.subscribe(launcher.keys.inserted, launcher.on_inserted, drop_oldest=True)
-            router.watch_alive(launcher.keys.all_alive, launcher.on_alive)
-            status = launcher.run()
+            for stream, fd, name in ((out, 1, "stdout"), (err, 2, "stderr")):
+                try:
+                    own = stream is getattr(sys, name) and stream.fileno() == fd
+                except (AttributeError, OSError, ValueError):  # no descriptor: a test's
+                    own = False
+                if own:
+                    stream.flush()
+                    terminal = open(os.dup(fd), "w", buffering=1,  # noqa: SIM115 (below)
+                                    encoding=getattr(stream, "encoding", None) or "utf-8",
+                                    errors=getattr(stream, "errors", None) or "replace")
+                    redirected.append((fd, name, stream, terminal))
+                    os.dup2(log_fd, fd)
+                    setattr(sys, name, terminal)
         finally:
-            launcher.stop_all()
-            with launcher._print_lock:
-                launcher._say_all(launcher.progress.flush())
-            router.close()
-            remove_router(run_dir)
-        if status == 0:
-            launcher.say(f"hercs up: run {config.run.name} finished; run directory: {run_dir}")
-        else:
-            launcher.say(f"hercs up: run {config.run.name} stopped; run directory: {run_dir}",
-                         error=status == 1)
-        return status
+            os.close(log_fd)
+        streams = {name: tty for _, name, _, tty in redirected}
+        yield streams.get("stdout", out), streams.get("stderr", err)
+    finally:
+        for fd, name, stream, tty in reversed(redirected):
+            with contextlib.suppress(OSError, ValueError):
+                tty.flush()
+            os.dup2(tty.fileno(), fd)
+            setattr(sys, name, stream)
+            with contextlib.suppress(OSError, ValueError):
+                tty.close()

@@ -3,9 +3,13 @@ continues from it, with the run's metrics.csv made to agree.
 
 If `checkpoints/learner.pt` exists the learner continues from it (the end of the last
 checkpointed epoch): DDPG state, counters, weights version, the run's wall time and the epochs
-waiting for evaluation; `metrics.csv` keeps its rows up to that epoch (rows of later epochs,
-possible only after a failed checkpoint write, are dropped: those epochs are trained again)
-and a pending epoch that already has its row is not evaluated again.
+waiting for evaluation; `metrics.csv` keeps its rows up to that epoch and a pending epoch that
+already has its row is not evaluated again. Rows of later epochs (possible only after a failed
+checkpoint write, or a file put back by hand) are set aside, never deleted: the whole old file
+goes to `previous/<time>/metrics.csv` and those epochs are trained again. Without a checkpoint
+the learner starts at epoch 0 and sets aside any rows the same way. (`hercs up --resume`
+refuses such a folder before anything starts; this is the learner's own guard, e.g. when
+services run without `hercs up`.)
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.loop import LearnerLoop
 from hercs.metrics import recorded_epochs, truncate_metrics
+from hercs.rundir import aside_folder
 
 log = logging.getLogger("hercs.learner")
 
@@ -37,26 +42,30 @@ def save_learner_state(checkpoints: Path, *, learner: DDPGLearner, loop: Learner
 
 def resume_learner_state(checkpoints: Path, metrics_path: Path, *, learner: DDPGLearner,
                          loop: LearnerLoop, eval_requests: EvalRequests) -> int | None:
-    """Load the checkpoint into `learner`, `loop` and `eval_requests` and trim metrics.csv to
-    it; the epoch resumed from, or None (no checkpoint: a fresh start, rows dropped)."""
+    """Load the checkpoint into `learner`, `loop` and `eval_requests` and make metrics.csv end
+    at it (later rows set aside); the epoch resumed from, or None (no checkpoint: a fresh
+    start)."""
+    aside = aside_folder(metrics_path.parent)
     state = load_checkpoint(checkpoints)
     if state is None:
-        dropped = truncate_metrics(metrics_path, through_epoch=0)
+        dropped = truncate_metrics(metrics_path, through_epoch=0, aside=aside)
         if dropped:
-            log.warning("no checkpoint: metrics.csv rows of epochs %s dropped (retrained)",
-                        dropped)
+            log.warning("no checkpoint: training from epoch 1; metrics.csv held rows of epochs "
+                        "%s, set aside in %s (the file as it was)", dropped,
+                        aside / metrics_path.name)
         return None
     learner.load_state_dict(state["learner"])
     loop.load_state_dict(state["loop"])
     torch.set_rng_state(state["torch_rng"])
     epoch = loop.epoch
-    dropped = truncate_metrics(metrics_path, through_epoch=epoch)
+    dropped = truncate_metrics(metrics_path, through_epoch=epoch, aside=aside)
     recorded = set(recorded_epochs(metrics_path))
     for pending in [e for e in loop.pending if e in recorded]:
         del loop.pending[pending]  # its row was written after the checkpoint
     eval_requests.load_state_dict(state["eval_requests"], pending=loop.pending)
     log.info("resumed from the checkpoint of epoch %d (weights version %d, %d updates)%s%s",
              epoch, loop.version, learner.updates,
-             f"; metrics rows of epochs {dropped} dropped (retrained)" if dropped else "",
+             f"; metrics rows of epochs {dropped} set aside in {aside / metrics_path.name} "
+             "(trained again)" if dropped else "",
              f"; epochs {sorted(loop.pending)} still to be evaluated" if loop.pending else "")
     return epoch

@@ -435,7 +435,7 @@ def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:
     assert list(pids) == ["replay-0", "clusterer-0", "learner-0", "evaluator-0", "actor-0",
                           "actor-1"]
     assert sorted(p.name for p in (run_dir / "logs").iterdir()) == sorted(
-        f"{ident}.log" for ident in pids)
+        [f"{ident}.log" for ident in pids] + ["router.log"])  # router.log: the router's own
     assert not [ident for ident, pid in pids.items() if process_alive(pid)]
 
 

@@ -3,6 +3,7 @@ checkpoints/best.pt) load through the API and evaluate with `hercs eval` on a fr
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -52,3 +53,33 @@ def test_hercs_eval_runs_a_published_v1_policy() -> None:
                            "2"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert re.search(r"success [01]\.\d\d \([0-2]/2\)", done.stdout), done.stdout
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*"))}
+
+
+def test_eval_and_load_policy_write_nothing_into_the_run_directory(tmp_path: Path) -> None:
+    """Run from inside the run folder itself, the worst case: `hercs eval` and
+    `hercs.load_policy` (best.pt, and a real learner.pt) leave every file as it was and add
+    none."""
+    import shutil
+
+    from tests.run_dirs import make_run
+
+    run = tmp_path / "copy"
+    shutil.copytree(next(p for p in PUBLISHED if "-v1-" not in p.name), run)
+    trained = tmp_path / "trained"
+    make_run(trained, epochs=3, trained=2, checkpoint=2)
+    before = {folder: _snapshot(folder) for folder in (run, trained)}
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "eval", ".", "--episodes",
+                           "1"], cwd=run, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 0, done.stderr
+    for folder, checkpoint in ((run, "best"), (trained, "latest")):
+        policy = hercs.load_policy(folder, checkpoint)
+        spec = policy.config.task.spec
+        policy.act({"observation": np.zeros(spec.obs_dim), "desired_goal": np.zeros(
+            spec.goal_dim)})
+    assert {folder: _snapshot(folder) for folder in (run, trained)} == before

@@ -4,6 +4,7 @@ to do; each test asserts the text."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -151,3 +152,69 @@ def test_eval_names_the_checkpoints_a_run_has(here: Path, capsys) -> None:
         "runs/reach-her-cs-s1/checkpoints holds latest (learner.pt), epoch-10 "
         "(epoch-0010.pt), epoch-20 (epoch-0020.pt): ask for one of those (best, latest, "
         "epoch-N or a .pt file's path)\n")
+
+
+def _copied_run(here: Path, name: str) -> Path:
+    """What a committed run holds (docs/results/runs/<run>/): its config and every epoch's
+    metrics row, no checkpoint and no episode log."""
+    run = here / "runs" / name
+    run.mkdir()
+    save_yaml(HercsConfig(), run / "config.yaml")
+    (run / "metrics.csv").write_text("epoch,success_rate\n" +
+                                     "".join(f"{e},0.{e}\n" for e in range(1, 4)))
+    return run
+
+
+def test_eval_of_a_copied_run_says_its_checkpoints_were_not_kept(here: Path, capsys) -> None:
+    _copied_run(here, "reach-her-cs-s2")
+    (here / "runs" / "reach-her-s5" / "checkpoints").mkdir(parents=True)  # another cell
+    (here / "runs" / "reach-her-s5" / "checkpoints" / "best.pt").write_bytes(b"")
+    (here / "runs" / "reach-her-cs-s1" / "checkpoints" / "best.pt").write_bytes(b"")
+    assert main(["eval", "runs/reach-her-cs-s2"]) == 2
+    assert capsys.readouterr().err == (
+        "hercs eval: runs/reach-her-cs-s2: no checkpoint best (best.pt, the default) and no "
+        "learner.pt: runs/reach-her-cs-s2/checkpoints does not exist, though metrics.csv "
+        "records 3 trained epochs: this folder is a copy of the run without its checkpoints "
+        "(a copied or committed run often keeps only config.yaml and metrics.csv). Evaluate "
+        "the folder where it trained, or give a policy file (--checkpoint FILE.pt); runs "
+        "beside it with a policy (best.pt): runs/reach-her-cs-s1, runs/reach-her-s5; its "
+        "learning curve is in metrics.csv (hercs plot runs/reach-her-cs-s2 -o fig.png)\n")
+
+
+def test_read_episodes_says_whether_a_log_is_still_to_come(here: Path) -> None:
+    import hercs
+
+    copied = _copied_run(here, "reach-her-cs-s2")
+    with pytest.raises(hercs.HercsError) as never:
+        next(hercs.read_episodes(copied))
+    assert str(never.value) == (
+        f"{copied}: this run has no episode log (episodes.mcap or episodes.NNN.mcap), and "
+        "never will here: its metrics.csv records 3 trained epochs, so the run wrote its files "
+        "where it trained, and this folder is a copy without them (a copied or committed run "
+        "often keeps only config.yaml and metrics.csv); use the folder where it trained, or a "
+        "run that has one")
+    starting = here / "runs" / "reach-her-cs-s1"  # no epoch evaluated yet
+    with pytest.raises(hercs.HercsError) as not_yet:
+        next(hercs.read_episodes(starting))
+    assert str(not_yet.value) == (
+        f"{starting}: this run has no episode log (episodes.mcap or episodes.NNN.mcap) yet; "
+        "the replay writes it from the run's first episode on; wait for the run to start, or "
+        "look at another run")
+
+
+def test_an_actor_without_connect_says_where_it_connects_and_how_to_change_it(
+        here: Path) -> None:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "actor", "--run", "nosuchrun",
+                           "--set", "transport.wait_s=0.2"], cwd=here, capture_output=True,
+                          text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[3])})
+    assert done.returncode == 3  # the service gave up after transport.wait_s, and said so
+    assert done.stderr.startswith(
+        "hercs actor: no runs/nosuchrun/router.json (no run nosuchrun is running in runs): "
+        "connecting to tcp/127.0.0.1:7447 (the default transport.connect) and waiting for a "
+        "router there; give --connect ENDPOINT (the run's router, e.g. tls/HOST:7447), or "
+        "--run-dir DIR if the run's folder is elsewhere\n"), done.stderr
+    assert "no Zenoh router reachable at ['tcp/127.0.0.1:7447']" in done.stderr

@@ -126,14 +126,18 @@ def test_unreadable_checkpoint_is_refused_not_ignored(tmp_path) -> None:
     assert load_checkpoint(tmp_path / "none") is None
 
 
-def test_metrics_keep_rows_through_the_checkpoint_epoch(tmp_path) -> None:
+def test_metrics_keep_rows_through_the_checkpoint_epoch_and_the_rest_aside(tmp_path) -> None:
     path = tmp_path / "metrics.csv"
     out = MetricsCsv(path)
     for epoch in (1, 2, 3):
         out.write({"epoch": epoch, "success_rate": epoch / 10})
     out.close()
-    assert truncate_metrics(path, through_epoch=2) == [3]
+    aside = tmp_path / "previous" / "t"
+    assert truncate_metrics(path, through_epoch=2, aside=aside) == [3]
     assert recorded_epochs(path) == [1, 2]
+    assert recorded_epochs(aside / "metrics.csv") == [1, 2, 3]  # the old file, kept whole
+    assert truncate_metrics(path, through_epoch=2, aside=tmp_path / "unused") == []
+    assert not (tmp_path / "unused").exists()  # nothing dropped: nothing set aside
     again = MetricsCsv(path)  # reopened for appending: no second header
     again.write({"epoch": 3, "success_rate": 0.9})
     again.close()

@@ -1,0 +1,148 @@
+"""What `hercs up --resume RUN` finds in a run directory, decided before anything starts:
+continue, nothing to do, or refuse, so that a resume never trains over results.
+
+The learner continues from `checkpoints/learner.pt` (epoch C, with the epochs P it was still
+waiting to have evaluated) and appends to `metrics.csv` (rows R). The files agree when R holds
+exactly the epochs 1..C that are not in P, perhaps with rows of P written after the checkpoint.
+Then, with E = `training.epochs`:
+
+- R covers 1..E and C >= E (or there is no checkpoint at all): the run is finished; nothing
+  starts.
+- otherwise the run continues from C (C = 0 without a checkpoint: only when R is empty too,
+  a run stopped before its first epoch ended).
+
+Anything else is refused with what is wrong and what would work: a learner.pt that does not
+load, a metrics.csv that is not whole, rows without a checkpoint (the run would be trained
+from epoch 1 over them), rows past the checkpoint, rows the checkpoint says were written and
+are not. `--restart` is the explicit way to start such a run over: `set_aside_for_restart`
+first moves what the old run made into `previous/<time>/`.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from hercs.errors import HercsError
+from hercs.metrics import MetricsFileError, checked_epochs, epoch_spans
+from hercs.rundir import (
+    BEST,
+    CHECKPOINTS,
+    CONFIG,
+    LATEST,
+    LOCK,
+    LOGS,
+    METRICS,
+    PREVIOUS,
+    ROUTER,
+    SLURM,
+    aside_folder,
+)
+
+KEPT_ON_RESTART = frozenset({CONFIG, LOGS, SLURM, LOCK, PREVIOUS, ROUTER})
+"""What `--restart` leaves in place (config.yaml is also copied aside; logs/ goes on)."""
+
+
+class CannotResume(HercsError):
+    """The run directory's files do not let `--resume` continue without losing results; the
+    message says why and what would work."""
+
+
+@dataclass(frozen=True)
+class ResumePlan:
+    """A run `--resume` may continue: from `checkpoint_epoch` (0: from the start), or not at
+    all when `finished`."""
+
+    checkpoint_epoch: int
+    recorded: int
+    """Epochs metrics.csv records."""
+    finished: bool
+
+    def describe(self, name: str) -> str:
+        if self.finished:
+            epochs = max(self.checkpoint_epoch, self.recorded)
+            longer = ("it keeps no learner checkpoint, so it cannot be trained longer" if
+                      not self.checkpoint_epoch else
+                      f"to train it longer: --epochs N with N > {epochs}")
+            return f"run {name} already finished ({epochs} epochs); nothing to do ({longer})"
+        if not self.checkpoint_epoch:
+            return f"resuming run {name} from its start (no epoch had ended)"
+        return f"resuming run {name} from the checkpoint of epoch {self.checkpoint_epoch}"
+
+
+def _remedy(run_dir: Path) -> str:
+    return (f"Nothing was started or changed. To train this run again from epoch 1, add "
+            f"--restart (the old {METRICS}, {CHECKPOINTS}/ and episode log are moved to "
+            f"{run_dir / PREVIOUS}/<time>/, not deleted); or start a new run with its "
+            f"config: hercs up --config {run_dir / CONFIG} --run NEW_NAME")
+
+
+def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
+    """Whether and from where `run_dir` can be resumed to `epochs` epochs; raises
+    `CannotResume` when its files disagree (module docstring)."""
+    from hercs.learner.checkpoint import load_checkpoint
+
+    latest = run_dir / CHECKPOINTS / LATEST
+    try:
+        state = load_checkpoint(run_dir / CHECKPOINTS)
+    except ValueError as exc:
+        best = (f" (`hercs eval {run_dir} --checkpoint best` still reads the best policy)"
+                if (run_dir / CHECKPOINTS / BEST).is_file() else "")
+        raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
+                           f"{_remedy(run_dir)}") from None
+    try:
+        recorded = checked_epochs(run_dir / METRICS)
+    except MetricsFileError as exc:
+        raise CannotResume(f"{exc}. Which epochs were trained is not known, so the run cannot "
+                           f"continue safely; put back a whole copy of {METRICS} and resume "
+                           f"again. {_remedy(run_dir)}") from None
+    rows = set(recorded)
+    last = max(rows, default=0)
+    covers = rows >= set(range(1, epochs + 1))
+    if state is None:
+        if covers:
+            return ResumePlan(checkpoint_epoch=0, recorded=len(rows), finished=True)
+        if rows:
+            raise CannotResume(
+                f"{run_dir}: no learner checkpoint ({latest} does not exist) to continue "
+                f"from, but {METRICS} records epochs {epoch_spans(recorded)} of {epochs}: resuming "
+                f"would train the run from epoch 1 again over those results. "
+                f"{_remedy(run_dir)}")
+        return ResumePlan(checkpoint_epoch=0, recorded=0, finished=False)
+    loop = state["loop"]
+    checkpoint = int(loop["epoch"])
+    pending = {int(e) for e in loop.get("pending", {})}
+    past = sorted(e for e in rows if e > checkpoint)
+    if past:
+        raise CannotResume(
+            f"{run_dir}: {METRICS} records epochs up to {last}, but the learner checkpoint "
+            f"({latest}) is of epoch {checkpoint}: resuming would train epochs "
+            f"{epoch_spans(past)} again over their rows (a checkpoint write failed, or files "
+            f"from two copies of the run were mixed). {_remedy(run_dir)}")
+    missing = sorted(set(range(1, checkpoint + 1)) - rows - pending)
+    if missing:
+        raise CannotResume(
+            f"{run_dir}: {METRICS} lacks the rows of epochs {epoch_spans(missing)}, which the "
+            f"learner checkpoint ({latest}, epoch {checkpoint}) says were evaluated and "
+            f"written: the file was cut short or replaced; put back a whole copy and resume "
+            f"again. {_remedy(run_dir)}")
+    finished = checkpoint >= epochs and covers
+    return ResumePlan(checkpoint_epoch=checkpoint, recorded=len(rows), finished=finished)
+
+
+def set_aside_for_restart(run_dir: Path) -> Path | None:
+    """Move everything the old run made (metrics.csv, checkpoints/, the episode log,
+    tensorboard/, …; not config.yaml, logs/ or a Slurm job's files) into a new
+    `previous/<time>/`, with a copy of config.yaml; returns that folder (None: nothing to
+    move)."""
+    moving = sorted(p for p in run_dir.iterdir() if p.name not in KEPT_ON_RESTART)
+    if not moving:
+        return None
+    aside = aside_folder(run_dir)
+    aside.mkdir(parents=True)
+    if (run_dir / CONFIG).is_file():
+        shutil.copy2(run_dir / CONFIG, aside / CONFIG)
+    for path in moving:
+        path.rename(aside / path.name)
+    return aside

@@ -1,0 +1,127 @@
+"""One owner per run directory: the `hercs up` that runs it holds `RUN/owner.lock`.
+
+The lock is `flock(LOCK_EX)` on that file, taken without waiting and held by the launcher's
+process for its whole life. The kernel drops it when the process dies however it dies
+(SIGKILL, a crash, a Slurm job killed at its time limit), so a dead owner never leaves it
+stuck: the next `hercs up --resume` (a requeued Slurm job's next attempt) takes it at once.
+The file's content names the owner (pid, host, start time, command) for the refusal message;
+it is only trusted while the lock is held. The owner removes the file as it lets go; `take`
+locks the file only if it is still the one at the path, so that removal never gives two
+owners two different files.
+
+Children never inherit the lock: the descriptor is not inheritable (PEP 446) and children are
+started with `close_fds`. On a file system without flock (some Lustre mounts), or where it is
+not shared between hosts, the lock is only as good as the file system's; `take` then goes on
+without it and says so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from hercs.errors import HercsError
+from hercs.rundir import LOCK
+
+NO_FLOCK = frozenset({errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL})
+"""flock's errors on a file system that does not support it."""
+
+
+class RunBusy(HercsError):
+    """Another live process owns the run directory; the message names it."""
+
+
+@dataclass(frozen=True)
+class Owner:
+    pid: int
+    host: str
+    started: float
+    """Unix time the owner took the lock."""
+    command: str
+
+    def describe(self) -> str:
+        since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.started))
+        return f"pid {self.pid} on {self.host}, started {since}: {self.command}"
+
+
+def read_owner(run_dir: Path) -> Owner | None:
+    """The owner recorded in `run_dir/owner.lock`, or None if it holds none (yet)."""
+    try:
+        data = json.loads((run_dir / LOCK).read_text())
+        return Owner(pid=int(data["pid"]), host=str(data["host"]),
+                     started=float(data["started"]), command=str(data["command"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+class RunLock:
+    """The lock on a run directory, held until `release()` (or the process's death)."""
+
+    def __init__(self, run_dir: Path, fd: int | None) -> None:
+        self.run_dir = run_dir
+        self._fd = fd
+
+    @property
+    def held(self) -> bool:
+        """False when the file system offered no lock (the run goes on without one)."""
+        return self._fd is not None
+
+    @classmethod
+    def take(cls, run_dir: Path) -> RunLock:
+        """Lock `run_dir` (which must exist) for this process, or raise `RunBusy` naming the
+        process that holds it. Never waits."""
+        path = run_dir / LOCK
+        while True:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                owner = read_owner(run_dir)
+                who = owner.describe() if owner else "a process that has not named itself yet"
+                raise RunBusy(
+                    f"{run_dir} is in use by a running `hercs up` ({who}); a run directory "
+                    "has one owner at a time. Wait for that run to end, or stop it (Ctrl-C in "
+                    f"its terminal, or `kill {owner.pid if owner else 'PID'}` on "
+                    f"{owner.host if owner else 'its host'}; a stopped run continues with "
+                    f"`hercs up --resume {run_dir}`)") from None
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno not in NO_FLOCK:
+                    raise
+                print(f"hercs up: {path}: this file system offers no lock ({exc.strerror}); "
+                      "going on without one: make sure no other `hercs up` uses "
+                      f"{run_dir}", file=sys.stderr, flush=True)
+                return cls(run_dir, None)
+            # The file may have been replaced between open and flock: lock the one in place.
+            try:
+                same = os.stat(path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        record = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(),
+                  "command": " ".join(["hercs", *sys.argv[1:]])}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(record) + "\n").encode(), 0)
+        return cls(run_dir, fd)
+
+    def release(self) -> None:
+        """Give the run directory up (idempotent). The file is unlinked while still locked,
+        so that a process that opened it meanwhile sees it replaced (`take` compares inodes)
+        and locks the new one: no two owners, and `owner.lock` exists only while a run runs
+        (or after its owner was killed, unlocked)."""
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                (self.run_dir / LOCK).unlink()
+            os.close(self._fd)  # closing the only descriptor drops the flock
+            self._fd = None

@@ -1,0 +1,63 @@
+"""Real run directories for tests of what reads them back (resume, eval): a small FetchReach
+learner trained for a few one-cycle epochs, its metrics.csv rows and its learner.pt written as
+`hercs learner` writes them (the checkpoint at an epoch's end, the row when its evaluation
+comes)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.episode import random_episode
+from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.evaluations import EvalRequests
+from hercs.learner.loop import LearnerLoop
+from hercs.learner.resume import save_learner_state
+from hercs.metrics import MetricsCsv
+from hercs.replay_service.core import ReplayCore
+from hercs.rundir import CHECKPOINTS, CONFIG, METRICS
+from hercs.served import ReplayCounters, ServedBatch
+
+
+def run_config(run_dir: Path, epochs: int) -> HercsConfig:
+    return apply_overrides(HercsConfig(), [
+        "task.name=reach", "run.method=her", f"training.epochs={epochs}",
+        "training.cycles_per_epoch=1", "training.minibatches_per_cycle=1",
+        "ddpg.batch_size=8", "ddpg.hidden_size=16", "replay.buffer_transitions=2000",
+        f"run.name={run_dir.name}", f"run.run_dir={run_dir.parent}"])
+
+
+def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None,
+             unevaluated: Iterable[int] = ()) -> HercsConfig:
+    """A run of `epochs` epochs that trained `trained` of them: a metrics.csv row for each
+    but `unevaluated`, and `checkpoints/learner.pt` taken at the end of epoch `checkpoint`
+    (None: no checkpoint), before that epoch's row was written."""
+    config = run_config(run_dir, epochs)
+    run_dir.mkdir(parents=True)
+    save_yaml(config, run_dir / CONFIG)
+    learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
+    loop = LearnerLoop(config=config, learner=learner)
+    core = ReplayCore(config=config, rng=np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    metrics = MetricsCsv(run_dir / METRICS) if trained else None
+    skip = set(unevaluated)
+    for epoch in range(1, trained + 1):
+        core.insert(random_episode(core.spec, rng, seq=epoch))
+        served = core.sample(1, config.ddpg.batch_size)
+        loop.step(ServedBatch(
+            minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
+            cluster_draws=served.cluster_draws,
+            status=ReplayCounters(inserts=core.inserts, env_steps=core.env_steps,
+                                  size_transitions=core.store.num_transitions)))
+        if epoch == checkpoint:
+            save_learner_state(run_dir / CHECKPOINTS, learner=learner, loop=loop,
+                               eval_requests=EvalRequests(resend_s=60.0), config=config)
+        if epoch not in skip and metrics is not None:
+            metrics.write(loop.record_eval(epoch=epoch, success_rate=epoch / 10,
+                                           mean_final_distance=0.1) or {})
+    if metrics is not None:
+        metrics.close()
+    return config

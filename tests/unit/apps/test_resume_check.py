@@ -1,0 +1,193 @@
+"""`hercs up --resume` never discards results (issue 33, item 2): on real run directories (a
+small learner's real checkpoint and metrics.csv), a folder whose files do not let the run
+continue is refused with exit 2 before anything starts, saying why and what would work, and
+nothing in it changes; a finished run says so and starts nothing; `--restart` starts over
+with the old files set aside, never deleted."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from hercs.apps.cli import main
+from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
+from hercs.metrics import recorded_epochs
+from tests.run_dirs import make_run
+
+
+def snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    """Every path under `folder` with its size and modification time (ns)."""
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*"))}
+
+
+def cut_metrics_mid_row(run: Path) -> None:
+    path = run / "metrics.csv"
+    text = path.read_bytes()
+    path.write_bytes(text[:-7])  # the last row loses its end
+
+
+def drop_middle_row(run: Path) -> None:
+    path = run / "metrics.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:2] + lines[3:]))
+
+
+def repeat_last_row(run: Path) -> None:
+    path = run / "metrics.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join([*lines, lines[-1]]))
+
+
+def corrupt_latest(run: Path) -> None:
+    path = run / "checkpoints" / "learner.pt"
+    path.write_bytes(path.read_bytes()[:100])  # a copy cut short
+
+
+REFUSED = {
+    # (epochs, trained, checkpoint, damage): what the message must say
+    "no-checkpoint": ((4, 2, None, None),
+                      "no learner checkpoint ({run}/checkpoints/learner.pt does not exist) to "
+                      "continue from, but metrics.csv records epochs 1..2 of 4: resuming would "
+                      "train the run from epoch 1 again over those results"),
+    "rows-past-the-checkpoint": ((4, 3, 2, None),
+                                 "metrics.csv records epochs up to 3, but the learner "
+                                 "checkpoint ({run}/checkpoints/learner.pt) is of epoch 2: "
+                                 "resuming would train epochs 3 again over their rows"),
+    "metrics-cut-mid-row": ((4, 2, 2, cut_metrics_mid_row),
+                            "{run}/metrics.csv: cut short: its last line has no line end"),
+    "metrics-row-lost": ((4, 3, 3, drop_middle_row),
+                         "metrics.csv lacks the rows of epochs 2, which the learner checkpoint "
+                         "({run}/checkpoints/learner.pt, epoch 3) says were evaluated"),
+    "metrics-two-writers": ((4, 2, 2, repeat_last_row),
+                            "{run}/metrics.csv: epochs 2 recorded more than once (two runs "
+                            "wrote into this folder at the same time?)"),
+    "latest-corrupt": ((4, 2, 2, corrupt_latest),
+                       "{run}/checkpoints/learner.pt: not a readable learner checkpoint"),
+}
+REMEDY = ("Nothing was started or changed. To train this run again from epoch 1, add --restart "
+          "(the old metrics.csv, checkpoints/ and episode log are moved to {run}/previous/"
+          "<time>/, not deleted); or start a new run with its config: hercs up --config "
+          "{run}/config.yaml --run NEW_NAME")
+
+
+@pytest.mark.parametrize("case", list(REFUSED), ids=list(REFUSED))
+def test_a_run_that_cannot_continue_whole_is_refused_and_left_as_it_was(
+        tmp_path: Path, case: str, capsys) -> None:
+    (epochs, trained, checkpoint, damage), said = REFUSED[case]
+    run = tmp_path / "runs" / "r"
+    make_run(run, epochs=epochs, trained=trained, checkpoint=checkpoint)
+    if damage is not None:
+        damage(run)
+    before = snapshot(run)
+    with pytest.raises(CannotResume) as refused:
+        plan_resume(run, epochs=epochs)
+    assert said.format(run=run) in str(refused.value)
+    assert REMEDY.format(run=run) in str(refused.value)
+
+    assert main(["up", "--resume", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hercs up: ") and said.format(run=run) in err, err
+    assert snapshot(run) == before, "a refused resume changed the run directory"
+
+
+def test_a_finished_run_says_so_and_starts_nothing(tmp_path: Path, capsys) -> None:
+    run = tmp_path / "runs" / "done"
+    make_run(run, epochs=3, trained=3, checkpoint=3)
+    before = snapshot(run)
+    plan = plan_resume(run, epochs=3)
+    assert plan.finished and plan.checkpoint_epoch == 3
+    assert main(["up", "--resume", str(run)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == ("hercs up: run done already finished (3 epochs); nothing to do (to "
+                            "train it longer: --epochs N with N > 3)\n")
+    assert captured.err == ""
+    assert snapshot(run) == before  # no process, no log, no config rewritten
+    # asked for more epochs, the same folder continues from its checkpoint
+    assert not plan_resume(run, epochs=5).finished
+
+
+def test_a_copy_of_a_finished_run_without_checkpoints_is_finished_not_retrained(
+        tmp_path: Path, capsys) -> None:
+    """What docs/results/runs/<run>/ holds: config.yaml and all of metrics.csv, no
+    checkpoint. Nothing to do; asked for more epochs, it is refused (no checkpoint)."""
+    run = tmp_path / "runs" / "copy"
+    make_run(run, epochs=3, trained=3, checkpoint=None)
+    before = snapshot(run)
+    assert main(["up", "--resume", str(run)]) == 0
+    assert capsys.readouterr().out == (
+        "hercs up: run copy already finished (3 epochs); nothing to do (it keeps no learner "
+        "checkpoint, so it cannot be trained longer)\n")
+    assert main(["up", "--resume", str(run), "--epochs", "5"]) == 2
+    assert "metrics.csv records epochs 1..3 of 5" in capsys.readouterr().err
+    assert snapshot(run) == before
+
+
+@pytest.mark.parametrize(("trained", "checkpoint", "unevaluated", "resumes_from"), [
+    (0, None, (), 0),        # stopped before its first epoch ended: nothing to lose
+    (2, 2, (), 2),           # the common case
+    (2, 2, (2,), 2),         # epoch 2's evaluation still pending: asked again on resume
+    (3, 3, (3,), 3),         # every epoch trained, the last not yet evaluated: not finished
+], ids=["nothing-yet", "rows-through-the-checkpoint", "last-row-pending",
+        "all-trained-last-pending"])
+def test_a_run_whose_files_agree_continues_from_its_checkpoint(
+        tmp_path: Path, trained: int, checkpoint: int | None, unevaluated: tuple[int, ...],
+        resumes_from: int) -> None:
+    run = tmp_path / "r"
+    make_run(run, epochs=3, trained=trained, checkpoint=checkpoint, unevaluated=unevaluated)
+    plan = plan_resume(run, epochs=3)
+    assert (plan.finished, plan.checkpoint_epoch) == (False, resumes_from)
+
+
+def test_restart_sets_the_old_files_aside_and_keeps_config_and_logs(tmp_path: Path) -> None:
+    run = tmp_path / "r"
+    make_run(run, epochs=4, trained=2, checkpoint=None)
+    (run / "episodes.mcap").write_bytes(b"old episodes")
+    (run / "logs").mkdir()
+    (run / "logs" / "learner-0.log").write_text("old log\n")
+    metrics_before = (run / "metrics.csv").read_bytes()
+    aside = set_aside_for_restart(run)
+    assert aside is not None and aside.parent == run / "previous"
+    assert sorted(p.name for p in run.iterdir()) == ["config.yaml", "logs", "previous"]
+    assert sorted(p.name for p in aside.iterdir()) == ["config.yaml", "episodes.mcap",
+                                                       "metrics.csv"]
+    assert (aside / "metrics.csv").read_bytes() == metrics_before
+    assert recorded_epochs(aside / "metrics.csv") == [1, 2]
+    assert (run / "logs" / "learner-0.log").read_text() == "old log\n"
+    # a second restart gets its own folder; the first stays
+    (run / "metrics.csv").write_text("epoch\n1\n")
+    again = set_aside_for_restart(run)
+    assert again is not None and again != aside and (aside / "metrics.csv").exists()
+    assert set_aside_for_restart(run) is None  # nothing left to move
+
+
+def test_restart_needs_resume(capsys) -> None:
+    assert main(["up", "--restart"]) == 2
+    assert "--restart starts a run over in its folder: give it with --resume RUN_DIR" in \
+        capsys.readouterr().err
+
+
+def test_the_learner_sets_rows_past_its_checkpoint_aside(tmp_path: Path) -> None:
+    """Defence in depth, when services run without `hercs up`: a learner that finds rows past
+    its checkpoint keeps the old file whole in previous/<time>/ and trains those epochs
+    again; without a checkpoint it sets every row aside the same way."""
+    from hercs.learner.ddpg import DDPGLearner
+    from hercs.learner.evaluations import EvalRequests
+    from hercs.learner.loop import LearnerLoop
+    from hercs.learner.resume import resume_learner_state
+
+    for checkpoint, kept in ((2, [1, 2]), (None, [])):
+        run = tmp_path / f"r{checkpoint}"
+        config = make_run(run, epochs=4, trained=3, checkpoint=checkpoint)
+        learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
+        loop = LearnerLoop(config=config, learner=learner)
+        resumed = resume_learner_state(run / "checkpoints", run / "metrics.csv",
+                                       learner=learner, loop=loop,
+                                       eval_requests=EvalRequests(resend_s=60.0))
+        assert resumed == checkpoint
+        assert recorded_epochs(run / "metrics.csv") == kept
+        (aside,) = (run / "previous").iterdir()
+        assert recorded_epochs(aside / "metrics.csv") == [1, 2, 3]
+        assert os.listdir(aside) == ["metrics.csv"]
