@@ -42,8 +42,9 @@ from hercs.security import zenoh_settings
 from hercs.transport import Transport, TransportError
 
 RUN = "rejoin"
-SUBNET = "10.124"
-"""Its own links (bench.net_faults uses 10.125, bench.chaos 10.126)."""
+SUBNET = "10.122"
+"""Its own links (test_remote_actor_netns uses 10.123, minislurm 10.124, bench.net_faults
+10.125, bench.chaos 10.126)."""
 REQUEST_TIMEOUT_S = 2.0
 """The client's per-request timeout: short, so that an answer after the heal is not hidden
 behind a request sent into the cut."""

@@ -38,7 +38,9 @@ class Prefetcher:
     it until cycle c's episodes are stored."""
 
     def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig,
-                 version: Callable[[], int]) -> None:
+                 version: Callable[[], int], samples_kept: int) -> None:
+        """`samples_kept`: the updates this run's learner has done and kept (its checkpoint's
+        count after a restart; 0 for a new run)."""
         self.runtime = runtime
         self.config = config
         self.version = version
@@ -48,6 +50,9 @@ class Prefetcher:
         self._credits = threading.Semaphore(config.learner.prefetch_depth)
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
+        self.samples_kept = samples_kept
+        """Minibatches received and kept: each request tells the replay (SampleRequest)."""
+        self.incarnation = f"{runtime.ident}@{time.time_ns()}"
         self.waiting_s = 0.0
         self.bad_batches: Counter[str] = Counter()
         """Batch replies skipped because they failed validation, by reason."""
@@ -91,7 +96,8 @@ class Prefetcher:
             learner_id=self.runtime.ident, request_id=self._request_id,
             num_minibatches=self.config.training.minibatches_per_cycle,
             batch_size=self.config.ddpg.batch_size,
-            weights_version=wanted if self.lockstep else self.version())
+            weights_version=wanted if self.lockstep else self.version(),
+            samples_kept=self.samples_kept, learner_incarnation=self.incarnation)
         try:
             raw = self.runtime.transport.request(
                 self.runtime.keys.sample, request.SerializeToString(),
@@ -109,6 +115,7 @@ class Prefetcher:
                 self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
                 stop.wait(0.5)
             return False
+        self.samples_kept += len(batch.minibatches)
         self.batches.put(batch)
         return True
 

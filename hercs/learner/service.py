@@ -190,7 +190,8 @@ class LearnerService:
         self.publish_weights(evaluate=False, epoch=self.loop.epoch)
         self.publish_progress()
         prefetcher = Prefetcher(runtime=self.runtime, config=self.config,
-                                version=lambda: self.loop.version)
+                                version=lambda: self.loop.version,
+                                samples_kept=self.learner.updates)
         self.prefetcher_bad = prefetcher.bad_batches
         waited_before = 0.0
         while not self.loop.done and not stop.is_set():

@@ -113,7 +113,7 @@ class EpisodeRequest(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., episode_id: _Optional[int] = ...) -> None: ...
 
 class SampleRequest(_message.Message):
-    __slots__ = ("schema_version", "run", "learner_id", "request_id", "num_minibatches", "batch_size", "weights_version")
+    __slots__ = ("schema_version", "run", "learner_id", "request_id", "num_minibatches", "batch_size", "weights_version", "samples_kept", "learner_incarnation")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     RUN_FIELD_NUMBER: _ClassVar[int]
     LEARNER_ID_FIELD_NUMBER: _ClassVar[int]
@@ -121,6 +121,8 @@ class SampleRequest(_message.Message):
     NUM_MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
     BATCH_SIZE_FIELD_NUMBER: _ClassVar[int]
     WEIGHTS_VERSION_FIELD_NUMBER: _ClassVar[int]
+    SAMPLES_KEPT_FIELD_NUMBER: _ClassVar[int]
+    LEARNER_INCARNATION_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     run: str
     learner_id: str
@@ -128,7 +130,9 @@ class SampleRequest(_message.Message):
     num_minibatches: int
     batch_size: int
     weights_version: int
-    def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., learner_id: _Optional[str] = ..., request_id: _Optional[int] = ..., num_minibatches: _Optional[int] = ..., batch_size: _Optional[int] = ..., weights_version: _Optional[int] = ...) -> None: ...
+    samples_kept: int
+    learner_incarnation: str
+    def __init__(self, schema_version: _Optional[int] = ..., run: _Optional[str] = ..., learner_id: _Optional[str] = ..., request_id: _Optional[int] = ..., num_minibatches: _Optional[int] = ..., batch_size: _Optional[int] = ..., weights_version: _Optional[int] = ..., samples_kept: _Optional[int] = ..., learner_incarnation: _Optional[str] = ...) -> None: ...
 
 class Minibatch(_message.Message):
     __slots__ = ("o", "o2", "g", "u", "r")

@@ -137,6 +137,16 @@ class SampleToInsertRatio:
         return RateLimiterState(self.inserts, self.samples, self.surplus, self.min_surplus,
                                 self.max_surplus)
 
+    def resync_samples(self, samples: int) -> None:
+        """Count `samples` minibatches sampled: what the learner's run has really kept, told
+        by a learner process new to this replay. After a learner restart this is less than
+        was served (the updates since its checkpoint were lost), so the surplus grows and the
+        learner redoes them before more inserts are admitted; after a replay restart it
+        replaces `restart_balanced`'s guess."""
+        if samples < 0:
+            raise ValueError(f"resync_samples: got {samples}, must be >= 0")
+        self.samples = int(samples)
+
     def restart_balanced(self, inserts: int) -> None:
         """A restarted replay recovered `inserts` episodes from its log: count them as inserted
         and as sampled at exactly the ratio (the samples of its previous life are unknown),

@@ -234,7 +234,9 @@ class ReplayService:
         call = SampleCall(num_minibatches=int(request.num_minibatches),
                           batch_size=int(request.batch_size),
                           weights_version=int(request.weights_version),
-                          request_id=int(request.request_id))
+                          request_id=int(request.request_id),
+                          samples_kept=int(request.samples_kept),
+                          learner_incarnation=str(request.learner_incarnation))
         try:
             self.table.sample(call, waiter=_QueryWaiter(pending, functools.partial(
                 served_batch_to_bytes, request_id=call.request_id)),

@@ -153,6 +153,8 @@ class ReplayTable:
         sample call (its weights version); no schedule lag is recorded until then."""
         self.log_failures = 0
         """Inserts refused because their log append failed."""
+        self._learner: str | None = None
+        """The learner process whose kept samples the limiter counts from (`_follow_learner`)."""
 
     # -- start-up --------------------------------------------------------------------------
     def recover(self, episodes: Iterable[tuple[int, EpisodeData]], *,
@@ -336,9 +338,34 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
+            self._follow_learner(call)
             self._samples.append(ParkedSample([waiter], self._deadline(timeout_s), call=call))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
+
+    def _follow_learner(self, call: SampleCall) -> None:
+        """(Under the lock.) The first call of a learner process this replay has not heard
+        from (a restarted learner, or any learner after this replay restarted) sets the
+        limiter's sample count to the minibatches that learner's run has kept. A learner that
+        resumed from a checkpoint thus redoes the updates it lost on the episodes already
+        stored, instead of the limiter admitting inserts for updates that were undone; a
+        restarted replay takes the count it lost from the learner. Calls parked for the
+        process this one replaces are answered `expired`: nobody waits for them."""
+        if not call.learner_incarnation or call.learner_incarnation == self._learner:
+            return
+        before = self.limiter.samples
+        self.limiter.resync_samples(call.samples_kept)
+        if self._learner is not None or before != call.samples_kept:
+            log.info("learner %s: the rate limiter counts %d minibatches sampled (was %d), "
+                     "the learner's kept updates", call.learner_incarnation,
+                     call.samples_kept, before)
+        self._learner = call.learner_incarnation
+        stale = [item for item in self._samples
+                 if item.call.learner_incarnation != call.learner_incarnation]
+        for item in stale:
+            self._samples.remove(item)
+            for waiter in item.waiters:
+                waiter.fail(Reason.EXPIRED, "a newer learner process took over this run")
 
     def _serve(self, item: ParkedSample) -> None:
         call = item.call

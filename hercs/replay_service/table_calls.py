@@ -84,6 +84,10 @@ class SampleCall:
     batch_size: int
     weights_version: int = 0
     request_id: int = 0
+    samples_kept: int = 0
+    """Minibatches the learner's run has received and kept (SampleRequest.samples_kept)."""
+    learner_incarnation: str = ""
+    """The learner process ('' from a learner that does not say: never resynced)."""
 
 
 class SampleRefused(ValueError):

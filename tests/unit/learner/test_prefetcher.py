@@ -31,8 +31,12 @@ class AnsweringTransport:
             self.core.insert(random_episode(self.core.spec, np.random.default_rng(seq), seq=seq))
         self.requests = 0
         self.asked = threading.Condition()
+        self.kept: list[tuple[str, int]] = []
+        """(learner_incarnation, samples_kept) of every request."""
 
     def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+        asked = pb.SampleRequest.FromString(payload)
+        self.kept.append((asked.learner_incarnation, asked.samples_kept))
         t = self.config.training
         result = self.core.sample(t.minibatches_per_cycle, self.config.ddpg.batch_size)
         o_state, g_state = self.core.normalizer_state()
@@ -48,7 +52,7 @@ class AnsweringTransport:
             return self.asked.wait_for(lambda: self.requests >= count, timeout_s)
 
 
-def start(depth: int) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
+def start(depth: int, kept: int = 0) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
     config = apply_overrides(HercsConfig(), [
         "task.name=reach", "run.method=her", "training.minibatches_per_cycle=2",
         "ddpg.batch_size=8", "replay.buffer_transitions=5000",
@@ -63,7 +67,8 @@ def start(depth: int) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
 
     runtime = SimpleNamespace(stop=stop, transport=transport, ident="learner-test",
                               keys=SimpleNamespace(sample="sample"), start_thread=start_thread)
-    return Prefetcher(runtime=runtime, config=config, version=lambda: 0), transport, stop
+    return (Prefetcher(runtime=runtime, config=config, version=lambda: 0, samples_kept=kept),
+            transport, stop)
 
 
 @pytest.mark.parametrize("depth", [0, 1, 3], ids=lambda d: f"depth{d}")
@@ -81,3 +86,22 @@ def test_the_prefetcher_samples_exactly_depth_batches_ahead(depth: int) -> None:
             assert not transport.wait_for(depth + taken + 1, timeout_s=0.3)
     finally:
         stop.set()
+
+
+def test_each_request_tells_the_replay_what_the_learner_has_kept() -> None:
+    """From the checkpoint's count up, by every batch received (SampleRequest.samples_kept),
+    under one incarnation per process: what the replay's limiter resyncs to."""
+    prefetcher, transport, stop = start(1, kept=80)
+    try:
+        for taken in range(1, 4):
+            assert prefetcher.get() is not None
+            assert transport.wait_for(taken + 1)
+        n = prefetcher.config.training.minibatches_per_cycle
+        incarnations = {name for name, _ in transport.kept}
+        assert len(incarnations) == 1 and next(iter(incarnations)).startswith("learner-test@")
+        assert [kept for _, kept in transport.kept[:4]] == [80 + i * n for i in range(4)]
+    finally:
+        stop.set()
+    other, _, stop2 = start(1)
+    stop2.set()
+    assert other.incarnation != prefetcher.incarnation

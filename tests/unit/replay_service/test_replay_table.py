@@ -108,9 +108,10 @@ class Harness:
         return waiter
 
     def sample(self, n: int, name: str = "sample", timeout_s: float | None = None,
-               version: int = 0) -> Recorder:
+               version: int = 0, learner: str = "", kept: int = 0) -> Recorder:
         waiter = Recorder(name, self.journal)
-        self.table.sample(SampleCall(num_minibatches=n, batch_size=16, weights_version=version),
+        self.table.sample(SampleCall(num_minibatches=n, batch_size=16, weights_version=version,
+                                     samples_kept=kept, learner_incarnation=learner),
                           waiter=waiter, timeout_s=timeout_s)
         return waiter
 
@@ -297,6 +298,53 @@ def test_recovery_restarts_the_limiter_balanced_and_dedups_retries() -> None:
     assert retry.results[0].duplicate and retry.results[0].episode_id == 3
     stored = h.insert(10)
     assert isinstance(stored.results[0], Stored) and stored.results[0].episode_id == 10
+
+
+def test_a_restarted_learner_redoes_its_lost_updates_before_more_inserts() -> None:
+    """A learner checkpointed at 16 updates and was killed after 24 were served: its new
+    process says it kept 16, so the limiter counts 16 and admits the 8 lost minibatches on the
+    episodes already stored, not inserts paid for by updates that were undone. The limiter's
+    count stays the learner's real one: 2 updates per stored episode, within the window."""
+    h = make()
+    for round_ in range(3):  # I = 4, 8, 12 with S = 8, 16, 24
+        for seq in range(4 * round_, 4 * round_ + 4):
+            assert h.insert(seq).results
+        assert h.sample(8, f"old{round_}", learner="L@1", kept=8 * round_).results
+    parked = h.sample(8, "old3", learner="L@1", kept=24)  # held: no episodes for it yet
+    assert not parked.results and h.table.limiter.samples == 24
+    real = 16  # the new process's updates: its checkpoint's
+    redo = h.sample(8, "new0", learner="L@2", kept=real)
+    assert parked.failures and parked.failures[0][0] == Reason.EXPIRED  # nobody waits for it
+    assert redo.results, "the lost updates are redone on the stored episodes"
+    real += 8
+    assert h.table.limiter.samples == real
+    # the 12 stored episodes are owed 24 updates, all done: a further request waits ...
+    late = h.sample(8, "new1", learner="L@2", kept=real)
+    assert not late.results
+    # ... for 4 more episodes, as it would have had the learner never died
+    for seq in range(12, 16):
+        assert h.insert(seq).results
+    assert late.results
+    real += 8
+    assert h.table.limiter.samples == real == 2 * h.table.status().inserts
+
+
+def test_a_restarted_replay_takes_the_learners_count() -> None:
+    """The replay's samples died with it; the learner's first call after the restart says
+    how many its run kept (here 4 fewer than `restart_balanced` guessed)."""
+    h = make()
+    assert h.table.recover([(i, h.episode(i)) for i in range(10)]) == []
+    assert h.table.limiter.samples == 20
+    waiter = h.sample(4, learner="L@1", kept=16)
+    assert waiter.results and h.table.limiter.samples == 20 and h.table.limiter.surplus == 0
+
+
+def test_a_learner_that_does_not_say_is_never_resynced() -> None:
+    h = make()
+    for seq in range(6):
+        h.insert(seq)
+    h.sample(8)
+    assert h.table.limiter.samples == 8  # an old learner's call: samples_kept 0 is not news
 
 
 def test_recovered_surplus_episodes_do_not_read_as_policy_lag() -> None:
