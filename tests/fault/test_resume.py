@@ -189,3 +189,40 @@ def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_sche
         assert {float(row["policy_lag"]) for row in csv.DictReader(f)} == {0.0}
     assert "recovered" in log_text(run_dir, "replay-0")
     assert "resumed from the checkpoint of epoch" in log_text(run_dir, "learner-0")
+
+
+def metrics_rows(run_dir: Path) -> list[dict[str, str]]:
+    with (run_dir / "metrics.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_learner_killed_mid_epoch_changes_only_the_wall_time(tmp_path: Path) -> None:
+    """The learner dies half-way through epoch 2, long after its checkpoint of epoch 1; the
+    updates it loses are redone on the episodes already stored (the limiter follows its kept
+    count: SampleRequest.samples_kept), so epochs 2-4 take the env steps per update of a run
+    without the fault, within 5 %. Before, the limiter had admitted a fresh episode for every
+    update that was undone (chaos2: 27,000 env steps for 2,000 updates in one epoch)."""
+    cycles, per_cycle, minibatches, horizon = 10, 4, 40, 50
+    launcher = Launcher(up_argv(tmp_path, "--run", "midway", "--method", "her",
+                                "--set", f"training.cycles_per_epoch={cycles}"), cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "midway"
+    try:
+        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
+        first = int(metrics_rows(run_dir)[0]["episodes"])
+        # half of epoch 2's episodes stored: the learner is mid-epoch, its checkpoint behind
+        assert wait_for_episodes(run_dir, first + cycles * per_cycle // 2, timeout_s=RUN_S)
+        kill_learner_and_finish(launcher)
+    finally:
+        launcher.kill()
+    rows = metrics_rows(run_dir)
+    assert [int(r["epoch"]) for r in rows] == [1, 2, 3, 4]
+    steps = [int(r["env_steps"]) for r in rows]
+    updates = [int(r["updates"]) for r in rows]
+    nominal = per_cycle * horizon / minibatches  # env steps per update without a fault
+    after = (steps[-1] - steps[0]) / (updates[-1] - updates[0])
+    per_epoch = [(s1 - s0) / (u1 - u0) for s0, s1, u0, u1
+                 in zip(steps, steps[1:], updates, updates[1:], strict=False)]
+    print(f"env steps per update, epochs 2-4: {after:.3f} (nominal {nominal:g}); per epoch "
+          f"{[round(x, 3) for x in per_epoch]}")
+    assert "resumed from the checkpoint of epoch 1" in log_text(run_dir, "learner-0")
+    assert abs(after / nominal - 1) <= 0.05, (after, nominal, per_epoch)
