@@ -12,6 +12,7 @@ twice, retries, lag, inserts/s, epoch times).
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import platform
@@ -21,6 +22,8 @@ from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from bench.chaos_actors import Incarnation
 from bench.chaos_envelope import (
@@ -321,6 +324,52 @@ def _curves(chaos: list[dict[str, Any]], baselines: dict[str, list[float]],
     return lines
 
 
+STEPS_TOLERANCE = 0.05
+"""A soak's epoch whose env steps per update differ from the fault-free seeds' median by more
+than this share changed the experiment, not only its wall time."""
+
+
+def steps_per_update(run_dir: Path) -> list[float]:
+    """Each epoch's env steps per DDPG update, from `metrics.csv` (NaN for an epoch without
+    updates)."""
+    path = run_dir / "metrics.csv"
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        rows = [(int(r["env_steps"]), int(r["updates"])) for r in csv.DictReader(f)]
+    out, before = [], (0, 0)
+    for steps, updates in rows:
+        done = updates - before[1]
+        out.append((steps - before[0]) / done if done > 0 else float("nan"))
+        before = (steps, updates)
+    return out
+
+
+def _steps_section(runs: dict[str, list[float]], free: dict[str, list[float]]) -> list[str]:
+    """The per-epoch env steps per update of each soak against the fault-free seeds' median."""
+    if not runs or not free:
+        return []
+    width = max(len(v) for v in [*runs.values(), *free.values()])
+    reference = [float(np.nanmedian([v[i] for v in free.values() if i < len(v)]))
+                 for i in range(width)]
+    lines = ["", "## Env steps per update, by epoch", "",
+             "A fault should change only a run's wall time: each epoch takes the env steps per "
+             "DDPG update of the fault-free seeds (their median per epoch; epoch 1 includes "
+             "the buffer's warm-up). Worst = the epoch (from 2) furthest from it, as a share; "
+             f"✗ beyond ±{STEPS_TOLERANCE:.0%}.", "",
+             "| run | worst | per epoch |", "|---|---|---|"]
+    for name, values in [*runs.items(), *free.items()]:
+        gaps = [(abs(v / reference[i] - 1), i + 1) for i, v in enumerate(values)
+                if i >= 1 and v == v and reference[i] == reference[i] and reference[i] > 0]
+        worst = max(gaps, default=(0.0, 0))
+        mark = " ✗" if worst[0] > STEPS_TOLERANCE else ""
+        where = f"{worst[0]:+.1%} at epoch {worst[1]}" if worst[0] > 0 else "none"
+        lines.append(f"| {name} | {where}{mark} | "
+                     f"{', '.join(f'{v:.2f}' for v in values)} |")
+    lines.append(f"| fault-free median | – | {', '.join(f'{v:.2f}' for v in reference)} |")
+    return lines
+
+
 def write_report(records: list[dict[str, Any]], *, task: str, method: str, work: Path,
                  committed: Path | None, baselines: list[Path] | None, window: int, out: Path,
                  command: str) -> bool:
@@ -356,6 +405,10 @@ def write_report(records: list[dict[str, Any]], *, task: str, method: str, work:
                       command=command, window=window, config_notes=config_notes,
                       full_commands=full,
                       validation=VALIDATION if (out / VALIDATION).is_file() else "")
+    soak_folders = _folders(roots, f"chaos*-{stem}*")
+    text += "\n".join(_steps_section(
+        {n: steps_per_update(soak_folders[n]) for n in sorted(chaos) if n in soak_folders},
+        {n: steps_per_update(folder) for n, folder in sorted(free.items())})) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "chaos.md").write_text(text)
     (out / "chaos.json").write_text(json.dumps(

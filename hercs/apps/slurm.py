@@ -10,6 +10,9 @@ submitted by hand (`sbatch runs/<run>/slurm/job.sbatch`) as well. What it does:
 - component 1 (`--actor-nodes` nodes, `--actor-cpus` each): one `hercs actor` per node in
   one `srun` step, with `actor.envs_per_process` = `--actor-cpus`; each waits for
   router.json and connects to component 0's host by name;
+- an actor step that ends while the run goes on (an actor killed, or its node's task
+  crashed) is started again within the attempt after `ACTOR_RESTART_S`; it ends for good
+  when its actors exit 0 (the run finished) or the script stops it;
 - certificates for this attempt of the job (`slurm/certs-<job>.<restarts>/`, the router's
   naming component 0's host; the CA key is deleted once they are made);
 - Slurm's warning `--signal-before` seconds before the time limit (`--signal=B:USR1@S`)
@@ -38,6 +41,10 @@ from pathlib import Path
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.errors import ConfigError
 from hercs.rundir import CONFIG, SLURM, holds_a_run
+
+ACTOR_RESTART_S = 2
+"""Seconds between an actor step's end and its restart within the attempt (no spinning on a
+step that fails at once)."""
 
 SCRIPT = "job.sbatch"
 TIME = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
@@ -153,13 +160,32 @@ else
     log "starting run {run}"
     START=(--config "$RUN_DIR/{SLURM}/{CONFIG}")
 fi
+# The actors' step, started again within this attempt whenever it ends while the run goes on
+# (a node's actor killed or crashed): the run's only source of episodes must not wait for
+# the next attempt. It ends for good when the actors exit 0 (the run finished; they stop by
+# themselves) or when this script stops it (TERM, below).
+actor_steps() {{
+    local step="" code=0 stopping=""
+    trap 'stopping=1; [ -n "$step" ] && kill -TERM "$step" 2> /dev/null' TERM
+    while [ -z "$stopping" ]; do
+        srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \\
+            --run-dir {parent} --tls-dir "$CERTS" &
+        step=$!
+        wait "$step"; code=$?
+        while kill -0 "$step" 2> /dev/null; do wait "$step"; code=$?; done  # a trap ran
+        if [ -n "$stopping" ] || [ "$code" -eq 0 ]; then break; fi
+        log "the actor step ended with status $code while the run goes on;" \\
+            "starting it again in {ACTOR_RESTART_S} s"
+        sleep {ACTOR_RESTART_S} & wait $! || true
+    done
+}}
+
 STATUS=1
 if [ -z "$REASON" ]; then
     srun --het-group=0 --ntasks=1 "${{HERCS[@]}}" up "${{START[@]}}" --actors 0 \\
         --listen tls/0.0.0.0:0 --tls-dir "$CERTS" &
     UP=$!
-    srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \\
-        --run-dir {parent} --tls-dir "$CERTS" &
+    actor_steps &
     ACTORS=$!
     if [ -n "$REASON" ]; then scancel --signal=TERM "$SLURM_JOB_ID"; fi
     wait "$UP"; STATUS=$?

@@ -232,3 +232,26 @@ def test_a_quick_report_says_so_and_gives_the_soak_s_commands() -> None:
     assert "QUICK MODE" in text and "not checked: no fault-free seeds" in text
     assert text.rstrip().endswith("```\npython -m bench.chaos\n```")
     assert "## Full soak: not yet run" in text
+
+
+def test_env_steps_per_update_are_read_per_epoch_and_an_excess_is_marked(
+        tmp_path: Path) -> None:
+    """chaos2's epoch 4 before the limiter followed the learner: 27,000 env steps for 2,000
+    updates, 2.7 times a fault-free epoch's."""
+    def run(name: str, steps: list[int]) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        rows = ["epoch,env_steps,updates"] + [
+            f"{e},{s},{2000 * e}" for e, s in enumerate(itertools.accumulate(steps), start=1)]
+        (folder / "metrics.csv").write_text("\n".join(rows) + "\n")
+        return folder
+
+    free = run("nofault", [10200, 10000, 10000, 10000])
+    bad = run("chaos2", [10200, 10000, 27000, 10400])
+    assert chaos_report.steps_per_update(bad) == pytest.approx([5.1, 5.0, 13.5, 5.2])
+    assert chaos_report.steps_per_update(tmp_path / "none") == []
+    lines = chaos_report._steps_section({"chaos2": chaos_report.steps_per_update(bad)},
+                                        {"nofault": chaos_report.steps_per_update(free)})
+    row = next(line for line in lines if line.startswith("| chaos2 "))
+    assert "+170.0% at epoch 3 ✗" in row
+    assert "| nofault | none |" in "\n".join(lines)

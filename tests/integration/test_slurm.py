@@ -19,10 +19,12 @@ import csv
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -183,6 +185,56 @@ def test_a_run_longer_than_its_time_limit_requeues_and_resumes_to_the_end(
     with (run_dir / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
     print("epoch wall_s:", [(r["epoch"], r["wall_s"]) for r in rows])
+
+
+def _actor_pids(run: str) -> list[int]:
+    """The `hercs actor --run RUN` processes on this machine (the nodes share its pids)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                argv = (entry / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"actor" in argv and run.encode() in argv and b"--run" in argv:
+                pids.append(int(entry.name))
+    return pids
+
+
+def test_a_killed_actor_step_is_started_again_within_the_attempt(
+        cluster: minislurm.MiniSlurm, tmp_path: Path) -> None:
+    """The actor on hercs-n2 is SIGKILLed after epoch 1: the job script starts its step again
+    within the attempt (before: training stalled until the time-limit warning requeued the
+    job, 1 min 48 s measured). The actors are the run's only source of episodes, so every
+    later epoch is the restarted step's work."""
+    runs = tmp_path / "runs"
+    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", "4",
+                       "--run", "bumpy", "--run-dir", str(runs), "--actor-nodes", "1",
+                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", "15",
+                       "--set", "training.cycles_per_epoch=5", *TINY)
+    run_dir = runs / "bumpy"
+    output = run_dir / "slurm" / f"job-{job}.out"
+    deadline = time.monotonic() + 600
+    while not (run_dir / "metrics.csv").is_file() or not metrics_epochs(run_dir):
+        assert time.monotonic() < deadline, "no epoch within 10 min"
+        time.sleep(POLL_S)  # a file another process writes: polled
+    pids = _actor_pids("bumpy")
+    assert pids, "the actor is running"
+    for pid in pids:
+        os.kill(pid, signal.SIGKILL)
+    killed = time.time()
+    wait_job(cluster, job, timeout_s=600, output=output)
+    text = output.read_text()
+    restarts = re.findall(r"^\[(\S+)\] job \S+: the actor step ended with status \d+ while the "
+                          r"run goes on", text, re.MULTILINE)
+    assert len(restarts) == 1, text
+    restarted_after_s = datetime.fromisoformat(restarts[0]).timestamp() - killed
+    print(f"actor step restarted {restarted_after_s:.1f} s after the kill")
+    assert restarted_after_s < 60.0, text
+    assert "requeueing" not in text, "the attempt went on"
+    assert metrics_epochs(run_dir) == [1, 2, 3, 4], text
+    final = [r for r in sacct(cluster, job, "-X") if r["JobID"] == f"{job}+0"]
+    assert final[-1]["State"] == "COMPLETED", final
 
 
 def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniSlurm,

@@ -37,7 +37,11 @@ def test_dry_run_prints_a_heterogeneous_job_and_writes_nothing(tmp_path: Path, c
     assert options[het + 1:] == ["--nodes=4", "--ntasks-per-node=1", "--cpus-per-task=8"]
     assert re.search(r"srun --het-group=0 .* up .* --actors 0 \\\n\s+--listen tls/0\.0\.0\.0:0",
                      script)
-    assert f"actor --run r1 \\\n        --run-dir {tmp_path}" in script
+    assert f"actor --run r1 \\\n            --run-dir {tmp_path}" in script
+    # the actors' step runs in a loop that starts it again while the run goes on
+    assert re.search(r"actor_steps\(\) \{\n(.*\n)*\s+srun --het-group=1 (.*\n)*.*starting "
+                     r"it again", script)
+    assert "    actor_steps &\n    ACTORS=$!" in script
     assert not (tmp_path / "r1").exists()
 
 
