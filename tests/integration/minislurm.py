@@ -250,7 +250,7 @@ class MiniSlurm:
         # /etc/hosts and host name (not `ip netns exec`, whose fresh /sys hides the cgroup
         # mounts slurmd needs).
         spool = self.root / f"spool-{node}"
-        spool.mkdir()
+        spool.mkdir(exist_ok=True)  # a node brought up again keeps its spool
         self._spawn(f"slurmd-{node}", [
             "nsenter", f"--net=/run/netns/{self.ns(node)}", "unshare", "--mount", "--uts",
             "sh", "-c", f'mount --bind "{self.hosts}" /etc/hosts && hostname {node} && '
@@ -264,6 +264,30 @@ class MiniSlurm:
             return all(states.get(n) == "idle" for n in self.nodes)
 
         self._wait("slurmd on every node", idle, None, "slurmctld.log")
+
+    # ------------------------------------------------------------------ node failures
+
+    def take_down(self, node: str) -> int:
+        """The node dies at once: every process in its network namespace (its slurmd, the
+        steps' slurmstepd and tasks) gets SIGKILL, as at a power loss. Returns how many."""
+        out = subprocess.run(["ip", "netns", "pids", self.ns(node)], capture_output=True,
+                             text=True, check=True).stdout
+        pids = [int(p) for p in out.split()]
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        return len(pids)
+
+    def node_state(self, node: str) -> str:
+        """`sinfo`'s short state of `node` (idle, alloc, down*, ...)."""
+        out = subprocess.run(["sinfo", "-h", "-n", node, "-o", "%t"], capture_output=True,
+                             text=True, env=self.env, timeout=20).stdout
+        return out.strip()
+
+    def bring_up(self, node: str) -> None:
+        """Start the node's slurmd again (ReturnToService=2: it returns to service when it
+        registers)."""
+        self._slurmd(self.nodes.index(node), node)
 
     # ------------------------------------------------------------------ stop
 
