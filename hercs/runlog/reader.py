@@ -12,6 +12,15 @@ complete chunks are decoded with mcap's own record classes and their CRC checked
 that fails its CRC or does not decompress is the torn tail too, unless an intact chunk
 follows it: then the file is damaged in the middle and `EpisodeLogError` is raised rather
 than silently dropping acked data.
+
+Speed (a restarted replay reads its whole buffer back, bench/replay_recovery.py): a chunk's
+records are walked with `struct`, and a message becomes a `LoggedMessage` only if it is on a
+topic asked for. A read for some topics (`read_messages(path, topics)`) does not decompress a
+chunk whose message indexes (the records after it) name only channels of other topics, e.g. an
+episode's ~100 scene messages when episodes are read. Such a chunk is skipped only when its
+indexes are complete (another record follows them) and name channels already defined, and
+while no chunk was found unreadable; its CRC is then not checked: a damaged chunk among those
+skipped is not noticed, one that holds a topic asked for always is.
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ import io
 import logging
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, TypeVar
@@ -29,8 +38,7 @@ from google.protobuf.message import DecodeError, Message
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, ChunkIndex, Metadata, MetadataIndex, Schema
-from mcap.records import Message as McapMessage
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.proto import hercs_pb2 as pb
@@ -121,13 +129,28 @@ class SegmentReader:
     """Reads one MCAP segment's messages in file order, stopping quietly at a torn tail, and
     gathers what `seal_segment` needs to write the segment's summary."""
 
-    def __init__(self, path: Path, *, metadata_only: bool = False) -> None:
+    def __init__(self, path: Path, *, metadata_only: bool = False,
+                 topics: Collection[str] | None = None) -> None:
+        """`topics`: yield only their messages (None: every message), and skip the chunks
+        that hold none (module docstring); `scan` and `parts` then cover the chunks read."""
         self.scan = SegmentScan(path=path)
         self.parts = IndexParts()
         self._metadata_only = metadata_only
+        self._topics = None if topics is None else frozenset(topics)
+        self._skip_chunks = topics is not None
         self.reached_data = False
         """A chunk was found (a metadata-only read stops there)."""
+        self.chunks_skipped = 0
+        """Chunks not decompressed: their indexes named no channel of `topics`."""
         self._chunk_channels: set[int] = set()  # channels with messages in the last chunk
+
+    def read_through(self) -> SegmentScan:
+        """Read every record, every chunk decompressed and its CRC checked, counting the
+        messages without handing them out (`seal_segment`, `scan_segment`); returns `scan`."""
+        self._topics, self._skip_chunks = frozenset(), False
+        for _ in self.messages():
+            pass
+        return self.scan
 
     def messages(self) -> Iterator[LoggedMessage]:
         scan = self.scan
@@ -170,9 +193,11 @@ class SegmentReader:
                 self.reached_data = True
                 if self._metadata_only:
                     return
+                indexed = (self._unwanted_channels(f, scan.size)
+                           if self._skip_chunks and bad_chunk_at is None else None)
                 try:
                     chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
-                    records = breakup_chunk(chunk, validate_crc=True)
+                    records = [] if indexed is not None else _chunk_records(chunk)
                 except UNREADABLE_CHUNK as exc:
                     if bad_chunk_at is None:
                         log.warning("%s: chunk at offset %d is unreadable (%s); treating it as "
@@ -192,10 +217,15 @@ class SegmentReader:
                         message_index_length=0, compression=chunk.compression,
                         compressed_size=len(chunk.data),
                         uncompressed_size=chunk.uncompressed_size))
+                    if indexed is not None:  # skipped: its indexes name its channels
+                        self._chunk_channels = indexed
+                        self.chunks_skipped += 1
             elif opcode == Opcode.MESSAGE_INDEX:
                 self._add_message_index(body, pos, end)
-            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
-                records = [_read_record(opcode, body, length)]
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                records = [_read_record(opcode, body)]
+            elif opcode == Opcode.MESSAGE:  # outside a chunk (the hercs writer puts none there)
+                records = [(*MESSAGE_HEAD.unpack_from(body), body, MESSAGE_HEAD.size, length)]
             elif opcode == Opcode.METADATA:
                 meta = Metadata.read(ReadDataStream(io.BytesIO(body)))
                 scan.metadata[meta.name] = dict(meta.metadata)
@@ -205,12 +235,42 @@ class SegmentReader:
             if bad_chunk_at is None and not data_ended:
                 scan.valid_end = end
             for record in records:
-                if isinstance(record, Schema):
+                if isinstance(record, tuple):
+                    message = self._message(*record)
+                    if message is not None:
+                        yield message
+                elif isinstance(record, Schema):
                     self.parts.schemas[record.id] = record
                 elif isinstance(record, Channel):
                     self.parts.channels[record.id] = record
-                elif isinstance(record, McapMessage):
-                    yield self._message(record)
+
+    def _unwanted_channels(self, f: IO[bytes], size: int) -> set[int] | None:
+        """The channels of the chunk just read if its message indexes (the records after it,
+        read ahead and then read again by the scan) are complete and name only defined
+        channels of topics not asked for; else None (the chunk must be read)."""
+        assert self._topics is not None
+        start = f.tell()
+        channels: set[int] = set()
+        try:
+            while True:
+                header = f.read(RECORD_HEADER.size)
+                if len(header) < RECORD_HEADER.size:
+                    return None  # the indexes may be cut short: read the chunk
+                opcode, length = RECORD_HEADER.unpack(header)
+                if opcode != Opcode.MESSAGE_INDEX:
+                    break  # another record: the writer wrote every index of the chunk before it
+                if length < 2 or length > size - f.tell():
+                    return None
+                (channel_id,) = struct.unpack("<H", f.read(2))
+                channels.add(channel_id)
+                f.seek(length - 2, os.SEEK_CUR)
+        finally:
+            f.seek(start)
+        known = self.parts.channels
+        if opcode not in OPCODES or not channels or not all(
+                c in known and known[c].topic not in self._topics for c in channels):
+            return None
+        return channels
 
     def _add_message_index(self, body: bytes, pos: int, end: int) -> None:
         """Message indexes follow their chunk; kept only if they cover all its channels."""
@@ -229,40 +289,68 @@ class SegmentReader:
                 index.message_index_offsets, index.message_index_length = {}, 0
         self._chunk_channels = set()
 
-    def _message(self, record: McapMessage) -> LoggedMessage:
+    def _message(self, channel_id: int, sequence: int, log_time: int, publish_time: int,
+                 data: bytes, start: int, end: int) -> LoggedMessage | None:
+        """Count message `data[start:end]`; it, if its topic is asked for, else None."""
         parts = self.parts
-        channel = parts.channels.get(record.channel_id)
+        channel = parts.channels.get(channel_id)
         if channel is None:
             raise EpisodeLogError(f"{self.scan.path}: message on unknown channel "
-                                  f"{record.channel_id}; the file is damaged")
-        schema = parts.schemas.get(channel.schema_id)
+                                  f"{channel_id}; the file is damaged")
         self.scan.messages = (self.scan.messages or 0) + 1
-        self._chunk_channels.add(record.channel_id)
-        parts.channel_message_counts[record.channel_id] = (
-            parts.channel_message_counts.get(record.channel_id, 0) + 1)
-        parts.start_time = (record.log_time if parts.start_time is None
-                            else min(parts.start_time, record.log_time))
-        parts.end_time = max(parts.end_time, record.log_time)
+        self._chunk_channels.add(channel_id)
+        counts = parts.channel_message_counts
+        counts[channel_id] = counts.get(channel_id, 0) + 1
+        if parts.start_time is None or log_time < parts.start_time:
+            parts.start_time = log_time
+        if log_time > parts.end_time:
+            parts.end_time = log_time
+        if self._topics is not None and channel.topic not in self._topics:
+            return None
+        schema = parts.schemas.get(channel.schema_id)
         return LoggedMessage(topic=channel.topic, schema_name=schema.name if schema else "",
-                             sequence=record.sequence, log_time_ns=record.log_time,
-                             publish_time_ns=record.publish_time, data=record.data)
+                             sequence=sequence, log_time_ns=log_time,
+                             publish_time_ns=publish_time, data=data[start:end])
 
 
-def _read_record(opcode: int, body: bytes, length: int) -> Any:
+MessageFields = tuple[int, int, int, int, bytes, int, int]
+"""A message record's channel id, sequence, log and publish times, and where its data lies:
+(buffer, start, end)."""
+MESSAGE_HEAD = struct.Struct("<HIQQ")
+
+
+def _chunk_records(chunk: Chunk) -> list[Schema | Channel | MessageFields]:
+    """The records of a chunk (decompressed, its CRC checked), as mcap's `breakup_chunk`
+    gives them, but a message as its fields (`MessageFields`), its data not copied. Raises
+    one of `UNREADABLE_CHUNK` if the chunk is damaged."""
+    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    data = stream.read(size)
+    records: list[Schema | Channel | MessageFields] = []
+    pos = 0
+    while pos < size:
+        opcode, length = RECORD_HEADER.unpack_from(data, pos)
+        start = pos + RECORD_HEADER.size
+        pos = start + length
+        if pos > size:
+            raise ValueError(f"a record of {length} bytes runs past the end of its chunk")
+        if opcode == Opcode.MESSAGE:
+            if length < MESSAGE_HEAD.size:
+                raise ValueError(f"a message record of {length} bytes")
+            records.append((*MESSAGE_HEAD.unpack_from(data, start), data,
+                            start + MESSAGE_HEAD.size, pos))
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            records.append(_read_record(opcode, data[start:pos]))
+    return records
+
+
+def _read_record(opcode: int, body: bytes) -> Schema | Channel:
     stream = ReadDataStream(io.BytesIO(body))
-    if opcode == Opcode.SCHEMA:
-        return Schema.read(stream)
-    if opcode == Opcode.CHANNEL:
-        return Channel.read(stream)
-    return McapMessage.read(stream, length)
+    return Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream)
 
 
 def scan_segment(path: str | os.PathLike[str]) -> SegmentScan:
     """Read a whole segment and report whether it is finished and where its valid data ends."""
-    reader = SegmentReader(Path(path))
-    for _ in reader.messages():
-        pass
-    return reader.scan
+    return SegmentReader(Path(path)).read_through()
 
 
 def segment_paths(run_dir: str | os.PathLike[str]) -> list[Path]:
@@ -288,11 +376,9 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
     """Messages of a segment file, or of every segment of a run directory, in file order.
 
     Works on a file whose writer was killed: stops at the last complete record."""
-    wanted = None if topics is None else set(topics)
+    wanted = None if topics is None else frozenset(topics)
     for segment in _paths(path):
-        for message in SegmentReader(segment).messages():
-            if wanted is None or message.topic in wanted:
-                yield message
+        yield from SegmentReader(segment, topics=wanted).messages()
 
 
 def read_episodes(path: str | os.PathLike[str]) -> Iterator[tuple[int, pb.Episode]]:

@@ -81,9 +81,7 @@ def seal_segment(path: str | os.PathLike[str]) -> SegmentScan:
         size = path.stat().st_size
         return SegmentScan(path=path, size=size, finished=True, valid_end=size, messages=None)
     reader = SegmentReader(path)
-    for _ in reader.messages():
-        pass
-    scan = reader.scan
+    scan = reader.read_through()
     if scan.finished:
         return scan
     if scan.dropped_bytes:
