@@ -1,12 +1,13 @@
 """How long a killed replay takes to serve again, by the transitions its log holds.
 
-    python -m bench.replay_recovery [--quick] [--sizes 1e4,1e5,1e6] [--repeats 3]
+    python -m bench.replay_recovery [--quick] [--sizes 1e4,1e5,999950,1e6] [--repeats 3]
                                     [--out docs/results]
 
-For each size, a FetchPush run directory (T = 50 steps: 200 / 2,000 / 20,000 episodes) gets
-a real episode log written the way the replay writes it: random FetchPush-shaped episodes
-(`hercs.episode.random_episode`) inserted one by one into a `ReplayTable` whose log is the
-replay's `RecoveringLogWriter` with the run's settings (HER-CS, the default 10^6-transition
+For each size, a FetchPush run directory (T = 50 steps: 200 / 2,000 / 20,000 episodes; 10^6
+twice, `SIZES`) gets a real episode log written the way the replay writes it: random
+FetchPush-shaped episodes (`hercs.episode.random_episode`) inserted one by one into a
+`ReplayTable` whose log is the replay's `RecoveringLogWriter` with the run's settings
+(HER-CS, the default 10^6-transition
 buffer and bounded log: a new segment with a `/replay_state` every 5,000 episodes), every
 episode with its Foxglove scene, and a cluster model logged every `cluster.fgb_size`
 episodes (a HER-CS clusterer refits about that often while most episodes fail). The writer
@@ -75,7 +76,10 @@ from hercs.transport import Transport
 RUN = "recovery"
 T = 50
 """FetchPush's episode steps (`task.name=push`)."""
-SIZES = (10_000, 100_000, 1_000_000)
+SIZES = (10_000, 100_000, 999_950, 1_000_000)
+"""10^6 twice: 19,999 episodes, killed one episode before the replay starts a new segment (the
+live segment it must seal holds a whole segment, 5,000 episodes: the bounded log's worst
+case), and 20,000, killed just after it started one (the best case)."""
 QUICK_SIZES = (500, 2_500)
 QUICK_BUFFER = 1_000
 """`--quick`: a 20-episode buffer (5-episode segments), so that the larger quick size is
@@ -437,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"sizes {QUICK_SIZES} with a {QUICK_BUFFER}-transition buffer, "
                              "2 repeats (CI)")
     parser.add_argument("--sizes", help="stored transitions, comma-separated (default "
-                                        "1e4,1e5,1e6)")
+                                        "1e4,1e5,999950,1e6)")
     parser.add_argument("--repeats", type=int, help="recoveries per size (default 3)")
     parser.add_argument("--buffer", type=float, help="replay.buffer_transitions (default: "
                                                      "the config's)")
