@@ -354,13 +354,13 @@ class Subscription:
         return entity
 
     def rebind(self, session: zenoh.Session) -> None:
-        """Receive from `session` instead (a reopened session): declared there before the old
-        entity goes, whose thread then ends."""
+        """Receive from `session` instead (a reopened session): the old entity goes first (its
+        thread ends), then the new one is declared."""
         with self._lock:
             if self._closing.is_set():
                 return
-            old, self._entity = self._entity, self._start(session)
-        undeclare(old)
+            undeclare(self._entity)  # its thread ends; nothing arrives twice
+            self._entity = self._start(session)
 
     def _run(self, channel: Any) -> None:
         while True:
@@ -437,13 +437,18 @@ class AliveToken:
         self._closed = False
         self._token = session.liveliness().declare_token(key)
 
+    def suspend(self) -> None:
+        """Withdraw the token before its session is replaced (`rebind` declares it again):
+        the withdrawal travels on the old link well before the new session exists."""
+        with self._lock:
+            undeclare(self._token)
+
     def rebind(self, session: zenoh.Session) -> None:
-        """Declare the token on `session` instead (a reopened session); the old one goes
-        first, so that watchers see it leave and come back rather than two of it."""
+        """Declare the token on `session` instead (a reopened session)."""
         with self._lock:
             if self._closed:
                 return
-            undeclare(self._token)
+            undeclare(self._token)  # a no-op after `suspend`
             self._token = session.liveliness().declare_token(self.key)
 
     def close(self) -> None:
@@ -524,6 +529,7 @@ class Transport:
                              if reopen is not None and rediscover_s > 0 else None)
         self.reopens = 0
         """Times this transport reopened its session."""
+        self._generation = 0
 
     @classmethod
     def open(cls, *, mode: Mode, connect: Sequence[str] = (), listen: Sequence[str] = (),
@@ -557,17 +563,21 @@ class Transport:
         return self._own(serve_deferred, key, handler, **kwargs)
 
     def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+        generation, asked_at = self._generation, time.monotonic()
         try:
             reply = request(self.session, key, payload, timeout_s=timeout_s)
         except RemoteError:
             self._answered(key)
             raise
         except TransportTimeout as exc:
-            if exc.no_queryable and self._blind(key):
-                self.reopen(f"no queryable on {key!r} for "
-                            f"{self._rediscovery_wait_s(key):.0f} s although it answered "
-                            "before and the session has a router")
+            if exc.no_queryable and self._blind(key, asked_at=asked_at):
+                assert self._rediscovery is not None
+                self.reopen(f"no queryable on {key!r} for {self._rediscovery.streak_s:.0f} s "
+                            "although it answered before and the session has a router",
+                            generation=generation)
             raise
+        except zenoh.ZError as exc:  # the session was swapped and closed under this request
+            raise TransportError(f"request to {key!r}: {exc}; the caller may retry") from None
         self._answered(key)
         return reply
 
@@ -576,12 +586,7 @@ class Transport:
             with self._rediscovery_lock:
                 self._rediscovery.answered(key)
 
-    def _rediscovery_wait_s(self, key: str) -> float:
-        assert self._rediscovery is not None
-        with self._rediscovery_lock:
-            return self._rediscovery.missing_for_s(key)
-
-    def _blind(self, key: str) -> bool:
+    def _blind(self, key: str, *, asked_at: float) -> bool:
         """Whether a request on `key` that found no queryable calls for a reopen now."""
         if self._rediscovery is None or self._closed:
             return False
@@ -592,22 +597,32 @@ class Transport:
         if not has_router:  # cut off: Zenoh reconnects by itself, and a reopen would wait too
             return False
         with self._rediscovery_lock:
-            return self._rediscovery.missing(key)
+            return self._rediscovery.missing(key, asked_at=asked_at)
 
-    def reopen(self, why: str) -> None:
+    def reopen(self, why: str, *, generation: int | None = None) -> None:
         """Open a new session, declare every handle on it, close the old one.
 
         Blocks until the router answers (as `open` does; `ConnectAborted` if the stop event is
-        set meanwhile). Concurrent calls reopen once.
+        set meanwhile). `generation`: the `_generation` the caller saw; if the session was
+        reopened since, nothing is done (two threads that went blind together reopen once).
+        Liveliness tokens leave before the new session opens, so that watchers see the
+        token go and come back, never the reverse; a subscription is undeclared on the old
+        session before it is declared on the new one (samples in between are lost, as on
+        any session loss, rather than delivered twice).
         """
         if self._reopen_session is None:
             raise TransportError("this transport cannot reopen its session (a router, or a "
                                  "session opened without connect endpoints)")
         with self._reopen_lock:
-            if self._closed:
+            if self._closed or (generation is not None and generation != self._generation):
                 return
             log.warning("reopening this process's Zenoh session: %s", why)
             started = time.monotonic()
+            with self._lock:
+                owned = list(self._owned)
+            for handle in owned:
+                if isinstance(handle, AliveToken):
+                    handle.suspend()
             new = self._reopen_session()
             with self._lock:
                 if self._closed:
@@ -615,15 +630,26 @@ class Transport:
                     return
                 old, self.session = self.session, new
                 owned = list(self._owned)
+            failed = 0
             for handle in owned:
-                handle.rebind(new)
+                try:
+                    handle.rebind(new)
+                except Exception:  # one handle must not keep the others on the old session
+                    failed += 1
+                    log.exception("could not declare %r again on the reopened session",
+                                  getattr(handle, "key", getattr(handle, "name", handle)))
             try:
                 old.close()
             except zenoh.ZError as exc:
                 log.info("closing the old Zenoh session: %s", exc)
+            self._generation += 1
             self.reopens += 1
-            log.warning("Zenoh session reopened in %.1f s; %d declarations renewed",
-                        time.monotonic() - started, len(owned))
+            if self._rediscovery is not None:
+                with self._rediscovery_lock:
+                    self._rediscovery.reopened()
+            log.warning("Zenoh session reopened in %.1f s; %d declarations renewed%s",
+                        time.monotonic() - started, len(owned) - failed,
+                        f", {failed} failed" if failed else "")
 
     def publisher(self, key: str, *, latest: bool = False, block: bool = False) -> Publisher:
         return self._own(declare_publisher, key, latest=latest, block=block)

@@ -114,6 +114,11 @@ from hercs.service import EXIT_CONFIG
 from hercs.signals import StopSignals
 from hercs.validation import parse_message
 
+REQUEUE_LOCK_WAIT_S = 180.0
+"""A requeued Slurm attempt (SLURM_RESTART_COUNT > 0) waits this long for the run's lock: on
+a shared file system the lock of an attempt whose node died (NODE_FAIL) lasts until that
+client's lease ends (about 90 s on NFSv4)."""
+
 STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("replay",))
 """Roles stopped together, stage after stage; the replay last."""
 OPTIONAL_ROLES = frozenset({"live"})
@@ -436,7 +441,8 @@ def run_up(
     made = [p for p in (run_dir, *run_dir.parents) if not p.exists()]
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        lock = RunLock.take(run_dir)
+        lock = RunLock.take(run_dir, wait_s=REQUEUE_LOCK_WAIT_S if resume and int(
+            os.environ.get("SLURM_RESTART_COUNT", "0") or 0) > 0 else 0.0)
     except (RunBusy, OSError) as exc:
         print(f"hercs up: {exc}", file=err, flush=True)
         return 2

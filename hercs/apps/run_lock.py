@@ -75,9 +75,22 @@ class RunLock:
         return self._fd is not None
 
     @classmethod
-    def take(cls, run_dir: Path) -> RunLock:
+    def take(cls, run_dir: Path, *, wait_s: float = 0.0) -> RunLock:
         """Lock `run_dir` (which must exist) for this process, or raise `RunBusy` naming the
-        process that holds it. Never waits."""
+        process that holds it. With `wait_s` > 0, a held lock is tried again every second for
+        that long first (a requeued Slurm job on a shared file system, where a dead node's
+        lock lasts until its lease ends)."""
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                return cls._take(run_dir)
+            except RunBusy:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(1.0)  # another host's lock: nothing here to wait on
+
+    @classmethod
+    def _take(cls, run_dir: Path) -> RunLock:
         path = run_dir / LOCK
         while True:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)

@@ -11,8 +11,10 @@ submitted by hand (`sbatch runs/<run>/slurm/job.sbatch`) as well. What it does:
   one `srun` step, with `actor.envs_per_process` = `--actor-cpus`; each waits for
   router.json and connects to component 0's host by name;
 - an actor step that ends while the run goes on (an actor killed, or its node's task
-  crashed) is started again within the attempt after `ACTOR_RESTART_S`; it ends for good
-  when its actors exit 0 (the run finished) or the script stops it;
+  crashed: `--kill-on-bad-exit` ends the whole step) is started again within the attempt
+  after `ACTOR_RESTART_S` (doubling to `ACTOR_RESTART_MAX_S` while it keeps failing fast);
+  it ends for good when its actors exit 0 (the run finished) or 2 (a configuration they
+  refuse), or when the script stops it;
 - certificates for this attempt of the job (`slurm/certs-<job>.<restarts>/`, the router's
   naming component 0's host; the CA key is deleted once they are made);
 - Slurm's warning `--signal-before` seconds before the time limit (`--signal=B:USR1@S`)
@@ -43,8 +45,9 @@ from hercs.errors import ConfigError
 from hercs.rundir import CONFIG, SLURM, holds_a_run
 
 ACTOR_RESTART_S = 2
-"""Seconds between an actor step's end and its restart within the attempt (no spinning on a
-step that fails at once)."""
+"""Seconds between an actor step's end and its restart within the attempt; doubled, up to
+`ACTOR_RESTART_MAX_S`, while restarted steps keep failing fast."""
+ACTOR_RESTART_MAX_S = 60
 
 SCRIPT = "job.sbatch"
 TIME = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
@@ -161,22 +164,35 @@ else
     START=(--config "$RUN_DIR/{SLURM}/{CONFIG}")
 fi
 # The actors' step, started again within this attempt whenever it ends while the run goes on
-# (a node's actor killed or crashed): the run's only source of episodes must not wait for
-# the next attempt. It ends for good when the actors exit 0 (the run finished; they stop by
-# themselves) or when this script stops it (TERM, below).
+# (an actor killed or crashed; --kill-on-bad-exit ends the whole step when one node's actor
+# dies, so that it is restarted at all): the run's only source of episodes must not wait for
+# the next attempt. It ends for good when the actors exit 0 (the run finished: they stop by
+# themselves), when one exits 2 (a configuration it would refuse again), or when this script
+# stops it (TERM). The wait before a restart doubles from {ACTOR_RESTART_S} s up to
+# {ACTOR_RESTART_MAX_S} s while steps keep failing fast, and starts over after a step that ran
+# {ACTOR_RESTART_MAX_S} s.
 actor_steps() {{
-    local step="" code=0 stopping=""
+    local step="" code=0 stopping="" pause={ACTOR_RESTART_S} started
     trap 'stopping=1; [ -n "$step" ] && kill -TERM "$step" 2> /dev/null' TERM
     while [ -z "$stopping" ]; do
-        srun --het-group=1 --ntasks-per-node=1 "${{HERCS[@]}}" actor --run {run} \\
-            --run-dir {parent} --tls-dir "$CERTS" &
+        started=$SECONDS
+        srun --het-group=1 --ntasks-per-node=1 --kill-on-bad-exit=1 "${{HERCS[@]}}" actor \\
+            --run {run} --run-dir {parent} --tls-dir "$CERTS" &
         step=$!
+        [ -n "$stopping" ] && kill -TERM "$step" 2> /dev/null  # TERM came as it started
         wait "$step"; code=$?
         while kill -0 "$step" 2> /dev/null; do wait "$step"; code=$?; done  # a trap ran
+        step=""
         if [ -n "$stopping" ] || [ "$code" -eq 0 ]; then break; fi
+        if [ "$code" -eq 2 ]; then
+            log "the actor step refused its configuration (status 2); not starting it again"
+            break
+        fi
+        if [ $((SECONDS - started)) -ge {ACTOR_RESTART_MAX_S} ]; then pause={ACTOR_RESTART_S}; fi
         log "the actor step ended with status $code while the run goes on;" \\
-            "starting it again in {ACTOR_RESTART_S} s"
-        sleep {ACTOR_RESTART_S} & wait $! || true
+            "starting it again in $pause s"
+        sleep "$pause" & wait $! || true
+        pause=$((pause * 2 > {ACTOR_RESTART_MAX_S} ? {ACTOR_RESTART_MAX_S} : pause * 2))
     done
 }}
 

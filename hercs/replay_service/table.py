@@ -344,17 +344,23 @@ class ReplayTable:
         self._commit()  # the samples served may have admitted parked inserts
 
     def _follow_learner(self, call: SampleCall) -> None:
-        """(Under the lock.) The first call of a learner process this replay has not heard
-        from (a restarted learner, or any learner after this replay restarted) sets the
-        limiter's sample count to the minibatches that learner's run has kept. A learner that
-        resumed from a checkpoint thus redoes the updates it lost on the episodes already
-        stored, instead of the limiter admitting inserts for updates that were undone; a
-        restarted replay takes the count it lost from the learner. Calls parked for the
-        process this one replaces are answered `expired`: nobody waits for them."""
-        if not call.learner_incarnation or call.learner_incarnation == self._learner:
+        """(Under the lock.) Every call of a learner that says so sets the limiter's sample
+        count to the minibatches its run has kept. The learner sends one request at a time,
+        so when a call arrives every earlier reply has reached it or is lost: the count is
+        exact, up to a reply lost after its caller gave up. A learner that resumed from a
+        checkpoint thus redoes the updates it lost on the episodes already stored, instead of
+        the limiter admitting inserts for updates that were undone; a restarted replay takes
+        the count it lost from the learner. Calls parked for a learner process this one
+        replaces are answered `expired`: nobody waits for them."""
+        if not call.learner_incarnation:  # a learner that does not say: counted as served
             return
         before = self.limiter.samples
         self.limiter.resync_samples(call.samples_kept)
+        if call.learner_incarnation == self._learner:
+            if before != call.samples_kept:
+                log.debug("learner %s kept %d minibatches, %d counted: recounted",
+                          call.learner_incarnation, call.samples_kept, before)
+            return
         if self._learner is not None or before != call.samples_kept:
             log.info("learner %s: the rate limiter counts %d minibatches sampled (was %d), "
                      "the learner's kept updates", call.learner_incarnation,

@@ -39,7 +39,10 @@ def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
              "--rerun-every", str(EVERY),
              "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2",
              "--set", "training.episodes_per_cycle=8", "--set", "training.minibatches_per_cycle=2",
-             "--set", "cluster.fgb_size=4", "--set", "cluster.k=2"],
+             "--set", "cluster.fgb_size=4", "--set", "cluster.k=2",
+             # lockstep: the replay holds the next cycle until the model due is fitted, so the
+             # run cannot end before the clusterer's first fit, however fast or loaded
+             "--set", "training.schedule=lockstep"],
             cwd=tmp_path)
         try:
             assert launcher.finish(timeout_s=180) == 0, "\n".join(launcher.out + launcher.err)
@@ -61,8 +64,8 @@ def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
     entities = _entities(printed)
     run = read_run_log(run_dir)  # what `hercs view` reads: every acked episode and model
     # The epoch cannot end before 16 episodes are stored; an untrained FetchReach policy fails
-    # nearly all of them, and the first fit needs 4 failed goals: it comes a dozen episodes
-    # (and an evaluation) before the run can end, however fast or loaded the machine.
+    # nearly all of them, the first fit is due at 4 failed goals, and lockstep serves no
+    # cycle past that point before the model is in.
     assert len(run.episodes) >= 16 and run.models, (len(run.episodes), len(run.models))
     expected = {"/world", "/curves/success_rate", "/curves/env_steps_per_s", "/episodes/success",
                 "/episodes/final_distance", "/episodes/cluster", "/world/failed_goals",

@@ -4,10 +4,12 @@ leaves nothing stuck. The holder is a real second process."""
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -99,3 +101,24 @@ def test_an_owner_never_shares_with_one_that_opened_the_file_before_it_was_remov
         second.release()
     finally:
         os.close(stale)
+
+
+def test_a_requeued_attempt_waits_for_the_previous_attempts_lock(tmp_path: Path) -> None:
+    """A dead node's lock on a shared file system lasts until its lease ends: `take` with a
+    wait tries again until the holder is gone (here a process killed 1 s in), and without one
+    it refuses at once."""
+    run = tmp_path / "runs" / "requeued"
+    run.mkdir(parents=True)
+    with holder(run) as first:
+        with pytest.raises(RunBusy):
+            RunLock.take(run)
+        killer = threading.Timer(1.0, first.kill)
+        killer.start()
+        try:
+            lock = RunLock.take(run, wait_s=60.0)
+        finally:
+            killer.cancel()
+        try:
+            assert lock.held and read_owner(run).pid == os.getpid()
+        finally:
+            lock.release()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -37,7 +38,8 @@ def test_dry_run_prints_a_heterogeneous_job_and_writes_nothing(tmp_path: Path, c
     assert options[het + 1:] == ["--nodes=4", "--ntasks-per-node=1", "--cpus-per-task=8"]
     assert re.search(r"srun --het-group=0 .* up .* --actors 0 \\\n\s+--listen tls/0\.0\.0\.0:0",
                      script)
-    assert f"actor --run r1 \\\n            --run-dir {tmp_path}" in script
+    assert f"actor \\\n            --run r1 --run-dir {tmp_path}" in script
+    assert "srun --het-group=1 --ntasks-per-node=1 --kill-on-bad-exit=1" in script
     # the actors' step runs in a loop that starts it again while the run goes on
     assert re.search(r"actor_steps\(\) \{\n(.*\n)*\s+srun --het-group=1 (.*\n)*.*starting "
                      r"it again", script)
@@ -89,3 +91,54 @@ def test_bad_job_flags_name_the_flag_and_value(flags: list[str], message: str,
                                                capsys) -> None:
     assert main(["slurm", "submit", "--dry-run", *flags]) == 2
     assert message in capsys.readouterr().err
+
+
+def _actor_steps_shell(tmp_path: Path, exits: list[int], *, srun_sleeps_s: float = 0.0) -> Path:
+    """The job script's `actor_steps` function with a fake `srun` whose steps end with
+    `exits` in turn (after sleeping `srun_sleeps_s`), and `log` printing to stdout."""
+    script = render_script(JobPlan(run="r", run_dir=tmp_path / "r", hercs=("hercs",)))
+    function = re.search(r"^actor_steps\(\) \{\n.*?^\}\n", script, re.S | re.M)
+    assert function is not None
+    codes = tmp_path / "codes"
+    codes.write_text("".join(f"{c}\n" for c in exits))
+    path = tmp_path / "steps.sh"
+    path.write_text(f"""set -u
+HERCS=(hercs) CERTS=c
+log() {{ echo "LOG $*"; }}
+srun() {{
+    echo "SRUN $*"
+    code=$(head -n 1 {codes}); sed -i 1d {codes}
+    sleep {srun_sleeps_s}
+    return "$code"
+}}
+{function.group(0)}
+actor_steps
+echo "ENDED"
+""")
+    return path
+
+
+@pytest.mark.parametrize(("exits", "starts", "said"), [
+    ([0], 1, []),
+    ([137, 0], 2, ["ended with status 137"]),
+    ([9, 2], 2, ["ended with status 9", "refused its configuration (status 2)"]),
+], ids=["run-finished", "killed-then-finished", "killed-then-refused"])
+def test_the_actor_step_is_started_again_until_it_exits_0_or_2(
+        tmp_path: Path, exits: list[int], starts: int, said: list[str]) -> None:
+    done = subprocess.run(["bash", str(_actor_steps_shell(tmp_path, exits))],
+                          capture_output=True, text=True, timeout=60)
+    out = done.stdout
+    assert done.returncode == 0 and out.endswith("ENDED\n"), done.stderr
+    assert out.count("SRUN --het-group=1") == starts
+    logged = [line for line in out.splitlines() if line.startswith("LOG")]
+    assert len(logged) == len(said) and all(
+        line.startswith(f"LOG the actor step {s}") for line, s in zip(logged, said, strict=True))
+
+
+def test_term_ends_the_actor_steps_at_once_with_the_step_in_flight(tmp_path: Path) -> None:
+    proc = subprocess.Popen(["bash", str(_actor_steps_shell(tmp_path, [0], srun_sleeps_s=60))],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().startswith("SRUN")
+    proc.send_signal(signal.SIGTERM)  # the parent script's `kill -TERM "$ACTORS"`
+    out, _ = proc.communicate(timeout=30)
+    assert out.endswith("ENDED\n") and "LOG" not in out

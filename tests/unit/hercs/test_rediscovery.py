@@ -17,7 +17,7 @@ class Clock:
 
 def test_a_key_never_answered_never_calls_for_a_reopen() -> None:
     clock = Clock()
-    rule = Rediscovery(after_s=20.0, max_after_s=160.0, clock=clock)
+    rule = Rediscovery(after_s=20.0, max_after_s=160.0, jitter=0.0, clock=clock)
     for _ in range(100):
         clock.now += 10.0
         assert not rule.missing("hercs/r/config")  # an actor waiting for its run to start
@@ -25,7 +25,7 @@ def test_a_key_never_answered_never_calls_for_a_reopen() -> None:
 
 def test_a_lost_key_reopens_after_the_bound_then_backs_off_until_answered() -> None:
     clock = Clock()
-    rule = Rediscovery(after_s=20.0, max_after_s=80.0, clock=clock)
+    rule = Rediscovery(after_s=20.0, max_after_s=80.0, jitter=0.0, clock=clock)
     rule.answered("k")
     reopened_at = []
     for _ in range(400):  # one "no queryable" per second for 400 s
@@ -34,24 +34,69 @@ def test_a_lost_key_reopens_after_the_bound_then_backs_off_until_answered() -> N
         clock.now += 1.0
     # the streak starts at the first miss (t=0): 20 s, then waits of 40, 80, 80, ...
     assert reopened_at == [20.0, 60.0, 140.0, 220.0, 300.0, 380.0]
+    assert rule.streak_s == 80.0
     rule.answered("k")  # an answer ends the streak and its back-off
     clock.now += 5.0
     assert not rule.missing("k")
-    clock.now += 20.0
+    for _ in range(19):
+        clock.now += 1.0
+        assert not rule.missing("k")
+    clock.now += 1.0
     assert rule.missing("k")
 
 
-def test_keys_have_streaks_of_their_own() -> None:
+def test_a_reopen_restarts_every_streak() -> None:
+    """Other keys' streaks do not fire right after a reopen: the new session gets the full
+    bound for each."""
     clock = Clock()
-    rule = Rediscovery(after_s=10.0, max_after_s=10.0, clock=clock)
+    rule = Rediscovery(after_s=10.0, max_after_s=10.0, jitter=0.0, clock=clock)
     rule.answered("a")
     rule.answered("b")
-    assert not rule.missing("a")
-    clock.now += 9.0
-    assert not rule.missing("b")  # b's streak starts now
-    clock.now += 1.0
-    assert rule.missing("a") and not rule.missing("b")
-    assert rule.missing_for_s("a") == 0.0 and rule.missing_for_s("b") == 1.0
+    for _ in range(10):
+        assert not rule.missing("a") and not rule.missing("b")
+        clock.now += 1.0
+    assert rule.missing("a")  # both streaks are 10 s old; a's reopen restarts b's
+    assert not rule.missing("b")
+    clock.now += 11.0
+    assert not rule.missing("b")  # 11 s without a miss: b's streak ended, a new one starts
+
+
+def test_a_rare_miss_long_after_the_last_starts_a_new_streak() -> None:
+    clock = Clock()
+    rule = Rediscovery(after_s=20.0, max_after_s=160.0, jitter=0.0, clock=clock)
+    rule.answered("clusterer_state")
+    assert not rule.missing("clusterer_state")
+    clock.now += 3600.0
+    assert not rule.missing("clusterer_state"), "one miss an hour later is no 20 s streak"
+
+
+def test_requests_that_each_wait_longer_than_the_bound_still_make_one_streak() -> None:
+    clock = Clock()
+    rule = Rediscovery(after_s=20.0, max_after_s=160.0, jitter=0.0, clock=clock)
+    rule.answered("sample")
+    fired = []
+    for _ in range(3):  # each request waits 30 s for a queryable, then is sent again at once
+        asked = clock.now
+        clock.now += 30.0
+        fired.append(rule.missing("sample", asked_at=asked))
+    # the streak starts when the first request was sent: 30 s ≥ 20; then 40 s are due
+    assert fired == [True, False, True]
+
+
+def test_the_bound_is_stretched_by_the_jitter_only() -> None:
+    import random
+
+    waits = []
+    for seed in range(20):
+        clock = Clock()
+        rule = Rediscovery(after_s=20.0, max_after_s=160.0, jitter=0.25,
+                           rng=random.Random(seed), clock=clock)
+        rule.answered("k")
+        rule.missing("k")
+        while not rule.missing("k"):
+            clock.now += 0.5
+        waits.append(clock.now - 100.0)
+    assert min(waits) >= 20.0 and max(waits) <= 25.5 and len(set(waits)) > 3
 
 
 @pytest.mark.parametrize(("after_s", "max_after_s", "match"),

@@ -341,10 +341,24 @@ def test_a_restarted_replay_takes_the_learners_count() -> None:
 
 def test_a_learner_that_does_not_say_is_never_resynced() -> None:
     h = make()
-    for seq in range(6):
+    assert h.table.recover([(i, h.episode(i)) for i in range(10)]) == []
+    assert h.table.limiter.samples == 20
+    # an old learner's call: its samples_kept 0 is not news (a resync to 0 would let it in)
+    assert not h.sample(4).results
+    assert h.table.limiter.samples == 20
+
+
+def test_a_reply_the_learner_never_got_is_recounted_at_its_next_call() -> None:
+    """The learner gave up on a request (its reply lost): the replay counted 8 it never
+    used; its next call says what it kept, and the count follows."""
+    h = make()
+    for seq in range(12):
         h.insert(seq)
-    h.sample(8)
-    assert h.table.limiter.samples == 8  # an old learner's call: samples_kept 0 is not news
+    assert h.sample(8, learner="L@1", kept=0).results
+    assert h.sample(8, learner="L@1", kept=8).results  # reply lost on its way
+    assert h.table.limiter.samples == 16
+    assert h.sample(8, learner="L@1", kept=8).results  # the learner still has only 8
+    assert h.table.limiter.samples == 16
 
 
 def test_recovered_surplus_episodes_do_not_read_as_policy_lag() -> None:
