@@ -250,6 +250,17 @@ def report(results: list[FaultResult], *, command: str, quick: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
+def kept_sections(path: Path) -> str:
+    """The `## ` sections after the generated report in an existing faults.md (other faults'
+    measurements, e.g. the replay's recovery time), kept when the report is written again."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return ""
+    at = text.find("\n## ")
+    return "" if at < 0 else text[at:]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--faults", nargs="+", choices=FAULTS, default=list(FAULTS))
@@ -279,7 +290,8 @@ def main(argv: list[str] | None = None) -> int:
         results.append(result)
     command = "python -m bench.faults" + (" --quick" if args.quick else "")
     out.mkdir(parents=True, exist_ok=True)
-    (out / "faults.md").write_text(report(results, command=command, quick=args.quick))
+    kept = kept_sections(out / "faults.md")
+    (out / "faults.md").write_text(report(results, command=command, quick=args.quick) + kept)
     (out / "faults.json").write_text(json.dumps(
         [{**asdict(r), "ok": r.ok, "epochs_lost": r.epochs_lost, "epochs_twice": r.epochs_twice}
          for r in results], indent=2) + "\n")

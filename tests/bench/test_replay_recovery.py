@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.faults import kept_sections
 from bench.replay_recovery import PHASES, QUICK_BUFFER, QUICK_FGB, QUICK_SIZES, T
 from tests.support import REPO
 
@@ -60,3 +61,13 @@ def test_quick_mode_recovers_every_episode_written_and_times_each_size(
     assert large["replay_state"]["first_held_id"] > 0
     assert large["replay_state"]["next_episode_id"] - large["replay_state"][
         "first_held_id"] >= capacity
+
+
+def test_faults_md_keeps_the_recovery_bound_when_bench_faults_rewrites_it(tmp_path: Path) -> None:
+    kept = kept_sections(REPO / "docs/results/faults.md")
+    assert kept.startswith("\n## Replay recovery time after a kill")
+    assert "python -m bench.replay_recovery" in kept and "**The bound.**" in kept
+    assert kept_sections(tmp_path / "none.md") == ""
+    generated = tmp_path / "faults.md"
+    generated.write_text("# Fault injection\n\n| fault |\n|---|\n\n- replay: a note\n")
+    assert kept_sections(generated) == ""
