@@ -83,14 +83,16 @@ def sacct(cluster: minislurm.MiniSlurm, job: str, *extra: str) -> list[dict[str,
 
 
 def wait_job(cluster: minislurm.MiniSlurm, job: str, timeout_s: float,
-             output: Path | None = None) -> list[dict[str, str]]:
+             output: Path | None = None,
+             terminal: frozenset[str] | set[str] = TERMINAL) -> list[dict[str, str]]:
     """Until every component of `job` (het components, array tasks) has ended for good
-    (a requeued job goes back to PENDING); its sacct lines."""
+    (a requeued job goes back to PENDING; `terminal` may leave out a state that Slurm follows
+    with a requeue); its sacct lines."""
     deadline = time.monotonic() + timeout_s
     while True:
         rows = [r for r in sacct(cluster, job, "-X") if r["JobID"].split(".")[0]]
         states = {r["State"].split()[0] for r in rows}
-        if rows and states <= TERMINAL:
+        if rows and states <= terminal:
             return sacct(cluster, job)
         if time.monotonic() > deadline:
             tail = output.read_text()[-4000:] if output and output.exists() else ""
@@ -255,7 +257,8 @@ def test_a_node_that_dies_fails_the_job_which_requeues_and_resumes(
         time.sleep(POLL_S)  # slurmctld's view, only told by asking
     detected_s = time.monotonic() - down_at
     cluster.bring_up("hercs-n2")
-    wait_job(cluster, job, timeout_s=900, output=output)
+    # NODE_FAIL is followed by the requeue (a moment later): wait past it
+    wait_job(cluster, job, timeout_s=900, output=output, terminal=TERMINAL - {"NODE_FAIL"})
     attempts = sacct(cluster, job, "-X", "--duplicates")
     print(f"node down seen after {detected_s:.0f} s; attempts of job {job}:\n"
           + "\n".join("|".join(r.values()) for r in attempts))
