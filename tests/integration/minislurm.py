@@ -292,6 +292,11 @@ class MiniSlurm:
     # ------------------------------------------------------------------ stop
 
     def stop(self) -> None:
+        # A job still running has processes in the nodes' namespaces (slurmstepd, srun, the
+        # run): they would outlive the daemons and the deleted namespaces' names.
+        for node in getattr(self, "nodes", []):
+            with contextlib.suppress(subprocess.CalledProcessError, OSError):
+                self.take_down(node)
         for proc in reversed(self.procs):  # slurmds, slurmctld, slurmdbd, mariadbd, munged
             if proc.poll() is None:
                 with contextlib.suppress(ProcessLookupError):
