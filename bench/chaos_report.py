@@ -359,11 +359,12 @@ def _steps_section(runs: dict[str, list[float]], free: dict[str, list[float]]) -
              f"✗ beyond ±{STEPS_TOLERANCE:.0%}.", "",
              "| run | worst | per epoch |", "|---|---|---|"]
     for name, values in [*runs.items(), *free.items()]:
-        gaps = [(abs(v / reference[i] - 1), i + 1) for i, v in enumerate(values)
+        gaps = [(round(abs(v / reference[i] - 1), 6), i + 1, v / reference[i] - 1)
+                for i, v in enumerate(values)
                 if i >= 1 and v == v and reference[i] == reference[i] and reference[i] > 0]
-        worst = max(gaps, default=(0.0, 0))
+        worst = max(gaps, default=(0.0, 0, 0.0))
         mark = " ✗" if worst[0] > STEPS_TOLERANCE else ""
-        where = f"{worst[0]:+.1%} at epoch {worst[1]}" if worst[0] > 0 else "none"
+        where = f"{worst[2]:+.1%} at epoch {worst[1]}" if worst[0] > 0 else "none"
         lines.append(f"| {name} | {where}{mark} | "
                      f"{', '.join(f'{v:.2f}' for v in values)} |")
     lines.append(f"| fault-free median | – | {', '.join(f'{v:.2f}' for v in reference)} |")
