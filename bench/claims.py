@@ -151,7 +151,7 @@ class Run:
     curve: Curve
 
 
-def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> dict[Group, list[Run]]:
+def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
     """Our runs under `runs_dir` (folders that are not runs are passed over) and the
     authors' curves, by group, each group's runs by seed. Two runs of one group and seed are
     one seed: the longer is kept, as in `hercs plot`."""
@@ -171,10 +171,21 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> dict[Group
         kept = by_seed.get((g, run.seed))
         if kept is None or run.epochs > kept.epochs:
             by_seed[(g, run.seed)] = run
-    out: dict[Group, list[Run]] = {}
+    out = Groups()
     for (g, _), run in sorted(by_seed.items(), key=lambda kv: (kv[0][1], kv[1].name)):
         out.setdefault(g, []).append(run)
+    out.dropped = sorted((run.name, by_seed[(g, run.seed)].name) for g, run in found
+                         if by_seed[(g, run.seed)] is not run)
     return out
+
+
+class Groups(dict[Group, list[Run]]):
+    """Runs by group and seed (`load_groups`), and the runs of a group and seed that a longer
+    one replaced: `dropped`, (run, the run counted instead) pairs."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.dropped: list[tuple[str, str]] = []
 
 
 # ---------------------------------------------------------------------------------- scores
@@ -409,10 +420,14 @@ def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run
             for name in side.short:
                 lines.append(f"| {label} | {name} | stopped before epoch {side.epoch}: "
                              "left out | – |")
-    unused = sorted(run.name for g, runs in groups.items() if g not in seen
-                    and g.schedule != "authors" for run in runs)
+    unused = sorted((run.name, f"its group is in no claim ({g.task}, {g.label})")
+                    for g, runs in groups.items() if g not in seen and g.schedule != "authors"
+                    for run in runs)
+    unused += [(name, f"a longer run of its group and seed is counted: {kept}")
+               for name, kept in getattr(groups, "dropped", [])]
     if unused:
-        lines += ["", f"Runs in no claim: {', '.join(unused)}."]
+        lines += ["", "**Committed runs in no claim**, and why:", "", "| run | why |",
+                  "|---|---|", *(f"| {name} | {why} |" for name, why in sorted(unused))]
     return [*lines, ""]
 
 
@@ -422,7 +437,8 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "# The claims, with intervals over seeds", "",
         f"Drawn by `{command}` from the committed runs (docs/results/runs/) and the authors' "
         "per-seed curves (docs/reference/authors_success_rates.csv); also `make figures`, and "
-        "a test checks this file against them. All on FetchPush.", "",
+        "a test checks this file against them. All on FetchPush, but for the PickAndPlace "
+        f"lines, which are read at epoch {PICK_EPOCH}.", "",
         "**Per run** (hercs/apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
         f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
         f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "

@@ -310,3 +310,20 @@ def test_command_writes_claims_md(tmp_path: Path) -> None:
     few = subprocess.run([sys.executable, "-m", "bench.claims", "--reps", "10"],
                          capture_output=True, text=True, timeout=60, cwd=REPO)
     assert few.returncode == 2 and "--reps must be at least 100, got 10" in few.stderr
+
+
+def test_every_committed_run_a_claim_leaves_out_is_listed_with_the_reason() -> None:
+    """The audit's finding: chaos and fault-free runs were left out silently by the
+    "longest run per seed" rule."""
+    runs_dir = Path(__file__).resolve().parents[2] / "docs" / "results" / "runs"
+    groups = claims.load_groups(runs_dir)
+    results = claims.evaluate(claims.CLAIMS, groups, reps=10)
+    text = claims.report(results, groups, "test", reps=10)
+    used = {s.run for r in results for side in (r.x, r.y) for s in side.scores}
+    used |= {name for r in results for side in (r.x, r.y) for name in side.short}
+    committed = {p.name for p in runs_dir.iterdir() if (p / "metrics.csv").is_file()}
+    listed = {line.split(" | ")[0].removeprefix("| ") for line in text.splitlines()
+              if " | its group is in no claim" in line or " | a longer run of its" in line}
+    assert committed - used == listed
+    assert "| nofault-push-her-ebp-cs-s1 | a longer run of its group and seed is counted: " \
+           "push-her-ebp-cs-s1 |" in text
