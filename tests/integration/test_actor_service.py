@@ -71,7 +71,7 @@ class FakeReplay:
     """`replay/insert` that acks, except: seq 1's first attempt is never answered (a timeout),
     seq 2's first is answered `unavailable`, seq 3 is rejected `bad_shape` (to be dropped).
     Once `closing` is set, every attempt is answered `unavailable`, as a replay shutting down
-    answers, and counted in `attempts_while_closing`."""
+    answers, and recorded in `closing_attempts`."""
 
     def __init__(self, transport: Transport, keys: RunKeys) -> None:
         self.attempts: Counter[int] = Counter()
@@ -79,7 +79,6 @@ class FakeReplay:
         self.acked: queue.Queue[pb.Episode] = queue.Queue()
         self.held: list[PendingReply] = []
         self.closing = threading.Event()
-        self.attempts_while_closing: Counter[int] = Counter()
         self.closing_attempts: list[tuple[float, int]] = []
         """(wall time, seq) of each attempt answered while closing."""
         self._lock = threading.Lock()
@@ -89,7 +88,6 @@ class FakeReplay:
         episode = pb.Episode.FromString(pending.payload)
         if self.closing.is_set():
             with self._lock:
-                self.attempts_while_closing[episode.seq] += 1
                 self.closing_attempts.append((time.time(), episode.seq))
             pending.reply_error("unavailable", "replay closing")
             return
