@@ -153,6 +153,18 @@ def wait_for_epoch(run_dir: Path, epoch: int, timeout_s: float,
         time.sleep(poll_s)
 
 
+def submit_reach(cluster: minislurm.MiniSlurm, runs: Path, run: str, *, epochs: int,
+                 time_limit: str, extra: tuple[str, ...] = ()) -> tuple[str, Path, Path]:
+    """A small FetchReach HER job (one actor node, 5 cycles per epoch): its id, run folder
+    and job output file."""
+    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", str(epochs),
+                       "--run", run, "--run-dir", str(runs), "--actor-nodes", "1",
+                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", time_limit,
+                       *extra, "--set", "training.cycles_per_epoch=5", *TINY)
+    run_dir = runs / run
+    return job, run_dir, run_dir / "slurm" / f"job-{job}.out"
+
+
 def test_a_run_warned_of_its_time_limit_requeues_and_resumes_to_the_end(
         cluster: minislurm.MiniSlurm, tmp_path: Path) -> None:
     """Slurm's warning before the time limit (`--signal=B:USR1@S`: USR1 to the batch shell
@@ -162,13 +174,8 @@ def test_a_run_warned_of_its_time_limit_requeues_and_resumes_to_the_end(
     end. (That Slurm sends the warning at the limit was measured on this cluster: 60 s into
     a 2-minute attempt with --signal-before 30, docs/CLUSTER.md §4.)"""
     runs = tmp_path / "runs"
-    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", "8",
-                       "--run", "long", "--run-dir", str(runs), "--actor-nodes", "1",
-                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", "30",
-                       "--signal-before", "30", "--set", "training.cycles_per_epoch=5",
-                       *TINY)
-    run_dir = runs / "long"
-    output = run_dir / "slurm" / f"job-{job}.out"
+    job, run_dir, output = submit_reach(cluster, runs, "long", epochs=8, time_limit="30",
+                                        extra=("--signal-before", "30"))
     wait_for_epoch(run_dir, 1, timeout_s=600, poll_s=0.2)  # 7 epochs still to go
     subprocess.run(["scancel", "--batch", "--signal=USR1", job], env=cluster.env, timeout=60,
                    check=True)
@@ -209,12 +216,7 @@ def test_a_killed_actor_step_is_started_again_within_the_attempt(
     job, 1 min 48 s measured). The actors are the run's only source of episodes, so every
     later epoch is the restarted step's work."""
     runs = tmp_path / "runs"
-    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", "4",
-                       "--run", "bumpy", "--run-dir", str(runs), "--actor-nodes", "1",
-                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", "15",
-                       "--set", "training.cycles_per_epoch=5", *TINY)
-    run_dir = runs / "bumpy"
-    output = run_dir / "slurm" / f"job-{job}.out"
+    job, run_dir, output = submit_reach(cluster, runs, "bumpy", epochs=4, time_limit="15")
     wait_for_epoch(run_dir, 1, timeout_s=600)
     pids = _actor_pids("bumpy")
     assert len(pids) == 1, f"one actor process, not its srun: {pids}"
@@ -242,12 +244,7 @@ def test_a_node_that_dies_fails_the_job_which_requeues_and_resumes(
     the script asks `--requeue`, requeues it; once the node is back the next attempt resumes
     the run from its checkpoint, and every epoch is in metrics.csv once."""
     runs = tmp_path / "runs"
-    job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", "4",
-                       "--run", "nodefail", "--run-dir", str(runs), "--actor-nodes", "1",
-                       "--actor-cpus", "1", "--learner-cpus", "1", "--time", "30",
-                       "--set", "training.cycles_per_epoch=5", *TINY)
-    run_dir = runs / "nodefail"
-    output = run_dir / "slurm" / f"job-{job}.out"
+    job, run_dir, output = submit_reach(cluster, runs, "nodefail", epochs=4, time_limit="30")
     wait_for_epoch(run_dir, 2, timeout_s=600)
     killed = cluster.take_down("hercs-n2")
     down_at = time.monotonic()
