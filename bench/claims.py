@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -41,9 +42,11 @@ import yaml
 from bench.claim_statistics import (
     REPS,
     RNG_SEED,
+    EpochStats,
     Estimate,
     Score,
     SideStats,
+    epoch_stats,
     improvement,
     side_stats,
 )
@@ -66,6 +69,29 @@ REPO = Path(__file__).resolve().parents[1]
 OUTPUT = "claims.md"
 EPOCH = 50
 THRESHOLD = 0.5
+HIGH = 0.9
+"""The second milestone, where a task is close to solved (PickAndPlace's runs pass it by
+epoch 100; few Push runs do by 50)."""
+DONE_FILE = "bench_done.json"
+"""bench/sample_efficiency.py's record of a finished run: commit, time, machine."""
+ASSUMED_KEYS: tuple[tuple[str, str, str], ...] = (
+    ("training", "schedule", "async"), ("learner", "precision", "fp32"))
+"""Settings that older config.yaml files lack; such a run is grouped with these values (the
+only ones that existed when it was made), and the report says so."""
+RUN_NOTES: dict[str, str] = {
+    "push-her-lag7-s2": (
+        "its `policy_lag` reads 60 for epochs 21–50, against 7 before. It was stopped at "
+        "epoch 20 and resumed; the replay kept the 212 episodes acted between the learner's "
+        "last checkpoint and the stop (acknowledged data is never dropped). `policy_lag` "
+        "counts episode ids against the lockstep schedule, so those 212 episodes (53 cycles "
+        "of 4) shift it by 53 for the rest of the run: it measures the kept data against "
+        "the schedule, not staleness. The lag against the learner's current weights "
+        "(`policy_lag_request`) was 1.0 cycle before the stop and after it. The run saw "
+        "10,600 more environment steps than its schedule (2 % of 500,000 by epoch 50), all "
+        "in epoch 21. No claim here counts it: the new default's HER seeds replace the "
+        "legacy ones."),
+}
+"""What a committed run's files need said that they cannot say themselves."""
 MIN_SEEDS = 2
 LEGACY = "legacy"
 LEGACY_LAG_CYCLES = 7  # docs/results/runs/README.md: the median policy lag of the legacy runs
@@ -149,6 +175,38 @@ class Run:
     seed: int
     epochs: int  # the last epoch it reached
     curve: Curve
+    commit: str = ""  # bench_done.json's, "" where not recorded
+    finished: str = ""  # its UTC date, YYYY-MM-DD
+    machine: str = ""  # "AMD EPYC (avx2), boot 5011c83b"; "" where not recorded
+    assumed: tuple[str, ...] = ()
+    """ASSUMED_KEYS its config.yaml lacks ("training.schedule=async")."""
+
+
+def provenance(run_dir: Path) -> dict[str, str]:
+    """commit, finished and machine from the run's bench_done.json ("" where absent)."""
+    path = run_dir / DONE_FILE
+    try:
+        done = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError):
+        done = {}
+    machine = done.get("machine") or {}
+    cpu = str(machine.get("cpu") or "")
+    label = ""
+    if cpu:
+        name, _, rest = cpu.replace("(R)", "").partition(" (")
+        flags = rest.rstrip(")").partition("; ")[2].split()
+        vector = "avx512" if "avx512f" in flags else ("avx2" if "avx2" in flags else "")
+        label = f"{name}{f' ({vector})' if vector else ''}"
+        if machine.get("boot_id"):
+            label += f", boot {machine['boot_id']}"
+    commit = str(done.get("commit") or "").replace(" (with uncommitted changes)", "+")
+    return {"commit": commit, "finished": str(done.get("finished") or "")[:10],
+            "machine": label}
+
+
+def assumed_settings(config: dict) -> tuple[str, ...]:
+    return tuple(f"{section}.{key}={value}" for section, key, value in ASSUMED_KEYS
+                 if key not in (config.get(section) or {}))
 
 
 def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
@@ -160,7 +218,8 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
         source = Path(curve.source)
         config = yaml.safe_load((source / CONFIG).read_text()) or {}
         found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
-                                            curve)))
+                                            curve, **provenance(source),
+                                            assumed=assumed_settings(config))))
     reference = load_reference() if reference_csv is None else load_reference(reference_csv)
     for curve in reference:
         found.append((Group(curve.task, curve.method, env="v1", schedule="authors"),
@@ -197,10 +256,11 @@ def score(run: Run, epoch: int = EPOCH) -> Score | None:
     if not keep.any() or int(c.epochs[keep].max()) != epoch:
         return None
     cut = replace(c, epochs=c.epochs[keep], success=c.success[keep])
-    m = milestones(aggregate([cut]), thresholds=(THRESHOLD,), at_epochs=(epoch,))
-    at, success = m.crossing[THRESHOLD], m.at[epoch]
+    m = milestones(aggregate([cut]), thresholds=(THRESHOLD, HIGH), at_epochs=(epoch,))
+    at, high, success = m.crossing[THRESHOLD], m.crossing[HIGH], m.at[epoch]
     assert success is not None
-    return Score(run.name, success, epoch if at is None else at, at is None)
+    return Score(run.name, success, epoch if at is None else at, at is None,
+                 epoch if high is None else high, high is None)
 
 
 # ---------------------------------------------------------------------------------- claims
@@ -298,6 +358,8 @@ class ClaimResult:
     y_stats: SideStats | None
     improvement: tuple[Estimate, Estimate] | None
     """None unless both sides have MIN_SEEDS runs."""
+    high: EpochStats | None = None
+    """The epoch at HIGH; None unless both sides have MIN_SEEDS runs."""
 
 
 def _side(groups: dict[Group, list[Run]], g: Group, epoch: int) -> Side:
@@ -331,6 +393,11 @@ def resolve(claim: Claim, groups: dict[Group, list[Run]], epoch: int = EPOCH
     return candidates[0]
 
 
+def _highs(side: Side) -> list[int]:
+    """The side's epochs at HIGH (score() always sets them)."""
+    return [s.at_high if s.at_high is not None else side.epoch for s in side.scores]
+
+
 def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int = EPOCH,
              reps: int = REPS, seed: int = RNG_SEED) -> list[ClaimResult]:
     cache: dict[tuple[Score, ...], SideStats] = {}
@@ -347,8 +414,10 @@ def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int
     for claim in claims:
         x, y = resolve(claim, groups, claim.epoch or epoch)
         both = x.n >= MIN_SEEDS and y.n >= MIN_SEEDS
+        high = epoch_stats(_highs(x), _highs(y), reps, seed) if both else None
         out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y),
-                               improvement(x.scores, y.scores, reps, seed) if both else None))
+                               improvement(x.scores, y.scores, reps, seed) if both else None,
+                               high))
     return out
 
 
@@ -381,11 +450,17 @@ def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
     lines = []
     for r in results:
         head = f"| {r.claim.title} | {r.x.group.label} | {r.y.group.label} | {r.x.n} / {r.y.n} |"
-        if which == "epoch":
-            cx, cy = (sum(s.censored for s in side.scores) for side in (r.x, r.y))
+        if which in ("epoch", "high"):
+            cx, cy = (sum(s.censored_high if which == "high" else s.censored
+                          for s in side.scores) for side in (r.x, r.y))
             head += f" {cx} / {cy} |"
-        if r.x_stats is None or r.y_stats is None or r.improvement is None:
+        if r.x_stats is None or r.y_stats is None or r.improvement is None or r.high is None:
             lines.append(head + f" {_not_enough(r)} | – | – | – | – |")
+            continue
+        if which == "high":
+            h = r.high
+            cells = [_est(e, _epoch) for e in (h.x_iqm, h.y_iqm, h.x_mean, h.y_mean)]
+            lines.append(head + " " + " | ".join(cells) + f" | {_est(h.earlier, _rate)} |")
             continue
         if which == "success":
             cells = [_est(st.success_iqm, _rate) for st in (r.x_stats, r.y_stats)]
@@ -402,8 +477,9 @@ def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
 def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run]],
                     epoch: int) -> list[str]:
     lines = [f"## The runs behind each side, at epoch {epoch}", "",
-             f"| side | run | success after {epoch} | epoch at {THRESHOLD:g} |",
-             "|---|---|---|---|"]
+             f"| side | run | success after {epoch} | epoch at {THRESHOLD:g} | "
+             f"epoch at {HIGH:g} |",
+             "|---|---|---|---|---|"]
     seen: set[Group] = set()
     listed: set[tuple[Group, int]] = set()
     for r in results:
@@ -416,10 +492,12 @@ def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run
                                         else "")
             for s in side.scores:
                 at = f"never ({side.epoch}, censored)" if s.censored else str(s.at_half)
-                lines.append(f"| {label} | {s.run} | {_rate(s.success)} | {at} |")
+                high = (f"never ({side.epoch}, censored)" if s.censored_high
+                        else str(s.at_high))
+                lines.append(f"| {label} | {s.run} | {_rate(s.success)} | {at} | {high} |")
             for name in side.short:
                 lines.append(f"| {label} | {name} | stopped before epoch {side.epoch}: "
-                             "left out | – |")
+                             "left out | – | – |")
     unused = sorted((run.name, f"its group is in no claim ({g.task}, {g.label})")
                     for g, runs in groups.items() if g not in seen and g.schedule != "authors"
                     for run in runs)
@@ -429,6 +507,83 @@ def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run
         lines += ["", "**Committed runs in no claim**, and why:", "", "| run | why |",
                   "|---|---|", *(f"| {name} | {why} |" for name, why in sorted(unused))]
     return [*lines, ""]
+
+
+def _sides(results: Sequence[ClaimResult]) -> list[Side]:
+    """Every side with runs, once, in the order the claims name them."""
+    out: list[Side] = []
+    seen: set[tuple[Group, int]] = set()
+    for r in results:
+        for side in (r.x, r.y):
+            if (side.group, side.epoch) not in seen and side.scores:
+                seen.add((side.group, side.epoch))
+                out.append(side)
+    return out
+
+
+def _provenance_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run]]
+                        ) -> list[str]:
+    """Per side: the commits, dates and machines its runs were made on (from each run's
+    bench_done.json), and the settings assumed for old configs."""
+    by_name = {run.name: run for runs in groups.values() for run in runs}
+    lines = ["## Where each side's runs were made", "",
+             "From each run's bench_done.json (bench/sample_efficiency.py writes it as a run "
+             "ends): the hercs commit (+: with uncommitted changes), the day it finished "
+             "(UTC) and the machine (CPU and vector extensions, boot id; where bench_done.json "
+             "has none, docs/results/runs/README.md's table describes it in words). A side's "
+             "runs are "
+             "seeds of one experiment, but not always of one commit or machine: a seed gives "
+             "other numbers on another CPU (docs/DESIGN.md §10).", "",
+             "| side | runs | commits | finished | machines | settings assumed |",
+             "|---|---|---|---|---|---|"]
+    for side in _sides(results):
+        if side.group.schedule == "authors":
+            lines.append(f"| {side.group.label}{_at(side)} | {side.n} | the authors' "
+                         "published curves (docs/reference/authors_success_rates.csv) | – | "
+                         "– | – |")
+            continue
+        runs = [by_name[s.run] for s in side.scores]
+
+        def listed(values: list[str]) -> str:
+            known = sorted(set(v for v in values if v))
+            missing = sum(1 for v in values if not v)
+            parts = [*known, *([f"not recorded ({missing})"] if missing else [])]
+            return ", ".join(parts)
+
+        dates = sorted(r.finished for r in runs if r.finished)
+        span = (f"{dates[0]} – {dates[-1]}" if dates and dates[0] != dates[-1]
+                else (dates[0] if dates else "not recorded"))
+        assumed = sorted({a for r in runs for a in r.assumed})
+        assumed_cell = (", ".join(f"{a} ({_runs(sum(a in r.assumed for r in runs))})"
+                                  for a in assumed) if assumed else "none")
+        lines.append(f"| {side.group.label}{_at(side)} | {side.n} | "
+                     f"{listed([r.commit for r in runs])} | {span} | "
+                     f"{listed([r.machine for r in runs])} | {assumed_cell} |")
+    assumed_runs = sorted(run.name for runs in groups.values() for run in runs if run.assumed)
+    if assumed_runs:
+        lines += ["", f"*Settings assumed*: {', '.join(assumed_runs)} predate "
+                  f"{' and '.join(f'`{s}.{k}`' for s, k, _ in ASSUMED_KEYS)} in config.yaml "
+                  "and are grouped with the only values there were then "
+                  f"({', '.join(f'{v}' for _, _, v in ASSUMED_KEYS)})."]
+    notes = [(name, note) for name, note in sorted(RUN_NOTES.items()) if name in by_name]
+    if notes:
+        lines += ["", "**Notes on runs**", "", *(f"- **{name}**: {note}" for name, note in notes)]
+    return [*lines, ""]
+
+
+def _runs(n: int) -> str:
+    return f"{n} run{'' if n == 1 else 's'}"
+
+
+def _at(side: Side) -> str:
+    return f" (at epoch {side.epoch})" if side.epoch != EPOCH else ""
+
+
+def _seed_range(results: Sequence[ClaimResult]) -> str:
+    ns = sorted({side.n for side in _sides(results) if side.n >= MIN_SEEDS})
+    if not ns:
+        return f"{MIN_SEEDS} or more"
+    return f"{ns[0]}–{ns[-1]}" if ns[0] != ns[-1] else str(ns[0])
 
 
 def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], command: str,
@@ -442,7 +597,8 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "**Per run** (hercs/apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
         f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
         f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "
-        f"counted from 0 (epochs completed before it). A run that never does by epoch {epoch} "
+        f"counted from 0 (epochs completed before it), and likewise the *epoch at {HIGH:g}*. "
+        f"A run that never does by epoch {epoch} "
         f"counts as {epoch}, one more than its last epoch in that count: **censored**, a lower "
         "bound, so the IQM and mean of a side with censored runs are lower bounds too (the "
         f"table counts them). Every run is cut at epoch {epoch}, the authors' too (a claim "
@@ -471,12 +627,13 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "(*new default*: hercs.config's defaults). A claim takes the new default's runs where "
         f"every asynchronous side has {MIN_SEEDS} seeds of it, else the legacy ones; each "
         "side says which.", "",
-        "**How far to trust them**: with 2–5 seeds a side the bootstrap can only resample the "
+        f"**How far to trust them**: with {_seed_range(results)} seeds a side the bootstrap "
+        "can only resample the "
         "seeds there are, so an interval describes these seeds and is narrower than the "
         "uncertainty about the next one (a percentile bootstrap undercovers at such n): an "
         "interval of P(X > Y) that excludes .5 is a lead, not a verdict. The runs also come "
-        "from different machines and commits (docs/results/runs/README.md), and one seed "
-        "gives other numbers on another CPU (docs/DESIGN.md §10).", "",
+        "from different machines and commits (the last section says which, per side), and "
+        "one seed gives other numbers on another CPU (docs/DESIGN.md §10).", "",
         f"## Success after epoch {epoch}", "",
         "| claim | X | Y | seeds X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
         "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] |",
@@ -489,7 +646,15 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] |",
         "|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "epoch"), "",
+        f"## Epoch at which the 10-epoch mean first exceeds {HIGH:g}", "",
+        f"As above, for {HIGH:g}: close to solved. Censored: runs that never did by their "
+        "claim's epoch, counted as that epoch.", "",
+        "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+        *_rows(results, "high"), "",
         *_groups_section(results, groups, epoch),
+        *_provenance_section(results, groups),
     ]
     return "\n".join(lines)
 

@@ -4,6 +4,7 @@ not-enough-seeds rule, the stand-ins for rliable's functions, and the command li
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -327,3 +328,56 @@ def test_every_committed_run_a_claim_leaves_out_is_listed_with_the_reason() -> N
     assert committed - used == listed
     assert "| nofault-push-her-ebp-cs-s1 | a longer run of its group and seed is counted: " \
            "push-her-ebp-cs-s1 |" in text
+
+
+# ------------------------------------------------------------ the epoch at 0.9, provenance
+
+def test_the_epoch_at_0_9_is_counted_like_the_one_at_0_5() -> None:
+    # 0.95 from epoch 31 on: the trailing mean first exceeds .5 at epoch 36 and .9 at 40
+    s = _score([0.0] * 30 + [0.95] * 20)
+    assert (s.at_half, s.at_high, s.censored_high) == (35, 39, False)
+    never = _score([0.0] * 30 + [0.85] * 20)
+    assert (never.censored, never.at_high, never.censored_high) == (False, 50, True)
+
+
+def test_the_epoch_at_0_9_table_has_numbers_by_hand(tmp_path: Path) -> None:
+    """HER-CS reaches .9 at 25 and 26 (a 0→1 step), HER never by 50: P(earlier) = 1."""
+    _run(tmp_path, "cs-1", "her-cs", 1, _ramp(15))
+    _run(tmp_path, "cs-2", "her-cs", 2, _ramp(16))
+    _run(tmp_path, "her-1", "her", 1, [0.8] * 50)
+    _run(tmp_path, "her-2", "her", 2, [0.2] * 50)
+    groups = claims.load_groups(tmp_path)
+    [r] = claims.evaluate([CS_VS_HER], groups, reps=REPS)
+    assert [s.at_high for s in r.x.scores] == [24, 25]
+    assert r.high.x_mean.value == pytest.approx(24.5)
+    assert (r.high.y_iqm.value, r.high.y_iqm.low, r.high.y_iqm.high) == (50.0, 50.0, 50.0)
+    assert (r.high.earlier.value, r.high.earlier.low, r.high.earlier.high) == (1.0, 1.0, 1.0)
+    text = claims.report([r], groups, "cmd", reps=REPS)
+    assert "| 2 / 2 | 0 / 2 | 24.5 [24.0, 25.0] | 50.0 [50.0, 50.0] |" in text
+    # the 0.5 numbers are bootstrapped as before the 0.9 ones existed
+    assert r.improvement == claim_statistics.improvement(r.x.scores, r.y.scores, REPS)
+
+
+def test_each_sides_commits_days_machines_and_assumed_settings_are_listed(
+        tmp_path: Path) -> None:
+    made = {"commit": "abc1234", "finished": "2026-11-26T20:13:00+00:00",
+            "machine": {"cpu": "AMD EPYC (family 25 model 17; avx2 avx512f)", "boot_id": "b1"}}
+    for run in (_run(tmp_path, "cs-1", "her-cs", 1, _ramp(20)),
+                _run(tmp_path, "her-1", "her", 1, _ramp(30))):
+        (run / claims.DONE_FILE).write_text(json.dumps(made))
+    _run(tmp_path, "cs-2", "her-cs", 2, _ramp(21), training={"schedule": "async"})
+    (tmp_path / "cs-2" / claims.DONE_FILE).write_text(json.dumps(
+        {"commit": "def5678 (with uncommitted changes)", "finished": "2026-11-27T01:00:00"}))
+    _run(tmp_path, "her-2", "her", 2, [0.2] * 50, training={"schedule": "async"},
+         learner={"precision": "fp32"})
+    groups = claims.load_groups(tmp_path)
+    text = claims.report(claims.evaluate([CS_VS_HER], groups, reps=REPS), groups, "c",
+                         reps=REPS)
+    assert ("| HER-CS, v4, async (legacy), fp32 | 2 | abc1234, def5678+ | 2026-11-26 – "
+            "2026-11-27 | AMD EPYC (avx512), boot b1, not recorded (1) | "
+            "learner.precision=fp32 (2 runs), training.schedule=async (1 run) |") in text
+    assert ("| HER, v4, async (legacy), fp32 | 2 | abc1234, not recorded (1) | 2026-11-26 | "
+            "AMD EPYC (avx512), boot b1, not recorded (1) | learner.precision=fp32 (1 run), "
+            "training.schedule=async (1 run) |") in text
+    assert "*Settings assumed*: cs-1, cs-2, her-1 predate" in text
+    assert "with 2 seeds a side the bootstrap" in text
