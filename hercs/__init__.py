@@ -1,8 +1,13 @@
 """hercs: Hindsight Experience Replay with Cluster-based Sampling, as distributed services.
 
-The Python API (`hercs.api`; README "Python API"): `load_policy`, `read_metrics`,
-`read_episodes`, `load_config`.
+The Python API (README "Python API"): `up` starts a run and returns its `Run` handle
+(`hercs.apps.run_handle`); `load_policy`, `read_metrics`, `read_episodes` and `load_config`
+read a run directory (`hercs.api`).
 """
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 from hercs.api import (
     LoggedEpisode,
@@ -16,10 +21,23 @@ from hercs.api import (
 )
 from hercs.errors import ConfigError, HercsError
 
+if TYPE_CHECKING:
+    from hercs.apps.run_handle import Run, up
+
 __version__ = "0.1.0"
 
 __all__ = [
     "ConfigError", "HercsError", "LoggedEpisode", "Metrics", "ObservationError",
-    "TrainedPolicy", "__version__", "load_config", "load_policy", "read_episodes",
-    "read_metrics",
+    "Run", "TrainedPolicy", "__version__", "load_config", "load_policy", "read_episodes",
+    "read_metrics", "up",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """`up` and `Run` on first use: the launcher's imports stay out of every service's
+    `import hercs`."""
+    if name in ("up", "Run"):
+        from hercs.apps import run_handle
+
+        return getattr(run_handle, name)
+    raise AttributeError(f"module 'hercs' has no attribute {name!r}")

@@ -1,0 +1,284 @@
+"""`hercs.up(...)`: start a whole run from Python and hold it by a handle.
+
+    import hercs
+
+    run = hercs.up(task="reach", method="her-cs", epochs=3, seed=1)
+    for row in run.rows():                 # metrics.csv rows, as each epoch ends
+        print(row["epoch"], row["success_rate"])
+    run.wait()                             # the exit status, 0 once the run finished
+    policy = run.policy("best")            # hercs.TrainedPolicy
+
+The run is the same `hercs up` a shell starts (router, replay, clusterer, learner, evaluator,
+actors), as a child process of the caller: training never shares the caller's interpreter,
+GIL or signal handlers, so a notebook, a sweep library or a lab's driver can hold several.
+The arguments are resolved here first, exactly as the command line resolves them, so that a
+bad value raises `ConfigError` before anything starts, and the run's folder is known at once.
+
+`stop()` is the orderly stop of Ctrl-C (the checkpoint and results stay; `resume()` goes on
+from the last checkpoint). A run still going when the caller's interpreter exits is stopped
+the same way, so that no services outlive it.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import io
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import weakref
+from collections import deque
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from hercs.errors import ConfigError, HercsError
+
+if TYPE_CHECKING:
+    from hercs.api import Metrics, MetricValue, TrainedPolicy
+    from hercs.config import HercsConfig
+
+STOP_WAIT_S = 120.0
+"""How long `stop()` waits for the orderly stop before it kills the run's processes."""
+DEFAULT_LISTEN = "tcp/127.0.0.1:0"
+"""`up()`'s router endpoint unless given: loopback, any free port."""
+OUTPUT_LINES = 2000
+"""The last lines of `hercs up`'s output a handle keeps (`Run.output`)."""
+_EPOCH_LINE = re.compile(r"^epoch \d+/\d+  success ")
+"""`hercs up`'s line for a finished epoch: its metrics.csv row is written by then."""
+
+_RUNNING: weakref.WeakSet[Run] = weakref.WeakSet()
+
+
+def _stop_all_at_exit() -> None:
+    for run in list(_RUNNING):
+        with contextlib.suppress(Exception):
+            run.stop()
+
+
+atexit.register(_stop_all_at_exit)
+
+
+def _flags(task: str | None, method: str | None, epochs: int | None, seed: int | None,
+           actors: int | None, name: str | None, run_dir: str | os.PathLike[str] | None,
+           config: str | os.PathLike[str] | None,
+           overrides: Mapping[str, Any] | Sequence[str], listen: str | None) -> list[str]:
+    argv: list[str] = []
+    for flag, value in (("--task", task), ("--method", method), ("--epochs", epochs),
+                        ("--seed", seed), ("--actors", actors), ("--run", name),
+                        ("--run-dir", run_dir), ("--config", config), ("--listen", listen)):
+        if value is not None:
+            argv += [flag, str(value)]
+    if isinstance(overrides, Mapping):
+        items = [f"{key}={_yaml_value(value)}" for key, value in overrides.items()]
+    elif isinstance(overrides, str):
+        raise ConfigError(f"overrides: give a list of 'field=value' strings or a dict, not "
+                          f"the string {overrides!r}")
+    else:
+        items = list(overrides)
+    for item in items:
+        argv += ["--set", item]
+    return argv
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    return str(value)
+
+
+def _resolve(argv: list[str]) -> HercsConfig:
+    """`hercs up ARGV`'s config, with its run name fixed: what the child will run."""
+    from hercs.apps.cli import build_parser, resolve_config
+    from hercs.apps.run_plan import default_run_name
+
+    parser = build_parser()[0]
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            args = parser.parse_args(["up", *argv])
+    except SystemExit as exc:  # argparse's own message, without its usage lines
+        why = (said.getvalue().strip().splitlines() or ["?"])[-1].partition("error: ")[2]
+        raise ConfigError(f"hercs.up: arguments refused ({why}): {' '.join(argv)}") from exc
+    config = resolve_config(args)
+    if not config.run.name:
+        from hercs.config import apply_overrides
+
+        config = apply_overrides(config, [f"run.name={default_run_name(config)}"])
+    return config
+
+
+def up(task: str | None = None, method: str | None = None, *, epochs: int | None = None,
+       seed: int | None = None, actors: int | None = None, name: str | None = None,
+       run_dir: str | os.PathLike[str] | None = None,
+       config: str | os.PathLike[str] | None = None,
+       overrides: Mapping[str, Any] | Sequence[str] = (), listen: str | None = None) -> Run:
+    """Start a run as `hercs up` would and return its handle.
+
+    `task`, `method`, `epochs`, `seed`, `actors`, `name` (the run's name, else
+    task-method-sSEED-time) and `run_dir` (the folder of runs, default `runs`) are the
+    command's flags; `config` a YAML file; `overrides` what `--set` takes, as a list of
+    "field=value" strings or a dict ({"ddpg.lr_actor": 5e-4}); `listen` the embedded router's
+    endpoint: by default any free port on loopback, so that several runs can go at once
+    (give "tcp/0.0.0.0:7447", the command's default, to let actors on other hosts join).
+    Raises `ConfigError` (nothing started) for a bad value, as the command exits 2."""
+    if listen is None:
+        listen = DEFAULT_LISTEN
+    argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen)
+    resolved = _resolve(argv)
+    argv = [*argv, "--run", resolved.run.name]
+    return Run._start(["up", *argv], Path(resolved.run.run_dir) / resolved.run.name,
+                      resolved.run.name)
+
+
+class Run:
+    """One `hercs up` started by `up()` (or `resume()`): its folder, its rows as they come,
+    and the orderly stop. Methods are safe to call from several threads."""
+
+    def __init__(self, proc: subprocess.Popen[str], run_dir: Path, name: str) -> None:
+        self._proc = proc
+        self.dir = run_dir.absolute()
+        """The run's folder (config.yaml, metrics.csv, checkpoints/, logs/)."""
+        self.name = name
+        self.output: deque[str] = deque(maxlen=OUTPUT_LINES)
+        """The last lines `hercs up` printed (stdout and stderr, in order)."""
+        self._changed = threading.Condition()
+        self._epoch_lines = 0
+        self._ended = False
+        self._reader = threading.Thread(target=self._read, name=f"hercs-up-{name}",
+                                        daemon=True)
+        self._reader.start()
+        _RUNNING.add(self)
+
+    @classmethod
+    def _start(cls, argv: list[str], run_dir: Path, name: str) -> Run:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hercs.apps.cli", *argv], stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True, bufsize=1, stdin=subprocess.DEVNULL,
+            # its own session: a Ctrl-C meant for the caller does not reach the services
+            # past `hercs up`'s orderly stop; stop() and the exit hook stop it instead
+            start_new_session=True)
+        return cls(proc, run_dir, name)
+
+    # ------------------------------------------------------------------ watching
+
+    def _read(self) -> None:
+        assert self._proc.stdout is not None
+        for line in self._proc.stdout:
+            line = line.rstrip("\n")
+            with self._changed:
+                self.output.append(line)
+                if _EPOCH_LINE.match(line):
+                    self._epoch_lines += 1
+                self._changed.notify_all()
+        self._proc.wait()
+        with self._changed:
+            self._ended = True
+            self._changed.notify_all()
+        _RUNNING.discard(self)
+
+    @property
+    def running(self) -> bool:
+        return self._proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        """The exit status of `hercs up` (0: finished; 130: stopped), None while running."""
+        return self._proc.poll()
+
+    def rows(self, timeout_s: float | None = None) -> Iterator[dict[str, MetricValue]]:
+        """metrics.csv's rows, each once, as their epochs end (rows already there first);
+        the iteration ends with the run. `timeout_s` bounds each wait for the next row
+        (TimeoutError)."""
+        seen = 0
+        while True:
+            with self._changed:
+                lines, ended = self._epoch_lines, self._ended
+            metrics = self._read_metrics()
+            rows = metrics.rows if metrics is not None else ()
+            yield from rows[seen:]
+            seen = max(seen, len(rows))
+            if ended:
+                return
+            if not self._wait_past(lines, timeout_s):
+                raise TimeoutError(f"run {self.name}: no epoch ended within {timeout_s} s")
+
+    def _wait_past(self, lines: int, timeout_s: float | None) -> bool:
+        """Until an epoch line after the first `lines` came, or the run ended."""
+        with self._changed:
+            return self._changed.wait_for(
+                lambda: self._ended or self._epoch_lines > lines, timeout_s)
+
+    def _read_metrics(self) -> Metrics | None:
+        from hercs.api import read_metrics
+
+        try:
+            return read_metrics(self.dir)
+        except HercsError:  # not written yet
+            return None
+
+    def wait(self, timeout_s: float | None = None) -> int:
+        """Wait for the run to end; its exit status (0 once finished). TimeoutError if it
+        is still going after `timeout_s`."""
+        try:
+            code = self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired as exc:
+            raise TimeoutError(f"run {self.name} still running after {timeout_s} s") from exc
+        self._reader.join()
+        return code
+
+    def stop(self, timeout_s: float = STOP_WAIT_S) -> int:
+        """The orderly stop (Ctrl-C's): the services stop in order, what was acknowledged
+        stays and `resume()` continues from the last checkpoint. Past `timeout_s` the run's
+        processes are killed. Returns the exit status; a run that ended already just gives
+        its own."""
+        if self._proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                self._proc.send_signal(signal.SIGINT)
+            try:
+                self._proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(self._proc.pid, signal.SIGKILL)
+        return self.wait()
+
+    def resume(self, epochs: int | None = None) -> Run:
+        """Continue this (stopped) run where it stopped, `hercs up --resume`, to its own
+        number of epochs or to `epochs`. A new handle; this one must have ended. A refused
+        resume (nothing to continue from, a finished run) ends at once with the command's
+        exit status and message (`output`)."""
+        if self.running:
+            raise HercsError(f"run {self.name} is still running; stop() it first")
+        more = ["--epochs", str(epochs)] if epochs is not None else []
+        return Run._start(["up", "--resume", str(self.dir), *more], self.dir, self.name)
+
+    # ------------------------------------------------------------------ results
+
+    @property
+    def metrics(self) -> Metrics:
+        """metrics.csv as it is now (`hercs.read_metrics`)."""
+        from hercs.api import read_metrics
+
+        return read_metrics(self.dir)
+
+    def policy(self, checkpoint: str = "best", **kw: Any) -> TrainedPolicy:
+        """The trained policy (`hercs.load_policy`): "best", "latest" or a file name."""
+        from hercs.api import load_policy
+
+        return load_policy(self.dir, checkpoint, **kw)
+
+    def __repr__(self) -> str:
+        state = "running" if self.running else f"ended ({self.returncode})"
+        return f"<hercs.Run {self.name} {state} in {self.dir}>"
+
+    def __enter__(self) -> Run:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

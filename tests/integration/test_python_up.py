@@ -1,0 +1,133 @@
+"""`hercs.up(...)`, the Python API's launcher, from a fresh interpreter as a user's script or
+notebook runs it: a real FetchReach run (router, replay, clusterer, learner, evaluator, an
+actor) whose rows arrive as epochs end, whose orderly stop keeps what it made and resumes to
+the end, and which never outlives the interpreter that started it."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import hercs
+from hercs.errors import ConfigError
+
+pytestmark = pytest.mark.integration
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT_TIMEOUT_S = 600
+SMALL = {"training.cycles_per_epoch": 2, "training.eval_episodes": 2}
+
+
+def _python(tmp_path: Path, code: str) -> dict:
+    """Run `code` in a fresh interpreter in tmp_path; its last stdout line is JSON."""
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=SCRIPT_TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _processes_naming(text: str) -> list[str]:
+    """Command lines of live processes that contain `text`."""
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            args = cmdline.read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in args:
+            found.append(args)
+    return found
+
+
+def test_a_run_started_from_python_yields_its_rows_and_its_policy(tmp_path: Path) -> None:
+    out = _python(tmp_path, f"""
+import json, numpy as np, hercs
+run = hercs.up(task="reach", method="her-cs", epochs=3, seed=1, run_dir="runs",
+               overrides={SMALL!r})
+epochs = [row["epoch"] for row in run.rows(timeout_s=300)]
+code = run.wait()
+policy = run.policy("best")
+obs = {{"observation": np.zeros(10), "desired_goal": np.zeros(3)}}
+print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": run.name,
+                  "metrics": len(run.metrics), "action": list(policy.act(obs).shape),
+                  "last": run.output[-1]}}))
+""")
+    assert out["epochs"] == [1, 2, 3]
+    assert out["code"] == 0 and out["metrics"] == 3 and out["action"] == [4]
+    assert Path(out["dir"]) == tmp_path / "runs" / out["name"]
+    assert out["name"].startswith("reach-her-cs-s1-")
+    assert out["last"].endswith("finished; run directory: " + f"runs/{out['name']}")
+    assert (Path(out["dir"]) / "config.yaml").is_file()
+
+
+def test_stop_keeps_the_epochs_and_resume_goes_on_to_the_end(tmp_path: Path) -> None:
+    # 200 epochs: the stop lands mid-run on any machine (it follows the first row at once)
+    out = _python(tmp_path, f"""
+import json, hercs
+run = hercs.up(task="reach", method="her", epochs=200, seed=2, name="stopme",
+               run_dir="runs", overrides={SMALL!r})
+first = next(run.rows(timeout_s=300))
+stopped = run.stop()
+kept = [int(r["epoch"]) for r in run.metrics]
+again = run.resume(epochs=kept[-1] + 1)
+resumed = again.wait(timeout_s=300)
+print(json.dumps({{"first": first["epoch"], "stopped": stopped, "kept": kept,
+                  "resumed": resumed, "epochs": [int(r["epoch"]) for r in again.metrics],
+                  "same_dir": again.dir == run.dir}}))
+""")
+    assert out["first"] == 1
+    assert out["stopped"] == 130  # hercs up's exit status after SIGINT: 128 + 2
+    assert out["kept"] == list(range(1, len(out["kept"]) + 1)) and len(out["kept"]) < 200
+    assert out["resumed"] == 0 and out["same_dir"]
+    assert out["epochs"] == list(range(1, len(out["kept"]) + 2))  # one more, none twice
+
+
+def test_a_run_never_outlives_the_interpreter_that_started_it(tmp_path: Path) -> None:
+    out = _python(tmp_path, f"""
+import json, hercs
+run = hercs.up(task="reach", method="her", epochs=200, name="orphan-check",
+               run_dir="runs", overrides={SMALL!r})
+next(run.rows(timeout_s=300))
+print(json.dumps({{"dir": str(run.dir)}}))
+# no stop(): the exit hook stops it
+""")
+    assert _processes_naming(out["dir"]) == []
+    assert _processes_naming("--run orphan-check") == []
+    assert (Path(out["dir"]) / "metrics.csv").is_file()
+
+
+def test_a_bad_value_raises_before_anything_starts(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"ddpg\.lr_actor"):
+        hercs.up(task="reach", run_dir=str(tmp_path / "runs"),
+                 overrides={"ddpg.lr_actor": "fast"})
+    with pytest.raises(ConfigError, match=r"task\.name: got 'no-such-task'"):
+        hercs.up(task="no-such-task", run_dir=str(tmp_path / "runs"))
+    refused = r"arguments refused \(argument --actors: invalid int value: 'two'\)"
+    with pytest.raises(ConfigError, match=refused):
+        hercs.up(task="reach", actors="two",  # type: ignore[arg-type]
+                 run_dir=str(tmp_path / "runs"))
+    with pytest.raises(ConfigError, match="not the string"):
+        hercs.up(task="reach", run_dir=str(tmp_path / "runs"), overrides="ddpg.lr_actor=1")
+    assert not (tmp_path / "runs").exists()
+
+
+def test_the_docs_example_runs_as_written(tmp_path: Path) -> None:
+    """docs/python_api.md's notebook cell, verbatim: 3 epochs watched, stopped, evaluated."""
+    text = (REPO / "docs" / "python_api.md").read_text()
+    code = re.search(r"```python\n(.*?)```", text, re.S)
+    assert code is not None, "docs/python_api.md has no python block"
+    done = subprocess.run([sys.executable, "-c", code.group(1)], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=SCRIPT_TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert [line.split(":")[0] for line in lines if line.startswith("epoch ")] == [
+        "epoch 1", "epoch 2", "epoch 3"]
+    assert "stopped with 130" in lines
+    assert lines[-2] == f"<hercs.Run api-demo ended (130) in {tmp_path / 'runs' / 'api-demo'}>"
+    assert re.fullmatch(r"best policy \(epoch [123]\): success (0|1)\.\d\d over 10 episodes",
+                        lines[-1])
