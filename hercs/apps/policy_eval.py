@@ -3,7 +3,9 @@ running.
 
     hercs eval runs/RUN                                  # the best policy, 20 episodes
     hercs eval runs/RUN --checkpoint latest --episodes 50
-    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa)
+    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa);
+                                                         # a title frame per episode, the step,
+                                                         # outcome and final distance on each
     hercs eval runs/RUN --rerun-save reach.rrd           # the camera images in Rerun
 
 Checkpoints (`RUN/checkpoints/`): `best` (`best.pt`, the epoch with the highest evaluation
@@ -24,11 +26,13 @@ import os
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from hercs.apps.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
 from hercs.checkpoints import LoadedPolicy, read_policy
 from hercs.errors import HercsError
 from hercs.seeding import int_seed
@@ -86,9 +90,11 @@ def choose_gl() -> str:
 
 
 def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
-             render: bool = False, on_frame: Any = None) -> EvalSummary:
+             render: bool = False, on_frame: Any = None,
+             on_episode_end: Callable[[int, bool, float], None] | None = None) -> EvalSummary:
     """Run `episodes` deterministic episodes; with `render`, `on_frame(episode, step, rgb)`
-    gets T + 1 frames per episode (the start and after every step)."""
+    gets T + 1 frames per episode (the start and after every step). `on_episode_end(episode,
+    success, final distance)` follows each episode."""
     from hercs.actors.rollout import RolloutWorker
     from hercs.envs import make_env
 
@@ -120,6 +126,8 @@ def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
                 frames += 1
             successes += int(episode.success)
             distances.append(float(goal_distance(episode.final_ag, episode.desired_goal)))
+            if on_episode_end is not None:
+                on_episode_end(n, bool(episode.success), distances[-1])
     finally:
         worker.close()
     return EvalSummary(episodes=episodes, successes=successes,
@@ -138,9 +146,16 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         if render:
             os.environ["MUJOCO_GL"] = choose_gl()
         policy = load_policy(run_dir, checkpoint)
-        sinks, closers = _sinks(video, rerun_save)
-        summary = evaluate(policy, episodes=episodes, seed=seed, render=render,
-                           on_frame=lambda n, t, rgb: [sink(n, t, rgb) for sink in sinks])
+        sinks, closers = _sinks(video, rerun_save, episodes)
+
+        def episode_end(n: int, success: bool, distance: float) -> None:
+            for sink in sinks:
+                sink.episode_end(n, success, distance)
+
+        summary = evaluate(
+            policy, episodes=episodes, seed=seed, render=render,
+            on_frame=lambda n, t, rgb: [sink.frame(n, t, rgb) for sink in sinks],
+            on_episode_end=episode_end)
     except HercsError as exc:  # a bad run, checkpoint or renderer; a v1 run without mujoco-py
         print(f"hercs eval: {exc}", file=sys.stderr)
         return 2
@@ -153,15 +168,41 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
           f"{summary.success_rate:.2f} ({summary.successes}/{summary.episodes}), mean final "
           f"distance {summary.mean_final_distance:.3f} m")
     if video:
-        print(f"hercs eval: video {video}: {summary.frames} frames at {FPS} fps "
-              f"({summary.frames / FPS:.1f} s)")
+        written = sinks[0].frames
+        print(f"hercs eval: video {video}: {written} frames at {FPS} fps "
+              f"({written / FPS:.1f} s): each episode after a {TITLE_S:g} s title, its "
+              "frames marked with the step, and its outcome and final distance")
     if rerun_save:
         print(f"hercs eval: Rerun recording {rerun_save} (camera images on the `step` timeline)")
     return 0
 
 
-def _sinks(video: str | None, rerun_save: str | None) -> tuple[list[Any], list[Any]]:
-    """(frame sinks, their close functions) for --video and --rerun-save."""
+class _RerunSink:
+    """Camera images on the `step` and `episode` timelines, and each episode's outcome."""
+
+    def __init__(self, path: str) -> None:
+        import rerun as rr
+
+        self._rr = rr
+        self.recording = rr.RecordingStream("hercs-eval")
+        self.recording.save(path)
+        self._step = 0
+
+    def frame(self, n: int, t: int, rgb: np.ndarray) -> None:
+        self.recording.set_time("step", sequence=self._step)
+        self.recording.set_time("episode", sequence=n)
+        self.recording.log("camera", self._rr.Image(rgb))
+        self._step += 1
+
+    def episode_end(self, n: int, success: bool, distance: float) -> None:
+        self.recording.log("outcome", self._rr.TextLog(
+            f"episode {n + 1}: {outcome_text(success, distance)}",
+            level="INFO" if success else "WARN"))
+
+
+def _sinks(video: str | None, rerun_save: str | None, episodes: int
+           ) -> tuple[list[Any], list[Any]]:
+    """(frame sinks, their close functions) for --video (first) and --rerun-save."""
     sinks: list[Any] = []
     closers: list[Any] = []
     if video:
@@ -170,25 +211,11 @@ def _sinks(video: str | None, rerun_save: str | None) -> tuple[list[Any], list[A
         writer = imageio_ffmpeg.write_frames(video, FRAME_SIZE, fps=FPS, quality=7,
                                              macro_block_size=8)
         writer.send(None)  # start the generator
-
-        def to_video(n: int, t: int, rgb: np.ndarray) -> None:
-            writer.send(np.ascontiguousarray(rgb))
-
-        sinks.append(to_video)
+        sinks.append(AnnotatedEpisodes(lambda rgb: writer.send(np.ascontiguousarray(rgb)),
+                                       episodes=episodes, fps=FPS, size=FRAME_SIZE))
         closers.append(writer.close)
     if rerun_save:
-        import rerun as rr
-
-        recording = rr.RecordingStream("hercs-eval")
-        recording.save(rerun_save)
-        step_total = [0]
-
-        def to_rerun(n: int, t: int, rgb: np.ndarray) -> None:
-            recording.set_time("step", sequence=step_total[0])
-            recording.set_time("episode", sequence=n)
-            recording.log("camera", rr.Image(rgb))
-            step_total[0] += 1
-
-        sinks.append(to_rerun)
-        closers.append(recording.flush)
+        rerun = _RerunSink(rerun_save)
+        sinks.append(rerun)
+        closers.append(rerun.recording.flush)
     return sinks, closers

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -160,6 +161,19 @@ def test_eval_records_a_video_of_every_step(run_dir: Path, tmp_path: Path) -> No
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(video))
-    assert frames == 2 * 51, "T + 1 = 51 frames per episode: the start and every step"
+    # per episode a 1 s title (25 frames), then T + 1 = 51: the start and every step
+    assert frames == 2 * (25 + 51)
     assert seconds == pytest.approx(frames / 25, abs=0.1)
-    assert "102 frames at 25 fps" in done.stdout
+    assert "152 frames at 25 fps" in done.stdout
+    # each episode's frames carry its outcome: the bottom band's colour agrees with the
+    # successes hercs eval counted (green for a success, red for a failure)
+    reader = imageio_ffmpeg.read_frames(str(video))
+    width, height = next(reader)["size"]
+    decoded = [np.frombuffer(f, np.uint8).reshape(height, width, 3) for f in reader]
+    successes = int(re.search(r"success [\d.]+ \((\d)/2\)", done.stdout).group(1))
+    greens = 0
+    for first in (25, 25 + 51 + 25):  # the first step frame of each episode
+        band = decoded[first][-10:, 100:].reshape(-1, 3).astype(int).mean(axis=0)
+        greens += bool(band[1] > band[0] + 40)  # green; red has its red channel above
+        assert abs(band[1] - band[0]) > 40, f"band neither green nor red: {band}"
+    assert greens == successes
