@@ -28,6 +28,8 @@ from hercs.apps.plots import (
     DEFAULT_BAND,
     DPI,
     LEGEND_W,
+    MAX_GROUPS,
+    METHOD_COLORS,
     PANEL_H,
     PANEL_W,
     REFERENCE_CSV,
@@ -36,10 +38,10 @@ from hercs.apps.plots import (
     Curve,
     PlotError,
     aggregate,
+    assign_colors,
     group,
     load_reference,
     load_run,
-    method_color,
     method_label,
     method_linestyle,
     method_rank,
@@ -130,13 +132,14 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
     _check_band(band)
     plt = _pyplot()
     tasks = list(ours)
+    colors = _colors(ours)
     fig, axes = plt.subplots(1, len(tasks), figsize=((PANEL_W + LEGEND_W) * len(tasks), PANEL_H),
                              dpi=DPI, squeeze=False, layout="constrained")
     for ax, task in zip(axes[0], tasks, strict=True):
         ref = (reference or {}).get(task, {})
         right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
         for method in sorted(set(ours[task]) | set(ref), key=method_rank):
-            color = method_color(method)
+            color = colors.get(method) or METHOD_COLORS.get(method)
             label = method_label(method)
             mine = method in ours[task]
             if mine:
@@ -166,7 +169,25 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8,
                   frameon=False, title=_legend_title(set(ours[task]), bool(ref), band),
                   title_fontsize=7, alignment="left")
+    _fit_legends(fig, [ax.get_legend() for ax in axes[0]])
     return _save_figure(plt, fig, output)
+
+
+def _colors(ours: dict[str, dict[str, list[Curve]]]) -> dict[str, str]:
+    """Our groups' colours (`assign_colors`); the authors' curves, always of the four plain
+    methods, take the method's own (METHOD_COLORS), dashed."""
+    return assign_colors({key for methods in ours.values() for key in methods})
+
+
+def _fit_legends(fig: Any, legends: list[Any], margin_px: float = 4.0) -> None:
+    """Grow the figure until every legend lies inside it: a legend of many groups would
+    otherwise run off the image's bottom edge (the panels grow with it)."""
+    for _ in range(4):  # constrained layout moves the axes as the figure grows
+        fig.canvas.draw()
+        lowest = min(legend.get_window_extent().y0 for legend in legends)
+        if lowest >= margin_px:
+            return
+        fig.set_figheight(fig.get_figheight() + (margin_px - lowest) / fig.dpi + 0.1)
 
 
 def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
@@ -179,11 +200,17 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
                              figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
                              dpi=DPI, squeeze=False)
     for r, pair in enumerate(FIG2_ROWS):
+        # colours per row, so that no two groups of a panel share one; a group keeps its
+        # colour across the row's tasks
+        colors = assign_colors({key for task in FIG2_TASKS
+                                for key in fig2_keys(pair, ours.get(task, {}),
+                                                     reference.get(task, {}))
+                                if key in ours.get(task, {})})
         for c, task in enumerate(FIG2_TASKS):
             ax = axes[r][c]
             mine, ref = ours.get(task, {}), reference.get(task, {})
             for key in fig2_keys(pair, mine, ref):
-                color = method_color(key)
+                color = colors.get(key) or METHOD_COLORS.get(key)
                 label = method_label(key)
                 if key in ref:
                     a = aggregate(ref[key])
@@ -241,6 +268,11 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
         notes.append(f"{repeated} run folder{'s' if repeated != 1 else ''} named more than "
                      "once (overlapping globs?): each read once")
     ours = group((load_run(d) for d in folders), notes)
+    for task, methods in ours.items():
+        if len(methods) > MAX_GROUPS and figure != 2:
+            notes.append(f"{task}: {len(methods)} groups in one panel (past {MAX_GROUPS} a "
+                         "figure is hard to read); name fewer run folders, e.g. "
+                         "runs/push-her-s* runs/push-her-cs-s* for two methods' seeds")
     if figure == 2:
         for note in notes:
             print(f"hercs plot: {note}", file=sys.stderr)

@@ -58,20 +58,20 @@ TASK_TITLES: dict[str, str] = {
 METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
 METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
 METHOD_COLORS: dict[str, str] = {
-    "her": "tab:blue", "her-cs": "tab:red", "her-ebp": "tab:green", "her-ebp-cs": "tab:orange",
+    "her": "#0072B2", "her-cs": "#D55E00", "her-ebp": "#009E73", "her-ebp-cs": "#E69F00",
 }
-VARIANT_COLORS: dict[str, str] = {
-    "her/lockstep": "tab:cyan", "her-cs/lockstep": "tab:purple",
-    "her-ebp/lockstep": "tab:olive", "her-ebp-cs/lockstep": "tab:brown",
-    "her/bf16": "tab:gray", "her-cs/bf16": "tab:pink",
-    "her-ebp/bf16": "darkgreen", "her-ebp-cs/bf16": "goldenrod",
-    "her/lockstep/bf16": "slategray", "her-cs/lockstep/bf16": "darkmagenta",
-    "her-ebp/lockstep/bf16": "yellowgreen", "her-ebp-cs/lockstep/bf16": "darkslateblue",
-    "her/v1": "navy", "her-cs/v1": "darkred", "her-ebp/v1": "seagreen",
-    "her-ebp-cs/v1": "chocolate",
-    "her/lag7": "lightsteelblue", "her-cs/lag7": "lightcoral", "her-ebp/lag7": "lightgreen",
-    "her-ebp-cs/lag7": "burlywood", "her-ebp-cs/bf16/lag7": "khaki",
-}
+"""The four methods' own colours, the same in every figure (Okabe & Ito's colour-blind-safe
+blue, vermillion, bluish green and orange)."""
+VARIANT_PALETTE: tuple[str, ...] = (
+    "#56B4E9", "#CC79A7", "#332288", "#44AA99", "#882255", "#999933", "#AA4499", "#117733",
+    "#CC6677", "#000000", "#88CCEE", "#DDCC77",
+)
+"""Colours for the other groups of a figure (a variant, another environment), taken in the
+methods' order: Okabe & Ito's remaining sky blue and reddish purple, Paul Tol's muted scheme,
+black: 12 groups besides the four methods before a colour is reused."""
+MAX_GROUPS = 10
+"""Past this many groups in one panel a figure is hard to read; `hercs plot` says how to
+name fewer."""
 ENV_VERSION_DEFAULT = "v4"
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 EPSILON_DEFAULT = EnergyConfig().epsilon
@@ -187,14 +187,23 @@ def method_label(key: str) -> str:
     return "".join((label, *(f" ({v})" for v in notes)))
 
 
-def method_color(key: str) -> str | None:
-    """A colour per method and variant; a v1 combination without its own colour takes its
-    v4 twin's (the label tells them apart)."""
-    color = METHOD_COLORS.get(key) or VARIANT_COLORS.get(key)
-    method, *variants = key.split("/")
-    if color is None and variants and _env_version(variants[-1]):
-        return method_color("/".join((method, *variants[:-1])))
-    return color
+def assign_colors(keys: Iterable[str]) -> dict[str, str]:
+    """A colour per group key of one figure: the four methods their own (METHOD_COLORS),
+    and so does a method's run on another environment when it is that method's only group
+    here; every other key the next unused colour of VARIANT_PALETTE in `method_rank` order,
+    so that no two groups share one until the palette runs out (then it starts over)."""
+    ordered = sorted(set(keys), key=method_rank)
+    colors = {k: METHOD_COLORS[k] for k in ordered if k in METHOD_COLORS}
+    for key in ordered:  # `her/v1` without `her` drawn: HER's colour, beside the authors' HER
+        method, *variants = key.split("/")
+        if (len(variants) == 1 and _env_version(variants[0]) and method in METHOD_COLORS
+                and method not in ordered
+                and not any(k.split("/")[0] == method for k in colors if k != method)):
+            colors[key] = METHOD_COLORS[method]
+    others = [k for k in ordered if k not in colors]
+    for i, key in enumerate(others):
+        colors[key] = VARIANT_PALETTE[i % len(VARIANT_PALETTE)]
+    return colors
 
 
 def method_linestyle(key: str) -> str | tuple[int, tuple[int, ...]]:

@@ -3,7 +3,10 @@ against docs/DESIGN.md §5 from the authors' CSV), the figure file and the CLI."
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,6 +14,8 @@ import yaml
 
 from hercs.apps import plot_figures, plot_tables, plots
 from hercs.apps.cli import main
+
+REPO = Path(__file__).resolve().parents[3]
 
 # Hand-made curves. her: seed 1 succeeds from epoch 5, seed 2 from epoch 7 (15 epochs each).
 # her-cs: seeds of different lengths (8 and 6 epochs) -> aggregated over the 6 common epochs.
@@ -224,7 +229,30 @@ def test_variants_have_their_own_line_style() -> None:
     assert [plots.method_linestyle(k) for k in ("her-cs", "her-cs/lockstep", "her-cs/bf16")
             ] == ["-", "-.", ":"]
     assert plots.method_linestyle("her-cs/lockstep/bf16") not in ("-", "-.", ":", "--")
-    assert all(plots.method_color(f"{m}/lockstep/bf16") for m in plots.METHOD_ORDER)
+
+
+
+def test_no_two_groups_of_a_figure_share_a_colour_until_the_palette_runs_out() -> None:
+    variants = [m + v for m in plots.METHOD_ORDER
+                for v in ("/lockstep", "/bf16", "/v1", "/lag7", "/lockstep/bf16")]
+    keys = [*plots.METHOD_ORDER, *variants]  # 4 methods and 20 variants of them
+    colors = plots.assign_colors(keys[:16])  # the methods and 12 variants: all apart
+    assert len(set(colors.values())) == 16
+    assert {colors[m] for m in ("her", "her-cs")} == {plots.METHOD_COLORS["her"],
+                                                       plots.METHOD_COLORS["her-cs"]}
+    everything = plots.assign_colors(keys)  # 24 groups: the palette starts over
+    assert len(everything) == 24 and len(set(everything.values())) == 16
+    # the same groups, the same colours, whatever order they come in
+    assert plots.assign_colors(reversed(keys[:16])) == colors
+
+
+def test_a_methods_only_run_on_another_environment_takes_the_methods_colour() -> None:
+    """Our v1 HER beside the authors' (v1) HER: one colour, solid against dashed."""
+    alone = plots.assign_colors(["her/v1", "her-cs/v1"])
+    assert alone == {"her/v1": plots.METHOD_COLORS["her"],
+                     "her-cs/v1": plots.METHOD_COLORS["her-cs"]}
+    both = plots.assign_colors(["her", "her/v1"])  # with v4's HER drawn, v1 needs its own
+    assert both["her/v1"] != both["her"] == plots.METHOD_COLORS["her"]
 
 
 def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
@@ -339,9 +367,6 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     assert plots.method_label(eps) == "HER-EBP-CS ε 0.001 (torquescale 4)"
     assert plots.energy_epsilon({"energy": {"epsilon": 0.001}}) == 0.001
     assert plots.energy_epsilon({}) == plots.EPSILON_DEFAULT
-    assert all(plots.method_color(f"{m}/v1") != plots.method_color(m)
-               for m in plots.METHOD_ORDER)
-    assert all(plots.method_color(f"{m}/lockstep/bf16/v1") for m in plots.METHOD_ORDER)
     with_reference = plot_tables.tables(groups, plots.group(plots.load_reference()))
     assert "| HER-EBP-CS (v1) (ours) | 1 | 3 |" in with_reference
     assert "| HER-EBP-CS (authors) | 5 | 100 | 22 | 31 |" in with_reference
@@ -412,3 +437,75 @@ def test_figure_2_caption_names_the_band_drawn() -> None:
     assert "interval of their mean (seeds resampled, a fixed RNG seed) and, lighter, their " \
            "min–max" in both
     assert "are their min–max." in plot_tables.fig2_text({}, ref, band="minmax")
+
+
+def _drawn(monkeypatch: pytest.MonkeyPatch, draw: Callable[[], object]) -> Any:
+    """The matplotlib figure `draw()` saved (plt.close is kept from discarding it)."""
+    import matplotlib.pyplot as plt
+
+    figures: list[Any] = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    draw()
+    [fig] = figures
+    return fig
+
+
+def _legends_inside_and_colours(fig: Any) -> tuple[bool, list[tuple[str, str]]]:
+    """Whether every legend lies inside the figure, and (label, colour) of each of our
+    groups' lines (the authors' dashed ones take their method's colour)."""
+    renderer = fig.canvas.get_renderer()
+    inside = all(fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1 and
+                 fig.bbox.y0 <= box.y0 and box.y1 <= fig.bbox.y1
+                 for ax in fig.axes if ax.get_legend() is not None
+                 for box in [ax.get_legend().get_window_extent(renderer)])
+    solid = [(line.get_label(), line.get_color()) for ax in fig.axes for line in ax.lines
+             if "authors'" not in line.get_label()]
+    return inside, solid
+
+
+def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """The README's old example drew 21 series and cut its legend's last entry in half."""
+    settings = [{}, {"training": {"schedule": "lockstep"}}, {"learner": {"precision": "bf16"}},
+                {"task": {"name": "push", "env_version": "v1"}},
+                {"training": {"schedule": "lockstep"}, "learner": {"precision": "bf16"}}]
+    dirs = []
+    for i in range(20):  # 4 methods × 5 settings: 20 groups
+        method = plots.METHOD_ORDER[i % 4]
+        (tmp_path / f"r{i}").mkdir()
+        run = _write_run(tmp_path / f"r{i}", method, 1, [0.07 * (i % 13)] * 12)
+        config = yaml.safe_load((run / "config.yaml").read_text())
+        config.update(settings[i // 4])
+        (run / "config.yaml").write_text(yaml.safe_dump(config))
+        dirs.append(run)
+    fig = _drawn(monkeypatch, lambda: plot_figures.run_plot(
+        [str(d) for d in dirs], str(tmp_path / "many.png"), reference=True))
+    inside, solid = _legends_inside_and_colours(fig)
+    assert len(solid) == 20 and inside
+    assert fig.get_figheight() > plots.PANEL_H  # grown, not clipped
+    # the methods' 4 and the palette's 12 colours, then the palette starts over
+    assert len({color for _, color in solid}) == 16
+    assert "20 groups in one panel (past 10 a figure is hard to read); name fewer" in \
+        capsys.readouterr().err
+
+
+def test_the_readmes_plot_examples_are_readable(monkeypatch: pytest.MonkeyPatch,
+                                                tmp_path: Path) -> None:
+    """Every `hercs plot` line of the README that draws committed runs: at most MAX_GROUPS
+    groups, every legend inside the image and no colour on two of our groups."""
+    readme = (REPO / "README.md").read_text()
+    commands = [line.split("#")[0].split() for line in readme.splitlines()
+                if re.match(r"^(\.venv/bin/)?hercs plot docs/results/runs/", line)]
+    assert commands, "the README shows no plot of the committed runs"
+    for words in commands:
+        globs = [w for w in words[2:] if w.startswith("docs/results/runs/")]
+        folders = sorted({str(p) for g in globs for p in REPO.glob(g) if p.is_dir()})
+        assert folders, f"{' '.join(words)}: matches no committed run"
+        reference = "--reference" in words
+        fig = _drawn(monkeypatch, lambda folders=folders, reference=reference:
+                     plot_figures.run_plot(folders, str(tmp_path / "readme.png"),
+                                           reference=reference))
+        inside, solid = _legends_inside_and_colours(fig)
+        assert inside, f"{' '.join(words)}: a legend runs off the image"
+        colours = [c for _, c in solid]
+        assert len(set(colours)) == len(colours) <= plots.MAX_GROUPS, solid
