@@ -73,7 +73,7 @@ HIGH = 0.9
 """The second milestone, where a task is close to solved (PickAndPlace's runs pass it by
 epoch 100; few Push runs do by 50)."""
 DONE_FILE = "bench_done.json"
-"""bench/sample_efficiency.py's record of a finished run: commit, time, machine."""
+"""`hercs sweep`'s record of a finished run (hercs/apps/sweep.py): commit, time, machine."""
 ASSUMED_KEYS: tuple[tuple[str, str, str], ...] = (
     ("training", "schedule", "async"), ("learner", "precision", "fp32"))
 """Settings that older config.yaml files lack; such a run is grouped with these values (the
@@ -527,7 +527,7 @@ def _provenance_section(results: Sequence[ClaimResult], groups: dict[Group, list
     bench_done.json), and the settings assumed for old configs."""
     by_name = {run.name: run for runs in groups.values() for run in runs}
     lines = ["## Where each side's runs were made", "",
-             "From each run's bench_done.json (bench/sample_efficiency.py writes it as a run "
+             "From each run's bench_done.json (`hercs sweep` writes it as a run "
              "ends): the hercs commit (+: with uncommitted changes), the day it finished "
              "(UTC) and the machine (CPU and vector extensions, boot id; where bench_done.json "
              "has none, docs/results/runs/README.md's table describes it in words). A side's "

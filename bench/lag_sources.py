@@ -37,7 +37,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from bench.common import git_commit, machine_identity
-from bench.sample_efficiency import free_port
+from hercs.apps.sweep import free_port
 from hercs.metrics import read_rows
 from hercs.rundir import METRICS
 

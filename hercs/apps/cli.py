@@ -145,6 +145,12 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from hercs.apps.sweep import main as sweep_main
+
+    return sweep_main(args.sweep_args)
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     from hercs.apps.view import run_view
 
@@ -230,6 +236,14 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
             add_rerun_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
         commands[name] = _service_command(module)
+
+    p = sub.add_parser(
+        "sweep", help="a grid of runs (tasks × methods × seeds × variants), resumable, locally "
+                      "or as a Slurm job array; `hercs sweep report` its curves and claims table",
+        description="hercs sweep [OPTIONS] runs the grid; hercs sweep report RUN_DIR writes "
+                    "its report. `hercs sweep --help` lists the options.",
+        add_help=False)
+    p.add_argument("sweep_args", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
 
     p = sub.add_parser("plot", help="learning curves (PNG) and milestone tables of run folders",
                        description="10-epoch mean of the seed mean of the success rate per "
@@ -338,7 +352,7 @@ def _needs_extras(command: Callable[[argparse.Namespace], int]
 # Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "plot": _needs_extras(_cmd_plot), "view": _needs_extras(_cmd_view), "certs": _cmd_certs,
-    "eval": _needs_extras(_cmd_eval)}
+    "eval": _needs_extras(_cmd_eval), "sweep": _needs_extras(_cmd_sweep)}
 
 
 ENV_COMMANDS = frozenset({"up", "actor", "evaluator"})
@@ -349,6 +363,10 @@ learns its task from the run, meets a missing mujoco-py when it makes its envs i
 
 def main(argv: list[str] | None = None) -> int:
     parser, commands = build_parser()
+    words = sys.argv[1:] if argv is None else argv
+    if words[:1] == ["sweep"]:  # its own parser (and `sweep report`'s): options pass through
+        return NO_CONFIG_COMMANDS["sweep"](argparse.Namespace(command="sweep",
+                                                              sweep_args=list(words[1:])))
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()

@@ -9,7 +9,7 @@ two slurmd, each node in its own network and UTS namespace):
     once;
 (c) an actor step killed mid-run is started again within the attempt; a node that dies
     (every process on it killed) fails the job, which requeues and resumes the run;
-(d) `bench/sample_efficiency.py --slurm`: a 2-task job array, one grid cell per task.
+(d) `hercs sweep --slurm`: a 2-task job array, one sweep cell per task.
 
 Skipped, with the reason, where no cluster can run (not root, Slurm or MariaDB not
 installed: `make slurm`). Slurm tells a client of a job's end only by being asked, so the
@@ -19,6 +19,7 @@ waits poll `sacct`, each with a deadline.
 from __future__ import annotations
 
 import csv
+import json
 import os
 import re
 import signal
@@ -270,7 +271,7 @@ def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniS
                                                         tmp_path: Path) -> None:
     runs, committed = tmp_path / "grid", tmp_path / "committed"
     done = subprocess.run(
-        [sys.executable, "-m", "bench.sample_efficiency", "--slurm", "--tasks", "reach",
+        [sys.executable, "-m", "hercs.apps.cli", "sweep", "--slurm", "--tasks", "reach",
          "--methods", "her", "her-cs", "--seeds", "1", "--epochs", "1", "--run-dir", str(runs),
          "--committed", str(committed), "--slurm-cpus", "1", "--slurm-time", "10",
          *(item for o in ("training.cycles_per_epoch=2", "training.eval_episodes=2",
@@ -287,4 +288,6 @@ def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniS
     for name in ("reach-her-s1", "reach-her-cs-s1"):
         assert metrics_epochs(runs / name) == [1], name
         assert (committed / name / "bench_done.json").is_file(), name
+    manifest = json.loads((runs / "sweep.json").read_text())
+    assert [c["state"] for c in manifest["cells"]] == ["done", "done"], manifest
     assert os.path.isdir(runs)

@@ -1,6 +1,6 @@
-"""The sample-efficiency grid on Slurm (`python -m bench.sample_efficiency --slurm`): one job
-array, one task per unfinished cell; each task runs this grid's own command for its cell
-(`--cell-index`), so resuming and copying finished runs work as they do locally."""
+"""`hercs sweep --slurm`: one job array, one task per unfinished cell; each task runs the
+sweep's own command for its cell (`--cell-index`), so resuming, the manifest and copying
+finished runs work as they do locally."""
 
 from __future__ import annotations
 
@@ -12,21 +12,24 @@ from pathlib import Path
 
 from hercs.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
-
 
 def cell_command(args: argparse.Namespace, tasks: Sequence[str], *, run_root: Path,
                  committed: Path | None, epochs: int, overrides: Sequence[str]) -> list[str]:
-    """This grid's command for one cell (`--cell-index` is appended by the array task)."""
-    cmd = [sys.executable, "-m", "bench.sample_efficiency",
+    """The sweep's command for one cell (`--cell-index` is appended by the array task)."""
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "sweep",
            "--tasks", *sorted(dict.fromkeys(tasks)),
            "--methods", *args.methods,
            "--seeds", str(args.seeds), "--schedule", args.schedule,
            "--precision", args.precision, "--env-version", args.env_version,
-           "--weld-torquescale", f"{args.weld_torquescale:g}", "--epochs", str(epochs),
+           "--weld-torquescale", f"{args.weld_torquescale:g}",
+           "--energy-epsilon", repr(args.energy_epsilon), "--epochs", str(epochs),
            "--actors", str(args.actors), "--run-dir", str(run_root), "--jobs", "1"]
     if committed is not None:
         cmd += ["--committed", str(committed)]
+    for variant in args.variants:
+        cmd += ["--variant", variant]
+    if args.no_plain:
+        cmd.append("--no-plain")
     for item in overrides:
         cmd += ["--set", item]
     return [*cmd, "--cell-index"]
@@ -40,27 +43,27 @@ def submit_slurm(args: argparse.Namespace, names: Sequence[str], todo: Sequence[
     from hercs.apps.slurm import ArrayPlan, render_array_script, submit_array
 
     if not todo:
-        print("every cell is finished; nothing to submit (--report-only writes the report)")
+        print(f"every cell is finished; nothing to submit (hercs sweep report {run_root})")
         return 0
     try:
-        plan = ArrayPlan(name=f"hercs-grid-{run_root.name}", folder=run_root / "_slurm",
+        plan = ArrayPlan(name=f"hercs-sweep-{run_root.name}", folder=run_root / "_slurm",
                          command=tuple(cell_command(args, tasks, run_root=run_root,
                                                     committed=committed, epochs=epochs,
                                                     overrides=overrides)),
                          indices=tuple(todo), cpus=args.slurm_cpus, time=args.slurm_time,
                          signal_before_s=args.slurm_signal_before,
                          partition=args.slurm_partition, account=args.slurm_account,
-                         sbatch=tuple(args.slurm_sbatch), workdir=REPO)
+                         sbatch=tuple(args.slurm_sbatch), workdir=Path.cwd())
         script, job = submit_array(plan, dry_run=args.dry_run)
     except ConfigError as exc:
-        print(f"sample_efficiency: {exc}", file=sys.stderr)
+        print(f"hercs sweep: {exc}", file=sys.stderr)
         return 2
     if job is None:
         print(render_array_script(plan), end="")
         return 0
     listed = ", ".join(f"{i}: {names[i]}" for i in todo)
     print(f"array job {job}: {len(todo)} tasks ({listed}); script {script}; when they are "
-          "done: the same command with --report-only", flush=True)
+          f"done: hercs sweep report {run_root}", flush=True)
     return 0
 
 

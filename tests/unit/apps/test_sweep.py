@@ -1,4 +1,5 @@
-"""bench/sample_efficiency.py: the grid plan, resume rules, and its quick mode end to end."""
+"""`hercs sweep` (hercs/apps/sweep.py): the grid plan, its variants, resume rules, the
+manifest, the report's statistics, and its quick mode end to end."""
 
 from __future__ import annotations
 
@@ -11,12 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.support import load_bench
+from hercs.apps import sweep as se
+from hercs.apps import sweep_stats
+from hercs.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-se = load_bench("sample_efficiency")
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_grid_is_seed_major_so_every_method_gets_its_seeds_together() -> None:
@@ -74,8 +74,8 @@ def test_v1_and_v4_grids_report_apart(tmp_path: Path) -> None:
                                                "push.png"]
     v4_md, v1_md = (tmp_path / "out" / "push.md").read_text(), (
         tmp_path / "out" / "push-v1.md").read_text()
-    assert v4_md.startswith("# Sample efficiency: FetchPush\n")
-    assert v1_md.startswith("# Sample efficiency: FetchPush-v1\n")
+    assert v4_md.startswith("# FetchPush: hercs sweep report\n")
+    assert v1_md.startswith("# FetchPush-v1: hercs sweep report\n")
     assert "| HER-CS (ours) | 1 | 3 |" in v4_md and "(v1)" not in v4_md
     assert "| HER-CS (v1) (ours) | 1 | 3 |" in v1_md and "- runs: her-cs/v1 s1 " in v1_md
 
@@ -115,7 +115,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     """Two real 1-epoch runs through `hercs up`; a second call skips the finished one and
     resumes the unfinished one; the report holds the table with our rows beside the
     authors'."""
-    cmd = [sys.executable, "-m", "bench.sample_efficiency", "--quick",
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "sweep", "--quick",
            "--methods", "her", "her-cs", "--seeds", "1", "--run-dir", str(tmp_path / "runs"),
            "--out", str(tmp_path / "results"), "--committed", str(tmp_path / "committed")]
     first = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
@@ -158,30 +158,18 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     rows = (tmp_path / "runs" / "reach-her-cs-s1" / "metrics.csv").read_text().splitlines()
     assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
-    # bench/sampler_mix.py reads a real run's log back: one row per epoch mark
-    mix = subprocess.run([sys.executable, "-m", "bench.sampler_mix",
-                          str(tmp_path / "runs" / "reach-her-cs-s1"), "--every-epochs", "1",
-                          "--minibatches", "4"], capture_output=True, text=True, timeout=120,
-                         cwd=REPO)
-    assert mix.returncode == 0, mix.stderr
-    rows = [line for line in mix.stdout.splitlines() if line.startswith("| 1 |")]
-    assert len(rows) == 1, mix.stdout
-    # no cluster model yet in so short a run: both samplers draw uniformly, spread ≈ 1
-    spread = [float(x) for x in rows[0].rstrip(" |").rsplit("|", 1)[1].split("/")]
-    assert all(0.9 < x < 1.1 for x in spread), rows[0]
-
-
-sm = load_bench("sampler_mix")
-
-
-def test_effective_share_is_one_for_an_even_draw_and_small_for_a_repeated_one() -> None:
-    size, n = 10, 100
-    # every episode drawn equally often: Σc² = n²/size, so (Σc)²/Σc² = size; a uniform
-    # random draw expects n²/(n + n(n−1)/size) = 10000/1090 distinct-equivalents
-    even = np.repeat(np.arange(size), n // size)
-    assert sm.effective_share(even, size) == pytest.approx(size / (10000 / 1090))
-    # one episode drawn n times: one distinct-equivalent
-    assert sm.effective_share(np.zeros(n, np.int64), size) == pytest.approx(1 / (10000 / 1090))
+    manifest = json.loads((tmp_path / "runs" / se.MANIFEST).read_text())
+    assert [(c["name"], c["state"]) for c in manifest["cells"]] == [
+        ("reach-her-s1", "done"), ("reach-her-cs-s1", "done")]
+    assert manifest["cells"][1]["machine"] == se.machine_identity()
+    # the report again from the manifest alone, as `hercs sweep report` writes it
+    again = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "sweep", "report",
+                            str(tmp_path / "runs"), "--out", str(tmp_path / "again"),
+                            "--committed", str(tmp_path / "committed"), "--reps", "200"],
+                           capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert again.returncode == 0, again.stdout + again.stderr
+    text = (tmp_path / "again" / "reach.md").read_text()
+    assert "| HER | 1 | " in text and "| HER-CS | 1 | " in text  # the arms over seeds
 
 
 def test_a_v4_grid_with_a_stiffer_gripper_weld_is_named_and_launched_apart() -> None:
@@ -223,3 +211,94 @@ def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Pa
     se.copy_small_files(runs / "push-her-cs-s1", committed)
     assert (committed / "push-her-cs-s1" / "checkpoints" / "best.pt").read_bytes() == \
         b"push-her-cs-s1"
+
+
+# ------------------------------------------------------------------ variants and manifest
+
+def test_a_variant_is_an_arm_of_its_own_named_and_launched_with_its_overrides() -> None:
+    name, items = se.parse_variant("lr5e-4:ddpg.lr_actor=5e-4, ddpg.lr_critic=5e-4")
+    assert (name, items) == ("lr5e-4", ("ddpg.lr_actor=5e-4", "ddpg.lr_critic=5e-4"))
+    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2], variants=[("", ()), (name, items)])
+    assert [c.name for c in cells] == [
+        "push-her-s1", "push-her-cs-s1", "push-her-lr5e-4-s1", "push-her-cs-lr5e-4-s1",
+        "push-her-s2", "push-her-cs-s2", "push-her-lr5e-4-s2", "push-her-cs-lr5e-4-s2"]
+    assert cells[2].arm == "push-her-lr5e-4" and se.arm_key(cells[2]) == "her/lr5e-4"
+    cmd = se.up_command(cells[2], epochs=1, run_root=Path("/r"), port=1, actors=1,
+                        overrides=["ddpg.polyak=0.9"])
+    sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
+    assert sets[-3:] == ["ddpg.lr_actor=5e-4", "ddpg.lr_critic=5e-4", "ddpg.polyak=0.9"]
+    plain = se.up_command(cells[0], epochs=1, run_root=Path("/r"), port=1, actors=1,
+                          overrides=[])
+    assert not any("lr_actor" in a for a in plain)
+
+
+@pytest.mark.parametrize("text, why", [
+    ("lr", "give NAME:FIELD=VALUE"), ("lr:", "give NAME:FIELD=VALUE"),
+    ("lr:ddpg.lr_actor", "give NAME:FIELD=VALUE"), ("Big:ddpg.lr_actor=1", "lower-case"),
+    ("s2:ddpg.lr_actor=1", "not look like a seed"),
+])
+def test_a_malformed_variant_is_refused_with_what_to_write(text: str, why: str) -> None:
+    with pytest.raises(ConfigError, match=why):
+        se.parse_variant(text)
+
+
+def test_bad_variants_stop_the_sweep_before_any_run(capsys: pytest.CaptureFixture[str],
+                                                    tmp_path: Path) -> None:
+    base = ["--report-only", "--tasks", "push", "--run-dir", str(tmp_path / "r")]
+    assert se.main([*base, "--variant", "lr:ddpg.lr_actor=fast"]) == 2
+    assert "ddpg.lr_actor: got 'fast', must be a number" in capsys.readouterr().err
+    assert se.main([*base, "--variant", "a:ddpg.polyak=0.9", "--variant", "a:ddpg.polyak=0.8"]
+                   ) == 2
+    assert "two --variant arms have one name" in capsys.readouterr().err
+    assert se.main([*base, "--no-plain"]) == 2
+    assert not (tmp_path / "r").exists()
+
+
+def test_the_manifest_says_where_every_cell_stands_and_the_report_reads_it(
+        tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2])
+    for cell, success in zip(cells[:3], ([0.1] * 12, [0.9] * 12, [0.3] * 12), strict=True):
+        _finished(runs, cell, success)
+    path = se.write_manifest(runs, cells, {cells[3]: "running"}, command="hercs sweep x",
+                             epochs=12, committed=None)
+    manifest = json.loads(path.read_text())
+    assert [(c["name"], c["state"]) for c in manifest["cells"]] == [
+        ("push-her-s1", "done"), ("push-her-cs-s1", "done"), ("push-her-s2", "done"),
+        ("push-her-cs-s2", "running")]
+    assert manifest["cells"][0]["commit"] == "abc" and manifest["command"] == "hercs sweep x"
+    again, _ = se.read_manifest(runs)
+    assert again == cells
+    assert se.main_report([str(runs), "--out", str(tmp_path / "out"), "--reps", "200",
+                           "--compare", "HER-CS", "HER"]) == 0
+    text = (tmp_path / "out" / "push.md").read_text()
+    # HER-CS's one run (.90) beats both of HER's (.10, .30): P = 1 in every resample
+    assert "| HER-CS | 1 | .90 [.90, .90] | .90 [.90, .90] | 1.00 [1.00, 1.00] |" in text
+    assert "| HER | 2 | .20 [.10, .30] | .20 [.10, .30] | – |" in text
+    assert "- P(HER-CS > HER) = 1.00 [1.00, 1.00]" in text
+    assert "- not finished yet: push-her-cs-s2" in text
+    with pytest.raises(ConfigError, match="no sweep here"):
+        se.read_manifest(tmp_path)
+
+
+# ------------------------------------------------------------------------ its statistics
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 8, 20])
+def test_the_iqm_and_probability_of_improvement_equal_rliables(n: int) -> None:
+    from rliable import metrics
+
+    rng = np.random.default_rng(n)
+    x, y = rng.random(n), np.round(rng.random(n + 2), 1)
+    assert sweep_stats.iqm(x) == pytest.approx(metrics.aggregate_iqm(x[:, None]), abs=1e-12)
+    assert sweep_stats.probability_of_improvement(x, y) == pytest.approx(
+        metrics.probability_of_improvement(x[:, None], y[:, None]), abs=1e-12)
+
+
+def test_bootstrap_intervals_by_hand() -> None:
+    """Four runs 0, 0, 0, 1: resampled means are k/4, P(k >= 3) = 5.1 % and P(k = 4) = .4 %,
+    so the 97.5th percentile is .75 and, with P(k = 0) = 32 %, the 2.5th is 0."""
+    mean = sweep_stats.bootstrap([0, 0, 0, 1], np.mean, reps=4000)
+    assert (mean.value, mean.low, mean.high) == (0.25, 0.0, 0.75)
+    apart = sweep_stats.improvement([0.9, 0.8], [0.1, 0.2], reps=500)
+    assert (apart.value, apart.low, apart.high) == (1.0, 1.0, 1.0)
+    assert sweep_stats.Interval(0.5, 0.25, 1.0).format() == ".50 [.25, 1.00]"
