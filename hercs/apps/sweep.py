@@ -272,7 +272,8 @@ def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun
             "env_version": cell.env_version, "weld_torquescale": cell.weld_torquescale,
             "energy_epsilon": cell.energy_epsilon, "variant": cell.variant,
             "variant_overrides": list(cell.variant_overrides),
-            "state": "done" if record is not None else state.get(cell, "to do"),
+            "state": "done" if record is not None else state.get(cell, (
+                "started, not finished" if (run_root / cell.name).is_dir() else "to do")),
             "folder": None if folder is None else str(folder),
             **({} if record is None else {
                 "commit": record.get("commit"), "machine": record.get("machine"),
@@ -303,14 +304,15 @@ def read_manifest(run_root: Path) -> tuple[list[GridRun], dict]:
 
 
 def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,
-             overrides: Sequence[str], committed: Path | None = None, command: str = ""
-             ) -> list[tuple[GridRun, int]]:
+             overrides: Sequence[str], committed: Path | None = None, command: str = "",
+             sweep: Sequence[GridRun] | None = None) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
     A run that exits 0 gets `bench_done.json` (the env id it trained on, command, wall time of
     this invocation, epochs, commit, the CPU and boot id of the machine it finished on);
     one that fails or is interrupted is left in place and the next invocation continues it
-    with `hercs up --resume` (its epochs already trained are kept)."""
+    with `hercs up --resume` (its epochs already trained are kept). The manifest lists
+    `sweep`'s cells (default: `cells`; a Slurm array task runs one cell of the sweep)."""
     run_root.mkdir(parents=True, exist_ok=True)
     (run_root / LOG_DIR).mkdir(exist_ok=True)
     todo: list[GridRun] = []
@@ -336,9 +338,9 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     running: list[_Running] = []
     state: dict[GridRun, str] = {}
 
-    def manifest() -> None:
-        write_manifest(run_root, cells, state, command=command, epochs=epochs,
-                       committed=committed)
+    def manifest() -> None:  # of the whole sweep (`sweep`), not only the cells run here
+        write_manifest(run_root, cells if sweep is None else sweep, state, command=command,
+                       epochs=epochs, committed=committed)
 
     manifest()
     commit = git_commit()  # the code the runs train with (the report may be written later)
@@ -714,7 +716,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                          f"0..{len(cells) - 1}")
         return run_one_cell(lambda: run_grid(
             [cells[args.cell_index]], run_root=run_root, epochs=epochs, jobs=1,
-            actors=args.actors, overrides=overrides, committed=committed, command=command))
+            actors=args.actors, overrides=overrides, committed=committed, command=command,
+            sweep=cells))
     if args.slurm and not args.report_only:
         run_root.mkdir(parents=True, exist_ok=True)
         write_manifest(run_root, cells, {}, command=command, epochs=epochs,
