@@ -28,8 +28,8 @@ MUJOCO210 = Path(sys.prefix) / "mujoco210"
 RUNPATH_MARK = "hercs-runpath"
 """The file, beside mujoco-py's compiled extension, where `make mujoco-py` notes the RUNPATH
 it gave the extension."""
-INSTALL_HINT = ("`make mujoco-py` in the hercs checkout installs it (README, \"The authors' "
-                "environment\")")
+INSTALL_HINT = ("`make mujoco-py` in the hercs checkout installs it (docs/results/README.md, "
+                "\"The authors' environment\")")
 
 _registered = False
 _blocked: str | None = None

@@ -98,8 +98,8 @@ def resolve_device(name: str) -> torch.device:
             raise ConfigError(
                 f"learner.device={name}: torch sees no CUDA device (torch "
                 f"{torch.__version__}, CUDA build {torch.version.cuda or 'none'}); use "
-                "learner.device=auto or cpu, or install a CUDA build of torch (README, "
-                "'GPU')")
+                "learner.device=auto or cpu, or install a CUDA build of torch (docs/GUIDE.md, "
+                "'GPU and many actors')")
         if device.index is not None and device.index >= torch.cuda.device_count():
             raise ConfigError(f"learner.device={name}: only {torch.cuda.device_count()} "
                               "CUDA device(s) visible")
