@@ -6,7 +6,7 @@ PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
 .PHONY: run test lint proto install clean compose-test compose-clean figures mujoco-py slurm \
-	slurm-test netfault-tools
+	slurm-test netfault-tools browser-tools
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -45,6 +45,10 @@ slurm:
 # without root, the tests print "SKIPPED: <reason>".
 netfault-tools:
 	bash deploy/install_netfault_tools.sh
+
+# Headless Chromium for the browser test of the web viewer (tests/integration/test_browser_views.py).
+browser-tools:
+	bash deploy/install_browser.sh
 
 # Only the Slurm test (a cluster of two namespaced nodes; 6 to 8 minutes on 2 cores, docs/CLUSTER.md §8).
 slurm-test: $(STAMP) slurm
