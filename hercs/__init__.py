@@ -1,8 +1,8 @@
 """hercs: Hindsight Experience Replay with Cluster-based Sampling, as distributed services.
 
-The Python API (README "Python API"): `up` starts a run and returns its `Run` handle
-(`hercs.apps.run_handle`); `load_policy`, `read_metrics`, `read_episodes` and `load_config`
-read a run directory (`hercs.api`).
+The Python API (README "Python API"): `up` starts a run, `resume` continues a stopped one,
+each returning a `Run` handle (`hercs.apps.run_handle`); `load_policy`, `read_metrics`,
+`read_episodes` and `load_config` read a run directory (`hercs.api`).
 """
 
 from __future__ import annotations
@@ -22,21 +22,21 @@ from hercs.api import (
 from hercs.errors import ConfigError, HercsError
 
 if TYPE_CHECKING:
-    from hercs.apps.run_handle import Run, up
+    from hercs.apps.run_handle import Run, resume, up
 
 __version__ = "0.1.0"
 
 __all__ = [
     "ConfigError", "HercsError", "LoggedEpisode", "Metrics", "ObservationError",
     "Run", "TrainedPolicy", "__version__", "load_config", "load_policy", "read_episodes",
-    "read_metrics", "up",
+    "read_metrics", "resume", "up",
 ]
 
 
 def __getattr__(name: str) -> Any:
-    """`up` and `Run` on first use: the launcher's imports stay out of every service's
-    `import hercs`."""
-    if name in ("up", "Run"):
+    """`up`, `resume` and `Run` on first use: the launcher's imports stay out of every
+    service's `import hercs`."""
+    if name in ("up", "resume", "Run"):
         from hercs.apps import run_handle
 
         return getattr(run_handle, name)

@@ -28,8 +28,9 @@ def service_argv(role: str, ident: str, config_path: Path) -> list[str]:
             "--id", ident]
 
 
-def pdeathsig_preexec() -> Callable[[], None] | None:
-    """A `preexec_fn` making the child get SIGKILL when its parent dies (Linux only).
+def pdeathsig_preexec(sig: int = signal.SIGKILL) -> Callable[[], None] | None:
+    """A `preexec_fn` making the child get `sig` (SIGKILL unless told) when its parent dies
+    (Linux only; strictly, when the parent's thread that forked it ends).
 
     Runs in the forked child before exec, so it only calls what was resolved here, in the
     parent. If the parent died before the prctl took effect the child is already
@@ -40,11 +41,11 @@ def pdeathsig_preexec() -> Callable[[], None] | None:
     prctl = ctypes.CDLL(None, use_errno=True).prctl
     prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
                       ctypes.c_ulong]
-    sigkill = int(signal.SIGKILL)
+    number = int(sig)
     parent = os.getpid()
 
     def preexec() -> None:
-        prctl(_PR_SET_PDEATHSIG, sigkill, 0, 0, 0)
+        prctl(_PR_SET_PDEATHSIG, number, 0, 0, 0)
         if os.getppid() != parent:
             os._exit(1)
 

@@ -16,7 +16,10 @@ bad value raises `ConfigError` before anything starts, and the run's folder is k
 
 `stop()` is the orderly stop of Ctrl-C (the checkpoint and results stay; `resume()` goes on
 from the last checkpoint). A run still going when the caller's interpreter exits is stopped
-the same way, so that no services outlive it.
+the same way, so that no services outlive it; if the interpreter dies without its exit hooks
+(SIGKILL, a killed notebook kernel), `hercs up` gets SIGTERM from the kernel (its parent-death
+signal) and stops in order too. That signal fires when the *thread* that started the child
+ends, so every run is started from one long-lived thread of this module.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import atexit
 import contextlib
 import io
 import os
+import queue
 import re
 import signal
 import subprocess
@@ -50,17 +54,66 @@ OUTPUT_LINES = 2000
 """The last lines of `hercs up`'s output a handle keeps (`Run.output`)."""
 _EPOCH_LINE = re.compile(r"^epoch \d+/\d+  success ")
 """`hercs up`'s line for a finished epoch: its metrics.csv row is written by then."""
+_OWNS_LINE = re.compile(r"^hercs up: (resuming )?run \S+, directory ")
+"""`hercs up`'s first line once it holds the run's folder (a refused start never prints it)."""
 
 _RUNNING: weakref.WeakSet[Run] = weakref.WeakSet()
 
 
 def _stop_all_at_exit() -> None:
-    for run in list(_RUNNING):
-        with contextlib.suppress(Exception):
+    """Ask every run to stop first, then wait for each: they stop side by side."""
+    runs = list(_RUNNING)
+    for run in runs:
+        with contextlib.suppress(BaseException):
+            run._signal_stop()
+    for run in runs:
+        with contextlib.suppress(BaseException):
             run.stop()
 
 
 atexit.register(_stop_all_at_exit)
+
+
+class _Spawner:
+    """Starts child processes from one daemon thread that lives as long as the interpreter,
+    so that a child's parent-death signal (sent when the thread that forked it ends) means
+    "the caller's process is gone", not "the caller's worker thread finished"."""
+
+    def __init__(self) -> None:
+        self._requests: queue.Queue[tuple[list[str], queue.Queue[object]]] = queue.Queue()
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    def popen(self, argv: list[str]) -> subprocess.Popen[str]:
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._serve, name="hercs-up-spawner",
+                                                daemon=True)
+                self._thread.start()
+        answer: queue.Queue[object] = queue.Queue(maxsize=1)
+        self._requests.put((argv, answer))
+        result = answer.get()
+        if isinstance(result, BaseException):
+            raise result
+        return result  # type: ignore[return-value]
+
+    def _serve(self) -> None:
+        from hercs.apps.child_process import pdeathsig_preexec
+
+        while True:
+            argv, answer = self._requests.get()
+            try:
+                answer.put(subprocess.Popen(
+                    argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                    bufsize=1, stdin=subprocess.DEVNULL,
+                    # its own session: a Ctrl-C meant for the caller does not reach the
+                    # services past `hercs up`'s orderly stop; stop() and the exit hook do
+                    start_new_session=True, preexec_fn=pdeathsig_preexec(signal.SIGTERM)))
+            except BaseException as exc:  # handed to the caller, who raises it
+                answer.put(exc)
+
+
+_SPAWNER = _Spawner()
 
 
 def _flags(task: str | None, method: str | None, epochs: int | None, seed: int | None,
@@ -132,9 +185,24 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
         listen = DEFAULT_LISTEN
     argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen)
     resolved = _resolve(argv)
+    run_dir = Path(resolved.run.run_dir) / resolved.run.name
+    from hercs.rundir import holds_a_run
+
+    if holds_a_run(run_dir):
+        raise ConfigError(f"hercs.up: {run_dir} already holds a run: give another name=, or "
+                          f"continue that one with hercs.resume({str(run_dir)!r})")
     argv = [*argv, "--run", resolved.run.name]
-    return Run._start(["up", *argv], Path(resolved.run.run_dir) / resolved.run.name,
-                      resolved.run.name)
+    return Run._start(["up", *argv], run_dir, resolved.run.name)
+
+
+def resume(run_dir: str | os.PathLike[str], epochs: int | None = None) -> Run:
+    """Continue a stopped run where it stopped, `hercs up --resume RUN_DIR`, to its own
+    number of epochs or to `epochs`. A refused resume (nothing to continue from, a finished
+    run, another `hercs up` holds it) ends at once with the command's exit status and
+    message (`Run.output`; `metrics` and `policy()` then raise HercsError)."""
+    folder = Path(run_dir)
+    more = ["--epochs", str(epochs)] if epochs is not None else []
+    return Run._start(["up", "--resume", str(folder), *more], folder, folder.name)
 
 
 class Run:
@@ -146,11 +214,12 @@ class Run:
         self.dir = run_dir.absolute()
         """The run's folder (config.yaml, metrics.csv, checkpoints/, logs/)."""
         self.name = name
-        self.output: deque[str] = deque(maxlen=OUTPUT_LINES)
-        """The last lines `hercs up` printed (stdout and stderr, in order)."""
+        self._output: deque[str] = deque(maxlen=OUTPUT_LINES)
         self._changed = threading.Condition()
         self._epoch_lines = 0
         self._ended = False
+        self._owns = False  # `hercs up` said it holds the folder
+        self._stop_sent = False
         self._reader = threading.Thread(target=self._read, name=f"hercs-up-{name}",
                                         daemon=True)
         self._reader.start()
@@ -158,13 +227,14 @@ class Run:
 
     @classmethod
     def _start(cls, argv: list[str], run_dir: Path, name: str) -> Run:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "hercs.apps.cli", *argv], stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT, text=True, bufsize=1, stdin=subprocess.DEVNULL,
-            # its own session: a Ctrl-C meant for the caller does not reach the services
-            # past `hercs up`'s orderly stop; stop() and the exit hook stop it instead
-            start_new_session=True)
-        return cls(proc, run_dir, name)
+        return cls(_SPAWNER.popen([sys.executable, "-m", "hercs.apps.cli", *argv]), run_dir,
+                   name)
+
+    @property
+    def output(self) -> list[str]:
+        """The last lines `hercs up` printed (stdout and stderr, in order), as of now."""
+        with self._changed:
+            return list(self._output)
 
     # ------------------------------------------------------------------ watching
 
@@ -173,9 +243,10 @@ class Run:
         for line in self._proc.stdout:
             line = line.rstrip("\n")
             with self._changed:
-                self.output.append(line)
+                self._output.append(line)
                 if _EPOCH_LINE.match(line):
                     self._epoch_lines += 1
+                self._owns = self._owns or bool(_OWNS_LINE.match(line))
                 self._changed.notify_all()
         self._proc.wait()
         with self._changed:
@@ -197,6 +268,8 @@ class Run:
         the iteration ends with the run. `timeout_s` bounds each wait for the next row
         (TimeoutError)."""
         seen = 0
+        if not self._wait_owned(timeout_s):
+            return  # refused: the folder is not this run's (`output` says why)
         while True:
             with self._changed:
                 lines, ended = self._epoch_lines, self._ended
@@ -208,6 +281,19 @@ class Run:
                 return
             if not self._wait_past(lines, timeout_s):
                 raise TimeoutError(f"run {self.name}: no epoch ended within {timeout_s} s")
+
+    def _wait_owned(self, timeout_s: float | None) -> bool:
+        """Until `hercs up` holds the run's folder (True) or ended without it (False)."""
+        with self._changed:
+            if not self._changed.wait_for(lambda: self._owns or self._ended, timeout_s):
+                raise TimeoutError(f"run {self.name}: hercs up did not start within "
+                                   f"{timeout_s} s")
+            return self._owns
+
+    def _refused(self) -> HercsError:
+        tail = "\n".join(self.output[-5:])
+        return HercsError(f"run {self.name}: hercs up did not start it (exit "
+                          f"{self.returncode}); it said:\n{tail}")
 
     def _wait_past(self, lines: int, timeout_s: float | None) -> bool:
         """Until an epoch line after the first `lines` came, or the run ended."""
@@ -238,15 +324,22 @@ class Run:
         stays and `resume()` continues from the last checkpoint. Past `timeout_s` the run's
         processes are killed. Returns the exit status; a run that ended already just gives
         its own."""
-        if self._proc.poll() is None:
+        self._signal_stop()
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
             with contextlib.suppress(ProcessLookupError):
-                self._proc.send_signal(signal.SIGINT)
-            try:
-                self._proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self._proc.pid, signal.SIGKILL)
+                os.killpg(self._proc.pid, signal.SIGKILL)
         return self.wait()
+
+    def _signal_stop(self) -> None:
+        """SIGINT once: a second one would tell `hercs up` to skip its orderly stop."""
+        with self._changed:
+            if self._stop_sent or self._proc.poll() is not None:
+                return
+            self._stop_sent = True
+        with contextlib.suppress(ProcessLookupError):
+            self._proc.send_signal(signal.SIGINT)
 
     def resume(self, epochs: int | None = None) -> Run:
         """Continue this (stopped) run where it stopped, `hercs up --resume`, to its own
@@ -255,22 +348,27 @@ class Run:
         exit status and message (`output`)."""
         if self.running:
             raise HercsError(f"run {self.name} is still running; stop() it first")
-        more = ["--epochs", str(epochs)] if epochs is not None else []
-        return Run._start(["up", "--resume", str(self.dir), *more], self.dir, self.name)
+        if not self._owns:
+            raise self._refused()
+        return resume(self.dir, epochs)
 
     # ------------------------------------------------------------------ results
 
     @property
     def metrics(self) -> Metrics:
-        """metrics.csv as it is now (`hercs.read_metrics`)."""
+        """metrics.csv as it is now (`hercs.read_metrics`); HercsError for a refused start."""
         from hercs.api import read_metrics
 
+        if not self._owns and not self.running:
+            raise self._refused()
         return read_metrics(self.dir)
 
     def policy(self, checkpoint: str = "best", **kw: Any) -> TrainedPolicy:
         """The trained policy (`hercs.load_policy`): "best", "latest" or a file name."""
         from hercs.api import load_policy
 
+        if not self._owns and not self.running:
+            raise self._refused()
         return load_policy(self.dir, checkpoint, **kw)
 
     def __repr__(self) -> str:

@@ -146,6 +146,9 @@ def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int]
 
 
 VARIANT_NAME = re.compile(r"[a-z0-9][a-z0-9_.-]*")
+RESERVED_VARIANTS = frozenset({"lockstep", "async", "bf16", "tf32", "fp32", "lag7", "cs",
+                               "ebp", "ebp-cs", "her", "her-cs", "her-ebp", "her-ebp-cs"})
+"""Names the runs' own naming and the plots' grouping already use."""
 
 
 def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
@@ -156,10 +159,13 @@ def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
     if not sep or not items or not all("=" in item for item in items):
         raise ConfigError(f"--variant {text!r}: give NAME:FIELD=VALUE[,FIELD=VALUE...], e.g. "
                           "lr5e-4:ddpg.lr_actor=5e-4,ddpg.lr_critic=5e-4")
-    if not VARIANT_NAME.fullmatch(name) or (name.startswith("s") and name[1:].isdigit()):
+    if name in RESERVED_VARIANTS or re.fullmatch(r"(v|ts|eps)[0-9].*|s[0-9]+", name):
+        raise ConfigError(f"--variant {text!r}: its name {name!r} is one hercs gives runs "
+                          "itself (an environment version, a schedule, a precision, a weld, "
+                          "an energy floor or a seed): choose another")
+    if not VARIANT_NAME.fullmatch(name):
         raise ConfigError(f"--variant {text!r}: its name {name!r} must be lower-case letters, "
-                          "digits, '-', '_' or '.' (it becomes part of each run's name), and not "
-                          "look like a seed (s1)")
+                          "digits, '-', '_' or '.' (it becomes part of each run's name)")
     return name, items
 
 
@@ -280,10 +286,18 @@ def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun
                 "finished": record.get("finished"), "wall_s": record.get("wall_s")}),
         })
     path = run_root / MANIFEST
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"command": command, "epochs": epochs, "cells": entries},
-                              indent=2) + "\n")
-    tmp.replace(path)  # a reader never sees half a manifest
+    # a temporary file of this writer's own (Slurm array tasks write at once), then an atomic
+    # rename: a reader never sees half a manifest
+    fd, tmp = tempfile.mkstemp(dir=run_root, prefix=f".{MANIFEST}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps({"command": command, "epochs": epochs, "cells": entries},
+                               indent=2) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
     return path
 
 
@@ -339,8 +353,11 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     state: dict[GridRun, str] = {}
 
     def manifest() -> None:  # of the whole sweep (`sweep`), not only the cells run here
-        write_manifest(run_root, cells if sweep is None else sweep, state, command=command,
-                       epochs=epochs, committed=committed)
+        try:
+            write_manifest(run_root, cells if sweep is None else sweep, state,
+                           command=command, epochs=epochs, committed=committed)
+        except OSError as exc:  # a manifest is a view of the runs; never stop them for it
+            print(f"[manifest] not written: {exc}", flush=True)
 
     manifest()
     commit = git_commit()  # the code the runs train with (the report may be written later)
@@ -350,10 +367,15 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
         while todo or running:
             while todo and len(running) < jobs:
                 cell = todo.pop(0)
-                cmd = up_command(cell, epochs=epochs, run_root=run_root, port=free_port(),
+                # port 0: the router takes a free one itself (a port found free here could be
+                # taken before `hercs up` binds it); router.json records it
+                cmd = up_command(cell, epochs=epochs, run_root=run_root, port=0,
                                  actors=actors, overrides=overrides, resume=cell in resumed)
                 log = open(run_root / LOG_DIR / f"{cell.name}.log", "wb")  # noqa: SIM115
-                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+                # its own session: a Ctrl-C at the terminal reaches only this driver, which
+                # stops each run once (a second signal would skip `hercs up`'s orderly stop)
+                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                        start_new_session=True)
                 running.append(_Running(cell, proc, log, time.monotonic()))
                 state[cell] = "running"
                 manifest()
@@ -445,8 +467,11 @@ def arm_rows(curves: dict[str, list[Curve]], baseline: str | None,
     epoch every run reached (10-epoch trailing mean) with its interval, and P(arm >
     `baseline`) and P(X > Y) for each of `compare` (arm labels or keys)."""
     epoch = min(int(c.epochs.max()) for cs in curves.values() for c in cs)
-    final = {key: [float(milestones(aggregate([c]), thresholds=(), at_epochs=(epoch,))
-                         .at[epoch] or 0.0) for c in cs] for key, cs in curves.items()}
+    final: dict[str, list[float]] = {}
+    for key, cs in curves.items():
+        at = [milestones(aggregate([c]), thresholds=(), at_epochs=(epoch,)).at[epoch]
+              for c in cs]
+        final[key] = [float(v) for v in at if v is not None]  # a run missing it is left out
     lines = [f"| arm | seeds | success after epoch {epoch}: IQM [95 % CI] | mean | "
              f"P(arm > {method_label(baseline) if baseline else '–'}) [95 % CI] |",
              "|---|---|---|---|---|"]
@@ -495,8 +520,9 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
         figure = plot_figure(ours, out_dir / f"{stem}.png", reference)
         walls = [json.loads((folders[c] / DONE_FILE).read_text()) for c in done]  # type: ignore[operator]
         missing = [c.name for c in folders if c not in done]
-        first = arm_key(done[0]) if done else None
-        baseline = first if first in by_arm else None
+        # the first arm the user named, when it has runs; else the first arm that has
+        planned = arm_key(next(c for c in cells if (c.task, c.env_version) == (task, env_version)))
+        baseline = planned if planned in by_arm else arm_key(done[0])
         epoch, stats = arm_rows(by_arm, baseline, compare, reps)
         lines = [
             f"# {heading}: {PROG} report", "",
@@ -507,8 +533,8 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "## Arms over seeds", "",
             f"Per run, the 10-epoch trailing mean of the test success after epoch {epoch} (the "
             "last every run reached); per arm its IQM and mean with 95 % percentile bootstrap "
-            f"intervals over runs ({reps:,} resamples), and P(arm > the first arm), that a run "
-            "of the arm beats one of the first (ties half), with an interval from resampling "
+            f"intervals over runs ({reps:,} resamples), and P(arm > {method_label(baseline)}), "
+            "that a run of the arm beats one of it (ties half), with an interval from resampling "
             "each arm on its own (hercs/apps/sweep_stats.py). With few seeds an interval "
             "describes these seeds: an interval of P that excludes .5 is a lead, not a "
             "verdict.", "",
@@ -685,6 +711,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.no_plain and not variants:
         return _fail("--no-plain leaves no arm: give a --variant too")
     arms = variants if args.no_plain else [("", ()), *variants]
+    tasks = list(dict.fromkeys(tasks))
+    methods = list(dict.fromkeys(args.methods))
     epochs = args.epochs or (1 if args.quick else 100)
     overrides = list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
     tmp = tempfile.mkdtemp(prefix="hercs-sweep-") if args.quick and not args.run_dir else None
@@ -698,16 +726,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                      "and a value > 0")
     if not args.energy_epsilon > 0:
         return _fail(f"--energy-epsilon {args.energy_epsilon:g} must be > 0")
-    cells = plan_grid(tasks, args.methods, list(range(1, args.seeds + 1)), args.schedule,
+    cells = plan_grid(tasks, methods, list(range(1, args.seeds + 1)), args.schedule,
                       args.precision, args.env_version, args.weld_torquescale,
                       args.energy_epsilon, arms)
+    names = [c.name for c in cells]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        return _fail(f"two cells would share a run folder ({', '.join(twice)}): rename a "
+                     "--variant so that method-variant names stay apart")
     if not args.report_only:
         try:  # once here, not a failed `hercs up` per cell
             check_env(task_spec(tasks[0], args.env_version))
         except ConfigError as exc:
             return _fail(str(exc))
     command = f"{PROG} " + " ".join(argv)
-    print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(args.methods)} × "
+    print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(methods)} × "
           f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × {args.seeds} seeds), {epochs} "
           f"epochs each, {jobs} at a time, in {run_root}", flush=True)
     if args.cell_index is not None:

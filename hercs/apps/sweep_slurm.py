@@ -17,7 +17,7 @@ def cell_command(args: argparse.Namespace, tasks: Sequence[str], *, run_root: Pa
                  committed: Path | None, epochs: int, overrides: Sequence[str]) -> list[str]:
     """The sweep's command for one cell (`--cell-index` is appended by the array task)."""
     cmd = [sys.executable, "-m", "hercs.apps.cli", "sweep",
-           "--tasks", *sorted(dict.fromkeys(tasks)),
+           "--tasks", *tasks,  # in the order given: the cell indices follow it
            "--methods", *args.methods,
            "--seeds", str(args.seeds), "--schedule", args.schedule,
            "--precision", args.precision, "--env-version", args.env_version,

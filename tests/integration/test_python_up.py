@@ -7,14 +7,16 @@ from __future__ import annotations
 
 import json
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 import hercs
-from hercs.errors import ConfigError
+from hercs.errors import ConfigError, HercsError
 
 pytestmark = pytest.mark.integration
 
@@ -42,6 +44,15 @@ def _processes_naming(text: str) -> list[str]:
         if text in args:
             found.append(args)
     return found
+
+
+def _state(pid: int) -> str:
+    """A process's state letter (R, S, Z, ...), or "gone"."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return "gone"
+    return status.split("State:")[1].split()[0]
 
 
 def test_a_run_started_from_python_yields_its_rows_and_its_policy(tmp_path: Path) -> None:
@@ -99,6 +110,45 @@ print(json.dumps({{"dir": str(run.dir)}}))
     assert _processes_naming(out["dir"]) == []
     assert _processes_naming("--run orphan-check") == []
     assert (Path(out["dir"]) / "metrics.csv").is_file()
+
+
+def test_a_run_stops_in_order_when_its_interpreter_is_killed(tmp_path: Path) -> None:
+    """No exit hooks run after SIGKILL: the kernel's parent-death signal (SIGTERM) stops it."""
+    script = f"""
+import os, signal, hercs
+run = hercs.up(task="reach", method="her", epochs=200, name="killed-parent",
+               run_dir="runs", overrides={SMALL!r})
+next(run.rows(timeout_s=300))
+print(run._proc.pid, flush=True)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=SCRIPT_TIMEOUT_S)
+    assert done.returncode == -signal.SIGKILL, done.stdout + done.stderr
+    launcher = int(done.stdout.split()[-1])
+    deadline = time.monotonic() + 120  # hercs up's orderly stop: stages of a few seconds
+    while _processes_naming("killed-parent") and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert _processes_naming("killed-parent") == []
+    assert _state(launcher) in ("gone", "Z"), _state(launcher)  # exited (a zombie until reaped)
+    log = (tmp_path / "runs" / "killed-parent" / "logs" / "learner-0.log").read_text()
+    assert "Traceback" not in log  # stopped, not crashed
+
+
+def test_a_taken_folder_or_a_refused_resume_never_reads_another_runs_files(
+        tmp_path: Path) -> None:
+    taken = tmp_path / "runs" / "taken"
+    taken.mkdir(parents=True)
+    (taken / "metrics.csv").write_text("epoch,success_rate\n1,0.5\n")
+    with pytest.raises(ConfigError, match=r"already holds a run.*hercs\.resume"):
+        hercs.up(task="reach", name="taken", run_dir=str(tmp_path / "runs"))
+    refused = hercs.resume(taken)  # no config.yaml, no checkpoint: hercs up refuses
+    assert refused.wait(timeout_s=120) == 2
+    assert list(refused.rows(timeout_s=10)) == []
+    with pytest.raises(HercsError, match="did not start it"):
+        refused.metrics  # noqa: B018 - the property raises
+    with pytest.raises(HercsError, match="did not start it"):
+        refused.resume()
 
 
 def test_a_bad_value_raises_before_anything_starts(tmp_path: Path) -> None:

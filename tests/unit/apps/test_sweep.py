@@ -235,7 +235,7 @@ def test_a_variant_is_an_arm_of_its_own_named_and_launched_with_its_overrides() 
 @pytest.mark.parametrize("text, why", [
     ("lr", "give NAME:FIELD=VALUE"), ("lr:", "give NAME:FIELD=VALUE"),
     ("lr:ddpg.lr_actor", "give NAME:FIELD=VALUE"), ("Big:ddpg.lr_actor=1", "lower-case"),
-    ("s2:ddpg.lr_actor=1", "not look like a seed"),
+    ("s2:ddpg.lr_actor=1", "or a seed"),
 ])
 def test_a_malformed_variant_is_refused_with_what_to_write(text: str, why: str) -> None:
     with pytest.raises(ConfigError, match=why):
@@ -302,3 +302,57 @@ def test_bootstrap_intervals_by_hand() -> None:
     apart = sweep_stats.improvement([0.9, 0.8], [0.1, 0.2], reps=500)
     assert (apart.value, apart.low, apart.high) == (1.0, 1.0, 1.0)
     assert sweep_stats.Interval(0.5, 0.25, 1.0).format() == ".50 [.25, 1.00]"
+
+
+@pytest.mark.parametrize("name", ["cs", "ebp-cs", "v1", "lockstep", "bf16", "ts4", "eps3"])
+def test_a_variant_may_not_take_a_name_the_runs_naming_uses(name: str) -> None:
+    # `her` + variant `cs` would be named like a her-cs run: push-her-cs-s1
+    with pytest.raises(ConfigError, match="one hercs gives runs itself"):
+        se.parse_variant(f"{name}:ddpg.polyak=0.9")
+
+
+def test_repeated_tasks_and_methods_are_one_arm_each(capsys: pytest.CaptureFixture[str],
+                                                     tmp_path: Path) -> None:
+    assert se.main(["--report-only", "--tasks", "push", "push", "--methods", "her", "her",
+                    "--seeds", "1", "--run-dir", str(tmp_path / "r")]) == 0
+    assert "sweep: 1 runs (push × her × 1 arm × 1 seeds)" in capsys.readouterr().out
+
+
+def test_manifest_writers_at_once_never_fail_or_leave_half_a_file(tmp_path: Path) -> None:
+    """Slurm array tasks write the manifest together: each through a temporary file of its
+    own and an atomic rename."""
+    import threading
+
+    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2, 3])
+    errors: list[BaseException] = []
+
+    def write() -> None:
+        try:
+            for _ in range(30):
+                se.write_manifest(tmp_path, cells, {}, command="x", epochs=1, committed=None)
+                json.loads((tmp_path / se.MANIFEST).read_text())  # always whole
+        except BaseException as exc:  # collected for the assertion
+            errors.append(exc)
+
+    threads = [threading.Thread(target=write) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert [p.name for p in tmp_path.iterdir()] == [se.MANIFEST]  # no temporary file left
+
+
+def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
+    """The array's --cell-index values are the submitter's indices: the task's command must
+    plan the same cells in the same order."""
+    import argparse
+
+    from hercs.apps.sweep_slurm import cell_command
+
+    args = argparse.Namespace(methods=["her"], seeds=1, schedule="async", precision="fp32",
+                              env_version="v4", weld_torquescale=1.0, energy_epsilon=1e-6,
+                              actors=1, variants=[], no_plain=False)
+    cmd = cell_command(args, ["reach", "push"], run_root=Path("/r"), committed=None, epochs=1,
+                       overrides=[])
+    assert cmd[cmd.index("--tasks") + 1:cmd.index("--tasks") + 3] == ["reach", "push"]
