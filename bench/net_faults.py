@@ -37,7 +37,6 @@ import contextlib
 import json
 import os
 import platform
-import re
 import signal
 import socket
 import subprocess
@@ -189,6 +188,24 @@ def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
     return Actor(host, ident, log, proc)
 
 
+def wait_for_learner_epochs(run_dir: Path, epochs: int, timeout_s: float, up: Up) -> None:
+    """Until the learner has written `epochs` rows to metrics.csv (it writes each at its epoch
+    end, before the evaluation); RuntimeError if `hercs up` ends first. The file has no event
+    to await: it is read every 0.1 s."""
+    deadline = time.monotonic() + timeout_s
+    metrics = run_dir / "metrics.csv"
+    while True:
+        with contextlib.suppress(OSError):
+            if len(metrics.read_text().strip().splitlines()) - 1 >= epochs:
+                return
+        if up.proc.poll() is not None:
+            raise RuntimeError(f"hercs up ended (status {up.proc.returncode}) before the "
+                               f"learner's epoch {epochs}")
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the learner did not end epoch {epochs} within {timeout_s:g} s")
+        time.sleep(0.1)
+
+
 def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
                 shape: Shape) -> NetResult:
     """One fresh run under `setting` on `links` (one actor each); faults and relays are
@@ -235,7 +252,10 @@ def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
                   for i, (host, endpoint) in enumerate(zip(links, endpoints, strict=True))]
         if setting.cut:
             both = setting.cut == "both"
-            up.wait_for(re.compile(rf"^epoch {shape.cut_at}/\d+  success"), shape.timeout_s)
+            # After the learner's epoch `cut_at` (its metrics.csv row), not the launcher's
+            # line for it: that waits for the evaluation, by which time a fast machine's
+            # learner has used the episodes of later epochs and the run can end in the cut.
+            wait_for_learner_epochs(run_dir, shape.cut_at, shape.timeout_s, up)
             for host in links:
                 host.cut(both_ways=both)
             time.sleep(shape.cut_s)  # the fault's length: nothing to wait for but time
@@ -293,8 +313,9 @@ def report(results: list[NetResult], *, command: str, shape: Shape, note: str,
         f"Each row is a fresh FetchReach HER-CS run of {shape.epochs} epochs × {shape.cycles} "
         f"cycles over mutual TLS: `hercs up --actors 0` on this host, {shape.actors} "
         "`hercs actor` each in its own network namespace behind a veth link carrying the "
-        f"fault (bench/net_faults.py, bench/netns.py). Cuts start after epoch {shape.cut_at}'s "
-        "progress line. Acked = distinct (actor, seq) the actors logged as acked; lost = "
+        f"fault (bench/net_faults.py, bench/netns.py). Cuts start once the learner has "
+        f"written epoch {shape.cut_at}'s metrics row. Acked = distinct (actor, seq) the "
+        "actors logged as acked; lost = "
         "those missing from the episode log at the end; stored twice = log records − "
         "distinct (actor, seq); dup acks = retries the replay answered as already stored. "
         "Lag: median of the epochs' p50 / largest p95 (cycles, metrics.csv). Inserts/s over "
