@@ -46,6 +46,7 @@ import os
 import platform
 import re
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -762,9 +763,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                             overrides=overrides)
     failed = 0
     if not args.report_only:
-        results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,
-                           actors=args.actors, overrides=overrides, committed=committed,
-                           command=command)
+        # SIGTERM (`kill`, a scheduler) stops the sweep as Ctrl-C does, and so does a SIGINT
+        # that a non-interactive shell's `&` set to be ignored: each run stops in order and
+        # is resumed by the next call, instead of going on without the sweep
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.default_int_handler)
+        try:
+            results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,
+                               actors=args.actors, overrides=overrides, committed=committed,
+                               command=command)
+        except KeyboardInterrupt:
+            print(f"{PROG}: stopped; the same command resumes it", flush=True)
+            return 130
         failed = sum(code != 0 for _, code in results)
     elif run_root.is_dir():
         write_manifest(run_root, cells, {}, command=command, epochs=epochs,

@@ -356,3 +356,43 @@ def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
     cmd = cell_command(args, ["reach", "push"], run_root=Path("/r"), committed=None, epochs=1,
                        overrides=[])
     assert cmd[cmd.index("--tasks") + 1:cmd.index("--tasks") + 3] == ["reach", "push"]
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_a_killed_sweep_stops_its_runs_in_order_and_the_next_call_resumes_them(
+        tmp_path: Path) -> None:
+    """SIGTERM to the sweep (its runs are in sessions of their own, out of its reach
+    otherwise): each run stops in order, the manifest says so, nothing is left running, and
+    the same command continues the run from its checkpoint."""
+    import signal
+    import time
+
+    cmd = [sys.executable, "-m", "hercs.apps.cli", "sweep", "--quick", "--methods", "her",
+           "--seeds", "1", "--epochs", "100", "--run-dir", str(tmp_path / "runs")]
+    sweep = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             text=True)
+    metrics = tmp_path / "runs" / "reach-her-s1" / "metrics.csv"
+    deadline = time.monotonic() + 300
+    # the learner's first row: the run is training (a file has no event to await)
+    while not (metrics.is_file() and len(metrics.read_text().splitlines()) >= 2):
+        assert sweep.poll() is None and time.monotonic() < deadline, sweep.stdout.read()
+        time.sleep(0.2)
+    sweep.send_signal(signal.SIGTERM)
+    out, _ = sweep.communicate(timeout=180)
+    assert sweep.returncode == 130, out
+    assert "hercs sweep: stopped; the same command resumes it" in out
+    manifest = json.loads((tmp_path / "runs" / se.MANIFEST).read_text())
+    assert manifest["cells"][0]["state"] == "stopped (resumed by the next call)"
+    log = (tmp_path / "runs" / "_logs" / "reach-her-s1.log").read_text()
+    assert "hercs up: got SIGTERM, stopping the run" in log and "stopped; run directory" in log
+    kept = len(metrics.read_text().splitlines()) - 1
+    assert 1 <= kept < 100
+    again = subprocess.run([*cmd[:-4], "--epochs", str(kept + 1), *cmd[-2:]], cwd=REPO,
+                           capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "[resume] reach-her-s1" in again.stdout
+    epochs = [int(line.split(",")[0]) for line in metrics.read_text().splitlines()[1:]]
+    # the kept epochs, then more to the new end, none twice (a stop that lands on an epoch's
+    # end can leave that epoch's checkpoint one row ahead: it counts as trained)
+    assert epochs == list(range(1, len(epochs) + 1)) and kept + 1 <= epochs[-1] <= kept + 2
