@@ -393,6 +393,8 @@ def test_a_killed_sweep_stops_its_runs_in_order_and_the_next_call_resumes_them(
     assert again.returncode == 0, again.stdout + again.stderr
     assert "[resume] reach-her-s1" in again.stdout
     epochs = [int(line.split(",")[0]) for line in metrics.read_text().splitlines()[1:]]
-    # the kept epochs, then more to the new end, none twice (a stop that lands on an epoch's
-    # end can leave that epoch's checkpoint one row ahead: it counts as trained)
-    assert epochs == list(range(1, len(epochs) + 1)) and kept + 1 <= epochs[-1] <= kept + 2
+    # the kept epochs, then more to the new end, none twice. The learner may have trained
+    # past the last row before the stop (a row waits for its epoch's evaluation, and these
+    # epochs take well under a second): the resumed learner then asks for those evaluations
+    # again and writes their rows, even past the new --epochs; nothing is trained twice.
+    assert epochs == list(range(1, len(epochs) + 1)) and epochs[-1] >= kept + 1
