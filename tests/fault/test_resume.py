@@ -6,11 +6,13 @@ Every wait is on a launcher output line, a file's contents or a process exit, wi
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import signal
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -159,25 +161,21 @@ def _wait_all_gone(pids, timeout_s: float = 20.0) -> bool:
 
 
 def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_schedule(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`training.schedule=lockstep`, HER-CS, two actors: SIGKILL the replay during epoch 2
     and the learner during epoch 3. The replay rebuilds its per-version counts from its log,
     the learner trains the cycles since its checkpoint again on the episodes stored for them,
     and the episode log still holds, episode for episode, the reference's schedule: episode i
     acted with weights version i // 4."""
+    monkeypatch.setenv("HERCS_LOG", "DEBUG")  # what a failure prints is what CI keeps
     launcher = Launcher(up_argv(tmp_path, "--run", "strict", "--method", "her-cs",
                                 "--set", "training.schedule=lockstep",
                                 "--set", "cluster.k=2", "--set", "cluster.fgb_size=8"),
                         cwd=tmp_path)
     run_dir = tmp_path / "runs" / "strict"
     try:
-        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["replay-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started replay replay-0 again \(restart 1\)", timeout_s=60)
-        launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)", timeout_s=60)
-        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+        with service_logs_on_failure(run_dir):
+            _kill_replay_then_learner(launcher)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
@@ -189,6 +187,31 @@ def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_sche
         assert {float(row["policy_lag"]) for row in csv.DictReader(f)} == {0.0}
     assert "recovered" in log_text(run_dir, "replay-0")
     assert "resumed from the checkpoint of epoch" in log_text(run_dir, "learner-0")
+
+
+def _kill_replay_then_learner(launcher: Launcher) -> None:
+    launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
+    os.kill(launcher.child_pids["replay-0"], signal.SIGKILL)
+    launcher.wait_for_line(r"started replay replay-0 again \(restart 1\)", timeout_s=60)
+    launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
+    os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
+    launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)", timeout_s=60)
+    assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+
+
+@contextlib.contextmanager
+def service_logs_on_failure(run_dir: Path, lines: int = 40) -> Iterator[None]:
+    """On a failed assertion, add the end of every service's log to its message: CI keeps
+    only its output, and a stall (this test once waited 4 min after the replay restart, with
+    nothing at INFO) needs each process's last words to be explained."""
+    try:
+        yield
+    except AssertionError as exc:
+        tails = []
+        for log in sorted((run_dir / "logs").glob("*.log")):
+            text = log.read_text(errors="replace").splitlines()[-lines:]
+            tails.append(f"--- {log.name} (last {len(text)} lines)\n" + "\n".join(text))
+        raise AssertionError(f"{exc}\n\n" + "\n".join(tails)) from exc
 
 
 def metrics_rows(run_dir: Path) -> list[dict[str, str]]:
