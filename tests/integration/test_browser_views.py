@@ -12,20 +12,18 @@ to load, connect and draw depends on the machine.
 
 from __future__ import annotations
 
-import queue
-import re
 import shutil
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hercs.apps.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
+from tests.integration.test_launcher import Launcher
 from tests.support import free_tcp_port, rerun_binary, wait_for_port
 
 pytestmark = pytest.mark.integration
@@ -45,41 +43,6 @@ def _chromium() -> str:
         pytest.skip("no chromium here (`make browser-tools` installs Debian's as root): the "
                     "web viewer is not opened in a browser")
     return found
-
-
-class _Lines:
-    """A child process's output lines, read on a thread, for awaiting one."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.proc, self.seen, self._q = proc, [], queue.Queue()
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._q.put(line.rstrip("\n"))
-        self._q.put(None)
-
-    def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str]:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                line = self._q.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
-                line = None
-            if line is None:
-                raise AssertionError(f"no line matching {pattern!r}; saw:\n" +
-                                     "\n".join(self.seen[-40:]))
-            self.seen.append(line)
-            match = re.search(pattern, line)
-            if match:
-                return match
-
-
-def _start(cmd: list[str], cwd: Path) -> tuple[subprocess.Popen[str], _Lines]:
-    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, stdin=subprocess.DEVNULL)
-    return proc, _Lines(proc)
 
 
 def _stop(proc: subprocess.Popen[str]) -> None:
@@ -111,11 +74,10 @@ def _goal_pixels(image: np.ndarray) -> tuple[int, int]:
 
 
 def _shows_the_run(image: np.ndarray) -> bool:
-    """The viewer loaded (its loading page is one dark colour and a line of text) and its 3D
-    view draws goal spheres (a short run's goals: missed ones, and reached ones once it
-    learns)."""
+    """The viewer loaded and its 3D view draws goal spheres (a short run's goals: missed
+    ones, and reached ones once it learns)."""
     green, red = _goal_pixels(image)
-    return float(image.std()) > 20.0 and green + red >= MIN_GOAL_PIXELS
+    return _loaded(image) and green + red >= MIN_GOAL_PIXELS
 
 
 class _Browser:
@@ -196,27 +158,9 @@ class _Browser:
         self._log.close()
 
 
-def _screenshot_once_loaded(url: str, out: Path) -> np.ndarray:
-    """Open `url` and photograph it once the viewer has loaded (whatever it then shows)."""
-    from PIL import Image
-
-    browser = _Browser(out.with_suffix(".profile"))
-    try:
-        browser.open(url)
-        deadline = time.monotonic() + SCREENSHOT_DEADLINE_S
-        while True:
-            image = browser.screenshot()
-            Image.fromarray(image).save(out)
-            if float(image.std()) > 20.0:
-                return image
-            assert time.monotonic() < deadline, f"{url}: the viewer never loaded ({out})"
-            time.sleep(1.0)  # a picture a second: the page has no event to await
-    finally:
-        browser.close()
-
-
-def _screenshot_until_drawn(url: str, out: Path) -> np.ndarray:
-    """Open `url` once and photograph it until it shows the run (the wasm viewer loads,
+def _screenshot_until(url: str, out: Path, done: Callable[[np.ndarray], bool],
+                      what: str) -> np.ndarray:
+    """Open `url` once and photograph it until `done(picture)` (the wasm viewer loads,
     connects and draws in its own time); the last picture goes to `out` either way."""
     from PIL import Image
 
@@ -229,16 +173,21 @@ def _screenshot_until_drawn(url: str, out: Path) -> np.ndarray:
             image = browser.screenshot()
             shots += 1
             Image.fromarray(image).save(out)
-            if _shows_the_run(image):
-                print(f"{url}: drawn by screenshot {shots}; goal pixels (green, red) = "
+            if done(image):
+                print(f"{url}: {what} by screenshot {shots}; goal pixels (green, red) = "
                       f"{_goal_pixels(image)}")
                 return image
             assert time.monotonic() < deadline, (
-                f"{url}: the page never showed the run in {shots} screenshots (the last: std "
+                f"{url}: the page never {what} in {shots} screenshots (the last: std "
                 f"{image.std():.1f}, goal pixels {_goal_pixels(image)}; {out})")
             time.sleep(1.0)  # a picture a second: the page has no event to await
     finally:
         browser.close()
+
+
+def _loaded(image: np.ndarray) -> bool:
+    """The viewer is up, whatever it shows (its loading page is one dark colour and a line)."""
+    return float(image.std()) > 20.0
 
 
 @pytest.fixture(scope="module")
@@ -258,36 +207,37 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
         stream = f"rerun+http://127.0.0.1:{grpc}/proxy"
         page = f"http://127.0.0.1:{web}/?url={stream}"
         # the control: the same page before any run streams into it shows no run
-        empty = _screenshot_once_loaded(page, tmp / "before-the-run.png")
+        empty = _screenshot_until(page, tmp / "before-the-run.png", _loaded, "loaded")
         assert not _shows_the_run(empty), (
             f"the check passes on an empty viewer: goal pixels {_goal_pixels(empty)}")
-        run, lines = _start([sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach",
-                             "--method", "her-cs", "--epochs", "3", "--run", "browser",
-                             "--run-dir", str(tmp / "runs"), "--listen", "tcp/127.0.0.1:0",
-                             "--rerun", stream, "--rerun-every", "1", *SMALL], tmp)
-        lines.wait_for(r"^epoch 1/3  success ", RUN_TIMEOUT_S)
+        run = Launcher([sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach",
+                        "--method", "her-cs", "--epochs", "3", "--run", "browser",
+                        "--run-dir", str(tmp / "runs"), "--listen", "tcp/127.0.0.1:0",
+                        "--rerun", stream, "--rerun-every", "1", *SMALL], cwd=tmp)
+        run.wait_for_line(r"^epoch 1/3  success ", RUN_TIMEOUT_S)
         yield tmp / "runs" / "browser", page
     finally:
         if run is not None:
-            _stop(run)
+            _stop(run.proc)  # in order: SIGTERM
         _stop(proxy)  # type: ignore[arg-type]
 
 
 def test_the_live_web_view_of_a_running_run_draws_its_episodes(
         live_run: tuple[Path, str], tmp_path: Path) -> None:
     _, url = live_run
-    _screenshot_until_drawn(url, tmp_path / "live.png")
+    _screenshot_until(url, tmp_path / "live.png", _shows_the_run, "drew the run")
 
 
 def test_the_offline_web_view_of_a_run_draws_its_episodes(live_run: tuple[Path, str],
                                                           tmp_path: Path) -> None:
     run_dir, _ = live_run
     web, grpc = free_tcp_port(), free_tcp_port()
-    view, lines = _start([sys.executable, "-m", "hercs.apps.cli", "view", str(run_dir),
-                          "--episodes", "all", "--web", "--web-port", str(web),
-                          "--grpc-port", str(grpc), "--no-browser"], tmp_path)
+    view = Launcher([sys.executable, "-m", "hercs.apps.cli", "view", str(run_dir),
+                     "--episodes", "all", "--web", "--web-port", str(web),
+                     "--grpc-port", str(grpc), "--no-browser"], cwd=tmp_path)
     try:
-        url = lines.wait_for(r"serving the web viewer at (\S+)", 120).group(1)
-        _screenshot_until_drawn(url, tmp_path / "offline.png")
+        line = view.wait_for_line(r"serving the web viewer at \S+", 120)
+        url = line.split("serving the web viewer at ")[1].split()[0]
+        _screenshot_until(url, tmp_path / "offline.png", _shows_the_run, "drew the run")
     finally:
-        _stop(view)
+        _stop(view.proc)
