@@ -23,6 +23,17 @@ log = logging.getLogger("hercs.learner")
 
 _POLL_S = 0.5
 
+ASK_AGAIN_S = 30.0
+"""The longest one sample request waits for its reply before the same request is sent again.
+
+The replay parks a request until it can serve it (the rate limiter, lockstep's cycle), up to
+`replay.sample_timeout_s` (10 min). A request can lose its reply for good: a get that Zenoh
+routes to a replay killed a moment before may never be finalised, and until its own timeout
+nothing says so, while the restarted replay, the actors and their episodes all wait for this
+learner. Asking again after this long bounds that loss; it is safe: the replay answers this
+learner's earlier parked call `expired` (one request at a time) and recounts its limiter from
+`samples_kept`, and lockstep's grace for a late cluster model runs from the cycle's first ask."""
+
 
 class Prefetcher:
     """Requests batches ahead of the update loop on its own thread.
@@ -50,6 +61,8 @@ class Prefetcher:
         self._credits = threading.Semaphore(config.learner.prefetch_depth)
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
+        self.asked_again = 0
+        """Requests sent again because their reply was overdue (`ASK_AGAIN_S`)."""
         self.samples_kept = samples_kept
         """Minibatches received and kept: each request tells the replay (SampleRequest)."""
         self.incarnation = f"{runtime.ident}@{time.time_ns()}"
@@ -88,7 +101,28 @@ class Prefetcher:
 
     def _fetch(self, wanted: int) -> bool:
         """One request for cycle `wanted`; True once its batch is queued, False if it failed
-        (counted and warned; the caller asks again) or the service is stopping."""
+        (counted and warned; the caller asks again) or the service is stopping. A request
+        whose reply is overdue (`ASK_AGAIN_S`) is sent again, quietly until it has waited
+        `replay.sample_timeout_s` in all."""
+        stop = self.runtime.stop
+        started = time.monotonic()
+        while True:
+            try:
+                return self._ask(wanted)
+            except TransportTimeout as exc:
+                if stop.is_set():
+                    return False
+                waited = time.monotonic() - started
+                if exc.no_queryable or waited >= self.config.replay.sample_timeout_s:
+                    self.warn.warn(type(exc).__name__,
+                                   f"sample request failed ({exc}); retrying")
+                    stop.wait(0.5)
+                    return False
+                self.asked_again += 1
+                log.debug("no batch for cycle %d after %.0f s; asking again", wanted, waited)
+
+    def _ask(self, wanted: int) -> bool:
+        """`_fetch`'s one request; raises `TransportTimeout` when its reply is overdue."""
         stop = self.runtime.stop
         self._request_id += 1
         request = pb.SampleRequest(
@@ -101,7 +135,7 @@ class Prefetcher:
         try:
             raw = self.runtime.transport.request(
                 self.runtime.keys.sample, request.SerializeToString(),
-                timeout_s=self.config.replay.sample_timeout_s)
+                timeout_s=min(self.config.replay.sample_timeout_s, ASK_AGAIN_S))
             batch = decode_served_batch(
                 raw, spec=self.config.task.spec, k=self.config.cluster.k,
                 batch_size=self.config.ddpg.batch_size,
@@ -110,7 +144,9 @@ class Prefetcher:
             self.bad_batches[exc.reason] += 1
             self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")
             return False
-        except (TransportTimeout, RemoteError, TransportError) as exc:
+        except TransportTimeout:
+            raise
+        except (RemoteError, TransportError) as exc:
             if not stop.is_set():
                 self.warn.warn(type(exc).__name__, f"sample request failed ({exc}); retrying")
                 stop.wait(0.5)

@@ -351,7 +351,10 @@ class ReplayTable:
         checkpoint thus redoes the updates it lost on the episodes already stored, instead of
         the limiter admitting inserts for updates that were undone; a restarted replay takes
         the count it lost from the learner. Calls parked for a learner process this one
-        replaces are answered `expired`: nobody waits for them."""
+        replaces are answered `expired`: nobody waits for them. So are the calls this learner
+        process parked before: a new call means it stopped waiting for them (it asks again
+        when a reply is overdue, `hercs.learner.prefetch.ASK_AGAIN_S`), and served they would
+        only draw minibatches no update uses."""
         if not call.learner_incarnation:  # a learner that does not say: counted as served
             return
         before = self.limiter.samples
@@ -360,6 +363,8 @@ class ReplayTable:
             if before != call.samples_kept:
                 log.debug("learner %s kept %d minibatches, %d counted: recounted",
                           call.learner_incarnation, call.samples_kept, before)
+            self._expire_samples_of(call.learner_incarnation,
+                                    "the learner asked again: it stopped waiting for this call")
             return
         if self._learner is not None or before != call.samples_kept:
             log.info("learner %s: the rate limiter counts %d minibatches sampled (was %d), "
@@ -372,6 +377,17 @@ class ReplayTable:
             self._samples.remove(item)
             for waiter in item.waiters:
                 waiter.fail(Reason.EXPIRED, "a newer learner process took over this run")
+
+    def _expire_samples_of(self, incarnation: str, why: str) -> None:
+        """(Under the lock.) Answer `expired` to the parked sample calls of `incarnation`."""
+        stale = [item for item in self._samples if item.call.learner_incarnation == incarnation]
+        for item in stale:
+            self._samples.remove(item)
+            for waiter in item.waiters:
+                waiter.fail(Reason.EXPIRED, why)
+        if stale:
+            log.debug("learner %s asked again; %d earlier call(s) answered expired",
+                      incarnation, len(stale))
 
     def _serve(self, item: ParkedSample) -> None:
         call = item.call

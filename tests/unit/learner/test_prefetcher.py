@@ -4,6 +4,7 @@ stand-in transport that answers from a real ReplayCore; no Zenoh."""
 
 from __future__ import annotations
 
+import logging
 import threading
 from types import SimpleNamespace
 
@@ -13,10 +14,11 @@ import pytest
 from hercs.codec import batch_to_bytes, stats_to_msg
 from hercs.config import HercsConfig, apply_overrides
 from hercs.episode import random_episode
-from hercs.learner.prefetch import Prefetcher
+from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.core import ReplayCore
+from hercs.transport import TransportTimeout
 
 WAIT_S = 10.0
 
@@ -52,12 +54,13 @@ class AnsweringTransport:
             return self.asked.wait_for(lambda: self.requests >= count, timeout_s)
 
 
-def start(depth: int, kept: int = 0) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
+def start(depth: int, kept: int = 0, answering: type[AnsweringTransport] = AnsweringTransport
+          ) -> tuple[Prefetcher, AnsweringTransport, threading.Event]:
     config = apply_overrides(HercsConfig(), [
         "task.name=reach", "run.method=her", "training.minibatches_per_cycle=2",
         "ddpg.batch_size=8", "replay.buffer_transitions=5000",
         f"learner.prefetch_depth={depth}"])
-    transport = AnsweringTransport(config)
+    transport = answering(config)
     stop = threading.Event()
 
     def start_thread(target, *, name):
@@ -105,3 +108,43 @@ def test_each_request_tells_the_replay_what_the_learner_has_kept() -> None:
     other, _, stop2 = start(1)
     stop2.set()
     assert other.incarnation != prefetcher.incarnation
+
+
+class LosingTransport(AnsweringTransport):
+    """The first request's reply never comes (a get Zenoh routed to a replay killed a moment
+    before): it ends only at its own timeout, as `hercs.transport.request` does."""
+
+    def __init__(self, config: HercsConfig) -> None:
+        super().__init__(config)
+        self.timeouts: list[float] = []
+        self.requested: list[pb.SampleRequest] = []
+
+    def request(self, key: str, payload: bytes, *, timeout_s: float) -> bytes:
+        self.timeouts.append(timeout_s)
+        self.requested.append(pb.SampleRequest.FromString(payload))
+        if len(self.timeouts) == 1:
+            raise TransportTimeout(key, timeout_s, "no reply")
+        return super().request(key, payload, timeout_s=timeout_s)
+
+
+def test_a_request_whose_reply_is_lost_is_asked_again_within_a_bound_and_quietly(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Before, a sample request waited `replay.sample_timeout_s` (10 min) for its reply, and a
+    lost one left the learner, and in lockstep the whole run, idle that long. Now no request
+    waits longer than ASK_AGAIN_S; an overdue one is sent again as it was (the same cycle and
+    count) with no warning, since a replay may park a request that long on purpose."""
+    prefetcher, transport, stop = start(1, kept=40, answering=LosingTransport)
+    assert isinstance(transport, LosingTransport)
+    config = prefetcher.config
+    try:
+        with caplog.at_level(logging.WARNING, logger="hercs.learner"):
+            assert prefetcher.get() is not None
+        assert transport.timeouts[:2] == [ASK_AGAIN_S, ASK_AGAIN_S]
+        assert config.replay.sample_timeout_s > ASK_AGAIN_S
+        first, again = transport.requested[:2]
+        assert (again.weights_version, again.samples_kept, again.learner_incarnation) == (
+            first.weights_version, first.samples_kept, first.learner_incarnation)
+        assert again.request_id > first.request_id
+        assert prefetcher.asked_again == 1 and not caplog.records, caplog.records
+    finally:
+        stop.set()

@@ -361,6 +361,24 @@ def test_a_reply_the_learner_never_got_is_recounted_at_its_next_call() -> None:
     assert h.table.limiter.samples == 16
 
 
+def test_a_learner_asking_again_replaces_its_parked_call() -> None:
+    """The learner sends one request at a time and asks again when a reply is overdue (a lost
+    get): its new call answers the parked one `expired`, so only the call it waits on is
+    served, and the limiter counts one batch, not two."""
+    h = make()
+    for seq in range(4):
+        h.insert(seq)
+    assert h.sample(8, learner="L@1", kept=0).results
+    overdue = h.sample(8, "overdue", learner="L@1", kept=8)  # held: no episodes for it yet
+    again = h.sample(8, "again", learner="L@1", kept=8)
+    assert overdue.failures and overdue.failures[0][0] == Reason.EXPIRED
+    assert "asked again" in overdue.failures[0][1] and not again.results
+    for seq in range(4, 8):
+        h.insert(seq)
+    assert again.results and not overdue.results
+    assert h.table.limiter.samples == 16
+
+
 def test_recovered_surplus_episodes_do_not_read_as_policy_lag() -> None:
     """A resumed asynchronous run: the log holds 4,212 episodes (1,053 cycles) but the learner
     resumes from its checkpoint at weights version 1,000, so 53 cycles of episodes were acted
