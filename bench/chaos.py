@@ -64,7 +64,7 @@ from bench.faults import EPOCH, Up
 from bench.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
-from hercs.rundir import CONFIG
+from hercs.rundir import CONFIG, RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / "runs" / "chaos"
@@ -150,7 +150,7 @@ class Soak:
         if pid is None:
             return None
         argv = _cmdline(pid)
-        ours = str(self.run_dir / CONFIG) in argv and ident in argv
+        ours = str(RunDir(self.run_dir).config) in argv and ident in argv
         return pid if ours else None
 
     def _stop_up(self, sig: int) -> None:
@@ -181,7 +181,7 @@ class Soak:
                     if (m := EPOCH.match(line))), default=0)
 
     def _child_alive(self, pid: int) -> bool:
-        return str(self.run_dir / CONFIG) in _cmdline(pid)
+        return str(RunDir(self.run_dir).config) in _cmdline(pid)
 
     # ----------------------------------------------------------------- injections
     def inject(self, event: Event) -> None:
@@ -232,7 +232,7 @@ class Soak:
     def run(self) -> None:
         """Launch (or resume) and inject until `hercs up` ends; the state is saved after each
         injection and on the way out, finished or not."""
-        resume = (self.run_dir / CONFIG).is_file()
+        resume = RunDir(self.run_dir).config.is_file()
         if resume and not (self.state.injections
                            and self.state.injections[-1]["kind"] == "interrupted"):
             self.state.injections.append({  # the bench died without its `finally` (SIGKILL)

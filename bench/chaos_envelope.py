@@ -25,7 +25,7 @@ from typing import Any
 import yaml
 
 from hercs.metrics import read_rows
-from hercs.rundir import CONFIG, METRICS
+from hercs.rundir import CONFIG, RunDir
 
 IGNORED = ("run.name", "run.seed", "run.run_dir", "run.tensorboard", "training.epochs",
            "transport.", "security.", "launch.", "view.")
@@ -38,7 +38,7 @@ def success_curve(run_dir: Path) -> list[float]:
     """`success_rate` of metrics.csv by epoch (index 0 = epoch 1; nan where an epoch has no
     row or no value; the last row of an epoch wins)."""
     rates: dict[int, float] = {}
-    for row in read_rows(run_dir / METRICS):
+    for row in read_rows(RunDir(run_dir).metrics):
         if row.get("epoch"):
             value = row.get("success_rate") or "nan"
             rates[int(row["epoch"])] = float(value)
@@ -124,7 +124,7 @@ def config_differences(run_dir: Path, other: Path) -> list[str]:
     config.yaml, as `field: a ≠ b`; one line saying so where a file is missing."""
     configs = []
     for folder in (run_dir, other):
-        path = folder / CONFIG
+        path = RunDir(folder).config
         if not path.is_file():
             return [f"no {CONFIG} in {folder}"]
         configs.append(_flat(yaml.safe_load(path.read_text()) or {}))

@@ -38,6 +38,7 @@ from bench.chaos_state import SoakState
 from bench.common import git_commit, machine_identity
 from bench.faults import EPOCH
 from bench.net_measure import measure, stored_episodes
+from hercs.rundir import RunDir
 
 RECORD = "chaos.json"
 VALIDATION = "chaos_validation.md"
@@ -332,7 +333,7 @@ than this share changed the experiment, not only its wall time."""
 def steps_per_update(run_dir: Path) -> list[float]:
     """Each epoch's env steps per DDPG update, from `metrics.csv` (NaN for an epoch without
     updates)."""
-    path = run_dir / "metrics.csv"
+    path = RunDir(run_dir).metrics
     if not path.is_file():
         return []
     with path.open(newline="") as f:

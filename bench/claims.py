@@ -62,7 +62,7 @@ from hercs.apps.plots import (
     task_title,
 )
 from hercs.config import HercsConfig
-from hercs.rundir import CONFIG
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -216,7 +216,7 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
     found: list[tuple[Group, Run]] = []
     for curve in load_runs(runs_dir):
         source = Path(curve.source)
-        config = yaml.safe_load((source / CONFIG).read_text()) or {}
+        config = yaml.safe_load(RunDir(source).config.read_text()) or {}
         found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
                                             curve, **provenance(source),
                                             assumed=assumed_settings(config))))

@@ -51,6 +51,7 @@ from bench.early_policy import (
 )
 from hercs.checkpoints import LoadedPolicy, read_policy
 from hercs.errors import ConfigError, HercsError
+from hercs.rundir import RunDir
 
 LOCAL = REPO / "runs" / "sample_efficiency"
 DEFAULT_RUNS = (*(f"push-{v}her-ebp-cs-s{s}" for v in ("v1-", "") for s in range(1, 6)),
@@ -322,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=REPO / "docs" / "results")
     args = p.parse_args(argv)
     runs = args.runs if args.runs is not None else [
-        LOCAL / n for n in DEFAULT_RUNS if (LOCAL / n / "checkpoints").is_dir()]
+        LOCAL / n for n in DEFAULT_RUNS if RunDir(LOCAL / n).checkpoints.is_dir()]
     try:
         result = run_bench(runs, args.epochs, args.targets, args.episodes, args.out,
                            args.random_episodes)

@@ -47,6 +47,7 @@ from hercs.apps.plots import energy_epsilon
 from hercs.codec import msg_to_episode
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
+from hercs.rundir import RunDir
 from hercs.runlog import read_episodes
 
 COMMITTED = REPO / "docs" / "results" / "runs"
@@ -121,7 +122,7 @@ def run_method(config: dict) -> str:
 
 
 def read_config(run: Path) -> dict:
-    return yaml.safe_load((run / "config.yaml").read_text()) or {}
+    return yaml.safe_load(RunDir(run).config.read_text()) or {}
 
 
 # ------------------------------------------------------------------ 1. committed moved shares
@@ -131,7 +132,7 @@ def committed_moved_shares(folder: Path, epochs: Sequence[int] = SHARE_EPOCHS
                            ) -> list[dict[str, object]]:
     """One row per FetchPush run here whose metrics.csv has buffer_moved_share."""
     rows: list[dict[str, object]] = []
-    for run in sorted(p for p in folder.iterdir() if (p / "metrics.csv").is_file()):
+    for run in sorted(p for p in folder.iterdir() if RunDir(p).metrics.is_file()):
         config = read_config(run)
         if config.get("task", {}).get("name") != "push":
             continue
@@ -358,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     runs = args.runs if args.runs is not None else [
-        LOCAL / name for name in DEFAULT_RUNS if (LOCAL / name / "episodes.mcap").exists()
+        LOCAL / name for name in DEFAULT_RUNS if RunDir(LOCAL / name).episode_log.exists()
         or any((LOCAL / name).glob("episodes.*.mcap"))]
     episodes: dict[str, dict[str, object]] = {}
     actions: dict[str, list[np.ndarray]] = {}

@@ -46,7 +46,7 @@ from pathlib import Path
 from bench.common import git_commit
 from hercs.apps.child_process import pdeathsig_preexec
 from hercs.metrics import recorded_epochs
-from hercs.rundir import METRICS
+from hercs.rundir import RunDir
 from hercs.runlog import read_episodes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -158,7 +158,7 @@ def distinct_episodes(run_dir: Path) -> set[tuple[str, int]]:
 
 
 def epochs_recorded(run_dir: Path) -> list[int]:
-    return recorded_epochs(run_dir / METRICS)
+    return recorded_epochs(RunDir(run_dir).metrics)
 
 
 def epoch_times(seen: list[tuple[float, str]]) -> list[float]:

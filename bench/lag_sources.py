@@ -39,7 +39,7 @@ from pathlib import Path
 from bench.common import git_commit, machine_identity
 from hercs.apps.sweep import free_port
 from hercs.metrics import read_rows
-from hercs.rundir import METRICS
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -143,7 +143,7 @@ def run_together(settings: list[LagSetting], *, root: Path, names: list[str],
         log.close()
         if code != 0:
             raise SystemExit(f"run {name} failed (exit {code}); log {root / (name + '.log')}")
-        out.append((summarise(read_rows(root / name / METRICS)),
+        out.append((summarise(read_rows(RunDir(root / name).metrics)),
                     time.monotonic() - started))
     return out
 

@@ -34,7 +34,7 @@ from mcap.stream_reader import breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.config import HercsConfig, load_yaml
-from hercs.rundir import CONFIG
+from hercs.rundir import RunDir
 from hercs.runlog import (
     TOPIC_EPISODES,
     TOPIC_REPLAY_STATE,
@@ -257,12 +257,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"log_size: {exc}", file=sys.stderr)
         return 2
-    if args.epochs < 1 or not (args.run_dir / CONFIG).is_file() or not segment_paths(
+    if args.epochs < 1 or not RunDir(args.run_dir).config.is_file() or not segment_paths(
             args.run_dir):
         print(f"log_size: {args.run_dir} must be a run directory with config.yaml and an "
               "episode log, and --epochs >= 1", file=sys.stderr)
         return 2
-    config = load_yaml(args.run_dir / CONFIG)
+    config = load_yaml(RunDir(args.run_dir).config)
     print(report(args.run_dir, config, measure(args.run_dir), epochs=args.epochs,
                  bounds=bounds), end="")
     return 0

@@ -37,7 +37,7 @@ import numpy as np
 from hercs.config import HercsConfig
 from hercs.episode import expected_shapes
 from hercs.metrics import read_rows
-from hercs.rundir import CONFIG, METRICS
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "memory"
@@ -48,7 +48,7 @@ COLUMNS = ("time_s", "epoch", "role", "pid", "rss_mb")
 
 def run_processes(run_dir: Path) -> dict[int, str]:
     """pid → role of the processes of the run in `run_dir` (the launcher is 'up')."""
-    config_path = str(run_dir / CONFIG).encode()
+    config_path = str(RunDir(run_dir).config).encode()
     name = run_dir.name.encode()
     found: dict[int, str] = {}
     for entry in Path("/proc").iterdir():
@@ -104,7 +104,7 @@ def sample(run_dirs: list[Path], out: Path, every_s: float) -> None:
             elif run_dir in seen or time.monotonic() - start > 600:
                 live.discard(run_dir)  # ended (or never started within 10 min)
                 continue
-            epoch = len(read_rows(run_dir / METRICS))
+            epoch = len(read_rows(RunDir(run_dir).metrics))
             handle, writer = files[run_dir]
             for pid, role in sorted(processes.items()):
                 rss = rss_mb(pid)
@@ -132,10 +132,10 @@ def summarize(csv_path: Path) -> list[dict[str, object]]:
                           REPO / "docs" / "results" / "runs" / csv_path.stem]
     config = HercsConfig()
     for candidate in run_dir_candidates:
-        if (candidate / CONFIG).is_file():
+        if RunDir(candidate).config.is_file():
             from hercs.config import load_yaml
 
-            config = load_yaml(candidate / CONFIG)
+            config = load_yaml(RunDir(candidate).config)
             break
     per_episode = store_mb_per_episode(config)
     episodes_per_epoch = config.training.cycles_per_epoch * config.training.episodes_per_cycle

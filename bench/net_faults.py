@@ -57,6 +57,7 @@ from bench.net_measure import NetResult, measure
 from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
 from hercs.apps.child_process import pdeathsig_preexec
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 ACTOR_EXIT_S = 60.0
@@ -193,7 +194,7 @@ def wait_for_learner_epochs(run_dir: Path, epochs: int, timeout_s: float, up: Up
     end, before the evaluation); RuntimeError if `hercs up` ends first. The file has no event
     to await: it is read every 0.1 s."""
     deadline = time.monotonic() + timeout_s
-    metrics = run_dir / "metrics.csv"
+    metrics = RunDir(run_dir).metrics
     while True:
         with contextlib.suppress(OSError):
             if len(metrics.read_text().strip().splitlines()) - 1 >= epochs:

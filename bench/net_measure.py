@@ -23,7 +23,7 @@ import numpy as np
 from bench.faults import epoch_times, epochs_recorded
 from hercs.metrics import read_rows
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import METRICS
+from hercs.rundir import RunDir
 from hercs.runlog import TOPIC_EPISODES, read_messages
 
 ACKED = re.compile(r"episode \((?P<actor>\S+), seq (?P<seq>\d+)\) acked(?P<dup> \(duplicate\))?$")
@@ -112,7 +112,7 @@ def stored_episodes(run_dir: Path) -> tuple[list[tuple[str, int]], list[float]]:
 def lag_summary(run_dir: Path) -> tuple[float | None, float | None]:
     """(median of the epochs' policy_lag_p50, largest policy_lag_p95) of metrics.csv."""
     def column(name: str) -> list[float]:
-        values = [float(row.get(name) or "nan") for row in read_rows(run_dir / METRICS)]
+        values = [float(row.get(name) or "nan") for row in read_rows(RunDir(run_dir).metrics)]
         return [v for v in values if not np.isnan(v)]
 
     p50, p95 = column("policy_lag_p50"), column("policy_lag_p95")

@@ -68,7 +68,7 @@ from hercs.proto.keys import RunKeys
 from hercs.replay_service import service as replay_service
 from hercs.replay_service.core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
-from hercs.rundir import run_dir_of
+from hercs.rundir import RunDir, run_dir_of
 from hercs.runlog import LIVE_NAME, RecoveringLogWriter, latest_replay_state, segment_paths
 from hercs.seeding import generator
 from hercs.transport import Transport
@@ -176,7 +176,7 @@ class KilledRun:
             if path.name not in self.files or path.name == LIVE_NAME:
                 path.unlink()
         if LIVE_NAME in self.files:
-            shutil.copyfile(self.live_copy, self.run_dir / LIVE_NAME)
+            shutil.copyfile(self.live_copy, RunDir(self.run_dir).episode_log)
         now = {p.name: p.stat().st_size for p in segment_paths(self.run_dir)}
         assert now == self.files, (now, self.files)
 
@@ -184,7 +184,7 @@ class KilledRun:
 def write_killed_run(root: Path, *, transitions: int, endpoint: str, buffer: int | None,
                      extra: list[str]) -> KilledRun:
     config = run_config(root, endpoint=endpoint, buffer=buffer, extra=extra)
-    config_path = root / "config.yaml"
+    config_path = RunDir(root).config
     save_yaml(config, config_path)
     episodes = transitions // T
     subprocess.run([sys.executable, "-m", "bench.replay_recovery", "--write",
@@ -193,7 +193,7 @@ def write_killed_run(root: Path, *, transitions: int, endpoint: str, buffer: int
     files = {p.name: p.stat().st_size for p in segment_paths(run_dir)}
     live_copy = root / "live-at-kill.mcap"
     if LIVE_NAME in files:
-        shutil.copyfile(run_dir / LIVE_NAME, live_copy)
+        shutil.copyfile(RunDir(run_dir).episode_log, live_copy)
     return KilledRun(config=config, config_path=config_path, episodes=episodes, files=files,
                      live_copy=live_copy)
 

@@ -31,7 +31,7 @@ from hercs.config import apply_overrides, load_yaml
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.core import ReplayCore
 from hercs.replay_service.samplers import make_sampler
-from hercs.rundir import CONFIG
+from hercs.rundir import RunDir
 from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -69,7 +69,7 @@ def draw(core: ReplayCore, method: str, *, minibatches: int, seed: int) -> np.nd
 def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: float,
             seed: int = 0) -> list[dict[str, float]]:
     """One row per checkpoint: epoch, buffer and per-sampler shares."""
-    config = load_yaml(run_dir / CONFIG)
+    config = load_yaml(RunDir(run_dir).config)
     config = apply_overrides(config, ["run.method=her-cs"])  # keep cluster labels up to date
     per_epoch = config.training.episodes_per_epoch
     core = ReplayCore(config=config, rng=np.random.default_rng(seed))
@@ -129,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("sampler_mix: --every-epochs and --minibatches must be >= 1, --moved > 0",
               file=sys.stderr)
         return 2
-    if not (args.run_dir / CONFIG).is_file():
+    if not RunDir(args.run_dir).config.is_file():
         print(f"sampler_mix: {args.run_dir} has no config.yaml (not a run directory)",
               file=sys.stderr)
         return 2

@@ -38,6 +38,7 @@ from typing import Any
 
 from bench.common import REPO, git_commit
 from hercs.api import read_metrics
+from hercs.rundir import RunDir
 
 DEFAULT_SPECS = ("1:cuda:3", "8:cuda:3", "1:cpu:3", "8:cpu:1")
 METRICS_NAME = re.compile(r"^w(\d+)-([a-z0-9:]+?)(?:-([A-Za-z0-9_]+))?-metrics\.csv$")
@@ -116,7 +117,7 @@ def run_spec(spec: Spec, run_dir: Path, timeout_s: float, extra: list[str],
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=120)
     log.close()
-    metrics = run_dir / name / "metrics.csv"
+    metrics = RunDir(run_dir / name).metrics
     rows = read_metrics(metrics).rows if metrics.exists() else ()
     print(f"{name}: exit {proc.returncode}, {len(rows)} epochs", flush=True)
     if keep is not None and metrics.exists():

@@ -163,11 +163,11 @@ class Metrics:
 
 def read_metrics(run_dir: str | os.PathLike[str]) -> Metrics:
     """`run_dir/metrics.csv` (or a metrics.csv file given directly), numbers parsed."""
-    from hercs.rundir import METRICS, require_run_dir
+    from hercs.rundir import METRICS, RunDir, require_run_dir
 
     path = Path(run_dir)
     if not (path.is_file() and path.suffix == ".csv"):
-        path = require_run_dir(path, needs=(METRICS,)) / METRICS
+        path = RunDir(require_run_dir(path, needs=(METRICS,))).metrics
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         columns = tuple(reader.fieldnames or ())
@@ -250,12 +250,12 @@ def load_config(source: str | os.PathLike[str] | None = None,
     defaults) or a run directory's config.yaml; then `overrides` as `hercs --set` takes them
     (`"ddpg.lr_actor=5e-4"`). Raises `ConfigError` naming the file, field and value."""
     from hercs.config import HercsConfig, apply_overrides, load_yaml
-    from hercs.rundir import CONFIG, require_run_dir
+    from hercs.rundir import RunDir, require_run_dir
 
     if source is None:
         config = HercsConfig()
     elif Path(source).is_dir():
-        config = load_yaml(require_run_dir(source) / CONFIG)
+        config = load_yaml(RunDir(require_run_dir(source)).config)
     else:
         config = load_yaml(Path(source))
     return apply_overrides(config, list(overrides)) if overrides else config

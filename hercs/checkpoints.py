@@ -23,8 +23,8 @@ from hercs.config import HercsConfig, load_yaml
 from hercs.errors import ConfigError, HercsError, InvalidMessage
 from hercs.policy import Policy, PolicyWeights
 from hercs.rundir import (
-    CHECKPOINTS,
     CONFIG,
+    RunDir,
     checkpoint_path,
     missing_checkpoint,
     require_run_dir,
@@ -64,7 +64,7 @@ def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
     run_dir = Path(run_dir)
     path = checkpoint_path(run_dir, checkpoint)
     if not path.is_file():
-        if path.parent == run_dir / CHECKPOINTS:
+        if path.parent == RunDir(run_dir).checkpoints:
             require_run_dir(run_dir)  # a folder that is no run: say that first
         raise missing_checkpoint(run_dir, checkpoint, path)
     import torch
@@ -113,7 +113,7 @@ def _decode_weights(raw: bytes, config: HercsConfig, path: Path) -> PolicyWeight
 
 
 def _run_config(run_dir: Path, source: Path) -> HercsConfig:
-    saved = run_dir / CONFIG
+    saved = RunDir(run_dir).config
     if not saved.is_file():
         raise CheckpointError(f"{source}: a learner checkpoint holds no config, and {run_dir} "
                               f"has no {CONFIG} to read it from; give the run directory that "

@@ -41,7 +41,6 @@ from pathlib import Path
 from hercs.config import RunConfig, endpoint_parts
 from hercs.errors import HercsError
 from hercs.metrics import recorded_epochs
-from hercs.runlog.format import LIVE_NAME, SEGMENT_RE
 
 CONFIG = "config.yaml"
 METRICS = "metrics.csv"
@@ -57,6 +56,9 @@ LOCK = "owner.lock"
 PREVIOUS = "previous"
 ROUTER_LOG = "router.log"
 """`logs/router.log`: what the Zenoh router embedded in `hercs up` logs itself."""
+LIVE_NAME = "episodes.mcap"
+"""The episode log's live segment (`hercs.runlog`); retired ones are episodes.NNN.mcap."""
+SEGMENT_RE = re.compile(r"^episodes\.(\d+)\.mcap$")
 BEFORE_START = frozenset({SLURM, LOCK})
 """What a run directory may hold before its run first starts (a fresh `hercs up` refuses a
 folder holding anything else: its replay would load an old episode log)."""
@@ -74,6 +76,105 @@ NOT_YET = {
                "start, or look at another run",
 }
 """Why a run directory may lack a file, and what to do, by file name."""
+
+
+class RunDir:
+    """A run directory: where each thing a run keeps is (the table above). Every path into a
+    run directory is made here, so that a file has one name in one place.
+
+    `RunDir(path)` checks nothing; `require_run_dir` checks a folder is a run's."""
+
+    __slots__ = ("path",)
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, RunDir) and other.path == self.path
+
+    def __hash__(self) -> int:
+        return hash(self.path)
+
+    @property
+    def name(self) -> str:
+        """The run's name (the folder's)."""
+        return self.path.name
+
+    @property
+    def config(self) -> Path:
+        return self.path / CONFIG
+
+    @property
+    def metrics(self) -> Path:
+        return self.path / METRICS
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / CHECKPOINTS
+
+    def checkpoint(self, name: str | None = None) -> Path:
+        """The policy file `name` names: best, latest, epoch-N or a path (`checkpoint_path`)."""
+        return checkpoint_path(self.path, name)
+
+    @property
+    def logs(self) -> Path:
+        return self.path / LOGS
+
+    def log(self, ident: str) -> Path:
+        """`logs/<ident>.log`: a service's log (its id, e.g. replay-0), or the router's."""
+        return self.logs / f"{ident}.log"
+
+    @property
+    def router_log(self) -> Path:
+        return self.logs / ROUTER_LOG
+
+    @property
+    def tensorboard(self) -> Path:
+        return self.path / TENSORBOARD
+
+    @property
+    def router(self) -> Path:
+        """router.json, while the run's `hercs up` runs (`read_router`)."""
+        return self.path / ROUTER
+
+    @property
+    def lock(self) -> Path:
+        return self.path / LOCK
+
+    @property
+    def previous(self) -> Path:
+        return self.path / PREVIOUS
+
+    @property
+    def slurm(self) -> Path:
+        return self.path / SLURM
+
+    @property
+    def episode_log(self) -> Path:
+        """The episode log's live segment, episodes.mcap."""
+        return self.path / LIVE_NAME
+
+    def segment(self, number: int) -> Path:
+        """A retired segment of the episode log: episodes.NNN.mcap."""
+        return self.path / f"episodes.{number:03d}.mcap"
+
+    def log_segments(self) -> list[Path]:
+        """The episode log's segments in the order they were written: episodes.000.mcap, …,
+        then episodes.mcap (if there is one)."""
+        numbered = sorted(
+            (int(m.group(1)), p) for p in self.path.iterdir()
+            if (m := SEGMENT_RE.match(p.name)) is not None
+        ) if self.path.is_dir() else []
+        paths = [p for _, p in numbered]
+        if self.episode_log.exists():
+            paths.append(self.episode_log)
+        return paths
 
 
 class RunDirError(HercsError):

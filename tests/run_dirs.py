@@ -18,7 +18,7 @@ from hercs.learner.loop import LearnerLoop
 from hercs.learner.resume import save_learner_state
 from hercs.metrics import MetricsCsv
 from hercs.replay_service.core import ReplayCore
-from hercs.rundir import CHECKPOINTS, CONFIG, METRICS
+from hercs.rundir import RunDir
 from hercs.served import ReplayCounters, ServedBatch
 
 
@@ -37,12 +37,12 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     (None: no checkpoint), before that epoch's row was written."""
     config = run_config(run_dir, epochs)
     run_dir.mkdir(parents=True)
-    save_yaml(config, run_dir / CONFIG)
+    save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
     loop = LearnerLoop(config=config, learner=learner)
     core = ReplayCore(config=config, rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
-    metrics = MetricsCsv(run_dir / METRICS) if trained else None
+    metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
     skip = set(unevaluated)
     for epoch in range(1, trained + 1):
         core.insert(random_episode(core.spec, rng, seq=epoch))
@@ -53,7 +53,7 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
             status=ReplayCounters(inserts=core.inserts, env_steps=core.env_steps,
                                   size_transitions=core.store.num_transitions)))
         if epoch == checkpoint:
-            save_learner_state(run_dir / CHECKPOINTS, learner=learner, loop=loop,
+            save_learner_state(RunDir(run_dir).checkpoints, learner=learner, loop=loop,
                                eval_requests=EvalRequests(resend_s=60.0), config=config)
         if epoch not in skip and metrics is not None:
             metrics.write(loop.record_eval(epoch=epoch, success_rate=epoch / 10,

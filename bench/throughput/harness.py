@@ -36,6 +36,7 @@ from hercs.apps.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
+from hercs.rundir import RunDir
 from hercs.transport import Transport
 from hercs.validation import parse_message
 
@@ -180,7 +181,7 @@ class Harness:
     def __init__(self, *, plan: Plan, workdir: Path) -> None:
         self.plan = plan
         self.workdir = workdir
-        self.log_dir = workdir / "logs"
+        self.log_dir = RunDir(workdir).logs
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.endpoint = free_endpoint()
         self.keys = RunKeys(RUN)

@@ -13,7 +13,7 @@ import yaml
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
-from hercs.rundir import CONFIG, ROUTER
+from hercs.rundir import RunDir
 from hercs.tasks import TASKS
 
 # Shortcut flags and the config field each one sets.
@@ -152,7 +152,7 @@ def resume_config(args: argparse.Namespace) -> HercsConfig:
         raise ConfigError(f"--resume continues a run with its saved config; {', '.join(given)} "
                           "cannot change it (--epochs, --actors, --listen and --set can)")
     run_dir = Path(args.resume)
-    saved = run_dir / CONFIG
+    saved = RunDir(run_dir).config
     if not saved.is_file():
         raise ConfigError(f"--resume {args.resume}: no config.yaml there; give the folder of a "
                           "run that `hercs up` started (runs/RUN)")
@@ -227,7 +227,7 @@ def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig
             return None
     if record is None:
         default = config.transport.connect == HercsConfig().transport.connect
-        print(f"hercs {args.command}: no {run_dir / ROUTER} (no run {config.run.name} is "
+        print(f"hercs {args.command}: no {RunDir(run_dir).router} (no run {config.run.name} is "
               f"running in {run_dir.parent}): connecting to {', '.join(config.transport.connect)}"
               f" ({'the default ' if default else ''}transport.connect) and waiting for a router "
               "there; give --connect ENDPOINT (the run's router, e.g. tls/HOST:7447), or "

@@ -102,10 +102,8 @@ from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.rundir import (
-    CONFIG,
-    LOGS,
-    ROUTER_LOG,
     RouterRecord,
+    RunDir,
     holds_a_run,
     remove_router,
     write_router,
@@ -237,8 +235,8 @@ class _Launcher:
     # ------------------------------------------------------------------ processes
 
     def start(self, spec: ChildSpec, *, restarts: int = 0) -> _Child:
-        config_path = self.run_dir / CONFIG
-        log_path = self.run_dir / LOGS / spec.log_name
+        config_path = RunDir(self.run_dir).config
+        log_path = RunDir(self.run_dir).logs / spec.log_name
         proc = start_child(self.command(spec, config_path), log_path=log_path)
         child = _Child(spec, proc, log_path, restarts=restarts)
         self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]
@@ -434,7 +432,7 @@ def run_up(
                            "PR_SET_PDEATHSIG fires when the forking thread exits)")
     config = resolve_run(config)
     run_dir = Path(config.run.run_dir) / config.run.name
-    if resume and not (run_dir / CONFIG).is_file():
+    if resume and not RunDir(run_dir).config.is_file():
         print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
               flush=True)
         return 2
@@ -491,14 +489,14 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
             print(f"hercs up: {exc}", file=err, flush=True)
             return 1
         config = resolve_run(config, listening=listening)
-        (run_dir / LOGS).mkdir(parents=True, exist_ok=True)
-        with native_output_to(run_dir / LOGS / ROUTER_LOG, out, err) as (out, err):
+        RunDir(run_dir).logs.mkdir(parents=True, exist_ok=True)
+        with native_output_to(RunDir(run_dir).router_log, out, err) as (out, err):
             launcher = _Launcher(config=config, run_dir=run_dir, signals=signals,
                                  command=command, stop_timeout_s=stop_timeout_s,
                                  ready_timeout_s=ready_timeout_s, out=out, err=err)
             status = 1
             try:
-                save_yaml(config, run_dir / CONFIG)
+                save_yaml(config, RunDir(run_dir).config)
                 write_router(run_dir, RouterRecord.for_listen(listening))
                 launcher.say(f"hercs up: {'resuming ' if resume else ''}run "
                              f"{config.run.name}, directory {run_dir}, router on {listening}")

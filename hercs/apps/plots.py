@@ -47,7 +47,7 @@ import yaml
 from hercs.config_algorithm import EnergyConfig
 from hercs.errors import HercsError
 from hercs.methods import METHODS
-from hercs.rundir import CONFIG, METRICS
+from hercs.rundir import RunDir
 
 REFERENCE_CSV = Path(__file__).resolve().parent / "data" / "authors_success_rates.csv"
 
@@ -228,7 +228,7 @@ def load_run(run_dir: str | Path) -> Curve:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PlotError(f"{run_dir}: not a run directory")
-    config_path, metrics_path = run_dir / CONFIG, run_dir / METRICS
+    config_path, metrics_path = RunDir(run_dir).config, RunDir(run_dir).metrics
     for path in (config_path, metrics_path):
         if not path.is_file():
             raise PlotError(f"{run_dir}: no {path.name} in this run directory")

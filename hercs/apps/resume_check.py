@@ -27,16 +27,15 @@ from pathlib import Path
 from hercs.errors import HercsError
 from hercs.metrics import MetricsFileError, checked_epochs, epoch_spans
 from hercs.rundir import (
-    BEST,
     CHECKPOINTS,
     CONFIG,
-    LATEST,
     LOCK,
     LOGS,
     METRICS,
     PREVIOUS,
     ROUTER,
     SLURM,
+    RunDir,
     aside_folder,
 )
 
@@ -74,8 +73,8 @@ class ResumePlan:
 def _remedy(run_dir: Path) -> str:
     return (f"Nothing was started or changed. To train this run again from epoch 1, add "
             f"--restart (the old {METRICS}, {CHECKPOINTS}/ and episode log are moved to "
-            f"{run_dir / PREVIOUS}/<time>/, not deleted); or start a new run with its "
-            f"config: hercs up --config {run_dir / CONFIG} --run NEW_NAME")
+            f"{RunDir(run_dir).previous}/<time>/, not deleted); or start a new run with its "
+            f"config: hercs up --config {RunDir(run_dir).config} --run NEW_NAME")
 
 
 def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
@@ -83,16 +82,16 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
     `CannotResume` when its files disagree (module docstring)."""
     from hercs.learner.checkpoint import load_checkpoint
 
-    latest = run_dir / CHECKPOINTS / LATEST
+    latest = RunDir(run_dir).checkpoint("latest")
     try:
-        state = load_checkpoint(run_dir / CHECKPOINTS)
+        state = load_checkpoint(RunDir(run_dir).checkpoints)
     except ValueError as exc:
         best = (f" (`hercs eval {run_dir} --checkpoint best` still reads the best policy)"
-                if (run_dir / CHECKPOINTS / BEST).is_file() else "")
+                if (RunDir(run_dir).checkpoint("best")).is_file() else "")
         raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
                            f"{_remedy(run_dir)}") from None
     try:
-        recorded = checked_epochs(run_dir / METRICS)
+        recorded = checked_epochs(RunDir(run_dir).metrics)
     except MetricsFileError as exc:
         raise CannotResume(f"{exc}. Which epochs were trained is not known, so the run cannot "
                            f"continue safely; put back a whole copy of {METRICS} and resume "
@@ -141,8 +140,8 @@ def set_aside_for_restart(run_dir: Path) -> Path | None:
         return None
     aside = aside_folder(run_dir)
     aside.mkdir(parents=True)
-    if (run_dir / CONFIG).is_file():
-        shutil.copy2(run_dir / CONFIG, aside / CONFIG)
+    if RunDir(run_dir).config.is_file():
+        shutil.copy2(RunDir(run_dir).config, RunDir(aside).config)
     for path in moving:
         path.rename(aside / path.name)
     return aside

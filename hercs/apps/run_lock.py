@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hercs.errors import HercsError
-from hercs.rundir import LOCK
+from hercs.rundir import RunDir
 
 NO_FLOCK = frozenset({errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL})
 """flock's errors on a file system that does not support it."""
@@ -55,7 +55,7 @@ class Owner:
 def read_owner(run_dir: Path) -> Owner | None:
     """The owner recorded in `run_dir/owner.lock`, or None if it holds none (yet)."""
     try:
-        data = json.loads((run_dir / LOCK).read_text())
+        data = json.loads(RunDir(run_dir).lock.read_text())
         return Owner(pid=int(data["pid"]), host=str(data["host"]),
                      started=float(data["started"]), command=str(data["command"]))
     except (OSError, ValueError, KeyError, TypeError):
@@ -91,7 +91,7 @@ class RunLock:
 
     @classmethod
     def _take(cls, run_dir: Path) -> RunLock:
-        path = run_dir / LOCK
+        path = RunDir(run_dir).lock
         while True:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
@@ -135,6 +135,6 @@ class RunLock:
         (or after its owner was killed, unlocked)."""
         if self._fd is not None:
             with contextlib.suppress(OSError):
-                (self.run_dir / LOCK).unlink()
+                RunDir(self.run_dir).lock.unlink()
             os.close(self._fd)  # closing the only descriptor drops the flock
             self._fd = None

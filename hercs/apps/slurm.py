@@ -42,7 +42,7 @@ from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.errors import ConfigError
-from hercs.rundir import CONFIG, SLURM, holds_a_run
+from hercs.rundir import CONFIG, SLURM, RunDir, holds_a_run
 
 ACTOR_RESTART_S = 2
 """Seconds between an actor step's end and its restart within the attempt; doubled, up to
@@ -97,7 +97,7 @@ class JobPlan:
 
     @property
     def folder(self) -> Path:
-        return self.run_dir / SLURM
+        return RunDir(self.run_dir).slurm
 
 
 def render_script(plan: JobPlan) -> str:
@@ -227,7 +227,7 @@ def write_job(config: HercsConfig, plan: JobPlan) -> Path:
         raise ConfigError(f"{plan.run_dir} already holds a run; pick another --run (or "
                           f"submit its script again: sbatch {plan.folder / SCRIPT})")
     plan.folder.mkdir(parents=True, exist_ok=True)
-    save_yaml(config, plan.folder / CONFIG)
+    save_yaml(config, RunDir(plan.folder).config)
     script = plan.folder / SCRIPT
     script.write_text(render_script(plan))
     return script

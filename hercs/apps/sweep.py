@@ -80,7 +80,7 @@ from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
 from hercs.envs import check_env
 from hercs.errors import ConfigError
 from hercs.methods import METHODS
-from hercs.rundir import BEST, CHECKPOINTS, CONFIG, METRICS
+from hercs.rundir import CONFIG, METRICS, RunDir
 from hercs.tasks import ENV_VERSIONS, TASKS, task_spec
 
 PROG = "hercs sweep"
@@ -192,7 +192,7 @@ def free_port() -> int:
 
 def can_resume(run_dir: Path) -> bool:
     """An unfinished run `hercs up --resume` can continue: it saved its config."""
-    return (run_dir / CONFIG).is_file()
+    return RunDir(run_dir).config.is_file()
 
 
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
@@ -249,11 +249,11 @@ def copy_small_files(run_dir: Path, committed: Path) -> Path:
     for name in SMALL_FILES:
         if (run_dir / name).is_file():
             shutil.copyfile(run_dir / name, target / name)
-    best = run_dir / CHECKPOINTS / BEST
+    best = RunDir(run_dir).checkpoint("best")
     if best.is_file() and not any(publishes_policy(other, run_dir.name)
                                   for other in committed.iterdir() if other != target):
-        (target / CHECKPOINTS).mkdir(exist_ok=True)
-        shutil.copyfile(best, target / CHECKPOINTS / BEST)
+        RunDir(target).checkpoints.mkdir(exist_ok=True)
+        shutil.copyfile(best, RunDir(target).checkpoint("best"))
     return target
 
 
@@ -261,7 +261,7 @@ def publishes_policy(committed_run: Path, run_name: str) -> bool:
     """Whether `committed_run` holds a best policy for the cell `run_name` names (the same
     name up to the seed: `push-v1-her-cs-s2` and `push-v1-her-cs-s1` are one cell)."""
     same_cell = committed_run.name.rpartition("-s")[0] == run_name.rpartition("-s")[0]
-    return same_cell and (committed_run / CHECKPOINTS / BEST).is_file()
+    return same_cell and (RunDir(committed_run).checkpoint("best")).is_file()
 
 
 def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun, str], *,

@@ -95,7 +95,7 @@ from hercs.config import load_yaml
 from hercs.errors import HercsError
 from hercs.metrics import read_rows
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import CONFIG, METRICS
+from hercs.rundir import RunDir
 from hercs.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
@@ -258,7 +258,7 @@ def read_run_log(path: Path) -> RunLog:
 def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
     """How many episodes one epoch of the run has (cycles × episodes per cycle in its
     config.yaml) and where that number comes from."""
-    config_path = run_dir / CONFIG
+    config_path = RunDir(run_dir).config
     if config_path.is_file():
         try:
             training = load_yaml(config_path).training
@@ -400,7 +400,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
     except (ViewError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
-    metrics = read_metrics(run_dir / METRICS)
+    metrics = read_metrics(RunDir(run_dir).metrics)
 
     import rerun as rr  # imported here: `hercs --help` stays fast
 

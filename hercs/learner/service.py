@@ -33,7 +33,7 @@ from hercs.learner.tensorboard import TensorBoardScalars
 from hercs.metrics import MetricsCsv
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import BEST, CHECKPOINTS, METRICS, TENSORBOARD, run_dir_of
+from hercs.rundir import RunDir, run_dir_of
 from hercs.service import ServiceRuntime, service_main
 from hercs.validation import parse_message, validate_eval_result
 from hercs.warn_once import WarnOncePerMinute
@@ -58,7 +58,8 @@ class LearnerService:
         self.config = config
         self.runtime = runtime
         self.run_dir = run_dir
-        self.checkpoints = run_dir / CHECKPOINTS
+        self.files = RunDir(run_dir)
+        self.checkpoints = self.files.checkpoints
         self.learner = DDPGLearner(spec=config.task.spec, config=config.ddpg,
                                    seed=config.run.seed, device=config.learner.device,
                                    precision=config.learner.precision)
@@ -69,14 +70,14 @@ class LearnerService:
         self.eval_requests = EvalRequests(resend_s=config.training.eval_resend_s)
         self.prefetcher_bad: Counter[str] = Counter()
         self.resumed_from = resume_learner_state(
-            self.checkpoints, run_dir / METRICS, learner=self.learner, loop=self.loop,
+            self.checkpoints, self.files.metrics, learner=self.learner, loop=self.loop,
             eval_requests=self.eval_requests)
-        best = load_policy_file(self.checkpoints / BEST)
+        best = load_policy_file(self.files.checkpoint("best"))
         self.keeper = PolicyKeeper(every=config.training.checkpoint_every,
                                    best_success=None if best is None
                                    else float(best["success_rate"]))
-        self.metrics = MetricsCsv(run_dir / METRICS)
-        self.tensorboard = (TensorBoardScalars(run_dir / TENSORBOARD,
+        self.metrics = MetricsCsv(self.files.metrics)
+        self.tensorboard = (TensorBoardScalars(self.files.tensorboard,
                                                after_epoch=self.loop.epoch)
                             if config.run.tensorboard else None)
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()

@@ -56,7 +56,7 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.replay_service.core import ReplayCore
 from hercs.replay_service.table import ReplayTable, SampleCall, SampleRefused, Stored
-from hercs.rundir import CONFIG, run_dir_of
+from hercs.rundir import RunDir, run_dir_of
 from hercs.runlog import (
     MAX_SEQUENCE,
     EpisodeLogError,
@@ -323,8 +323,8 @@ def _work(runtime: ServiceRuntime) -> int:
     config = runtime.config
     run_dir = run_dir_of(config.run)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not (run_dir / CONFIG).exists():  # `hercs up` writes it; compose runs do not
-        save_yaml(config, run_dir / CONFIG)
+    if not RunDir(run_dir).config.exists():  # `hercs up` writes it; compose runs do not
+        save_yaml(config, RunDir(run_dir).config)
     service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
     log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
              config.task.name, config.run.method, config.capacity_episodes)

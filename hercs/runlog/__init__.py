@@ -13,8 +13,8 @@ read by the views and benchmarks.
 The names below are the package's public interface; import them from `hercs.runlog`.
 """
 
+from hercs.rundir import LIVE_NAME
 from hercs.runlog.format import (
-    LIVE_NAME,
     MAX_SEQUENCE,
     METADATA_NAME,
     TOPIC_CLUSTER_MODEL,

@@ -30,7 +30,6 @@ old segments a bounded log deletes).
 from __future__ import annotations
 
 import os
-import re
 import struct
 from pathlib import Path
 
@@ -51,8 +50,6 @@ TOPIC_SCENE = "/scene"
 TOPIC_SCENE_POINTS = "/scene/points"
 TOPIC_REPLAY_STATE = "/replay_state"
 
-LIVE_NAME = "episodes.mcap"
-SEGMENT_RE = re.compile(r"^episodes\.(\d+)\.mcap$")
 METADATA_NAME = "hercs.episode_log"
 START_TIME_KEY = "start_time_ns"
 """Metadata key: the run's start, the origin of the synthetic timeline (ns since the epoch)."""

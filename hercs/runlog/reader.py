@@ -42,12 +42,11 @@ from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.runlog.format import (
     DECODABLE,
-    LIVE_NAME,
     OPCODES,
     RECORD_HEADER,
-    SEGMENT_RE,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
@@ -355,15 +354,7 @@ def scan_segment(path: str | os.PathLike[str]) -> SegmentScan:
 
 def segment_paths(run_dir: str | os.PathLike[str]) -> list[Path]:
     """The run's segments in order of writing: episodes.000.mcap, …, then episodes.mcap."""
-    run_dir = Path(run_dir)
-    numbered = sorted(
-        (int(m.group(1)), p) for p in run_dir.iterdir()
-        if (m := SEGMENT_RE.match(p.name)) is not None
-    ) if run_dir.is_dir() else []
-    paths = [p for _, p in numbered]
-    if (run_dir / LIVE_NAME).exists():
-        paths.append(run_dir / LIVE_NAME)
-    return paths
+    return RunDir(run_dir).log_segments()
 
 
 def _paths(path: str | os.PathLike[str]) -> list[Path]:

@@ -28,13 +28,12 @@ from mcap.records import DataEnd, Footer, Statistics
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import LIVE_NAME, SEGMENT_RE, RunDir
 from hercs.runlog.format import (
     FOOTER_PREFIX,
     FOOTER_RECORD_BYTES,
-    LIVE_NAME,
     METADATA_NAME,
     RECORD_HEADER,
-    SEGMENT_RE,
     START_TIME_KEY,
     EpisodeLogError,
     fsync_dir,
@@ -173,7 +172,7 @@ class EpisodeLog:
 
     @property
     def live_path(self) -> Path:
-        return self.run_dir / LIVE_NAME
+        return RunDir(self.run_dir).episode_log
 
     def segments(self) -> list[Path]:
         return segment_paths(self.run_dir)
@@ -241,7 +240,7 @@ def next_segment_path(run_dir: Path) -> Path:
     """The name the live segment takes when it is sealed: one number above the highest."""
     numbers = [int(m.group(1)) for p in run_dir.iterdir()
                if (m := SEGMENT_RE.match(p.name)) is not None]
-    return run_dir / f"episodes.{max(numbers, default=-1) + 1:03d}.mcap"
+    return RunDir(run_dir).segment(max(numbers, default=-1) + 1)
 
 
 class RecoveredLog(Iterator[tuple[int, pb.Episode]]):

@@ -24,6 +24,7 @@ from bench.chaos_envelope import (
 )
 from bench.chaos_plan import QUICK_PLAN, ChaosPlan, Event, draw_events
 from bench.chaos_state import QUICK_SHAPE, SoakState, new_state
+from hercs.rundir import RunDir
 
 ACTORS = ["net-1", "net-2"]
 
@@ -103,14 +104,14 @@ def test_each_fault_free_seed_is_checked_against_the_others() -> None:
 def write_run(folder: Path, rates: list[float], **config: Any) -> Path:
     folder.mkdir(parents=True)
     rows = ["epoch,success_rate"] + [f"{e},{r}" for e, r in enumerate(rates, start=1)]
-    (folder / "metrics.csv").write_text("\n".join(rows) + "\n")
+    RunDir(folder).metrics.write_text("\n".join(rows) + "\n")
     tree: dict[str, dict[str, Any]] = {
         "run": {"name": folder.name, "seed": 1}, "task": {"name": "push"},
         "training": {"epochs": 20, "cycles_per_epoch": 50}, "launch": {"max_restarts": 5}}
     for key, value in config.items():
         section, name = key.split("__")
         tree[section][name] = value
-    (folder / "config.yaml").write_text(yaml.safe_dump(tree))
+    RunDir(folder).config.write_text(yaml.safe_dump(tree))
     return folder
 
 
@@ -243,7 +244,7 @@ def test_env_steps_per_update_are_read_per_epoch_and_an_excess_is_marked(
         folder.mkdir()
         rows = ["epoch,env_steps,updates"] + [
             f"{e},{s},{2000 * e}" for e, s in enumerate(itertools.accumulate(steps), start=1)]
-        (folder / "metrics.csv").write_text("\n".join(rows) + "\n")
+        RunDir(folder).metrics.write_text("\n".join(rows) + "\n")
         return folder
 
     free = run("nofault", [10200, 10000, 10000, 10000])

@@ -17,6 +17,7 @@ from rliable import metrics
 
 from bench import claim_statistics
 from hercs.apps.plots import Curve
+from hercs.rundir import RunDir
 from tests.support import load_bench
 
 claims = load_bench("claims")
@@ -38,9 +39,9 @@ def _run(root: Path, name: str, method: str, seed: int, success: list[float],
     run = root / name
     run.mkdir(parents=True)
     base = {"run": {"method": method, "seed": seed}, "task": {"name": "push"}}
-    (run / "config.yaml").write_text(yaml.safe_dump(_deep_merge(base, config)))
+    RunDir(run).config.write_text(yaml.safe_dump(_deep_merge(base, config)))
     rows = ["epoch,success_rate"] + [f"{e},{s}" for e, s in enumerate(success, start=1)]
-    (run / "metrics.csv").write_text("\n".join(rows) + "\n")
+    RunDir(run).metrics.write_text("\n".join(rows) + "\n")
     return run
 
 
@@ -322,7 +323,7 @@ def test_every_committed_run_a_claim_leaves_out_is_listed_with_the_reason() -> N
     text = claims.report(results, groups, "test", reps=10)
     used = {s.run for r in results for side in (r.x, r.y) for s in side.scores}
     used |= {name for r in results for side in (r.x, r.y) for name in side.short}
-    committed = {p.name for p in runs_dir.iterdir() if (p / "metrics.csv").is_file()}
+    committed = {p.name for p in runs_dir.iterdir() if RunDir(p).metrics.is_file()}
     listed = {line.split(" | ")[0].removeprefix("| ") for line in text.splitlines()
               if " | its group is in no claim" in line or " | a longer run of its" in line}
     assert committed - used == listed

@@ -24,6 +24,7 @@ from hercs.checkpoints import CheckpointError, LoadedPolicy
 from hercs.config import HercsConfig, apply_overrides
 from hercs.errors import ConfigError
 from hercs.policy import Policy
+from hercs.rundir import RunDir
 from tests.support import REPO
 
 REPORT = REPO / "docs" / "results" / "cross_sim.json"
@@ -70,7 +71,7 @@ def test_results_accumulate_and_an_interrupted_bench_continues(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     run = tmp_path / "push-her-ebp-cs-s1"
     run.mkdir()
-    (run / "config.yaml").write_text("task:\n  name: push\n")
+    RunDir(run).config.write_text("task:\n  name: push\n")
     calls: list[tuple[str, int]] = []
 
     def fake_read(folder: Path, checkpoint: str) -> LoadedPolicy:

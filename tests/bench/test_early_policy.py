@@ -23,6 +23,7 @@ from bench.early_policy import (
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import EpisodeData
+from hercs.rundir import RunDir
 from hercs.runlog import EpisodeLogWriter
 from tests.support import REPO
 
@@ -53,10 +54,10 @@ def test_logged_episodes_are_counted_per_epoch_block(tmp_path: Path) -> None:
     config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=t",
                                              "training.cycles_per_epoch=1",
                                              "training.episodes_per_cycle=4"])
-    save_yaml(config, tmp_path / "config.yaml")
+    save_yaml(config, RunDir(tmp_path).config)
     spec = config.task.spec
     steps = spec.episode_steps
-    with EpisodeLogWriter(tmp_path / "episodes.mcap", run="t", task="push") as writer:
+    with EpisodeLogWriter(RunDir(tmp_path).episode_log, run="t", task="push") as writer:
         for i in range(10):  # blocks of 4 ids: 0-3, 4-7, 8-9
             cube = np.zeros((steps + 1, 3))
             if i in (1, 4, 5, 6):  # the cube is pushed 1 cm in these
@@ -80,13 +81,13 @@ def write_run(folder: Path, name: str, overrides: list[str], shares: list[str] |
               sampled: list[str] | None = None) -> None:
     run = folder / name
     run.mkdir()
-    save_yaml(apply_overrides(HercsConfig(), overrides), run / "config.yaml")
+    save_yaml(apply_overrides(HercsConfig(), overrides), RunDir(run).config)
     header = ("epoch,success_rate" + (",buffer_moved_share" if shares is not None else "")
               + (",sampled_moved_share" if sampled is not None else ""))
     rows = [f"{e + 1},0.0" + (f",{s}" if shares is not None else "")
             + (f",{sampled[e]}" if sampled is not None else "")
             for e, s in enumerate(shares or ["x"] * 3)]
-    (run / "metrics.csv").write_text("\n".join([header, *rows]) + "\n")
+    RunDir(run).metrics.write_text("\n".join([header, *rows]) + "\n")
 
 
 def test_energy_view_splits_a_blocks_draws_between_still_and_moved_episodes() -> None:

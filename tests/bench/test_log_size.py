@@ -16,6 +16,7 @@ from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
+from hercs.rundir import RunDir
 from hercs.runlog import EpisodeLogWriter, segment_paths
 from tests.support import REPO
 
@@ -25,7 +26,7 @@ def run_dir(tmp_path: Path) -> Path:
     config = apply_overrides(HercsConfig(), ["task.name=reach", "run.name=t",
                                              "replay.buffer_transitions=1000",
                                              "training.cycles_per_epoch=5"])
-    save_yaml(config, tmp_path / "config.yaml")
+    save_yaml(config, RunDir(tmp_path).config)
     spec = config.task.spec
     for name, ids in (("episodes.000.mcap", range(0, 12)), ("episodes.mcap", range(12, 30))):
         with EpisodeLogWriter(tmp_path / name, run="t", task="reach") as writer:

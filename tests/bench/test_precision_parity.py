@@ -6,6 +6,7 @@ from pathlib import Path
 
 import yaml
 
+from hercs.rundir import RunDir
 from tests.support import load_bench
 
 parity = load_bench("precision_parity")
@@ -14,11 +15,11 @@ parity = load_bench("precision_parity")
 def _run(root: Path, name: str, seed: int, success: list[float], precision: str) -> None:
     run = root / name
     run.mkdir()
-    (run / "config.yaml").write_text(yaml.safe_dump({
+    RunDir(run).config.write_text(yaml.safe_dump({
         "run": {"method": "her-ebp-cs", "seed": seed}, "task": {"name": "push"},
         "learner": {"precision": precision}}))
     rows = ["epoch,success_rate"] + [f"{e},{s}" for e, s in enumerate(success, start=1)]
-    (run / "metrics.csv").write_text("\n".join(rows) + "\n")
+    RunDir(run).metrics.write_text("\n".join(rows) + "\n")
 
 
 def test_a_seed_inside_the_fp32_band_passes_and_one_that_lags_does_not(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ import yaml
 from scipy import stats
 
 from hercs.apps.plots import load_run
+from hercs.rundir import RunDir
 from tests.support import load_bench
 
 effect = load_bench("schedule_effect")
@@ -24,11 +25,11 @@ def _run(root: Path, name: str, seed: int, success: list[float], *, schedule: st
          precision: str = "fp32", commit: str = "abc1234") -> None:
     run = root / name
     run.mkdir()
-    (run / "config.yaml").write_text(yaml.safe_dump({
+    RunDir(run).config.write_text(yaml.safe_dump({
         "run": {"method": "her-cs", "seed": seed}, "task": {"name": "push"},
         "training": {"schedule": schedule}, "learner": {"precision": precision}}))
     rows = ["epoch,success_rate"] + [f"{e},{s}" for e, s in enumerate(success, start=1)]
-    (run / "metrics.csv").write_text("\n".join(rows) + "\n")
+    RunDir(run).metrics.write_text("\n".join(rows) + "\n")
     (run / "bench_done.json").write_text(json.dumps(
         {"commit": commit, "finished": "2026-11-25T10:52:07+00:00"}))
 

@@ -17,6 +17,7 @@ import pytest
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.runlog import (
     EpisodeLog,
     EpisodeLogError,
@@ -155,7 +156,7 @@ def test_close_and_restart_while_the_disk_is_full(disk: Path) -> None:
         writer.append_episode(episode(i), episode_id=i)
     ballast = fill(disk)
     writer.close()  # no room for the summary: logged, not raised
-    assert not scan_segment(run_dir / "episodes.mcap").finished
+    assert not scan_segment(RunDir(run_dir).episode_log).finished
 
     # A restart on the full disk recovers every acked episode and refuses appends.
     writer, recovered = RecoveringLogWriter.open(run_dir, run=RUN, task=TASK, clock=clock)
@@ -176,7 +177,7 @@ def test_close_and_restart_while_the_disk_is_full(disk: Path) -> None:
 
 
 def test_plain_writer_close_on_a_full_disk_does_not_raise(disk: Path) -> None:
-    path = disk / "episodes.mcap"
+    path = RunDir(disk).episode_log
     writer = EpisodeLogWriter(path, run=RUN, task=TASK)
     writer.append_episode(episode(0), episode_id=0)
     ballast = fill(disk)

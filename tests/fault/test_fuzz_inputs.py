@@ -87,6 +87,7 @@ from hercs.replay_service.service import (
     MAX_MINIBATCHES_PER_REQUEST,
     MAX_ROWS_PER_REQUEST,
 )
+from hercs.rundir import RunDir
 from hercs.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
 from hercs.served import decode_served_batch
 from hercs.transport import PendingReply, RemoteError, Transport, TransportError
@@ -1633,7 +1634,7 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
     assert values["weights_version"] == version
     assert values["bad_batches"] == w.ledger.bad_batches
     assert values["replay_size"] == 4242, "the counters of the epoch's last Batch, a valid one"
-    with (Path(w.configs["learner"].run.run_dir) / RUN_L / "metrics.csv").open() as f:
+    with RunDir(Path(w.configs["learner"].run.run_dir) / RUN_L).metrics.open() as f:
         rows = list(csv.DictReader(f))
     assert [(r["epoch"], r["success_rate"], r["bad_batches"]) for r in rows] == [
         ("1", "0.625", str(w.ledger.bad_batches))]

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from hercs.rundir import RunDir
 from hercs.runlog.reader import read_episodes
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 
@@ -35,12 +36,12 @@ def up_argv(tmp_path: Path, *extra: str) -> list[str]:
 
 
 def epochs_recorded(run_dir: Path) -> list[int]:
-    with (run_dir / "metrics.csv").open(newline="") as f:
+    with RunDir(run_dir).metrics.open(newline="") as f:
         return [int(row["epoch"]) for row in csv.DictReader(f)]
 
 
 def log_text(run_dir: Path, ident: str) -> str:
-    return (run_dir / "logs" / f"{ident}.log").read_text(errors="replace")
+    return (RunDir(run_dir).log(ident)).read_text(errors="replace")
 
 
 def kill_learner_and_finish(launcher: Launcher) -> None:
@@ -183,7 +184,7 @@ def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_sche
     assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
     versions = [int(msg.policy_version) for _, msg in logged]
     assert versions == [i // 4 for i in range(len(logged))], versions
-    with (run_dir / "metrics.csv").open(newline="") as f:
+    with RunDir(run_dir).metrics.open(newline="") as f:
         assert {float(row["policy_lag"]) for row in csv.DictReader(f)} == {0.0}
     assert "recovered" in log_text(run_dir, "replay-0")
     assert "resumed from the checkpoint of epoch" in log_text(run_dir, "learner-0")
@@ -208,14 +209,14 @@ def service_logs_on_failure(run_dir: Path, lines: int = 40) -> Iterator[None]:
         yield
     except AssertionError as exc:
         tails = []
-        for log in sorted((run_dir / "logs").glob("*.log")):
+        for log in sorted(RunDir(run_dir).logs.glob("*.log")):
             text = log.read_text(errors="replace").splitlines()[-lines:]
             tails.append(f"--- {log.name} (last {len(text)} lines)\n" + "\n".join(text))
         raise AssertionError(f"{exc}\n\n" + "\n".join(tails)) from exc
 
 
 def metrics_rows(run_dir: Path) -> list[dict[str, str]]:
-    with (run_dir / "metrics.csv").open(newline="") as f:
+    with RunDir(run_dir).metrics.open(newline="") as f:
         return list(csv.DictReader(f))
 
 

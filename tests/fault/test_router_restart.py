@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from hercs.rundir import RunDir
 from tests.integration.conftest import free_endpoint
 from tests.integration.services import ServiceProcess, make_test_config
 
@@ -51,7 +52,7 @@ def test_services_ride_out_a_router_restart(tmp_path: Path) -> None:
         "task.name=reach", "run.method=her-cs", f"training.epochs={EPOCHS}",
         "training.cycles_per_epoch=3", "training.eval_episodes=2", "cluster.fgb_size=20",
         "cluster.k=2", "training.eval_resend_s=2"])
-    metrics = Path(config.run.run_dir) / config.run.name / "metrics.csv"
+    metrics = RunDir(Path(config.run.run_dir) / config.run.name).metrics
     first = router(endpoint, tmp_path / "router.log")
     services = [ServiceProcess(role, path, f"{role}-0", tmp_path)
                 for role in ("replay", "clusterer", "learner", "evaluator", "actor")]

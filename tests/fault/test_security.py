@@ -17,6 +17,7 @@ from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
 from hercs.proto.keys import RunKeys
+from hercs.rundir import RunDir
 from hercs.security import listen_problem, zenoh_settings
 from hercs.transport import RouterUnreachable, Transport, TransportError
 from tests.integration.conftest import free_tcp_port
@@ -214,5 +215,5 @@ def test_hercs_up_with_tls_passwords_and_access_control(certs: Path, tmp_path: P
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "epoch 1/1  success" in done.stdout
-    rows = (tmp_path / "secure" / "metrics.csv").read_text().splitlines()
+    rows = RunDir(tmp_path / "secure").metrics.read_text().splitlines()
     assert len(rows) == 2 and int(rows[1].split(",")[2]) > 0, "episodes were inserted"

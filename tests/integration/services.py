@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.transport import Transport
 
 WAIT_S = 15.0
@@ -26,7 +27,7 @@ def make_test_config(tmp_path: Path, endpoint: str,
     config = apply_overrides(HercsConfig(), [
         "run.name=t", f"run.run_dir={tmp_path / 'runs'}", f"transport.connect=[{endpoint}]",
         f"transport.listen=[{endpoint}]", *overrides])
-    path = tmp_path / "config.yaml"
+    path = RunDir(tmp_path).config
     save_yaml(config, path)
     return config, path
 

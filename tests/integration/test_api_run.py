@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hercs.rundir import RunDir
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -83,7 +84,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     done = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, f"hercs up failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
     run_dir = root / "api"
-    assert (run_dir / "checkpoints" / "best.pt").is_file()
+    assert (RunDir(run_dir).checkpoint("best")).is_file()
     return run_dir
 
 
@@ -93,7 +94,7 @@ def observations(run_dir: Path) -> dict[str, np.ndarray]:
     from hercs.config import load_yaml
     from hercs.envs import make_env
 
-    env = make_env(load_yaml(run_dir / "config.yaml").task.spec)
+    env = make_env(load_yaml(RunDir(run_dir).config).task.spec)
     resets = [env.reset(seed=seed)[0] for seed in range(RESETS)]
     env.close()
     return {key: np.stack([o[key] for o in resets]) for key in resets[0]}
@@ -122,7 +123,7 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
     from hercs.config import HercsConfig
     from hercs.policy import Policy
 
-    state = torch.load(run_dir / "checkpoints" / "best.pt", weights_only=False)
+    state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])
     decoder = WeightsDecoder(spec=config.task.spec, config=config)
     evaluator = Policy(spec=config.task.spec, config=config.ddpg, seed=0)

@@ -35,6 +35,7 @@ from hercs.apps.progress import Progress
 from hercs.apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, load_yaml
 from hercs.proto.keys import RunKeys
+from hercs.rundir import RunDir
 from hercs.runlog.reader import read_cluster_models, read_episodes
 from hercs.transport import Transport
 from tests.support import skip_without_mujoco_py
@@ -350,17 +351,17 @@ def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: P
         ("actor", "actor-2")]
     parser, commands = build_parser()
     for spec in specs:
-        argv = service_command(spec, tmp_path / "config.yaml")
+        argv = service_command(spec, RunDir(tmp_path).config)
         assert argv[:3] == [sys.executable, "-m", "hercs.apps.cli"]
         args = parser.parse_args(argv[3:])
         assert (args.command, args.ident, args.config) == (spec.role, spec.ident,
-                                                           str(tmp_path / "config.yaml"))
+                                                           str(RunDir(tmp_path).config))
         assert args.command in commands
 
 
 def test_up_refuses_a_run_directory_that_holds_files(tmp_path: Path, capsys) -> None:
     (tmp_path / "taken").mkdir()
-    (tmp_path / "taken" / "episodes.mcap").write_bytes(b"old")
+    RunDir(tmp_path / "taken").episode_log.write_bytes(b"old")
     assert main(["up", "--run", "taken", "--run-dir", str(tmp_path)]) == 2
     assert "already exists and is not empty" in capsys.readouterr().err
 
@@ -397,7 +398,7 @@ def test_two_runs_without_listen_take_free_ports_and_record_them(up, tmp_path: P
         assert records[name] is not None, name
         (endpoint,) = records[name].endpoints_for()
         assert re.fullmatch(r"tcp/127\.0\.0\.1:\d+", endpoint) and not endpoint.endswith(":0")
-        config = load_yaml(tmp_path / "runs" / name / "config.yaml")
+        config = load_yaml(RunDir(tmp_path / "runs" / name).config)
         assert config.transport.listen == ["tcp/127.0.0.1:0"]  # as asked: a resume picks anew
         assert config.transport.connect == [endpoint]  # what the children use
     assert records["first"].local != records["second"].local
@@ -429,16 +430,16 @@ def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:
         "epoch 2/2  success 0.20  env 1002 steps/s  upd 202/s  replay 200  lag 1.5",
     ]
     # the resolved config, as the children read it
-    config = load_yaml(run_dir / "config.yaml")
+    config = load_yaml(RunDir(run_dir).config)
     assert (config.run.name, config.task.name, config.training.epochs) == ("done", "reach", 2)
     assert config.ddpg.polyak == 0.9 and config.actor.num_actors == 2
     assert config.transport.connect == config.transport.listen
-    assert yaml.safe_load((run_dir / "config.yaml").read_text()) == config.to_dict()
+    assert yaml.safe_load(RunDir(run_dir).config.read_text()) == config.to_dict()
     # start order, one log per child, nothing left running
     pids = launcher.child_pids
     assert list(pids) == ["replay-0", "clusterer-0", "learner-0", "evaluator-0", "actor-0",
                           "actor-1"]
-    assert sorted(p.name for p in (run_dir / "logs").iterdir()) == sorted(
+    assert sorted(p.name for p in RunDir(run_dir).logs.iterdir()) == sorted(
         [f"{ident}.log" for ident in pids] + ["router.log"])  # router.log: the router's own
     assert not [ident for ident, pid in pids.items() if process_alive(pid)]
 
@@ -454,7 +455,7 @@ def test_stop_signal_stops_every_child_in_order(up, tmp_path: Path, signum: int)
              WAIT_S, "every child to start")
 
     # a remote actor joining and leaving is reported
-    config = load_yaml(tmp_path / "runs" / "stopme" / "config.yaml")
+    config = load_yaml(RunDir(tmp_path / "runs" / "stopme").config)
     keys = RunKeys("stopme")
     with Transport.open(mode="client", connect=config.transport.connect,
                         connect_timeout_s=5) as remote:
@@ -552,7 +553,7 @@ def test_the_live_view_starts_after_the_replay_and_its_exit_never_ends_the_run(
     assert "  | boom: the stand-in failed on purpose" in report
     assert [line.split()[1] for line in launcher.out
             if line.startswith("epoch") and " running " not in line] == ["1/2", "2/2"]
-    config = load_yaml(tmp_path / "runs" / "watched" / "config.yaml")
+    config = load_yaml(RunDir(tmp_path / "runs" / "watched").config)
     assert (config.view.live, config.view.viewer, config.view.save) == (True, "none", str(saved))
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
@@ -618,8 +619,8 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
                             line)
                for line in epochs), epochs
     assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
-    assert load_yaml(run_dir / "config.yaml").run.name == "e2e"
-    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert load_yaml(RunDir(run_dir).config).run.name == "e2e"
+    rows = list(csv.DictReader(RunDir(run_dir).metrics.open()))
     assert [int(r["epoch"]) for r in rows] == [1, 2]
     # The updates' wait for batches is accounted per epoch, within the epoch's wall time.
     walls = [float(rows[0]["wall_s"]), float(rows[1]["wall_s"]) - float(rows[0]["wall_s"])]
@@ -647,10 +648,10 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     finally:
         launcher.kill()
     run_dir = tmp_path / "runs" / "v1"
-    assert load_yaml(run_dir / "config.yaml").task.spec.env_id == "FetchReach-v1"
-    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert load_yaml(RunDir(run_dir).config).task.spec.env_id == "FetchReach-v1"
+    rows = list(csv.DictReader(RunDir(run_dir).metrics.open()))
     assert [int(r["epoch"]) for r in rows] == [1] and int(rows[0]["episodes"]) >= 8
-    evaluator = (run_dir / "logs" / "evaluator-0.log").read_text()
+    evaluator = RunDir(run_dir).log("evaluator-0").read_text()
     assert "task reach (FetchReach-v1)" in evaluator and "epoch 1 (weights version" in evaluator
     assert len(list(read_episodes(run_dir))) >= 8, "the actor's v1 episodes were logged"
 
@@ -682,7 +683,7 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     assert len(logged) >= 2 * 3 * 4, "every one of the 6 cycles had its 4 episodes"
     versions = [int(msg.policy_version) for _, msg in logged]
     assert versions == [i // 4 for i in range(len(logged))], versions
-    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    rows = list(csv.DictReader(RunDir(run_dir).metrics.open()))
     assert [float(r["policy_lag"]) for r in rows] == [0.0, 0.0]
     assert [int(r["weights_version"]) for r in rows] == [3, 6]
     assert any(msg.failures_seen for msg in read_cluster_models(run_dir)), \
@@ -734,6 +735,6 @@ def test_lockstep_runs_with_one_seed_compute_the_same_numbers(tmp_path: Path) ->
     assert both >= 2 * 3 * 4 and first[:both] == second[:both], \
         "the two runs logged different episodes"
     computed = [[{c: row[c] for c in COMPUTED_COLUMNS}
-                 for row in csv.DictReader((r / "metrics.csv").open())] for r in runs]
+                 for row in csv.DictReader(RunDir(r).metrics.open())] for r in runs]
     assert len(computed[0]) == 2 and computed[0] == computed[1]
     assert float(computed[0][-1]["critic_loss"]) > 0.0, "the learner updated"

@@ -17,6 +17,7 @@ import pytest
 
 import hercs
 from hercs.errors import ConfigError, HercsError
+from hercs.rundir import RunDir
 
 pytestmark = pytest.mark.integration
 
@@ -73,7 +74,7 @@ print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": 
     assert Path(out["dir"]) == tmp_path / "runs" / out["name"]
     assert out["name"].startswith("reach-her-cs-s1-")
     assert out["last"].endswith("finished; run directory: " + f"runs/{out['name']}")
-    assert (Path(out["dir"]) / "config.yaml").is_file()
+    assert RunDir(Path(out["dir"])).config.is_file()
 
 
 def test_stop_keeps_the_epochs_and_resume_goes_on_to_the_end(tmp_path: Path) -> None:
@@ -109,7 +110,7 @@ print(json.dumps({{"dir": str(run.dir)}}))
 """)
     assert _processes_naming(out["dir"]) == []
     assert _processes_naming("--run orphan-check") == []
-    assert (Path(out["dir"]) / "metrics.csv").is_file()
+    assert RunDir(Path(out["dir"])).metrics.is_file()
 
 
 def test_a_run_stops_in_order_when_its_interpreter_is_killed(tmp_path: Path) -> None:
@@ -131,7 +132,7 @@ os.kill(os.getpid(), signal.SIGKILL)
         time.sleep(0.5)
     assert _processes_naming("killed-parent") == []
     assert _state(launcher) in ("gone", "Z"), _state(launcher)  # exited (a zombie until reaped)
-    log = (tmp_path / "runs" / "killed-parent" / "logs" / "learner-0.log").read_text()
+    log = RunDir(tmp_path / "runs" / "killed-parent").log("learner-0").read_text()
     assert "Traceback" not in log  # stopped, not crashed
 
 
@@ -139,7 +140,7 @@ def test_a_taken_folder_or_a_refused_resume_never_reads_another_runs_files(
         tmp_path: Path) -> None:
     taken = tmp_path / "runs" / "taken"
     taken.mkdir(parents=True)
-    (taken / "metrics.csv").write_text("epoch,success_rate\n1,0.5\n")
+    RunDir(taken).metrics.write_text("epoch,success_rate\n1,0.5\n")
     with pytest.raises(ConfigError, match=r"already holds a run.*hercs\.resume"):
         hercs.up(task="reach", name="taken", run_dir=str(tmp_path / "runs"))
     refused = hercs.resume(taken)  # no config.yaml, no checkpoint: hercs up refuses

@@ -15,6 +15,7 @@ import pytest
 
 from hercs.apps.cli import main
 from hercs.metrics import recorded_epochs
+from hercs.rundir import RunDir
 from tests.integration.test_launcher import STANDIN, Launcher, free_endpoint
 from tests.run_dirs import make_run
 
@@ -75,24 +76,24 @@ def test_a_second_hercs_up_on_a_running_run_is_refused_naming_it(tmp_path: Path,
 def test_restart_starts_the_run_over_with_its_old_files_set_aside(tmp_path: Path) -> None:
     run = tmp_path / "runs" / "again"
     make_run(run, epochs=2, trained=1, checkpoint=None)  # rows without a checkpoint
-    (run / "episodes.mcap").write_bytes(b"the old run's episodes")
-    old_metrics = (run / "metrics.csv").read_bytes()
+    RunDir(run).episode_log.write_bytes(b"the old run's episodes")
+    old_metrics = RunDir(run).metrics.read_bytes()
     refused = launch(tmp_path, '{"learner-0": "epochs:2"}', "--resume", str(run))
     assert refused.finish(WAIT_S) == 2
-    assert "no learner checkpoint" in "\n".join(refused.err) and not (run / "logs").exists()
+    assert "no learner checkpoint" in "\n".join(refused.err) and not RunDir(run).logs.exists()
 
     again = launch(tmp_path, '{"learner-0": "epochs:2"}', "--resume", str(run), "--restart",
                    "--actors", "1")
     assert again.finish(WAIT_S) == 0, "\n".join(again.out + again.err)
-    (aside,) = (run / "previous").iterdir()
+    (aside,) = RunDir(run).previous.iterdir()
     assert again.out[0] == (f"hercs up: --restart: run again starts over from epoch 1; what "
                             f"it held is kept in {aside}")
-    assert (aside / "metrics.csv").read_bytes() == old_metrics
-    assert recorded_epochs(aside / "metrics.csv") == [1]
-    assert (aside / "episodes.mcap").read_bytes() == b"the old run's episodes"
-    assert not (run / "episodes.mcap").exists() and not (run / "metrics.csv").exists()
+    assert RunDir(aside).metrics.read_bytes() == old_metrics
+    assert recorded_epochs(RunDir(aside).metrics) == [1]
+    assert RunDir(aside).episode_log.read_bytes() == b"the old run's episodes"
+    assert not RunDir(run).episode_log.exists() and not RunDir(run).metrics.exists()
     assert any(line.startswith("hercs up: resuming run again") for line in again.out)
-    assert not (run / "owner.lock").exists()
+    assert not RunDir(run).lock.exists()
 
 
 def test_the_routers_own_log_goes_to_its_log_file_and_hercs_messages_to_the_terminal(
@@ -111,7 +112,7 @@ def test_the_routers_own_log_goes_to_its_log_file_and_hercs_messages_to_the_term
                       env={"RUST_LOG": "debug"})
     status = launcher.finish(WAIT_S)
     run = tmp_path / "runs" / "chatty"
-    log = (run / "logs" / "router.log").read_text()
+    log = (RunDir(run).router_log).read_text()
     assert "zenoh::" in log and "DEBUG" in log, log[:2000]
     running = next(i for i, line in enumerate(launcher.out) if "run chatty, directory" in line)
     printed = launcher.out[running:] + [line for line in launcher.err

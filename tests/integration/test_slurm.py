@@ -32,7 +32,7 @@ from pathlib import Path
 import pytest
 
 from hercs.config import load_yaml
-from hercs.rundir import read_router
+from hercs.rundir import RunDir, read_router
 from hercs.runlog.reader import read_episodes
 from tests.integration import minislurm
 
@@ -103,7 +103,7 @@ def wait_job(cluster: minislurm.MiniSlurm, job: str, timeout_s: float,
 
 
 def metrics_epochs(run_dir: Path) -> list[int]:
-    with (run_dir / "metrics.csv").open() as f:
+    with RunDir(run_dir).metrics.open() as f:
         return [int(row["epoch"]) for row in csv.DictReader(f)]
 
 
@@ -137,7 +137,7 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
     actors = {e.actor_id.partition("@")[0] for _, e in read_episodes(run_dir)}
     assert actors and all(a.startswith("hercs-n2-") for a in actors), actors
     assert re.search(r"remote actor hercs-n2-\S+ joined", text), text
-    config = load_yaml(run_dir / "config.yaml")
+    config = load_yaml(RunDir(run_dir).config)
     assert config.transport.listen == ["tls/0.0.0.0:0"]
     assert config.security.tls_ca == str(run_dir / "slurm" / f"certs-{job}.0" / "ca.pem")
     assert not (run_dir / "slurm" / f"certs-{job}.0" / "ca.key").exists()
@@ -149,7 +149,7 @@ def wait_for_epoch(run_dir: Path, epoch: int, timeout_s: float,
                    poll_s: float = POLL_S) -> None:
     """Until `metrics.csv` holds `epoch` (a file another process writes: polled)."""
     deadline = time.monotonic() + timeout_s
-    while not ((run_dir / "metrics.csv").is_file() and epoch in metrics_epochs(run_dir)):
+    while not (RunDir(run_dir).metrics.is_file() and epoch in metrics_epochs(run_dir)):
         assert time.monotonic() < deadline, f"no epoch {epoch} within {timeout_s:g} s"
         time.sleep(poll_s)
 

@@ -13,6 +13,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from hercs.apps.view import read_run_log
+from hercs.rundir import RunDir
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 from tests.support import free_tcp_port, rerun_viewer
 
@@ -53,7 +54,7 @@ def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
     run_dir = tmp_path / "runs" / "live"
     assert list(launcher.child_pids)[:2] == ["replay-0", "live-0"]
     assert "exited unexpectedly" not in "\n".join(launcher.err)
-    live_log = (run_dir / "logs" / "live-0.log").read_text()
+    live_log = (RunDir(run_dir).log("live-0")).read_text()
     assert "live view done" in live_log and "Traceback" not in live_log, live_log
 
     verified = subprocess.run([str(RERUN), "rrd", "verify", str(saved)], capture_output=True,

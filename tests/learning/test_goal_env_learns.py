@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from hercs.codec import msg_to_array
+from hercs.rundir import RunDir
 from hercs.runlog import read_cluster_models, read_episodes
 from tests.integration.conftest import free_endpoint
 
@@ -36,21 +37,21 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=REPO)
     path = root / "goal-env-learns"
     logs = "\n".join(f"== {p.name}\n{p.read_text()[-2000:]}"
-                     for p in sorted((path / "logs").glob("*.log"))) if path.exists() else ""
+                     for p in sorted(RunDir(path).logs.glob("*.log"))) if path.exists() else ""
     assert proc.returncode == 0, (
         f"hercs up failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}\n{logs}")
     return path
 
 
 def test_a_users_goal_env_reaches_90_percent_success(run_dir: Path) -> None:
-    with open(run_dir / "metrics.csv") as f:
+    with open(RunDir(run_dir).metrics) as f:
         success = [float(r["success_rate"]) for r in csv.DictReader(f)]
     assert len(success) == EPOCHS
     assert max(success[-3:]) >= 0.9, f"success per epoch: {success}"
 
 
 def test_the_run_records_the_task_and_logs_its_2d_goals(run_dir: Path) -> None:
-    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    config = yaml.safe_load(RunDir(run_dir).config.read_text())
     assert config["task"]["name"] == TASK
     _, episode = next(iter(read_episodes(run_dir)))
     assert episode.task == TASK

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
+from hercs.rundir import RunDir
 from hercs.runlog import read_cluster_models, read_episodes
 from tests.integration.conftest import free_endpoint
 
@@ -61,7 +62,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     path = root / "reach-learns"
     logs = "\n".join(f"== {p.name}\n{p.read_text()[-2000:]}"
-                     for p in sorted((path / "logs").glob("*.log"))) if path.exists() else ""
+                     for p in sorted(RunDir(path).logs.glob("*.log"))) if path.exists() else ""
     assert proc.returncode == 0, (
         f"hercs up failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}\n{logs}")
     assert str(path) in proc.stdout, "hercs up prints where the run directory is"
@@ -70,7 +71,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def rows(run_dir: Path) -> list[dict[str, str]]:
-    with open(run_dir / "metrics.csv") as f:
+    with open(RunDir(run_dir).metrics) as f:
         return list(csv.DictReader(f))
 
 
@@ -120,7 +121,7 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
     assert {actor.partition("@")[0] for actor, _ in seen} == {"actor-0", "actor-1"}
     assert len({actor for actor, _ in seen}) == 2, "no actor was restarted in a clean run"
     assert max(versions) >= EPOCHS * CYCLES - 5, "actors act with recent weights"
-    saved = yaml.safe_load((run_dir / "config.yaml").read_text())
+    saved = yaml.safe_load(RunDir(run_dir).config.read_text())
     assert saved["run"]["method"] == "her-cs" and saved["training"]["cycles_per_epoch"] == CYCLES
 
 

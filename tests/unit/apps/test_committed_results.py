@@ -9,13 +9,14 @@ from pathlib import Path
 import pytest
 
 from hercs.apps import plot_tables, plots
+from hercs.rundir import RunDir
 from tests.support import load_bench
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
 
 
 def committed_runs() -> list[Path]:
-    return sorted(p for p in (RESULTS / "runs").iterdir() if (p / "metrics.csv").is_file())
+    return sorted(p for p in (RESULTS / "runs").iterdir() if RunDir(p).metrics.is_file())
 
 
 def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() -> None:

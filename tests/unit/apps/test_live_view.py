@@ -27,6 +27,7 @@ from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
+from hercs.rundir import RunDir
 from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
 from tests.support import free_tcp_port, rerun_viewer
@@ -137,12 +138,12 @@ def test_live_recording_matches_hercs_view_of_the_same_run(tmp_path: Path) -> No
     # offline: the episode log and metrics.csv, as the replay and the learner write them
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    with EpisodeLogWriter(run_dir / "episodes.mcap", run="t", task="push") as writer:
+    with EpisodeLogWriter(RunDir(run_dir).episode_log, run="t", task="push") as writer:
         for i, ep in enumerate(episodes):
             if i == 6:
                 writer.append_cluster_model(model)
             writer.append_episode(episode_to_msg(ep, run="t", task="push"), episode_id=i)
-    (run_dir / "metrics.csv").write_text("epoch,episodes,success_rate,env_steps_per_s\n" + "".join(
+    RunDir(run_dir).metrics.write_text("epoch,episodes,success_rate,env_steps_per_s\n" + "".join(
         f"{r['epoch']},{r['episodes']},{r['success_rate']},{r['env_steps_per_s']}\n"
         for r in rows))
     offline = tmp_path / "offline.rrd"

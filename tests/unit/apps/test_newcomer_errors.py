@@ -12,6 +12,7 @@ import yaml
 
 from hercs.apps.cli import main
 from hercs.config import HercsConfig, save_yaml
+from hercs.rundir import RunDir
 
 CONFIG_HINT = "(`hercs config -o FILE` writes the full default config to start from)"
 NOT_BOOLEAN = "must be true or false (yes, no, on and off are not taken as booleans)"
@@ -35,8 +36,8 @@ def here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
         (tmp_path / name).write_text(text)
     (tmp_path / "notes").mkdir()  # a folder that is not a run
     run = tmp_path / "runs" / "reach-her-cs-s1"  # a run that has not finished epoch 1
-    (run / "checkpoints").mkdir(parents=True)
-    save_yaml(HercsConfig(), run / "config.yaml")
+    RunDir(run).checkpoints.mkdir(parents=True)
+    save_yaml(HercsConfig(), RunDir(run).config)
     return tmp_path
 
 
@@ -143,7 +144,7 @@ def test_a_folder_that_is_no_run_or_has_no_checkpoint_says_what_to_do(
 
 
 def test_eval_names_the_checkpoints_a_run_has(here: Path, capsys) -> None:
-    checkpoints = here / "runs" / "reach-her-cs-s1" / "checkpoints"
+    checkpoints = RunDir(here / "runs" / "reach-her-cs-s1").checkpoints
     for name in ("learner.pt", "epoch-0010.pt", "epoch-0020.pt"):
         (checkpoints / name).write_bytes(b"")
     assert main(["eval", "runs/reach-her-cs-s1", "--checkpoint", "best"]) == 2
@@ -159,17 +160,17 @@ def _copied_run(here: Path, name: str) -> Path:
     metrics row, no checkpoint and no episode log."""
     run = here / "runs" / name
     run.mkdir()
-    save_yaml(HercsConfig(), run / "config.yaml")
-    (run / "metrics.csv").write_text("epoch,success_rate\n" +
+    save_yaml(HercsConfig(), RunDir(run).config)
+    RunDir(run).metrics.write_text("epoch,success_rate\n" +
                                      "".join(f"{e},0.{e}\n" for e in range(1, 4)))
     return run
 
 
 def test_eval_of_a_copied_run_says_its_checkpoints_were_not_kept(here: Path, capsys) -> None:
     _copied_run(here, "reach-her-cs-s2")
-    (here / "runs" / "reach-her-s5" / "checkpoints").mkdir(parents=True)  # another cell
-    (here / "runs" / "reach-her-s5" / "checkpoints" / "best.pt").write_bytes(b"")
-    (here / "runs" / "reach-her-cs-s1" / "checkpoints" / "best.pt").write_bytes(b"")
+    RunDir(here / "runs" / "reach-her-s5").checkpoints.mkdir(parents=True)  # another cell
+    RunDir(here / "runs" / "reach-her-s5").checkpoint("best").write_bytes(b"")
+    RunDir(here / "runs" / "reach-her-cs-s1").checkpoint("best").write_bytes(b"")
     assert main(["eval", "runs/reach-her-cs-s2"]) == 2
     assert capsys.readouterr().err == (
         "hercs eval: runs/reach-her-cs-s2: no checkpoint best (best.pt, the default) and no "

@@ -14,6 +14,7 @@ import yaml
 
 from hercs.apps import plot_figures, plot_tables, plots
 from hercs.apps.cli import main
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -31,11 +32,11 @@ def _write_run(root: Path, method: str, seed: int, success: list[float],
                task: str = "push") -> Path:
     run = root / f"{task}-{method}-s{seed}"
     run.mkdir()
-    (run / "config.yaml").write_text(yaml.safe_dump(
+    RunDir(run).config.write_text(yaml.safe_dump(
         {"run": {"method": method, "seed": seed, "name": run.name}, "task": {"name": task}}))
     lines = ["epoch,env_steps,success_rate,wall_s"]
     lines += [f"{e},{e * 10000},{s},{e * 1.5}" for e, s in enumerate(success, start=1)]
-    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    RunDir(run).metrics.write_text("\n".join(lines) + "\n")
     return run
 
 
@@ -257,7 +258,7 @@ def test_a_methods_only_run_on_another_environment_takes_the_methods_colour() ->
 
 def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
     run = _write_run(tmp_path, "her", 1, [0.0])
-    (run / "metrics.csv").unlink()
+    RunDir(run).metrics.unlink()
     with pytest.raises(plots.PlotError, match=rf"{run}.*metrics\.csv"):
         plots.load_run(run)
     assert main(["plot", str(run), "-o", str(tmp_path / "f.png")]) == 2  # a bad path
@@ -306,11 +307,11 @@ def test_reference_for_a_task_without_authors_data_says_so(tmp_path: Path, capsy
 def _write_variant_run(root: Path, method: str, seed: int, success: list[float], *,
                        schedule: str = "async", precision: str = "fp32") -> Path:
     run = _write_run(root, f"{method}-{schedule}-{precision}", seed, success)
-    config = yaml.safe_load((run / "config.yaml").read_text())
+    config = yaml.safe_load(RunDir(run).config.read_text())
     config["run"]["method"] = method
     config["training"] = {"schedule": schedule}
     config["learner"] = {"precision": precision}
-    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    RunDir(run).config.write_text(yaml.safe_dump(config))
     return run
 
 
@@ -349,9 +350,9 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
             _write_variant_run(tmp_path, "her-ebp-cs", 1, [0.2, 0.6, 0.9]),
             _write_variant_run(tmp_path, "her-ebp-cs", 2, [0.0, 0.8, 1.0], schedule="lockstep")]
     for run, version in zip(runs[1:], ("v1", "v1"), strict=True):
-        config = yaml.safe_load((run / "config.yaml").read_text())
+        config = yaml.safe_load(RunDir(run).config.read_text())
         config["task"]["env_version"] = version
-        (run / "config.yaml").write_text(yaml.safe_dump(config))
+        RunDir(run).config.write_text(yaml.safe_dump(config))
     groups = plots.group(plots.load_run(r) for r in runs)
     assert list(groups["FetchPush"]) == ["her-ebp-cs", "her-ebp-cs/lockstep/v1", "her-ebp-cs/v1"]
     assert [len(c) for c in groups["FetchPush"].values()] == [1, 1, 1]
@@ -474,9 +475,9 @@ def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
         method = plots.METHOD_ORDER[i % 4]
         (tmp_path / f"r{i}").mkdir()
         run = _write_run(tmp_path / f"r{i}", method, 1, [0.07 * (i % 13)] * 12)
-        config = yaml.safe_load((run / "config.yaml").read_text())
+        config = yaml.safe_load(RunDir(run).config.read_text())
         config.update(settings[i // 4])
-        (run / "config.yaml").write_text(yaml.safe_dump(config))
+        RunDir(run).config.write_text(yaml.safe_dump(config))
         dirs.append(run)
     fig = _drawn(monkeypatch, lambda: plot_figures.run_plot(
         [str(d) for d in dirs], str(tmp_path / "many.png"), reference=True))

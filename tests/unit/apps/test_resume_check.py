@@ -14,6 +14,7 @@ import pytest
 from hercs.apps.cli import main
 from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
 from hercs.metrics import recorded_epochs
+from hercs.rundir import RunDir
 from tests.run_dirs import make_run
 
 
@@ -24,25 +25,25 @@ def snapshot(folder: Path) -> dict[str, tuple[int, int]]:
 
 
 def cut_metrics_mid_row(run: Path) -> None:
-    path = run / "metrics.csv"
+    path = RunDir(run).metrics
     text = path.read_bytes()
     path.write_bytes(text[:-7])  # the last row loses its end
 
 
 def drop_middle_row(run: Path) -> None:
-    path = run / "metrics.csv"
+    path = RunDir(run).metrics
     lines = path.read_text().splitlines(keepends=True)
     path.write_text("".join(lines[:2] + lines[3:]))
 
 
 def repeat_last_row(run: Path) -> None:
-    path = run / "metrics.csv"
+    path = RunDir(run).metrics
     lines = path.read_text().splitlines(keepends=True)
     path.write_text("".join([*lines, lines[-1]]))
 
 
 def corrupt_latest(run: Path) -> None:
-    path = run / "checkpoints" / "learner.pt"
+    path = RunDir(run).checkpoint("latest")
     path.write_bytes(path.read_bytes()[:100])  # a copy cut short
 
 
@@ -144,22 +145,22 @@ def test_a_run_whose_files_agree_continues_from_its_checkpoint(
 def test_restart_sets_the_old_files_aside_and_keeps_config_and_logs(tmp_path: Path) -> None:
     run = tmp_path / "r"
     make_run(run, epochs=4, trained=2, checkpoint=None)
-    (run / "episodes.mcap").write_bytes(b"old episodes")
-    (run / "logs").mkdir()
-    (run / "logs" / "learner-0.log").write_text("old log\n")
-    metrics_before = (run / "metrics.csv").read_bytes()
+    RunDir(run).episode_log.write_bytes(b"old episodes")
+    RunDir(run).logs.mkdir()
+    (RunDir(run).log("learner-0")).write_text("old log\n")
+    metrics_before = RunDir(run).metrics.read_bytes()
     aside = set_aside_for_restart(run)
-    assert aside is not None and aside.parent == run / "previous"
+    assert aside is not None and aside.parent == RunDir(run).previous
     assert sorted(p.name for p in run.iterdir()) == ["config.yaml", "logs", "previous"]
     assert sorted(p.name for p in aside.iterdir()) == ["config.yaml", "episodes.mcap",
                                                        "metrics.csv"]
-    assert (aside / "metrics.csv").read_bytes() == metrics_before
-    assert recorded_epochs(aside / "metrics.csv") == [1, 2]
-    assert (run / "logs" / "learner-0.log").read_text() == "old log\n"
+    assert RunDir(aside).metrics.read_bytes() == metrics_before
+    assert recorded_epochs(RunDir(aside).metrics) == [1, 2]
+    assert (RunDir(run).log("learner-0")).read_text() == "old log\n"
     # a second restart gets its own folder; the first stays
-    (run / "metrics.csv").write_text("epoch\n1\n")
+    RunDir(run).metrics.write_text("epoch\n1\n")
     again = set_aside_for_restart(run)
-    assert again is not None and again != aside and (aside / "metrics.csv").exists()
+    assert again is not None and again != aside and RunDir(aside).metrics.exists()
     assert set_aside_for_restart(run) is None  # nothing left to move
 
 
@@ -183,11 +184,11 @@ def test_the_learner_sets_rows_past_its_checkpoint_aside(tmp_path: Path) -> None
         config = make_run(run, epochs=4, trained=3, checkpoint=checkpoint)
         learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
         loop = LearnerLoop(config=config, learner=learner)
-        resumed = resume_learner_state(run / "checkpoints", run / "metrics.csv",
+        resumed = resume_learner_state(RunDir(run).checkpoints, RunDir(run).metrics,
                                        learner=learner, loop=loop,
                                        eval_requests=EvalRequests(resend_s=60.0))
         assert resumed == checkpoint
-        assert recorded_epochs(run / "metrics.csv") == kept
-        (aside,) = (run / "previous").iterdir()
-        assert recorded_epochs(aside / "metrics.csv") == [1, 2, 3]
+        assert recorded_epochs(RunDir(run).metrics) == kept
+        (aside,) = RunDir(run).previous.iterdir()
+        assert recorded_epochs(RunDir(aside).metrics) == [1, 2, 3]
         assert os.listdir(aside) == ["metrics.csv"]

@@ -18,6 +18,7 @@ import pytest
 
 from hercs.apps.cli import main
 from hercs.apps.run_lock import RunBusy, RunLock, read_owner
+from hercs.rundir import RunDir
 from tests.run_dirs import make_run
 
 REPO = Path(__file__).resolve().parents[3]
@@ -72,10 +73,10 @@ def test_a_killed_owner_leaves_no_stuck_lock(tmp_path: Path, capsys) -> None:
     with holder(run) as first:
         first.send_signal(signal.SIGKILL)
         first.wait()
-    assert (run / "owner.lock").exists()  # the dead owner's file is still there, unlocked
+    assert RunDir(run).lock.exists()  # the dead owner's file is still there, unlocked
     assert main(["up", "--resume", str(run)]) == 0  # taken at once: "already finished"
     assert "already finished (3 epochs)" in capsys.readouterr().out
-    assert not (run / "owner.lock").exists()  # released and removed
+    assert not RunDir(run).lock.exists()  # released and removed
     lock = RunLock.take(run)
     try:
         assert lock.held and read_owner(run) is not None
@@ -91,7 +92,7 @@ def test_an_owner_never_shares_with_one_that_opened_the_file_before_it_was_remov
     import os
 
     first = RunLock.take(tmp_path)
-    stale = os.open(tmp_path / "owner.lock", os.O_RDWR)
+    stale = os.open(RunDir(tmp_path).lock, os.O_RDWR)
     try:
         first.release()
         second = RunLock.take(tmp_path)  # a new file at the path

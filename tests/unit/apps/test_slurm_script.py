@@ -15,6 +15,7 @@ import pytest
 from hercs.apps.cli import main
 from hercs.apps.slurm import ArrayPlan, JobPlan, render_array_script, render_script
 from hercs.errors import ConfigError
+from hercs.rundir import RunDir
 
 
 def sbatch_lines(script: str) -> list[str]:
@@ -57,11 +58,11 @@ def test_submit_writes_the_runs_config_for_its_first_attempt(tmp_path: Path) -> 
                                          "--set", "ddpg.polyak=0.9"])
     config, plan = plan_from_args(args, resolve_config(args))
     script = write_job(config, plan)
-    saved = load_yaml(tmp_path / "r2" / "slurm" / "config.yaml")
+    saved = load_yaml(RunDir(tmp_path / "r2").slurm / "config.yaml")
     assert (saved.run.name, saved.run.run_dir, saved.ddpg.polyak) == ("r2", str(tmp_path), 0.9)
     assert (saved.actor.num_actors, saved.actor.envs_per_process) == (0, 6)
-    assert script == tmp_path / "r2" / "slurm" / "job.sbatch"
-    (tmp_path / "r2" / "metrics.csv").write_text("epoch\n1\n")
+    assert script == RunDir(tmp_path / "r2").slurm / "job.sbatch"
+    RunDir(tmp_path / "r2").metrics.write_text("epoch\n1\n")
     with pytest.raises(ConfigError, match="already holds a run"):
         write_job(config, plan)
 

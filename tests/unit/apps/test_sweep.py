@@ -15,6 +15,7 @@ import pytest
 from hercs.apps import sweep as se
 from hercs.apps import sweep_stats
 from hercs.errors import ConfigError
+from hercs.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -54,11 +55,11 @@ def _finished(root: Path, cell, success: list[float]) -> None:
     """A run folder as run_grid leaves it: config.yaml, metrics.csv, bench_done.json."""
     run = root / cell.name
     run.mkdir(parents=True)
-    (run / "config.yaml").write_text(
+    RunDir(run).config.write_text(
         f"run: {{method: {cell.method}, seed: {cell.seed}}}\n"
         f"task: {{name: {cell.task}, env_version: {cell.env_version}}}\n")
     rows = [f"{e},{v}" for e, v in enumerate(success, start=1)]
-    (run / "metrics.csv").write_text("\n".join(["epoch,success_rate", *rows]) + "\n")
+    RunDir(run).metrics.write_text("\n".join(["epoch,success_rate", *rows]) + "\n")
     (run / se.DONE_FILE).write_text(json.dumps(
         {"task": cell.task, "method": cell.method, "seed": cell.seed,
          "env_version": cell.env_version, "env_id": cell.env_id, "epochs": len(success),
@@ -93,13 +94,13 @@ def test_up_command_names_the_run_after_its_cell_and_passes_overrides(tmp_path: 
 
 def test_unfinished_run_is_set_aside_and_kept(tmp_path: Path) -> None:
     run = tmp_path / "push-her-s1"
-    (run / "logs").mkdir(parents=True)
-    (run / "logs" / "learner-0.log").write_text("killed at epoch 12")
+    RunDir(run).logs.mkdir(parents=True)
+    RunDir(run).log("learner-0").write_text("killed at epoch 12")
     assert not se.is_done(run)
     moved = se.set_aside(run, tmp_path)
     assert not run.exists()
     assert moved.parent == tmp_path / se.UNFINISHED_DIR
-    assert (moved / "logs" / "learner-0.log").read_text() == "killed at epoch 12"
+    assert RunDir(moved).log("learner-0").read_text() == "killed at epoch 12"
 
 
 def test_bad_grid_arguments_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
@@ -124,15 +125,15 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
         done = json.loads((tmp_path / "runs" / name / se.DONE_FILE).read_text())
         assert (done["task"], done["epochs"], done["env_id"]) == ("reach", 1, "FetchReach-v4")
         assert done["machine"] == se.machine_identity()  # one seed differs across CPUs
-        rows = (tmp_path / "runs" / name / "metrics.csv").read_text().strip().splitlines()
+        rows = RunDir(tmp_path / "runs" / name).metrics.read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch
         committed = tmp_path / "committed" / name  # the small files, ready to commit
         # the small files, and the first (here: only) run of its cell publishes its policy
         assert sorted(p.name for p in committed.iterdir()) == [
             "bench_done.json", "checkpoints", "config.yaml", "metrics.csv"]
-        assert [p.name for p in (committed / "checkpoints").iterdir()] == ["best.pt"]
-        assert (committed / "metrics.csv").read_text() == (
-            tmp_path / "runs" / name / "metrics.csv").read_text()
+        assert [p.name for p in RunDir(committed).checkpoints.iterdir()] == ["best.pt"]
+        assert RunDir(committed).metrics.read_text() == (
+            RunDir(tmp_path / "runs" / name).metrics).read_text()
 
     report = (tmp_path / "results" / "reach.md").read_text()
     assert "| HER (ours) | 1 | 1 |" in report
@@ -155,7 +156,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert "[start] reach-her-s1" not in second.stdout
     done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).read_text())
     assert done["resumed"] is True and "--resume" in done["command"]
-    rows = (tmp_path / "runs" / "reach-her-cs-s1" / "metrics.csv").read_text().splitlines()
+    rows = RunDir(tmp_path / "runs" / "reach-her-cs-s1").metrics.read_text().splitlines()
     assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
     manifest = json.loads((tmp_path / "runs" / se.MANIFEST).read_text())
@@ -199,17 +200,17 @@ def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Pa
     runs, committed = tmp_path / "runs", tmp_path / "committed"
     committed.mkdir()
     for name in ("push-her-cs-s1", "push-her-cs-s2", "push-her-s1"):
-        (runs / name / "checkpoints").mkdir(parents=True)
-        (runs / name / "metrics.csv").write_text("epoch\n1\n")
-        (runs / name / "checkpoints" / "best.pt").write_bytes(name.encode())
+        RunDir(runs / name).checkpoints.mkdir(parents=True)
+        RunDir(runs / name).metrics.write_text("epoch\n1\n")
+        RunDir(runs / name).checkpoint("best").write_bytes(name.encode())
     for name in ("push-her-cs-s1", "push-her-cs-s2", "push-her-s1"):
         se.copy_small_files(runs / name, committed)
     published = sorted(p.parent.parent.name for p in committed.glob("*/checkpoints/best.pt"))
     assert published == ["push-her-cs-s1", "push-her-s1"]  # one per cell, the first
-    assert (committed / "push-her-cs-s2" / "metrics.csv").is_file()
+    assert RunDir(committed / "push-her-cs-s2").metrics.is_file()
     # copying the publishing run again keeps its own policy
     se.copy_small_files(runs / "push-her-cs-s1", committed)
-    assert (committed / "push-her-cs-s1" / "checkpoints" / "best.pt").read_bytes() == \
+    assert RunDir(committed / "push-her-cs-s1").checkpoint("best").read_bytes() == \
         b"push-her-cs-s1"
 
 
@@ -372,7 +373,7 @@ def test_a_killed_sweep_stops_its_runs_in_order_and_the_next_call_resumes_them(
            "--seeds", "1", "--epochs", "100", "--run-dir", str(tmp_path / "runs")]
     sweep = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
-    metrics = tmp_path / "runs" / "reach-her-s1" / "metrics.csv"
+    metrics = RunDir(tmp_path / "runs" / "reach-her-s1").metrics
     deadline = time.monotonic() + 300
     # the learner's first row: the run is training (a file has no event to await)
     while not (metrics.is_file() and len(metrics.read_text().splitlines()) >= 2):

@@ -23,6 +23,7 @@ from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
+from hercs.rundir import RunDir
 from hercs.runlog import EpisodeLogWriter
 from hercs.tasks import task_spec
 
@@ -32,7 +33,7 @@ RERUN = Path(sys.executable).parent / "rerun"
 def _write_run(run_dir: Path, n: int = 12) -> None:
     spec = task_spec("push")
     rng = np.random.default_rng(0)
-    with EpisodeLogWriter(run_dir / "episodes.mcap", run="t", task="push") as writer:
+    with EpisodeLogWriter(RunDir(run_dir).episode_log, run="t", task="push") as writer:
         for i in range(n):
             if i == n // 2:
                 writer.append_cluster_model(pb.ClusterModel(
@@ -41,7 +42,7 @@ def _write_run(run_dir: Path, n: int = 12) -> None:
                     fitted_on=5, failures_seen=5))
             ep = random_episode(spec, rng, seq=i)
             writer.append_episode(episode_to_msg(ep, run="t", task="push"), episode_id=i)
-    (run_dir / "metrics.csv").write_text(
+    RunDir(run_dir).metrics.write_text(
         "epoch,env_steps,success_rate,env_steps_per_s,cluster_sizes,rejects\n"
         "1,300,0.1,400.5,3;4;5,\n"
         "2,600,0.2,410.0,4;4;6,\n")
@@ -120,7 +121,7 @@ def test_default_view_draws_the_last_epoch_on_the_runs_clock(tmp_path: Path) -> 
     _write_run(tmp_path)
     config = apply_overrides(HercsConfig(), ["training.cycles_per_epoch=2",
                                              "training.episodes_per_cycle=2"])
-    save_yaml(config, tmp_path / "config.yaml")
+    save_yaml(config, RunDir(tmp_path).config)
     out = tmp_path / "default.rrd"
     result = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "view", str(tmp_path),
                              "--save", str(out)], capture_output=True, text=True, timeout=120)

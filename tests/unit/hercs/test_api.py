@@ -21,7 +21,7 @@ from hercs.episode import random_episode
 from hercs.learner.checkpoint import save_policy
 from hercs.metrics import METRICS_COLUMNS
 from hercs.policy import Policy
-from hercs.rundir import RunDirError
+from hercs.rundir import RunDir, RunDirError
 from hercs.runlog import EpisodeLog, segment_paths
 
 REPO = Path(__file__).resolve().parents[3]
@@ -58,11 +58,11 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     run_dir = tmp_path_factory.mktemp("runs") / RUN
     run_dir.mkdir()
     config = apply_overrides(HercsConfig(), ["task.name=reach", f"run.name={RUN}"])
-    save_yaml(config, run_dir / "config.yaml")
-    save_policy(run_dir / "checkpoints", "best.pt",
+    save_yaml(config, RunDir(run_dir).config)
+    save_policy(RunDir(run_dir).checkpoints, "best.pt",
                 weights=weights_bytes(trained_like_policy(config), epoch=2), epoch=2,
                 success_rate=0.5, config=config.to_dict())
-    with (run_dir / "metrics.csv").open("w", newline="") as f:
+    with RunDir(run_dir).metrics.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=METRICS_COLUMNS)
         writer.writeheader()
         for epoch in (1, 2):
@@ -97,7 +97,7 @@ def test_the_loaded_policy_acts_as_the_evaluator_acts_on_the_same_weights(run_di
     import torch
 
     policy = hercs.load_policy(run_dir)
-    state = torch.load(run_dir / "checkpoints" / "best.pt", weights_only=False)
+    state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])
     decoder = WeightsDecoder(spec=config.task.spec, config=config)
     evaluator = Policy(spec=config.task.spec, config=config.ddpg, seed=0)
@@ -166,7 +166,7 @@ def test_a_missing_checkpoint_is_named_with_those_that_exist(run_dir: Path) -> N
 
 def test_a_checkpoint_given_by_path_loads(run_dir: Path, tmp_path: Path) -> None:
     copy = tmp_path / "mine.pt"
-    copy.write_bytes((run_dir / "checkpoints" / "best.pt").read_bytes())
+    copy.write_bytes((RunDir(run_dir).checkpoint("best")).read_bytes())
     policy = hercs.load_policy(tmp_path / "elsewhere", str(copy))
     assert policy.source == copy and policy.epoch == 2
 
@@ -188,7 +188,7 @@ def test_read_metrics_parses_each_cell(run_dir: Path) -> None:
     assert np.isnan(metrics.column("q_mean")).all()
     with pytest.raises(KeyError, match="no column 'succes'"):
         metrics.column("succes")
-    direct = hercs.read_metrics(run_dir / "metrics.csv")
+    direct = hercs.read_metrics(RunDir(run_dir).metrics)
     assert direct.columns == metrics.columns
     np.testing.assert_array_equal(direct.column("policy_lag_p50"), metrics.column("policy_lag_p50"))
 
@@ -229,7 +229,7 @@ def test_load_config_from_defaults_a_run_or_a_file_with_overrides(run_dir: Path,
                                                                    tmp_path: Path) -> None:
     assert hercs.load_config() == HercsConfig()
     assert hercs.load_config(run_dir).run.name == RUN
-    assert hercs.load_config(run_dir / "config.yaml").task.name == "reach"
+    assert hercs.load_config(RunDir(run_dir).config).task.name == "reach"
     (tmp_path / "mine.yaml").write_text("ddpg:\n  lr_actor: 0.0005\n")
     config = hercs.load_config(tmp_path / "mine.yaml", ["task.name=push"])
     assert (config.ddpg.lr_actor, config.task.name, config.ddpg.gamma) == (0.0005, "push", 0.98)

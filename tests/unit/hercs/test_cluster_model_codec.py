@@ -25,6 +25,7 @@ from hercs.episode import random_episode
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
+from hercs.rundir import RunDir
 from hercs.runlog import EpisodeLogWriter, read_cluster_models
 from hercs.tasks import task_spec
 
@@ -89,7 +90,7 @@ def test_log_written_with_the_old_field_name_still_opens(tmp_path: Path) -> None
                   failed_goals_seen=450)
     old.centroids.ParseFromString(array_to_msg(CENTROIDS).SerializeToString())
     rng = np.random.default_rng(0)
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     with EpisodeLogWriter(path, run="old", task="push") as writer:
         writer.append_episode(episode_to_msg(random_episode(SPEC, rng, seq=0), run="old",
                                              task="push"), episode_id=0)

@@ -7,6 +7,7 @@ import pytest
 
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
 from hercs.errors import ConfigError
+from hercs.rundir import RunDir
 from hercs.tasks import task_spec
 
 
@@ -98,8 +99,8 @@ def test_bad_values_are_refused_with_the_field_named(override: str, message: str
 def test_yaml_round_trip(tmp_path: Path) -> None:
     c = apply_overrides(HercsConfig(), ["task.name=pick", "run.method=her-ebp-cs",
                                         "cluster.k=4", "training.epochs=3"])
-    save_yaml(c, tmp_path / "config.yaml")
-    assert load_yaml(tmp_path / "config.yaml") == c
+    save_yaml(c, RunDir(tmp_path).config)
+    assert load_yaml(RunDir(tmp_path).config) == c
 
 
 def test_partial_yaml_keeps_defaults_and_rejects_unknown(tmp_path: Path) -> None:

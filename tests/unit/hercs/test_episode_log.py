@@ -22,6 +22,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from hercs.codec import array_to_msg, msg_to_array
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -86,7 +87,7 @@ def write_log(path: Path, ids: range, task: str = "push", *, scene: bool = True
 def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str) -> None:
     n, T = 9, task_spec(task).episode_steps
     S = 1_795_000_000 * 10**9  # the run's start: every log_time is an offset from it
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     with EpisodeLogWriter(path, run=RUN, task=task, start_time_ns=S) as writer:
         for i in range(4):
             writer.append_episode(make_episode(i, task), episode_id=i, log_time_ns=1_000 + i)
@@ -148,7 +149,7 @@ def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str)
 
 
 def test_invalid_appends_write_nothing_and_leave_the_writer_usable(tmp_path: Path) -> None:
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     writer = EpisodeLogWriter(path, run=RUN, task="push")
     writer.append_episode(make_episode(0, "push"), episode_id=5)
     writer.flush_scenes()  # episode 5's scene comes from the scene thread
@@ -176,7 +177,7 @@ def test_invalid_appends_write_nothing_and_leave_the_writer_usable(tmp_path: Pat
 
 def test_plain_mcap_reader_cannot_read_a_killed_writers_file(tmp_path: Path) -> None:
     """Why recovery has its own reader: mcap 1.6 reads the footer first and fails."""
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     _, _ = write_log(path, range(3))
     with open(path, "rb") as f, pytest.raises((McapError, struct.error)):
         list(make_reader(f).iter_messages())
@@ -225,7 +226,7 @@ def test_torn_tail_anywhere_yields_exactly_the_complete_chunks(tmp_path: Path) -
 
 
 def test_garbage_and_corrupt_tails(tmp_path: Path) -> None:
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     _, sizes = write_log(path, range(3), scene=False)
     data = path.read_bytes()
     for tail in (bytes(4096), np.random.default_rng(3).bytes(4096)):
@@ -253,7 +254,7 @@ def test_sigkill_mid_stream_loses_no_acked_episode(tmp_path: Path, acks_before_k
                                                    delay_s: float) -> None:
     """The child acks (prints) an id only after append_episode returned; the kill lands while
     it builds or writes the next one."""
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     child = subprocess.Popen([sys.executable, str(CHILD), str(path), "push"],
                              stdout=subprocess.PIPE, text=True, cwd=Path(__file__).parents[3])
     acked: list[int] = []
@@ -292,7 +293,7 @@ def test_a_write_failing_part_way_loses_no_acked_episode(tmp_path: Path,
     """A file size limit (as a full disk) makes a write fail half done: the append raises,
     nothing after it is accepted, and recovery yields every acked episode, plus the failed
     one if its chunk was complete before the failing write (its message index was not)."""
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     out = subprocess.run([sys.executable, str(CHILD), str(path), "push",
                           str(max_file_bytes)],
                          capture_output=True, text=True, timeout=60, check=True,
@@ -315,7 +316,7 @@ def test_restart_continues_in_a_new_segment(tmp_path: Path) -> None:
     assert list(recovered) == []
     start = writer.start_time_ns  # the run's real start: the first segment's creation
     assert before <= start <= time.time_ns()
-    live = tmp_path / "episodes.mcap"
+    live = RunDir(tmp_path).episode_log
     for i in range(6):
         size_before = live.stat().st_size
         writer.append_episode(make_episode(i, "push"), episode_id=i)
@@ -354,7 +355,7 @@ def test_restart_continues_in_a_new_segment(tmp_path: Path) -> None:
 
 def test_open_drops_an_empty_killed_segment_and_refuses_another_runs_log(
         tmp_path: Path) -> None:
-    EpisodeLogWriter(tmp_path / "episodes.mcap", run=RUN, task="push")  # killed: no episode
+    EpisodeLogWriter(RunDir(tmp_path).episode_log, run=RUN, task="push")  # killed: no episode
     writer, recovered = EpisodeLog.open(tmp_path, run=RUN, task="push")
     assert list(recovered) == []
     writer.append_episode(make_episode(0, "push"), episode_id=0)

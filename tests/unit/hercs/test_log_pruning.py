@@ -11,6 +11,7 @@ import pytest
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.runlog import (
     EpisodeLogWriter,
     SegmentHead,
@@ -110,7 +111,7 @@ def test_heads_are_read_from_real_segments_and_pruning_deletes_the_files(
         tmp_path: Path) -> None:
     write_segment(tmp_path / "episodes.000.mcap", range(0, 4))
     write_segment(tmp_path / "episodes.001.mcap", range(4, 8), starts_with=state(4, 0))
-    write_segment(tmp_path / "episodes.mcap", range(8, 10), starts_with=state(8, 6))
+    write_segment(RunDir(tmp_path).episode_log, range(8, 10), starts_with=state(8, 6))
     heads = [read_head(p)[0] for p in segment_paths(tmp_path)]
     assert [(h.first_episode_id, h.first_held_id) for h in heads] == [(0, None), (4, 0),
                                                                       (8, 6)]
@@ -123,7 +124,7 @@ def test_heads_are_read_from_real_segments_and_pruning_deletes_the_files(
 
 
 def test_a_state_must_come_before_the_episodes_it_counts(tmp_path: Path) -> None:
-    with EpisodeLogWriter(tmp_path / "episodes.mcap", run=RUN, task=TASK, scene=False) as w:
+    with EpisodeLogWriter(RunDir(tmp_path).episode_log, run=RUN, task=TASK, scene=False) as w:
         w.append_episode(episode(0), episode_id=0)
         with pytest.raises(ValueError, match="next_episode_id=0: episode 0 is logged here"):
             w.append_replay_state(state(0, 0))

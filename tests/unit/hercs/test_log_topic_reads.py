@@ -15,6 +15,7 @@ from mcap.records import ChunkIndex
 from hercs.codec import episode_to_msg
 from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
+from hercs.rundir import RunDir
 from hercs.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -74,7 +75,7 @@ def record_spans(data: bytes) -> list[tuple[int, int, int]]:
 @pytest.mark.parametrize("close", [True, False], ids=["closed", "killed"])
 def test_a_read_of_episodes_skips_the_scene_chunks_and_misses_nothing(
         tmp_path: Path, close: bool) -> None:
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     write_log(path, 6, close=close)
     for topic in (TOPIC_EPISODES, TOPIC_CLUSTER_MODEL):
         assert filtered(path, topic) == by_topic(path, topic)
@@ -104,7 +105,7 @@ def test_a_log_cut_at_any_record_boundary_reads_the_same_episodes(tmp_path: Path
 
 def test_a_damaged_episode_chunk_is_refused_and_a_damaged_skipped_one_is_not_read(
         tmp_path: Path) -> None:
-    path = tmp_path / "episodes.mcap"
+    path = RunDir(tmp_path).episode_log
     write_log(path, 6, close=True)
     data = path.read_bytes()
     reader = SegmentReader(path)

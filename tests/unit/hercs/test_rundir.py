@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from hercs import rundir
+from hercs.rundir import RunDir
 
 
 @pytest.mark.parametrize(
@@ -19,17 +20,17 @@ from hercs import rundir
     ids=["default-best", "default-falls-back-to-latest", "best", "latest", "epoch", "path"])
 def test_checkpoint_names_resolve(tmp_path: Path, checkpoint: str | None, present: set[str],
                                   expected: str) -> None:
-    (tmp_path / "checkpoints").mkdir()
+    RunDir(tmp_path).checkpoints.mkdir()
     for name in present:
-        (tmp_path / "checkpoints" / name).write_bytes(b"")
+        (RunDir(tmp_path).checkpoints / name).write_bytes(b"")
     path = rundir.checkpoint_path(tmp_path, checkpoint)
     assert path == (tmp_path / expected if expected.startswith("checkpoints") else Path(expected))
 
 
 def test_kept_checkpoints_lists_best_latest_then_epochs(tmp_path: Path) -> None:
-    (tmp_path / "checkpoints").mkdir()
+    RunDir(tmp_path).checkpoints.mkdir()
     for name in ("epoch-0020.pt", "learner.pt", "best.pt", "epoch-0010.pt", "mine.pt"):
-        (tmp_path / "checkpoints" / name).write_bytes(b"")
+        (RunDir(tmp_path).checkpoints / name).write_bytes(b"")
     assert rundir.kept_checkpoints(tmp_path) == {
         "best.pt": "best", "learner.pt": "latest", "epoch-0010.pt": "epoch-10",
         "epoch-0020.pt": "epoch-20", "mine.pt": ""}
@@ -89,5 +90,31 @@ def test_a_folder_holding_only_a_slurm_job_holds_no_run(tmp_path: Path) -> None:
     assert not rundir.holds_a_run(tmp_path / "absent")
     (tmp_path / rundir.SLURM).mkdir()
     assert not rundir.holds_a_run(tmp_path)
-    (tmp_path / "episodes.mcap").write_bytes(b"")
+    RunDir(tmp_path).episode_log.write_bytes(b"")
     assert rundir.holds_a_run(tmp_path)
+
+
+def test_a_run_directory_names_every_file_it_keeps(tmp_path: Path) -> None:
+    """The one place a path into a run directory is made: each name as the module's table
+    gives it, relative to the folder, and the folder itself through os.fspath."""
+    run = RunDir(tmp_path / "push-her-cs-s1")
+    names = {"config": "config.yaml", "metrics": "metrics.csv", "checkpoints": "checkpoints",
+             "logs": "logs", "router_log": "logs/router.log", "tensorboard": "tensorboard",
+             "router": "router.json", "lock": "owner.lock", "previous": "previous",
+             "slurm": "slurm", "episode_log": "episodes.mcap"}
+    assert {attr: getattr(run, attr).relative_to(run.path).as_posix() for attr in names} == names
+    assert run.log("replay-0") == run.path / "logs" / "replay-0.log"
+    assert run.checkpoint("best") == run.path / "checkpoints" / "best.pt"
+    assert run.checkpoint("latest") == run.path / "checkpoints" / "learner.pt"
+    assert run.segment(3) == run.path / "episodes.003.mcap"
+    assert (run.name, Path(run), run) == ("push-her-cs-s1", run.path, RunDir(str(run.path)))
+
+
+def test_log_segments_come_in_the_order_they_were_written(tmp_path: Path) -> None:
+    run = RunDir(tmp_path)
+    assert RunDir(tmp_path / "absent").log_segments() == []
+    for name in ("episodes.mcap", "episodes.010.mcap", "episodes.002.mcap", "episodes.x.mcap",
+                 "metrics.csv"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in run.log_segments()] == ["episodes.002.mcap", "episodes.010.mcap",
+                                                    "episodes.mcap"]

@@ -14,6 +14,7 @@ from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
 from hercs.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
 from hercs.replay_service.core import ReplayCore
+from hercs.rundir import RunDir
 from hercs.served import ReplayCounters, ServedBatch
 
 
@@ -62,10 +63,10 @@ def test_epochs_versions_and_rows(tmp_path) -> None:
     # the clock ticks once at start and once per epoch end: epoch 1 spans 1 s
     assert row["updates_per_s"] == 6.0
     assert loop.record_eval(epoch=1, success_rate=0.3, mean_final_distance=0.1) is None
-    csv_file = MetricsCsv(tmp_path / "metrics.csv")
+    csv_file = MetricsCsv(RunDir(tmp_path).metrics)
     csv_file.write(row)
     csv_file.close()
-    lines = (tmp_path / "metrics.csv").read_text().splitlines()
+    lines = RunDir(tmp_path).metrics.read_text().splitlines()
     assert lines[0].split(",") == METRICS_COLUMNS and len(lines) == 2
 
 
@@ -127,15 +128,15 @@ def test_unreadable_checkpoint_is_refused_not_ignored(tmp_path) -> None:
 
 
 def test_metrics_keep_rows_through_the_checkpoint_epoch_and_the_rest_aside(tmp_path) -> None:
-    path = tmp_path / "metrics.csv"
+    path = RunDir(tmp_path).metrics
     out = MetricsCsv(path)
     for epoch in (1, 2, 3):
         out.write({"epoch": epoch, "success_rate": epoch / 10})
     out.close()
-    aside = tmp_path / "previous" / "t"
+    aside = RunDir(tmp_path).previous / "t"
     assert truncate_metrics(path, through_epoch=2, aside=aside) == [3]
     assert recorded_epochs(path) == [1, 2]
-    assert recorded_epochs(aside / "metrics.csv") == [1, 2, 3]  # the old file, kept whole
+    assert recorded_epochs(RunDir(aside).metrics) == [1, 2, 3]  # the old file, kept whole
     assert truncate_metrics(path, through_epoch=2, aside=tmp_path / "unused") == []
     assert not (tmp_path / "unused").exists()  # nothing dropped: nothing set aside
     again = MetricsCsv(path)  # reopened for appending: no second header
@@ -146,7 +147,7 @@ def test_metrics_keep_rows_through_the_checkpoint_epoch_and_the_rest_aside(tmp_p
 
 
 def test_metrics_of_an_older_run_keep_its_columns(tmp_path) -> None:
-    path = tmp_path / "metrics.csv"
+    path = RunDir(tmp_path).metrics
     path.write_text("epoch,success_rate\n1,0.5\n")
     out = MetricsCsv(path)
     out.write({"epoch": 2, "success_rate": 0.6, "bad_batches": 0})
