@@ -17,14 +17,10 @@ What `run` does, in order:
    `Inserter` (at-least-once, on its own thread; see `hercs.actors.inserter` for retries and
    backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
    Metrics every `METRICS_EVERY_EPISODES` episodes.
-   In the lockstep schedule (`training.schedule`) the loop instead waits, before each episode,
-   for weights at least as new as the replay wants (none before the learner's first
-   broadcast), and after it for the insert's outcome: an ack says which version the next
-   episode needs (the next cycle's once this one is full); an episode the replay refuses as
-   stale or surplus (`hercs.reasons.Reason`, superseded) is dropped and the next waits for newer
-   weights. Asynchronously with `training.max_policy_lag`, when the latest ack asked for newer
-   weights than the policy's, the loop waits for the next Weights to arrive before the next
-   episode; an episode refused as stale is dropped.
+   Before each episode the loop waits for the weights the schedule asks for
+   (`hercs.actors.weights_schedule`: lockstep's version, the lag bound's next arrival), and
+   in lockstep after it for the inserts' outcome, which sets the next episode's version; an
+   episode the replay refuses as stale or surplus (`Reason`, superseded) is dropped.
 4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
    finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
    queued inserts for at most `STOP_FLUSH_S` (not at all once the run is finished: no learner
@@ -48,6 +44,7 @@ import numpy as np
 from hercs.actors.inserter import Inserter
 from hercs.actors.rollout import VectorRollout
 from hercs.actors.weights import WeightsDecoder
+from hercs.actors.weights_schedule import Need, WeightsSchedule
 from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig
 from hercs.envs import make_env
@@ -157,13 +154,9 @@ class ActorService:
                             drop_oldest=True)
         self.run_finished = threading.Event()
         self.episodes = 0
-        self.lockstep = config.training.schedule == "lockstep"
-        self.lag_bounded = not self.lockstep and config.training.max_policy_lag >= 1
-        """Asynchronous with `training.max_policy_lag`: the acks say which weights the next
-        episode needs, and the loop waits for newer weights instead of acting an episode the
-        replay would refuse (`_await_bounded_weights`)."""
-        self.min_policy_version = 0
-        """Lockstep: the oldest weights version the next episode may be acted with."""
+        self.schedule = WeightsSchedule(schedule=config.training.schedule,
+                                        max_policy_lag=config.training.max_policy_lag)
+        """What the next episode's weights must be (lockstep, the lag bound)."""
 
     def _on_weights(self, key: str, raw: bytes) -> None:
         """Subscription thread: decode, check, offer. Never touches the policy itself."""
@@ -198,7 +191,7 @@ class ActorService:
         config, stop = self.config, self.runtime.stop
         log.info("actor %s (wire id %s): run %r, task %s, method %s", self.ident,
                  self.actor_id, config.run.name, self.spec.name, config.run.method)
-        if self.lockstep and self.worker.num_envs > config.training.episodes_per_cycle:
+        if self.schedule.lockstep and self.worker.num_envs > config.training.episodes_per_cycle:
             log.warning("lockstep with %d envs per process and %d episodes per cycle: the "
                         "replay refuses the surplus of every cycle (cycle_full)",
                         self.worker.num_envs, config.training.episodes_per_cycle)
@@ -207,15 +200,14 @@ class ActorService:
         try:
             while not stop.is_set():
                 self._adopt_newest()
-                if self.lockstep and not self._await_weights():
-                    break
-                if self.lag_bounded and not self._await_bounded_weights():
+                if not self._await_weights():
                     break
                 acted_with = self.policy.version
                 superseded_before = self.inserter.counters.superseded
                 if not self._submit(self.worker.run_episodes(self._act), acted_with):
                     break  # stopped while the queue was full: the rest are not sent
-                if self.lockstep and not self._await_outcome(acted_with, superseded_before):
+                if self.schedule.lockstep and not self._await_outcome(acted_with,
+                                                                      superseded_before):
                     break
                 if self.episodes % METRICS_EVERY_EPISODES < self.worker.num_envs:
                     now = time.monotonic()
@@ -249,32 +241,24 @@ class ActorService:
         if newest is not None:
             self.policy.load(newest)
 
-    def _await_bounded_weights(self) -> bool:
-        """A lag bound: if the latest ack asked for newer weights than the policy's, wait for
-        the next Weights to arrive (whatever its version) and adopt it; False if stopped.
-
-        Not for a version number, as lockstep waits: a learner restarted from its checkpoint
-        broadcasts lower versions than the acks before its restart asked for, and an actor
-        waiting for those numbers would wait for ever while the learner waits for its
-        episodes. The latest ack, not the highest, for the same reason. An ack's 0 asks for
-        nothing: it is also what a replay without a bound, or before the learner's first
-        sample call, answers."""
-        wanted = self.inserter.latest_next_policy_version
-        if wanted <= 0 or self.policy.version >= wanted:  # 0: nothing asked (or the
-            return True                                   # learner's initial weights)
-        stop = self.runtime.stop
-        while not stop.is_set():
-            self._weights.wait(0.5)
-            newest = self._weights.take()
-            if newest is not None:
-                self.policy.load(newest)
-                return True
-        return False
-
     def _await_weights(self) -> bool:
-        """Lockstep: wait for weights of at least `min_policy_version`; False if stopped."""
+        """Wait for what the schedule asks of the next episode's weights (`WeightsSchedule`);
+        False if stopped."""
         stop = self.runtime.stop
-        while self.policy.version < self.min_policy_version:
+        wait = self.schedule.before_episode(
+            policy_version=self.policy.version,
+            latest_ack_version=self.inserter.latest_next_policy_version)
+        if wait.need is Need.NOTHING:
+            return not stop.is_set()
+        if wait.need is Need.NEXT_ARRIVAL:
+            while not stop.is_set():
+                self._weights.wait(0.5)
+                newest = self._weights.take()
+                if newest is not None:
+                    self.policy.load(newest)
+                    return True
+            return False
+        while self.policy.version < wait.version:
             if stop.is_set():
                 return False
             self._weights.wait(0.5)
@@ -282,16 +266,13 @@ class ActorService:
         return not stop.is_set()
 
     def _await_outcome(self, acted_with: int, superseded_before: int) -> bool:
-        """Lockstep: wait for the inserts of the episodes just submitted to end; set the next
-        episodes' minimum weights version from them. False if stopped."""
+        """Lockstep: wait for the inserts of the episodes just submitted to end, and tell the
+        schedule how they ended. False if stopped."""
         if not self.inserter.wait_idle(stop=self.runtime.stop):
             return False
-        wanted = self.inserter.newest_next_policy_version  # what the acks asked for
-        if self.inserter.counters.superseded > superseded_before:
-            # only newer weights can make an episode wanted; a dropped (malformed) episode is
-            # replaced by another acted with the same weights, or its cycle never completes
-            wanted = max(wanted, acted_with + 1)
-        self.min_policy_version = max(self.min_policy_version, wanted)
+        self.schedule.after_outcome(
+            acted_with=acted_with, newest_ack_version=self.inserter.newest_next_policy_version,
+            superseded=self.inserter.counters.superseded > superseded_before)
         return True
 
     @property
