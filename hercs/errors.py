@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from hercs.reasons import Reason
+
 
 class HercsError(Exception):
     """Base of every error hercs raises on purpose."""
@@ -18,7 +20,7 @@ class InvalidMessage(HercsError):
     `ReplayStatus`; `detail` says what was wrong and where.
     """
 
-    def __init__(self, reason: str, detail: str) -> None:
+    def __init__(self, reason: Reason, detail: str) -> None:
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
         self.detail = detail

@@ -54,7 +54,7 @@ class PendingReply:
         """Answer with `payload`."""
         return self._answer(lambda q: q.reply(self._key, payload))
 
-    def reply_error(self, reason: str, detail: str) -> bool:
+    def reply_error(self, reason: Reason, detail: str) -> bool:
         """Answer with an error the caller receives as `RemoteError(reason, detail)`."""
         if ": " in reason:
             raise ValueError(f"reason: got {reason!r}, must not contain ': '")

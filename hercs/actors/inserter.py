@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from hercs.backoff import Backoff
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
-from hercs.reasons import Disposition, disposition
+from hercs.reasons import Disposition, Reason, disposition
 from hercs.service import start_supervised
 from hercs.transport import RemoteError, TransportError, TransportTimeout
 from hercs.validation import parse_message
@@ -222,7 +222,7 @@ class Inserter:
                     return
                 kind, why = f"remote:{exc.reason}", str(exc)
             except TransportError as exc:
-                kind, why = "transport", str(exc)
+                kind, why = Reason.TRANSPORT.value, str(exc)
             else:
                 ack = self._check_ack(reply, seq, first_attempt=attempt == 0)
                 if isinstance(ack, pb.InsertAck):

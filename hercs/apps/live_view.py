@@ -60,6 +60,7 @@ from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
+from hercs.reasons import Reason
 from hercs.service import ServiceRuntime, join_run, service_main
 from hercs.transport import RemoteError, TransportError
 from hercs.validation import (
@@ -250,7 +251,8 @@ class LiveViewService:
         except (TransportError, InvalidMessage) as exc:
             self.fetch_failures += 1
             self.recorder.forget(episode_id)
-            reason = exc.reason if isinstance(exc, RemoteError | InvalidMessage) else "transport"
+            reason = (exc.reason if isinstance(exc, RemoteError | InvalidMessage)
+                      else Reason.TRANSPORT)
             self._warn.warn(f"fetch:{reason}", f"no trajectory for episode {episode_id}: {exc}")
             return False
         self.recorder.on_episode(msg, episode_id=episode_id)

@@ -28,6 +28,7 @@ from hercs.config import HercsConfig
 from hercs.episode import EpisodeData
 from hercs.errors import ConfigError
 from hercs.normalizer import Normalizer, NormalizerState
+from hercs.reasons import Reason
 from hercs.replay_service.energy import trajectory_energy
 from hercs.replay_service.her import normalizer_sample, relabel
 from hercs.replay_service.samplers import make_sampler
@@ -195,7 +196,7 @@ class ReplayCore:
         self.o_norm.recompute_stats()
         self.g_norm.recompute_stats()
 
-    def count_reject(self, reason: str) -> None:
+    def count_reject(self, reason: Reason) -> None:
         self.rejects[reason] += 1
 
     # -- cluster model ---------------------------------------------------------------------

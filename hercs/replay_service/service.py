@@ -98,7 +98,7 @@ class _QueryWaiter(Generic[R]):
     def done(self, result: R) -> None:
         self.pending.reply(self.encode(result))
 
-    def fail(self, reason: str, detail: str) -> None:
+    def fail(self, reason: Reason, detail: str) -> None:
         self.pending.reply_error(reason, detail)
 
 
@@ -173,7 +173,7 @@ class ReplayService:
 
     # -- inserts ---------------------------------------------------------------------------
     def _on_reject(self, exc: Exception) -> None:
-        reason = exc.reason if isinstance(exc, InvalidMessage) else "internal"
+        reason = exc.reason if isinstance(exc, InvalidMessage) else Reason.INTERNAL
         self.table.count_reject(reason)
         self.warn.warn(f"reject:{reason}", f"rejected a message: {exc}")
 
@@ -257,7 +257,7 @@ class ReplayService:
             return
         except (InvalidMessage, ValueError) as exc:
             reason = exc.reason if isinstance(exc, InvalidMessage) else Reason.BAD_VALUE
-            self._on_reject(InvalidMessage(str(reason), f"ClusterModel: {exc}"))
+            self._on_reject(InvalidMessage(reason, f"ClusterModel: {exc}"))
             return
         if adopted:
             log.info("cluster model v%d adopted; cluster sizes %s", model.version,

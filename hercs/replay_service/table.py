@@ -516,7 +516,7 @@ class ReplayTable:
             return (store.episode(episode_id), store.num_inserted - store.size,
                     store.num_inserted)
 
-    def count_reject(self, reason: str) -> None:
+    def count_reject(self, reason: Reason) -> None:
         with self._lock:
             self.core.count_reject(reason)
 

@@ -27,6 +27,7 @@ from hercs.policy import Policy
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
+from hercs.reasons import Reason
 from hercs.transport import PendingReply, Transport, TransportError
 from tests.integration.services import (
     WAIT_S,
@@ -89,7 +90,7 @@ class FakeReplay:
         if self.closing.is_set():
             with self._lock:
                 self.closing_attempts.append((time.time(), episode.seq))
-            pending.reply_error("unavailable", "replay closing")
+            pending.reply_error(Reason.UNAVAILABLE, "replay closing")
             return
         with self._lock:
             self.attempts[episode.seq] += 1
@@ -99,10 +100,10 @@ class FakeReplay:
             self.held.append(pending)  # never answered: the actor times out and retries
             return
         if first and episode.seq == 2:
-            pending.reply_error("unavailable", "replay restarting")
+            pending.reply_error(Reason.UNAVAILABLE, "replay restarting")
             return
         if episode.seq == 3:
-            pending.reply_error("bad_shape", "Episode.obs: the test rejects seq 3")
+            pending.reply_error(Reason.BAD_SHAPE, "Episode.obs: the test rejects seq 3")
             return
         with self._lock:
             self.acks[episode.seq] += 1
@@ -138,7 +139,7 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     def serve_config(pending: PendingReply) -> None:
         config_queries.append(pending)
         if len(config_queries) == 1:
-            pending.reply_error("unavailable", "replay still loading its log")
+            pending.reply_error(Reason.UNAVAILABLE, "replay still loading its log")
         else:
             pending.reply(yaml.safe_dump(served.to_dict()).encode())
 

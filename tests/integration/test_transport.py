@@ -79,7 +79,7 @@ def test_invalid_message_is_an_error_reply_with_its_reason(open_client: OpenClie
 
     def handler(payload: bytes) -> bytes:
         if payload == b"bad":
-            raise InvalidMessage("bad_shape", "obs: got shape (3,), expected (25,)")
+            raise InvalidMessage(Reason.BAD_SHAPE, "obs: got shape (3,), expected (25,)")
         return b"ok"
 
     server.serve(f"{RUN}/replay/insert", handler, on_error=errors.append)
@@ -156,7 +156,7 @@ def test_deferred_reply_is_answered_later_from_another_thread(open_client: OpenC
     assert result.get(timeout=WAIT_S) == b"batch:batch?"
     assert answered_from == ["rate-limiter"]
     assert pending.answered and srv.pending == 0
-    assert not pending.reply(b"twice") and not pending.reply_error("late", "ignored")
+    assert not pending.reply(b"twice") and not pending.reply_error(Reason.EXPIRED, "ignored")
 
 
 def test_closing_a_server_answers_parked_queries_unavailable(open_client: OpenClient) -> None:
