@@ -171,6 +171,15 @@ class Inserter:
             with self._cond:
                 self._cond.notify_all()
 
+    def abort(self) -> None:
+        """Give up at once: take no more episodes, retry nothing (a retry in its backoff
+        ends now); what is queued is counted `abandoned`. For a run that is over, whose
+        replay answers every insert `unavailable` while it closes."""
+        with self._cond:
+            self._closing = True
+            self._abort.set()
+            self._cond.notify_all()
+
     def join(self, timeout_s: float) -> bool:
         """Wait for the sender thread to end; True if it did."""
         self._thread.join(timeout_s)
@@ -235,7 +244,6 @@ class Inserter:
                 c.abandoned += 1
                 return
             attempt += 1
-            c.retries += 1
             self._warn.warn(f"retry:{kind}",
                             f"insert of ({self.actor_id}, seq {seq}) not acked ({why}); "
                             f"retrying the same episode in {backoff.next_s:.1f} s (attempt "
@@ -243,6 +251,7 @@ class Inserter:
             if backoff.wait(self._abort):
                 c.abandoned += 1
                 return
+            c.retries += 1  # counted when sent: an abort in the backoff sends nothing
 
     def _check_ack(self, reply: bytes, seq: int, *,
                    first_attempt: bool) -> pb.InsertAck | str:

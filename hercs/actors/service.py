@@ -182,6 +182,7 @@ class ActorService:
             log.info("actor %s: run %r finished (%d epochs); stopping", self.ident,
                      self.config.run.name, progress.epochs)
             self.run_finished.set()
+            self.inserter.abort()  # now, not after the episode at hand: nothing is retried
             self.runtime.stop.set()
 
     def _act(self, o: np.ndarray, g: np.ndarray) -> np.ndarray:

@@ -105,20 +105,22 @@ def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
 
 
 def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> None:
-    launcher = Launcher(up_argv(tmp_path, "--run", "actorless"), cwd=tmp_path)
+    """The run's only actor (the last --actors wins): the run cannot end on another actor's
+    episodes before the killed one is back, so its new incarnation always inserts."""
+    launcher = Launcher(up_argv(tmp_path, "--run", "actorless", "--actors", "1"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "actorless"
     try:
         launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["actor-1"], signal.SIGKILL)
-        launcher.wait_for_line(r"started actor actor-1 again \(restart 1\)", timeout_s=60)
+        os.kill(launcher.child_pids["actor-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started actor actor-0 again \(restart 1\)", timeout_s=60)
         assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
     wire_ids = [line.split("wire id ")[1].split(")")[0]
-                for line in log_text(run_dir, "actor-1").splitlines() if "wire id" in line]
+                for line in log_text(run_dir, "actor-0").splitlines() if "wire id" in line]
     assert len(wire_ids) == 2 and wire_ids[0] != wire_ids[1], wire_ids
-    assert all(i.startswith("actor-1@") for i in wire_ids)
+    assert all(i.startswith("actor-0@") for i in wire_ids)
 
 
 def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path: Path) -> None:

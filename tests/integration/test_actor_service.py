@@ -51,7 +51,9 @@ def run_config(endpoint: str, envs_per_process: int = 1) -> HercsConfig:
     """What the replay serves: the whole resolved config of the run."""
     return apply_overrides(HercsConfig(), [
         f"run.name={RUN}", "run.method=her", "task.name=reach", "ddpg.hidden_size=64",
-        "actor.insert_timeout_s=1.0", f"transport.connect=[{endpoint}]",
+        "actor.insert_timeout_s=3.0", f"transport.connect=[{endpoint}]",  # a held insert
+        # times out and is retried; an ack a loaded machine delays must not (it would be acked
+        # twice)
         f"actor.envs_per_process={envs_per_process}",
     ])
 

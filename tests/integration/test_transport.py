@@ -213,6 +213,12 @@ def test_request_held_past_its_timeout_raises_transport_timeout(open_client: Ope
     server, client = open_client(), open_client()
     parked: queue.Queue[PendingReply] = queue.Queue()
     server.serve_deferred(f"{RUN}/replay/sample", parked.put)
+    # first a request answered at once: the queryable is then known to the client, so the
+    # held one below cannot end as "no queryable appeared" on a machine slow to propagate it
+    answerer = threading.Thread(target=lambda: parked.get(timeout=WAIT_S).reply(b"known"))
+    answerer.start()
+    assert client.request(f"{RUN}/replay/sample", b"warm-up", timeout_s=WAIT_S) == b"known"
+    answerer.join()
 
     with pytest.raises(TransportTimeout, match=r"no reply within 0\.3 s"):
         client.request(f"{RUN}/replay/sample", b"x", timeout_s=0.3)

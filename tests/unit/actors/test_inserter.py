@@ -33,3 +33,28 @@ def test_an_insert_refused_as_actor_queue_full_is_retried_with_the_same_bytes() 
     assert sent == [b"episode 7"] * 3
     inserter.close(timeout_s=1.0)
     assert inserter.join(WAIT_S)
+
+
+def test_abort_ends_a_retrying_delivery_at_once_and_takes_nothing_more() -> None:
+    """A run that is over: its replay answers `unavailable` while it closes. `abort` (the
+    actor's call on the learner's "finished") ends the delivery in its backoff without another
+    attempt, abandons what is queued and refuses what comes next."""
+    sent: list[bytes] = []
+    refused = threading.Event()
+
+    def send(payload: bytes) -> bytes:
+        sent.append(payload)
+        refused.set()
+        raise RemoteError("replay/insert", Reason.UNAVAILABLE, "replay closing")
+
+    # a backoff far longer than the test: only abort can end the wait
+    inserter = Inserter(send=send, actor_id="a", backoff_min_s=60.0, backoff_max_s=60.0)
+    running = threading.Event()
+    assert inserter.submit(1, b"episode 1", stop=running)
+    assert inserter.submit(2, b"episode 2", stop=running)
+    assert refused.wait(WAIT_S)
+    inserter.abort()
+    assert inserter.join(WAIT_S), "the sender thread ends without waiting out its backoff"
+    assert not inserter.submit(3, b"episode 3", stop=running)
+    c = inserter.counters
+    assert (c.acked, c.abandoned, c.retries) == (0, 2, 0) and sent == [b"episode 1"]
