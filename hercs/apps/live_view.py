@@ -74,6 +74,10 @@ log = logging.getLogger("hercs.live")
 SPAWN_PORT = 9876
 """Port of the viewer that `view.viewer: spawn` starts (rerun-sdk's default)."""
 EPISODE_TIMEOUT_S = 2.0
+FINAL_FETCH_S = 3.0
+"""On stop, the headers already received are still drawn, and their wanted trajectories
+fetched for at most this long: the replay stops after the live view (`hercs up`'s stop
+order), so the recording keeps the run's last drawn episodes."""
 FLUSH_PERIOD_S = 5.0
 FLUSH_TIMEOUT_S = 1.0
 METRICS_PERIOD_S = 5.0
@@ -282,7 +286,8 @@ class LiveViewService:
             if now >= next_metrics:
                 self.publish_metrics()
                 next_metrics = now + METRICS_PERIOD_S
-        while self.step(0.0, fetch=False):  # what already arrived; no more queries
+        deadline = time.monotonic() + FINAL_FETCH_S
+        while self.step(0.0, fetch=time.monotonic() < deadline):  # what already arrived
             pass
         self.publish_metrics()
         log.info("live view done: %d episodes, %d trajectories, %d cluster models, %d epochs",
