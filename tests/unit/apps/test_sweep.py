@@ -1,5 +1,5 @@
-"""`hercs sweep` (hercs/apps/sweep.py): the grid plan, its variants, resume rules, the
-manifest, the report's statistics, and its quick mode end to end."""
+"""`hercs sweep` (hercs/apps/sweep.py, sweep_cells.py, sweep_report.py): the grid plan, its
+variants, resume rules, the manifest, the report's statistics, and its quick mode end to end."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from hercs.apps import sweep as se
+from hercs.apps import sweep_cells as sc
+from hercs.apps import sweep_report as sr
 from hercs.apps import sweep_stats
 from hercs.errors import ConfigError
 from hercs.rundir import RunDir
@@ -47,8 +49,8 @@ def test_v1_runs_are_named_after_their_env_version_and_v4_names_stay() -> None:
                         overrides=[])
     assert cmd[cmd.index("--run") + 1] == "push-v1-her-cs-lockstep-s2"
     assert "task.env_version=v1" in cmd
-    assert se.done_key({"method": "her-cs", "env_version": "v1"}) == "her-cs/v1"
-    assert se.done_key({"method": "her-cs"}) == "her-cs"  # a record from before v1
+    assert sr.done_key({"method": "her-cs", "env_version": "v1"}) == "her-cs/v1"
+    assert sr.done_key({"method": "her-cs"}) == "her-cs"  # a record from before v1
 
 
 def _finished(root: Path, cell, success: list[float]) -> None:
@@ -99,7 +101,7 @@ def test_unfinished_run_is_set_aside_and_kept(tmp_path: Path) -> None:
     assert not se.is_done(run)
     moved = se.set_aside(run, tmp_path)
     assert not run.exists()
-    assert moved.parent == tmp_path / se.UNFINISHED_DIR
+    assert moved.parent == tmp_path / sc.UNFINISHED_DIR
     assert RunDir(moved).log("learner-0").read_text() == "killed at epoch 12"
 
 
@@ -159,7 +161,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     rows = RunDir(tmp_path / "runs" / "reach-her-cs-s1").metrics.read_text().splitlines()
     assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
-    manifest = json.loads((tmp_path / "runs" / se.MANIFEST).read_text())
+    manifest = json.loads((tmp_path / "runs" / sc.MANIFEST).read_text())
     assert [(c["name"], c["state"]) for c in manifest["cells"]] == [
         ("reach-her-s1", "done"), ("reach-her-cs-s1", "done")]
     assert manifest["cells"][1]["machine"] == se.machine_identity()
@@ -223,7 +225,7 @@ def test_a_variant_is_an_arm_of_its_own_named_and_launched_with_its_overrides() 
     assert [c.name for c in cells] == [
         "push-her-s1", "push-her-cs-s1", "push-her-lr5e-4-s1", "push-her-cs-lr5e-4-s1",
         "push-her-s2", "push-her-cs-s2", "push-her-lr5e-4-s2", "push-her-cs-lr5e-4-s2"]
-    assert cells[2].arm == "push-her-lr5e-4" and se.arm_key(cells[2]) == "her/lr5e-4"
+    assert cells[2].arm == "push-her-lr5e-4" and sr.arm_key(cells[2]) == "her/lr5e-4"
     cmd = se.up_command(cells[2], epochs=1, run_root=Path("/r"), port=1, actors=1,
                         overrides=["ddpg.polyak=0.9"])
     sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
@@ -268,7 +270,7 @@ def test_the_manifest_says_where_every_cell_stands_and_the_report_reads_it(
         ("push-her-s1", "done"), ("push-her-cs-s1", "done"), ("push-her-s2", "done"),
         ("push-her-cs-s2", "running")]
     assert manifest["cells"][0]["commit"] == "abc" and manifest["command"] == "hercs sweep x"
-    again, _ = se.read_manifest(runs)
+    again, _ = sc.read_manifest(runs)
     assert again == cells
     assert se.main_report([str(runs), "--out", str(tmp_path / "out"), "--reps", "200",
                            "--compare", "HER-CS", "HER"]) == 0
@@ -279,7 +281,7 @@ def test_the_manifest_says_where_every_cell_stands_and_the_report_reads_it(
     assert "- P(HER-CS > HER) = 1.00 [1.00, 1.00]" in text
     assert "- not finished yet: push-her-cs-s2" in text
     with pytest.raises(ConfigError, match="no sweep here"):
-        se.read_manifest(tmp_path)
+        sc.read_manifest(tmp_path)
 
 
 # ------------------------------------------------------------------------ its statistics
@@ -331,7 +333,7 @@ def test_manifest_writers_at_once_never_fail_or_leave_half_a_file(tmp_path: Path
         try:
             for _ in range(30):
                 se.write_manifest(tmp_path, cells, {}, command="x", epochs=1, committed=None)
-                json.loads((tmp_path / se.MANIFEST).read_text())  # always whole
+                json.loads((tmp_path / sc.MANIFEST).read_text())  # always whole
         except BaseException as exc:  # collected for the assertion
             errors.append(exc)
 
@@ -341,7 +343,7 @@ def test_manifest_writers_at_once_never_fail_or_leave_half_a_file(tmp_path: Path
     for t in threads:
         t.join()
     assert errors == []
-    assert [p.name for p in tmp_path.iterdir()] == [se.MANIFEST]  # no temporary file left
+    assert [p.name for p in tmp_path.iterdir()] == [sc.MANIFEST]  # no temporary file left
 
 
 def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
@@ -383,7 +385,7 @@ def test_a_killed_sweep_stops_its_runs_in_order_and_the_next_call_resumes_them(
     out, _ = sweep.communicate(timeout=180)
     assert sweep.returncode == 130, out
     assert "hercs sweep: stopped; the same command resumes it" in out
-    manifest = json.loads((tmp_path / "runs" / se.MANIFEST).read_text())
+    manifest = json.loads((tmp_path / "runs" / sc.MANIFEST).read_text())
     assert manifest["cells"][0]["state"] == "stopped (resumed by the next call)"
     log = (tmp_path / "runs" / "_logs" / "reach-her-s1.log").read_text()
     assert "hercs up: got SIGTERM, stopping the run" in log and "stopped; run directory" in log

@@ -1,0 +1,241 @@
+"""The cells of a `hercs sweep` and what a sweep keeps of them: `GridRun` (one run of the
+grid: its name, its arm and its `hercs up` command), the plan and `--variant`s, a finished
+run's `bench_done.json` and the small files copied for committing, and the manifest
+`sweep.json` that says where the sweep stands."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import shutil
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+from hercs.apps.plots import (
+    EPSILON_DEFAULT,
+)
+from hercs.errors import ConfigError
+from hercs.rundir import CONFIG, METRICS, RunDir
+from hercs.tasks import task_spec
+
+PROG = "hercs sweep"
+MANIFEST = "sweep.json"
+DONE_FILE = "bench_done.json"
+UNFINISHED_DIR = "_unfinished"
+
+
+@dataclass(frozen=True)
+class GridRun:
+    """One cell of the grid."""
+
+    task: str
+    method: str
+    seed: int
+    schedule: str = "async"
+    precision: str = "fp32"
+    env_version: str = "v4"
+    weld_torquescale: float = 1.0
+    energy_epsilon: float = EPSILON_DEFAULT
+    variant: str = ""
+    """A `--variant`'s name ("" for none): its overrides are this cell's alone."""
+    variant_overrides: tuple[str, ...] = ()
+
+    @property
+    def arm(self) -> str:
+        """The cell without its seed: the runs a report aggregates over."""
+        return self.name.rpartition("-s")[0]
+
+    @property
+    def name(self) -> str:
+        """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
+        version (or a v4 env's weld torquescale, `-ts4`) and EBP's ε other than the default
+        (`-eps1e-3`) after the task: `push-v1-her-cs-lockstep-s2`."""
+        variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
+                                                     (self.precision, "fp32"),
+                                                     (self.variant, "")) if v != default)
+        env = "" if self.env_version == "v4" else f"-{self.env_version}"
+        if self.weld_torquescale != 1.0:
+            env += f"-ts{self.weld_torquescale:g}"
+        if self.energy_epsilon != EPSILON_DEFAULT:
+            mantissa, exponent = f"{self.energy_epsilon:e}".split("e")
+            env += f"-eps{float(mantissa):g}e{int(exponent)}"
+        return f"{self.task}{env}-{self.method}{variant}-s{self.seed}"
+
+    @property
+    def env_id(self) -> str:
+        return task_spec(self.task, self.env_version).env_id
+
+
+def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
+              schedule: str = "async", precision: str = "fp32", env_version: str = "v4",
+              weld_torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT,
+              variants: Sequence[tuple[str, tuple[str, ...]]] = (("", ()),)
+              ) -> list[GridRun]:
+    """Every cell, seed-major: all arms of seed 1 before any of seed 2."""
+    return [GridRun(t, m, s, schedule, precision, env_version, weld_torquescale, energy_epsilon,
+                    name, tuple(overrides))
+            for s in seeds for t in tasks for name, overrides in variants for m in methods]
+
+
+VARIANT_NAME = re.compile(r"[a-z0-9][a-z0-9_.-]*")
+RESERVED_VARIANTS = frozenset({"lockstep", "async", "bf16", "tf32", "fp32", "lag7", "cs",
+                               "ebp", "ebp-cs", "her", "her-cs", "her-ebp", "her-ebp-cs"})
+"""Names the runs' own naming and the plots' grouping already use."""
+
+
+def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
+    """`NAME:FIELD=VALUE[,FIELD=VALUE...]` → (NAME, ("FIELD=VALUE", ...)); ConfigError with
+    what is wrong. The overrides are checked against the config when the sweep starts."""
+    name, sep, rest = text.partition(":")
+    items = tuple(item.strip() for item in rest.split(",") if item.strip())
+    if not sep or not items or not all("=" in item for item in items):
+        raise ConfigError(f"--variant {text!r}: give NAME:FIELD=VALUE[,FIELD=VALUE...], e.g. "
+                          "lr5e-4:ddpg.lr_actor=5e-4,ddpg.lr_critic=5e-4")
+    if name in RESERVED_VARIANTS or re.fullmatch(r"(v|ts|eps)[0-9].*|s[0-9]+", name):
+        raise ConfigError(f"--variant {text!r}: its name {name!r} is one hercs gives runs "
+                          "itself (an environment version, a schedule, a precision, a weld, "
+                          "an energy floor or a seed): choose another")
+    if not VARIANT_NAME.fullmatch(name):
+        raise ConfigError(f"--variant {text!r}: its name {name!r} must be lower-case letters, "
+                          "digits, '-', '_' or '.' (it becomes part of each run's name)")
+    return name, items
+
+
+def is_done(run_dir: Path) -> bool:
+    return (run_dir / DONE_FILE).is_file()
+
+
+def set_aside(run_dir: Path, root: Path) -> Path:
+    """Move an unfinished run out of the way (kept, not deleted: its logs say why it stopped)."""
+    dest_root = root / UNFINISHED_DIR
+    dest_root.mkdir(parents=True, exist_ok=True)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    dest = dest_root / f"{run_dir.name}-{stamp}"
+    run_dir.rename(dest)
+    return dest
+
+
+def can_resume(run_dir: Path) -> bool:
+    """An unfinished run `hercs up --resume` can continue: it saved its config."""
+    return RunDir(run_dir).config.is_file()
+
+
+def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
+               overrides: Sequence[str], resume: bool = False) -> list[str]:
+    if resume:  # task, method, seed and name come from the run's saved config
+        cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--resume", str(run_root / cell.name),
+               "--epochs", str(epochs), "--actors", str(actors),
+               "--listen", f"tcp/127.0.0.1:{port}"]
+    else:
+        cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", cell.task, "--method",
+               cell.method, "--seed", str(cell.seed), "--epochs", str(epochs), "--run",
+               cell.name, "--run-dir", str(run_root), "--actors", str(actors),
+               "--listen", f"tcp/127.0.0.1:{port}", "--set", f"training.schedule={cell.schedule}",
+               "--set", f"learner.precision={cell.precision}",
+               "--set", f"task.env_version={cell.env_version}"]
+        if cell.weld_torquescale != 1.0:
+            cmd += ["--set", f"task.weld_torquescale={cell.weld_torquescale:g}"]
+        if cell.energy_epsilon != EPSILON_DEFAULT:
+            cmd += ["--set", f"energy.epsilon={cell.energy_epsilon!r}"]
+        for item in cell.variant_overrides:
+            cmd += ["--set", item]
+    for item in overrides:
+        cmd += ["--set", item]
+    return cmd
+
+
+SMALL_FILES = (CONFIG, METRICS, DONE_FILE)
+"""What is committed of a finished run (the episode log and checkpoints stay where it ran)."""
+
+
+def finished_folder(cell: GridRun, run_root: Path, committed: Path | None) -> Path | None:
+    """Where a finished run's files are: its run folder, else its committed copy, else None."""
+    for folder in (run_root / cell.name, None if committed is None else committed / cell.name):
+        if folder is not None and is_done(folder):
+            return folder
+    return None
+
+
+def copy_small_files(run_dir: Path, committed: Path) -> Path:
+    """Copy a finished run's small files into `committed/<run>/` (for `git add`), and its best
+    policy (`checkpoints/best.pt`: actor and normaliser, under 1 MB) where no committed run of
+    the same task, method and variants publishes one yet (`publishes_policy`), so that
+    `hercs eval docs/results/runs/<run>` works on a fresh clone."""
+    target = committed / run_dir.name
+    target.mkdir(parents=True, exist_ok=True)
+    for name in SMALL_FILES:
+        if (run_dir / name).is_file():
+            shutil.copyfile(run_dir / name, target / name)
+    best = RunDir(run_dir).checkpoint("best")
+    if best.is_file() and not any(publishes_policy(other, run_dir.name)
+                                  for other in committed.iterdir() if other != target):
+        RunDir(target).checkpoints.mkdir(exist_ok=True)
+        shutil.copyfile(best, RunDir(target).checkpoint("best"))
+    return target
+
+
+def publishes_policy(committed_run: Path, run_name: str) -> bool:
+    """Whether `committed_run` holds a best policy for the cell `run_name` names (the same
+    name up to the seed: `push-v1-her-cs-s2` and `push-v1-her-cs-s1` are one cell)."""
+    same_cell = committed_run.name.rpartition("-s")[0] == run_name.rpartition("-s")[0]
+    return same_cell and (RunDir(committed_run).checkpoint("best")).is_file()
+
+
+def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun, str], *,
+                   command: str, epochs: int, committed: Path | None) -> Path:
+    """`<run_root>/sweep.json`: the sweep's command and every cell (its arm, settings and
+    state; a finished one's record: commit, machine, wall time), rewritten as cells change,
+    so that `hercs sweep report` and a person can see where the sweep stands."""
+    entries = []
+    for cell in cells:
+        folder = finished_folder(cell, run_root, committed)
+        record = json.loads((folder / DONE_FILE).read_text()) if folder is not None else None
+        entries.append({
+            "name": cell.name, "arm": cell.arm, "task": cell.task, "method": cell.method,
+            "seed": cell.seed, "schedule": cell.schedule, "precision": cell.precision,
+            "env_version": cell.env_version, "weld_torquescale": cell.weld_torquescale,
+            "energy_epsilon": cell.energy_epsilon, "variant": cell.variant,
+            "variant_overrides": list(cell.variant_overrides),
+            "state": "done" if record is not None else state.get(cell, (
+                "started, not finished" if (run_root / cell.name).is_dir() else "to do")),
+            "folder": None if folder is None else str(folder),
+            **({} if record is None else {
+                "commit": record.get("commit"), "machine": record.get("machine"),
+                "finished": record.get("finished"), "wall_s": record.get("wall_s")}),
+        })
+    path = run_root / MANIFEST
+    # a temporary file of this writer's own (Slurm array tasks write at once), then an atomic
+    # rename: a reader never sees half a manifest
+    fd, tmp = tempfile.mkstemp(dir=run_root, prefix=f".{MANIFEST}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps({"command": command, "epochs": epochs, "cells": entries},
+                               indent=2) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def read_manifest(run_root: Path) -> tuple[list[GridRun], dict]:
+    """The cells of the sweep in `run_root` and the manifest itself; ConfigError naming the
+    folder when it holds no sweep."""
+    path = run_root / MANIFEST
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{run_root}: no sweep here ({path}: {exc}); give the --run-dir "
+                          "of a `hercs sweep`") from exc
+    cells = [GridRun(c["task"], c["method"], int(c["seed"]), c["schedule"], c["precision"],
+                     c["env_version"], float(c["weld_torquescale"]), float(c["energy_epsilon"]),
+                     c.get("variant", ""), tuple(c.get("variant_overrides", ())))
+             for c in manifest["cells"]]
+    return cells, manifest
