@@ -915,7 +915,9 @@ class ActorRunReplay:
 class LearnerRunReplay:
     """Plays `fz-learner`'s `replay/sample`: each SampleRequest is answered with the next
     queued payload; with none queued, with a valid batch every `VALID_BATCH_EVERY_S` once
-    `valid` is set, else held."""
+    `valid` is set, else held. As the replay does, a new request replaces the one held (the
+    learner asks again when a reply is overdue, `ASK_AGAIN_S`, and no longer waits for the
+    first): the held one is answered `expired` and the next payload goes to the new one."""
 
     def __init__(self, transport: Transport) -> None:
         self.valid = threading.Event()
@@ -947,6 +949,7 @@ class LearnerRunReplay:
             self._check(pending.payload)
             payload = None
             while payload is None and not self._stop.is_set():
+                pending = self._newest(pending)
                 try:
                     payload = self._payloads.get(timeout=0.05)
                 except queue.Empty:
@@ -958,6 +961,18 @@ class LearnerRunReplay:
             with self._cond:
                 self._served += 1
                 self._cond.notify_all()
+
+    def _newest(self, held: PendingReply) -> PendingReply:
+        """The learner's newest request: any that came after `held` replaces it."""
+        while True:
+            try:
+                newer = self._requests.get_nowait()
+            except queue.Empty:
+                return held
+            held.reply_error(Reason.EXPIRED, "the learner asked again")
+            self.requests_seen += 1
+            self._check(newer.payload)
+            held = newer
 
     def answer(self, payloads: list[bytes]) -> None:
         """Answer the learner's next requests with `payloads`, one each; returns once all were
