@@ -4,7 +4,7 @@
     python -m bench.actor_envs            # ~4 min: FetchPush, 1/2/4/8/16 envs per process
     python -m bench.actor_envs --quick    # CI: a few episodes, every figure still computed
 
-In one process with one compute thread (torch and BLAS, `hercs.threads`, as every service),
+In one process with one compute thread (torch and BLAS, `hercs.net.threads`, as every service),
 side by side in alternating slices (these machines are shared and noisy, so the figure that
 matters is the ratio of things timed together):
 
@@ -34,12 +34,12 @@ import numpy as np
 
 from bench.common import git_commit, write_report
 from hercs.actors.rollout import VectorRollout
-from hercs.codec import episode_to_msg
 from hercs.config import DDPGConfig
-from hercs.envs import make_env
-from hercs.policy import Policy
-from hercs.tasks import TaskSpec, task_spec
-from hercs.threads import single_threaded_numerics
+from hercs.net.threads import single_threaded_numerics
+from hercs.rl.envs import make_env
+from hercs.rl.policy import Policy
+from hercs.rl.task_registry import TaskSpec, task_spec
+from hercs.wire.codec import episode_to_msg
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -64,7 +64,7 @@ from bench.faults import EPOCH, Up
 from bench.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
-from hercs.rundir import CONFIG, RunDir
+from hercs.run.rundir import CONFIG, RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / "runs" / "chaos"

@@ -24,8 +24,8 @@ from typing import Any
 
 import yaml
 
-from hercs.metrics import read_rows
-from hercs.rundir import CONFIG, RunDir
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import CONFIG, RunDir
 
 IGNORED = ("run.name", "run.seed", "run.run_dir", "run.tensorboard", "training.epochs",
            "transport.", "security.", "launch.", "view.")

@@ -38,7 +38,7 @@ from bench.chaos_state import SoakState
 from bench.common import git_commit, machine_identity
 from bench.faults import EPOCH
 from bench.net_measure import measure, stored_episodes
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 RECORD = "chaos.json"
 VALIDATION = "chaos_validation.md"

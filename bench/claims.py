@@ -62,7 +62,7 @@ from hercs.apps.plots import (
     task_title,
 )
 from hercs.config import HercsConfig
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -49,9 +49,9 @@ from bench.early_policy import (
     read_config,
     run_environment,
 )
-from hercs.checkpoints import LoadedPolicy, read_policy
 from hercs.errors import ConfigError, HercsError
-from hercs.rundir import RunDir
+from hercs.run.policy_files import LoadedPolicy, read_policy
+from hercs.run.rundir import RunDir
 
 LOCAL = REPO / "runs" / "sample_efficiency"
 DEFAULT_RUNS = (*(f"push-{v}her-ebp-cs-s{s}" for v in ("v1-", "") for s in range(1, 6)),
@@ -60,7 +60,7 @@ DEFAULT_EPOCHS = (10, 20, 30, 40)
 DEFAULT_TARGETS = ("v1", "v4", "v4-ts4")
 SEED = 777_000
 """Env seeds of the evaluation episodes: SEED + i for parallel env i (none of a run's own
-streams, which `hercs.seeding` derives from the run seed)."""
+streams, which `hercs.rl.seeding` derives from the run seed)."""
 PARALLEL_ENVS = 10
 """Envs stepped side by side (one batched policy call per step); episodes must divide by it."""
 _TARGET = re.compile(r"^(v1|v4)(?:-ts(\d+(?:\.\d+)?))?$")
@@ -102,7 +102,7 @@ def act_on(policy: LoadedPolicy, target: str, *, episodes: int, seed: int = SEED
            parallel: int = PARALLEL_ENVS) -> TargetResult:
     """`episodes` deterministic episodes of `policy` in `target`, envs seeded seed, seed+1, …"""
     from hercs.actors.rollout import VectorRollout
-    from hercs.envs import make_env
+    from hercs.rl.envs import make_env
 
     if episodes % parallel:
         raise ConfigError(f"--episodes: got {episodes}, must be a multiple of {parallel}")
@@ -138,8 +138,8 @@ def random_action_stats(targets: Sequence[str], *, episodes: int, seed: int = SE
                         ) -> dict[str, dict[str, object]]:
     """Per target: per-dimension std of the observation under the same uniform random
     actions from the same reset seeds, and the episodes that turned or dropped the cube."""
-    from hercs.envs import make_env
-    from hercs.tasks import task_spec
+    from hercs.rl.envs import make_env
+    from hercs.rl.task_registry import task_spec
 
     rng = np.random.default_rng(seed)
     push = task_spec("push")
@@ -258,7 +258,7 @@ def run_bench(runs: Sequence[Path], epochs: Sequence[int], targets: Sequence[str
     with `random_episodes` episodes per target (0: left as it is)."""
     for t in targets:
         parse_target(t)  # a bad target fails before any work
-    from hercs.envs import mujoco_py_problem
+    from hercs.rl.envs import mujoco_py_problem
 
     left_out = None
     if "v1" in targets and (why := mujoco_py_problem()) is not None:

@@ -44,11 +44,11 @@ import yaml
 from bench.common import REPO, git_commit
 from hercs.api import read_metrics
 from hercs.apps.plots import energy_epsilon
-from hercs.codec import msg_to_episode
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
-from hercs.rundir import RunDir
-from hercs.runlog import read_episodes
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import read_episodes
+from hercs.wire.codec import msg_to_episode
 
 COMMITTED = REPO / "docs" / "results" / "runs"
 LOCAL = REPO / "runs" / "sample_efficiency"
@@ -256,8 +256,8 @@ def replay_open_loop(env, action_sequences: Sequence[np.ndarray], first_seed: in
 
 
 def open_loop(actions_by_run: dict[str, list[np.ndarray]]) -> dict[str, object]:
-    from hercs.envs import make_env, mujoco_py_problem
-    from hercs.tasks import task_spec
+    from hercs.rl.envs import make_env, mujoco_py_problem
+    from hercs.rl.task_registry import task_spec
 
     problem = mujoco_py_problem()
     if problem:

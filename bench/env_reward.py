@@ -3,9 +3,9 @@
     python -m bench.env_reward           # ~1 min
     python -m bench.env_reward --quick   # CI: a few repeats
 
-A task without a spec written in hercs.tasks (any goal env, `module:factory`) has its
+A task without a spec written in hercs.rl.task_registry (any goal env, `module:factory`) has its
 rewards and successes computed by one instance of its environment (`reward_rule="env"`,
-hercs.goal_env): every HER minibatch relabels its B transitions through the env's
+hercs.rl.goal_env): every HER minibatch relabels its B transitions through the env's
 `compute_reward`. This times, on the same goal pairs, in one process, for tasks that have both:
 
 - the built-in rule (`TaskSpec.compute_reward`: Fetch's distance rule, the hand's position
@@ -33,12 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-import hercs.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
+import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
 from bench.common import git_commit, write_report
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import random_episode
-from hercs.replay_service.core import ReplayCore
-from hercs.tasks import TaskSpec, task_spec
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.rl.task_registry import TaskSpec, task_spec
+from hercs.wire.episode import random_episode
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")
@@ -117,7 +117,7 @@ def report(summary: dict) -> str:  # type: ignore[type-arg]
     lines += ["", "The env rule keeps one environment instance per process (replay, "
               "clusterer), never stepped; its reward equals the built-in one on every pair "
               "(asserted here for the tasks whose batched env rule is right: not the pen, "
-              "whose env mishandles batches, hercs.tasks.hand_success)."]
+              "whose env mishandles batches, hercs.rl.task_registry.hand_success)."]
     return "\n".join(lines) + "\n"
 
 

@@ -43,15 +43,15 @@ from bench.common import REPO, git_commit, machine_identity
 from bench.throughput.harness import Child, Latest, free_endpoint
 from hercs.actors.inserter import Inserter
 from hercs.apps.router import open_router
-from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
+from hercs.net.transport import Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.seeding import generator
-from hercs.tasks import TaskSpec
-from hercs.transport import Transport
+from hercs.rl.seeding import generator
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 RUN = "fair-share"
 TASK = "reach"

@@ -45,9 +45,9 @@ from pathlib import Path
 
 from bench.common import git_commit
 from hercs.apps.child_process import pdeathsig_preexec
-from hercs.metrics import recorded_epochs
-from hercs.rundir import RunDir
-from hercs.runlog import read_episodes
+from hercs.run.metrics import recorded_epochs
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import read_episodes
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -36,13 +36,13 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import git_commit
-from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
-from hercs.runlog import RecoveringLogWriter
+from hercs.run.runlog import RecoveringLogWriter
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 REPO = Path(__file__).resolve().parents[1]
 

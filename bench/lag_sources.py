@@ -38,8 +38,8 @@ from pathlib import Path
 
 from bench.common import git_commit, machine_identity
 from hercs.apps.sweep import free_port
-from hercs.metrics import read_rows
-from hercs.rundir import RunDir
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 

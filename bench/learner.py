@@ -39,10 +39,10 @@ import numpy as np
 import torch
 
 from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit, write_report
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TransitionBatch
 
 REPO = Path(__file__).resolve().parents[1]
 

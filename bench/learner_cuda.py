@@ -36,12 +36,12 @@ import torch
 
 from bench.common import git_commit, write_report
 from bench.learner import make_batch
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.tf32 import round_to_tf32
-from hercs.networks import to_arrays
-from hercs.tasks import task_spec
+from hercs.rl.networks import to_arrays
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TransitionBatch
 
 REPO = Path(__file__).resolve().parents[1]
 GPU_TF32 = "fp32+gpu-tf32"

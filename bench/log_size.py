@@ -10,7 +10,7 @@ by their messages' uncompressed bytes, and the rest of each file (header, schema
 summary, footer) as a cost per segment. Then it plays a run of `--epochs` epochs at the run's
 episodes per epoch and buffer size through the bounded log's rules (a new segment every
 buffer / `replay.log_segments_per_buffer` episodes, starting with a replay state; after each,
-`hercs.runlog.segments_to_delete`, the replay's own function) and prints the log's size at the
+`hercs.run.runlog.segments_to_delete`, the replay's own function) and prints the log's size at the
 end of that run and at its largest, for each bound, with the episodes' scenes
 (`replay.log_scene`, the default) and without.
 """
@@ -34,8 +34,8 @@ from mcap.stream_reader import breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.config import HercsConfig, load_yaml
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     TOPIC_EPISODES,
     TOPIC_REPLAY_STATE,
     TOPIC_SCENE,
@@ -44,7 +44,7 @@ from hercs.runlog import (
     segment_paths,
     segments_to_delete,
 )
-from hercs.runlog.format import RECORD_HEADER
+from hercs.run.runlog.format import RECORD_HEADER
 
 SCENE_TOPICS = (TOPIC_SCENE, TOPIC_SCENE_POINTS)
 SCHEMAS = "(schemas)"

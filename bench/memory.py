@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from hercs.config import HercsConfig
-from hercs.episode import expected_shapes
-from hercs.metrics import read_rows
-from hercs.rundir import RunDir
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
+from hercs.wire.episode import expected_shapes
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "results" / "memory"

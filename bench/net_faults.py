@@ -57,7 +57,7 @@ from bench.net_measure import NetResult, measure
 from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
 from hercs.apps.child_process import pdeathsig_preexec
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[1]
 ACTOR_EXIT_S = 60.0

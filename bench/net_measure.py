@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.faults import epoch_times, epochs_recorded
-from hercs.metrics import read_rows
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import TOPIC_EPISODES, read_messages
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import TOPIC_EPISODES, read_messages
 
 ACKED = re.compile(r"episode \((?P<actor>\S+), seq (?P<seq>\d+)\) acked(?P<dup> \(duplicate\))?$")
 STOPPING = re.compile(

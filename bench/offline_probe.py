@@ -7,7 +7,8 @@
 v4 runs are slower to *become* one; `bench.early_policy` that their first policies wander off
 (the gripper ends 0.36 m from the cube's start against 0.18 m on v1). This probe removes the
 closed loop: the same uniform random actions, from the same reset seeds, are stepped in each
-simulation; each data set is loaded into a replay (`hercs.replay_service.core.ReplayCore`, the
+simulation; each data set is loaded into a replay (`hercs.replay_service.replay_core.ReplayCore`,
+the
 service's own core, method HER) and a DDPG learner (`hercs.learner.ddpg.DDPGLearner`, the
 paper's settings) trains on it for one epoch's worth of cycles (40 minibatches, then the target
 update, per cycle), nothing acting in between. Each learned policy then acts deterministically
@@ -36,9 +37,9 @@ import numpy as np
 from bench.common import REPO, git_commit, write_report
 from bench.early_policy import EpisodeFacts, episode_facts, mean_facts
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import EpisodeData
 from hercs.errors import ConfigError
-from hercs.policy import Policy, PolicyWeights
+from hercs.rl.policy import Policy, PolicyWeights
+from hercs.wire.episode import EpisodeData
 
 SIMS = ("v1", "v4")
 DATA_SEED = 555_000
@@ -59,7 +60,7 @@ def random_actions(episodes: int, steps: int, action_dim: int) -> list[np.ndarra
 
 def collect(version: str, actions: Sequence[np.ndarray]) -> list[EpisodeData]:
     """Each action sequence stepped in `version` from reset(seed=DATA_SEED + i)."""
-    from hercs.envs import make_env
+    from hercs.rl.envs import make_env
 
     spec = probe_config(version, 0).task.spec
     env = make_env(spec)
@@ -87,8 +88,8 @@ def train(version: str, episodes: Sequence[EpisodeData], *, seed: int,
           cycles: int) -> PolicyWeights:
     """A DDPG learner trained offline on `episodes` for `cycles` cycles; its PolicyWeights."""
     from hercs.learner.ddpg import DDPGLearner
-    from hercs.replay_service.core import ReplayCore
-    from hercs.seeding import int_seed
+    from hercs.replay_service.replay_core import ReplayCore
+    from hercs.rl.seeding import int_seed
 
     config = probe_config(version, seed)
     core = ReplayCore(config=config, rng=np.random.default_rng(int_seed(seed, "probe")))
@@ -107,7 +108,7 @@ def train(version: str, episodes: Sequence[EpisodeData], *, seed: int,
 
 def evaluate(weights: PolicyWeights, target: str, episodes: int) -> dict[str, float]:
     """Deterministic episodes of the policy in `target`: success and the early-policy facts."""
-    from hercs.envs import make_env
+    from hercs.rl.envs import make_env
 
     config = probe_config(target, 0)
     policy = Policy(spec=config.task.spec, config=config.ddpg, seed=0)

@@ -6,15 +6,15 @@ followed by the time until its next answered request.
 
 A router listens with mutual TLS on a veth link's host end (bench.netns); a "replay" client
 on loopback serves `replay/insert`, answering each request with its payload; an "actor"
-client (`python -m bench.rejoin --client`, in the namespace, a plain `hercs.transport`
+client (`python -m bench.rejoin --client`, in the namespace, a plain `hercs.net.transport`
 client as every hercs service opens it) sends one request after another with a short
 timeout and prints a JSON line per answer. The link is cut both ways (iptables DROP) for
 each length in turn, then healed; between cuts the client must have been answered again.
 A cut's `rejoined_s` is the time from its heal to the first answer sent after it.
 
 A cut longer than Zenoh's 10 s lease ends the client's session at the router; the client's
-session reconnects by itself, and hercs.transport reopens it where the router's
-declarations did not come back with it (`hercs.rediscovery`).
+session reconnects by itself, and hercs.net.transport reopens it where the router's
+declarations did not come back with it (`hercs.net.rediscovery`).
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from bench.netns import Host, hosts, problem
 from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
+from hercs.net.security import zenoh_settings
+from hercs.net.transport import Transport, TransportError
 from hercs.proto.keys import RunKeys
-from hercs.security import zenoh_settings
-from hercs.transport import Transport, TransportError
 
 RUN = "rejoin"
 SUBNET = "10.122"
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--certs", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.client:
-        from hercs.service import setup_logging
+        from hercs.net.service_shell import setup_logging
         setup_logging("actor")
         return client_main(args.client, args.certs)
     if (why := problem(SUBNET)) is not None:

@@ -5,7 +5,7 @@
 
 For each size, a FetchPush run directory (T = 50 steps: 200 / 2,000 / 20,000 episodes; 10^6
 twice, `SIZES`) gets a real episode log written the way the replay writes it: random
-FetchPush-shaped episodes (`hercs.episode.random_episode`) inserted one by one into a
+FetchPush-shaped episodes (`hercs.wire.episode.random_episode`) inserted one by one into a
 `ReplayTable` whose log is the replay's `RecoveringLogWriter` with the run's settings
 (HER-CS, the default 10^6-transition
 buffer and bounded log: a new segment with a `/replay_state` every 5,000 episodes), every
@@ -59,19 +59,19 @@ import numpy as np
 
 from bench.common import REPO, git_commit, machine_identity, write_report
 from bench.net_faults import free_port
-from hercs.clustering import ClusterModel
-from hercs.codec import cluster_model_to_msg, episode_to_msg, msg_to_episode
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
-from hercs.episode import random_episode
+from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.replay_service import service as replay_service
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service import replay_shell as replay_service
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
-from hercs.rundir import RunDir, run_dir_of
-from hercs.runlog import LIVE_NAME, RecoveringLogWriter, latest_replay_state, segment_paths
-from hercs.seeding import generator
-from hercs.transport import Transport
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.seeding import generator
+from hercs.run.rundir import RunDir, run_dir_of
+from hercs.run.runlog import LIVE_NAME, RecoveringLogWriter, latest_replay_state, segment_paths
+from hercs.wire.codec import cluster_model_to_msg, episode_to_msg, msg_to_episode
+from hercs.wire.episode import random_episode
 
 RUN = "recovery"
 T = 50

@@ -26,17 +26,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hercs.codec import msg_to_cluster_model, msg_to_episode
 from hercs.config import apply_overrides, load_yaml
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.samplers import make_sampler
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     read_messages,
 )
+from hercs.wire.codec import msg_to_cluster_model, msg_to_episode
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -10,7 +10,7 @@ holds it, the replay is SIGKILLed and a new one, which answers at once, is start
 launcher restarts a killed replay). Each kill ends in one of:
 
 - `answered`: the request got the new replay's answer (Zenoh ended the get sent to the dead
-  replay, and `hercs.transport.request` asked again);
+  replay, and `hercs.net.transport.request` asked again);
 - `stranded`: no reply until the request's own timeout: the get was routed to the dead
   replay and never ended;
 - `no_queryable`: `request` gave up after its gets found no live queryable (the caller
@@ -34,13 +34,13 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 from bench.net_faults import free_port
-from hercs.transport import Transport, TransportTimeout
+from hercs.net.transport import Transport, TransportTimeout
 
 KEY = "strand/sample"
 
 REPLAY = r'''
 import sys, time
-from hercs.transport import Transport
+from hercs.net.transport import Transport
 endpoint, mode = sys.argv[1:3]
 transport = Transport.open(mode="client", connect=[endpoint], connect_timeout_s=30)
 held = []

@@ -38,7 +38,7 @@ from typing import Any
 
 from bench.common import REPO, git_commit
 from hercs.api import read_metrics
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 DEFAULT_SPECS = ("1:cuda:3", "8:cuda:3", "1:cpu:3", "8:cpu:1")
 METRICS_NAME = re.compile(r"^w(\d+)-([a-z0-9:]+?)(?:-([A-Za-z0-9_]+))?-metrics\.csv$")

@@ -6,15 +6,15 @@
 #            headers, OSMesa and GL (libosmesa6-dev, libgl1-mesa-dev) and patchelf. As root,
 #            apt-get installs the missing ones; otherwise the script names them and stops.
 #   mujoco   MuJoCo 2.1.0's Linux binaries, out of PyPI's free-mujoco-py 2.1.6 wheel
-#            (mujoco_py/binaries/linux/mujoco210), into <venv>/mujoco210 (hercs.envs.MUJOCO210)
+#            (mujoco_py/binaries/linux/mujoco210), into <venv>/mujoco210 (hercs.rl.envs.MUJOCO210)
 #   extra    pip install -e '.[v1]': mujoco-py-cython3 and what it needs, pinned in pyproject.toml
 #   compile  the first `import mujoco_py` cythonizes and compiles its extension (about 15 s on
 #            2 cores); then patchelf gives the extension <venv>/mujoco210/bin as its RUNPATH,
 #            so that every process finds libmujoco210.so without LD_LIBRARY_PATH set at its
-#            start (mujoco-py removes the RUNPATH its build sets; hercs.envs refuses an
+#            start (mujoco-py removes the RUNPATH its build sets; hercs.rl.envs refuses an
 #            extension compiled again since, instead of letting mujoco-py compile it once more
 #            in every process: run `make mujoco-py` again)
-#   check    FetchPush-v1 made through hercs.envs, reset and stepped, in a fresh process
+#   check    FetchPush-v1 made through hercs.rl.envs, reset and stepped, in a fresh process
 #            with neither MUJOCO_PY_MUJOCO_PATH nor LD_LIBRARY_PATH set
 #
 # About a minute on a fresh Debian bookworm machine with 2 cores (apt included), half that where
@@ -112,12 +112,12 @@ fi
 for so in "$generated"/cymj_*_linuxcpuextensionbuilder_*.so; do
     patchelf --set-rpath "$MUJOCO/bin" "$so"
 done
-echo "$MUJOCO/bin" > "$generated/hercs-runpath"  # hercs.envs.RUNPATH_MARK: set since the compile
+echo "$MUJOCO/bin" > "$generated/hercs-runpath"  # hercs.rl.envs.RUNPATH_MARK: set since the compile
 
 # --- check ----------------------------------------------------------------------------------
 env -u MUJOCO_PY_MUJOCO_PATH -u MUJOCO_PY_FORCE_CPU -u LD_LIBRARY_PATH "$PY" - <<'EOF'
-from hercs.envs import make_env
-from hercs.tasks import task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import task_spec
 
 spec = task_spec("push", "v1")
 env = make_env(spec)

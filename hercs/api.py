@@ -28,13 +28,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hercs.episode import EpisodeData
 from hercs.errors import HercsError
+from hercs.wire.episode import EpisodeData
 
 if TYPE_CHECKING:
-    from hercs.checkpoints import LoadedPolicy
     from hercs.config import HercsConfig
-    from hercs.tasks import TaskSpec
+    from hercs.rl.task_registry import TaskSpec
+    from hercs.run.policy_files import LoadedPolicy
 
 OBSERVATION_KEYS = ("observation", "desired_goal")
 """What `act` reads of the env's observation dict (`achieved_goal` may be there too)."""
@@ -126,7 +126,7 @@ def load_policy(run_dir: str | os.PathLike[str], checkpoint: str = "best", *,
     `seed` seeds the generator of `act(..., explore=True)`. Raises `RunDirError` for a folder
     that is not a run or a checkpoint it does not hold (naming those it does),
     `CheckpointError` for a file that does not load."""
-    from hercs.checkpoints import read_policy
+    from hercs.run.policy_files import read_policy
 
     return TrainedPolicy(read_policy(run_dir, checkpoint), seed=seed)
 
@@ -136,7 +136,7 @@ class Metrics:
     """A run's metrics.csv: one row per evaluated epoch, cells parsed (`MetricValue`).
 
     Iterate for the rows (dicts by column), or take a column as a float array:
-    `metrics.column("success_rate")`. The columns are hercs.metrics.METRICS_COLUMNS for a run
+    `metrics.column("success_rate")`. The columns are hercs.run.metrics.METRICS_COLUMNS for a run
     of this version (older runs may have fewer)."""
 
     path: Path
@@ -163,7 +163,7 @@ class Metrics:
 
 def read_metrics(run_dir: str | os.PathLike[str]) -> Metrics:
     """`run_dir/metrics.csv` (or a metrics.csv file given directly), numbers parsed."""
-    from hercs.rundir import METRICS, RunDir, require_run_dir
+    from hercs.run.rundir import METRICS, RunDir, require_run_dir
 
     path = Path(run_dir)
     if not (path.is_file() and path.suffix == ".csv"):
@@ -221,10 +221,10 @@ def read_episodes(run_dir: str | os.PathLike[str], *, ids: Iterable[int] | None 
     a log whose writer was killed (up to its last complete record). A bounded log
     (`replay.log_max_bytes`, the default) deletes its oldest segments once their episodes
     have left the buffer: it starts at a later id then, and ids before it are not there."""
-    from hercs.codec import msg_to_episode
     from hercs.proto import hercs_pb2 as pb
-    from hercs.rundir import require_run_dir
-    from hercs.runlog import LIVE_NAME, TOPIC_EPISODES, read_messages
+    from hercs.run.rundir import require_run_dir
+    from hercs.run.runlog import LIVE_NAME, TOPIC_EPISODES, read_messages
+    from hercs.wire.codec import msg_to_episode
 
     path = Path(run_dir)
     if not path.is_file():
@@ -250,7 +250,7 @@ def load_config(source: str | os.PathLike[str] | None = None,
     defaults) or a run directory's config.yaml; then `overrides` as `hercs --set` takes them
     (`"ddpg.lr_actor=5e-4"`). Raises `ConfigError` naming the file, field and value."""
     from hercs.config import HercsConfig, apply_overrides, load_yaml
-    from hercs.rundir import RunDir, require_run_dir
+    from hercs.run.rundir import RunDir, require_run_dir
 
     if source is None:
         config = HercsConfig()

@@ -38,7 +38,7 @@ class Reason(StrEnum):
         member.disposition = disposition
         return member
 
-    # the message is malformed (hercs.validation, hercs.codec)
+    # the message is malformed (hercs.wire.validation, hercs.wire.codec)
     UNDECODABLE = "undecodable", Disposition.DROP
     OVERSIZED = "oversized", Disposition.DROP
     SCHEMA_VERSION = "schema_version", Disposition.DROP
@@ -54,12 +54,12 @@ class Reason(StrEnum):
     UNKNOWN_EPISODE = "unknown_episode", Disposition.DROP
     """An `EpisodeRequest` for an id the replay does not hold (never inserted, or overwritten
     by the ring): a miss, not bad input, so it is not counted in `ReplayStatus.rejects`."""
-    # well formed, not wanted (hercs.lockstep, hercs.replay_service.lag_bound)
+    # well formed, not wanted (hercs.replay_service.lockstep, hercs.replay_service.lag_bound)
     STALE_POLICY = "stale_policy", Disposition.SUPERSEDED
     """Acted with weights older than the lockstep cycle or the lag bound allows."""
     CYCLE_FULL = "cycle_full", Disposition.SUPERSEDED
     """Lockstep: its cycle already has its `episodes_per_cycle` episodes."""
-    # not now (hercs.replay_service.table, hercs.transport)
+    # not now (hercs.replay_service.table, hercs.net.transport)
     EXPIRED = "expired", Disposition.RETRY
     """The rate limiter held the call past its caller's timeout."""
     LOG_FAILED = "log_failed", Disposition.RETRY

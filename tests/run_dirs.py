@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.loop import LearnerLoop
 from hercs.learner.resume import save_learner_state
-from hercs.metrics import MetricsCsv
-from hercs.replay_service.core import ReplayCore
-from hercs.rundir import RunDir
-from hercs.served import ReplayCounters, ServedBatch
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.run.metrics import MetricsCsv
+from hercs.run.rundir import RunDir
+from hercs.wire.episode import random_episode
+from hercs.wire.served import ReplayCounters, ServedBatch
 
 
 def run_config(run_dir: Path, epochs: int) -> HercsConfig:

@@ -15,8 +15,8 @@ from types import ModuleType
 
 import numpy as np
 
-from hercs.batch import TransitionBatch
-from hercs.tasks import TaskSpec
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.batch import TransitionBatch
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -88,7 +88,7 @@ def skip_without_mujoco_py() -> None:
     """Skip, saying why, where the authors' Fetch*-v1 cannot run (no `make mujoco-py`)."""
     import pytest
 
-    from hercs.envs import mujoco_py_problem
+    from hercs.rl.envs import mujoco_py_problem
 
     problem = mujoco_py_problem()
     if problem is not None:

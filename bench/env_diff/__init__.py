@@ -5,7 +5,7 @@
 
 Both versions load the same XML files (gymnasium-robotics' assets) and run the same Python task
 code; what can differ is the simulator that compiles and steps them. Per task, with one v1 and
-one v4 env made by `hercs.envs.make_env`:
+one v4 env made by `hercs.rl.envs.make_env`:
 
 1. **Models.** The physics options (timestep, substeps, integrator, solver, cone, …, and the
    options or flags one version has and the other lacks) and, for the object, the table, the
@@ -27,7 +27,8 @@ one v4 env made by `hercs.envs.make_env`:
    env's own reset: success, object motion, contacts, and the per-step divergence of gripper
    and object between the two simulators.
 4. **Reward and success.** `compute_reward` and `is_success` of both envs, and
-   `hercs.tasks.fetch_reward`, on the same random goal pairs and on every step of (d)/(e).
+   `hercs.rl.task_registry.fetch_reward`, on the same random goal pairs and on every step of
+   (d)/(e).
 
 `--variant` repeats the dynamics of 3 for v4 with a model override (e.g. `legacy-ccd`: MuJoCo
 3's native and multi-point CCD disabled), to test whether a v4 setting closes a gap.

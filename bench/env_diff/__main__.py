@@ -28,7 +28,7 @@ from bench.env_diff.models import all_field_rows, model_rows, option_rows
 from bench.env_diff.report import render_md, versions
 from bench.env_diff.rewards import reward_check
 from bench.env_diff.sim import TASKS, make_pair, make_v4_variant, variant_name, xml_variant_setup
-from hercs.envs import mujoco_py_problem
+from hercs.rl.envs import mujoco_py_problem
 
 
 def compare_task(task: str, args: argparse.Namespace) -> dict[str, Any]:

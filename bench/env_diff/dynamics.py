@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from bench.env_diff.sim import G, Sim, make_v4_variant
-from hercs.tasks import fetch_reward
+from hercs.rl.task_registry import fetch_reward
 
 
 def _key(s: Sim) -> str:

@@ -49,7 +49,8 @@ Push, Pick). The initial-state
 draws are the same for the same seed: object and goal offsets from the initial gripper agree to
 1e-16 m, so the object–goal distances and the 5.5 % (Push) / 2.5 % (Pick) / 0 % (Slide) of
 episodes that start within 5 cm of the goal are identical. Rewards and success agree
-everywhere (compute_reward, is_success, hercs.tasks.fetch_reward; 0 mismatches on every step).
+everywhere (compute_reward, is_success, hercs.rl.task_registry.fetch_reward; 0 mismatches on every
+step).
 
 **What differs.**
 
@@ -335,7 +336,8 @@ def _task_md(task: str, res: dict[str, Any]) -> list[str]:
     add("")
     add(f"On {rw['pairs']} random goal pairs (half within 4.5–5.5 cm): compute_reward equal: "
         f"{rw['compute_reward_equal']}; is_success equal: {rw['is_success_equal']}; equal to "
-        f"hercs.tasks.fetch_reward: {rw['hercs_fetch_reward_equal']}; success iff reward 0: "
+        f"hercs.rl.task_registry.fetch_reward: {rw['hercs_fetch_reward_equal']}; "
+        "success iff reward 0: "
         f"{rw['success_iff_reward_zero']}; threshold {rw['distance_threshold']}, reward type "
         f"{rw['reward_type']}.")
     add("")

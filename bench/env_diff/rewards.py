@@ -1,5 +1,5 @@
 """4. Reward and success: `compute_reward` and `is_success` of both envs and
-`hercs.tasks.fetch_reward` on the same goal pairs."""
+`hercs.rl.task_registry.fetch_reward` on the same goal pairs."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from bench.env_diff.sim import Sim
-from hercs.tasks import fetch_reward
+from hercs.rl.task_registry import fetch_reward
 
 
 def reward_check(s1: Sim, s4: Sim, n: int) -> dict[str, Any]:

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from hercs.envs import make_env, mujoco_py_problem
-from hercs.tasks import task_spec
+from hercs.rl.envs import make_env, mujoco_py_problem
+from hercs.rl.task_registry import task_spec
 
 TASKS = ("push", "pick", "slide")
 G = 9.81

@@ -31,7 +31,7 @@ Figures (the system is real: an embedded Zenoh router on a free loopback port, a
    CPU-second of the learner process (all its threads) and of the updating thread.
 3. **Insert throughput** with 1, 2, 4, 8, 16 concurrent synthetic actors (quick: 1, 2): each
    has its own Zenoh client session and one insert in flight, as `hercs.actors.inserter` delivers;
-   episodes are pre-generated random Push episodes (`hercs.episode.random_episode`). ratio =
+   episodes are pre-generated random Push episodes (`hercs.wire.episode.random_episode`). ratio =
    speed-up over one actor; target ≥ 1,000 acked episodes/s from 8 actors. At the end of the
    run the largest levels (8, 16; quick: 2) are measured again into a replay of its own with
    `replay.log_scene=false` (every episode logged, no Foxglove scene drawn), against the

@@ -12,8 +12,8 @@ from bench.throughput import say
 from bench.throughput.harness import Harness
 from bench.throughput.plan import ACTOR_ID, READY_TIMEOUT_S, SEED
 from bench.throughput.report import Figure, Target
-from hercs.envs import make_env
-from hercs.seeding import generator, int_seed
+from hercs.rl.envs import make_env
+from hercs.rl.seeding import generator, int_seed
 
 
 def raw_env(bench: Harness) -> Callable[[float], tuple[float, float, float]]:
@@ -46,7 +46,7 @@ def measure(bench: Harness) -> None:
     actor = bench.start("actor", ACTOR_ID)
 
     def is_ours(actor_id: str) -> bool:
-        # The wire id is `<ident>@<incarnation>` (hercs/actors/service.py).
+        # The wire id is `<ident>@<incarnation>` (hercs/actors/actor_shell.py).
         return actor_id.partition("@")[0] == ACTOR_ID
 
     try:

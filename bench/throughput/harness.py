@@ -34,11 +34,11 @@ from bench.throughput.synthetic import SyntheticFleet, episode_pool
 from hercs.apps.child_process import log_tail, service_argv, signal_group, start_child
 from hercs.apps.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.rundir import RunDir
-from hercs.transport import Transport
-from hercs.validation import parse_message
+from hercs.run.rundir import RunDir
+from hercs.wire.validation import parse_message
 
 
 def free_endpoint() -> str:

@@ -17,9 +17,9 @@ from bench.throughput.report import Figure, Target
 from bench.throughput.synthetic import fill_core
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
-from hercs.replay_service.core import ReplayCore
-from hercs.seeding import generator
-from hercs.served import ServedBatch
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.rl.seeding import generator
+from hercs.wire.served import ServedBatch
 
 
 def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
@@ -56,7 +56,7 @@ def local_batches(bench: Harness, count: int) -> list[ServedBatch]:
 
 def measure(bench: Harness, replay: Child) -> None:
     p = bench.plan
-    torch.set_num_threads(1)  # as hercs.learner.service does
+    torch.set_num_threads(1)  # as hercs.learner.learner_shell does
     bench.top_up(replay, p.learner_min_episodes)
     reference = reference_learner(bench, local_batches(bench, 4))
     bench.weights.clear()

@@ -6,10 +6,10 @@ from __future__ import annotations
 from bench.throughput.harness import Harness
 from bench.throughput.plan import SEED
 from bench.throughput.report import Figure, Target
-from hercs.episode import random_episode
 from hercs.replay_service.store import EpisodeStore
-from hercs.seeding import generator
-from hercs.tasks import TaskSpec
+from hercs.rl.seeding import generator
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.episode import random_episode
 
 STORE_COLUMNS = ("obs", "ag", "g", "actions", "episode_id", "actor_id", "seq", "success",
                  "final_ag", "energy", "cluster", "policy_version")
@@ -31,7 +31,7 @@ def own_rss_mib(memory: dict[str, float]) -> float:
     that sends messages above 3 KiB (Episodes, Batches) allocates a 16 MiB pool, and a receiver
     maps the senders' pools, so the replay's VmRSS grew by up to 16 MiB per local peer that
     ever sent it a large message — pages owned and counted by the sender too, independent of
-    what the replay stores. Our sessions now turn it off (hercs/transport.py), so RssShmem
+    what the replay stores. Our sessions now turn it off (hercs/net/transport.py), so RssShmem
     should be ~0; it stays subtracted in case a deployment turns it back on.
     """
     return memory["VmRSS"] - memory["RssShmem"]

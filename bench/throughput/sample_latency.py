@@ -11,13 +11,13 @@ from bench.throughput.plan import MAX_REPLY_BYTES, REQUEST_TIMEOUT_S, RUN, SEED
 from bench.throughput.rates import percentile
 from bench.throughput.report import Figure, Target
 from bench.throughput.synthetic import cluster_centroids, fill_core
-from hercs.clustering import ClusterModel
-from hercs.codec import cluster_model_to_msg
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.core import ReplayCore
-from hercs.seeding import generator
-from hercs.validation import parse_message
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.seeding import generator
+from hercs.wire.codec import cluster_model_to_msg
+from hercs.wire.validation import parse_message
 
 
 def sample_over_zenoh(bench: Harness, method: str) -> list[float]:

@@ -14,15 +14,15 @@ import numpy as np
 
 from bench.throughput import BenchError
 from bench.throughput.plan import K_CLUSTERS, REQUEST_TIMEOUT_S, RUN, SEED
-from hercs.codec import episode_to_msg
-from hercs.episode import EpisodeData, random_episode
+from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.replay_service.core import ReplayCore
-from hercs.seeding import generator
-from hercs.tasks import TaskSpec
-from hercs.transport import Transport
-from hercs.validation import parse_message
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.rl.seeding import generator
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.validation import parse_message
 
 
 class SyntheticActor:

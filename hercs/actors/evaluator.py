@@ -36,16 +36,16 @@ import numpy as np
 from hercs.actors.rollout import RolloutWorker
 from hercs.actors.weights import WeightsDecoder
 from hercs.config import HercsConfig
-from hercs.envs import make_env
 from hercs.errors import InvalidMessage
-from hercs.policy import Policy, PolicyWeights
+from hercs.net.service_shell import ServiceRuntime, service_main
+from hercs.net.transport import Publisher, TransportError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.seeding import int_seed
-from hercs.service import ServiceRuntime, service_main
-from hercs.tasks import goal_distance
-from hercs.transport import Publisher, TransportError
-from hercs.warn_once import WarnOncePerMinute
+from hercs.rl.envs import make_env
+from hercs.rl.policy import Policy, PolicyWeights
+from hercs.rl.seeding import int_seed
+from hercs.rl.task_registry import goal_distance
+from hercs.run.warn_once import WarnOncePerMinute
 
 log = logging.getLogger(__name__)
 

@@ -37,14 +37,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hercs.backoff import Backoff
 from hercs.errors import InvalidMessage
+from hercs.net.backoff import Backoff
+from hercs.net.service_shell import start_supervised
+from hercs.net.transport import RemoteError, TransportError, TransportTimeout
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Disposition, Reason, disposition
-from hercs.service import start_supervised
-from hercs.transport import RemoteError, TransportError, TransportTimeout
-from hercs.validation import parse_message
-from hercs.warn_once import WarnOncePerMinute
+from hercs.run.warn_once import WarnOncePerMinute
+from hercs.wire.validation import parse_message
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +78,7 @@ class Inserter:
     """Sends `(seq, payload)` episodes through `send` (one request → reply bytes) until acked.
 
     `send` is e.g. `lambda p: transport.request(keys.insert, p, timeout_s=...)`; it raises
-    `TransportTimeout`, `RemoteError` or `TransportError` as `hercs.transport.request` does.
+    `TransportTimeout`, `RemoteError` or `TransportError` as `hercs.net.transport.request` does.
     """
 
     def __init__(

@@ -7,8 +7,8 @@ from collections.abc import Callable, Sequence
 import gymnasium as gym
 import numpy as np
 
-from hercs.episode import EpisodeData, expected_shapes
-from hercs.tasks import TaskSpec
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.episode import EpisodeData, expected_shapes
 
 ActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(observation, desired goal) -> action, for one step; with (n, dim) arrays, n actions."""
@@ -18,7 +18,7 @@ class VectorRollout:
     """Runs fixed-length episodes in n envs side by side: one batched `act` call per step for
     all of them (the actor's `actor.envs_per_process`), so the policy's per-call overhead is
     paid once per step instead of n times. Episodes have no early termination (the goal
-    interface, hercs.goal_env), so the n envs stay in step from reset to step T.
+    interface, hercs.rl.goal_env), so the n envs stay in step from reset to step T.
 
     Env i is seeded once, with `seeds[i]`, at its first reset; later resets continue its own
     generator, so each env's stream of initial states and goals is reproducible from its seed.

@@ -3,14 +3,14 @@ load into a policy of the run's task before anything adopts them."""
 
 from __future__ import annotations
 
-from hercs.codec import msg_to_weight_arrays
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
-from hercs.policy import Policy, PolicyWeights
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.tasks import TaskSpec
-from hercs.validation import MAX_INT64, parse_message
+from hercs.rl.policy import Policy, PolicyWeights
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.codec import msg_to_weight_arrays
+from hercs.wire.validation import MAX_INT64, parse_message
 
 
 class WeightsDecoder:

@@ -27,7 +27,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from hercs.errors import ConfigError
-from hercs.security import ROLES, ROUTER_NAME
+from hercs.net.security import ROLES, ROUTER_NAME
 
 VALID_DAYS = 825
 """Validity of every certificate made here (about 27 months)."""

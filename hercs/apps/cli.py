@@ -74,11 +74,13 @@ SERVICE_EXAMPLES = {
 }
 
 SERVICES: dict[str, tuple[str, str]] = {
-    "replay": ("hercs.replay_service.service",
+    "replay": ("hercs.replay_service.replay_shell",
                "run the replay service (episode store, HER, samplers)"),
-    "clusterer": ("hercs.clusterer.service", "run the clusterer (failed goals, k-means refits)"),
-    "learner": ("hercs.learner.service", "run the DDPG learner (updates, weights, epochs)"),
-    "actor": ("hercs.actors.service", "run a rollout actor (join a run with --connect and --run)"),
+    "clusterer": ("hercs.clusterer.clusterer_shell",
+                  "run the clusterer (failed goals, k-means refits)"),
+    "learner": ("hercs.learner.learner_shell", "run the DDPG learner (updates, weights, epochs)"),
+    "actor": ("hercs.actors.actor_shell",
+              "run a rollout actor (join a run with --connect and --run)"),
     "evaluator": ("hercs.actors.evaluator", "run the evaluator (deterministic test episodes)"),
     "live": ("hercs.apps.live_view", "stream a run to Rerun while it trains (what `hercs up "
                                 "--rerun` starts; join a run with --connect and --run)"),
@@ -96,7 +98,8 @@ def exit_after_close(code: int) -> NoReturn:
     teardown.
 
     When a service's `run` returns it has closed its Zenoh session, joined its threads (up
-    to `hercs.service.THREAD_JOIN_S`) and made everything it acknowledged durable; teardown
+    to `hercs.net.service_shell.THREAD_JOIN_S`) and made everything it acknowledged durable;
+    teardown
     adds nothing but the finalisation of native threads, and there a clusterer stopped with
     SIGTERM once aborted (SIGABRT, glibc's "FATAL: exception not rethrown": a native thread
     unwound by the exiting interpreter; seen once in `make test` on a loaded machine, after
@@ -131,7 +134,7 @@ def _service_command(module: str) -> Command:
 def _cmd_plot(args: argparse.Namespace) -> int:
     from hercs.apps.plot_figures import run_plot
     from hercs.errors import HercsError
-    from hercs.rundir import METRICS, require_run_dir
+    from hercs.run.rundir import METRICS, require_run_dir
 
     try:
         for run_dir in args.run_dirs:  # what a folder lacks, before plots reads any
@@ -379,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hercs {args.command}: invalid configuration: {exc}", file=sys.stderr)
         return 2
     if args.command in ENV_COMMANDS:
-        from hercs.envs import check_env
+        from hercs.rl.envs import check_env
 
         try:
             check_env(config.task.spec)

@@ -12,9 +12,9 @@ import yaml
 
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
-from hercs.methods import METHODS
-from hercs.rundir import RunDir
-from hercs.tasks import TASKS
+from hercs.rl.methods import METHODS
+from hercs.rl.task_registry import TASKS
+from hercs.run.rundir import RunDir
 
 # Shortcut flags and the config field each one sets.
 SHORTCUTS: dict[str, str] = {
@@ -205,7 +205,7 @@ def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig
     job's actors start with the run, before its router listens); None when it gave up.
     Without --run-dir it uses runs/RUN/router.json if there is one, else the config's
     `connect` as before."""
-    from hercs.rundir import read_router, run_dir_of, wait_router
+    from hercs.run.rundir import read_router, run_dir_of, wait_router
 
     if getattr(args, "connect", None) or not config.run.name:
         if getattr(args, "run_dir", None) is not None and not config.run.name:

@@ -20,7 +20,7 @@ What `run_up` does, in order:
    message (exit 1), before anything is written.
 3. Writes `runs/<run>/config.yaml` (the full resolved config, which every child reads with
    `--config`; `listen` as asked, `connect` the router's concrete endpoints),
-   `runs/<run>/logs/` and `runs/<run>/router.json` (`hercs.rundir.RouterRecord`: where the
+   `runs/<run>/logs/` and `runs/<run>/router.json` (`hercs.run.rundir.RouterRecord`: where the
    router listens, for `hercs actor`/`hercs live --run-dir`; removed when the run stops).
    From here on the embedded router's own Zenoh log lines go to `logs/router.log`
    (`native_output_to`), not among the progress lines.
@@ -96,21 +96,21 @@ from hercs.apps.run_plan import (
     resolve_run,
     service_command,
 )
-from hercs.backoff import nth_delay
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.net.backoff import nth_delay
+from hercs.net.service_shell import EXIT_CONFIG
+from hercs.net.signals import StopSignals
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.rundir import (
+from hercs.run.rundir import (
     RouterRecord,
     RunDir,
     holds_a_run,
     remove_router,
     write_router,
 )
-from hercs.service import EXIT_CONFIG
-from hercs.signals import StopSignals
-from hercs.validation import parse_message
+from hercs.wire.validation import parse_message
 
 REQUEUE_LOCK_WAIT_S = 180.0
 """A requeued Slurm attempt (SLURM_RESTART_COUNT > 0) waits this long for the run's lock: on

@@ -22,13 +22,13 @@ from hercs.apps.rerun_draw import (
     log_world,
     summarize_episode,
 )
-from hercs.clustering import ClusterModel
-from hercs.codec import msg_to_cluster_model
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.tasks import TaskSpec
-from hercs.validation import header_goals, validate_centroids
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.codec import msg_to_cluster_model
+from hercs.wire.validation import header_goals, validate_centroids
 
 MAX_FAILED_GOALS = 2000
 """`world/failed_goals` shows at most this many, the newest (the FGB holds 150 by default)."""

@@ -58,16 +58,16 @@ from hercs.apps.live_recorder import LiveRecorder
 from hercs.apps.rerun_draw import APP_ID, blueprint, rerun_executable
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
+from hercs.net.service_shell import ServiceRuntime, join_run, service_main
+from hercs.net.transport import RemoteError, TransportError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.service import ServiceRuntime, join_run, service_main
-from hercs.transport import RemoteError, TransportError
-from hercs.validation import (
+from hercs.run.warn_once import WarnOncePerMinute
+from hercs.wire.validation import (
     parse_message,
     validate_episode,
 )
-from hercs.warn_once import WarnOncePerMinute
 
 log = logging.getLogger("hercs.live")
 

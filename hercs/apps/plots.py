@@ -44,10 +44,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hercs.config_algorithm import EnergyConfig
+from hercs.config.algorithm import EnergyConfig
 from hercs.errors import HercsError
-from hercs.methods import METHODS
-from hercs.rundir import RunDir
+from hercs.rl.methods import METHODS
+from hercs.run.rundir import RunDir
 
 REFERENCE_CSV = Path(__file__).resolve().parent / "data" / "authors_success_rates.csv"
 

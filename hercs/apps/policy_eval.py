@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 
 from hercs.apps.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
-from hercs.checkpoints import LoadedPolicy, read_policy
 from hercs.errors import HercsError
-from hercs.seeding import int_seed
-from hercs.tasks import goal_distance
+from hercs.rl.seeding import int_seed
+from hercs.rl.task_registry import goal_distance
+from hercs.run.policy_files import LoadedPolicy, read_policy
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ class EvalSummary:
 
 def load_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = None) -> LoadedPolicy:
     """The policy of a run folder's checkpoint (see the module docstring for the names; None:
-    best if present, else latest): `hercs.checkpoints.read_policy`, which `hercs.load_policy`
+    best if present, else latest): `hercs.run.policy_files.read_policy`, which `hercs.load_policy`
     uses too. Its errors (`RunDirError`, `CheckpointError`) are `HercsError`s."""
     return read_policy(run_dir, checkpoint)
 
@@ -96,7 +96,7 @@ def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
     gets T + 1 frames per episode (the start and after every step). `on_episode_end(episode,
     success, final distance)` follows each episode."""
     from hercs.actors.rollout import RolloutWorker
-    from hercs.envs import make_env
+    from hercs.rl.envs import make_env
 
     config, spec = policy.config, policy.config.task.spec
     actor = policy.policy()

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hercs.clustering import ClusterModel, assign_clusters
-from hercs.codec import msg_to_array
 from hercs.proto import hercs_pb2 as pb
-from hercs.runlog.scene import episode_positions, goal_point
-from hercs.tasks import TaskSpec
+from hercs.rl.cluster_model import ClusterModel, assign_clusters
+from hercs.rl.task_registry import TaskSpec
+from hercs.run.runlog.scene import episode_positions, goal_point
+from hercs.wire.codec import msg_to_array
 
 APP_ID = "hercs"
 
@@ -82,7 +82,7 @@ class LoggedModel:
 def summarize_episode(msg: pb.Episode, *, episode_id: int, spec: TaskSpec,
                       cluster: int) -> EpisodeSummary:
     """An Episode message as drawn: the positions the episode log's scene shows
-    (`hercs.runlog.scene.episode_positions`: gripper and object for Fetch, the achieved
+    (`hercs.run.runlog.scene.episode_positions`: gripper and object for Fetch, the achieved
     goal's first point beyond it), success by the task's rule (`TaskSpec.is_success`)."""
     obs = msg_to_array(msg.obs, where="Episode.obs")
     ag = msg_to_array(msg.ag, where="Episode.ag")

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hercs.errors import HercsError
-from hercs.metrics import MetricsFileError, checked_epochs, epoch_spans
-from hercs.rundir import (
+from hercs.run.metrics import MetricsFileError, checked_epochs, epoch_spans
+from hercs.run.rundir import (
     CHECKPOINTS,
     CONFIG,
     LOCK,

@@ -12,10 +12,10 @@ from collections.abc import Sequence
 
 from hercs.config import HercsConfig, SecurityConfig, endpoint_parts
 from hercs.errors import ConfigError
+from hercs.net.security import listen_problem, zenoh_settings
+from hercs.net.signals import StopSignals
+from hercs.net.transport import Transport, TransportError
 from hercs.proto.keys import ROOT
-from hercs.security import listen_problem, zenoh_settings
-from hercs.signals import StopSignals
-from hercs.transport import Transport, TransportError
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def open_router_anywhere(listen: Sequence[str], security: SecurityConfig | None 
 def open_router(listen: Sequence[str],
                 security: SecurityConfig | None = None) -> Transport:
     """A router-mode `Transport` listening on `listen`, authenticating clients and applying
-    access control as `security` says (`hercs.security`).
+    access control as `security` says (`hercs.net.security`).
 
     Raises `ConfigError` for a listen address other hosts can reach without TLS (unless
     `security.allow_insecure`) or unusable certificates, and `RouterListenError` with what to

@@ -186,7 +186,7 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
     argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen)
     resolved = _resolve(argv)
     run_dir = Path(resolved.run.run_dir) / resolved.run.name
-    from hercs.rundir import holds_a_run
+    from hercs.run.rundir import holds_a_run
 
     if holds_a_run(run_dir):
         raise ConfigError(f"hercs.up: {run_dir} already holds a run: give another name=, or "

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hercs.errors import HercsError
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 NO_FLOCK = frozenset({errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL})
 """flock's errors on a file system that does not support it."""

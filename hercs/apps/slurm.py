@@ -42,7 +42,7 @@ from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.errors import ConfigError
-from hercs.rundir import CONFIG, SLURM, RunDir, holds_a_run
+from hercs.run.rundir import CONFIG, SLURM, RunDir, holds_a_run
 
 ACTOR_RESTART_S = 2
 """Seconds between an actor step's end and its restart within the attempt; doubled, up to

@@ -75,10 +75,10 @@ from hercs.apps.sweep_cells import (
 from hercs.apps.sweep_report import main_report, write_reports
 from hercs.apps.sweep_slurm import run_one_cell, submit_slurm
 from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
-from hercs.envs import check_env
 from hercs.errors import ConfigError
-from hercs.methods import METHODS
-from hercs.tasks import ENV_VERSIONS, TASKS, task_spec
+from hercs.rl.envs import check_env
+from hercs.rl.methods import METHODS
+from hercs.rl.task_registry import ENV_VERSIONS, TASKS, task_spec
 
 LOG_DIR = "_logs"
 QUICK_OVERRIDES = ("training.cycles_per_epoch=2", "training.episodes_per_cycle=2",

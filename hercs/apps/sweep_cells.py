@@ -21,8 +21,8 @@ from hercs.apps.plots import (
     EPSILON_DEFAULT,
 )
 from hercs.errors import ConfigError
-from hercs.rundir import CONFIG, METRICS, RunDir
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import CONFIG, METRICS, RunDir
 
 PROG = "hercs sweep"
 MANIFEST = "sweep.json"

@@ -1,7 +1,7 @@
 """`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
 
 Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
-`episodes.mcap`) with `hercs.runlog`, and `metrics.csv` when it sits beside the
+`episodes.mcap`) with `hercs.run.runlog`, and `metrics.csv` when it sits beside the
 log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
 the web viewer (`--web`).
 
@@ -89,14 +89,14 @@ from hercs.apps.rerun_draw import (
     rerun_executable,
     summarize_episode,
 )
-from hercs.clustering import assign_clusters
-from hercs.codec import msg_to_array, msg_to_cluster_model
 from hercs.config import load_yaml
 from hercs.errors import HercsError
-from hercs.metrics import read_rows
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.rl.cluster_model import assign_clusters
+from hercs.rl.task_registry import task_spec
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     LIVE_NAME,
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
@@ -106,7 +106,7 @@ from hercs.runlog import (
     read_messages,
     segment_paths,
 )
-from hercs.tasks import task_spec
+from hercs.wire.codec import msg_to_array, msg_to_cluster_model
 
 FALLBACK_EPISODES_PER_EPOCH = 200
 """Without --episodes the view draws the last epoch's episodes; this many when the run's

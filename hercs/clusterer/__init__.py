@@ -1,9 +1,9 @@
 """The clusterer service: failed-goal buffer, k-means refits, publishes the cluster model.
 
-`hercs.clusterer.core.Clusterer` is the pure core (no Zenoh); the service module wraps it.
+`hercs.clusterer.clusterer_core.Clusterer` is the pure core (no Zenoh); the service module wraps it.
 """
 
-from hercs.clusterer.core import Clusterer
+from hercs.clusterer.clusterer_core import Clusterer
 from hercs.clusterer.failed_goals import FailedGoalBuffer
 from hercs.clusterer.kmeans import fit_cluster_model
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from hercs.rundir import LATEST  # the run directory's names have one owner
+from hercs.run.rundir import LATEST  # the run directory's names have one owner
 
 log = logging.getLogger(__name__)
 

@@ -45,15 +45,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from hercs.batch import TransitionBatch, transition_shapes
 from hercs.config import PRECISIONS, DDPGConfig
 from hercs.errors import ConfigError
 from hercs.learner.tf32 import TF32Products
-from hercs.networks import Actor, Critic, preprocess, to_arrays
-from hercs.normalizer import Normalizer, NormalizerState
-from hercs.policy import PolicyWeights
-from hercs.seeding import int_seed
-from hercs.tasks import TaskSpec
+from hercs.rl.networks import Actor, Critic, preprocess, to_arrays
+from hercs.rl.normalizer import Normalizer, NormalizerState
+from hercs.rl.policy import PolicyWeights
+from hercs.rl.seeding import int_seed
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.batch import TransitionBatch, transition_shapes
 
 
 def critic_target(

@@ -2,7 +2,8 @@
 for an evaluation and with which weights, which are overdue to be asked for again, and which
 evaluated policies to keep on disk.
 
-`hercs.learner.service` drives it: it sends what `overdue` returns on `eval/request`, saves what
+`hercs.learner.learner_shell` drives it: it sends what `overdue` returns on `eval/request`, saves
+what
 `PolicyKeeper.files_for` names, and checkpoints `EvalRequests.state_dict()`.
 """
 
@@ -12,7 +13,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 
-from hercs.rundir import BEST, epoch_file
+from hercs.run.rundir import BEST, epoch_file
 
 
 class EvalRequests:

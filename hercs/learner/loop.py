@@ -1,12 +1,13 @@
 """The learner's loop as a pure object: cycles, epochs, weights versions and metrics rows.
 
 `LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one cycle = one pulled
-`ServedBatch` (hercs.served) of `minibatches_per_cycle` minibatches → that many DDPG updates →
+`ServedBatch` (hercs.wire.served) of `minibatches_per_cycle` minibatches → that many DDPG updates →
 one Polyak target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
 caller broadcasts the epoch-end policy for evaluation and checkpoints. When the evaluator's
 result for epoch e arrives, `record_eval` completes the epoch's metrics row.
 
-The service (hercs.learner.service) runs this object in a loop with Zenoh around it; tests drive it
+The service (hercs.learner.learner_shell) runs this object in a loop with Zenoh around it; tests
+drive it
 directly with locally built batches.
 """
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from hercs.config import HercsConfig
 from hercs.learner.ddpg import DDPGLearner
-from hercs.served import ServedBatch
+from hercs.wire.served import ServedBatch
 
 
 @dataclass

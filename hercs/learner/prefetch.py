@@ -12,12 +12,12 @@ from collections.abc import Callable
 
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
+from hercs.net.service_shell import ServiceRuntime
+from hercs.net.transport import RemoteError, TransportError, TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.served import ServedBatch, decode_served_batch
-from hercs.service import ServiceRuntime
-from hercs.transport import RemoteError, TransportError, TransportTimeout
-from hercs.warn_once import WarnOncePerMinute
+from hercs.run.warn_once import WarnOncePerMinute
+from hercs.wire.served import ServedBatch, decode_served_batch
 
 log = logging.getLogger("hercs.learner")
 

@@ -25,8 +25,8 @@ from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.loop import LearnerLoop
-from hercs.metrics import recorded_epochs, truncate_metrics
-from hercs.rundir import aside_folder
+from hercs.run.metrics import recorded_epochs, truncate_metrics
+from hercs.run.rundir import aside_folder
 
 log = logging.getLogger("hercs.learner")
 

@@ -19,7 +19,7 @@ then ``np.clip(…, 0, clip_energy)`` and a sum over time. Their defaults are m 
 Δt = 0.04, both weights 1; clip_energy 0.5 is their PickAndPlace setting. Computed in float64
 (the reference's buffers are float64).
 
-Beyond Fetch (`TaskSpec.energy`, hercs.tasks.ENERGIES):
+Beyond Fetch (`TaskSpec.energy`, hercs.rl.task_registry.ENERGIES):
 - `points`: an achieved goal of k 3-d points (Fetch: k = 1, the object; HandReach: k = 5, the
   fingertips) gives each point the terms above and sums them: U_t = m·g·Σ_i (z_it − z_i0),
   K_t = ½·m·Σ_i ‖Δag_i/Δt‖². Our extension for HandReach (the EBP paper has no energy for it).

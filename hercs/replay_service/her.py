@@ -10,11 +10,11 @@ the same draws in the same order (the reference uses the global np.random; we ta
     g          ← ag[future_t]  where her_mask
     r          = reward_fn(ag_{t+1}, g)                  the env's vectorised compute_reward
 
-`reward_fn` is `TaskSpec.compute_reward` (hercs.tasks.fetch_reward), tested equal to
+`reward_fn` is `TaskSpec.compute_reward` (hercs.rl.task_registry.fetch_reward), tested equal to
 `env.unwrapped.compute_reward`; the replay never holds an environment.
 
 `future_t` can be T because ag has T+1 entries (ag_T is the achieved goal after the last
-action). Transitions are `hercs.batch.TransitionBatch` (o_t, g, u_t, r_t, o_{t+1}). Which
+action). Transitions are `hercs.wire.batch.TransitionBatch` (o_t, g, u_t, r_t, o_{t+1}). Which
 *episodes* go into the batch is the samplers' job (hercs.replay_service.samplers); this module takes
 their slots.
 """
@@ -27,9 +27,9 @@ from typing import Protocol
 
 import numpy as np
 
-from hercs.batch import TransitionBatch
-from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
+from hercs.wire.batch import TransitionBatch
+from hercs.wire.episode import EpisodeData
 
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """reward_fn(achieved_goal_next, desired_goal) -> (B,) rewards, vectorised over the batch."""

@@ -1,6 +1,7 @@
 """The bound on policy lag in the asynchronous schedule (`training.max_policy_lag`).
 
-An episode's policy lag is its cycle in the lockstep schedule (`hercs.lockstep.schedule_cycle`
+An episode's policy lag is its cycle in the lockstep schedule
+(`hercs.replay_service.lockstep.schedule_cycle`
 of the id it is stored under) minus the weights version it was acted with: 0 in lockstep,
 where cycle c's episodes are acted with version c. Asynchronously it grows with everything
 that lets episodes be stored before their weights exist: the rate limiter's surplus, the

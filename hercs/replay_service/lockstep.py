@@ -34,6 +34,15 @@ from collections.abc import Iterable
 
 from hercs.reasons import Reason
 
+
+def schedule_cycle(episode_id: int, episodes_per_cycle: int) -> int:
+    """The cycle episode `episode_id` belongs to in the lockstep schedule, which is also the
+    weights version it would have been acted with there: cycle c is `episodes_per_cycle`
+    episodes acted with version c, then the learner's updates on a buffer holding them, as
+    the reference's single process alternates, so episode i (its id, from 0) is in cycle
+    i // episodes_per_cycle."""
+    return int(episode_id) // int(episodes_per_cycle)
+
 LOCKSTEP_CLUSTER_WAIT_S = 30.0
 """How long a sample waits for a cluster model that is due before it is served with the model
 at hand (the clusterer may be restarting)."""

@@ -10,7 +10,7 @@ Invariants (enforced by `insert` and `restore`):
   pure function of it, so replaying the episode log in id order rebuilds the same buffer.
 - Hence the valid slots are always the prefix ``[0, size)``; every array property returns a
   read-only view of that prefix (no copy), indexed by slot.
-- Every stored array has the task's shapes (`hercs.episode.expected_shapes`); a mismatch is
+- Every stored array has the task's shapes (`hercs.wire.episode.expected_shapes`); a mismatch is
   refused before anything is written.
 
 Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
@@ -27,10 +27,10 @@ from collections.abc import Iterable
 import numpy as np
 
 from hercs.config import EVICTIONS
-from hercs.episode import EpisodeData, expected_shapes
 from hercs.errors import ConfigError
 from hercs.replay_service.sampling_index import SamplingIndex
-from hercs.tasks import TaskSpec
+from hercs.rl.task_registry import TaskSpec
+from hercs.wire.episode import EpisodeData, expected_shapes
 
 UNASSIGNED = -1
 """Cluster label of an episode that no cluster model has labelled yet."""

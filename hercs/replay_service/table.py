@@ -3,7 +3,8 @@
 
 `ReplayTable` owns the `ReplayCore`, the rate limiter, the queues of parked calls
 (hercs.replay_service.table_calls), the deduplication of retries, the durable log and the
-policy-lag bookkeeping. The Zenoh shell (`hercs.replay_service.service`) calls `insert` or `sample`
+policy-lag bookkeeping. The Zenoh shell (`hercs.replay_service.replay_shell`) calls `insert` or
+`sample`
 with a `Waiter` that answers a query; unit tests drive it with plain waiters and a fake clock.
 
 Admission rules (every public method takes the table's lock, so calls from several threads
@@ -59,17 +60,13 @@ from typing import Any
 
 import numpy as np
 
-from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig
-from hercs.episode import EpisodeData
-from hercs.lockstep import schedule_cycle
-from hercs.methods import METHODS
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.core import ReplayCore
 from hercs.replay_service.lag_bound import PolicyLagBound
-from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
+from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate, schedule_cycle
 from hercs.replay_service.rate_limiter import SampleToInsertRatio
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
     EpisodeLogSink,
@@ -84,8 +81,11 @@ from hercs.replay_service.table_calls import (
     take_expired,
 )
 from hercs.replay_service.waiting_inserts import WaitingInserts
-from hercs.replay_state import ReplayState
-from hercs.served import ReplayCounters, ServedBatch
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.methods import METHODS
+from hercs.wire.episode import EpisodeData
+from hercs.wire.replay_state import ReplayState
+from hercs.wire.served import ReplayCounters, ServedBatch
 
 __all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "ReplayTable",
            "SampleCall", "SampleRefused", "Stored", "Waiter"]  # calls and answers: table_calls

@@ -11,13 +11,13 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
-from hercs.codec import replay_state_to_msg
-from hercs.episode import EpisodeData
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_state import ReplayState
-from hercs.runlog.format import EpisodeLogError
-from hercs.served import ServedBatch
+from hercs.run.runlog.format import EpisodeLogError
+from hercs.wire.codec import replay_state_to_msg
+from hercs.wire.episode import EpisodeData
+from hercs.wire.replay_state import ReplayState
+from hercs.wire.served import ServedBatch
 
 log = logging.getLogger("hercs.replay")
 
@@ -34,7 +34,7 @@ class Waiter(Protocol[T_contra]):
 
 
 class EpisodeLogSink(Protocol):
-    """The durable log the table writes before it acknowledges (hercs.runlog's writer)."""
+    """The durable log the table writes before it acknowledges (hercs.run.runlog's writer)."""
 
     def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None: ...
 

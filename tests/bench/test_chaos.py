@@ -24,7 +24,7 @@ from bench.chaos_envelope import (
 )
 from bench.chaos_plan import QUICK_PLAN, ChaosPlan, Event, draw_events
 from bench.chaos_state import QUICK_SHAPE, SoakState, new_state
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 ACTORS = ["net-1", "net-2"]
 

@@ -17,7 +17,7 @@ from rliable import metrics
 
 from bench import claim_statistics
 from hercs.apps.plots import Curve
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.support import load_bench
 
 claims = load_bench("claims")

@@ -20,11 +20,11 @@ from bench.cross_sim import (
     render,
     run_bench,
 )
-from hercs.checkpoints import CheckpointError, LoadedPolicy
 from hercs.config import HercsConfig, apply_overrides
 from hercs.errors import ConfigError
-from hercs.policy import Policy
-from hercs.rundir import RunDir
+from hercs.rl.policy import Policy
+from hercs.run.policy_files import CheckpointError, LoadedPolicy
+from hercs.run.rundir import RunDir
 from tests.support import REPO
 
 REPORT = REPO / "docs" / "results" / "cross_sim.json"

@@ -20,11 +20,11 @@ from bench.early_policy import (
     replay_open_loop,
     run_environment,
 )
-from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import EpisodeData
-from hercs.rundir import RunDir
-from hercs.runlog import EpisodeLogWriter
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import EpisodeLogWriter
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import EpisodeData
 from tests.support import REPO
 
 REPORT = REPO / "docs" / "results" / "early_policy.json"
@@ -127,8 +127,8 @@ def test_committed_moved_shares_are_read_per_push_run(tmp_path: Path) -> None:
 
 
 def test_open_loop_replay_in_a_real_fetchpush_is_deterministic() -> None:
-    from hercs.envs import make_env
-    from hercs.tasks import task_spec
+    from hercs.rl.envs import make_env
+    from hercs.rl.task_registry import task_spec
 
     env = make_env(task_spec("push", "v4"))
     rng = np.random.default_rng(0)

@@ -42,7 +42,7 @@ def test_recorded_gemms_are_the_flops_torch_counts() -> None:
 
     from hercs.config import DDPGConfig
     from hercs.learner.ddpg import DDPGLearner
-    from hercs.tasks import task_spec
+    from hercs.rl.task_registry import task_spec
 
     spec = task_spec("push")
     learner = DDPGLearner(spec=spec, config=DDPGConfig(), seed=0)

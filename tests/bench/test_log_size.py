@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from bench.log_size import measure, project
-from hercs.codec import episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
-from hercs.rundir import RunDir
-from hercs.runlog import EpisodeLogWriter, segment_paths
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import EpisodeLogWriter, segment_paths
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 from tests.support import REPO
 
 

@@ -13,9 +13,9 @@ import pytest
 
 from bench import net_faults, net_measure
 from hercs.actors.inserter import Inserter
+from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.transport import TransportTimeout
 
 
 def test_the_acks_an_inserter_logs_are_read_back(caplog: pytest.LogCaptureFixture,

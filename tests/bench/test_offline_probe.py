@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.offline_probe import FACTS, collect, random_actions, render, train
-from hercs.envs import mujoco_py_problem
-from hercs.tasks import task_spec
+from hercs.rl.envs import mujoco_py_problem
+from hercs.rl.task_registry import task_spec
 from tests.support import REPO
 
 REPORT = REPO / "docs" / "results" / "offline_probe.json"

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.support import load_bench
 
 parity = load_bench("precision_parity")

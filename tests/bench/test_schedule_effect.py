@@ -14,7 +14,7 @@ import yaml
 from scipy import stats
 
 from hercs.apps.plots import load_run
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.support import load_bench
 
 effect = load_bench("schedule_effect")

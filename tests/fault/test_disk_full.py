@@ -14,11 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.codec import episode_to_msg
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     EpisodeLog,
     EpisodeLogError,
     EpisodeLogWriter,
@@ -27,7 +26,8 @@ from hercs.runlog import (
     scan_segment,
     segment_paths,
 )
-from hercs.tasks import task_spec
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 RUN, TASK = "disk-test", "push"
 RETRY_S = 1.0

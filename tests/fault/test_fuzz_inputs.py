@@ -59,12 +59,28 @@ import yaml
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from hercs import pbwire
 from hercs.actors.weights import WeightsDecoder
-from hercs.batch import TransitionBatch
-from hercs.clusterer.service import decode_header
-from hercs.clustering import ClusterModel
-from hercs.codec import (
+from hercs.clusterer.clusterer_shell import decode_header
+from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.errors import InvalidMessage
+from hercs.net.transport import PendingReply, RemoteError, Transport, TransportError
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
+from hercs.reasons import Reason
+from hercs.replay_service.replay_shell import (
+    MAX_BATCH_SIZE,
+    MAX_MINIBATCHES_PER_REQUEST,
+    MAX_ROWS_PER_REQUEST,
+)
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.normalizer import Normalizer
+from hercs.rl.policy import Policy
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
+from hercs.wire import pbwire
+from hercs.wire.batch import TransitionBatch
+from hercs.wire.codec import (
     array_to_msg,
     episode_to_msg,
     minibatch_to_msg,
@@ -73,25 +89,9 @@ from hercs.codec import (
     stats_to_msg,
     weights_to_msg,
 )
-from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
-from hercs.errors import InvalidMessage
-from hercs.normalizer import Normalizer
-from hercs.policy import Policy
-from hercs.proto import SCHEMA_VERSION
-from hercs.proto import hercs_pb2 as pb
-from hercs.proto.keys import RunKeys
-from hercs.reasons import Reason
-from hercs.replay_service.service import (
-    MAX_BATCH_SIZE,
-    MAX_MINIBATCHES_PER_REQUEST,
-    MAX_ROWS_PER_REQUEST,
-)
-from hercs.rundir import RunDir
-from hercs.runlog import MAX_SEQUENCE, read_cluster_models, read_episodes, read_eval_results
-from hercs.served import decode_served_batch
-from hercs.transport import PendingReply, RemoteError, Transport, TransportError
-from hercs.validation import (
+from hercs.wire.episode import random_episode
+from hercs.wire.served import decode_served_batch
+from hercs.wire.validation import (
     decode_episode,
     parse_message,
     validate_centroids,
@@ -108,8 +108,8 @@ KR, KA, KL = RunKeys(RUN_R), RunKeys(RUN_A), RunKeys(RUN_L)
 MAX_BYTES = 64 * 1024
 """`replay.max_message_bytes` of the runs (the default is 8 MiB; a small limit makes oversized
 payloads cheap)."""
-HEADER_MAX_BYTES = 64 * 1024  # hercs.clusterer.service._HEADER_MAX_BYTES
-LEARNER_EVAL_MAX_BYTES = 1 << 20  # hercs.learner.service: EvalResult and ReplayStatus
+HEADER_MAX_BYTES = 64 * 1024  # hercs.clusterer.clusterer_shell._HEADER_MAX_BYTES
+LEARNER_EVAL_MAX_BYTES = 1 << 20  # hercs.learner.learner_shell: EvalResult and ReplayStatus
 REQUEST_TIMEOUT_S = 15.0
 WAIT_S = 30.0
 ACK_EVERY_S = 0.05

@@ -25,9 +25,9 @@ from bench.netns import hosts, problem
 from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
+from hercs.net.security import zenoh_settings
+from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from hercs.security import zenoh_settings
-from hercs.transport import Transport
 from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]

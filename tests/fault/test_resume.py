@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.rundir import RunDir
-from hercs.runlog.reader import read_episodes
+from hercs.run.rundir import RunDir
+from hercs.run.runlog.reader import read_episodes
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 
 pytestmark = pytest.mark.integration

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.integration.conftest import free_endpoint
 from tests.integration.services import ServiceProcess, make_test_config
 

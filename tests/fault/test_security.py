@@ -16,10 +16,10 @@ import pytest
 from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
+from hercs.net.security import listen_problem, zenoh_settings
+from hercs.net.transport import RouterUnreachable, Transport, TransportError
 from hercs.proto.keys import RunKeys
-from hercs.rundir import RunDir
-from hercs.security import listen_problem, zenoh_settings
-from hercs.transport import RouterUnreachable, Transport, TransportError
+from hercs.run.rundir import RunDir
 from tests.integration.conftest import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]

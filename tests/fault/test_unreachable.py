@@ -11,9 +11,9 @@ from collections.abc import Iterator
 
 import pytest
 
+from hercs.net.service_shell import EXIT_UNREACHABLE
+from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from hercs.service import EXIT_UNREACHABLE
-from hercs.transport import Transport
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hercs.transport import Transport
+from hercs.net.transport import Transport
 
 
 def free_tcp_port() -> int:

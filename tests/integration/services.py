@@ -13,9 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.transport import Transport
+from hercs.run.rundir import RunDir
 
 WAIT_S = 15.0
 STOP_WITHIN_S = 5.0

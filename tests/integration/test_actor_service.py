@@ -21,14 +21,14 @@ import pytest
 import yaml
 
 from hercs.actors.inserter import Inserter
-from hercs.codec import msg_to_array, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
-from hercs.policy import Policy
+from hercs.net.transport import PendingReply, Transport, TransportError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.reasons import Reason
-from hercs.transport import PendingReply, Transport, TransportError
+from hercs.rl.policy import Policy
+from hercs.wire.codec import msg_to_array, weights_to_msg
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -29,14 +29,14 @@ REPO = Path(__file__).resolve().parents[2]
 EVAL_EPISODES = 2
 RESETS = 6
 
-# The user's side: hercs and numpy only (the env comes from hercs.envs, as any
+# The user's side: hercs and numpy only (the env comes from hercs.rl.envs, as any
 # gymnasium-robotics FetchReach-v4 would; the seed is the evaluator's, from the run's seed).
 CHILD = r'''
 import json, sys
 import numpy as np
 import hercs
-from hercs.envs import make_env
-from hercs.seeding import int_seed
+from hercs.rl.envs import make_env
+from hercs.rl.seeding import int_seed
 
 run_dir, observations, out = sys.argv[1:4]
 policy = hercs.load_policy(run_dir)
@@ -92,7 +92,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def observations(run_dir: Path) -> dict[str, np.ndarray]:
     """Real FetchReach-v4 observations: resets with seeds 0..RESETS-1."""
     from hercs.config import load_yaml
-    from hercs.envs import make_env
+    from hercs.rl.envs import make_env
 
     env = make_env(load_yaml(RunDir(run_dir).config).task.spec)
     resets = [env.reset(seed=seed)[0] for seed in range(RESETS)]
@@ -121,7 +121,7 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
     from hercs.actors.weights import WeightsDecoder
     from hercs.apps.policy_eval import load_policy as eval_loads
     from hercs.config import HercsConfig
-    from hercs.policy import Policy
+    from hercs.rl.policy import Policy
 
     state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])

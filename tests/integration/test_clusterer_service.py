@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.clusterer.core import Clusterer
-from hercs.codec import array_to_msg, msg_to_array
+from hercs.clusterer.clusterer_core import Clusterer
 from hercs.config import HercsConfig, apply_overrides
+from hercs.net.transport import Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.transport import Transport
+from hercs.wire.codec import array_to_msg, msg_to_array
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

@@ -24,7 +24,7 @@ import yaml
 
 from hercs.apps.cli import SERVICES, build_parser, resolve_config
 from hercs.config import HercsConfig
-from hercs.security import listen_problem
+from hercs.net.security import listen_problem
 
 pytestmark = pytest.mark.integration
 

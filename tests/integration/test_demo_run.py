@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import hercs
-from hercs.runlog.reader import read_cluster_models
+from hercs.run.runlog.reader import read_cluster_models
 
 pytestmark = pytest.mark.integration
 

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.codec import weights_to_msg
 from hercs.config import HercsConfig, apply_overrides
-from hercs.policy import Policy
+from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.transport import Transport
+from hercs.rl.policy import Policy
+from hercs.wire.codec import weights_to_msg
 from tests.integration.services import (
     WAIT_S,
     sigterm_exits_cleanly,

@@ -34,10 +34,10 @@ from hercs.apps.cli import build_parser, main, resolve_config
 from hercs.apps.progress import Progress
 from hercs.apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig, load_yaml
+from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from hercs.rundir import RunDir
-from hercs.runlog.reader import read_cluster_models, read_episodes
-from hercs.transport import Transport
+from hercs.run.rundir import RunDir
+from hercs.run.runlog.reader import read_cluster_models, read_episodes
 from tests.support import skip_without_mujoco_py
 
 pytestmark = pytest.mark.integration
@@ -67,7 +67,7 @@ def on_term(signum, frame):
 signal.signal(signal.SIGTERM, on_term)
 
 from hercs.config import load_yaml
-from hercs.transport import Transport
+from hercs.net.transport import Transport
 from hercs.proto import SCHEMA_VERSION, hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 
@@ -86,7 +86,7 @@ if behaviour == "crash-once" and not os.path.exists(f"{events}.crashed.{ident}")
     os._exit(3)
 if behaviour == "exit0":
     os._exit(0)
-if behaviour == "config-error":  # what hercs.service exits with for a ConfigError
+if behaviour == "config-error":  # what hercs.net.service_shell exits with for a ConfigError
     print("hercs replay: invalid configuration: the stand-in refused it", file=sys.stderr,
           flush=True)
     os._exit(2)
@@ -387,7 +387,7 @@ def test_two_runs_without_listen_take_free_ports_and_record_them(up, tmp_path: P
     """Two `hercs up` on one host at once, neither given --listen: each router takes its own
     free port, records it in runs/<run>/router.json, a client that reads the file reaches
     that run's services, and the file goes when the run stops."""
-    from hercs.rundir import read_router
+    from hercs.run.rundir import read_router
 
     launchers = {name: up({}, "--run", name, "--actors", "0", listen=False)
                  for name in ("first", "second")}
@@ -593,8 +593,9 @@ def test_sigkilled_launcher_leaves_no_orphans(up) -> None:
 
 # --------------------------------------------------------------------------- real services
 
-SERVICE_MODULES = ("hercs.replay_service.service", "hercs.clusterer.service",
-                   "hercs.learner.service", "hercs.actors.service", "hercs.actors.evaluator")
+SERVICE_MODULES = ("hercs.replay_service.replay_shell", "hercs.clusterer.clusterer_shell",
+                   "hercs.learner.learner_shell", "hercs.actors.actor_shell",
+                   "hercs.actors.evaluator")
 
 
 @pytest.mark.slow
@@ -637,7 +638,7 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     trained and evaluated on v1, and config.yaml records the version."""
     skip_without_mujoco_py()
     for name in ("LD_LIBRARY_PATH", "MUJOCO_PY_MUJOCO_PATH", "MUJOCO_PY_FORCE_CPU"):
-        monkeypatch.delenv(name, raising=False)  # hercs.envs set them in this process
+        monkeypatch.delenv(name, raising=False)  # hercs.rl.envs set them in this process
     launcher = Launcher(
         [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
          "--epochs", "1", "--run", "v1", "--run-dir", str(tmp_path / "runs"),

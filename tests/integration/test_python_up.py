@@ -17,7 +17,7 @@ import pytest
 
 import hercs
 from hercs.errors import ConfigError, HercsError
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 pytestmark = pytest.mark.integration
 

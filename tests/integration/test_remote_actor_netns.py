@@ -27,11 +27,11 @@ import yaml
 from bench.netns import Host, hosts, problem
 from hercs.apps.router import open_router
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
+from hercs.net.transport import PendingReply, Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.transport import PendingReply, Transport
-from hercs.validation import parse_message
+from hercs.wire.validation import parse_message
 
 pytestmark = pytest.mark.integration
 
@@ -82,7 +82,7 @@ def get(q: queue.Queue, what: str) -> object:
 
 CLIENT = textwrap.dedent('''
     import os, sys
-    from hercs.transport import Transport
+    from hercs.net.transport import Transport
     endpoint, key, alive_key = sys.argv[1:4]
     with Transport.open(mode="client", connect=[endpoint], connect_timeout_s=10) as t:
         t.declare_alive(alive_key)
@@ -123,7 +123,8 @@ def test_client_in_another_namespace_reaches_the_router(netns: Host, tmp_path: P
             client.wait()
 
 
-@pytest.mark.skipif(find_spec("hercs.actors.service") is None, reason="hercs actor not written yet")
+@pytest.mark.skipif(find_spec("hercs.actors.actor_shell") is None,
+                    reason="hercs actor not written yet")
 def test_hercs_actor_in_another_namespace_gets_its_inserts_acked(
         netns: Host, tmp_path: Path, router: tuple[Transport, str]) -> None:
     """`hercs actor --connect … --run …` from the namespace: the test plays the replay (serves

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from hercs.apps.cli import main
-from hercs.metrics import recorded_epochs
-from hercs.rundir import RunDir
+from hercs.run.metrics import recorded_epochs
+from hercs.run.rundir import RunDir
 from tests.integration.test_launcher import STANDIN, Launcher, free_endpoint
 from tests.run_dirs import make_run
 

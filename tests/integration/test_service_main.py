@@ -9,9 +9,9 @@ import pytest
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError
-from hercs.service import EXIT_CONFIG, EXIT_FAILED, ServiceRuntime, service_main
-from hercs.signals import StopSignals
-from hercs.transport import Transport
+from hercs.net.service_shell import EXIT_CONFIG, EXIT_FAILED, ServiceRuntime, service_main
+from hercs.net.signals import StopSignals
+from hercs.net.transport import Transport
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 

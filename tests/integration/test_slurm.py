@@ -32,8 +32,8 @@ from pathlib import Path
 import pytest
 
 from hercs.config import load_yaml
-from hercs.rundir import RunDir, read_router
-from hercs.runlog.reader import read_episodes
+from hercs.run.rundir import RunDir, read_router
+from hercs.run.runlog.reader import read_episodes
 from tests.integration import minislurm
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

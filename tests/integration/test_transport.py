@@ -1,4 +1,4 @@
-"""hercs.transport against real Zenoh sessions on loopback (a router plus clients per test).
+"""hercs.net.transport against real Zenoh sessions on loopback (a router plus clients per test).
 
 No sleeps stand in for synchronisation: every wait is on an Event or a queue with a timeout.
 """
@@ -19,14 +19,14 @@ from typing import Any
 import pytest
 
 from hercs.errors import ConfigError, InvalidMessage
-from hercs.reasons import Reason
-from hercs.transport import (
+from hercs.net.transport import (
     PendingReply,
     RemoteError,
     Transport,
     TransportError,
     TransportTimeout,
 )
+from hercs.reasons import Reason
 
 pytestmark = pytest.mark.integration
 
@@ -42,9 +42,9 @@ def _echo(payload: bytes) -> bytes:
 
 @pytest.fixture
 def log_event(caplog: pytest.LogCaptureFixture) -> Iterator[Callable[[str], threading.Event]]:
-    """`log_event(text)` → an Event set when hercs.transport logs a message containing text."""
-    logger = logging.getLogger("hercs.transport")
-    caplog.set_level(logging.DEBUG, logger="hercs.transport")
+    """`log_event(text)` → an Event set when hercs.net.transport logs a message containing text."""
+    logger = logging.getLogger("hercs.net.transport")
+    caplog.set_level(logging.DEBUG, logger="hercs.net.transport")
     spies: list[logging.Handler] = []
 
     def watch(text: str) -> threading.Event:
@@ -330,7 +330,7 @@ def test_liveliness_token_appears_and_disappears(open_client: OpenClient, endpoi
     child = subprocess.Popen(
         [sys.executable, "-c",
          "import sys\n"
-         "from hercs.transport import Transport\n"
+         "from hercs.net.transport import Transport\n"
          f"t = Transport.open(mode='client', connect=[{endpoint!r}], connect_timeout_s=5)\n"
          f"t.declare_alive('{RUN}/alive/actor/7')\n"
          "print('ready', flush=True)\n"
@@ -442,7 +442,7 @@ def test_senders_that_come_and_go_leave_no_shared_memory_behind(
 def test_a_blind_client_reopens_its_session_and_every_handle_works_on_the_new_one(
         open_client: OpenClient, endpoint: str) -> None:
     """A key that answered before finds no queryable for `rediscover_s` while the session has
-    its router: the client reopens its session (hercs.rediscovery); its subscription,
+    its router: the client reopens its session (hercs.net.rediscovery); its subscription,
     `latest` publisher, queryable and liveliness token then work on the new session."""
     replay, monitor = open_client(), open_client()
     client = Transport.open(mode="client", connect=[endpoint], connect_timeout_s=5.0,

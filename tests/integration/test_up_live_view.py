@@ -13,7 +13,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from hercs.apps.view import read_run_log
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
 from tests.support import free_tcp_port, rerun_viewer
 

@@ -1,7 +1,7 @@
 """Learning beyond Fetch: a whole `hercs up` run on a user's own goal environment, named
 `module:factory` (tests/goal_envs.py: a point driven to a goal within 0.4 of its start, in
 10 steps), must reach 90 % success. Its spec is read from the environment and its rewards come
-from the environment's own `compute_reward` (the `env` rule, hercs.goal_env): the path any lab
+from the environment's own `compute_reward` (the `env` rule, hercs.rl.goal_env): the path any lab
 environment takes."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.codec import msg_to_array
-from hercs.rundir import RunDir
-from hercs.runlog import read_cluster_models, read_episodes
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import read_cluster_models, read_episodes
+from hercs.wire.codec import msg_to_array
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hercs.rundir import RunDir
-from hercs.runlog import read_cluster_models, read_episodes
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import read_cluster_models, read_episodes
 from tests.integration.conftest import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]

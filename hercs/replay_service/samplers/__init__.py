@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError
-from hercs.methods import METHODS
 from hercs.replay_service.samplers.base import EpisodeSampler, SampleInfo, SampleSource
 from hercs.replay_service.samplers.cluster_balanced import ClusterBalancedSampler
-from hercs.replay_service.samplers.energy import EnergySampler
 from hercs.replay_service.samplers.energy_cluster import EnergyClusterSampler
+from hercs.replay_service.samplers.energy_prioritised import EnergySampler
 from hercs.replay_service.samplers.uniform import UniformSampler
+from hercs.rl.methods import METHODS
 
 __all__ = [
     "ClusterBalancedSampler",
@@ -24,7 +24,7 @@ __all__ = [
 
 
 def make_sampler(method: str, config: HercsConfig) -> EpisodeSampler:
-    """The episode sampler of `method` (hercs.methods: cluster-balanced and/or
+    """The episode sampler of `method` (hercs.rl.methods: cluster-balanced and/or
     energy-prioritised), built from config."""
     try:
         spec = METHODS[method]

@@ -6,10 +6,10 @@ from __future__ import annotations
 import threading
 
 from hercs.actors.inserter import Inserter
+from hercs.net.transport import RemoteError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.transport import RemoteError
 
 WAIT_S = 15.0
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from hercs.actors.rollout import RolloutWorker, VectorRollout
-from hercs.envs import make_env
-from hercs.episode import expected_shapes
-from hercs.tasks import task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import task_spec
+from hercs.wire.episode import expected_shapes
 
 
 @pytest.mark.parametrize("task", ["reach", "push"])

@@ -137,9 +137,9 @@ def test_exit_after_close_keeps_the_status_waits_for_non_daemon_threads_and_flus
 @pytest.mark.parametrize("command", ["up", "actor", "evaluator"])
 def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_path: Path,
                                                              capsys, monkeypatch) -> None:
-    import hercs.envs
+    import hercs.rl.envs
 
-    monkeypatch.setattr(hercs.envs, "mujoco_py_problem", lambda: "mujoco_py is not installed")
+    monkeypatch.setattr(hercs.rl.envs, "mujoco_py_problem", lambda: "mujoco_py is not installed")
     assert main([command, "--set", "task.name=reach", "--set", "task.env_version=v1",
                  "--set", f"run.run_dir={tmp_path}", "--set", "run.name=v1"]) == 2
     err = capsys.readouterr().err
@@ -159,8 +159,7 @@ def _joined(argv: list[str]):
 def test_actor_and_live_find_the_router_in_the_run_directory(tmp_path: Path) -> None:
     import socket
 
-    from hercs import rundir
-
+    from hercs.run import rundir
     run = tmp_path / "r1"
     run.mkdir()
     rundir.write_router(run, rundir.RouterRecord.for_listen(["tls/0.0.0.0:4321"]))

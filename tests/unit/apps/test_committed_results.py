@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from hercs.apps import plot_tables, plots
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.support import load_bench
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"

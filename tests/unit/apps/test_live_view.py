@@ -21,15 +21,15 @@ from rerun.chunk import RrdReader
 from hercs.apps.cli import main
 from hercs.apps.live_recorder import LiveRecorder, header_outcome
 from hercs.apps.live_view import ViewerHealth
-from hercs.clustering import assign_clusters
-from hercs.codec import array_to_msg, episode_to_msg
-from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
-from hercs.rundir import RunDir
-from hercs.runlog import EpisodeLogWriter
-from hercs.tasks import task_spec
+from hercs.rl.cluster_model import assign_clusters
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import EpisodeLogWriter
+from hercs.wire.codec import array_to_msg, episode_to_msg
+from hercs.wire.episode import EpisodeData, random_episode
 from tests.support import free_tcp_port, rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"

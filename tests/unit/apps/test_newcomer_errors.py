@@ -12,7 +12,7 @@ import yaml
 
 from hercs.apps.cli import main
 from hercs.config import HercsConfig, save_yaml
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 CONFIG_HINT = "(`hercs config -o FILE` writes the full default config to start from)"
 NOT_BOOLEAN = "must be true or false (yes, no, on and off are not taken as booleans)"

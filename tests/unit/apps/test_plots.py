@@ -14,7 +14,7 @@ import yaml
 
 from hercs.apps import plot_figures, plot_tables, plots
 from hercs.apps.cli import main
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -13,8 +13,8 @@ import pytest
 
 from hercs.apps.cli import main
 from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
-from hercs.metrics import recorded_epochs
-from hercs.rundir import RunDir
+from hercs.run.metrics import recorded_epochs
+from hercs.run.rundir import RunDir
 from tests.run_dirs import make_run
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from hercs.apps.cli import main
 from hercs.apps.run_lock import RunBusy, RunLock, read_owner
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 from tests.run_dirs import make_run
 
 REPO = Path(__file__).resolve().parents[3]

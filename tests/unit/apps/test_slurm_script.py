@@ -15,7 +15,7 @@ import pytest
 from hercs.apps.cli import main
 from hercs.apps.slurm import ArrayPlan, JobPlan, render_array_script, render_script
 from hercs.errors import ConfigError
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 
 def sbatch_lines(script: str) -> list[str]:

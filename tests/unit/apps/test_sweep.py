@@ -17,7 +17,7 @@ from hercs.apps import sweep_cells as sc
 from hercs.apps import sweep_report as sr
 from hercs.apps import sweep_stats
 from hercs.errors import ConfigError
-from hercs.rundir import RunDir
+from hercs.run.rundir import RunDir
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -18,14 +18,14 @@ from hercs.apps.view import (
     run_view,
     select_episodes,
 )
-from hercs.codec import array_to_msg, episode_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
-from hercs.rundir import RunDir
-from hercs.runlog import EpisodeLogWriter
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import EpisodeLogWriter
+from hercs.wire.codec import array_to_msg, episode_to_msg
+from hercs.wire.episode import random_episode
 
 RERUN = Path(sys.executable).parent / "rerun"
 

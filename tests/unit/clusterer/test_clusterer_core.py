@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hercs.clusterer.core import Clusterer
+from hercs.clusterer.clusterer_core import Clusterer
 from hercs.config import ClusterConfig
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
 
 PUSH = task_spec("push")
 

@@ -8,7 +8,7 @@ import pytest
 from sklearn.cluster import KMeans
 
 from hercs.clusterer.kmeans import fit_cluster_model
-from hercs.clustering import ClusterModel, assign_clusters
+from hercs.rl.cluster_model import ClusterModel, assign_clusters
 
 
 @pytest.mark.parametrize(("k", "n", "seed"), [(8, 2000, 0), (3, 500, 1), (1, 10, 2)],

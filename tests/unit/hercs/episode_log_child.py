@@ -19,10 +19,10 @@ import sys
 
 import numpy as np
 
-from hercs.codec import episode_to_msg
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 RUN = "log-test"
 SEED = 20240917
@@ -38,7 +38,7 @@ def make_episode(i: int, task: str) -> pb.Episode:
 
 
 def main(path: str, task: str, max_file_bytes: int | None) -> None:
-    from hercs.runlog import EpisodeLogError, EpisodeLogWriter
+    from hercs.run.runlog import EpisodeLogError, EpisodeLogWriter
 
     if max_file_bytes is not None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails: EFBIG

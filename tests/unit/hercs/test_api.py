@@ -15,14 +15,14 @@ import pytest
 
 import hercs
 from hercs.actors.weights import WeightsDecoder
-from hercs.codec import episode_to_msg, weights_to_msg
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.episode import random_episode
 from hercs.learner.checkpoint import save_policy
-from hercs.metrics import METRICS_COLUMNS
-from hercs.policy import Policy
-from hercs.rundir import RunDir, RunDirError
-from hercs.runlog import EpisodeLog, segment_paths
+from hercs.rl.policy import Policy
+from hercs.run.metrics import METRICS_COLUMNS
+from hercs.run.rundir import RunDir, RunDirError
+from hercs.run.runlog import EpisodeLog, segment_paths
+from hercs.wire.codec import episode_to_msg, weights_to_msg
+from hercs.wire.episode import random_episode
 
 REPO = Path(__file__).resolve().parents[3]
 RUN = "api-test"

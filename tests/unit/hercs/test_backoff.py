@@ -1,4 +1,4 @@
-"""hercs.backoff: the delays double from the first up to the ceiling, and a stop ends a wait."""
+"""hercs.net.backoff: the delays double from the first up to the ceiling, and a stop ends a wait."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from hercs.backoff import Backoff, nth_delay
+from hercs.net.backoff import Backoff, nth_delay
 
 
 def test_delays_double_up_to_the_ceiling_and_reset() -> None:

@@ -12,22 +12,22 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
 from hercs.apps.view import read_run_log
-from hercs.clusterer.core import Clusterer
-from hercs.clustering import ClusterModel
-from hercs.codec import (
+from hercs.clusterer.clusterer_core import Clusterer
+from hercs.config import ClusterConfig
+from hercs.errors import InvalidMessage
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.schema import SCHEMA_VERSION
+from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import EpisodeLogWriter, read_cluster_models
+from hercs.wire.codec import (
     array_to_msg,
     cluster_model_to_msg,
     episode_to_msg,
     msg_to_cluster_model,
 )
-from hercs.config import ClusterConfig
-from hercs.episode import random_episode
-from hercs.errors import InvalidMessage
-from hercs.proto import hercs_pb2 as pb
-from hercs.proto.schema import SCHEMA_VERSION
-from hercs.rundir import RunDir
-from hercs.runlog import EpisodeLogWriter, read_cluster_models
-from hercs.tasks import task_spec
+from hercs.wire.episode import random_episode
 
 SPEC = task_spec("push")
 CENTROIDS = np.random.default_rng(3).uniform(-1, 1, (8, 3)).astype(np.float32)

@@ -3,8 +3,12 @@
 import numpy as np
 import pytest
 
-from hercs.batch import TRANSITION_FIELDS, TransitionBatch
-from hercs.codec import (
+from hercs.errors import InvalidMessage
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TRANSITION_FIELDS, TransitionBatch
+from hercs.wire.codec import (
     array_to_msg,
     arrays_to_named,
     batch_to_bytes,
@@ -17,11 +21,7 @@ from hercs.codec import (
     named_to_arrays,
     stats_to_msg,
 )
-from hercs.episode import random_episode
-from hercs.errors import InvalidMessage
-from hercs.proto import SCHEMA_VERSION
-from hercs.proto import hercs_pb2 as pb
-from hercs.tasks import task_spec
+from hercs.wire.episode import random_episode
 
 
 @pytest.mark.parametrize(
@@ -208,7 +208,7 @@ def test_every_message_round_trips(msg) -> None:
 
 
 def test_weights_round_trip() -> None:
-    from hercs.codec import msg_to_weight_arrays, weights_to_msg
+    from hercs.wire.codec import msg_to_weight_arrays, weights_to_msg
 
     params = {"fc.weight": np.ones((2, 3), np.float32)}
     stats = {"sum": np.ones(3), "sumsq": np.ones(3), "count": 4.0, "mean": np.ones(3),

@@ -7,8 +7,8 @@ import pytest
 
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
 from hercs.errors import ConfigError
-from hercs.rundir import RunDir
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
 
 
 def test_defaults_are_the_paper_reference_values() -> None:

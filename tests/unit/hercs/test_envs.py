@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from hercs.envs import make_env
-from hercs.tasks import task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import task_spec
 from tests.support import skip_without_mujoco_py
 
 
@@ -23,8 +23,9 @@ def test_making_an_env_prints_nothing(version: str) -> None:
     if version == "v1":
         skip_without_mujoco_py()
     done = subprocess.run(
-        [sys.executable, "-W", "default", "-c", "from hercs.envs import make_env; from "
-         f"hercs.tasks import task_spec; make_env(task_spec('push', {version!r})).close()"],
+        [sys.executable, "-W", "default", "-c", "from hercs.rl.envs import make_env; from "
+         f"hercs.rl.task_registry import task_spec; "
+         f"make_env(task_spec('push', {version!r})).close()"],
         capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stderr == "" and done.stdout == ""
@@ -48,8 +49,8 @@ def test_without_mujoco_2_1_v4_still_works_and_v1_says_how_to_install_it(tmp_pat
     """MuJoCo 2.1 missing (MUJOCO_PY_MUJOCO_PATH names an empty folder): where mujoco-py is
     installed, gymnasium-robotics imports it with every Fetch env and its import would raise;
     hercs makes it an ImportError, so v4 works, and a v1 env is refused with what to run."""
-    code = ("from hercs.envs import make_env; from hercs.errors import ConfigError; "
-            "from hercs.tasks import task_spec\n"
+    code = ("from hercs.rl.envs import make_env; from hercs.errors import ConfigError; "
+            "from hercs.rl.task_registry import task_spec\n"
             "make_env(task_spec('push')).close()\n"
             "try:\n    make_env(task_spec('push', 'v1'))\n"
             "except ConfigError as exc:\n    print(exc)\n")
@@ -63,7 +64,7 @@ def test_without_mujoco_2_1_v4_still_works_and_v1_says_how_to_install_it(tmp_pat
 
 PREPARE = """
 import os, sys
-from hercs import envs
+from hercs.rl import envs
 print(envs.prepare_mujoco_py())
 print(os.environ.get("LD_LIBRARY_PATH", ""), os.environ.get("MUJOCO_PY_MUJOCO_PATH", ""))
 """
@@ -109,8 +110,8 @@ def test_the_weld_torquescale_setting_reaches_the_v4_model() -> None:
     1 otherwise), and keeps it across resets."""
     import dataclasses
 
-    from hercs.envs import WELD_TORQUESCALE, make_env
-    from hercs.tasks import task_spec
+    from hercs.rl.envs import WELD_TORQUESCALE, make_env
+    from hercs.rl.task_registry import task_spec
 
     plain = make_env(task_spec("push"))
     stiff = make_env(dataclasses.replace(task_spec("push"), weld_torquescale=4.0))

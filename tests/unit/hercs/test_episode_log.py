@@ -20,10 +20,10 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from hercs.codec import array_to_msg, msg_to_array
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_EVAL_RESULT,
@@ -42,7 +42,7 @@ from hercs.runlog import (
     seal_segment,
     segment_paths,
 )
-from hercs.tasks import task_spec
+from hercs.wire.codec import array_to_msg, msg_to_array
 
 CHILD = Path(__file__).with_name("episode_log_child.py")
 RERUN = Path(sys.executable).with_name("rerun")

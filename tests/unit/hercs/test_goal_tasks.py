@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides
-from hercs.envs import make_env
 from hercs.errors import ConfigError
-from hercs.tasks import task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import task_spec
 from tests.support import reset_and_check_spec
 
 BUILT_IN_IDS = ["PointMaze_UMaze-v3", "PointMaze_Medium-v3", "HandReach-v3",

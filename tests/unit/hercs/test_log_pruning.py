@@ -1,4 +1,4 @@
-"""Which segments a bounded episode log may delete (`hercs.runlog.pruning`): the pure rule on
+"""Which segments a bounded episode log may delete (`hercs.run.runlog.pruning`): the pure rule on
 segment heads, and its reading of real segments' heads."""
 
 from __future__ import annotations
@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.codec import episode_to_msg
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     EpisodeLogWriter,
     SegmentHead,
     latest_replay_state,
@@ -21,7 +20,8 @@ from hercs.runlog import (
     segment_paths,
     segments_to_delete,
 )
-from hercs.tasks import task_spec
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 MB = 1_000_000
 

@@ -12,11 +12,10 @@ import pytest
 from mcap.opcode import Opcode
 from mcap.records import ChunkIndex
 
-from hercs.codec import episode_to_msg
-from hercs.episode import random_episode
 from hercs.proto import hercs_pb2 as pb
-from hercs.rundir import RunDir
-from hercs.runlog import (
+from hercs.rl.task_registry import task_spec
+from hercs.run.rundir import RunDir
+from hercs.run.runlog import (
     TOPIC_CLUSTER_MODEL,
     TOPIC_EPISODES,
     TOPIC_SCENE,
@@ -26,9 +25,10 @@ from hercs.runlog import (
     read_messages,
     scan_segment,
 )
-from hercs.runlog.format import RECORD_HEADER
-from hercs.runlog.reader import SegmentReader
-from hercs.tasks import task_spec
+from hercs.run.runlog.format import RECORD_HEADER
+from hercs.run.runlog.reader import SegmentReader
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
 
 RUN = "t"
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hercs.normalizer import STAT_KEYS, Normalizer
+from hercs.rl.normalizer import STAT_KEYS, Normalizer
 
 
 def _data(seed: int, shape: tuple[int, ...]) -> np.ndarray:

@@ -43,7 +43,8 @@ def test_the_wheel_installs_one_top_level_package_hercs_with_every_subpackage(wh
     packages = {str(p.parent.relative_to(REPO)) for p in (REPO / "hercs").rglob("__init__.py")
                 if "__pycache__" not in p.parts}
     assert {"hercs/apps", "hercs/actors", "hercs/learner", "hercs/replay_service",
-            "hercs/clusterer", "hercs/proto", "hercs/runlog"} <= packages
+            "hercs/clusterer", "hercs/proto", "hercs/config", "hercs/rl", "hercs/wire",
+            "hercs/net", "hercs/run", "hercs/run/runlog"} <= packages
     missing = sorted(p for p in packages if f"{p}/__init__.py" not in names)
     assert missing == [], f"packages missing from the wheel: {missing}"
     assert "hercs/proto/hercs.proto" in names  # package data: the schema beside its code

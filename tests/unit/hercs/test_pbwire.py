@@ -6,8 +6,8 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hercs import pbwire
 from hercs.proto import hercs_pb2 as pb
+from hercs.wire import pbwire
 
 
 @given(st.integers(min_value=0, max_value=2**64 - 1))

@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from hercs.config import DDPGConfig
-from hercs.networks import preprocess
-from hercs.normalizer import Normalizer
-from hercs.policy import INITIAL_VERSION, Policy
-from hercs.tasks import TaskSpec, task_spec
+from hercs.rl.networks import preprocess
+from hercs.rl.normalizer import Normalizer
+from hercs.rl.policy import INITIAL_VERSION, Policy
+from hercs.rl.task_registry import TaskSpec, task_spec
 
 N = 20_000  # actions per statistical test: the std of a 0.3-frequency estimate is 0.0032
 
@@ -149,7 +149,7 @@ def test_load_weights_rejects_wrong_shapes_and_changes_nothing() -> None:
 
 
 def test_numpy_forward_matches_the_torch_actor_before_and_after_new_weights() -> None:
-    """Acting evaluates μ with numpy (hercs.networks.NumpyActor); it must be the same μ as the
+    """Acting evaluates μ with numpy (hercs.rl.networks.NumpyActor); it must be the same μ as the
     torch Actor the learner trains, including right after a weights broadcast."""
     spec = task_spec("push")
     policy = Policy(spec=spec, config=DDPGConfig(), seed=3)

@@ -1,10 +1,10 @@
-"""The rule that reopens a blind client session (hercs.rediscovery), on a fake clock."""
+"""The rule that reopens a blind client session (hercs.net.rediscovery), on a fake clock."""
 
 from __future__ import annotations
 
 import pytest
 
-from hercs.rediscovery import Rediscovery
+from hercs.net.rediscovery import Rediscovery
 
 
 class Clock:

@@ -1,5 +1,5 @@
-"""hercs.rundir: checkpoint names resolve to the files `hercs eval` and `hercs.load_policy`
-read (the learner writes them under the same names, which it imports from hercs.rundir)."""
+"""hercs.run.rundir: checkpoint names resolve to the files `hercs eval` and `hercs.load_policy`
+read (the learner writes them under the same names, which it imports from hercs.run.rundir)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs import rundir
-from hercs.rundir import RunDir
+from hercs.run import rundir
+from hercs.run.rundir import RunDir
 
 
 @pytest.mark.parametrize(

@@ -14,8 +14,8 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 
-from hercs.runlog import scene
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.run.runlog import scene
 
 LABELS = {"episode_id": "7", "actor_id": "actor-0", "seq": "3", "success": "false"}
 

@@ -1,4 +1,4 @@
-"""The pure parts of hercs.security: settings per role, refusals, the access-control table."""
+"""The pure parts of hercs.net.security: settings per role, refusals, the access-control table."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from hercs.config import SecurityConfig
 from hercs.errors import ConfigError
-from hercs.security import ROLE_GRANTS, ROLES, access_control, is_loopback, zenoh_settings
+from hercs.net.security import ROLE_GRANTS, ROLES, access_control, is_loopback, zenoh_settings
 
 TLS = "transport/link/tls/"
 

@@ -1,4 +1,4 @@
-"""hercs.served: the served batch's one field list (its Python types against the wire
+"""hercs.wire.served: the served batch's one field list (its Python types against the wire
 messages) and its encode/decode pair."""
 
 from __future__ import annotations
@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hercs.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
-from hercs.normalizer import Normalizer
 from hercs.proto import hercs_pb2 as pb
-from hercs.served import (
+from hercs.rl.normalizer import Normalizer
+from hercs.wire.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
+from hercs.wire.served import (
     BATCH_FIELDS,
     COUNTER_FIELDS,
     ReplayCounters,

@@ -4,8 +4,8 @@ mujoco-py is installed (`make mujoco-py`), on the authors' v1."""
 import numpy as np
 import pytest
 
-from hercs.envs import make_env
-from hercs.tasks import ENV_VERSIONS, TASKS, fetch_reward, task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import ENV_VERSIONS, TASKS, fetch_reward, task_spec
 from tests.support import reset_and_check_spec, skip_without_mujoco_py
 
 

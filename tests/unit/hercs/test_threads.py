@@ -1,4 +1,4 @@
-"""Every service limits its numerics to one thread (hercs.threads): checked in a fresh
+"""Every service limits its numerics to one thread (hercs.net.threads): checked in a fresh
 interpreter, as a service process starts, so this test process keeps its own pools."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 PROBE = """
 import json, numpy, torch
 from threadpoolctl import threadpool_info
-from hercs.threads import single_threaded_numerics
+from hercs.net.threads import single_threaded_numerics
 before = max(i["num_threads"] for i in threadpool_info())
 single_threaded_numerics()
 print(json.dumps({"pools": [i["num_threads"] for i in threadpool_info()],

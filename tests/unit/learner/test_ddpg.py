@@ -12,10 +12,10 @@ import torch
 
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner, critic_target
-from hercs.networks import Actor, Critic, preprocess
-from hercs.normalizer import Normalizer
-from hercs.policy import Policy
-from hercs.tasks import task_spec
+from hercs.rl.networks import Actor, Critic, preprocess
+from hercs.rl.normalizer import Normalizer
+from hercs.rl.policy import Policy
+from hercs.rl.task_registry import task_spec
 from tests.support import random_transition_batch as _batch
 
 SPEC = task_spec("push")

@@ -4,7 +4,7 @@ fake clock (no Zenoh)."""
 from __future__ import annotations
 
 from hercs.learner.evaluations import EvalRequests, PolicyKeeper
-from hercs.rundir import BEST
+from hercs.run.rundir import BEST
 
 
 class Clock:

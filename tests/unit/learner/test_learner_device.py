@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
 from hercs.errors import ConfigError
 from hercs.learner.ddpg import DDPGLearner, resolve_device
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TransitionBatch
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

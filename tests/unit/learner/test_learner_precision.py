@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
 from hercs.errors import ConfigError
 from hercs.learner.ddpg import DDPGLearner
-from hercs.networks import to_arrays
-from hercs.tasks import task_spec
+from hercs.rl.networks import to_arrays
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TransitionBatch
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import random_episode
 from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
-from hercs.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
-from hercs.replay_service.core import ReplayCore
-from hercs.rundir import RunDir
-from hercs.served import ReplayCounters, ServedBatch
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.run.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
+from hercs.run.rundir import RunDir
+from hercs.wire.episode import random_episode
+from hercs.wire.served import ReplayCounters, ServedBatch
 
 
 def config() -> HercsConfig:

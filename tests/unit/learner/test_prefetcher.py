@@ -11,14 +11,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hercs.codec import batch_to_bytes, stats_to_msg
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import random_episode
 from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
+from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.core import ReplayCore
-from hercs.transport import TransportTimeout
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.wire.codec import batch_to_bytes, stats_to_msg
+from hercs.wire.episode import random_episode
 
 WAIT_S = 10.0
 
@@ -112,7 +112,7 @@ def test_each_request_tells_the_replay_what_the_learner_has_kept() -> None:
 
 class LosingTransport(AnsweringTransport):
     """The first request's reply never comes (a get Zenoh routed to a replay killed a moment
-    before): it ends only at its own timeout, as `hercs.transport.request` does."""
+    before): it ends only at its own timeout, as `hercs.net.transport.request` does."""
 
     def __init__(self, config: HercsConfig) -> None:
         super().__init__(config)

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from hercs.batch import TransitionBatch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.tf32 import TF32Products, round_to_tf32
-from hercs.networks import to_arrays
-from hercs.tasks import task_spec
+from hercs.rl.networks import to_arrays
+from hercs.rl.task_registry import task_spec
+from hercs.wire.batch import TransitionBatch
 from tests.support import random_transition_batch
 
 SPEC = task_spec("push")

@@ -17,18 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.clustering import ClusterModel
-from hercs.codec import (
-    cluster_model_to_msg,
-    episode_to_msg,
-    msg_to_episode,
-    msg_to_replay_state,
-)
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import EpisodeData, random_episode
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, SampleCall, Stored
-from hercs.runlog import (
+from hercs.rl.cluster_model import ClusterModel
+from hercs.run.runlog import (
     EpisodeLogError,
     RecoveringLogWriter,
     latest_replay_state,
@@ -36,7 +29,14 @@ from hercs.runlog import (
     read_episodes,
     segment_paths,
 )
-from hercs.served import ServedBatch
+from hercs.wire.codec import (
+    cluster_model_to_msg,
+    episode_to_msg,
+    msg_to_episode,
+    msg_to_replay_state,
+)
+from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.served import ServedBatch
 
 RUN, TASK = "t", "reach"
 EPISODES = 120

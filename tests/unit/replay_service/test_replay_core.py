@@ -4,10 +4,10 @@ sampled batches, checkpoint round trip."""
 import numpy as np
 import pytest
 
-from hercs.clustering import ClusterModel, assign_clusters
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import random_episode
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.rl.cluster_model import ClusterModel, assign_clusters
+from hercs.wire.episode import random_episode
 
 
 def make_core(method: str = "her-cs", **extra: str) -> ReplayCore:

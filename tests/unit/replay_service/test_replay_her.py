@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hercs.batch import TRANSITION_FIELDS
 from hercs.config import HERConfig
-from hercs.envs import make_env
-from hercs.episode import EpisodeData
 from hercs.errors import SamplingError
 from hercs.replay_service.her import her_indices, normalizer_sample, relabel, relabel_with_draw
 from hercs.replay_service.store import EpisodeStore
-from hercs.tasks import fetch_reward, task_spec
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import fetch_reward, task_spec
+from hercs.wire.batch import TRANSITION_FIELDS
+from hercs.wire.episode import EpisodeData
 
 SPEC = task_spec("push")
 T = SPEC.episode_steps

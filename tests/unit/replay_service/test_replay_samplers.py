@@ -14,9 +14,7 @@ import numpy as np
 import pytest
 
 from hercs.config import HercsConfig
-from hercs.episode import random_episode
 from hercs.errors import ConfigError, SamplingError
-from hercs.methods import METHODS
 from hercs.replay_service.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
@@ -25,7 +23,9 @@ from hercs.replay_service.samplers import (
     make_sampler,
 )
 from hercs.replay_service.store import EpisodeStore
-from hercs.tasks import task_spec
+from hercs.rl.methods import METHODS
+from hercs.rl.task_registry import task_spec
+from hercs.wire.episode import random_episode
 
 SPEC = task_spec("push")
 K = 8

@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
-from hercs.episode import EpisodeData, random_episode
 from hercs.errors import ConfigError
 from hercs.replay_service.store import EpisodeStore
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
+from hercs.wire.episode import EpisodeData, random_episode
 
 SPEC = task_spec("push")
 T = SPEC.episode_steps
@@ -170,7 +170,7 @@ def test_random_eviction_is_a_function_of_the_seed() -> None:
 
 
 _MEASURE_EMPTY_STORE = """
-from hercs.tasks import task_spec
+from hercs.rl.task_registry import task_spec
 from hercs.replay_service.store import EpisodeStore
 
 def rss():

@@ -11,12 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hercs.clustering import ClusterModel
 from hercs.config import HercsConfig, apply_overrides
-from hercs.episode import EpisodeData, random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.core import ReplayCore
+from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import (
     LOCKSTEP_CLUSTER_WAIT_S,
     ReplayTable,
@@ -24,7 +22,9 @@ from hercs.replay_service.table import (
     SampleRefused,
     Stored,
 )
-from hercs.served import ServedBatch
+from hercs.rl.cluster_model import ClusterModel
+from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.served import ServedBatch
 
 # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 8: d = 2·I − S stays in [0, 16].
 # Inserts are admitted while d + 2 ≤ 16, a request of n while I ≥ 4 and d − n ≥ 0.

@@ -1,0 +1,327 @@
+"""The rollout actor process (`hercs actor`): a thin Zenoh shell around `VectorRollout`.
+
+What `run` does, in order:
+1. Joins the run: opens the transport (`ServiceRuntime`, role "actor") and asks the replay for
+   the run's resolved config (`keys.config`), retrying until it answers or the process is
+   stopped. Task, method and network sizes come from there; the local `transport` section is
+   kept. This is how `hercs actor --connect tcp/HOST:7447 --run RUN` on another host joins.
+2. Subscribes to `keys.weights` as a late joiner (`latest=True`): the newest `Weights` arrives
+   at once. The subscription thread decodes and checks each message (schema, arrays, shapes
+   against this task's networks); a bad one is logged once per minute and ignored, a good one
+   replaces the slot's pending weights. The rollout loop adopts the newest at each episode
+   start, and tags the episode with its version (`policy_version`, -1 before any Weights).
+3. Loops: one exploring episode per env (`actor.envs_per_process` envs stepped side by side,
+   one batched policy call per step), each tagged `(actor_id=<ident>@<incarnation>, seq=0,1,2,…)`
+   (the incarnation is the process's start time, so a restarted actor never reuses a pair
+   the replay has stored), handed to the
+   `Inserter` (at-least-once, on its own thread; see `hercs.actors.inserter` for retries and
+   backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
+   Metrics every `METRICS_EVERY_EPISODES` episodes.
+   Before each episode the loop waits for the weights the schedule asks for
+   (`hercs.actors.weights_schedule`: lockstep's version, the lag bound's next arrival), and
+   in lockstep after it for the inserts' outcome, which sets the next episode's version; an
+   episode the replay refuses as stale or surplus (`Reason`, superseded) is dropped.
+4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
+   finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
+   queued inserts for at most `STOP_FLUSH_S` (not at all once the run is finished: no learner
+   will sample them, and the replay is closing, so retries would only keep the process alive
+   past its run, which a scheduler then records as cancelled), gives up the rest, closes the
+   env and the transport, returns 0. A dead inserter thread stops the actor with status 1.
+
+Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
+`generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")` for the
+first env and `int_seed(seed, "actor", ident, "env", str(i))` for env i ≥ 1.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from hercs.actors.inserter import Inserter
+from hercs.actors.rollout import VectorRollout
+from hercs.actors.weights import WeightsDecoder
+from hercs.actors.weights_schedule import Need, WeightsSchedule
+from hercs.config import HercsConfig
+from hercs.errors import InvalidMessage
+from hercs.net.service_shell import ServiceRuntime, join_run, service_main
+from hercs.net.transport import TransportError
+from hercs.proto import hercs_pb2 as pb
+from hercs.rl.envs import make_env
+from hercs.rl.policy import Policy, PolicyWeights
+from hercs.rl.seeding import generator, int_seed
+from hercs.run.warn_once import WarnOncePerMinute
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import EpisodeData
+from hercs.wire.validation import parse_message
+
+log = logging.getLogger(__name__)
+
+STOP_FLUSH_S = 3.0
+"""On stop, queued inserts get this long to be acked before they are given up."""
+METRICS_EVERY_EPISODES = 10
+
+
+def incarnation() -> str:
+    """This process's incarnation: its start time in milliseconds, base 36 (unique per
+    restart of an id on one host, ordered, short)."""
+    value, digits = time.time_ns() // 1_000_000, "0123456789abcdefghijklmnopqrstuvwxyz"
+    out = ""
+    while value:
+        value, rest = divmod(value, 36)
+        out = digits[rest] + out
+    return out or "0"
+
+
+# --------------------------------------------------------------------------- weights
+
+
+class LatestWeights:
+    """A one-slot mailbox: the subscription thread `offer`s, the rollout loop `take`s.
+
+    The most recently received weights win (not the highest version: a learner restarted
+    without its checkpoint counts from 0 again, and its weights must still be adopted).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Condition()
+        self._pending: PolicyWeights | None = None
+
+    def offer(self, weights: PolicyWeights) -> None:
+        with self._lock:
+            self._pending = weights
+            self._lock.notify_all()
+
+    def wait(self, timeout_s: float) -> None:
+        """Return once weights are pending, or after `timeout_s`."""
+        with self._lock:
+            if self._pending is None:
+                self._lock.wait(timeout_s)
+
+    def take(self) -> PolicyWeights | None:
+        """The weights received since the last `take`, newest only; None if none."""
+        with self._lock:
+            weights, self._pending = self._pending, None
+        return weights
+
+
+# --------------------------------------------------------------------------- the actor
+
+
+class ActorService:
+    """One actor on a joined run: policy, env, weights subscription and inserter.
+
+    `run()` loops until `runtime.stop` is set and flushes the inserter; the caller then closes
+    the transport and calls `close()`.
+    """
+
+    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig) -> None:
+        self.runtime = runtime
+        self.config = config
+        self.ident = runtime.ident
+        self.actor_id = f"{self.ident}@{incarnation()}"
+        """Identity on the wire: this process's incarnation after the id, so that a restart
+        with the same `--id` starts new (actor_id, seq) pairs the replay has never seen."""
+        self.spec = config.task.spec
+        seed = config.run.seed
+        self.policy = Policy(spec=self.spec, config=config.ddpg,
+                             seed=int_seed(seed, "actor", self.ident))
+        self.rng = generator(seed, "actor", self.ident)
+        n = config.actor.envs_per_process
+        self.worker = VectorRollout(
+            spec=self.spec, envs=[make_env(self.spec) for _ in range(n)],
+            seeds=[int_seed(seed, "actor", self.ident, "env", *([str(i)] if i else []))
+                   for i in range(n)])
+        self.weights_rejected = 0
+        self._warn = WarnOncePerMinute(log)
+        self._weights = LatestWeights()
+        self._decoder = WeightsDecoder(spec=self.spec, config=config)
+        transport, keys = runtime.transport, runtime.keys
+        timeout_s = config.actor.insert_timeout_s
+        self.inserter = Inserter(
+            send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
+            actor_id=self.actor_id,
+            capacity=config.actor.insert_queue * config.actor.envs_per_process,
+            on_crash=runtime.crashed,
+        )
+        # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
+        transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=4,
+                            drop_oldest=True)
+        transport.subscribe(keys.progress, self._on_progress, latest=True, capacity=4,
+                            drop_oldest=True)
+        self.run_finished = threading.Event()
+        self.episodes = 0
+        self.schedule = WeightsSchedule(schedule=config.training.schedule,
+                                        max_policy_lag=config.training.max_policy_lag)
+        """What the next episode's weights must be (lockstep, the lag bound)."""
+
+    def _on_weights(self, key: str, raw: bytes) -> None:
+        """Subscription thread: decode, check, offer. Never touches the policy itself."""
+        try:
+            weights = self._decoder.decode(self._decoder.parse(raw))
+        except InvalidMessage as exc:
+            self.weights_rejected += 1
+            self._warn.warn(f"weights:{exc.reason}",
+                            f"ignored a Weights message on {key}: {exc}; keeping the current "
+                            "policy")
+            return
+        self._weights.offer(weights)
+
+    def _on_progress(self, key: str, raw: bytes) -> None:
+        """The learner's `RunProgress`: once the run is finished this actor has no more use."""
+        try:
+            progress = parse_message(raw, pb.RunProgress,
+                                     max_bytes=self.config.replay.max_message_bytes)
+        except InvalidMessage as exc:
+            self._warn.warn(f"progress:{exc.reason}", f"ignored a RunProgress on {key}: {exc}")
+            return
+        if progress.finished and not self.run_finished.is_set():
+            log.info("actor %s: run %r finished (%d epochs); stopping", self.ident,
+                     self.config.run.name, progress.epochs)
+            self.run_finished.set()
+            self.inserter.abort()  # now, not after the episode at hand: nothing is retried
+            self.runtime.stop.set()
+
+    def _act(self, o: np.ndarray, g: np.ndarray) -> np.ndarray:
+        return self.policy.act(o, g, explore=True, rng=self.rng)
+
+    def run(self) -> int:
+        config, stop = self.config, self.runtime.stop
+        log.info("actor %s (wire id %s): run %r, task %s, method %s", self.ident,
+                 self.actor_id, config.run.name, self.spec.name, config.run.method)
+        if self.schedule.lockstep and self.worker.num_envs > config.training.episodes_per_cycle:
+            log.warning("lockstep with %d envs per process and %d episodes per cycle: the "
+                        "replay refuses the surplus of every cycle (cycle_full)",
+                        self.worker.num_envs, config.training.episodes_per_cycle)
+        window = (time.monotonic(), self.worker.env_steps)
+        self.publish_metrics(steps_per_s=0.0)
+        try:
+            while not stop.is_set():
+                self._adopt_newest()
+                if not self._await_weights():
+                    break
+                acted_with = self.policy.version
+                superseded_before = self.inserter.counters.superseded
+                if not self._submit(self.worker.run_episodes(self._act), acted_with):
+                    break  # stopped while the queue was full: the rest are not sent
+                if self.schedule.lockstep and not self._await_outcome(acted_with,
+                                                                      superseded_before):
+                    break
+                if self.episodes % METRICS_EVERY_EPISODES < self.worker.num_envs:
+                    now = time.monotonic()
+                    rate = (self.worker.env_steps - window[1]) / max(now - window[0], 1e-9)
+                    window = (now, self.worker.env_steps)
+                    self.publish_metrics(steps_per_s=rate)
+        finally:
+            self.inserter.close(timeout_s=0.0 if self.run_finished.is_set() else STOP_FLUSH_S)
+            self.publish_metrics(steps_per_s=0.0)
+        c = self.inserter.counters
+        log.info("actor %s stopping: %d episodes, %d acked (%d duplicate: a retry of one "
+                 "already stored), %d superseded, %d dropped, %d given up unacked, %d retries",
+                 self.ident, self.episodes, c.acked, c.duplicates, c.superseded, c.dropped,
+                 self.unacked, c.retries)
+        return 0
+
+    def _submit(self, episodes: list[EpisodeData], acted_with: int) -> bool:
+        """Tag and hand each episode to the inserter; False if stopped while it was full."""
+        for episode in episodes:
+            episode.actor_id, episode.seq = self.actor_id, self.episodes
+            episode.policy_version = acted_with
+            msg = episode_to_msg(episode, run=self.config.run.name, task=self.spec.name)
+            if not self.inserter.submit(self.episodes, msg.SerializeToString(),
+                                        stop=self.runtime.stop):
+                return False
+            self.episodes += 1
+        return True
+
+    def _adopt_newest(self) -> None:
+        newest = self._weights.take()
+        if newest is not None:
+            self.policy.load(newest)
+
+    def _await_weights(self) -> bool:
+        """Wait for what the schedule asks of the next episode's weights (`WeightsSchedule`);
+        False if stopped."""
+        stop = self.runtime.stop
+        wait = self.schedule.before_episode(
+            policy_version=self.policy.version,
+            latest_ack_version=self.inserter.latest_next_policy_version)
+        if wait.need is Need.NOTHING:
+            return not stop.is_set()
+        if wait.need is Need.NEXT_ARRIVAL:
+            while not stop.is_set():
+                self._weights.wait(0.5)
+                newest = self._weights.take()
+                if newest is not None:
+                    self.policy.load(newest)
+                    return True
+            return False
+        while self.policy.version < wait.version:
+            if stop.is_set():
+                return False
+            self._weights.wait(0.5)
+            self._adopt_newest()
+        return not stop.is_set()
+
+    def _await_outcome(self, acted_with: int, superseded_before: int) -> bool:
+        """Lockstep: wait for the inserts of the episodes just submitted to end, and tell the
+        schedule how they ended. False if stopped."""
+        if not self.inserter.wait_idle(stop=self.runtime.stop):
+            return False
+        self.schedule.after_outcome(
+            acted_with=acted_with, newest_ack_version=self.inserter.newest_next_policy_version,
+            superseded=self.inserter.counters.superseded > superseded_before)
+        return True
+
+    @property
+    def unacked(self) -> int:
+        """Episodes submitted and not acked, dropped or superseded: queued, in flight or
+        given up."""
+        c = self.inserter.counters
+        return self.episodes - c.acked - c.dropped - c.superseded
+
+    def publish_metrics(self, *, steps_per_s: float) -> None:
+        c = self.inserter.counters
+        try:
+            self.runtime.publish_metrics({
+                "env_steps": self.worker.env_steps,
+                "episodes": self.episodes,
+                "env_steps_per_s": steps_per_s,
+                "acked": c.acked,
+                "retries": c.retries,
+                "dropped": c.dropped,
+                "superseded": c.superseded,
+                "unacked": self.unacked,
+                "duplicates": c.duplicates,
+                "insert_blocked_s": c.blocked_s,
+                "policy_version": self.policy.version,
+                "weights_rejected": self.weights_rejected,
+            })
+        except TransportError as exc:  # metrics are best effort
+            self._warn.warn("metrics", f"could not publish metrics: {exc}")
+
+    def close(self) -> None:
+        """After the transport is closed: wait for the sender thread, close the env."""
+        if not self.inserter.join(2.0):
+            log.warning("actor %s: inserter thread still running at exit", self.ident)
+        self.worker.close()
+
+
+def run(config: HercsConfig, *, ident: str | None = None) -> int:
+    """`hercs actor`: join `config.run.name` and collect episodes until SIGTERM/SIGINT."""
+    return service_main(role="actor", config=config, ident=ident, body=_work)
+
+
+def _work(runtime: ServiceRuntime) -> int:
+    joined = join_run(runtime, runtime.config)  # the run's config, served by its replay
+    if joined is None:  # stopped first
+        return 0
+    service = ActorService(runtime=runtime, config=joined)
+    try:
+        return service.run()
+    finally:
+        runtime.close()  # also ends an insert still in flight after the flush deadline
+        service.close()

@@ -1,0 +1,420 @@
+"""The one configuration tree. Every default equals the paper's reference value (docs/DESIGN.md §4).
+
+Sources named in the field comments:
+- [HER-py]  the public PyTorch HER implementation the paper builds on (DDPG+HER, arguments.py).
+- [HER-CS]  the authors' code for cluster-based sampling (fgb size, k, small-cluster rule).
+- [EBP]     Zhao & Tresp 2018, energy-based prioritisation (clip_energy for PickAndPlace).
+- [DESIGN]  docs/DESIGN.md: our choice where the paper and the reference code are silent.
+
+Overrides come from YAML (`load_yaml`) and the CLI (`apply_overrides` with `section.field=value`);
+every construction runs `__post_init__` validation, whose messages name the field and value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import logging
+import math
+import re
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hercs.config.algorithm import ClusterConfig, DDPGConfig, EnergyConfig, HERConfig
+from hercs.config.checks import _check
+from hercs.config.deploy import (
+    LEARNER_DEVICES,
+    PRECISIONS,
+    VIEWER_SCHEMES,
+    ActorConfig,
+    LaunchConfig,
+    LearnerConfig,
+    SecurityConfig,
+    TransportConfig,
+    ViewConfig,
+    endpoint_parts,
+    endpoint_problem,
+)
+from hercs.config.replay import EVICTIONS, ReplayConfig
+from hercs.config.task import TaskConfig
+from hercs.errors import ConfigError
+from hercs.rl.methods import METHODS, Method
+
+__all__ = [
+    "EVICTIONS", "LEARNER_DEVICES", "PRECISIONS", "RETIRED_KEYS", "SCHEDULES", "VIEWER_SCHEMES",
+    "ActorConfig", "ClusterConfig", "DDPGConfig", "EnergyConfig", "HERConfig", "HercsConfig",
+    "LaunchConfig", "LearnerConfig", "ReplayConfig", "RunConfig", "SecurityConfig",
+    "TaskConfig", "TrainingConfig", "TransportConfig", "ViewConfig", "apply_overrides",
+    "endpoint_parts", "endpoint_problem", "load_yaml", "save_yaml", "workers_overrides",
+]
+"""The sections of the tree live in five modules (this one: the run and training;
+hercs.config.task: the task; hercs.config.algorithm: DDPG, HER, clusters, energy;
+hercs.config.replay: the replay and its episode log; hercs.config.deploy: the processes and
+how they connect); import them all from here."""
+
+log = logging.getLogger(__name__)
+
+RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+"""A run name: never '.', '..', hidden, absolute or nested, and ASCII only."""
+@dataclass
+class RunConfig:
+    method: str = "her-cs"
+    """Sampling method: her, her-cs, her-ebp or her-ebp-cs."""
+    seed: int = 1
+    """Root seed; every service and actor derives its own generator from it."""
+    name: str = ""
+    """Run name (key prefix hercs/<name>/ and folder runs/<name>); empty = derived at start."""
+    run_dir: str = "runs"
+    """Parent folder of run directories."""
+    tensorboard: bool = False
+    """The learner also writes TensorBoard event files to runs/<name>/tensorboard/: the
+    scalars of metrics.csv per epoch (`hercs up --tensorboard`)."""
+
+    def __post_init__(self) -> None:
+        _check(self.method in METHODS, "run.method", self.method, f"be one of {list(METHODS)}")
+        _check(self.seed >= 0, "run.seed", self.seed, "be >= 0")
+        _check(
+            not self.name or RUN_NAME.fullmatch(self.name) is not None,
+            "run.name",
+            self.name,
+            "be one safe path segment: a letter or digit, then up to 99 letters, digits, '-', "
+            "'_' or '.' (it names a folder under run.run_dir and a Zenoh key chunk)",
+        )
+
+    @property
+    def spec(self) -> Method:
+        """What `method` does (hercs.rl.methods)."""
+        return METHODS[self.method]
+
+    @property
+    def uses_clusters(self) -> bool:
+        return self.spec.cluster_balanced
+
+
+SCHEDULES = ("async", "lockstep")
+
+
+@dataclass
+class TrainingConfig:
+    epochs: int = 200
+    """Training epochs [HER-CS paper]."""
+    cycles_per_epoch: int = 50
+    """Cycles per epoch [HER-py]."""
+    episodes_per_cycle: int = 4
+    """Episodes inserted per cycle (10,000 env steps per epoch, as the authors' runs) [DESIGN]."""
+    minibatches_per_cycle: int = 40
+    """DDPG updates per cycle [HER-py]; updates per episode = this / episodes_per_cycle."""
+    eval_episodes: int = 20
+    """Deterministic test episodes after each epoch [HER-CS paper]."""
+    eval_resend_s: float = 60.0
+    """An epoch's evaluation not back after this long is asked for again (`eval/request`):
+    its weights or its result may have been lost while the router restarted."""
+    checkpoint_every: int = 10
+    """Keep the policy of every n-th epoch as `checkpoints/epoch-NNNN.pt` (0: none), besides
+    `learner.pt` (latest, to resume) and `best.pt` (highest evaluation success)."""
+    eval_wait_s: float = 600.0
+    """How long the learner waits for the last epochs' evaluations before it gives up
+    (exit 1)."""
+    schedule: str = "async"
+    """`async`: actors and learner run concurrently, the replay's rate limiter keeps
+    updates per episode within its window (a lab's many actors; data can be a few cycles
+    stale). `lockstep`: the reference's single-process alternation, exactly: cycle c's
+    episodes are acted with weights version c, then its updates see them (docs/DESIGN.md
+    §9.1) [DESIGN]."""
+    max_policy_lag: int = 3
+    """Asynchronous schedule: the most cycles an episode may lag the lockstep schedule (its
+    cycle there minus the weights version it was acted with; Sample Factory's
+    `max_policy_lag`). The replay refuses an older episode as `stale_policy` before storing
+    it (nothing acknowledged is ever dropped) unless it was acted with the learner's newest
+    weights, and its acks tell the actors which weights to wait for. -1: no bound. 3 is the
+    most the default limiter and prefetch give one actor (docs/PERFORMANCE.md §2), so it holds
+    back only actors slower than that (many actors, a remote host). Lockstep is lag 0 by
+    construction and ignores this (docs/DESIGN.md §9.1) [DESIGN]."""
+
+    def __post_init__(self) -> None:
+        _check(self.max_policy_lag == -1 or self.max_policy_lag >= 1, "training.max_policy_lag",
+               self.max_policy_lag,
+               "be -1 (no bound) or >= 1 (lag 0 is training.schedule=lockstep)")
+        _check(self.schedule in SCHEDULES, "training.schedule", self.schedule,
+               f"be one of {', '.join(SCHEDULES)}")
+        for name in ("epochs", "cycles_per_epoch", "episodes_per_cycle",
+                     "minibatches_per_cycle", "eval_episodes"):
+            _check(getattr(self, name) >= 1, f"training.{name}", getattr(self, name), "be >= 1")
+        _check(self.checkpoint_every >= 0, "training.checkpoint_every", self.checkpoint_every,
+               "be >= 0 (0: no periodic policy files)")
+        for name in ("eval_resend_s", "eval_wait_s"):
+            value = getattr(self, name)
+            _check(math.isfinite(value) and value > 0, f"training.{name}", value,
+                   "be a finite number > 0")
+
+    @property
+    def updates_per_episode(self) -> float:
+        return self.minibatches_per_cycle / self.episodes_per_cycle
+
+    @property
+    def episodes_per_epoch(self) -> int:
+        return self.cycles_per_epoch * self.episodes_per_cycle
+
+
+@dataclass
+class HercsConfig:
+    run: RunConfig = field(default_factory=RunConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    her: HERConfig = field(default_factory=HERConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    energy: EnergyConfig = field(default_factory=EnergyConfig)
+    training: TrainingConfig = field(default_factory=TrainingConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    launch: LaunchConfig = field(default_factory=LaunchConfig)
+    transport: TransportConfig = field(default_factory=TransportConfig)
+    security: SecurityConfig = field(default_factory=SecurityConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+
+    def __post_init__(self) -> None:
+        spec = self.task.spec
+        _check(spec.energy != "none" or not self.run.spec.energy_prioritised, "run.method",
+               self.run.method, f"be her or her-cs on {spec.name}: it has no trajectory energy "
+               "for EBP (hercs.rl.task_registry.ENERGIES; the Fetch and hand tasks have one)")
+        _check(self.replay.buffer_transitions >= spec.episode_steps, "replay.buffer_transitions",
+               self.replay.buffer_transitions, f"hold at least one episode ({spec.episode_steps})")
+        _check(not (self.training.schedule == "lockstep" and self.replay.free_run),
+               "replay.free_run", self.replay.free_run,
+               "be false with training.schedule lockstep (lockstep admits by cycle)")
+        # The replay's rate limiter needs a window wider than one request plus one insert, or
+        # inserts and samples could both wait forever; checked here too so that `hercs up`
+        # refuses the run before it starts any service.
+        least = (self.training.minibatches_per_cycle + self.training.updates_per_episode) / 2
+        _check(self.training.schedule == "lockstep" or self.replay.free_run
+               or self.replay.rate_tolerance_updates >= least,
+               "replay.rate_tolerance_updates", self.replay.rate_tolerance_updates,
+               f"be at least (training.minibatches_per_cycle + updates per episode)/2 = "
+               f"{least:g}, or inserts and samples could both wait forever")
+
+    @property
+    def capacity_episodes(self) -> int:
+        return self.replay.buffer_transitions // self.task.spec.episode_steps
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> HercsConfig:
+        return _build(cls, data, "")
+
+
+RETIRED_KEYS: dict[str, str] = {
+    "cluster.failure_threshold": "an episode fails when it does not succeed by the task's own "
+                                 "rule (TaskSpec.is_success)",
+}
+"""Keys that configs saved by earlier versions hold and this version ignores (with a log line),
+so that old runs stay readable; any other unknown key is refused."""
+
+
+def _build(cls: type, data: Any, where: str) -> Any:
+    """Build dataclass `cls` from a mapping, refusing unknown keys and wrong types."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where or 'config'}: got {data!r}, must be a mapping")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in [k for k in data if f"{where}.{k}" in RETIRED_KEYS]:
+        log.info("config: ignoring %s.%s (%s)", where, key, RETIRED_KEYS[f"{where}.{key}"])
+        data = {k: v for k, v in data.items() if k != key}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(
+            f"{where or 'config'}: unknown key(s) {unknown}; known: {sorted(names)}"
+        )
+    kwargs = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else key
+        kwargs[key] = _coerce(hints[key], value, path)
+    return cls(**kwargs)
+
+
+def _coerce(hint: Any, value: Any, where: str) -> Any:
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return _build(hint, value, where)
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be true or false"
+                          + (" (yes, no, on and off are not taken as booleans)"
+                             if str(value).lower() in YAML11_BOOLS else ""))
+    if hint is int:
+        if isinstance(value, bool):
+            raise ConfigError(f"{where}: got {value!r}, must be an integer")
+        if isinstance(value, str):
+            value = _parse_number(value, where)
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, int):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be an integer")
+    if hint is float:
+        if isinstance(value, bool):
+            raise ConfigError(f"{where}: got {value!r}, must be a number")
+        if isinstance(value, str):
+            value = _parse_number(value, where)
+        if isinstance(value, int | float):
+            return float(value)
+        raise ConfigError(f"{where}: got {value!r}, must be a number")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{where}: got {value!r}, must be a string")
+    if typing.get_origin(hint) is list:
+        if isinstance(value, str):
+            value = [v for v in value.split(",") if v]
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: got {value!r}, must be a list")
+        (item,) = typing.get_args(hint)
+        return [_coerce(item, v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise ConfigError(f"{where}: unsupported config type {hint!r}")  # pragma: no cover
+
+
+YAML11_BOOLS = frozenset({"yes", "no", "on", "off"})
+"""Words PyYAML's YAML 1.1 resolver reads as booleans; `StrictBoolLoader` keeps them strings."""
+
+
+class StrictBoolLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2's booleans: only true and false (any case) are
+    booleans; yes, no, on and off stay strings, which a boolean field then refuses."""
+
+
+StrictBoolLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+StrictBoolLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+    list("tTfF"))
+
+
+def _did_you_mean(name: str, known: typing.Iterable[str], prefix: str = "") -> str:
+    """' did you mean 'x.y'?' for the closest known name, or '' if none is close."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f" did you mean {prefix + close[0]!r}?" if close else ""
+
+
+def _parse_number(text: str, where: str) -> int | float:
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{where}: got {text!r}, must be a number") from None
+
+
+def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
+    """Return a new config with `section.field=value` overrides applied and validated.
+
+    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work).
+    """
+    data = config.to_dict()
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or "." not in key:
+            raise ConfigError(
+                f"override {item!r}: must look like section.field=value, e.g. ddpg.lr_actor=1e-3"
+            )
+        section, _, name = key.strip().partition(".")
+        if section not in data or not isinstance(data[section], dict):
+            raise ConfigError(f"override {item!r}: unknown section {section!r};"
+                              f"{_did_you_mean(section, data)} known: {sorted(data)}")
+        if name not in data[section]:
+            raise ConfigError(f"override {item!r}: unknown field {key.strip()!r};"
+                              f"{_did_you_mean(name, data[section], section + '.')} known in "
+                              f"{section}: {sorted(data[section])} (`hercs config` prints "
+                              "every field with its value)")
+        if isinstance(data[section][name], str):
+            # A string field takes the text as it is, so a run named "007" stays a string.
+            data[section][name] = raw
+            continue
+        try:
+            value = yaml.load(raw, Loader=StrictBoolLoader) if raw.strip() else ""
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
+        data[section][name] = value
+    return HercsConfig.from_dict(data)
+
+
+def workers_overrides(config: HercsConfig, workers: int) -> list[str]:
+    """The reference's N-worker setting as overrides of `config`: N× episodes per cycle, N×
+    the minibatch, N actors.
+
+    In the reference code each of N MPI workers collects its own episodes every cycle and runs
+    the cycle's updates on its own minibatch, and the gradients are averaged over the workers
+    before every Adam step: together, N× the episodes per cycle and (up to each worker
+    sampling from its own buffer) one update on N× the minibatch. The number of updates per
+    cycle, and so the updates per episode, is unchanged per worker: a learner that runs N×
+    larger updates as fast as it ran one (a GPU) can use N× the actors [DESIGN]."""
+    if workers < 1:
+        raise ConfigError(f"--workers: got {workers}, must be >= 1")
+    return [f"training.episodes_per_cycle={config.training.episodes_per_cycle * workers}",
+            f"ddpg.batch_size={config.ddpg.batch_size * workers}",
+            f"actor.num_actors={workers}"]
+
+
+def load_yaml(path: str | Path) -> HercsConfig:
+    """Load a (possibly partial) config; missing fields keep their defaults. Booleans are
+    YAML 1.2's (`StrictBoolLoader`); every error names the file."""
+    name = f"config file {str(path)!r}"
+    start = "`hercs config -o FILE` writes the full default config to start from"
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{name}: no such file; give the path of a YAML config ({start})"
+                          ) from None
+    except IsADirectoryError:
+        raise ConfigError(f"{name}: is a folder, not a YAML file (a run folder's config is "
+                          "its config.yaml; `hercs up --resume RUN` continues a run)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{name}: cannot read it ({exc})") from None
+    try:
+        data = yaml.load(text, Loader=StrictBoolLoader) or {}
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        context, begun = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+        if context and begun is not None:
+            problem += f", {context} that begins at line {begun.line + 1}, column " \
+                       f"{begun.column + 1}"
+        raise ConfigError(f"{name}{at}: not valid YAML ({problem}); fix the file there "
+                          f"({start})") from None
+    merged = HercsConfig().to_dict()
+    if not isinstance(data, dict):
+        raise ConfigError(f"{name}: must hold a mapping of sections (e.g. `ddpg:` with "
+                          f"`lr_actor: 0.001` under it), got {data!r}")
+    for section, values in data.items():
+        if section not in merged:
+            raise ConfigError(f"{name}: unknown section {section!r};"
+                              f"{_did_you_mean(str(section), merged)} known: {sorted(merged)}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"{name}: section {section!r} must be a "
+                              f"mapping, got {values!r}")
+        for key in values:
+            if key not in merged[section] and f"{section}.{key}" not in RETIRED_KEYS:
+                raise ConfigError(
+                    f"{name}: unknown key {f'{section}.{key}'!r};"
+                    f"{_did_you_mean(str(key), merged[section], section + '.')} known in "
+                    f"{section}: {sorted(merged[section])}")
+        merged[section].update(values)
+    try:
+        return HercsConfig.from_dict(merged)
+    except ConfigError as exc:
+        raise ConfigError(f"{name}: {exc}") from None
+
+
+def save_yaml(config: HercsConfig, path: str | Path) -> None:
+    """Write the full resolved config (every field, defaults included)."""
+    Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))

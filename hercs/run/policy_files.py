@@ -1,0 +1,125 @@
+"""Reading a run's trained policy back from its checkpoints, with no service running: what
+`hercs eval` and `hercs.load_policy` share.
+
+Two kinds of file hold a policy (`hercs.run.rundir` names them):
+- a policy file (`best.pt`, `epoch-NNNN.pt`, written by `hercs.learner.checkpoint.save_policy`):
+  the serialised `Weights` message the run's evaluator received for that epoch, its epoch and
+  success, and the run's config. Decoded here as the evaluator decodes what it receives
+  (`hercs.actors.weights.WeightsDecoder`: schema, array codec, loaded into a policy of the task's
+  sizes), so a policy read from it acts exactly as the evaluator's did;
+- the learner's checkpoint (`learner.pt`): the actor's parameters and the normaliser
+  statistics are taken from the DDPG state; the config from the run's config.yaml.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hercs.config import HercsConfig, load_yaml
+from hercs.errors import ConfigError, HercsError, InvalidMessage
+from hercs.rl.policy import Policy, PolicyWeights
+from hercs.run.rundir import (
+    CONFIG,
+    RunDir,
+    checkpoint_path,
+    missing_checkpoint,
+    require_run_dir,
+)
+
+
+class CheckpointError(HercsError):
+    """A checkpoint file exists but cannot be used; the message names it and says why."""
+
+
+@dataclass
+class LoadedPolicy:
+    """A checkpoint's policy with the config of its run."""
+
+    config: HercsConfig
+    epoch: int
+    """The epoch whose end the weights are from."""
+    source: Path
+    """The checkpoint file read."""
+    weights: PolicyWeights
+    """Actor parameters and normaliser statistics, checked to load into `policy()`."""
+
+    def policy(self) -> Policy:
+        """A fresh `Policy` of the run's task holding these weights (act with
+        `explore=False` for the evaluator's deterministic actions)."""
+        policy = Policy(spec=self.config.task.spec, config=self.config.ddpg, seed=0)
+        policy.load(self.weights)
+        return policy
+
+
+def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
+                ) -> LoadedPolicy:
+    """The policy of `run_dir`'s checkpoint: 'best', 'latest', 'epoch-N' or a .pt file's
+    path (None: best if present, else latest, as `hercs eval` does). Raises `RunDirError`
+    for a folder that is not a run or a checkpoint that does not exist (naming those that
+    do), `CheckpointError` for a file that does not load."""
+    run_dir = Path(run_dir)
+    path = checkpoint_path(run_dir, checkpoint)
+    if not path.is_file():
+        if path.parent == RunDir(run_dir).checkpoints:
+            require_run_dir(run_dir)  # a folder that is no run: say that first
+        raise missing_checkpoint(run_dir, checkpoint, path)
+    import torch
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise CheckpointError(f"{path}: not a readable checkpoint ({exc})") from None
+    if not isinstance(state, dict) or not ("policy" in state or "learner" in state):
+        raise CheckpointError(f"{path}: neither a policy file (best.pt, epoch-N.pt) nor a "
+                              "learner checkpoint (learner.pt) of this version of hercs")
+    config = HercsConfig.from_dict(state["config"]) if "config" in state else \
+        _run_config(run_dir, path)
+    if "policy" in state:
+        weights = _decode_weights(bytes(state["policy"]), config, path)
+        epoch = int(state["epoch"])
+    else:
+        learner, loop = state["learner"], state["loop"]
+        weights = PolicyWeights(version=int(loop.get("version", 0)),
+                                actor={k: v.detach().cpu().numpy().astype(np.float32)
+                                       for k, v in learner["actor"].items()},
+                                o_stats=learner["o_norm"], g_stats=learner["g_norm"])
+        epoch = int(loop["epoch"])
+    loaded = LoadedPolicy(config=config, epoch=epoch, source=path, weights=weights)
+    try:
+        loaded.policy()
+    except ValueError as exc:
+        raise CheckpointError(f"{path}: the policy in it does not fit task "
+                              f"{config.task.name} ({exc})") from None
+    return loaded
+
+
+def _decode_weights(raw: bytes, config: HercsConfig, path: Path) -> PolicyWeights:
+    """A policy file's `Weights` bytes as the evaluator decodes them."""
+    from hercs.proto import hercs_pb2 as pb
+    from hercs.wire.codec import msg_to_weight_arrays
+    from hercs.wire.validation import parse_message
+
+    try:
+        msg = parse_message(raw, pb.Weights, max_bytes=config.replay.max_message_bytes)
+        actor, o_stats, g_stats = msg_to_weight_arrays(msg)
+    except InvalidMessage as exc:
+        raise CheckpointError(f"{path}: the policy in it does not load ({exc})") from None
+    return PolicyWeights(version=int(msg.version), actor=actor, o_stats=o_stats,
+                         g_stats=g_stats)
+
+
+def _run_config(run_dir: Path, source: Path) -> HercsConfig:
+    saved = RunDir(run_dir).config
+    if not saved.is_file():
+        raise CheckpointError(f"{source}: a learner checkpoint holds no config, and {run_dir} "
+                              f"has no {CONFIG} to read it from; give the run directory that "
+                              "`hercs up` made")
+    try:
+        return load_yaml(saved)
+    except ConfigError as exc:
+        raise CheckpointError(f"{source}: the run's config does not load: {exc}") from None
+

@@ -1,0 +1,66 @@
+"""One rollout as plain arrays: what an actor produces and the replay stores.
+
+Shapes, with T = spec.episode_steps:
+    obs      (T+1, obs_dim) float32   o_0 .. o_T
+    ag       (T+1, goal_dim) float32  achieved goal ag_0 .. ag_T (Fetch: 3-d)
+    g        (T, goal_dim)  float32   desired goal at each step (constant in Fetch)
+    actions  (T, action_dim) float32  u_0 .. u_{T-1}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hercs.rl.task_registry import TaskSpec
+
+
+@dataclass
+class EpisodeData:
+    obs: np.ndarray
+    ag: np.ndarray
+    g: np.ndarray
+    actions: np.ndarray
+    actor_id: str = ""
+    seq: int = 0
+    success: bool = False
+    """The env's `is_success` at the last step."""
+    policy_version: int = -1
+    """Version of the Weights the actor acted with (-1: initial random policy)."""
+
+    @property
+    def final_ag(self) -> np.ndarray:
+        return self.ag[-1]
+
+    @property
+    def desired_goal(self) -> np.ndarray:
+        return self.g[-1]
+
+    def expected_shapes(self, spec: TaskSpec) -> dict[str, tuple[int, ...]]:
+        return expected_shapes(spec)
+
+
+def expected_shapes(spec: TaskSpec) -> dict[str, tuple[int, ...]]:
+    T = spec.episode_steps
+    return {
+        "obs": (T + 1, spec.obs_dim),
+        "ag": (T + 1, spec.goal_dim),
+        "g": (T, spec.goal_dim),
+        "actions": (T, spec.action_dim),
+    }
+
+
+def random_episode(spec: TaskSpec, rng: np.random.Generator, *, actor_id: str = "test",
+                   seq: int = 0) -> EpisodeData:
+    """A synthetic episode with valid shapes (tests and benchmarks)."""
+    shapes = expected_shapes(spec)
+    g = np.repeat(rng.uniform(-1, 1, size=(1, spec.goal_dim)), spec.episode_steps, axis=0)
+    return EpisodeData(
+        obs=rng.standard_normal(shapes["obs"]).astype(np.float32),
+        ag=rng.uniform(-1, 1, size=shapes["ag"]).astype(np.float32),
+        g=g.astype(np.float32),
+        actions=rng.uniform(-1, 1, size=shapes["actions"]).astype(np.float32),
+        actor_id=actor_id,
+        seq=seq,
+    )
