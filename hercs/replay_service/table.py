@@ -1,51 +1,15 @@
 """The replay table: everything the replay service decides, with no transport (Reverb's
 `Table` is the model).
 
-`ReplayTable` owns the `ReplayCore`, the rate limiter, the queues of parked calls
-(hercs.replay_service.table_calls), the deduplication of retries, the durable log and the
-policy-lag bookkeeping. The Zenoh shell (`hercs.replay_service.replay_shell`) calls `insert` or
-`sample`
-with a `Waiter` that answers a query; unit tests drive it with plain waiters and a fake clock.
+`ReplayTable` owns the `ReplayCore`, the rate limiter (or in lockstep the `LockstepGate`), the
+queues of parked calls (hercs.replay_service.table_calls), the deduplication of retries, the
+durable log's group commit and the `PolicyLagLedger`. The Zenoh shell
+(hercs.replay_service.replay_shell) calls `insert` or `sample` with a `Waiter` that answers
+a query; unit tests drive it with plain waiters and a fake clock. Every public method takes
+the table's lock; waiters are called under it, so they must only hand their answer over.
 
-Admission rules (every public method takes the table's lock, so calls from several threads
-are serialised):
-- `insert`: a retry of a stored (actor_id, seq) is answered at once as a duplicate; a retry of
-  a parked one joins that parked call (both are answered when it is stored); one more insert
-  of an actor with `replay.waiting_inserts_per_actor` waiting is answered `actor_queue_full`
-  (a retry); anything else is parked. Then the queues are drained.
-- `sample`: a request the limiter could never admit (more minibatches than its window holds)
-  is refused at once (`SampleRefused`); anything else is parked, then the queues are drained.
-- drain: alternating sides while the limiter admits the next call of that side (samples oldest
-  first, inserts round-robin across actor ids: hercs.replay_service.waiting_inserts). An admitted
-  sample is served at once; an admitted insert joins the next commit group (the limiter
-  counts it from then on). This terminates: every step removes one parked call.
-- commit (group commit, the calling thread after it has released the table's lock): the
-  admitted inserts (counted by the limiter against the insert bound at once, towards samples
-  only once stored) are appended to the log as one group, one chunk and one fsync, *before*
-  they are stored and acknowledged, so nothing acknowledged is lost by a crash. The table's
-  lock is not held across the append, so samples are served meanwhile; one group is in flight
-  at a time (a commit lock), so log order, episode ids and store order agree. Inserts that
-  arrive while a group is in flight form the next group: the more concurrent inserters, the
-  more episodes share one fsync. If the append fails, every call of the group is answered
-  `log_failed`, nothing is stored and the limiter takes the inserts back. Once a bounded log's
-  segment is full, the committing thread starts the next with the core's state, still
-  holding the commit lock, so the state is exactly that of the episodes logged before it.
-- `expire`: parked calls whose deadline has passed are answered `expired` and dropped; their
-  client has stopped waiting (a retried insert comes back with the same (actor_id, seq)).
-- `recover`: the episodes of the log go into the store without being logged again (from the
-  log's newest saved state on, if it has one); the limiter restarts balanced at the
-  recovered count (as if the learner had used them all).
-- the lag bound (asynchronous, `training.max_policy_lag`, hercs.replay_service.lag_bound): an insert
-  the limiter admits is first checked against the bound, with the id it would be stored under
-  (those admitted before it counted); one it refuses is answered `stale_policy` at once,
-  counted as a reject, and neither logged nor stored.
-- lockstep (`training.schedule: lockstep`): `LockstepGate` (hercs.replay_service.lockstep) decides
-  instead of the limiter's window: an insert it refuses is answered at once with its reason
-  (`stale_policy`, `cycle_full`) and counted as a reject; a sample waits for its cycle's
-  episodes and the cluster model due.
-
-Waiters are called under the lock: they must only hand their answer over (a Zenoh deferred
-reply queues bytes) and never call back into the table.
+The admission rules, the drain, the group commit (logged and fsynced before anything is
+acknowledged), expiry and recovery are docs/DESIGN.md §3, "The replay table".
 """
 
 from __future__ import annotations
@@ -58,13 +22,13 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
-import numpy as np
-
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.replay_service.lag_bound import PolicyLagBound
-from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate, schedule_cycle
+from hercs.replay_service.learner_follow import follow_learner
+from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
+from hercs.replay_service.policy_lag import PolicyLagLedger
 from hercs.replay_service.rate_limiter import SampleToInsertRatio
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
@@ -92,12 +56,6 @@ __all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "Re
 
 log = logging.getLogger("hercs.replay")
 
-POLICY_LAG_WINDOW = 64
-"""Recent episodes whose policy lags are averaged into each served batch's counters."""
-POLICY_LAGS_KEPT = 65536
-"""At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
-the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
-INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 class ReplayTable:
     def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
@@ -131,30 +89,11 @@ class ReplayTable:
         self._inserts = WaitingInserts(per_actor=config.replay.waiting_inserts_per_actor)
         self._samples: deque[ParkedSample] = deque()
         self._parked_keys: dict[tuple[str, int], ParkedInsert] = {}
-        # Policy lag of an episode = the learner's newest weights version when the episode
-        # is stored (known from its latest sample call) minus the version the actor used.
-        self._learner_version = 0
-        self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
-        self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
-        self._lags_since_sample: deque[int] = deque(maxlen=POLICY_LAGS_KEPT)
-        self._newest_request_version: int | None = None
-        """The weights version of the latest sample call served (not the highest ever: a
-        restarted learner counts from its checkpoint again); None before the first, when the
-        lag bound refuses nothing (actors act with their own initial policy until then) and
-        after a recovery until that call places the recovered episodes in the schedule."""
-        self._schedule_offset = 0
-        """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
-        after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
-        the resumed learner's weights version (episodes acted after its last checkpoint), so
-        that a restart does not read as 50 cycles of lag. The limiter restarts balanced for
-        the same reason."""
-        self._recovered_unplaced: int | None = None
-        """Recovered episodes whose place in the schedule waits for the learner's first
-        sample call (its weights version); no schedule lag is recorded until then."""
+        self.lags = PolicyLagLedger(config.training.episodes_per_cycle)
         self.log_failures = 0
         """Inserts refused because their log append failed."""
         self._learner: str | None = None
-        """The learner process whose kept samples the limiter counts from (`_follow_learner`)."""
+        """The learner process whose kept samples the limiter counts from (`follow_learner`)."""
 
     # -- start-up --------------------------------------------------------------------------
     def recover(self, episodes: Iterable[tuple[int, EpisodeData]], *,
@@ -170,7 +109,7 @@ class ReplayTable:
             if count:
                 self.limiter.restart_balanced(count)
                 if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
-                    self._recovered_unplaced = count
+                    self.lags.recovered(count)
         return mismatched
 
     # -- inserts ---------------------------------------------------------------------------
@@ -212,7 +151,7 @@ class ReplayTable:
 
     def _commit(self) -> None:
         """Log, store and acknowledge the admitted inserts, group by group, until none is left
-        (module docstring, "commit"). Called without the table's lock held.
+        (docs/DESIGN.md §3, "commit"). Called without the table's lock held.
 
         Never waits for another thread's group: if one is in flight, that thread commits
         what this one admitted (it looks at the ready list again after releasing the commit
@@ -270,13 +209,7 @@ class ReplayTable:
         result = self.core.insert(episode)
         assert result.episode_id == episode_id, "log and store disagree on episode ids"
         self.limiter.store_admitted()
-        self._recent_lags.append(self._learner_version - episode.policy_version)
-        if self._recovered_unplaced is None:
-            # an int64 version far below -1 (valid on the wire) must not overflow the Batch
-            lag = min(max(self._cycle_of(episode_id) - episode.policy_version, INT64_MIN),
-                      INT64_MAX)
-            self._recent_schedule_lags.append(lag)
-            self._lags_since_sample.append(lag)
+        self.lags.stored(episode_id, episode.policy_version)
         if self.gate is not None:
             self.gate.store(episode.policy_version)
         next_version = self._next_version(episode)
@@ -292,16 +225,11 @@ class ReplayTable:
         asynchronously without a lag bound)."""
         if self.gate is not None:
             return self.gate.next_policy_version(episode.policy_version)
-        if self.lag_bound is not None and self._newest_request_version is not None:
+        newest = self.lags.newest_request_version
+        if self.lag_bound is not None and newest is not None:
             return self.lag_bound.next_policy_version(
-                next_cycle=self._cycle_of(self._next_episode_id()),
-                newest_version=self._newest_request_version)
+                next_cycle=self.lags.cycle_of(self._next_episode_id()), newest_version=newest)
         return 0
-
-    def _cycle_of(self, episode_id: int) -> int:
-        """The lockstep-schedule cycle that policy lag measures episode `episode_id` against."""
-        return schedule_cycle(episode_id - self._schedule_offset,
-                              self.config.training.episodes_per_cycle)
 
     def _next_episode_id(self) -> int:
         """The id the next admitted insert will be stored under (after those admitted and
@@ -311,13 +239,13 @@ class ReplayTable:
     def _refuse_stale(self, item: ParkedInsert) -> bool:
         """The lag bound's check of an insert the limiter admits: True if it was refused
         (answered `stale_policy`, counted, forgotten)."""
-        if self.lag_bound is None or self._newest_request_version is None:
+        newest = self.lags.newest_request_version
+        if self.lag_bound is None or newest is None:
             return False
         episode = item.episode
         refusal = self.lag_bound.refusal(
             policy_version=episode.policy_version,
-            cycle=self._cycle_of(self._next_episode_id()),
-            newest_version=self._newest_request_version)
+            cycle=self.lags.cycle_of(self._next_episode_id()), newest_version=newest)
         if refusal is None:
             return False
         del self._parked_keys[(episode.actor_id, int(episode.seq))]
@@ -338,66 +266,15 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
-            self._follow_learner(call)
+            self._learner = follow_learner(call, self._learner, self.limiter,
+                                           self._samples)
             self._samples.append(ParkedSample([waiter], self._deadline(timeout_s), call=call))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
-    def _follow_learner(self, call: SampleCall) -> None:
-        """(Under the lock.) Every call of a learner that says so sets the limiter's sample
-        count to the minibatches its run has kept. The learner sends one request at a time,
-        so when a call arrives every earlier reply has reached it or is lost: the count is
-        exact, up to a reply lost after its caller gave up. A learner that resumed from a
-        checkpoint thus redoes the updates it lost on the episodes already stored, instead of
-        the limiter admitting inserts for updates that were undone; a restarted replay takes
-        the count it lost from the learner. Calls parked for a learner process this one
-        replaces are answered `expired`: nobody waits for them. So are the calls this learner
-        process parked before: a new call means it stopped waiting for them (it asks again
-        when a reply is overdue, `hercs.learner.prefetch.ASK_AGAIN_S`), and served they would
-        only draw minibatches no update uses."""
-        if not call.learner_incarnation:  # a learner that does not say: counted as served
-            return
-        before = self.limiter.samples
-        self.limiter.resync_samples(call.samples_kept)
-        if call.learner_incarnation == self._learner:
-            if before != call.samples_kept:
-                log.debug("learner %s kept %d minibatches, %d counted: recounted",
-                          call.learner_incarnation, call.samples_kept, before)
-            self._expire_samples_of(call.learner_incarnation,
-                                    "the learner asked again: it stopped waiting for this call")
-            return
-        if self._learner is not None or before != call.samples_kept:
-            log.info("learner %s: the rate limiter counts %d minibatches sampled (was %d), "
-                     "the learner's kept updates", call.learner_incarnation,
-                     call.samples_kept, before)
-        self._learner = call.learner_incarnation
-        stale = [item for item in self._samples
-                 if item.call.learner_incarnation != call.learner_incarnation]
-        for item in stale:
-            self._samples.remove(item)
-            for waiter in item.waiters:
-                waiter.fail(Reason.EXPIRED, "a newer learner process took over this run")
-
-    def _expire_samples_of(self, incarnation: str, why: str) -> None:
-        """(Under the lock.) Answer `expired` to the parked sample calls of `incarnation`."""
-        stale = [item for item in self._samples if item.call.learner_incarnation == incarnation]
-        for item in stale:
-            self._samples.remove(item)
-            for waiter in item.waiters:
-                waiter.fail(Reason.EXPIRED, why)
-        if stale:
-            log.debug("learner %s asked again; %d earlier call(s) answered expired",
-                      incarnation, len(stale))
-
     def _serve(self, item: ParkedSample) -> None:
         call = item.call
-        self._learner_version = max(self._learner_version, call.weights_version)
-        if self._recovered_unplaced is not None:
-            per_cycle = self.config.training.episodes_per_cycle
-            surplus = self._recovered_unplaced // per_cycle - call.weights_version
-            self._schedule_offset = max(0, surplus) * per_cycle
-            self._recovered_unplaced = None
-        self._newest_request_version = call.weights_version
+        self.lags.serving(call.weights_version)
         served = self.core.sample(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
         fitted_at = self._fitted_at()
@@ -408,15 +285,13 @@ class ReplayTable:
                         call.weights_version, self._model_version(),
                         self.gate.next_fit(fitted_at), self.gate.cluster_wait_s)
         served = dataclasses.replace(
-            served, policy_lags=np.asarray(self._lags_since_sample, np.int64),
-            status=self._counters())
-        self._lags_since_sample.clear()
+            served, policy_lags=self.lags.take_since_sample(), status=self._counters())
         for waiter in item.waiters:
             waiter.done(served)
 
     # -- the rate limiter's queues ---------------------------------------------------------
     def _drain(self) -> None:
-        """Serve parked calls while the limiter admits them (module docstring, "drain"). In
+        """Serve parked calls while the limiter admits them (docs/DESIGN.md §3, "drain"). In
         lockstep every parked sample that its cycle admits is served, in any order: each
         names its own cycle, and one that can no longer be served (a dead learner's, for a
         cycle no actor got the weights of) must not hold a restarted learner's behind it."""
@@ -541,8 +416,8 @@ class ReplayTable:
             rejects=dict(core.rejects),
             cluster_sizes=[int(c) for c in core.cluster_sizes()],
             cluster_model_version=self._model_version(), env_steps=core.env_steps,
-            policy_lag=float(np.mean(self._recent_schedule_lags or [0])),
-            policy_lag_request=float(np.mean(self._recent_lags or [0])),
+            policy_lag=self.lags.mean_schedule_lag,
+            policy_lag_request=self.lags.mean_request_lag,
             buffer_moved_share=core.buffer_moved_share,
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )

@@ -664,7 +664,7 @@ def test_the_lag_bound_refuses_nothing_before_the_learner_first_asks() -> None:
 
 def test_a_lag_beyond_int64_is_clipped_not_an_error() -> None:
     """A valid episode may carry any int64 weights version; its lag still fits the wire."""
-    from hercs.replay_service.table import INT64_MAX
+    from hercs.replay_service.policy_lag import INT64_MAX
 
     h = make()
     for seq in range(4):

@@ -1,0 +1,322 @@
+"""The supervisor inside `hercs up`: starts the run's services as child processes, restarts
+one that dies (with back-off, up to `launch.max_restarts`), prints a progress line per epoch
+from what the learner, evaluator and replay publish, and stops everything stage by stage
+(actors first, the replay last, so that every episode in flight is still acked and logged).
+
+`Supervisor` holds no Zenoh session of its own: `hercs.apps.launcher` subscribes its
+callbacks on the embedded router and drives `run` and `stop_all` (docs/DESIGN.md §6,
+"`hercs up`, step by step").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+from hercs.apps.child_process import describe_exit, log_tail, signal_group, start_child
+from hercs.apps.progress import Progress
+from hercs.apps.run_plan import ChildSpec, CommandFactory, plan_children
+from hercs.config import HercsConfig
+from hercs.errors import InvalidMessage
+from hercs.net.backoff import nth_delay
+from hercs.net.service_shell import EXIT_CONFIG
+from hercs.net.signals import StopSignals
+from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
+from hercs.run.rundir import RunDir
+from hercs.wire.validation import parse_message
+
+STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("replay",))
+"""Roles stopped together, stage after stage; the replay last."""
+OPTIONAL_ROLES = frozenset({"live"})
+"""Roles whose exit does not end the run: watching training must never stop it."""
+MAX_BACKOFF_S = 30.0
+"""Restart delays double from `launch.restart_backoff_s` up to this."""
+HEALTHY_S = 300.0
+"""A child that ran this long before dying has its restart count reset (it was not
+crash-looping)."""
+
+LIVE_READY_TIMEOUT_S = 30.0
+FINAL_PROGRESS_TIMEOUT_S = 5.0
+LOG_TAIL_LINES = 20
+_POLL_S = 1.0
+
+
+@dataclass
+class Child:
+    spec: ChildSpec
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+    expected_exit: bool = False
+    started: float = field(default_factory=time.monotonic)
+    restarts: int = 0
+    """Restarts of this spec so far (carried over to the new child)."""
+
+    def signal(self, sig: int) -> None:
+        """Signal the child's whole process group (it leads it), so helpers it forked go too."""
+        signal_group(self.proc, sig)
+
+
+@dataclass
+class Supervisor:
+    config: HercsConfig
+    run_dir: Path
+    signals: StopSignals
+    command: CommandFactory
+    stop_timeout_s: float
+    ready_timeout_s: float
+    out: IO[str]
+    err: IO[str]
+    children: list[Child] = field(default_factory=list)
+    alive: set[str] = field(default_factory=set)
+    restarts_total: int = 0
+    scheduled: list[tuple[float, ChildSpec, int]] = field(default_factory=list)
+    """Restarts waiting for their back-off: (when, spec, restarts so far)."""
+
+    def __post_init__(self) -> None:
+        self.keys = RunKeys(self.config.run.name)
+        self.progress = Progress(self.config.training.epochs)
+        self._print_lock = threading.RLock()
+        self._ours = {self.keys.alive(s.role, s.ident) for s in plan_children(self.config)}
+
+    # ------------------------------------------------------------------ output
+
+    def say(self, line: str, *, error: bool = False) -> None:
+        # A terminal gone (SIGHUP) must not break the shutdown that follows.
+        with self._print_lock, contextlib.suppress(OSError, ValueError):
+            print(line, file=self.err if error else self.out, flush=True)
+
+    def _say_all(self, lines: list[str]) -> None:
+        for line in lines:
+            self.say(line)
+
+    # ------------------------------------------------------------------ zenoh callbacks
+    # They run on the transport's threads: bookkeeping and printing only, then wake the loop.
+
+    def _decode(self, raw: bytes, cls: type, what: str) -> object | None:
+        try:
+            return parse_message(raw, cls, max_bytes=self.config.replay.max_message_bytes)
+        except InvalidMessage as exc:
+            self.say(f"hercs up: ignoring a bad {what} message: {exc}", error=True)
+            return None
+
+    def on_metrics(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.Metrics, "Metrics")
+        if isinstance(msg, pb.Metrics):
+            with self._print_lock:  # compute and print as one step, so lines stay in order
+                lines = self.progress.on_metrics(msg.service, dict(msg.values))
+                self._say_all(lines)
+            if lines:
+                self.signals.wake()
+
+    def on_eval(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.EvalResult, "EvalResult")
+        if isinstance(msg, pb.EvalResult):
+            with self._print_lock:
+                lines = self.progress.on_eval(int(msg.epoch), msg.success_rate)
+                self._say_all(lines)
+            if lines:
+                self.signals.wake()
+
+    def on_status(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.ReplayStatus, "ReplayStatus")
+        if isinstance(msg, pb.ReplayStatus):
+            with self._print_lock:
+                self.progress.on_replay_size(msg.size_episodes)
+
+    def on_inserted(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.EpisodeHeader, "EpisodeHeader")
+        if isinstance(msg, pb.EpisodeHeader):
+            with self._print_lock:
+                self.progress.on_inserted(msg.actor_id)
+
+    def on_alive(self, key: str, alive: bool) -> None:
+        (self.alive.add if alive else self.alive.discard)(key)
+        actor_prefix = self.keys.prefix + "/alive/actor/"
+        self.progress.actors = sum(1 for k in list(self.alive) if k.startswith(actor_prefix))
+        if key not in self._ours:
+            role_ident = key.removeprefix(self.keys.prefix + "/alive/").replace("/", " ", 1)
+            self.say(f"hercs up: remote {role_ident} {'joined' if alive else 'left'}")
+        self.signals.wake()
+
+    # ------------------------------------------------------------------ processes
+
+    def start(self, spec: ChildSpec, *, restarts: int = 0) -> Child:
+        config_path = RunDir(self.run_dir).config
+        log_path = RunDir(self.run_dir).logs / spec.log_name
+        proc = start_child(self.command(spec, config_path), log_path=log_path)
+        child = Child(spec, proc, log_path, restarts=restarts)
+        self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]
+        self.children.append(child)
+        again = f" again (restart {restarts})" if restarts else ""
+        self.say(f"hercs up: started {spec}{again} (pid {proc.pid}), log {log_path}")
+        return child
+
+    def _report_exit(self, child: Child, code: int, *, then: str = "") -> None:
+        goes_on = "; training goes on without it" if child.spec.role in OPTIONAL_ROLES else then
+        lines = [f"hercs up: {child.spec.role} {child.spec.ident} exited unexpectedly "
+                 f"({describe_exit(code)}){goes_on}; last lines of {child.log_path}:"]
+        lines += [f"  | {line}" for line in log_tail(child.log_path, LOG_TAIL_LINES)]
+        self.say("\n".join(lines), error=True)
+
+    def _reap_optional(self) -> None:
+        """Report optional children that exited, once; they never end the run."""
+        for child in self.children:
+            if child.spec.role in OPTIONAL_ROLES and not child.expected_exit:
+                code = child.proc.poll()
+                if code is not None:
+                    child.expected_exit = True
+                    self._report_exit(child, code)
+
+    def check_children(self) -> int | None:
+        """None while all is well (children that died are scheduled for a restart); 0 once
+        the learner is done; 1 if a child died more often than `launch.max_restarts`."""
+        self._reap_optional()
+        exited = [(c, code) for c in self.children
+                  if not c.expected_exit and (code := c.proc.poll()) is not None]
+        for child, code in exited:
+            if child.spec.role == "learner" and code == 0:
+                child.expected_exit = True
+                return 0
+        # An actor exits 0 only when it leaves on purpose: the learner announced the run
+        # finished (usually a moment before the learner itself exits). Not a failure.
+        for child, code in exited:
+            if child.spec.role == "actor" and code == 0:
+                child.expected_exit = True
+        exited = [(c, code) for c, code in exited if not c.expected_exit]
+        failed = False
+        for child, code in exited:
+            child.expected_exit = True
+            restarts = 0 if time.monotonic() - child.started >= HEALTHY_S else child.restarts
+            limit = self.config.launch.max_restarts
+            if code == EXIT_CONFIG:
+                # It refused its configuration: a restart reads the same config.yaml.
+                self._report_exit(child, code, then="; it refused the run's configuration, "
+                                                    "which a restart cannot change, so the "
+                                                    "run stops")
+                failed = True
+                continue
+            if restarts >= limit:
+                self._report_exit(child, code, then=f"; it was restarted {restarts} times "
+                                                    "already, so the run stops")
+                failed = True
+                continue
+            delay = nth_delay(self.config.launch.restart_backoff_s, restarts, MAX_BACKOFF_S)
+            self._report_exit(child, code, then=f"; restarting it in {delay:g} s "
+                                                f"({restarts + 1} of at most {limit})")
+            self.scheduled.append((time.monotonic() + delay, child.spec, restarts + 1))
+        return 1 if failed else None
+
+    def restart_due(self) -> None:
+        """Start the children whose restart back-off has passed."""
+        now = time.monotonic()
+        due = [item for item in self.scheduled if item[0] <= now]
+        self.scheduled = [item for item in self.scheduled if item[0] > now]
+        for _, spec, restarts in due:
+            self.start(spec, restarts=restarts)
+            self.restarts_total += 1
+            self.progress.restarts = self.restarts_total
+
+    def _interrupted(self) -> int:
+        sig = self.signals.received[0]
+        self.say(f"hercs up: got {signal.Signals(sig).name}, stopping the run "
+                 "(Ctrl-C again to kill at once)")
+        return 128 + sig
+
+    def wait_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait for `done()` while nothing else happens; False on timeout, a stop signal or a
+        child exit (which the main loop then reports)."""
+        deadline = time.monotonic() + timeout_s
+        while not done():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or self.signals.stop_requested:
+                return False
+            self._reap_optional()
+            if any(c.proc.poll() is not None for c in self.children if not c.expected_exit):
+                return False
+            self.signals.wait(min(remaining, _POLL_S))
+        return True
+
+    def run(self) -> int:
+        specs = plan_children(self.config)
+        replay = specs[0]
+        self.start(replay)
+        replay_key = self.keys.alive(replay.role, replay.ident)
+        if not self.wait_until(lambda: replay_key in self.alive, self.ready_timeout_s):
+            if self.signals.stop_requested:
+                return self._interrupted()
+            status = self.check_children()
+            if status is not None:
+                return 1
+            self.say(f"hercs up: {replay} did not come up within {self.ready_timeout_s:g} s "
+                     f"(no liveliness token {replay_key}); see {self.children[0].log_path}",
+                     error=True)
+            return 1
+        rest = specs[1:]
+        if rest and rest[0].role == "live":
+            live = self.start(rest.pop(0))
+            live_key = self.keys.alive(live.spec.role, live.spec.ident)
+            if not self.wait_until(lambda: live_key in self.alive or live.expected_exit,
+                                   LIVE_READY_TIMEOUT_S):
+                if self.signals.stop_requested:
+                    return self._interrupted()
+                status = self.check_children()
+                if status is not None:
+                    return status
+                if not live.expected_exit:
+                    self.say(f"hercs up: {live.spec} is not up after {LIVE_READY_TIMEOUT_S:g} s; "
+                             f"starting the run anyway (see {live.log_path})", error=True)
+        for spec in rest:
+            self.start(spec)
+        self.say(f"hercs up: run {self.config.run.name} is running "
+                 f"({self.config.training.epochs} epochs); Ctrl-C to stop")
+        while True:
+            if self.signals.stop_requested:
+                return self._interrupted()
+            status = self.check_children()
+            if status == 0:
+                self.wait_until(lambda: self.progress.last_printed >= self.config.training.epochs,
+                                FINAL_PROGRESS_TIMEOUT_S)
+                return 0
+            if status is not None:
+                return status
+            self.restart_due()
+            with self._print_lock:
+                line = self.progress.interim()
+                if line is not None:
+                    self.say(line)
+            self.signals.wait(_POLL_S)
+
+    def stop_all(self) -> None:
+        """Stop every child, stage by stage; returns only when all have exited. A stop signal
+        received meanwhile skips the remaining graceful waits."""
+        signals_before = len(self.signals.received)
+        for roles in STOP_STAGES:
+            stage = [c for c in self.children if c.spec.role in roles]
+            live = [c for c in stage if c.proc.poll() is None]
+            for child in live:
+                child.expected_exit = True
+                child.signal(signal.SIGTERM)
+            deadline = time.monotonic() + self.stop_timeout_s
+            for child in live:
+                while child.proc.poll() is None:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or len(self.signals.received) > signals_before:
+                        break
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        child.proc.wait(min(remaining, 0.5))
+            for child in live:
+                if child.proc.poll() is None:
+                    self.say(f"hercs up: {child.spec} did not stop within "
+                             f"{self.stop_timeout_s:g} s; killing it", error=True)
+                    child.signal(signal.SIGKILL)
+                    child.proc.wait()
+            for child in stage:  # anything the child forked into its group
+                child.signal(signal.SIGKILL)
