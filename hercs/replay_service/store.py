@@ -6,10 +6,10 @@ Invariants (enforced by `insert` and `restore`):
   later ones to `slot_for(id)`: ``id % capacity_episodes`` for `fifo`, a slot drawn uniformly
   by a hash of (eviction seed, id) for `random`. The slot is a pure function of the id, so
   replaying the episode log in id order rebuilds the same buffer.
-- So the valid slots are always the prefix ``[0, size)``; every array property returns a
-  read-only view of that prefix (no copy), indexed by slot.
+- So the valid slots are always ``[0, size)``; array properties are read-only views of it.
 - Every stored array has the task's shapes (`hercs.wire.episode.expected_shapes`); a mismatch is
   refused before anything is written.
+
 Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
 as slots are written. The store is not thread-safe: the service serialises calls.
 """
