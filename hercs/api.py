@@ -9,11 +9,9 @@ with no service running. Re-exported by the `hercs` package:
     for episode in hercs.read_episodes("runs/RUN", last=10): ...
     config = hercs.load_config("runs/RUN")            # or a YAML file, or the defaults
 
-Arrays go in and come out as numpy; the caller needs no torch. Errors are `HercsError`s whose
-messages name the folder or file, what is missing and what to do.
-
-Imports of torch, the episode log and the config are deferred to the calls, so that
-`import hercs` (which every hercs process does) stays light.
+Arrays go in and come out as numpy; the caller needs no torch. Errors are `HercsError`s that
+name the folder or file, what is missing and what to do. Torch, the episode log and the config
+are imported inside the calls, so that `import hercs` (every hercs process does it) stays light.
 """
 
 from __future__ import annotations

@@ -1,36 +1,17 @@
 """The rollout actor process (`hercs actor`): a thin Zenoh shell around `VectorRollout`.
 
-What `run` does, in order:
-1. Joins the run: opens the transport (`ServiceRuntime`, role "actor") and asks the replay for
-   the run's resolved config (`keys.config`), retrying until it answers or the process is
-   stopped. Task, method and network sizes come from there; the local `transport` section is
-   kept. This is how `hercs actor --connect tcp/HOST:7447 --run RUN` on another host joins.
-2. Subscribes to `keys.weights` as a late joiner (`latest=True`): the newest `Weights` arrives
-   at once. The subscription thread decodes and checks each message (schema, arrays, shapes
-   against this task's networks); a bad one is logged once per minute and ignored, a good one
-   replaces the slot's pending weights. The rollout loop adopts the newest at each episode
-   start, and tags the episode with its version (`policy_version`, -1 before any Weights).
-3. Loops: one exploring episode per env (`actor.envs_per_process` envs stepped side by side,
-   one batched policy call per step), each tagged `(actor_id=<ident>@<incarnation>, seq=0,1,2,…)`
-   (the incarnation is the process's start time, so a restarted actor never reuses a pair
-   the replay has stored), handed to the
-   `Inserter` (at-least-once, on its own thread; see `hercs.actors.inserter` for retries and
-   backpressure: when the replay's rate limiter holds inserts, the loop blocks in `submit`).
-   Metrics every `METRICS_EVERY_EPISODES` episodes.
-   Before each episode the loop waits for the weights the schedule asks for
-   (`hercs.actors.weights_schedule`: lockstep's version, the lag bound's next arrival), and
-   in lockstep after it for the inserts' outcome, which sets the next episode's version; an
-   episode the replay refuses as stale or surplus (`Reason`, superseded) is dropped.
-4. On SIGTERM/SIGINT (`runtime.stop`), or when the learner's `RunProgress` says the run is
-   finished (a remote actor thus exits by itself): finishes the episode at hand, flushes
-   queued inserts for at most `STOP_FLUSH_S` (not at all once the run is finished: no learner
-   will sample them, and the replay is closing, so retries would only keep the process alive
-   past its run, which a scheduler then records as cancelled), gives up the rest, closes the
-   env and the transport, returns 0. A dead inserter thread stops the actor with status 1.
+`run` joins a run by asking the replay for its resolved config, so `hercs actor --connect
+tcp/HOST:7447 --run RUN` on any host needs no config of its own (the local `transport` section
+is kept). It takes the newest `Weights` as a late joiner and loops: one exploring episode per
+env, each handed to the `Inserter` as `(actor_id=<ident>@<incarnation>, seq)`; the incarnation
+is the process's start time, so a restarted actor never reuses a pair the replay has stored.
+Each episode waits for the weights the schedule asks for (`hercs.actors.weights_schedule`), and
+backpressure reaches the env through the blocking `Inserter.submit` (docs/DESIGN.md §3).
 
-Seeds (one root, split per actor): policy init `int_seed(seed, "actor", ident)`, exploration
-`generator(seed, "actor", ident)`, env resets `int_seed(seed, "actor", ident, "env")` for the
-first env and `int_seed(seed, "actor", ident, "env", str(i))` for env i ≥ 1.
+On a stop signal the actor flushes its queue for at most `STOP_FLUSH_S`; once `RunProgress`
+says the run is finished it gives the queue up at once, since no learner will sample those
+episodes and retries would keep it alive past its run (a scheduler then records the job as
+cancelled). A dead inserter thread stops the actor with status 1.
 """
 
 from __future__ import annotations

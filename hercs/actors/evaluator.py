@@ -1,26 +1,15 @@
 """The evaluator process (`hercs evaluator`): deterministic test episodes of epoch-end policies.
 
-What `run` does:
-- subscribes to `keys.weights` as a late joiner (`latest=True`, a FIFO channel: every message
-  is seen). A `Weights` with `evaluate=True` is decoded, checked (as the actor does) and
-  appended to a FIFO of evaluation requests, so an epoch's policy is never lost to newer
-  non-eval weights arriving while another epoch is evaluated; requests run oldest first (the
-  newest epoch last). A version already queued or evaluated is skipped (the late-joiner cache
-  may repeat it). `evaluate=False` weights are ignored. The learner asks again on
-  `eval/request` for an evaluation whose result it has not received (lost during a router
-  restart, or asked before a resume): a request already answered gets its cached result
-  again, one never seen is evaluated.
-- for each request: loads it into its own `Policy`, runs `training.eval_episodes` episodes
-  with `explore=False` in its own env (seeded once, `int_seed(seed, "evaluator")`, so each
-  evaluation sees fresh goals from one reproducible stream) and publishes
-  `EvalResult(epoch, weights_version, episodes, success_rate, mean_final_distance)` on
-  `keys.eval_result`. Success is the env's `is_success` at the last step; the final distance
-  is ‖ag_T − g‖.
-- results matter: the publisher blocks rather than drops under congestion, and each put first
-  waits (up to `SUBSCRIBER_WAIT_S`, watching `stop`) for a subscriber (the learner) to match,
-  since a put with no matched subscriber is lost.
-- SIGTERM/SIGINT: an evaluation in progress is abandoned between episodes (no partial result),
-  the env and transport are closed, exit 0.
+Every `Weights` with `evaluate=True` joins a FIFO, so an epoch's policy is never lost to newer
+weights that arrive while another epoch is evaluated; a version already queued or done is
+skipped (the late-joiner cache may repeat one). Each is loaded into the evaluator's own `Policy`
+and run for `training.eval_episodes` episodes without noise in its own env, seeded once, so all
+methods of one seed are tested on the same goals (docs/DESIGN.md §4.8, §9.7). The learner's
+`eval/request` for a lost result is answered from a cache of results, or evaluated (§8).
+
+Results must arrive: the publisher blocks rather than drops, and each put first waits up to
+`SUBSCRIBER_WAIT_S` for the learner to match, since a put with no matched subscriber is lost.
+A stop abandons an evaluation between episodes; no partial result is sent.
 """
 
 from __future__ import annotations

@@ -1,31 +1,15 @@
 """At-least-once delivery of an actor's episodes to the replay, on its own sender thread.
 
-Contract (docs/DESIGN.md §3, "Insert is at-least-once"):
-- An episode stays with the `Inserter` until an `InsertAck` naming its `(actor_id, seq)`
-  arrives. A timeout, an `unavailable` reply (the replay is restarting or shutting down), an
-  `internal` reply or a malformed ack is retried with the *same bytes*, so the same
-  `(actor_id, seq)`, after an exponential backoff (0.1 s doubling to 2 s): the replay
-  deduplicates, so a retry of an insert that was in fact stored is acked `duplicate=True`.
-- What an error reply leads to is its reason's disposition (`hercs.reasons`): `drop` (wrong
-  shape, NaN, wrong task, …) can never succeed: the episode is dropped, counted and logged
-  (once per reason per minute); `superseded` (acted with weights too old, or its lockstep
-  cycle already full) means the episode is well formed but not wanted: it is dropped without
-  a warning and counted `superseded`; `retry` as above.
-- Episodes are delivered one at a time, in `seq` order. `newest_next_policy_version` is the
-  highest weights version an ack asked the next episodes to be acted with (lockstep).
+An episode stays with the `Inserter` until an `InsertAck` names its `(actor_id, seq)`. An error
+reply is handled by its reason's disposition (`hercs.reasons`: drop, superseded or retry); a
+retry resends the same bytes after a backoff, which the replay's deduplication makes safe
+(docs/DESIGN.md §3, "Insert: at-least-once"). Episodes go one at a time, in `seq` order.
 
-Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight (with
-capacity 0, while one is in flight). The
-replay's rate limiter holds insert queries (answers them later) when learner updates lag the
-inserts; the in-flight request then waits, the queue fills and the actor's rollout loop stops
-stepping the env until an ack frees a slot. With the default capacity of 2 the env keeps
-stepping through the round trip of one ack, and at most 3 finished episodes (plus the one
-being collected) are held in memory.
-
-Stopping: `close(timeout_s)` lets the sender flush what is queued for at most `timeout_s`,
-then aborts: episodes not acked by then are given up (counted `abandoned`); an episode never
-acked may be lost, an acked one never is. A request still in flight at abort ends when the
-caller closes the transport (`TransportError`).
+Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight, so when
+the replay's rate limiter holds inserts the actor stops stepping its env instead of queueing
+without bound; the default capacity 2 keeps the env stepping through one ack's round trip.
+`close(timeout_s)` flushes for at most `timeout_s` and then gives up the rest (counted
+`abandoned`): an episode never acked may be lost, an acked one never is.
 """
 
 from __future__ import annotations

@@ -1,48 +1,16 @@
 """`hercs live`: a run streamed to Rerun while it trains (docs/DESIGN.md §6), `hercs up --rerun`.
 
-This module is the shell (recording sinks, subscriptions, episode queries, the loop); the
-core that draws is `LiveRecorder` (hercs/apps/live_recorder.py). The recording has the entity paths
-and timelines of `hercs view` (see hercs/apps/view.py; both draw with
-hercs/apps/rerun_draw.py), so the live view of a run and an offline view of its episode log look
-alike. What each message becomes:
+This module is the shell: recording sinks, subscriptions, episode queries and the loop
+(`LiveViewService`); `LiveRecorder` (hercs/apps/live_recorder.py) draws. The recording has the
+entity paths and timelines of `hercs view`, both drawn with hercs/apps/rerun_draw.py, so the
+live view of a run and an offline view of its episode log look alike; where they differ, and
+why, is in docs/DESIGN.md §6 ("Views"). The recording id is the run name, so a restarted live
+view continues the same recording. Where it goes is the `view` config section (docs/GUIDE.md).
 
-    metrics/**        the learner's per-epoch `Metrics` (service `learner/…`, with `epoch`):
-                      every finite value but `epoch`/`epochs` → `curves/<name>` on `epoch`, and
-                      on `episode` at the epoch's last episode (`episodes` − 1): the numeric
-                      columns of metrics.csv. Other services' metrics carry no epoch: ignored.
-    replay/status     the latest cluster sizes → `curves/cluster_sizes` at each learner epoch
-    replay/inserted   every `EpisodeHeader` → `episodes/success`, `episodes/final_distance`,
-                      `episodes/cluster` on `episode`; a failed episode's g_T joins the failed
-                      goals
-    cluster/model     (latest, as a late joiner) → `world/centroids`, `log/cluster_models`, and
-                      the failed goals recoloured, at the episode after the last header seen
-                      (a model that came before any header: at the first header)
-    replay/episode    (query) the `Episode` of every id that is a multiple of
-                      `view.episode_every` → `world/episodes/<id>/{gripper,object,goal}` on
-                      `step` and `episode`, `log/episodes`; `world/failed_goals` is logged at
-                      those ids too (and at each model), so scrubbing `episode` shows it grow
-
-So `hercs view RUN --episodes 0::N` later draws the same trajectories. Differences from the
-offline view: `world/failed_goals` holds the newest `live_recorder.MAX_FAILED_GOALS` failed
-goals (offline: all of them), so that a long run's recording stays bounded;
-`curves/cluster_share` is absent (the learner publishes it only in metrics.csv); the
-EvalResults are not read (the learner's metrics carry `success_rate` once the epoch is
-evaluated); a cluster model applies from the episode after the last header seen when it arrives
-(offline: after the last episode logged before it; the two can differ by the episodes in
-flight). A live view started late shows the run from then on (and the current cluster model at
-once); `hercs view` of the episode log has everything. The recording id is the run name, so a
-restarted live view continues the same recording in a viewer.
-
-Where it goes (`view` config section; `hercs up --rerun [URL] --rerun-save FILE.rrd`):
-`view.viewer` 'spawn' starts a local viewer (rerun-sdk, port 9876, its own session so it
-outlives the run; one already listening there is reused), a gRPC URL streams to a running
-viewer, 'none' streams nowhere; `view.save` also writes an .rrd file (finished on SIGTERM).
-
-It never holds up or fails training: subscriptions only queue raw bytes (the main loop decodes,
-logs and queries); a viewer that cannot be reached or goes away is reported once (and again
-only after it came back), the loop keeps draining and the .rrd file keeps being written; a
-bad message or a failed episode query is logged once per minute and skipped. `hercs up`
-treats this process as optional: if it exits, training goes on without it.
+It never holds up or fails training: subscriptions only queue raw bytes (the loop decodes,
+draws and queries); an unreachable viewer is reported once (again only after it came back) while
+the loop keeps draining and any .rrd file keeps being written; a bad message or a failed episode
+query is logged once per minute and skipped. `hercs up` treats this process as optional.
 """
 
 from __future__ import annotations
@@ -196,7 +164,26 @@ class Inbox:
 
 
 class LiveViewService:
-    """The main loop around a `LiveRecorder`; `run()` returns when `runtime.stop` is set."""
+    """The main loop around a `LiveRecorder`; `run()` returns when `runtime.stop` is set.
+
+    What each message becomes in the recording:
+
+        metrics/**        the learner's per-epoch `Metrics` (with `epoch`): every finite value
+                          but `epoch`/`epochs` → `curves/<name>` on `epoch`, and on `episode` at
+                          the epoch's last episode; other services' metrics carry no epoch and
+                          are ignored
+        replay/status     the latest cluster sizes → `curves/cluster_sizes` at each epoch
+        replay/inserted   each `EpisodeHeader` → `episodes/success`, `episodes/final_distance`,
+                          `episodes/cluster` on `episode`; a failed episode's goal joins the
+                          failed goals
+        cluster/model     (latest, as a late joiner) → `world/centroids`, `log/cluster_models`
+                          and the failed goals recoloured, at the episode after the last header
+                          seen (a model that came before any header: at the first header)
+        replay/episode    (query) the `Episode` of every multiple of `view.episode_every` →
+                          `world/episodes/<id>/{gripper,object,goal}` on `step` and `episode`,
+                          `log/episodes`; `world/failed_goals` is logged at those ids too (and at
+                          each model), so scrubbing `episode` shows it grow
+    """
 
     def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig, inbox: Inbox,
                  recorder: LiveRecorder) -> None:

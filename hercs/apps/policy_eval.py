@@ -3,20 +3,14 @@ running.
 
     hercs eval runs/RUN                                  # the best policy, 20 episodes
     hercs eval runs/RUN --checkpoint latest --episodes 50
-    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa);
-                                                         # a title frame per episode, the step,
-                                                         # outcome and final distance on each
+    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa)
     hercs eval runs/RUN --rerun-save reach.rrd           # the camera images in Rerun
 
-Checkpoints (`RUN/checkpoints/`): `best` (`best.pt`, the epoch with the highest evaluation
-success, the default when present), `latest` (`learner.pt`, the learner's state at its last
-epoch end), `epoch-N` (`epoch-NNNN.pt`, kept every `training.checkpoint_every` epochs), or a
-file path.
-
-By default the episodes are the ones the run's evaluator used for that epoch (its env, seeded
-from the run seed, advanced by the episodes of the earlier epochs), so for a run evaluated in
-order the first `training.eval_episodes` episodes reproduce the success in `metrics.csv`;
-`--seed S` draws other goals. Actions are deterministic (μ without noise), as in evaluation.
+`--checkpoint` is `best` (the default when present), `latest` (`learner.pt`), an epoch N
+(`epoch-NNNN.pt`) or a file path. By default the episodes are the ones the run's evaluator
+used for that epoch (its env, seeded from the run seed and advanced by the earlier epochs'
+episodes), so for a run evaluated in order the first `training.eval_episodes` reproduce the
+success in `metrics.csv`; `--seed S` draws other goals. Actions are μ without noise.
 """
 
 from __future__ import annotations

@@ -8,18 +8,10 @@
     run.wait()                             # the exit status, 0 once the run finished
     policy = run.policy("best")            # hercs.TrainedPolicy
 
-The run is the same `hercs up` a shell starts (router, replay, clusterer, learner, evaluator,
-actors), as a child process of the caller: training never shares the caller's interpreter,
-GIL or signal handlers, so a notebook, a sweep library or a lab's driver can hold several.
-The arguments are resolved here first, exactly as the command line resolves them, so that a
-bad value raises `ConfigError` before anything starts, and the run's folder is known at once.
-
-`stop()` is the orderly stop of Ctrl-C (the checkpoint and results stay; `resume()` goes on
-from the last checkpoint). A run still going when the caller's interpreter exits is stopped
-the same way, so that no services outlive it; if the interpreter dies without its exit hooks
-(SIGKILL, a killed notebook kernel), `hercs up` gets SIGTERM from the kernel (its parent-death
-signal) and stops in order too. That signal fires when the *thread* that started the child
-ends, so every run is started from one long-lived thread of this module.
+The run is the `hercs up` a shell starts, as a child process, so training never shares the
+caller's interpreter, GIL or signal handlers. Arguments are resolved as the command line does,
+so a bad value raises `ConfigError` before anything starts. `stop()` is Ctrl-C's orderly stop;
+a run still going when the caller exits, or dies, is stopped the same way.
 """
 
 from __future__ import annotations

@@ -1,30 +1,13 @@
 """`hercs slurm submit`: one run as one heterogeneous Slurm job (docs/CLUSTER.md).
 
-The job script is written into the run directory, `runs/<run>/slurm/job.sbatch`, beside the
-config it starts the run with (`slurm/config.yaml`); it is meant to be read, edited and
-submitted by hand (`sbatch runs/<run>/slurm/job.sbatch`) as well. What it does:
-
-- component 0 (one node, `--learner-cpus`, `--gpus`): `hercs up --actors 0` — the embedded
-  router on any free port of every interface over mutual TLS, the replay, clusterer,
-  learner and evaluator; the router's endpoint goes to `runs/<run>/router.json`;
-- component 1 (`--actor-nodes` nodes, `--actor-cpus` each): one `hercs actor` per node in
-  one `srun` step, with `actor.envs_per_process` = `--actor-cpus`; each waits for
-  router.json and connects to component 0's host by name;
-- an actor step that ends while the run goes on (an actor killed, or its node's task
-  crashed: `--kill-on-bad-exit` ends the whole step) is started again within the attempt
-  after `ACTOR_RESTART_S` (doubling to `ACTOR_RESTART_MAX_S` while it keeps failing fast);
-  it ends for good when its actors exit 0 (the run finished) or 2 (a configuration they
-  refuse), or when the script stops it;
-- certificates for this attempt of the job (`slurm/certs-<job>.<restarts>/`, the router's
-  naming component 0's host; the CA key is deleted once they are made);
-- Slurm's warning `--signal-before` seconds before the time limit (`--signal=B:USR1@S`)
-  stops the run in order (`hercs up` gets SIGTERM: actors, then learner/evaluator/clusterer,
-  then the replay; every acknowledged episode is logged, the learner's checkpoint is its last
-  epoch end) and requeues the job (`scontrol requeue`); a requeued job finds the run's
-  config.yaml and continues it with `hercs up --resume`, so metrics.csv keeps one row per
-  epoch and a run longer than the time limit ends across several attempts. SIGTERM from
-  Slurm (preemption, `scontrol requeue`, `scancel`) stops it the same way; Slurm then
-  requeues or cancels it.
+The job script is written into the run directory (`runs/<run>/slurm/job.sbatch`, beside the
+`slurm/config.yaml` it starts the run with), to be read, edited and submitted by hand as well.
+Component 0 runs `hercs up --actors 0` (router over mutual TLS, replay, clusterer, learner,
+evaluator) and component 1 one `hercs actor` per node, which finds the router through
+`router.json`. Each attempt makes its own certificates; an actor step that ends while the run
+goes on is started again within the attempt; Slurm's warning before the time limit stops the
+run in order and requeues the job, whose next attempt continues with `hercs up --resume`, so a
+run may outlast any one job (docs/CLUSTER.md §1, §4, §5).
 
 This module only writes text and calls `sbatch`; the run itself is `hercs up` and
 `hercs actor` as on any machine.

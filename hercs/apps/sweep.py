@@ -1,40 +1,17 @@
 """`hercs sweep`: a grid of runs, tasks × methods × seeds × variants, each a full `hercs up`;
-and `hercs sweep report`, its learning curves and its claims table.
+and `hercs sweep report`, its learning curves and its claims table (docs/GUIDE.md, "Grids of
+runs").
 
     hercs sweep --tasks push --methods her her-cs --seeds 5 --epochs 50
     hercs sweep --tasks push --methods her-ebp-cs --seeds 3 --variant eps3:energy.epsilon=1e-3
     hercs sweep report runs/sweep
 
-Each cell is one run, `hercs up --task T --method M --seed S --run T-M-sS` (`T-M-lockstep-sS`
-with `--schedule lockstep`; `T-M-bf16-sS` with `--precision bf16`; `T-v1-M-sS` with
-`--env-version v1`, the authors' Fetch*-v1 on mujoco-py after `make mujoco-py`; `T-M-NAME-sS`
-for a `--variant NAME:FIELD=VALUE,...`, whose overrides only its runs get), under `--run-dir`
-(default `runs/sweep`). A sweep is resumable: a run whose `bench_done.json` exists is skipped;
-a run folder without it (the sweep was stopped while the run trained) is continued with
-`hercs up --resume` from its last checkpoint (a folder with no saved config is moved aside to
-`<run-dir>/_unfinished/`). Runs go `--jobs` at a time (default: one per core, since each run
-is bound by its learner's one torch thread), each with its own router port. Cells run
-seed-major, so that every arm has the same number of finished seeds as early as possible.
-`<run-dir>/sweep.json` is the manifest: every cell, its state, and for a finished one the
-commit and machine it was trained with.
-
-`--committed DIR` holds the small files of every finished run (`config.yaml`, `metrics.csv`,
-`bench_done.json`, and the first best policy of each cell), copied there when a run ends so
-that they can be committed at once. A cell whose folder there has `bench_done.json` counts as
-done on any machine (the sweep continues elsewhere), and the report reads a run from the run
-directory or, when it is not there, from the committed folder.
-
-When the sweep is done (or with `--report-only`; `hercs sweep report RUN_DIR` reads the
-manifest), it writes per task `<task>.png` and `<task>.md` (`<task>-v1.*` for a v1 sweep):
-our milestone table next to the authors' (docs/DESIGN.md §5) and, over the seeds of each arm,
-the IQM of the success after the last epoch every run reached with its 95 % bootstrap
-interval, and the probability that a run of one arm beats a run of another
-(`hercs.apps.sweep_stats`), with the command, dates, commits and machines.
-
-`--quick` is the CI mode: a tiny sweep (default Reach, 1 epoch of 2 cycles) into a temporary
-folder, checking that the whole path — launch, resume, plot, report — still works.
-
-`--slurm` submits one job array task per unfinished cell instead (`hercs.apps.sweep_slurm`).
+A sweep is resumable: a finished run (`bench_done.json`) is skipped, an unfinished one resumed
+from its checkpoint. Runs go `--jobs` at a time, one per core by default since each run is
+bound by its learner's one torch thread, and seed-major, so every arm has the same number of
+finished seeds as early as possible. `<run-dir>/sweep.json` is the manifest. `--committed DIR`
+keeps each finished run's small files to commit; the report reads them when a run is not
+local. `--quick` is the CI mode; `--slurm` submits a job array (`hercs.apps.sweep_slurm`).
 """
 
 from __future__ import annotations

@@ -1,27 +1,17 @@
 """The clusterer process (`hercs clusterer`): a thin Zenoh shell around
 `hercs.clusterer.clusterer_core`.
 
-What `run` does:
-- subscribes to `keys.inserted` (one `EpisodeHeader` per stored episode). The subscription
-  thread only parses and checks each header (schema, finite goal_dim-vectors) and appends
-  (ag_T, g) to an inbox; a bad header is counted by reason, logged once per reason per minute
-  and skipped. Refits (k-means, tens of ms or more) run on the main loop, never on the
-  subscription thread, so Zenoh's receive path is never held up.
-- the main loop feeds each pair to `Clusterer.observe`; when it returns a new model, that
-  model is published as `ClusterModel(version, centroids, fitted_on, failures_seen)` on
-  `keys.cluster_model` with `latest=True`, so a replay that joins (or restarts) later gets it
-  at once.
-- methods without clusters (`her`, `her-ebp`): the process runs the same way (the topology is
-  uniform) and counts episodes and failures for its metrics, but never fits nor publishes a
-  model: nobody would use it, and skipping k-means keeps a core free.
-- metrics (episodes seen, failed goals seen, refits, model version, rejects) about once per
-  `METRICS_PERIOD_S` while headers arrive, and after each refit.
-- on start it asks the replay for `replay/clusterer_state` (retrying until the replay
-  answers): the newest failed goals, the failure and episode counts and the version of the
-  model the replay uses. A restarted clusterer thus refills its buffer, continues the counts
-  and numbers its next model after the run's latest (the replay ignores versions it has
-  seen); headers of episodes the snapshot already counted are skipped.
-- SIGTERM/SIGINT: the loop ends within `_POLL_S`, the transport closes, exit 0.
+`run` subscribes to `keys.inserted`; the subscription thread only parses and checks each
+`EpisodeHeader` and queues (ag_T, g), while `Clusterer.observe` and its k-means refits (tens of
+ms or more) run on the main loop, so Zenoh's receive path is never held up. A bad header is
+counted by reason, logged once per reason per minute and skipped. Each new model is published
+on `keys.cluster_model` with `latest=True`, so a replay that starts later gets it at once.
+For `her` and `her-ebp` the process runs all the same (the topology is uniform) but only
+counts: no one would use a model, and skipping k-means keeps a core free (docs/DESIGN.md §4.4).
+
+On start it asks the replay for `replay/clusterer_state`, so a restarted clusterer continues
+its failed-goal buffer, counts and model numbering (docs/DESIGN.md §8); headers the snapshot
+already counted are skipped.
 """
 
 from __future__ import annotations

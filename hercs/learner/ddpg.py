@@ -1,39 +1,17 @@
 """DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
 
-Notation (the DDPG paper's): μ actor, Q critic, μ' and Q' their target copies, s = [o, g]
-normalised, s' = [o', g] (the goal does not change within a transition), γ discount.
+`DDPGLearner.update(batch)` is one of the reference's `_update_network` calls: the clipped TD
+target from the target networks, the critic's and the actor's losses from the same parameters,
+then an Adam step on each; `update_targets()` is the once-per-cycle Polyak average. The
+formulas are in docs/DESIGN.md §4.6. The normalisers live in the replay, which sees every
+episode; the learner only adopts the statistics it is sent and forwards them with the weights.
 
-One `update(batch)` is one of the reference's `_update_network` calls:
-
-    y   = clip(r + γ · Q'(s', μ'(s')), −1/(1−γ), 0)                       (clip_return)
-
-(the clip's bounds are the task's: [r_min/(1−γ), r_max/(1−γ)], `return_bounds`)
-    L_Q = mean (y − Q(s, u))²
-    L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s) / max_action)²
-    Adam step on L_μ (actor), then Adam step on L_Q (critic)
-
-Both losses are computed from the parameters before either step, as in the reference.
-`update_targets()` is the once-per-cycle Polyak average θ' ← polyak·θ' + (1−polyak)·θ.
-
-The normalisers live in the replay (it sees every stored episode); the learner only adopts the
-statistics it is sent (`set_normalizer_state`) and forwards them with the actor weights.
-
-Threads: this module never calls `torch.set_num_threads`; that process-wide choice belongs
-to the service (on the 2-core development machine, 1–2 threads for the learner).
-
-Precision (`learner.precision`): with bf16 the online networks' passes run under
-`torch.autocast(dtype=bfloat16)`; the master weights and Adam stay fp32, the TD target y is
-computed by the target networks in fp32, and the losses are formed in fp32 from the
-networks' outputs cast back. With tf32 every matrix product of the step (forward, target and
-backward) rounds its operands to TF32 first, as the authors' GPU did (`hercs/learner/tf32.py`). With
-fp32 nothing changes.
-
-Device (`learner.device`, `resolve_device`): the networks are created and seeded on the CPU,
-so a run's initial weights do not depend on the device, then moved. A minibatch goes to the
-device as one pinned host copy per array (`non_blocking`, so the copy overlaps the previous
-step on a GPU); weights come back to the host only when asked for (`actor_weights`, once per
-cycle for the broadcast) and checkpoints are written with host tensors, so they load on any
-machine.
+Precision (`learner.precision`, bf16 or tf32 via `hercs/learner/tf32.py`) and device
+(`learner.device`, `resolve_device`) are as docs/DESIGN.md §4 describes: networks are created
+and seeded on the CPU, so a run's initial weights do not depend on the device, and checkpoints
+hold host tensors, so they load on any machine. A minibatch goes to the device as one pinned,
+non-blocking copy per array, overlapping the previous step on a GPU. This module never sets
+torch's thread count: that process-wide choice belongs to the service (docs/DESIGN.md §10).
 """
 
 from __future__ import annotations

@@ -1,20 +1,12 @@
 """TF32 arithmetic of matrix products, emulated on any device (`learner.precision=tf32`).
 
-The authors trained on a GPU with torch 1.10, where a float32 matrix product on an Ampere (or
-newer) GPU ran in TF32 by default (torch 1.7–1.11; `torch.backends.cuda.matmul.allow_tf32`
-became False in 1.12): each input is rounded to TF32's 10 explicit mantissa bits (fp32 keeps
-23), the products are summed in fp32. Everything else (element-wise ops, Adam, the losses)
-stayed fp32. `TF32Products` reproduces that on any device: inside it, every matrix product
-torch dispatches — forward and backward, since the mode is below autograd — rounds its
-float32 operands to TF32 first and then multiplies in fp32.
-
-Rounding: to nearest, ties to even, on the magnitude's bit pattern (add just under half a
-unit of the 13 dropped bits plus the kept last bit, clear them). Measured on an H200 (torch
-2.11, cuBLAS): against its own TF32 products of random 64–1024-square matrices, this rule
-leaves 1e-7 to 4e-6 of the largest entry (summation order alone), where ties away from zero
-leaves 4e-5 to 7e-5, truncation 9e-4 and plain fp32 3e-4 (docs/results/learner_cuda.md).
-Infinities and NaNs pass unchanged; a finite value within half a TF32 unit of the largest
-float rounds to infinity, as the hardware's would.
+The authors trained with torch 1.10 on a GPU, where a float32 matrix product on an Ampere or
+newer GPU ran in TF32 by default: each input rounded to TF32's 10 explicit mantissa bits (fp32
+keeps 23), the products summed in fp32, everything else (element-wise ops, Adam, the losses)
+fp32. `TF32Products` reproduces that on any device: inside it, every matrix product torch
+dispatches (forward and backward, since the mode is below autograd) rounds its float32
+operands with `round_to_tf32` and then multiplies in fp32. The rounding rule was chosen to
+match cuBLAS's own TF32 products (docs/results/learner_cuda.md).
 """
 
 from __future__ import annotations
@@ -42,7 +34,13 @@ arguments are the multiplied operands."""
 
 def round_to_tf32(tensor: torch.Tensor) -> torch.Tensor:
     """A float32 tensor with each value rounded to TF32 (10 mantissa bits), still float32;
-    other dtypes are returned as they are."""
+    other dtypes are returned as they are.
+
+    To nearest, ties to even, on the magnitude's bit pattern: add just under half a unit of
+    the 13 dropped bits plus the kept last bit, then clear them (the rule of cuBLAS's own
+    TF32 products, docs/results/learner_cuda.md). Infinities and NaNs pass unchanged; a
+    finite value within half a TF32 unit of the largest float rounds to infinity, as the
+    hardware's would."""
     if tensor.dtype != torch.float32:
         return tensor
     bits = tensor.contiguous().view(torch.int32)

@@ -1,19 +1,16 @@
 """When a client's session has gone blind: the rule behind `Transport`'s session reopen.
 
-After a link cut longer than Zenoh's lease, a client session reconnects to its router by
-itself, and the router should send it the declarations it missed. Zenoh has open reports of
-sessions where that does not happen (eclipse-zenoh/zenoh#2767: after a reconnect, a query
-returns zero replies at once; ros2/rmw_zenoh#1029: a client never discovers a reachable
-queryable): the session is connected, yet finds no queryable for a key, and nothing inside
-Zenoh ever repairs it. Reopening the session (a new session id, so the router sends every
-declaration afresh) does.
+After a cut longer than Zenoh's lease a client session reconnects by itself, and the router
+should resend the declarations it missed. Zenoh has open reports where it does not
+(eclipse-zenoh/zenoh#2767, ros2/rmw_zenoh#1029): the session is connected yet finds no
+queryable for a key, and nothing inside Zenoh repairs it. Reopening the session (a new session
+id, so the router sends every declaration afresh) does (docs/DESIGN.md §3, "Threads").
 
-`Rediscovery` decides when: a key that was answered before on this transport has found no
-queryable for `after_s` while the session had a router, so the queryable is most likely
-there and the session does not see it. A queryable that is really gone (a replay being
-restarted) looks the same from here, so a streak's reopens back off, doubling up to
-`max_after_s`; an answer on the key ends the streak. A key never answered (an actor started
-before its run) never triggers a reopen: there is nothing it has lost.
+`Rediscovery` decides when: a key answered before on this transport has found no queryable for
+`after_s` while the session had a router. A queryable really gone (a replay restarting) looks
+the same from here, so a streak's reopens back off, doubling up to `max_after_s`; an answer on
+the key ends the streak. A key never answered (an actor started before its run) never triggers
+a reopen: there is nothing it has lost.
 """
 
 from __future__ import annotations

@@ -1,33 +1,16 @@
 """Who may join a run and what each role may do: Zenoh TLS, user/password and access control.
 
-Threat model and set-up: docs/SECURITY.md. In short, every hercs process authenticates as its
-*role* (`replay`, `learner`, `clusterer`, `evaluator`, `actor`, `live`):
+Threat model and set-up: docs/SECURITY.md. Every hercs process authenticates as its role
+(`ROLES`) by a certificate of the run's CA whose common name is the role (mutual TLS,
+`security.tls_*`), a `user:password` line of `security.credentials`, or both. Whenever the
+router authenticates clients it also enforces access control: deny by default, and each role
+may publish, subscribe, query or serve only its own keys (`ROLE_GRANTS`), so an actor can
+insert episodes and read weights but cannot publish weights, models or results nor serve a
+replay key. A router listening beyond loopback without TLS is refused (`listen_problem`) unless
+`security.allow_insecure` says the network is trusted.
 
-- **mutual TLS** (`security.tls_ca/tls_cert/tls_key`): the router and every client present a
-  certificate signed by the run's CA; a client's certificate common name is its role
-  (`hercs certs` makes them). A client without one, or with one from another CA, cannot open a
-  session at all.
-- **user/password** (`security.credentials`, lines `user:password`): the router reads the
-  whole file as its dictionary; a client uses the line whose user is its role (or the file's
-  only line). Usable with or without TLS (without TLS, passwords cross the network in clear).
-- **access control** on the router, on whenever the router authenticates clients: deny by
-  default, and each role may publish, subscribe, query or serve only its own keys
-  (`ROLE_GRANTS`). An actor can insert episodes and read weights, but cannot publish weights,
-  cluster models or eval results, nor register a replay queryable; denied messages are
-  dropped by the router silently.
-
-A router that listens on a non-loopback address without TLS is refused (`listen_problem`)
-unless `security.allow_insecure` says the network is trusted.
-
-Facts this rests on (eclipse-zenoh 1.10.2, verified on loopback): the TLS keys are
-`transport/link/tls/{root_ca_certificate, listen_certificate, listen_private_key,
-connect_certificate, connect_private_key, enable_mtls}`, and a client must set
-`enable_mtls` too or it does not present its certificate; the ACL's flows are seen from the
-router (ingress: client → router); a rule grants the product of its messages and flows, so
-each grant below is split by flow; a declared publisher also needs `declare_subscriber`
-egress and a declared querier `declare_queryable` egress (both learn their matches); the
-verbatim `@adv` chunk of zenoh-ext's advanced publisher keys is matched by no `**`, so those
-keys are granted explicitly.
+The Zenoh configuration keys and ACL semantics this rests on (eclipse-zenoh 1.10.2) are noted
+at `zenoh_settings` and `access_control`.
 """
 
 from __future__ import annotations
@@ -162,7 +145,14 @@ ROLE_GRANTS: dict[str, list[tuple[str, list[str]]]] = {
 def access_control(*, by_certificate: bool, by_user: bool) -> dict[str, Any]:
     """The router's `access_control` section: deny by default, `ROLE_GRANTS` per role. A
     client is matched by its certificate's common name and/or its user name (both must
-    equal the role when both are configured)."""
+    equal the role when both are configured).
+
+    Zenoh's ACL (1.10.2, verified on loopback): flows are seen from the router (ingress:
+    client → router); a rule grants the product of its messages and flows, so each grant is
+    split by flow (`_GRANTS`); a declared publisher also needs `declare_subscriber` egress and
+    a declared querier `declare_queryable` egress (both learn their matches); the verbatim
+    `@adv` chunk of zenoh-ext's advanced publisher keys is matched by no `**`, so those keys
+    are granted explicitly (`_ADV`). Denied messages are dropped by the router silently."""
     if not (by_certificate or by_user):
         raise ValueError("access control needs an identity: certificates or users")
     rules: list[dict[str, Any]] = []
@@ -218,7 +208,12 @@ def _readable(what: str, path: str) -> str:
 def zenoh_settings(security: SecurityConfig, *, mode: str, role: str | None,
                    endpoints: Sequence[str]) -> dict[str, Any]:
     """The Zenoh config entries (`insert_json5` key → value) that `security` asks for, for a
-    router (`mode='router'`) or a client of `role`."""
+    router (`mode='router'`) or a client of `role`.
+
+    The TLS keys (eclipse-zenoh 1.10.2) are `transport/link/tls/{root_ca_certificate,
+    listen_certificate, listen_private_key, connect_certificate, connect_private_key,
+    enable_mtls}`; a client must set `enable_mtls` too, or it does not present its
+    certificate."""
     settings: dict[str, Any] = {}
     tls = bool(security.tls_cert or security.tls_key or security.tls_ca)
     if tls:

@@ -1,34 +1,16 @@
 """Trajectory energy of energy-based prioritisation (EBP, Zhao & Tresp 2018).
 
-From the achieved-goal (object) trajectory ag_0..ag_T, with m, g, Δt and the weights from
-`EnergyConfig`, for steps t = 1..T:
+From the achieved-goal trajectory ag_0..ag_T, each transition's gain in potential plus kinetic
+energy, clipped to [0, clip_energy], summed over t = 1..T: docs/DESIGN.md §4.5 gives the
+formulas, and `transition_energy` says where they follow the reference code line by line.
+The replay computes it once per episode on insert, in float64 as the reference's buffers are.
 
-    U_t = m·g·(z_t − z_0)                         potential, relative to the start height
-    K_t = ½·m·‖(ag_t − ag_{t−1}) / Δt‖²           kinetic, from the step's finite difference
-    E_t = w_potential·U_t + w_kinetic·K_t         total energy after transition t
-
-    e_1 = clip(E_1, 0, clip_energy)               the first transition's energy is its total
-    e_t = clip(E_t − E_{t−1}, 0, clip_energy)     t = 2..T: only energy gains count
-    trajectory energy = Σ_{t=1..T} e_t
-
-This is exactly the reference's `ReplayBufferEnergy.store_episode` (repository
-ruizhaogit/EnergyBasedPrioritization, baselines/her/replay_buffer.py, Fetch branch): heights
-``ag[:, 1:, 2] − ag[:, 0, 2]``, velocities ``np.diff(ag, axis=1) / Δt`` summed over the three
-axes, ``energy_transition = energy_total`` with ``[:, 1:]`` replaced by ``np.diff(energy_total)``,
-then ``np.clip(…, 0, clip_energy)`` and a sum over time. Their defaults are m = 1, g = 9.81,
-Δt = 0.04, both weights 1; clip_energy 0.5 is their PickAndPlace setting. Computed in float64
-(the reference's buffers are float64).
-
-Beyond Fetch (`TaskSpec.energy`, hercs.rl.task_registry.ENERGIES):
-- `points`: an achieved goal of k 3-d points (Fetch: k = 1, the object; HandReach: k = 5, the
-  fingertips) gives each point the terms above and sums them: U_t = m·g·Σ_i (z_it − z_i0),
-  K_t = ½·m·Σ_i ‖Δag_i/Δt‖². Our extension for HandReach (the EBP paper has no energy for it).
-- `hand`: a position then a (w, x, y, z) quaternion (the hand manipulation tasks): the
-  position's U_t and K_t, plus the reference's rotational term R_t = ½·I·‖Δθ/Δt‖² over the
-  Euler angles θ = (roll, pitch, yaw) of the quaternion, weighted by `w_rotational` (the
-  reference's hand branch, clip 2.5 for its hand tasks: `--set energy.clip_energy=2.5`). As
-  in the reference, the angles are not unwrapped: a crossing of ±π counts as a fast turn, and
-  the clip bounds what it can add.
+Beyond Fetch (`TaskSpec.energy`, hercs.rl.task_registry.ENERGIES): `points`, an achieved goal
+of k 3-d points (HandReach's five fingertips), sums the terms over its points, our extension
+since the EBP paper has no energy for such tasks; `hand`, a position then a (w, x, y, z)
+quaternion, adds the EBP reference's rotational term over Euler-angle rates, weighted by
+`w_rotational`. As in the reference the angles are not unwrapped: a crossing of ±π counts as a
+fast turn, and the clip bounds what it can add.
 """
 
 from __future__ import annotations
@@ -41,7 +23,15 @@ from hercs.errors import ConfigError
 
 def transition_energy(ag: np.ndarray, config: EnergyConfig, kind: str = "points") -> np.ndarray:
     """Clipped per-transition energies e_1..e_T: shape (..., T) from ag of shape
-    (..., T+1, goal_dim): goal_dim = 3k for `points`, 7 for `hand`."""
+    (..., T+1, goal_dim): goal_dim = 3k for `points`, 7 for `hand`.
+
+    Exactly the reference's `ReplayBufferEnergy.store_episode` (repository
+    ruizhaogit/EnergyBasedPrioritization, baselines/her/replay_buffer.py, Fetch branch):
+    heights ``ag[:, 1:, 2] − ag[:, 0, 2]``, velocities ``np.diff(ag, axis=1) / Δt`` summed over
+    the three axes, ``energy_transition = energy_total`` with ``[:, 1:]`` replaced by
+    ``np.diff(energy_total)``, then ``np.clip(…, 0, clip_energy)``. Their defaults are m = 1,
+    g = 9.81, Δt = 0.04, both weights 1; clip_energy 0.5 is their PickAndPlace setting, and
+    2.5 their hand tasks' (`--set energy.clip_energy=2.5`)."""
     ag = np.asarray(ag, dtype=np.float64)
     if kind not in ("points", "hand"):
         raise ConfigError(f"energy: a task with energy {kind!r} has no trajectory energy")

@@ -1,22 +1,15 @@
 """HER "future" relabelling as pure vectorised functions (no environment, injected RNG).
 
-Matches `her_sampler.sample_her_transitions` of the public PyTorch HER implementation the
-paper builds on (the same code is in the HER-CS authors' her_modules/her.py), with
-the same draws in the same order (the reference uses the global np.random; we take a Generator):
+Matches `her_sampler.sample_her_transitions` of the public PyTorch HER code the paper builds
+on (the same code is in the HER-CS authors' her_modules/her.py), with the same draws in the
+same order (`her_indices`), so a seeded run draws what the reference would; the reference uses
+the global np.random, we take a Generator. The rule is in docs/DESIGN.md §4.2.
 
-    t          ~ U{0, …, T−1}                            rng.integers(T, size=B)
-    her_mask   = U[0,1) < future_p,  future_p = 1 − 1/(1+replay_k)   (0.8 for k = 4)
-    future_t   = t + 1 + ⌊U[0,1) · (T − t)⌋             ∈ [t+1, T]
-    g          ← ag[future_t]  where her_mask
-    r          = reward_fn(ag_{t+1}, g)                  the env's vectorised compute_reward
-
-`reward_fn` is `TaskSpec.compute_reward` (hercs.rl.task_registry.fetch_reward), tested equal to
-`env.unwrapped.compute_reward`; the replay never holds an environment.
-
-`future_t` can be T because ag has T+1 entries (ag_T is the achieved goal after the last
-action). Transitions are `hercs.wire.batch.TransitionBatch` (o_t, g, u_t, r_t, o_{t+1}). Which
-*episodes* go into the batch is the samplers' job (hercs.replay_service.samplers); this module takes
-their slots.
+Rewards come from `reward_fn`, `TaskSpec.compute_reward`, tested equal to the env's own, so the
+replay never holds an environment. `future_t` can be T because ag has T+1 entries (ag_T is
+the achieved goal after the last action). Transitions are `hercs.wire.batch.TransitionBatch`
+(o_t, g, u_t, r_t, o_{t+1}); which episodes go into a batch is the samplers' job
+(hercs.replay_service.samplers): this module takes their slots.
 """
 
 from __future__ import annotations

@@ -1,22 +1,16 @@
 """The bound on policy lag in the asynchronous schedule (`training.max_policy_lag`).
 
 An episode's policy lag is its cycle in the lockstep schedule
-(`hercs.replay_service.lockstep.schedule_cycle`
-of the id it is stored under) minus the weights version it was acted with: 0 in lockstep,
-where cycle c's episodes are acted with version c. Asynchronously it grows with everything
-that lets episodes be stored before their weights exist: the rate limiter's surplus, the
-learner's prefetched batches, the actor's queue (docs/DESIGN.md §9.1).
+(`hercs.replay_service.lockstep.schedule_cycle` of its id) minus the weights version it was
+acted with. Asynchronously it grows with whatever lets episodes be stored before their weights
+exist: the limiter's surplus, prefetched batches, the actor's queue (docs/DESIGN.md §9.1).
 
-With a bound L the replay checks each insert when the rate limiter admits it (so the cycle it
-would get is known): it is refused as `stale_policy` when its lag would pass L *and* it was
-acted with weights older than the learner's newest (the version of the latest sample request).
-An episode acted with the newest weights is always admitted: the bound can never hold every
-actor back while the learner waits for their episodes, whatever the limiter and prefetch allow,
-and it still is when a restarted learner counts from an older version. A refused episode was
-never stored nor acknowledged (nothing acked is dropped); the actor drops it and acts the next
-with newer weights. Acks carry the oldest version the actor's next episode may use, so actors
-wait for weights instead of acting episodes that would be refused.
-
+With a bound L an insert is checked when the rate limiter admits it, when its cycle is known:
+it is refused `stale_policy` if its lag would pass L and it was acted with weights older than
+the learner's newest. One acted with the newest weights is always admitted, so the bound can
+never hold every actor back while the learner waits for their episodes, nor after a learner
+restart. A refused episode was never stored or acked; acks carry the oldest version the next
+episode may use, so actors wait for weights instead of acting episodes that would be refused.
 Pure bookkeeping under the table's lock.
 """
 

@@ -1,28 +1,15 @@
 """The lockstep gate: the replay's admission rules when `training.schedule` is `lockstep`.
 
-It replaces the rate limiter's window (docs/DESIGN.md §9.1). The learner asks for cycle c's
-batch with `SampleRequest.weights_version = c`, the version it would broadcast after cycle
-c − 1. Then:
-
-- an insert acted with version p is refused as `stale_policy` when p is below the newest
-  version the learner has asked with (the actor was slower than a broadcast), and as
-  `cycle_full` when version p already has `episodes_per_cycle` episodes admitted; otherwise it
-  is admitted at once (nothing waits: the actors wait for weights instead);
-- cycle c's request is served once `episodes_per_cycle` episodes acted with version c are
-  stored and, for the cluster-balanced methods, once no refit is due: the reference refits
-  k-means in the same process, before the next update, when `cluster.fgb_size` new failed
-  goals have arrived since the last fit, so a model is due once the replay's failure count
-  reaches the current model's fit point (its `failures_seen`) plus `fgb_size`
-  (`fgb_size` for the first). The clusterer is a separate process that may be restarting:
-  once cycle c has waited `cluster_wait_s` since it was first asked for, it is served with
-  the model at hand, counted in `late_cluster_models`, and no later cycle waits again for
-  that same refit.
-
-After a learner restart from its checkpoint, the versions it asks for again already have
-their episodes: those cycles are trained again, on the buffer as it is then (which also holds
-the later cycles' episodes), with weights that differ from the dead learner's of the same
-version number. After a replay restart the per-version counts are rebuilt from the recovered
-episodes (`recover`).
+It replaces the rate limiter's window (docs/DESIGN.md §9.1, which states the rules). The
+learner asks for cycle c's batch with `SampleRequest.weights_version = c`; the gate admits an
+insert at once or refuses it (`stale_policy` for weights older than the learner's newest
+request, `cycle_full` beyond `episodes_per_cycle` for its version), so nothing waits here: the
+actors wait for weights instead. Cycle c is served once its episodes are stored and, for the
+clustered methods, once no refit is due, since the reference refits in-process before the
+next update. The clusterer is a separate process that may be restarting, so a cycle waits for
+a refit at most `cluster_wait_s` (counted in `late_cluster_models`) and no later cycle waits
+for that refit again. After a replay restart the per-version counts are rebuilt from the
+recovered episodes (`recover`).
 
 Pure bookkeeping under the table's lock; it never blocks.
 """

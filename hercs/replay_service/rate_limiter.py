@@ -1,23 +1,13 @@
 """Sample-to-insert rate limiter (Reverb's SampleToInsertRatio, restated for hercs).
 
-Let I be the episodes inserted, S the minibatches sampled and ρ = updates_per_episode (samples
-per insert). The limiter tracks the surplus
-
-    d = ρ·I − S
-
-(how many minibatches the learner is owed) and keeps it inside a window around its value at
-the moment sampling may begin, ρ·N_min, with half-width E (the error buffer):
-
-    d_min = ρ·N_min − E,   d_max = ρ·N_min + E.
-
-An insert is admitted while d + ρ ≤ d_max (else the actor waits: the learner is behind);
-a request for n minibatches is admitted once I ≥ N_min and d − n ≥ d_min (else the learner
-waits: actors are behind). So over any stretch |S − ρ·I| stays within E + n + ρ of the target
-line, i.e. updates per episode stay at ρ up to a bounded error that vanishes relative to I.
-
-A window narrower than one request plus one insert could hold both sides at once, so the
-constructor refuses it: 2E ≥ n_max + ρ. With `free_run` everything is admitted (the counts are
-still kept for the status).
+With I episodes inserted, S minibatches sampled and ρ = updates_per_episode, the limiter keeps
+the surplus d = ρ·I − S (the minibatches the learner is owed) inside a window of half-width E
+around ρ·N_min, its value when sampling may begin: an insert is admitted while the window has
+room for it (else the actor waits), a request for n minibatches once I ≥ N_min and the window
+allows it (else the learner waits). So updates per episode stay at ρ up to a bounded error
+(docs/DESIGN.md §4.7). A window narrower than one request plus one insert could hold both
+sides at once, so the constructor refuses 2E < n_max + ρ. With `free_run` everything is
+admitted and the counts are still kept for the status.
 
 The object is pure bookkeeping: it never blocks. The replay service parks queries that are not
 admitted and retries them after every insert or sample.

@@ -3,31 +3,15 @@
 It decodes and validates each query, hands it to the table with a waiter that answers the
 query (now or, when the rate limiter holds it, later), and encodes what the waiter is given.
 Every decision (dedup, parking, admission order, expiry, durable logging before the ack) is
-the table's (`hercs.replay_service.table`).
+the table's (`hercs.replay_service.table`). Queries are served on our own worker threads, never
+inside Zenoh callbacks. The keys it serves, puts and subscribes to are docs/DESIGN.md §3's
+table; `replay/status` is put about once a second, and parked calls past their caller's
+timeout are answered `expired` at the same pace.
 
-Queries (served on our own worker threads, never inside Zenoh callbacks):
-- `replay/insert` (Episode → InsertAck): validated against the task, then `table.insert`; a
-  stored episode's `EpisodeHeader` is put on `replay/inserted` after its ack. A call parked
-  longer than the actor's `actor.insert_timeout_s` is answered `expired` (the actor retries).
-- `replay/sample` (SampleRequest → Batch): validated, then `table.sample`; a request the
-  limiter could never admit is refused (`bad_value`); one parked longer than the learner's
-  `replay.sample_timeout_s` is answered `expired`.
-- `config`: the run's resolved config as YAML (remote actors start from it).
-- `replay/clusterer_state` (ClustererStateRequest → ClustererState): the newest failed goals
-  (up to `cluster.fgb_size`), failure and episode counts and the adopted model's version, so
-  that a restarted clusterer continues the run.
-- `replay/episode` (EpisodeRequest → Episode): one stored episode by id, as inserted (the live
-  view draws every n-th episode's trajectory from it). An id never inserted or already
-  overwritten by the ring gets the error reply `unknown_episode` (a miss, not counted as a
-  reject); a malformed request is a reject like any other.
-Subscriptions: `cluster/model` (latest, so a restarted replay gets the current model at once)
-and `eval/result` (logged). `replay/status` is put about once a second, and parked calls past
-their deadline are expired at the same pace.
-
-On start the episode log of the run directory is replayed into the table (from its newest
-saved replay state on, if it has one: a bounded log, `replay.log_max_bytes`), so nothing acked
-is lost across a restart; the rate limiter restarts balanced at the recovered size, and the
-newest cluster model of the log is adopted again.
+On start the run directory's episode log is replayed into the table (from its newest saved
+replay state on, for a bounded log), so nothing acked is lost across a restart; the rate
+limiter restarts balanced at the recovered size and the log's newest cluster model is adopted
+again (docs/DESIGN.md §6, §8).
 """
 
 from __future__ import annotations

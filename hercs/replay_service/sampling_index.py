@@ -1,21 +1,15 @@
 """What the samplers draw from, kept up to date as episodes come, go and are relabelled.
 
-A draw used to rebuild its structures from the whole store on every minibatch: a bincount and
-an argsort of the labels for the cluster shares, a cumulative sum of the energies for EBP, so
-O(N) work per minibatch. `SamplingIndex` keeps them instead:
-
-- per-cluster member lists (slots, with each slot's position for an O(1) swap-remove) and
-  counts, updated on every insert, eviction and relabel: HER-CS's plan and its uniform
-  within-cluster draws are O(k + B) per minibatch, with no rebuild ever;
-- the cumulative sums of energy + ε along each row (row 0: every stored slot; row c+1:
-  cluster c's members, in member-list order), computed once after a write and reused by
-  every draw until the next write: an energy-weighted draw is one binary search per entry,
-  O(B log N). The
-  replay serves a SampleRequest's 40 minibatches in one go, and the paper's schedule inserts
-  one episode per 10 minibatches, so the O(N) recomputation is paid at most once per
-  request. (Kept incrementally instead, as sum trees, a draw costs ~20-60 small numpy calls
-  per minibatch whatever the writes: measured 2-3× slower than this at 20,000 episodes, so
-  trees would pay only for much larger buffers.)
+Rebuilding it from the whole store for every minibatch would cost O(N) per draw;
+`SamplingIndex` keeps instead: per-cluster member lists (slots, each with its position for an
+O(1) swap-remove) and counts, updated on every insert, eviction and relabel, so HER-CS's plan
+and its uniform draws are O(k + B) per minibatch; and the cumulative sums of energy + ε along
+each row (row 0: every stored slot; row c+1: cluster c's members, in member-list order),
+recomputed once after a write and reused by every draw until the next, so an energy-weighted
+draw is one binary search per entry, O(B log N). The replay serves a request's 40 minibatches
+in one go and the paper's schedule inserts one episode per 10 minibatches, so the O(N)
+recomputation is paid at most once per request. Sum trees would avoid it but cost more per
+draw at the buffer sizes of the paper (docs/PERFORMANCE.md §5 measures both).
 
 Not thread-safe; the store owning it is called by one thread at a time.
 """

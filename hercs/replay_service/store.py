@@ -1,23 +1,17 @@
 """A preallocated buffer of whole episodes, with per-episode metadata: a FIFO ring, or the
-reference's random overwrite once full.
+reference's random overwrite once full (`replay.eviction`, docs/DESIGN.md §9.2).
 
 Invariants (enforced by `insert` and `restore`):
-- Episode ids are global and monotonic from 0: the n-th inserted episode has id n-1. Episode
-  `id < capacity_episodes` goes to slot `id`; a later one goes to `slot_for(id)`: with
-  `eviction="fifo"` slot ``id % capacity_episodes`` (the oldest episode leaves), with
-  `eviction="random"` a slot drawn uniformly by a hash of (eviction seed, id), as the
-  reference overwrites a random slot (`replay.eviction`). Either way the slot of an id is a
-  pure function of it, so replaying the episode log in id order rebuilds the same buffer.
-- Hence the valid slots are always the prefix ``[0, size)``; every array property returns a
-  read-only view of that prefix (no copy), indexed by slot.
+- Episode ids are global and monotonic from 0. Ids below `capacity_episodes` go to slot `id`,
+  later ones to `slot_for(id)`: ``id % capacity_episodes`` for `fifo`, a slot drawn uniformly
+  by a hash of (eviction seed, id) for `random`. The slot is a pure function of the id, so
+  replaying the episode log in id order rebuilds the same buffer.
+- So the valid slots are always ``[0, size)``; array properties are read-only views of it.
 - Every stored array has the task's shapes (`hercs.wire.episode.expected_shapes`); a mismatch is
   refused before anything is written.
 
 Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
 as slots are written. The store is not thread-safe: the service serialises calls.
-
-Deviation from the reference HER buffer by default: once full, the reference overwrites
-*random* slots; `fifo` (the default) overwrites the oldest episode (docs/DESIGN.md §9.2).
 """
 
 from __future__ import annotations

@@ -1,29 +1,16 @@
 """The inserts waiting for the rate limiter, admitted round-robin across actor ids.
 
-While the limiter holds inserts, the order in which it takes the waiting ones decides who
-gets the insert capacity. In arrival order (one FIFO) an actor with k inserts waiting ahead
-of another actor's one takes k admissions first: an actor that sends many inserts at once
-(a misbehaving client, several senders under one id) takes nearly all of the capacity, and
-the others' inserts wait until their callers time out.
-
-Round-robin: a FIFO per actor id and a ring of the actor ids that have inserts waiting.
-Each admission takes the oldest insert of the actor at the head of the ring and moves that
-actor to the tail (or out of the ring, if nothing of it waits any more); an actor whose
-first insert arrives joins at the tail. So with m actors waiting, an actor's oldest insert
-is admitted after at most m − 1 admissions of other actors' inserts, however many inserts
-each of them has waiting: every actor with inserts waiting gets one admission in m. An
-actor that alone has inserts waiting is admitted in arrival order, as with one FIFO.
-
-Bound: at most `per_actor` inserts of one actor id wait. `refusal` answers one more with
-`actor_queue_full`, a retry (hercs.reasons): the actor's inserter backs off (0.1 s
-doubling to 2 s) and sends the same bytes again, so nothing is lost, the flooding actor is
-slowed by its own backoff, and what the waiting inserts hold in memory is bounded by
-actors × `per_actor` × the largest message. An inserter delivers one episode at a time
-(hercs.actors.inserter), so a well-behaved actor never has more than one waiting. A retry of a
-waiting (actor_id, seq) joins that call (hercs.replay_service.table) and is never refused here.
-
-`per_actor = 0` turns fair sharing off: one FIFO in arrival order and no bound (what the
-replay did before, kept for the side-by-side measurement, bench/fair_share.py).
+While the limiter holds inserts, the order in which it takes the waiting ones decides who gets
+the insert capacity. In arrival order an actor with many inserts waiting (a misbehaving client,
+several senders under one id) takes nearly all of it and the others' inserts time out, so
+`WaitingInserts` keeps a FIFO per actor id and a ring of the actors with inserts waiting:
+with m actors waiting, each gets one admission in m, however many inserts the others have
+waiting (docs/DESIGN.md §3, "Fair sharing between actors"). An actor alone is admitted in
+arrival order. At most `per_actor` inserts of one actor id wait; `refusal` answers one more
+with `actor_queue_full`, a retry, so the flooder is slowed by its own backoff and the waiting
+inserts' memory stays bounded. A retry of a waiting (actor_id, seq) joins that call
+(hercs.replay_service.table) and is never refused here. `per_actor = 0` is one FIFO in arrival
+order with no bound, kept to measure the difference (bench/fair_share.py).
 """
 
 from __future__ import annotations

@@ -1,26 +1,16 @@
 """Any goal-conditioned environment as a hercs task: its spec read from the environment, its
 reward and success rule from the environment's own functions.
 
-The goal interface (what HER needs, as in gymnasium-robotics and Stable-Baselines3's HER):
-
-- a dict observation space with `observation`, `achieved_goal` and `desired_goal` (1-d
-  boxes; the two goals of one size);
-- a 1-d box action space symmetric about 0 with one bound for every dimension (the actor's
-  tanh output is scaled by it);
-- a fixed horizon: `max_episode_steps` in the registry, or a `TimeLimit` wrapper (episodes
-  are T steps; an env that terminates early is not supported);
-- `compute_reward(achieved_goal, desired_goal, info)` that works on batches (leading axes);
-- `info["is_success"]` on every step.
-
-`inspect_goal_env` makes the environment once, checks all of this and says what is missing
-(ConfigError: `hercs up` exits 2 before it starts any service). Success outside a step (the
-replay's failed-episode count, the clusterer's failed goals) is the env's vectorised
-`_is_success(achieved, desired)` where it has one (gymnasium-robotics' robot envs), else
-"the reward equals the reward of reaching the goal exactly", `compute_reward(g, g)`: right
-for sparse rewards, the setting HER is for.
-
-The reward functions of such a task are an environment instance's (`env_rule`): one per
-process that needs them (replay, clusterer), made once and never stepped.
+`inspect_goal_env` makes the environment once and checks the goal interface HER needs (as in
+gymnasium-robotics and Stable-Baselines3's HER): dict observations with `observation`,
+`achieved_goal` and `desired_goal`; a 1-d action box symmetric about 0 (the actor's tanh
+output is scaled by its bound); a fixed horizon; a batched `compute_reward`; and
+`info["is_success"]`. What is missing is named in a `ConfigError`, so `hercs up` exits 2
+before it starts any service (docs/DESIGN.md §4.9 has the full list and the reward bounds).
+Success outside a step is the env's vectorised `_is_success` where it has one, else "the
+reward equals the reward of reaching the goal exactly": right for sparse rewards, the setting
+HER is for. The reward functions are an environment instance's (`env_rule`): one per process
+that needs them (replay, clusterer), made once and never stepped.
 """
 
 from __future__ import annotations

@@ -6,16 +6,12 @@ The arithmetic is the reference's (`mpi_utils/normalizer.py` of the PyTorch HER 
     std  = sqrt(max(eps², Σv²/n − mean²))
     normalize(v) = clip((v − mean) / std, −clip_range, clip_range)
 
-`update` only accumulates the sums; `mean`/`std` change when `recompute_stats` is called,
-so a policy keeps using one fixed set of statistics between recomputations (the reference
-recomputes once per cycle, after storing the cycle's episodes).
-
-Two deliberate differences from the reference, both invisible after the first few updates:
-the sums are float64 (the reference accumulates float32), and the count starts at 0, not 1
-(the reference divides by n+1 forever). Before any data `mean = 0` and `std = 1`.
-
-`state_dict()` holds exactly the five statistics (sum, sumsq, count, mean, std); it is the
-format the replay sends to the learner and the learner broadcasts to the actors.
+`update` only accumulates the sums; `mean`/`std` change only in `recompute_stats`, so a policy
+uses one fixed set of statistics between recomputations, as the reference's does within a
+cycle. The sums are float64 and the count starts at 0, where the reference's are float32 and
+n+1 (docs/DESIGN.md §9.5); before any data `mean = 0` and `std = 1`. `state_dict()` holds
+exactly the five statistics (sum, sumsq, count, mean, std): the format the replay sends to the
+learner and the learner broadcasts to the actors.
 """
 
 from __future__ import annotations

@@ -1,21 +1,15 @@
 """Which task a name means: `task_spec(task.name, …)` → `TaskSpec` (hercs.rl.task_spec).
 
-The replay never steps an environment (docs/DESIGN.md §4.9): everything it needs about a
-task, the array shapes and the reward, lives in a `TaskSpec`. A task is named by `task.name`:
-
-- a built-in name or gymnasium id (`BUILT_IN`): the Fetch tasks (`reach`, `push`, `pick`,
-  `slide`, or `FetchPush-v4` …), `PointMaze_*-v3` and the Shadow-hand tasks `HandReach-v3`
-  and `HandManipulate{Block,Egg,Pen}*-v1`. Their specs are written here and tested against the
-  real environments; their rewards are vectorised in hercs.rl.task_spec (the `distance` rule, and
-  the `hand` rule of a position and a rotation threshold);
-- any other registered gymnasium id, or `package.module:factory` (a callable returning the
-  environment): the spec is read from the environment itself by `hercs.rl.goal_env`, and rewards
-  and success come from its `compute_reward` (the `env` rule: one instance per process,
-  never stepped).
+The replay never steps an environment: everything it needs about a task, the array shapes and
+the reward, lives in a `TaskSpec` (docs/DESIGN.md §4.9). `task.name` is a built-in name or
+gymnasium id (`BUILT_IN`: the Fetch tasks, `PointMaze_*-v3`, `HandReach-v3`,
+`HandManipulate{Block,Egg,Pen}*-v1`), whose specs are written here and tested against the real
+environments, with rewards vectorised in hercs.rl.task_spec; or any other gymnasium id or
+`package.module:factory`, whose spec `hercs.rl.goal_env` reads from the environment itself.
 
 Each Fetch task exists in two versions with the same shapes, horizon and reward
 (`ENV_VERSIONS`): `Fetch*-v4` on MuJoCo 3 (the default) and the authors' `Fetch*-v1` on
-mujoco-py and MuJoCo 2.1 (`make mujoco-py` installs it).
+mujoco-py and MuJoCo 2.1 (`make mujoco-py` installs it; docs/DESIGN.md §9.6).
 """
 
 from __future__ import annotations

@@ -1,32 +1,17 @@
 """HER-CS's episode draw: every cluster of final achieved goals gets an equal share of the batch.
 
-The rule, as in the authors' code (ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-
-Experience-Replay, her_modules/her.py, `clustering_her_random`), with B episodes, k clusters,
-repeat = 4 and n_c members in cluster c:
+The rule is the authors' `clustering_her_random` (ngng9957/Clustering-based-Failed-Goal-Aware-
+Hindsight-Experience-Replay, her_modules/her.py), stated in docs/DESIGN.md §4.3: a share of
+⌊B/k⌋ per cluster, drawn among its members, a small cluster's members each drawn about
+`repeat` times, and what a share cannot use, plus the remainder, drawn from the whole buffer.
+Before any cluster model (every label −1) the draw is HER's uniform one, as the reference's is
+until its failed-goal buffer first fills; episodes still unlabelled once a model exists are
+reachable only through the whole-buffer fills. Where it departs from the reference (every
+cluster gets a share, B < 4k cannot crash: docs/DESIGN.md §9.4) no B=256, k=8 batch's
+distribution changes. The output lists the shares first, then the fills: order within a
+minibatch does not matter, since each entry's timestep is drawn independently.
 
-    share     = ⌊B / k⌋
-    n_c ≥ ⌊share / repeat⌋      → share draws from c's members (uniform, with replacement)
-    0 < n_c < ⌊share / repeat⌋  → repeat·n_c draws from c's members (so each member ~repeat
-                                  times) + share − repeat·n_c uniform draws from the whole buffer
-    n_c = 0                     → share uniform draws from the whole buffer
-    remainder B − k·share       → uniform draws from the whole buffer
-
-`repeat·n_c < share` for a small cluster, so a fill is never negative. Before any cluster
-model (every label −1) the draw is HER's uniform one, as the reference does until its failed-
-goal buffer first fills. Episodes still unlabelled once a model exists belong to no cluster and
-are reachable only through the whole-buffer fills.
-
-Deviations from the reference, none of which changes a B=256, k=8 batch's distribution:
-- The reference iterates over ``max(label) + 1`` clusters (labels predicted on the stored
-  episodes), so a top-numbered cluster that no stored episode falls in loses its share to the
-  rest; here all k clusters always get a share (an empty one's goes to the whole buffer).
-- With B < 4k the reference crashes on an empty cluster (``randint(0, 0)``); here an empty
-  cluster always takes the empty-cluster branch, and B < k makes the whole batch a fill.
-- The output lists cluster shares first, then the fills (the reference interleaves fills);
-  order within a minibatch does not matter, the timestep draw is independent per entry.
-
-Cost per call: O(k + B) — the cluster sizes and member lists come from the store's
-`SamplingIndex`, kept up to date on insert, eviction and relabel.
+Cost per call: O(k + B); cluster sizes and members come from the store's `SamplingIndex`.
 """
 
 from __future__ import annotations

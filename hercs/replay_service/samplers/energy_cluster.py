@@ -1,21 +1,16 @@
 """HER-EBP-CS's episode draw: cluster-balanced shares, energy-prioritised inside them.
 
-No public code combines the two; this is our definition. With w = trajectory energy + ε:
+No public code combines the two; this is our definition (docs/DESIGN.md §4.3). With w =
+trajectory energy + ε: how many draws each cluster gets is exactly HER-CS's plan
+(`samplers.cluster_balanced`), so balancing which regions of goal space are replayed stays
+HER-CS's job; inside cluster c a member i is drawn with p = w_i / Σ_{j∈c} w_j, so a small
+cluster's repeated draws also favour its energetic members; every whole-buffer fill is drawn
+with p ∝ w over the buffer; before any cluster model the draw is plain HER-EBP. So the expected
+count of episode i in cluster c per batch is member_draws_c · w_i / W_c + fill · w_i / W, with
+W_c and W the cluster and buffer masses.
 
-- How many draws each cluster gets is exactly HER-CS's plan (samplers.cluster_balanced:
-  share ⌊B/k⌋, small clusters repeat·n_c, empty clusters and the remainder go to the whole
-  buffer). Balancing *which regions of goal space* are replayed stays HER-CS's job.
-- Inside cluster c, a member i is drawn with p = w_i / Σ_{j∈c} w_j (EBP within the cluster), so
-  a small cluster's repeat·n_c draws also favour its energetic members.
-- Every whole-buffer fill is drawn with p ∝ w over the whole buffer (EBP), not uniformly.
-- Before any cluster model (every label −1) the draw is plain HER-EBP: p ∝ w over the buffer.
-
-So the expected count of episode i in cluster c per batch is
-member_draws_c · w_i / W_c + fill · w_i / W, with W_c and W the cluster and buffer masses.
-
-Implementation: the store's `SamplingIndex` keeps one energy sum tree per cluster and one over
-the buffer; the batch is one descent with each draw in its own tree (O(k + B log N)).
-Stateless.
+The store's `SamplingIndex` keeps the cumulative energies of the buffer and of each cluster,
+so a batch is one binary search per draw (O(k + B log N)). Stateless.
 """
 
 from __future__ import annotations

@@ -1,25 +1,11 @@
 """The run log's format, shared by its writer (the replay) and its readers (views, bench).
 
-Contents (protobuf, schemas embedded):
-    /episodes        hercs.Episode        MCAP message sequence = episode id (uint32)
-    /cluster_model   hercs.ClusterModel   sequence = model version
-    /eval_result     hercs.EvalResult     sequence = epoch
-    /scene           foxglove.SceneUpdate gripper, object, goal per observation (Foxglove)
-    /scene/points    foxglove.PointCloud  the same as coloured points (Rerun, Foxglove)
-    /replay_state    hercs.ReplayState    sequence = next episode id; the first message of a
-                                          segment the replay started while running (`pruning`)
-plus one metadata record `hercs.episode_log` {run, task, schema_version, start_time_ns} at the
-start.
-
-Timeline: log_time is synthetic (see `hercs.run.runlog.scene`) from the run's real start S
-(`start_time_ns`, ns since the Unix epoch, the same in every segment of a run): episode k's
-observations sit at S + k·span + t·40 ms, span = (T+2)·40 ms, so episodes never overlap and a
-viewer's clock starts at the day and hour the run started; its Episode message sits at
-S + k·span. A ClusterModel or EvalResult sits in the gap after the last episode written by
-this writer (S before the first). The synthetic clock runs ahead of the real one (an episode
-takes (T+2)·40 ms on it, well under that in a run): publish_time of Episode, ClusterModel and
-EvalResult is the real wall-clock time of the append; scene messages repeat their log_time.
-Logs written before `start_time_ns` existed start at 0 (1970 in a viewer).
+The topics, their messages and MCAP sequence numbers, the `hercs.episode_log` metadata record
+and the synthetic timeline are docs/DESIGN.md §6's ("The MCAP log"); the constants here are
+their one definition. The timeline puts episode k's observations at S + k·span + t·40 ms,
+span = (T+2)·40 ms, from the run's real start S (`start_time_ns`, the same in every segment),
+so episodes never overlap and a viewer's clock starts at the day and hour the run started;
+`hercs.run.runlog.scene` builds it. publish_time is the real wall clock of the append.
 
 The log is split by job: this module (topics, constants, the error), `writer` (appends that
 are durable before an ack), `reader` (messages back, tolerant of a torn tail), `segments`

@@ -1,31 +1,17 @@
 """A bounded log: which old segments may be deleted, and the replay state resume starts from.
 
-While it runs with a bounded log (`replay.log_max_bytes` >= 0), the replay closes its live
-segment every `replay.log_segments_per_buffer`-th of a buffer's episodes and starts the next
-one with a `/replay_state` message (`hercs.wire.replay_state.ReplayState`, written while no episode
-is being logged): what it derived from the episodes before that state's `next_episode_id`
-(counts, normalisers, failed goals, cluster model) and the oldest episode its buffer held,
-`first_held_id`. A restarted replay starts from the newest such state and needs only the
-logged episodes from its `first_held_id` on (`ReplayTable.recover`). Hence the rule
-(`segments_to_delete`, a pure function of what is on disk):
+With a bounded log the replay starts a new segment every `replay.log_segments_per_buffer`-th
+of a buffer with a `/replay_state`: what it derived from the earlier episodes, and the oldest
+episode its buffer held, `first_held_id`; a restarted replay needs only the episodes from there
+on (docs/DESIGN.md §6, "A bounded log"). Hence the rule (`segments_to_delete`, pure):
 
     a segment may be deleted iff it comes before the newest segment that starts with a state
     and every episode it holds has an id below that state's first_held_id;
 
-and only the oldest segments go, oldest first, while the log is above the bound: the log stays
-one contiguous run of episode ids (readers and recovery rely on that), and a crash part way
-through leaves such a run. Nothing resume needs is deleted, whatever the bound: an episode
-still in the buffer has an id at or above `first_held_id`, and the newest state stays.
-
-The episode ids of a segment are bounded by the next segment's first id (the next one with
-an episode, or a state's next_episode_id): ids increase along the log, so "every id below
-first_held_id" is "the next segment starts at or below first_held_id". Reading a segment's
-head (its first messages, up to the first episode) is enough; no segment is read whole.
-
-What goes with a deleted segment: its episodes (all out of the buffer), their scenes, and
-the cluster models and evaluation results logged between them. Resume needs none of them:
-the newest state holds the cluster model current at its start. `hercs view` and
-`hercs.read_episodes` read what is left (docs/DESIGN.md §6); metrics.csv keeps every epoch.
+and only the oldest go, while the log is above the bound, so the log stays one contiguous run
+of ids (readers and recovery rely on it), even after a crash part way. Ids increase along the
+log, so a segment's ids are bounded by the next segment's first id: reading each segment's head
+(up to its first episode) is enough, and no segment is read whole.
 """
 
 from __future__ import annotations

@@ -1,26 +1,17 @@
 """Reading the run log back: messages of one segment or of a whole run directory, in file
 order, tolerant of a writer that was killed.
 
-Crash recovery: a killed writer leaves a file with no summary or footer and possibly a torn
-last record. mcap 1.6 does not read such a file: `make_reader` on a seekable file reads the
-footer first and raises (EndOfFile, struct.error or RecordLengthLimitExceeded, depending on
-where the cut is) before yielding anything; `StreamReader` / `NonSeekingReader` yield the
-complete records and then raise one of those same errors at the tail. This module therefore
-walks the top-level records itself: a record whose 9-byte header or body extends past the end
-of the file, or whose opcode is no MCAP opcode, is the torn tail and ends the scan quietly;
-complete chunks are decoded with mcap's own record classes and their CRC checked. A chunk
-that fails its CRC or does not decompress is the torn tail too, unless an intact chunk
-follows it: then the file is damaged in the middle and `EpisodeLogError` is raised rather
-than silently dropping acked data.
+A killed writer leaves a file with no summary or footer and perhaps a torn last record, which
+mcap's own readers refuse, so `SegmentReader` walks the top-level records itself: a record cut
+short or with no MCAP opcode is the torn tail and ends the scan quietly; complete chunks are
+decoded with mcap's record classes and their CRC checked. A chunk that fails its CRC or does
+not decompress is the torn tail too, unless an intact chunk follows it: then the file is
+damaged in the middle and `EpisodeLogError` is raised rather than silently dropping acked data.
 
-Speed (a restarted replay reads its whole buffer back, bench/replay_recovery.py): a chunk's
-records are walked with `struct`, and a message becomes a `LoggedMessage` only if it is on a
-topic asked for. A read for some topics (`read_messages(path, topics)`) does not decompress a
-chunk whose message indexes (the records after it) name only channels of other topics, e.g. an
-episode's ~100 scene messages when episodes are read. Such a chunk is skipped only when its
-indexes are complete (another record follows them) and name channels already defined, and
-while no chunk was found unreadable; its CRC is then not checked: a damaged chunk among those
-skipped is not noticed, one that holds a topic asked for always is.
+A restarted replay reads its whole buffer back, so reading is kept lean: records are walked
+with `struct`, only messages on the topics asked for become `LoggedMessage`s, and a chunk
+whose message indexes name only other topics (an episode's scene messages, when episodes are
+read) is not decompressed (`SegmentReader._unwanted_channels` says when that is safe).
 """
 
 from __future__ import annotations
@@ -126,7 +117,18 @@ class IndexParts:
 
 class SegmentReader:
     """Reads one MCAP segment's messages in file order, stopping quietly at a torn tail, and
-    gathers what `seal_segment` needs to write the segment's summary."""
+    gathers what `seal_segment` needs to write the segment's summary.
+
+    Why not mcap's readers (mcap 1.6): `make_reader` on a seekable file reads the footer first
+    and raises (EndOfFile, struct.error or RecordLengthLimitExceeded, depending on where the
+    cut is) before yielding anything; `StreamReader` / `NonSeekingReader` yield the complete
+    records and then raise one of those same errors at the tail. Here a record whose 9-byte
+    header or body extends past the end of the file ends the scan.
+
+    A read for some topics skips a chunk only when its message indexes are complete (another
+    record follows them) and name channels already defined, and while no chunk was found
+    unreadable; its CRC is then not checked: a damaged chunk among those skipped is not
+    noticed, one that holds a topic asked for always is."""
 
     def __init__(self, path: Path, *, metadata_only: bool = False,
                  topics: Collection[str] | None = None) -> None:

@@ -1,26 +1,17 @@
 """A run-log writer that outlives a full disk: `RecoveringLogWriter`.
 
 An `EpisodeLogWriter` whose append failed part way (no space left, an I/O error) may end in a
-torn record, so it refuses every later append. The replay must not stay unable to log (and
-so unable to ack) once space returns, nor crash when it stops or restarts while the disk is
-still full. This writer holds the current `EpisodeLogWriter` and, on the first append after a
-failure (at most once per `retry_s`), cuts the torn segment back to the end of the last
-append that returned (a chunk of the failed append may have reached the disk; it was never
-acked, and its episode id will be given to the next episode), retires it
-(`EpisodeLog.retire`: sealed if there is room, numbered either way) and continues in a new
-live segment. Until that works
-every append raises `EpisodeLogError` at once, saying since when and why: the replay refuses
-the insert (`log_failed`) and the actor retries it later. Nothing is acked that is not on disk.
+torn record, so it refuses every later append. The replay must not stay unable to log, and so
+to ack, once space returns, nor crash when it stops or restarts on a full disk. This writer, on
+the first append after a failure (at most once per `retry_s`), cuts the torn segment back to
+the end of the last append that returned (what the failed append wrote was never acked, and
+its id goes to the next episode), retires it and continues in a new live segment; until that
+works every append raises `EpisodeLogError` at once, so the replay refuses the insert
+(`log_failed`) and the actor retries. Nothing is acked that is not on disk.
 
-A bounded log (`segment_episodes` > 0, `replay.log_max_bytes` >= 0): once `segment_episodes`
-episodes have been logged since the newest replay state (in this life of the replay or an
-earlier one: restarts do not put it off), `rotation_due` says so and the replay calls
-`start_segment` with its state: the live file is numbered and a new one starts with that
-state. The old
-writer's closing (its pending scenes, summary and footer) and the pruning of old segments
-(`hercs.run.runlog.pruning`, while the log is above `max_bytes`) run on a background thread, so
-neither waits on an ack; `flush_upkeep` waits for them (tests). A crash at any point leaves
-segments that `EpisodeLog.open` seals and a log that is still a contiguous run of ids.
+It also starts a bounded log's new segments (`start_segment`, docs/DESIGN.md §6); closing the
+old writer and pruning run on a background thread, off the ack path. A crash at any point
+leaves segments that `EpisodeLog.open` seals and a log that is still a contiguous run of ids.
 """
 
 from __future__ import annotations

@@ -1,28 +1,17 @@
 """Foxglove scene messages for one logged episode: gripper, object and goal per step.
 
-Beyond Fetch (no gripper in the observation) the moving body is the achieved goal's first
-point and the goal the desired goal's (`goal_point`); a task whose goal has no position part
-(`TaskSpec.goal_points` 0) gets no scene.
-
 Pure functions from an `Episode`'s arrays to Foxglove protobuf messages, so that
-`episodes.mcap` shows the episode in 3D without our code:
+`episodes.mcap` shows the episode in 3D without our code (docs/DESIGN.md §6):
+`foxglove.SceneUpdate` on `/scene` (the gripper a sphere, the object a 5 cm cube, the goal a
+translucent sphere twice the success threshold across, green while the achieved goal is inside
+it), which Foxglove draws and Rerun 0.41's MCAP importer keeps raw; and `foxglove.PointCloud`
+on `/scene/points`, the same positions as coloured points, which Rerun converts to `Points3D`.
+Positions are in the MuJoCo world frame (metres, z up), frame id `world` (`episode_positions`);
+beyond Fetch the moving body is the achieved goal's first point (`goal_point`), and a task
+whose goal has no position part gets no scene.
 
-- `foxglove.SceneUpdate` (topic `/scene`): the gripper as a sphere, the object as a 5 cm cube,
-  the goal as a translucent sphere whose diameter is twice the success threshold (green while
-  the achieved goal is inside it, red otherwise). Foxglove's 3D panel draws these; Rerun 0.41's
-  MCAP importer does not convert SceneUpdate (it keeps the raw message).
-- `foxglove.PointCloud` (topic `/scene/points`): the same positions as one coloured point each.
-  Rerun's importer converts it to `Points3D` (with colours) and Foxglove draws it too.
-
-Positions are in the MuJoCo world frame (metres, z up), frame id `world`: gripper =
-obs[:, 0:3], object = obs[:, 3:6] (push, pick, slide; Reach has no object: its achieved goal
-is the gripper), goal = g (T rows; the final observation o_T shows the last goal).
-
-Timeline (synthetic, so that episodes never overlap in a viewer): episode k occupies
-[k·span, k·span + T·40 ms] with span = (T + 2)·40 ms, i.e. its T+1 observations 40 ms apart
-(the Fetch control period, docs/DESIGN.md §4 Δt) and one empty 40 ms slot before episode k+1.
-The functions here give offsets from 0; the writer adds the run's start time (ns since the
-Unix epoch, `hercs.run.runlog.format`), so a viewer's clock starts when the run started.
+Times are offsets from 0 on the synthetic timeline of `hercs.run.runlog.format` (observations
+40 ms apart, the Fetch control period); the writer adds the run's start.
 """
 
 from __future__ import annotations
@@ -90,7 +79,10 @@ class EpisodePositions:
 
 def episode_positions(obs: np.ndarray, ag: np.ndarray, g: np.ndarray,
                       spec: TaskSpec) -> EpisodePositions:
-    """Gripper, object and goal at each of the T+1 observations; the goal of o_T is g[T-1]."""
+    """Gripper, object and goal at each of the T+1 observations; the goal of o_T is g[T-1].
+
+    Fetch: gripper = obs[:, 0:3], object = obs[:, 3:6] (push, pick, slide; Reach has no
+    object: its achieved goal is the gripper), goal = g."""
     if len(g) == 0:
         raise ValueError("an episode with no steps has no goal to show")
     full_goal = np.concatenate([g, g[-1:]], axis=0)
