@@ -205,7 +205,8 @@ def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig
     job's actors start with the run, before its router listens); None when it gave up.
     Without --run-dir it uses runs/RUN/router.json if there is one, else the config's
     `connect` as before."""
-    from hercs.run.rundir import read_router, run_dir_of, wait_router
+    from hercs.run.router_record import read_router, wait_router
+    from hercs.run.rundir import run_dir_of
 
     if getattr(args, "connect", None) or not config.run.name:
         if getattr(args, "run_dir", None) is not None and not config.run.name:

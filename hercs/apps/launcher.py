@@ -37,12 +37,10 @@ from hercs.apps.supervisor import Supervisor
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError
 from hercs.net.signals import StopSignals
+from hercs.run.router_record import RouterRecord, remove_router, write_router
 from hercs.run.rundir import (
-    RouterRecord,
     RunDir,
     holds_a_run,
-    remove_router,
-    write_router,
 )
 
 REQUEUE_LOCK_WAIT_S = 180.0

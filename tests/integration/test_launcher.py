@@ -387,7 +387,7 @@ def test_two_runs_without_listen_take_free_ports_and_record_them(up, tmp_path: P
     """Two `hercs up` on one host at once, neither given --listen: each router takes its own
     free port, records it in runs/<run>/router.json, a client that reads the file reaches
     that run's services, and the file goes when the run stops."""
-    from hercs.run.rundir import read_router
+    from hercs.run.router_record import read_router
 
     launchers = {name: up({}, "--run", name, "--actors", "0", listen=False)
                  for name in ("first", "second")}

@@ -32,7 +32,8 @@ from pathlib import Path
 import pytest
 
 from hercs.config import load_yaml
-from hercs.run.rundir import RunDir, read_router
+from hercs.run.router_record import read_router
+from hercs.run.rundir import RunDir
 from hercs.run.runlog.reader import read_episodes
 from tests.integration import minislurm
 

@@ -159,14 +159,14 @@ def _joined(argv: list[str]):
 def test_actor_and_live_find_the_router_in_the_run_directory(tmp_path: Path) -> None:
     import socket
 
-    from hercs.run import rundir
+    from hercs.run import router_record
     run = tmp_path / "r1"
     run.mkdir()
-    rundir.write_router(run, rundir.RouterRecord.for_listen(["tls/0.0.0.0:4321"]))
+    router_record.write_router(run, router_record.RouterRecord.for_listen(["tls/0.0.0.0:4321"]))
     for command in ("actor", "live"):
         joined = _joined([command, "--run", "r1", "--run-dir", str(tmp_path)])
         assert joined.transport.connect == ["tls/127.0.0.1:4321"], command  # same host
-    rundir.write_router(run, rundir.RouterRecord.for_listen(
+    router_record.write_router(run, router_record.RouterRecord.for_listen(
         ["tls/0.0.0.0:4321"], host=f"not-{socket.gethostname()}"))
     joined = _joined(["actor", "--run", "r1", "--run-dir", str(tmp_path)])
     assert joined.transport.connect == [f"tls/not-{socket.gethostname()}:4321"]

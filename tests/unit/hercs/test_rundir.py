@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hercs.run import rundir
+from hercs.run import router_record, rundir
 from hercs.run.rundir import RunDir
 
 
@@ -46,9 +46,9 @@ def test_kept_checkpoints_lists_best_latest_then_epochs(tmp_path: Path) -> None:
 ], ids=["loopback", "wildcard-v4", "wildcard-v6-and-address"])
 def test_router_record_gives_loopback_on_its_host_and_its_name_elsewhere(
         tmp_path: Path, listen: list[str], local: list[str], remote: list[str]) -> None:
-    record = rundir.RouterRecord.for_listen(listen, host="node-a", pid=42)
-    rundir.write_router(tmp_path, record)
-    back = rundir.read_router(tmp_path)
+    record = router_record.RouterRecord.for_listen(listen, host="node-a", pid=42)
+    router_record.write_router(tmp_path, record)
+    back = router_record.read_router(tmp_path)
     assert back == record
     assert back.endpoints_for("node-a") == local
     assert back.endpoints_for("node-b") == remote
@@ -56,33 +56,34 @@ def test_router_record_gives_loopback_on_its_host_and_its_name_elsewhere(
 
 
 def test_only_the_writer_removes_the_router_record(tmp_path: Path) -> None:
-    rundir.write_router(tmp_path, rundir.RouterRecord.for_listen(["tcp/127.0.0.1:1"], pid=7))
-    rundir.remove_router(tmp_path, pid=8)  # another launcher's: kept
-    assert rundir.read_router(tmp_path) is not None
-    rundir.remove_router(tmp_path, pid=7)
-    assert rundir.read_router(tmp_path) is None
-    rundir.remove_router(tmp_path, pid=7)  # gone already: nothing to do
+    record = router_record.RouterRecord.for_listen(["tcp/127.0.0.1:1"], pid=7)
+    router_record.write_router(tmp_path, record)
+    router_record.remove_router(tmp_path, pid=8)  # another launcher's: kept
+    assert router_record.read_router(tmp_path) is not None
+    router_record.remove_router(tmp_path, pid=7)
+    assert router_record.read_router(tmp_path) is None
+    router_record.remove_router(tmp_path, pid=7)  # gone already: nothing to do
 
 
 def test_a_broken_router_record_is_an_error_naming_the_file(tmp_path: Path) -> None:
     (tmp_path / rundir.ROUTER).write_text('{"host": "a"}')
     with pytest.raises(rundir.RunDirError, match=r"router\.json: not a router record"):
-        rundir.read_router(tmp_path)
+        router_record.read_router(tmp_path)
 
 
 def test_wait_router_returns_the_record_once_written_or_none_after_its_timeout(
         tmp_path: Path) -> None:
     import threading
 
-    assert rundir.wait_router(tmp_path, timeout_s=0.6) is None
-    record = rundir.RouterRecord.for_listen(["tcp/127.0.0.1:2"], host="h", pid=1)
-    writer = threading.Timer(0.3, rundir.write_router, args=(tmp_path, record))
+    assert router_record.wait_router(tmp_path, timeout_s=0.6) is None
+    record = router_record.RouterRecord.for_listen(["tcp/127.0.0.1:2"], host="h", pid=1)
+    writer = threading.Timer(0.3, router_record.write_router, args=(tmp_path, record))
     writer.start()
     try:
-        assert rundir.wait_router(tmp_path, timeout_s=10) == record
+        assert router_record.wait_router(tmp_path, timeout_s=10) == record
     finally:
         writer.join()
-    stopped = rundir.wait_router(tmp_path / "never", timeout_s=0, stop=lambda: True)
+    stopped = router_record.wait_router(tmp_path / "never", timeout_s=0, stop=lambda: True)
     assert stopped is None
 
 
