@@ -1,66 +1,11 @@
 """`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
 
 Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
-`episodes.mcap`) with `hercs.run.runlog`, and `metrics.csv` when it sits beside the
-log, and logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or
-the web viewer (`--web`).
-
-The live view (`hercs up --rerun`, hercs/apps/live_view.py) logs the same entities on the same
-timelines while a run trains: both draw with hercs/apps/rerun_draw.py.
-
-Timelines
-    episode   the episode id (sequence). Every per-episode entity, the failed goals and the
-              centroids are on it.
-    step      the observation index t = 0..T within an episode (sequence). Only the 3D
-              trajectories are on it: at step t every selected episode shows its path up to t,
-              so all selected episodes replay side by side.
-    epoch     the training epoch (sequence): the learning curves.
-
-Entity paths
-    world                                 static: right-handed, z up (MuJoCo world, metres)
-    world/episodes/<id:06d>/gripper       LineStrips3D: gripper path obs[:t+1, 0:3] (beyond
-                                          Fetch: the achieved goal's first point)
-    world/episodes/<id:06d>/object        LineStrips3D: object path obs[:t+1, 3:6]
-                                          (push, pick, slide; absent for reach)
-    world/episodes/<id:06d>/goal          Points3D: desired goal g_t (1.2 cm); green if the
-                                          episode succeeded, red if not
-    world/failed_goals                    Points3D on `episode`: desired goals g_T of every
-                                          failed episode logged up to this one (all episodes
-                                          of the log, not only the selected ones), coloured by
-                                          their cluster under the model current at that time
-    world/centroids                       Points3D on `episode`: the k-means centroids, logged
-                                          when a refit lands (labels c0..c{k-1})
-    episodes/success                      Scalars on `episode`: 1 success, 0 failure (all
-                                          episodes)
-    episodes/final_distance               Scalars on `episode`: ‖ag_T − g_T‖ (metres)
-    episodes/cluster                      Scalars on `episode`: cluster index of ag_T (−1 before
-                                          the first cluster model)
-    log/episodes                          TextLog on `episode`: one line per selected episode
-                                          (success, distance, cluster, actor, policy version)
-    log/cluster_models                    TextLog on `episode`: one line per cluster model
-    curves/<column>                       Scalars on `epoch` (and on `episode` at each epoch's
-                                          last episode, from the `episodes` column): every
-                                          numeric column of
-                                          metrics.csv (success_rate, env_steps_per_s,
-                                          updates_per_s, replay_size, policy_lag, losses, …);
-                                          without metrics.csv, success_rate and
-                                          mean_final_distance from the log's EvalResults
-    curves/cluster_sizes, curves/cluster_share
-                                          Scalars on `epoch`: one series per cluster
-
-Colours: a trajectory's colour is its cluster's (grey before the first cluster model; the
-gripper path is the same colour, translucent). A centroid and the failed goals of its cluster
-share that colour.
-
-An episode failed if ‖ag_T − g_T‖ > the task's threshold (0.05 m); ag is the object (the
-gripper for reach). Its cluster is the nearest centroid of the latest cluster model logged
-before it (models are logged in order, interleaved with the episodes).
-
-A bounded log (`replay.log_max_bytes`, the default) has lost its oldest segments once a run
-is past 1.25 buffers: the view shows the episodes, models and results it still holds, from
-its first kept episode id on (`--episodes all` is all of those; ids before are not there),
-the first ones coloured by the model the kept segment's replay state holds. The curves come
-from metrics.csv, which keeps every epoch.
+`episodes.mcap`) with `hercs.run.runlog`, and `metrics.csv` when it sits beside the log, and
+logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or the web
+viewer (`--web`). The live view (`hercs up --rerun`, hercs/apps/live_view.py) logs the same
+entities on the same timelines while a run trains: both draw with hercs/apps/rerun_draw.py.
+The timelines, entity paths and colours are docs/DESIGN.md §6, "The Rerun recording".
 """
 
 from __future__ import annotations
