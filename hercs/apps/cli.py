@@ -7,10 +7,8 @@ the field.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 from collections.abc import Callable
-from typing import NoReturn
 
 import yaml
 
@@ -21,6 +19,7 @@ from hercs.apps.cli_config import (
     join_endpoints,
     resolve_config,
 )
+from hercs.apps.cli_services import SERVICE_EXAMPLES, SERVICES, Command, service_command
 from hercs.apps.plots import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, HercsError
@@ -37,7 +36,6 @@ def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
     return 0
 
 
-Command = Callable[[argparse.Namespace, HercsConfig], int]
 
 
 def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -60,75 +58,6 @@ def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
     from hercs.apps.router import run_router
 
     return run_router(config)
-
-
-# Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
-# when used, so `hercs --help` stays fast.
-SERVICE_EXAMPLES = {
-    "replay": "hercs replay --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "clusterer": "hercs clusterer --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "learner": "hercs learner --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "evaluator": "hercs evaluator --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "actor": "hercs actor --connect tcp/LEARNER_HOST:7447 --run myrun",
-    "live": "hercs live --connect tcp/LEARNER_HOST:7447 --run myrun --rerun",
-}
-
-SERVICES: dict[str, tuple[str, str]] = {
-    "replay": ("hercs.replay_service.replay_shell",
-               "run the replay service (episode store, HER, samplers)"),
-    "clusterer": ("hercs.clusterer.clusterer_shell",
-                  "run the clusterer (failed goals, k-means refits)"),
-    "learner": ("hercs.learner.learner_shell", "run the DDPG learner (updates, weights, epochs)"),
-    "actor": ("hercs.actors.actor_shell",
-              "run a rollout actor (join a run with --connect and --run)"),
-    "evaluator": ("hercs.actors.evaluator", "run the evaluator (deterministic test episodes)"),
-    "live": ("hercs.apps.live_view", "stream a run to Rerun while it trains (what `hercs up "
-                                "--rerun` starts; join a run with --connect and --run)"),
-}
-
-
-HARD_EXIT_SERVICES = frozenset(module for role, (module, _) in SERVICES.items()
-                               if role != "live")
-"""Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
-flushes its recording in an exit handler)."""
-
-
-def exit_after_close(code: int) -> NoReturn:
-    """End a service process as soon as its orderly close is done, without interpreter
-    teardown.
-
-    When a service's `run` returns it has closed its Zenoh session, joined its threads (up
-    to `hercs.net.service_shell.THREAD_JOIN_S`) and made everything it acknowledged durable;
-    teardown
-    adds nothing but the finalisation of native threads, and there a clusterer stopped with
-    SIGTERM once aborted (SIGABRT, glibc's "FATAL: exception not rethrown": a native thread
-    unwound by the exiting interpreter; seen once in `make test` on a loaded machine, after
-    a clean stop). So: wait for non-daemon threads as a normal exit would, flush the logs
-    and the standard streams, and `os._exit`."""
-    import logging
-    import os
-    import threading
-
-    for thread in threading.enumerate():
-        if thread is not threading.current_thread() and not thread.daemon:
-            thread.join()
-    logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    os._exit(code)
-
-
-def _service_command(module: str) -> Command:
-    def command(args: argparse.Namespace, config: HercsConfig) -> int:
-        from importlib import import_module
-
-        code = int(import_module(module).run(config, ident=args.ident))
-        if module in HARD_EXIT_SERVICES:
-            exit_after_close(code)
-        return code
-
-    return command
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
@@ -238,7 +167,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         if name == "live":
             add_rerun_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
-        commands[name] = _service_command(module)
+        commands[name] = service_command(module)
 
     p = sub.add_parser(
         "sweep", help="a grid of runs (tasks × methods × seeds × variants), resumable, locally "

@@ -1,20 +1,13 @@
-"""Appending to the run log: `EpisodeLogWriter`, one MCAP segment whose every append is
-on disk when it returns.
+"""Appending to the run log: `EpisodeLogWriter`, one MCAP segment whose every append is on disk
+when it returns (docs/DESIGN.md §3, "durable before ack"; §6, the MCAP log).
 
-Durability (docs/DESIGN.md §3, "durable before ack"): an append writes its messages as one zstd
-chunk (mcap 1.6 `Writer.flush()` closes the chunk and writes it and its message indexes), then
-`os.fsync`s the file; the replay acks only after the append returns. `append_many` is the
-group commit: several episodes, one chunk, one fsync. An episode whose chunk reached the disk
-but whose append never returned (killed between write and ack) is recovered too: delivery is
-at-least-once and the replay deduplicates on (actor_id, seq).
-
-Scene messages (`/scene`, `/scene/points`: ~100 Foxglove messages per episode, derived from
-the Episode, about two thirds of an append's CPU) are off that path: a background thread
-builds them and writes them in their own chunks, without fsync, after their episodes. A crash
-can lose the scene of the last episodes, never an episode; `close()` writes every pending
-scene first. If the thread falls more than `SCENE_BACKLOG` episodes behind (inserts faster
-than scenes can be drawn), the newest episodes get no scene (counted in `scenes_dropped`,
-logged once a minute): memory stays bounded and inserts never wait for a drawing.
+An append writes its messages as one zstd chunk (mcap's `Writer.flush()` closes the chunk and
+writes its message indexes), then fsyncs; the replay acks only after it returns, and
+`append_many` is the group commit (several episodes, one chunk, one fsync). Scene messages are
+derived data, about two thirds of an append's CPU: a background thread builds them and writes
+them in their own chunks without fsync, so a crash can lose the last episodes' scenes, never an
+episode; past `SCENE_BACKLOG` waiting episodes new ones get no scene (`scenes_dropped`), so
+memory stays bounded and inserts never wait for a drawing.
 """
 
 from __future__ import annotations
