@@ -13,6 +13,8 @@ from collections import deque
 
 import numpy as np
 
+from hercs.reasons import Reason
+from hercs.replay_service.lag_bound import PolicyLagBound
 from hercs.replay_service.lockstep import schedule_cycle
 
 POLICY_LAG_WINDOW = 64
@@ -70,6 +72,25 @@ class PolicyLagLedger:
             self._schedule_offset = max(0, surplus) * self.episodes_per_cycle
             self._recovered_unplaced = None
         self.newest_request_version = weights_version
+
+    def bound_refusal(self, bound: PolicyLagBound | None, policy_version: int,
+                      next_episode_id: int) -> tuple[Reason, str] | None:
+        """The lag bound's refusal of an insert acted with `policy_version` that would be
+        stored under `next_episode_id`; None: admitted (or no bound, or no request yet)."""
+        newest = self.newest_request_version
+        if bound is None or newest is None:
+            return None
+        return bound.refusal(policy_version=policy_version,
+                             cycle=self.cycle_of(next_episode_id), newest_version=newest)
+
+    def bound_next_version(self, bound: PolicyLagBound | None, next_episode_id: int) -> int:
+        """For an ack: the oldest weights version the actor's next episode may use under the
+        lag bound (0 without a bound or before the learner's first request)."""
+        newest = self.newest_request_version
+        if bound is None or newest is None:
+            return 0
+        return bound.next_policy_version(next_cycle=self.cycle_of(next_episode_id),
+                                         newest_version=newest)
 
     def take_since_sample(self) -> np.ndarray:
         """The schedule lags stored since the last served call, for this one's batch."""

@@ -25,11 +25,10 @@ from typing import Any
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.lag_bound import PolicyLagBound
+from hercs.replay_service.admission import admission_for
 from hercs.replay_service.learner_follow import follow_learner
-from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
+from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S
 from hercs.replay_service.policy_lag import PolicyLagLedger
-from hercs.replay_service.rate_limiter import SampleToInsertRatio
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
@@ -46,7 +45,6 @@ from hercs.replay_service.table_calls import (
 )
 from hercs.replay_service.waiting_inserts import WaitingInserts
 from hercs.rl.cluster_model import ClusterModel
-from hercs.rl.methods import METHODS
 from hercs.wire.episode import EpisodeData
 from hercs.wire.replay_state import ReplayState
 from hercs.wire.served import ReplayCounters, ServedBatch
@@ -64,23 +62,7 @@ class ReplayTable:
         self.core = core
         self.log = log
         self.clock = clock
-        lockstep = config.training.schedule == "lockstep"
-        self.gate = LockstepGate(
-            episodes_per_cycle=config.training.episodes_per_cycle,
-            fgb_size=(config.cluster.fgb_size if METHODS[config.run.method].cluster_balanced
-                      else None),
-            cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S) if lockstep else None
-        """Lockstep's admission rules; None in the asynchronous schedule."""
-        self.lag_bound = (PolicyLagBound(max_lag=config.training.max_policy_lag)
-                          if not lockstep and config.training.max_policy_lag >= 1 else None)
-        """`training.max_policy_lag` (hercs.replay_service.lag_bound); None: no bound."""
-        self.limiter = SampleToInsertRatio(  # in lockstep it only counts
-            samples_per_insert=config.training.updates_per_episode,
-            min_size_to_sample=config.replay.min_episodes_to_sample,
-            error_buffer=config.replay.rate_tolerance_updates,
-            max_request=config.training.minibatches_per_cycle,
-            free_run=config.replay.free_run or lockstep,
-        )
+        self.limiter, self.gate, self.lag_bound = admission_for(config)
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
@@ -225,11 +207,7 @@ class ReplayTable:
         asynchronously without a lag bound)."""
         if self.gate is not None:
             return self.gate.next_policy_version(episode.policy_version)
-        newest = self.lags.newest_request_version
-        if self.lag_bound is not None and newest is not None:
-            return self.lag_bound.next_policy_version(
-                next_cycle=self.lags.cycle_of(self._next_episode_id()), newest_version=newest)
-        return 0
+        return self.lags.bound_next_version(self.lag_bound, self._next_episode_id())
 
     def _next_episode_id(self) -> int:
         """The id the next admitted insert will be stored under (after those admitted and
@@ -239,13 +217,9 @@ class ReplayTable:
     def _refuse_stale(self, item: ParkedInsert) -> bool:
         """The lag bound's check of an insert the limiter admits: True if it was refused
         (answered `stale_policy`, counted, forgotten)."""
-        newest = self.lags.newest_request_version
-        if self.lag_bound is None or newest is None:
-            return False
         episode = item.episode
-        refusal = self.lag_bound.refusal(
-            policy_version=episode.policy_version,
-            cycle=self.lags.cycle_of(self._next_episode_id()), newest_version=newest)
+        refusal = self.lags.bound_refusal(self.lag_bound, episode.policy_version,
+                                          self._next_episode_id())
         if refusal is None:
             return False
         del self._parked_keys[(episode.actor_id, int(episode.seq))]
