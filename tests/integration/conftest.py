@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -16,17 +15,7 @@ import pytest
 
 from hercs.net.transport import Transport
 from tests.integration.launcher_standins import DRIVER, STANDIN, Launcher, process_alive
-
-
-def free_tcp_port() -> int:
-    """A TCP port nothing listens on right now (the OS picks it; loopback only)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def free_endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
+from tests.support import free_endpoint
 
 
 @pytest.fixture

@@ -16,8 +16,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from tests.support import free_tcp_port
-
 REPO = Path(__file__).resolve().parents[2]
 WAIT_S = 20.0
 
@@ -103,10 +101,6 @@ def command(spec, config_path):
 
 sys.exit(run_up(resolve_config(args), command=command, stop_timeout_s=float(stop_timeout)))
 '''
-
-def free_endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
-
 
 def process_alive(pid: int) -> bool:
     """True while `pid` runs (a zombie, dead but not yet reaped, counts as gone)."""

@@ -20,8 +20,8 @@ import pytest
 from hercs.config import load_yaml
 from hercs.run.rundir import RunDir
 from hercs.run.runlog.reader import read_cluster_models, read_episodes
-from tests.integration.launcher_standins import Launcher, free_endpoint, process_alive
-from tests.support import skip_without_mujoco_py
+from tests.integration.launcher_standins import Launcher, process_alive
+from tests.support import free_endpoint, skip_without_mujoco_py
 
 pytestmark = pytest.mark.integration
 
