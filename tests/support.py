@@ -1,5 +1,6 @@
-"""Helpers shared by tests of different folders: free ports, a real Rerun viewer stand-in,
-loading the benchmark scripts (which are files, not a package), random learner minibatches."""
+"""Helpers shared by tests of different folders: free ports and endpoints, a real Rerun viewer
+stand-in, loading the benchmark scripts (which are files, not a package), random learner
+minibatches."""
 
 from __future__ import annotations
 
@@ -25,6 +26,11 @@ def free_tcp_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def free_endpoint() -> str:
+    """A Zenoh endpoint on loopback that nothing listens on right now."""
+    return f"tcp/127.0.0.1:{free_tcp_port()}"
 
 
 def wait_for_port(port: int, timeout_s: float = 20.0) -> None:

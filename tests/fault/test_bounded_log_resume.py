@@ -26,8 +26,8 @@ from hercs.proto.keys import RunKeys
 from hercs.run.runlog import read_episodes, segment_paths
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode
-from tests.integration.conftest import free_endpoint
 from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 

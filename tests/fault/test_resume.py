@@ -19,7 +19,8 @@ import pytest
 
 from hercs.run.rundir import RunDir
 from hercs.run.runlog.reader import read_episodes
-from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
+from tests.integration.launcher_standins import Launcher, process_alive
+from tests.support import free_endpoint
 
 pytestmark = pytest.mark.integration
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from hercs.run.rundir import RunDir
-from tests.integration.conftest import free_endpoint
 from tests.integration.services import ServiceProcess, make_test_config
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
 

@@ -20,7 +20,7 @@ from hercs.net.security import listen_problem, zenoh_settings
 from hercs.net.transport import RouterUnreachable, Transport, TransportError
 from hercs.proto.keys import RunKeys
 from hercs.run.rundir import RunDir
-from tests.integration.conftest import free_tcp_port
+from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 

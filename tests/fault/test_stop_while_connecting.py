@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from tests.integration.conftest import free_endpoint
+from tests.support import free_endpoint
 
 pytestmark = pytest.mark.integration
 

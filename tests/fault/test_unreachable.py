@@ -14,7 +14,7 @@ import pytest
 from hercs.net.service_shell import EXIT_UNREACHABLE
 from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from tests.integration.conftest import free_endpoint
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

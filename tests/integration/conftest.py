@@ -1,26 +1,21 @@
-"""Fixtures for real Zenoh sessions on loopback, each test on its own free port."""
+"""Fixtures for real Zenoh sessions on loopback, each test on its own free port, and `up`:
+`hercs up` with stand-in children (tests/integration/launcher_standins.py)."""
 
 from __future__ import annotations
 
-import socket
+import json
+import os
+import signal
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from hercs.net.transport import Transport
-
-
-def free_tcp_port() -> int:
-    """A TCP port nothing listens on right now (the OS picks it; loopback only)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def free_endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
+from tests.integration.launcher_standins import DRIVER, STANDIN, Launcher, process_alive
+from tests.support import free_endpoint
 
 
 @pytest.fixture
@@ -61,3 +56,32 @@ def procs(tmp_path: Path) -> Iterator[list[subprocess.Popen]]:
             proc.wait(5)
     for log in tmp_path.glob("*.log"):  # shown by pytest on failure
         print(f"---- {log.name}\n{log.read_text()}")
+
+
+@pytest.fixture
+def up(tmp_path: Path):
+    """Starts `hercs up` with stand-in children: up(behaviours, *flags, stop_timeout_s=5)."""
+    standin, driver = tmp_path / "standin.py", tmp_path / "driver.py"
+    standin.write_text(STANDIN)
+    driver.write_text(DRIVER)
+    events = tmp_path / "events.txt"
+    started: list[Launcher] = []
+
+    def start(behaviours: dict[str, str], *flags: str, stop_timeout_s: float = 5.0,
+              listen: bool = True) -> Launcher:
+        """listen=False leaves --listen out: the router takes any free port."""
+        argv = [sys.executable, str(driver), str(standin), str(events), json.dumps(behaviours),
+                str(stop_timeout_s), "--run-dir", str(tmp_path / "runs"),
+                *(["--listen", free_endpoint()] if listen else []), *flags]
+        launcher = Launcher(argv, cwd=tmp_path)
+        started.append(launcher)
+        return launcher
+
+    start.events = events  # type: ignore[attr-defined]
+    yield start
+    for launcher in started:
+        pids = launcher.child_pids.values()
+        launcher.kill()
+        for pid in pids:  # never leave anything behind, even when a test failed
+            if process_alive(pid):
+                os.kill(pid, signal.SIGKILL)

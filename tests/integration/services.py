@@ -15,10 +15,14 @@ from pathlib import Path
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
+from hercs.proto.keys import RunKeys
 from hercs.run.rundir import RunDir
 
 WAIT_S = 15.0
 STOP_WITHIN_S = 5.0
+
+OpenClient = Callable[[], Transport]
+"""The `open_client` fixture (conftest.py): a new client session connected to the test's router."""
 
 
 def make_test_config(tmp_path: Path, endpoint: str,
@@ -88,6 +92,33 @@ def wait_for(q: queue.Queue, pred: Callable[[object], bool], what: str) -> objec
             raise AssertionError(f"timed out after {WAIT_S} s waiting for {what}") from None
         if pred(item):
             return item
+
+
+def watch_alive(side: Transport, keys: RunKeys) -> queue.Queue:
+    """(key, up) for every liveliness token of the run `keys` that comes or goes, as `side`
+    sees them."""
+    alive: queue.Queue = queue.Queue()
+    side.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    return alive
+
+
+def subscribe_metrics(side: Transport, keys: RunKeys, role: str) -> queue.Queue[dict[str, float]]:
+    """The values of every Metrics message `role` publishes in the run `keys`."""
+    metrics: queue.Queue[dict[str, float]] = queue.Queue()
+    side.subscribe(keys.metrics(role),
+                   lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+    return metrics
+
+
+def start_alive(role: str, config: HercsConfig, ident: str, tmp_path: Path,
+                procs: list[subprocess.Popen], alive: queue.Queue, keys: RunKeys
+                ) -> subprocess.Popen:
+    """`start_service`, kept in `procs` (the `procs` fixture kills what is left), and waited
+    for until its liveliness token appears on `alive` (from `watch_alive`)."""
+    proc = start_service(role, config, ident, tmp_path)
+    procs.append(proc)
+    wait_for(alive, lambda c: c == (keys.alive(role, ident), True), f"the {role}")
+    return proc
 
 
 def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) -> None:

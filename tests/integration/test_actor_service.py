@@ -13,7 +13,6 @@ import subprocess
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -31,15 +30,17 @@ from hercs.rl.policy import Policy
 from hercs.wire.codec import msg_to_array, weights_to_msg
 from tests.integration.services import (
     WAIT_S,
+    OpenClient,
     sigterm_exits_cleanly,
+    start_alive,
     start_service,
+    subscribe_metrics,
     wait_for,
+    watch_alive,
 )
 
 pytestmark = pytest.mark.integration
 
-
-OpenClient = Callable[[], Transport]
 
 
 # ---- the actor
@@ -125,15 +126,11 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     served = run_config(endpoint, envs_per_process)
     keys = RunKeys(RUN)
     side = open_client()
-    alive: queue.Queue = queue.Queue()
-    side.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
-    metrics: queue.Queue[dict[str, float]] = queue.Queue()
-    side.subscribe(keys.metrics("actor"),
-                   lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+    alive = watch_alive(side, keys)
+    metrics = subscribe_metrics(side, keys, "actor")
     replay = FakeReplay(side, keys)
 
-    procs.append(start_service("actor", local_config(endpoint), "a0", tmp_path))
-    wait_for(alive, lambda c: c == (keys.alive("actor", "a0"), True), "the actor")
+    start_alive("actor", local_config(endpoint), "a0", tmp_path, procs, alive, keys)
     # The run's config is served only now, and its first query is refused: the actor must
     # keep asking.
     config_queries: list[PendingReply] = []

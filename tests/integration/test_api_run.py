@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from hercs.run.rundir import RunDir
-from tests.integration.conftest import free_endpoint
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from hercs.apps.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
-from tests.integration.test_launcher import Launcher
+from tests.integration.launcher_standins import Launcher
 from tests.support import free_tcp_port, rerun_binary, wait_for_port
 
 pytestmark = pytest.mark.integration

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import queue
 import subprocess
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,15 +23,17 @@ from hercs.proto.keys import RunKeys
 from hercs.wire.codec import array_to_msg, msg_to_array
 from tests.integration.services import (
     WAIT_S,
+    OpenClient,
     sigterm_exits_cleanly,
+    start_alive,
     start_service,
+    subscribe_metrics,
     wait_for,
+    watch_alive,
 )
 
 pytestmark = pytest.mark.integration
 
-
-OpenClient = Callable[[], Transport]
 
 
 # ---- the clusterer
@@ -76,19 +77,15 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     config = tiny_config(endpoint)
     keys = RunKeys(config.run.name)
     replay = open_client()
-    alive: queue.Queue = queue.Queue()
-    replay.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    alive = watch_alive(replay, keys)
     models: queue.Queue[pb.ClusterModel] = queue.Queue()
     replay.subscribe(keys.cluster_model,
                      lambda key, raw: models.put(pb.ClusterModel.FromString(raw)), latest=True)
-    metrics: queue.Queue[dict[str, float]] = queue.Queue()
-    replay.subscribe(keys.metrics("clusterer"),
-                     lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+    metrics = subscribe_metrics(replay, keys, "clusterer")
     inserted = replay.publisher(keys.inserted, block=True)
     serve_state(replay, keys)  # a fresh run: nothing to continue
 
-    procs.append(start_service("clusterer", config, "c0", tmp_path))
-    wait_for(alive, lambda c: c == (keys.alive("clusterer", "c0"), True), "the clusterer")
+    start_alive("clusterer", config, "c0", tmp_path, procs, alive, keys)
     assert inserted.wait_for_subscribers(WAIT_S), "the clusterer never subscribed"
 
     rng = np.random.default_rng(0)

@@ -22,7 +22,8 @@ from typing import Any
 import pytest
 import yaml
 
-from hercs.apps.cli import SERVICES, build_parser, resolve_config
+from hercs.apps.cli import build_parser, resolve_config
+from hercs.apps.cli_services import SERVICES
 from hercs.config import HercsConfig
 from hercs.net.security import listen_problem
 

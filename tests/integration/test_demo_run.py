@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import hercs
+from hercs.run.rundir import RunDir
 from hercs.run.runlog.reader import read_cluster_models
 
 pytestmark = pytest.mark.integration
@@ -20,7 +21,7 @@ DEMO = Path(__file__).resolve().parents[2] / "docs" / "demo" / "push-her-cs"
 
 
 def test_the_demo_log_holds_the_runs_episodes_and_a_cluster_model_per_epoch() -> None:
-    assert DEMO.joinpath("episodes.mcap").stat().st_size < 20 * 2**20  # small enough to ship
+    assert RunDir(DEMO).episode_log.stat().st_size < 20 * 2**20  # small enough to ship
     config = hercs.load_config(DEMO)
     assert (config.task.name, config.run.method, config.training.epochs) == ("push", "her-cs", 4)
     metrics = hercs.read_metrics(DEMO)

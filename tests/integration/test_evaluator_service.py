@@ -9,29 +9,28 @@ from __future__ import annotations
 
 import queue
 import subprocess
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides
-from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.rl.policy import Policy
 from hercs.wire.codec import weights_to_msg
 from tests.integration.services import (
     WAIT_S,
+    OpenClient,
     sigterm_exits_cleanly,
-    start_service,
+    start_alive,
+    subscribe_metrics,
     wait_for,
+    watch_alive,
 )
 
 pytestmark = pytest.mark.integration
 
-
-OpenClient = Callable[[], Transport]
 
 
 # ---- the evaluator
@@ -57,18 +56,14 @@ def test_evaluator_answers_every_eval_epoch_and_nothing_else(
     config = tiny_config(endpoint)
     keys = RunKeys(config.run.name)
     learner = open_client()
-    alive: queue.Queue = queue.Queue()
-    learner.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
+    alive = watch_alive(learner, keys)
     results: queue.Queue[pb.EvalResult] = queue.Queue()
     learner.subscribe(keys.eval_result, lambda key, raw: results.put(pb.EvalResult.FromString(raw)))
-    metrics: queue.Queue[dict[str, float]] = queue.Queue()
-    learner.subscribe(keys.metrics("evaluator"),
-                      lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+    metrics = subscribe_metrics(learner, keys, "evaluator")
     weights = learner.publisher(keys.weights, latest=True, block=True)  # as the learner
     policy = Policy(spec=config.task.spec, config=config.ddpg, seed=3)
 
-    procs.append(start_service("evaluator", config, "e0", tmp_path))
-    wait_for(alive, lambda c: c == (keys.alive("evaluator", "e0"), True), "the evaluator")
+    start_alive("evaluator", config, "e0", tmp_path, procs, alive, keys)
     wait_for(metrics, lambda m: True, "the evaluator's first metrics (it has subscribed)")
 
     weights.put(weights_msg(policy, version=1, epoch=0, evaluate=False))

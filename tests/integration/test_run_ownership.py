@@ -16,8 +16,9 @@ import pytest
 from hercs.apps.cli import main
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
-from tests.integration.test_launcher import STANDIN, Launcher, free_endpoint
+from tests.integration.launcher_standins import STANDIN, Launcher
 from tests.run_dirs import make_run
+from tests.support import free_endpoint
 
 pytestmark = pytest.mark.integration
 

@@ -116,7 +116,7 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
                        "--actor-cpus", "1", "--learner-cpus", "1",
                        "--set", "training.cycles_per_epoch=3", *TINY)
     run_dir = runs / "het"
-    output = run_dir / "slurm" / f"job-{job}.out"
+    output = RunDir(run_dir).slurm / f"job-{job}.out"
     rows = wait_job(cluster, job, timeout_s=300, output=output)
     text = output.read_text()
     print(f"sacct of job {job}:\n" + "\n".join("|".join(r.values()) for r in rows))
@@ -140,8 +140,8 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
     assert re.search(r"remote actor hercs-n2-\S+ joined", text), text
     config = load_yaml(RunDir(run_dir).config)
     assert config.transport.listen == ["tls/0.0.0.0:0"]
-    assert config.security.tls_ca == str(run_dir / "slurm" / f"certs-{job}.0" / "ca.pem")
-    assert not (run_dir / "slurm" / f"certs-{job}.0" / "ca.key").exists()
+    assert config.security.tls_ca == str(RunDir(run_dir).slurm / f"certs-{job}.0" / "ca.pem")
+    assert not (RunDir(run_dir).slurm / f"certs-{job}.0" / "ca.key").exists()
     assert config.actor.num_actors == 0 and config.actor.envs_per_process == 1
     assert read_router(run_dir) is None  # removed when the run stopped
 
@@ -164,7 +164,7 @@ def submit_reach(cluster: minislurm.MiniSlurm, runs: Path, run: str, *, epochs: 
                        "--actor-cpus", "1", "--learner-cpus", "1", "--time", time_limit,
                        *extra, "--set", "training.cycles_per_epoch=5", *TINY)
     run_dir = runs / run
-    return job, run_dir, run_dir / "slurm" / f"job-{job}.out"
+    return job, run_dir, RunDir(run_dir).slurm / f"job-{job}.out"
 
 
 def test_a_run_warned_of_its_time_limit_requeues_and_resumes_to_the_end(

@@ -14,8 +14,8 @@ from rerun.chunk import RrdReader
 
 from hercs.apps.view import read_run_log
 from hercs.run.rundir import RunDir
-from tests.integration.test_launcher import Launcher, free_endpoint, process_alive
-from tests.support import free_tcp_port, rerun_viewer
+from tests.integration.launcher_standins import Launcher, process_alive
+from tests.support import free_endpoint, free_tcp_port, rerun_viewer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -17,7 +17,7 @@ import yaml
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_cluster_models, read_episodes
 from hercs.wire.codec import msg_to_array
-from tests.integration.conftest import free_endpoint
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]
 

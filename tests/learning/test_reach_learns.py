@@ -22,7 +22,7 @@ import yaml
 
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_cluster_models, read_episodes
-from tests.integration.conftest import free_endpoint
+from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning]
 

@@ -109,7 +109,7 @@ def test_workers_preset_scales_episodes_batch_and_actors(capsys, tmp_path: Path)
 
 EXIT_AFTER_CLOSE_SCRIPT = """
 import logging, sys, threading
-from hercs.apps.cli import exit_after_close
+from hercs.apps.cli_services import exit_after_close
 logging.basicConfig(level=logging.INFO, format="%(message)s")
 release = threading.Event()
 def late_writer():

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from hercs.reasons import Disposition, Reason
-from tests.unit.replay_service.test_replay_table import Harness, Recorder, make
+from tests.unit.replay_service.table_harness import Harness, Recorder, make
 
 # The table's test config: ρ = 2 updates per episode, d = 2·I − S held in [0, 16]. Once the
 # limiter is full, each sample call of 8 minibatches makes room for exactly 4 inserts.

@@ -1,0 +1,184 @@
+"""Hostile input to the replay's queryables: insert, sample, episode, clusterer state."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+
+from hercs.proto import SCHEMA_VERSION
+from hercs.proto import hercs_pb2 as pb
+from hercs.wire.codec import episode_to_msg, msg_to_array, msg_to_episode
+from hercs.wire.served import decode_served_batch
+from tests.fault.fuzz.oracles import insert_verdict, parse_verdict, sample_verdict
+from tests.fault.fuzz.probes import (
+    BASE_EPISODES,
+    OTHER_MESSAGES,
+    Probe,
+    mixed,
+    probe_lists,
+    unknown_field,
+)
+from tests.fault.fuzz.runs import (
+    HYPOTHESIS,
+    KR,
+    MAX_BYTES,
+    MAX_VALID_SAMPLE_ROWS,
+    RUN_R,
+    SPEC,
+    VALID,
+    K,
+)
+from tests.fault.fuzz.strategies import (
+    clusterer_state_probes,
+    episode_probes,
+    episode_request_probes,
+    sample_request_probes,
+)
+from tests.fault.fuzz.world import World, check_expect, sent
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
+
+
+def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: World) -> None:
+    w = world
+    bases = [m.SerializeToString() for m in BASE_EPISODES]
+
+    @settings(HYPOTHESIS, max_examples=135)
+    @given(probe_lists(mixed(episode_probes(), bases, MAX_BYTES)))
+    def barrage(probes: list[Probe]) -> None:
+        verdicts = [insert_verdict(p.payload) for p in probes]
+        for probe, verdict in zip(probes, verdicts, strict=True):
+            check_expect(probe, verdict)
+        known = dict(w.ledger.keys)
+        new: dict[tuple[str, int], list[tuple[pb.InsertAck, pb.Episode]]] = {}
+        for probe, verdict, (reply, reason, detail) in zip(
+                probes, verdicts, w.ask(KR.insert, [p.payload for p in probes]), strict=True):
+            if verdict != VALID:
+                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
+                w.ledger.replay_rejects[verdict] += 1
+                continue
+            assert reply is not None, (probe, reason, detail)
+            msg = pb.Episode.FromString(probe.payload)
+            ack = pb.InsertAck.FromString(reply)
+            assert (ack.actor_id, ack.seq) == (msg.actor_id, msg.seq), probe
+            key = (msg.actor_id, msg.seq)
+            if key in known:
+                assert ack.duplicate and ack.episode_id == known[key], probe
+                w.ledger.duplicates += 1
+            else:
+                new.setdefault(key, []).append((ack, msg))
+        for key, acks in new.items():  # of concurrent inserts of one new pair, one stores it
+            firsts = [(ack, msg) for ack, msg in acks if not ack.duplicate]
+            assert len(firsts) == 1, (key, [a for a, _ in acks])
+            episode_id = firsts[0][0].episode_id
+            assert all(ack.episode_id == episode_id for ack, _ in acks)
+            assert episode_id not in w.ledger.stored
+            w.ledger.stored[episode_id] = firsts[0][1]
+            w.ledger.keys[key] = episode_id
+            w.ledger.duplicates += len(acks) - 1
+        sent(w, "replay/insert", probes)
+
+    barrage()
+    assert sorted(w.ledger.stored) == list(range(len(w.ledger.stored))), "ids are dense"
+    w.check_replay_counters()
+
+
+def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) -> None:
+    w = world
+    bases = [p for name, p in OTHER_MESSAGES if name == "SampleRequest"]
+
+    @settings(HYPOTHESIS, max_examples=65)
+    @given(probe_lists(mixed(sample_request_probes(), bases, MAX_BYTES)))
+    def barrage(probes: list[Probe]) -> None:
+        verdicts = [sample_verdict(p.payload) for p in probes]
+        for probe, verdict in zip(probes, verdicts, strict=True):
+            check_expect(probe, verdict)
+        keep = []
+        for probe, verdict in zip(probes, verdicts, strict=True):
+            if verdict == VALID:
+                msg = pb.SampleRequest.FromString(probe.payload)
+                if msg.num_minibatches * msg.batch_size > MAX_VALID_SAMPLE_ROWS:
+                    w.ledger.skipped["replay/sample (valid, large)"] += 1
+                    continue
+            keep.append((probe, verdict))
+        answers = w.ask(KR.sample, [p.payload for p, _ in keep])
+        for (probe, verdict), (reply, reason, detail) in zip(keep, answers, strict=True):
+            if verdict != VALID:
+                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
+                w.ledger.replay_rejects[verdict] += 1
+                continue
+            assert reply is not None, (probe, reason, detail)
+            msg = pb.SampleRequest.FromString(probe.payload)
+            batch = decode_served_batch(reply, spec=SPEC, k=K, batch_size=msg.batch_size,
+                                        num_minibatches=msg.num_minibatches)
+            assert pb.Batch.FromString(reply).request_id == msg.request_id
+            assert int(batch.cluster_draws.sum()) == msg.num_minibatches * msg.batch_size
+            assert batch.status.cluster_model_version == w.model_oracle.version
+        sent(w, "replay/sample", [p for p, _ in keep])
+
+    barrage()
+    w.check_replay_counters()
+
+
+def test_replay_episode_queryable_serves_stored_episodes_only(world: World) -> None:
+    w = world
+    bases = [pb.EpisodeRequest(schema_version=SCHEMA_VERSION, episode_id=i).SerializeToString()
+             for i in (0, 3, 200)]
+    verdict_of = parse_verdict(pb.EpisodeRequest, MAX_BYTES)
+
+    @settings(HYPOTHESIS, max_examples=60)
+    @given(probe_lists(mixed(episode_request_probes(), bases, MAX_BYTES)))
+    def barrage(probes: list[Probe]) -> None:
+        verdicts = [verdict_of(p.payload) for p in probes]
+        for probe, verdict in zip(probes, verdicts, strict=True):
+            check_expect(probe, verdict)
+        for probe, verdict, (reply, reason, detail) in zip(
+                probes, verdicts, w.ask(KR.episode, [p.payload for p in probes]), strict=True):
+            if verdict != VALID:
+                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
+                w.ledger.replay_rejects[verdict] += 1
+                continue
+            episode_id = pb.EpisodeRequest.FromString(probe.payload).episode_id
+            stored = w.ledger.stored.get(episode_id)
+            if stored is None:  # a miss: an error reply, not a reject
+                assert (reply, reason) == (None, "unknown_episode") and detail, (probe, reason)
+                continue
+            assert reply is not None, (probe, reason, detail)
+            expected = episode_to_msg(msg_to_episode(stored), run=RUN_R, task=SPEC.name)
+            assert pb.Episode.FromString(reply) == expected, probe
+        sent(w, "replay/episode", probes)
+
+    barrage()
+    w.check_replay_counters()
+
+
+def test_replay_clusterer_state_queryable(world: World) -> None:
+    w = world
+    bases = [pb.ClustererStateRequest(schema_version=SCHEMA_VERSION).SerializeToString()
+             + unknown_field(8)]
+    verdict_of = parse_verdict(pb.ClustererStateRequest, MAX_BYTES)
+
+    @settings(HYPOTHESIS, max_examples=40)
+    @given(probe_lists(mixed(clusterer_state_probes(), bases, MAX_BYTES)))
+    def barrage(probes: list[Probe]) -> None:
+        verdicts = [verdict_of(p.payload) for p in probes]
+        for probe, verdict in zip(probes, verdicts, strict=True):
+            check_expect(probe, verdict)
+        for probe, verdict, (reply, reason, detail) in zip(
+                probes, verdicts, w.ask(KR.clusterer_state, [p.payload for p in probes]),
+                strict=True):
+            if verdict != VALID:
+                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
+                w.ledger.replay_rejects[verdict] += 1
+                continue
+            assert reply is not None, (probe, reason, detail)
+            state = pb.ClustererState.FromString(reply)
+            goals = msg_to_array(state.failed_goals)
+            assert goals.ndim == 2 and goals.shape[1] == 3 and np.isfinite(goals).all()
+            assert state.episodes_seen == len(w.ledger.stored)
+            assert state.model_version == w.model_oracle.version
+        sent(w, "replay/clusterer_state", probes)
+
+    barrage()
+    w.check_replay_counters()
