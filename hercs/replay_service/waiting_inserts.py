@@ -23,7 +23,7 @@ actors × `per_actor` × the largest message. An inserter delivers one episode a
 waiting (actor_id, seq) joins that call (hercs.replay_service.table) and is never refused here.
 
 `per_actor = 0` turns fair sharing off: one FIFO in arrival order and no bound (what the
-replay did before, kept for the side-by-side measurement, bench/fair_share.py).
+replay did before, kept for the side-by-side measurement, bench/perf/fair_share.py).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ that fails its CRC or does not decompress is the torn tail too, unless an intact
 follows it: then the file is damaged in the middle and `EpisodeLogError` is raised rather
 than silently dropping acked data.
 
-Speed (a restarted replay reads its whole buffer back, bench/replay_recovery.py): a chunk's
+Speed (a restarted replay reads its whole buffer back, bench/faults/replay_recovery.py): a chunk's
 records are walked with `struct`, and a message becomes a `LoggedMessage` only if it is on a
 topic asked for. A read for some topics (`read_messages(path, topics)`) does not decompress a
 chunk whose message indexes (the records after it) name only channels of other topics, e.g. an

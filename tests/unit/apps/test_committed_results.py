@@ -1,6 +1,6 @@
-"""The committed figures are what `hercs plot`, bench/schedule_effect.py and bench/claims.py
-compute from the committed runs: a run added under docs/results/runs/ without redrawing
-docs/results/fig2.md, asynchrony.md and claims.md (`make figures`) fails here."""
+"""The committed figures are what `hercs plot`, studies/schedule_effect/schedule_pairs.py and
+studies/claims/claims.py compute from the committed runs: a run added under docs/results/runs/
+without redrawing docs/results/fig2.md, asynchrony.md and claims.md (`make figures`) fails here."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from hercs.apps import plot_tables, plots
 from hercs.run.rundir import RunDir
-from tests.support import load_bench
+from tests.support import load_module
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
 
@@ -30,18 +30,18 @@ def test_fig2_tables_equal_what_hercs_plot_computes_from_the_committed_runs() ->
 
 
 def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committed_runs() -> None:
-    effect = load_bench("schedule_effect")
+    effect = load_module("studies.schedule_effect.schedule_pairs")
     curves = [plots.load_run(run) for run in committed_runs()]
-    expected = effect.report(effect.compare_all(curves, 50), "python -m bench.schedule_effect")
+    expected = effect.report(effect.compare_all(curves, 50), "python -m studies.schedule_effect")
     assert (RESULTS / effect.OUTPUT).read_text() == expected, (
         "docs/results/asynchrony.md is not what the committed runs give: run `make figures`")
 
 
 @pytest.mark.slow  # the bootstrap at the committed file's 10,000 reps: ~10 s
 def test_claims_equal_what_claims_py_computes_from_the_committed_runs() -> None:
-    claims = load_bench("claims")
+    claims = load_module("studies.claims.claims")
     groups = claims.load_groups(RESULTS / "runs")
     expected = claims.report(claims.evaluate(claims.CLAIMS, groups), groups,
-                             "python -m bench.claims")
+                             "python -m studies.claims")
     assert (RESULTS / claims.OUTPUT).read_text() == expected, (
         "docs/results/claims.md is not what the committed runs give: run `make figures`")
