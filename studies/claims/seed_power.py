@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from studies.claims import claims
+from studies.claims import claim_runs, claims
 from studies.claims.claim_statistics import Score
 from studies.study_output import REPO, write_report
 
@@ -98,7 +98,7 @@ def population(scores: Sequence[Score], metric: str) -> Population:
                           np.zeros(len(scores), dtype=bool), 0.0, 1.0)
     return Population(-np.array([s.at_half for s in scores], dtype=float),
                       np.array([s.censored for s in scores], dtype=bool),
-                      -float(claims.EPOCH), 0.0)
+                      -float(claim_runs.EPOCH), 0.0)
 
 
 def improvement_interval(x: np.ndarray, y: np.ndarray, reps: int, rng: np.random.Generator
@@ -124,7 +124,7 @@ def power(x: Population, y: Population, n: int, sims: int, reps: int,
 
 
 def run(runs_dir: Path, seeds: Sequence[int], sims: int, reps: int) -> dict[str, Any]:
-    groups = claims.load_groups(runs_dir)
+    groups = claim_runs.load_groups(runs_dir)
     by_title = {c.title: c for c in claims.CLAIMS}
     rows = []
     for title in CLAIM_TITLES:
@@ -132,7 +132,7 @@ def run(runs_dir: Path, seeds: Sequence[int], sims: int, reps: int) -> dict[str,
         row: dict[str, Any] = {"claim": title, "x": x_side.group.label,
                                "y": y_side.group.label, "seeds": [x_side.n, y_side.n]}
         for metric in METRICS:
-            if min(x_side.n, y_side.n) < claims.MIN_SEEDS:
+            if min(x_side.n, y_side.n) < claim_runs.MIN_SEEDS:
                 row[metric] = None
                 continue
             x, y = population(x_side.scores, metric), population(y_side.scores, metric)

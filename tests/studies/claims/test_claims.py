@@ -20,7 +20,9 @@ from hercs.run.rundir import RunDir
 from studies.claims import claim_statistics
 from tests.support import load_module
 
+claim_runs = load_module("studies.claims.claim_runs")
 claims = load_module("studies.claims.claims")
+claims_report = load_module("studies.claims.claims_report")
 REPO = Path(__file__).resolve().parents[3]
 REPS = 200  # enough to exercise the bootstrap; the committed file uses claims.REPS
 NEW_LAG = {"learner": {"prefetch_depth": 3}, "training": {"max_policy_lag": -1},
@@ -53,7 +55,9 @@ def _ramp(start: int, n: int = 50) -> list[float]:
 @pytest.fixture(autouse=True)
 def _new_default_is_fixed(monkeypatch: pytest.MonkeyPatch) -> None:
     """The tests' "new default" is NEW_LAG whatever hercs.config's defaults become."""
-    monkeypatch.setattr(claims, "new_default_lag", lambda: claims.lag_setting(NEW_LAG))
+    fixed = claim_runs.lag_setting(NEW_LAG)
+    for module in (claim_runs, claims):  # where runs are labelled, and where claims choose
+        monkeypatch.setattr(module, "new_default_lag", lambda: fixed)
 
 
 # ---------------------------------------------------------------------------- per run
@@ -61,7 +65,7 @@ def _new_default_is_fixed(monkeypatch: pytest.MonkeyPatch) -> None:
 def _score(success: list[float], epoch: int = 50):
     curve = Curve("FetchPush", "her", 1, np.arange(1, len(success) + 1),
                   np.array(success, dtype=float))
-    return claims.score(claims.Run("r", 1, len(success), curve), epoch)
+    return claim_runs.score(claim_runs.Run("r", 1, len(success), curve), epoch)
 
 
 def test_a_run_that_crosses_gets_the_tables_epoch_and_its_success_at_50() -> None:
@@ -100,23 +104,23 @@ def test_groups_follow_the_config_and_missing_keys_take_the_old_defaults(tmp_pat
          **_deep_merge(NEW_LAG, {"training": {"schedule": "lockstep"}}))
     _run(runs, "bf16", "her-cs", 1, _ramp(30), learner={"precision": "bf16"})
     (runs / "not-a-run").mkdir()
-    groups = claims.load_groups(runs)
+    groups = claim_runs.load_groups(runs)
     names = {g: [r.name for r in rs] for g, rs in groups.items() if g.schedule != "authors"}
-    legacy = claims.Group("FetchPush", "her-cs", lag=claims.LEGACY)
+    legacy = claim_runs.Group("FetchPush", "her-cs", lag=claim_runs.LEGACY)
     assert names == {
         legacy: ["legacy", "legacy-again"],
-        claims.Group("FetchPush", "her-cs", env="v1", lag=claims.LEGACY): ["v1"],
-        claims.Group("FetchPush", "her-cs", lag=claims.lag_setting(NEW_LAG)): ["new"],
-        claims.Group("FetchPush", "her-cs", lag="prefetch_depth=0, max_policy_lag=-1, "
+        claim_runs.Group("FetchPush", "her-cs", env="v1", lag=claim_runs.LEGACY): ["v1"],
+        claim_runs.Group("FetchPush", "her-cs", lag=claim_runs.lag_setting(NEW_LAG)): ["new"],
+        claim_runs.Group("FetchPush", "her-cs", lag="prefetch_depth=0, max_policy_lag=-1, "
                                                 "insert_queue=2"): ["other-lag"],
         # lockstep has no policy lag: the lag settings do not split it
-        claims.Group("FetchPush", "her-cs", schedule="lockstep"): ["lockstep", "lockstep-new"],
-        claims.Group("FetchPush", "her-cs", precision="bf16", lag=claims.LEGACY): ["bf16"],
+        claim_runs.Group("FetchPush", "her-cs", schedule="lockstep"): ["lockstep", "lockstep-new"],
+        claim_runs.Group("FetchPush", "her-cs", precision="bf16", lag=claim_runs.LEGACY): ["bf16"],
     }
     assert legacy.label == "HER-CS, v4, async (legacy), fp32"
-    assert claims.Group("FetchPush", "her", lag=claims.lag_setting(NEW_LAG)).label == (
+    assert claim_runs.Group("FetchPush", "her", lag=claim_runs.lag_setting(NEW_LAG)).label == (
         "HER, v4, async (new default), fp32")
-    authors = groups[claims.Group("FetchPush", "her-cs", env="v1", schedule="authors")]
+    authors = groups[claim_runs.Group("FetchPush", "her-cs", env="v1", schedule="authors")]
     assert [r.seed for r in authors] == [121, 123, 125, 127, 133]
 
 
@@ -129,23 +133,23 @@ def test_a_run_with_another_weld_or_energy_floor_is_never_a_seed_of_the_plain_gr
     _run(tmp_path, "push-her-ebp-cs-s1", "her-ebp-cs", 1, _ramp(30, 50), **NEW_LAG)
     _run(tmp_path, "push-ts4-her-ebp-cs-s1", "her-ebp-cs", 1, _ramp(30, 60),
          **_deep_merge(NEW_LAG, {"task": {"weld_torquescale": 4.0}}))
-    groups = claims.load_groups(tmp_path)
-    lag = claims.lag_setting(NEW_LAG)
+    groups = claim_runs.load_groups(tmp_path)
+    lag = claim_runs.lag_setting(NEW_LAG)
     names = {g: [r.name for r in rs] for g, rs in groups.items() if g.schedule != "authors"}
     assert names == {
-        claims.Group("FetchPush", "her-ebp-cs", lag=lag): ["push-her-ebp-cs-s1"],
-        claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001"): [
+        claim_runs.Group("FetchPush", "her-ebp-cs", lag=lag): ["push-her-ebp-cs-s1"],
+        claim_runs.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001"): [
             "push-eps1e-3-her-ebp-cs-s1"],
-        claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="torquescale 4"): [
+        claim_runs.Group("FetchPush", "her-ebp-cs", lag=lag, setting="torquescale 4"): [
             "push-ts4-her-ebp-cs-s1"]}
-    assert claims.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001").label == (
+    assert claim_runs.Group("FetchPush", "her-ebp-cs", lag=lag, setting="ε 0.001").label == (
         "HER-EBP-CS, v4, async (new default), fp32, ε 0.001")
 
 
 def test_two_runs_of_one_group_and_seed_are_one_seed_the_longer(tmp_path: Path) -> None:
     _run(tmp_path / "a", "push-her-s1", "her", 1, _ramp(30, 20))
     _run(tmp_path / "a", "push-her-s1-again", "her", 1, _ramp(30, 50))
-    groups = claims.load_groups(tmp_path / "a")
+    groups = claim_runs.load_groups(tmp_path / "a")
     ours = [rs for g, rs in groups.items() if g.schedule != "authors"]
     assert [[(r.name, r.epochs) for r in rs] for rs in ours] == [[("push-her-s1-again", 50)]]
 
@@ -161,7 +165,7 @@ def _grid(root: Path, cs_seeds: int, her_seeds: int, tag: str = "", **config: di
         _run(root, f"cs-{seed}{tag}", "her-cs", seed, _ramp(20 + seed), **config)
     for seed in range(1, her_seeds + 1):
         _run(root, f"her-{seed}{tag}", "her", seed, _ramp(30 + seed), **config)
-    return claims.load_groups(root)
+    return claim_runs.load_groups(root)
 
 
 def test_a_side_with_one_seed_gets_no_numbers(tmp_path: Path) -> None:
@@ -170,7 +174,7 @@ def test_a_side_with_one_seed_gets_no_numbers(tmp_path: Path) -> None:
     assert (r.x.n, r.y.n) == (1, 3)
     assert r.x_stats is None and r.improvement is None
     assert r.y_stats is not None  # a side with enough seeds keeps its own numbers
-    text = claims.report([r], groups, "cmd", reps=REPS)
+    text = claims_report.report([r], groups, "cmd", reps=REPS)
     row = next(line for line in text.splitlines() if line.startswith("| HER-CS against HER"))
     assert "not enough seeds (X n=1) | – | – | – | – |" in row
 
@@ -180,10 +184,10 @@ def test_a_side_whose_runs_stopped_early_says_so(tmp_path: Path) -> None:
     _run(tmp_path, "cs-2", "her-cs", 2, _ramp(10, 40))
     _run(tmp_path, "her-1", "her", 1, _ramp(30))
     _run(tmp_path, "her-2", "her", 2, _ramp(30))
-    groups = claims.load_groups(tmp_path)
+    groups = claim_runs.load_groups(tmp_path)
     [r] = claims.evaluate([CS_VS_HER], groups, reps=REPS)
     assert (r.x.n, r.x.short) == (0, ["cs-1", "cs-2"])
-    text = claims.report([r], groups, "cmd", reps=REPS)
+    text = claims_report.report([r], groups, "cmd", reps=REPS)
     assert "not enough seeds (X n=0, 2 shorter than 50 epochs)" in text
     assert "| cs-1 | stopped before epoch 50: left out | – |" in text
 
@@ -195,13 +199,13 @@ def test_a_claim_with_its_own_epoch_cuts_both_sides_there(tmp_path: Path) -> Non
     _run(tmp_path, "cs-2", "her-cs", 2, _ramp(12, 40))
     _run(tmp_path, "her-1", "her", 1, _ramp(40))
     _run(tmp_path, "her-2", "her", 2, _ramp(20))
-    groups = claims.load_groups(tmp_path)
+    groups = claim_runs.load_groups(tmp_path)
     at40 = replace(CS_VS_HER, title="HER-CS against HER, at epoch 40", epoch=40)
     [r] = claims.evaluate([at40], groups, reps=REPS)
     assert (r.x.n, r.y.n, r.x.epoch) == (2, 2, 40)
     assert [s.at_half for s in r.x.scores] == [15, 17]
     assert [(s.at_half, s.censored) for s in r.y.scores] == [(40, True), (25, False)]
-    text = claims.report([r], groups, "cmd", reps=REPS)
+    text = claims_report.report([r], groups, "cmd", reps=REPS)
     assert "| HER (at epoch 40) | her-1 | .00 | never (40, censored) |" in text.replace(
         ", v4, async (legacy), fp32", "")
     # the same runs at the report's epoch 50: the HER-CS side is too short
@@ -218,7 +222,7 @@ def test_numbers_by_hand_for_two_against_two(tmp_path: Path) -> None:
     _run(tmp_path, "cs-2", "her-cs", 2, _ramp(21))
     _run(tmp_path, "her-1", "her", 1, _ramp(30))
     _run(tmp_path, "her-2", "her", 2, [0.2] * 50)
-    groups = claims.load_groups(tmp_path)
+    groups = claim_runs.load_groups(tmp_path)
     [r] = claims.evaluate([CS_VS_HER], groups, reps=REPS)
     assert [s.at_half for s in r.x.scores] == [25, 26]
     assert [(s.at_half, s.censored) for s in r.y.scores] == [(35, False), (50, True)]
@@ -229,7 +233,7 @@ def test_numbers_by_hand_for_two_against_two(tmp_path: Path) -> None:
     success, earlier = r.improvement
     assert (success.value, success.low, success.high) == (0.75, 0.5, 1.0)
     assert (earlier.value, earlier.low, earlier.high) == (1.0, 1.0, 1.0)
-    text = claims.report([r], groups, "cmd", reps=REPS)
+    text = claims_report.report([r], groups, "cmd", reps=REPS)
     assert "| 2 / 2 | 0 / 1 | 25.5 [25.0, 26.0] | 42.5 [35.0, 50.0] |" in text
     assert "never (50, censored)" in text
 
@@ -239,32 +243,32 @@ def test_the_new_default_is_taken_where_both_sides_have_two_seeds_else_legacy(
     _grid(tmp_path, 3, 3)  # legacy
     groups = _grid(tmp_path, 2, 1, "-new", **NEW_LAG)  # new default: HER has one seed only
     x, y = claims.resolve(CS_VS_HER, groups)
-    assert (x.group.lag, y.group.lag, x.n, y.n) == (claims.LEGACY, claims.LEGACY, 3, 3)
+    assert (x.group.lag, y.group.lag, x.n, y.n) == (claim_runs.LEGACY, claim_runs.LEGACY, 3, 3)
     _run(tmp_path, "her-2-new", "her", 2, _ramp(31), **NEW_LAG)
-    x, y = claims.resolve(CS_VS_HER, claims.load_groups(tmp_path))
-    assert x.group.lag == y.group.lag == claims.lag_setting(NEW_LAG)
+    x, y = claims.resolve(CS_VS_HER, claim_runs.load_groups(tmp_path))
+    assert x.group.lag == y.group.lag == claim_runs.lag_setting(NEW_LAG)
     assert (x.n, y.n) == (2, 2)
 
 
 def test_a_lockstep_side_is_not_split_by_lag_and_an_empty_claim_names_the_new_default(
         tmp_path: Path) -> None:
     _run(tmp_path, "lock-1", "her-cs", 1, _ramp(20), training={"schedule": "lockstep"})
-    groups = claims.load_groups(tmp_path)
+    groups = claim_runs.load_groups(tmp_path)
     lockstep = claims.Claim("lockstep against asynchronous",
                             claims._push("her-cs", schedule="lockstep"), claims._push("her-cs"))
     x, y = claims.resolve(lockstep, groups)
     assert (x.group.lag, x.n) == ("", 1)
-    assert (y.group.lag, y.n) == (claims.lag_setting(NEW_LAG), 0)
+    assert (y.group.lag, y.n) == (claim_runs.lag_setting(NEW_LAG), 0)
 
 
 def test_output_is_deterministic_and_leaves_numpys_global_rng_alone(tmp_path: Path) -> None:
     groups = _grid(tmp_path, 3, 2)
     np.random.seed(123)
     before = np.random.get_state()[1].copy()
-    first = claims.report(claims.evaluate(claims.CLAIMS[:3], groups, reps=REPS), groups, "c")
+    first = claims_report.report(claims.evaluate(claims.CLAIMS[:3], groups, reps=REPS), groups, "c")
     assert np.array_equal(np.random.get_state()[1], before)
     np.random.seed(7)  # the caller's RNG does not leak into the intervals
-    assert claims.report(claims.evaluate(claims.CLAIMS[:3], groups, reps=REPS), groups,
+    assert claims_report.report(claims.evaluate(claims.CLAIMS[:3], groups, reps=REPS), groups,
                          "c") == first
 
 
@@ -318,9 +322,9 @@ def test_every_committed_run_a_claim_leaves_out_is_listed_with_the_reason() -> N
     """The audit's finding: chaos and fault-free runs were left out silently by the
     "longest run per seed" rule."""
     runs_dir = Path(__file__).resolve().parents[3] / "docs" / "results" / "runs"
-    groups = claims.load_groups(runs_dir)
+    groups = claim_runs.load_groups(runs_dir)
     results = claims.evaluate(claims.CLAIMS, groups, reps=10)
-    text = claims.report(results, groups, "test", reps=10)
+    text = claims_report.report(results, groups, "test", reps=10)
     used = {s.run for r in results for side in (r.x, r.y) for s in side.scores}
     used |= {name for r in results for side in (r.x, r.y) for name in side.short}
     committed = {p.name for p in runs_dir.iterdir() if RunDir(p).metrics.is_file()}
@@ -347,13 +351,13 @@ def test_the_epoch_at_0_9_table_has_numbers_by_hand(tmp_path: Path) -> None:
     _run(tmp_path, "cs-2", "her-cs", 2, _ramp(16))
     _run(tmp_path, "her-1", "her", 1, [0.8] * 50)
     _run(tmp_path, "her-2", "her", 2, [0.2] * 50)
-    groups = claims.load_groups(tmp_path)
+    groups = claim_runs.load_groups(tmp_path)
     [r] = claims.evaluate([CS_VS_HER], groups, reps=REPS)
     assert [s.at_high for s in r.x.scores] == [24, 25]
     assert r.high.x_mean.value == pytest.approx(24.5)
     assert (r.high.y_iqm.value, r.high.y_iqm.low, r.high.y_iqm.high) == (50.0, 50.0, 50.0)
     assert (r.high.earlier.value, r.high.earlier.low, r.high.earlier.high) == (1.0, 1.0, 1.0)
-    text = claims.report([r], groups, "cmd", reps=REPS)
+    text = claims_report.report([r], groups, "cmd", reps=REPS)
     assert "| 2 / 2 | 0 / 2 | 24.5 [24.0, 25.0] | 50.0 [50.0, 50.0] |" in text
     # the 0.5 numbers are bootstrapped as before the 0.9 ones existed
     assert r.improvement == claim_statistics.improvement(r.x.scores, r.y.scores, REPS)
@@ -365,14 +369,14 @@ def test_each_sides_commits_days_machines_and_assumed_settings_are_listed(
             "machine": {"cpu": "AMD EPYC (family 25 model 17; avx2 avx512f)", "boot_id": "b1"}}
     for run in (_run(tmp_path, "cs-1", "her-cs", 1, _ramp(20)),
                 _run(tmp_path, "her-1", "her", 1, _ramp(30))):
-        (run / claims.DONE_FILE).write_text(json.dumps(made))
+        (run / claim_runs.DONE_FILE).write_text(json.dumps(made))
     _run(tmp_path, "cs-2", "her-cs", 2, _ramp(21), training={"schedule": "async"})
-    (tmp_path / "cs-2" / claims.DONE_FILE).write_text(json.dumps(
+    (tmp_path / "cs-2" / claim_runs.DONE_FILE).write_text(json.dumps(
         {"commit": "def5678 (with uncommitted changes)", "finished": "2026-11-27T01:00:00"}))
     _run(tmp_path, "her-2", "her", 2, [0.2] * 50, training={"schedule": "async"},
          learner={"precision": "fp32"})
-    groups = claims.load_groups(tmp_path)
-    text = claims.report(claims.evaluate([CS_VS_HER], groups, reps=REPS), groups, "c",
+    groups = claim_runs.load_groups(tmp_path)
+    text = claims_report.report(claims.evaluate([CS_VS_HER], groups, reps=REPS), groups, "c",
                          reps=REPS)
     assert ("| HER-CS, v4, async (legacy), fp32 | 2 | abc1234, def5678+ | 2026-11-26 – "
             "2026-11-27 | AMD EPYC (avx512), boot b1, not recorded (1) | "

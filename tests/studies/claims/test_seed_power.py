@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from studies.claims import claims
+from studies.claims import claim_runs
 from studies.claims.claim_statistics import Score, improvement
 from studies.claims.seed_power import (
     Population,
@@ -27,7 +27,7 @@ REPORT = REPO / "docs" / "results" / "seed_power.json"
 
 
 def _scores(successes: list[float], epochs: list[int]) -> list[Score]:
-    return [Score(f"r{i}", s, e, e >= claims.EPOCH)
+    return [Score(f"r{i}", s, e, e >= claim_runs.EPOCH)
             for i, (s, e) in enumerate(zip(successes, epochs, strict=True))]
 
 
@@ -66,8 +66,8 @@ def test_draws_stay_in_range_and_censored_runs_stay_censored() -> None:
     p = population(_scores([0.0, 1.0, .5], [50, 10, 30]), "earlier")
     assert p.censored.tolist() == [True, False, False]
     d = p.draw(10_000, rng)
-    assert d.min() >= -claims.EPOCH and d.max() <= 0.0
-    censored = np.isclose(d, -claims.EPOCH)
+    assert d.min() >= -claim_runs.EPOCH and d.max() <= 0.0
+    censored = np.isclose(d, -claim_runs.EPOCH)
     # a third of the draws are the censored run, exactly at -EPOCH; a crossing run reaches it
     # only through clipping, rarely with this spread
     assert 0.30 < censored.mean() < 0.40
@@ -89,7 +89,7 @@ def test_a_side_with_one_uncensored_run_is_drawn_without_noise() -> None:
     p = population(_scores([.2, .1, .9], [50, 50, 20]), "earlier")
     assert p.bandwidth == 0.0
     d = p.draw(1000, np.random.default_rng(0))
-    assert set(d.tolist()) == {-claims.EPOCH, -20.0}
+    assert set(d.tolist()) == {-claim_runs.EPOCH, -20.0}
 
 
 def test_quick_mode_runs_and_the_committed_report_is_its_json_rendered(tmp_path) -> None:
