@@ -60,8 +60,8 @@ from bench.faults.chaos_actors import Incarnation, RemoteActors
 from bench.faults.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan, Event
 from bench.faults.chaos_report import measure_soak, write_report
 from bench.faults.chaos_state import QUICK_SHAPE, Shape, SoakState, new_state
-from bench.faults.net_faults import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.faults.netns import Host, hosts, problem
+from bench.faults.remote_actor import ACTOR_EXIT_S, free_port, sigterm_as_exit
 from bench.faults.service_kills import EPOCH, Up
 from hercs.apps.certs import make_certs
 from hercs.run.rundir import CONFIG, RunDir

@@ -17,8 +17,8 @@ import signal
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.faults.net_faults import Actor, actor_ident, start_actor
 from bench.faults.netns import Host
+from bench.faults.remote_actor import Actor, actor_ident, start_actor
 
 RESTART_S = 1.0
 """How long after a kill the host's supervisor starts the actor again (the launcher's own

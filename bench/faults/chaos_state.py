@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from bench.faults.chaos_plan import ChaosPlan, draw_events
-from bench.faults.net_faults import actor_ident
+from bench.faults.remote_actor import actor_ident
 
 
 @dataclass(frozen=True)

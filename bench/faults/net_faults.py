@@ -37,33 +37,29 @@ import contextlib
 import json
 import os
 import platform
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
-from bench.common import git_commit
+from bench.common import REPO, git_commit
 from bench.faults.delay_relay import DelayRelay
 from bench.faults.net_measure import NetResult, measure
 from bench.faults.netns import Host, hosts, problem
+from bench.faults.remote_actor import (
+    ACTOR_EXIT_S,
+    Actor,
+    free_port,
+    sigterm_as_exit,
+    start_actor,
+)
 from bench.faults.service_kills import EPOCH, Up
 from hercs.apps.certs import make_certs
-from hercs.apps.child_process import pdeathsig_preexec
 from hercs.run.rundir import RunDir
-
-REPO = Path(__file__).resolve().parents[2]
-ACTOR_EXIT_S = 60.0
-"""How long an actor may take to stop by itself once `hercs up` has exited (it stops when
-the learner says the run is finished); then it gets SIGTERM."""
-
 
 CUTS = ("", "both", "to-actors")
 
@@ -141,55 +137,6 @@ QUICK_SHAPE = Shape(epochs=5, cycles=2, actors=1, cut_at=1, cut_s=15.0)
 three: the rate limiter lets the actor insert ahead of the learner, and by epoch 1's end it
 had stored the episodes of three epochs' updates once, so a 3-epoch run ended in the cut
 before any insert after the heal (a CI run failed so); five need episodes after the heal."""
-
-
-def free_port() -> int:
-    """A port free on every address of this namespace (the router listens on each link)."""
-    with socket.socket() as sock:
-        sock.bind(("0.0.0.0", 0))
-        return int(sock.getsockname()[1])
-
-
-@dataclass
-class Actor:
-    host: Host
-    ident: str
-    log: Path
-    proc: subprocess.Popen[bytes]
-
-    def stop(self, timeout_s: float) -> tuple[int, bool]:
-        """Its exit status once it ends by itself, else after SIGTERM (then SIGKILL);
-        and whether it had to be stopped."""
-        try:
-            return self.proc.wait(timeout=timeout_s), False
-        except subprocess.TimeoutExpired:
-            self.proc.terminate()
-            try:
-                return self.proc.wait(timeout=30), True
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                return self.proc.wait(), True
-
-
-def actor_ident(index: int) -> str:
-    """The `--id` of the actor on host `index` (its wire id adds `@<incarnation>`)."""
-    return f"net-{index}"
-
-
-def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
-                out: Path, log_name: str | None = None) -> Actor:
-    """`hercs actor` in `host`'s namespace, its output (DEBUG: one line per ack) in
-    `out/log_name` (default `<run>.<ident>.log`)."""
-    ident = actor_ident(index)
-    log = out / (log_name or f"{run}.{ident}.log")
-    argv = host.exec_argv([sys.executable, "-m", "hercs.apps.cli", "actor", "--connect", endpoint,
-                           "--run", run, "--tls-dir", str(certs), "--id", ident])
-    with log.open("wb") as sink:
-        proc = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, cwd=REPO, start_new_session=True,
-                                env=dict(os.environ, HERCS_LOG="DEBUG"),
-                                preexec_fn=pdeathsig_preexec())  # dies with the bench
-    return Actor(host, ident, log, proc)
 
 
 def wait_for_learner_epochs(run_dir: Path, epochs: int, timeout_s: float, up: Up) -> None:
@@ -355,16 +302,6 @@ def report(results: list[NetResult], *, command: str, shape: Shape, note: str,
         for n in r.notes:
             lines.append(f"\n- {r.setting}: {n}")
     return "\n".join(lines) + "\n"
-
-
-@contextlib.contextmanager
-def sigterm_as_exit() -> Iterator[None]:
-    """SIGTERM ends the bench through its `finally` blocks (namespaces, iptables chains)."""
-    previous = signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    try:
-        yield None
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def main(argv: list[str] | None = None) -> int:

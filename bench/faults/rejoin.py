@@ -32,8 +32,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.faults.net_faults import free_port
 from bench.faults.netns import Host, hosts, problem
+from bench.faults.remote_actor import free_port
 from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig

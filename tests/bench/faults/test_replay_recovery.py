@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.faults.replay_recovery import PHASES, QUICK_BUFFER, QUICK_FGB, QUICK_SIZES, T
+from bench.faults.killed_replay_log import T
+from bench.faults.replay_recovery import PHASES, QUICK_BUFFER, QUICK_FGB, QUICK_SIZES
 from bench.faults.service_kills import kept_sections
 from tests.support import REPO
 
