@@ -17,16 +17,14 @@ from studies.env_diff import __doc__ as overview
 from studies.env_diff.dynamics import (
     gripper_tracking,
     push_probe,
-    rollouts,
     slide_probe,
     step_replica_check,
-    switch_check,
-    weld_sweep,
 )
 from studies.env_diff.env_diff_report import render_md, versions
 from studies.env_diff.initial_states import initial_states
 from studies.env_diff.models import all_field_rows, model_rows, option_rows
 from studies.env_diff.rewards import reward_check
+from studies.env_diff.rollouts import rollouts, switch_check, weld_sweep
 from studies.env_diff.sim import TASKS, make_pair, make_v4_variant, variant_name, xml_variant_setup
 from studies.study_output import REPO, git_commit, machine_identity
 
