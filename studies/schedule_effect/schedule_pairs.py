@@ -44,6 +44,7 @@ from hercs.apps.plots import (
     method_label,
     milestones,
 )
+from hercs.apps.sweep_cells import DONE_FILE
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -93,7 +94,7 @@ class Comparison:
 
 def _done_record(run_dir: Path) -> dict[str, object]:
     try:
-        return json.loads((run_dir / "bench_done.json").read_text())
+        return json.loads((run_dir / DONE_FILE).read_text())
     except (OSError, ValueError):
         return {}
 
