@@ -11,9 +11,13 @@ from typing import Any
 from hercs.apps import provenance
 from hercs.apps.provenance import machine_identity
 
-__all__ = ["REPO", "git_commit", "machine_identity", "write_report"]
+__all__ = ["FINDINGS_HEADING", "REPO", "git_commit", "kept_findings", "machine_identity",
+           "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
+FINDINGS_HEADING = "## What it shows"
+"""The heading of a report's findings: words written by hand from its tables, which a
+regenerated report keeps (`kept_findings`) instead of a study holding them in its code."""
 
 
 def git_commit() -> str:
@@ -30,3 +34,12 @@ def write_report(out: Path | None, name: str, summary: Any, text: str) -> None:
     (out / f"{name}.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / f"{name}.md").write_text(text)
     print(f"wrote {out / (name + '.md')}")
+
+
+def kept_findings(report: Path) -> str:
+    """The findings of a report already written (the text after FINDINGS_HEADING, to its end),
+    for the regenerated report to keep; "" where there is no such report or section."""
+    if not report.is_file():
+        return ""
+    _, heading, findings = report.read_text().partition(f"\n{FINDINGS_HEADING}\n")
+    return findings.strip("\n") + "\n" if heading else ""

@@ -1,26 +1,17 @@
 """How many seeds a side would show HER-CS's gain over HER? (seed power)
 
-    python -m studies.claims.seed_power            # ~1 min; writes
-    docs/results/seed_power.{json,md}
-    python -m studies.claims.seed_power --quick    # CI: fewer simulations, nothing written
+    python -m studies.claims.seed_power          # ~1 min; writes docs/results/seed_power.{json,md}
+    python -m studies.claims.seed_power --quick  # CI: fewer simulations, nothing written
 
-`docs/results/claims.md` reports P(HER-CS > HER), the probability that a HER-CS run beats a
-HER run, with a 95 % bootstrap interval, and calls a claim shown when that interval excludes
-.5. The authors' own 5 seeds a side give .80 [.44, 1.00] there, ours on v1 (6 a side)
-.69 [.33, .97]: neither shows the gain. This asks how many seeds would.
-
-For each claim's two sides, it takes the runs' scores (the success after epoch 50, and the
-epoch at which the 10-epoch mean passes 0.5) as the two populations and simulates studies of
-n runs a side: each run is one of the side's runs drawn with replacement plus Gaussian noise
-of Silverman's bandwidth (a smoothed bootstrap: drawing the 5–6 values themselves would make
-every simulated study's seeds tie often and its interval too narrow), shrunk towards the
-side's mean so that the draws keep the runs' variance (Silverman 1986, §6.4.1: the noise alone
-would add h² to it, about 40 % with 6 runs, and bias the power low), and clipped to the
-score's range; a run that never passed 0.5 stays censored. For each study it computes P(X > Y) with
-the same independent bootstrap interval as claims.md and counts how often the interval's
-low end is above .5: the *power* at n seeds a side, were the true spread of runs the one
-these seeds show. That is a plug-in estimate, rough with 5–6 seeds a side. The same with
-both sides drawn from the pooled runs (no difference) gives the rate of false gains at n.
+claims.md calls a claim shown when the 95 % interval of P(X > Y) excludes .5. For each claim's
+two sides, the runs' scores (success after epoch 50; the epoch the 10-epoch mean passes 0.5)
+are the populations of simulated studies of n runs a side: each run one of the side's runs
+drawn with replacement plus Gaussian noise of Silverman's bandwidth, shrunk towards the side's
+mean so that the draws keep the runs' variance (Silverman 1986, §6.4.1), clipped to the score's
+range (a censored run stays censored). The share of studies whose interval's low end is above
+.5 is the *power* at n, a plug-in estimate, rough with 5–6 seeds a side; both sides drawn from
+the pooled runs give the rate of false gains. Why it is asked (neither the authors' seeds nor
+ours show the gain): docs/results/README.md.
 """
 
 from __future__ import annotations

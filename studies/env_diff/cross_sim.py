@@ -1,33 +1,18 @@
 """Trained in one simulation, acting in the other: is FetchPush-v4 harder to act in, or to learn?
 
-    python -m studies.env_diff.cross_sim  # the local 5 + 5 + 1 HER-EBP-CS runs: ~1 h
+    python -m studies.env_diff.cross_sim                 # the local HER-EBP-CS runs: ~1 h
     python -m studies.env_diff.cross_sim --runs RUN ... --epochs 10 20 --episodes 50 --targets v1 v4
 
-On v1 our HER-EBP-CS passes 0.5 some 17 epochs before v4 (docs/results/claims.md), and the
-v4 policies of the first epochs carry the gripper away from the cube although both simulators
-answer the same actions alike (docs/results/early_policy.md). Two explanations remain: a policy
-of given quality does worse on v4 (the simulation is harder to *act* in: the weld's looser
-hold, the cube turning more under a push, docs/results/env_diff.md), or the same policy would
-do as well, and what differs is what the first epochs' data *teach* (harder to learn).
-
-This bench separates them. Each run's `epoch-N` checkpoints (its policy at the end of epoch N,
-deterministic actions as the evaluator's) act on `--episodes` initial states and goals in each
-target simulation: `v1` (mujoco-py), `v4`, and `v4-tsK` (v4 with the mocap weld's torquescale
-K, which gives v4 v1's gripper tilt, env_diff.md item 1). The episodes are the same on every
-target (env seeds `SEED`, `SEED + 1`, …; both versions draw the same object and goal from the
-same seed, env_diff.md), so each policy's success on two targets is a paired comparison.
-Per (run, epoch, target): the success rate and the share of episodes that moved the cube.
-
-Part 2, *what the networks see*: the same uniform random actions (exploration's kind of
-episode) stepped from the same reset seeds on each target; per observation field, the standard
-deviation over all steps (what the observation normaliser divides by), and per target how many
-episodes turned the cube by more than 0.1 rad or dropped it off the table.
-
-Needs the runs' checkpoints (`runs/sample_efficiency/`, not committed) and, for the v1
-target, mujoco-py (`make mujoco-py`): without it v1 is left out with the reason printed.
-Results accumulate in docs/results/cross_sim.json (or --out DIR): a (run, epoch, target)
-already there is not evaluated again, so an interrupted bench continues; docs/results/
-cross_sim.md is rendered from it.
+Each run's `epoch-N` checkpoints (deterministic actions, as the evaluator's) act on `--episodes`
+initial states and goals in each target simulation: `v1` (mujoco-py), `v4`, and `v4-tsK` (v4
+with the mocap weld's torquescale K). The episodes are the same on every target (env seeds
+SEED, SEED + 1, …), so each policy's success on two targets is a paired comparison. Part 2,
+*what the networks see*: the same uniform random actions from the same reset seeds on each
+target; per observation field the standard deviation over all steps, and per target how many
+episodes turned the cube by more than 0.1 rad or dropped it. Needs the runs' checkpoints (not
+committed) and, for v1, mujoco-py (else v1 is left out with the reason). Results accumulate in
+docs/results/cross_sim.json (or --out DIR), so an interrupted run continues; cross_sim.md is
+rendered from it. Why it is asked: docs/results/README.md, "Why v4 learns later".
 """
 
 from __future__ import annotations

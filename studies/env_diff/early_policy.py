@@ -2,30 +2,17 @@
 
     python -m studies.env_diff.early_policy  # committed runs + local logs: ~15 min
     python -m studies.env_diff.early_policy --runs RUN_DIR ...  # logs of these runs
-                                        # (default: the local logs of DEFAULT_RUNS that are here)
 
-On v1 our HER-EBP-CS passes 0.5 some 17 epochs before v4 (docs/results/claims.md) and nothing
-in the simulation's parameters explains it (docs/results/env_diff.md). Four measurements:
-
-1. **Committed runs** (`docs/results/runs/*/metrics.csv`, no logs needed): the replay's
-   `buffer_moved_share` — the share of stored episodes in which the object moved more than
-   5 mm — at epochs 1, 5, 10, 15 and 20 of every FetchPush run that logs it, grouped by
-   environment (version, weld torquescale) and method.
-2. **The early policies' episodes** (the runs' MCAP logs, which stay on the machine that ran
-   them): per block of one epoch's episodes (episode ids; asynchronous actors run a little
-   ahead), the share in which the cube moved, the gripper's path length and net travel, its
-   mean height above its start, and how far from the cube's start it ends.
-3. **Open loop**: the logged action sequences of episodes 1,000–1,099 (epoch 5) of the first
-   three runs of each environment, replayed without feedback in v1 and in v4 from the same
-   reset seeds. If the simulators
-   answered the same actions differently, the travel and the cube's motion would differ here;
-   if they agree, the difference in part 2 is in what the policies learned. Needs v1 (`make
-   mujoco-py`); left out, with the reason printed, where it is not installed.
-4. **EBP's view** of the HER-EBP(-CS) runs' first six blocks: the trajectory energy of the
-   episodes that left the cube still and of the others, and the share of draws the still
-   ones would get from EBP's p ∝ energy + ε.
-
-Writes docs/results/early_policy.{json,md} (or --out DIR).
+Four measurements: (1) the committed runs' `buffer_moved_share` (stored episodes in which the
+object moved more than 5 mm) at epochs SHARE_EPOCHS, by environment and method; (2) from the
+runs' MCAP logs, per epoch block of episodes, the share that moved the cube and the gripper's
+path, travel, height and end distance from the cube; (3) the logged actions of episodes
+1,000–1,099 of the first runs of each environment replayed open loop in v1 and v4 from the same
+reset seeds (needs `make mujoco-py`), which tells simulators answering actions differently
+from policies learning differently; (4) EBP's view: the trajectory energies of still and moved
+episodes and the still ones' share of EBP's draws. The question's origin (v1 passes 0.5 well
+before v4): docs/results/README.md. Writes docs/results/early_policy.{json,md} (or --out DIR),
+keeping the report's hand-written findings (studies/study_output.py).
 """
 
 from __future__ import annotations
@@ -48,7 +35,7 @@ from hercs.replay_service.energy import trajectory_energy
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_episodes
 from hercs.wire.codec import msg_to_episode
-from studies.study_output import REPO, git_commit
+from studies.study_output import FINDINGS_HEADING, REPO, git_commit, kept_findings
 
 COMMITTED = REPO / "docs" / "results" / "runs"
 LOCAL = REPO / "runs" / "sample_efficiency"
@@ -67,44 +54,6 @@ ENERGY_BLOCKS = range(0, 6)
 BLOCKS = 12
 MOVED_M = 0.005  # the replay's MOVED_THRESHOLD_M: an episode moved the cube when it went >5 mm
 OPEN_LOOP_FIRST, OPEN_LOOP_COUNT = 1000, 100
-FINDINGS = """\
-Written from the tables above (2026-11-26, evening; the ε runs at night);
-tests/studies/env_diff/test_early_policy.py checks each claim against
-docs/results/early_policy.json and
-the committed runs.
-
-- **On v4 the early HER-EBP-CS policies move the cube about a third as often, in every seed;
-  HER and HER-CS do not.** At epoch 10 every committed v1 run (HER, HER-CS and HER-EBP-CS, 17
-  runs) has moved the cube in 12.8–18.5 % of its stored episodes, every v4 HER-EBP-CS run (11
-  runs, the chaos soaks' and the torquescale-4 run included) in 5.1–9.7 %, and every v4 HER or
-  HER-CS run (12, the new default) in 13.8–22.7 %, v1's range or above it (seeds 6 of both,
-  which took off early, 19.4 and 22.7 %).
-- **Because the v4 HER-EBP-CS policies wander off.** Over epochs 3–11 their gripper path is
-  1.0–1.1 m per episode against 0.85–0.93 on v1, it ends 0.36–0.37 m from the cube's start
-  against 0.18–0.20, and it rides 10–13 cm above its start against 6–8. The v4 HER and HER-CS
-  policies end 0.18–0.21 m from it (v1's HER and HER-CS: 0.17–0.19) and move it in 16–19 % of
-  their episodes (v1: 15–23 %): the wandering is EBP's on v4, not v4's.
-- **Not because the simulators answer actions differently.** The same logged action sequences
-  replayed without feedback move the cube in the same episodes in both (equal shares in 5 of 6
-  runs, .10 against .09 in the sixth) and carry the gripper 2–5 % farther along its path on
-  v4 (3–10 % net: v4's mocap tracks a full action further per step, env_diff.md item 1),
-  against 67 % more net travel in closed loop; nor because of the weld's tilt, since the
-  torquescale-4 run (v1's tilt, env_diff.md item 2) wanders like v4 (0.34 m).
-- **What EBP sees differently: the still cube.** On v1 the resting cube is never quite still
-  (MuJoCo 2.1's contact lets it settle and tremble, by a median 0.08 mm of height in seed
-  1's first 400 episodes), so an episode that leaves it where it was still carries about
-  1e-3 of trajectory energy (0.87–1.04e-3 in every v1 run, blocks 0–5); on v4 it carries
-  4e-6 to 4e-5. EBP draws
-  p ∝ energy + ε with ε = 1e-6, so on v1 those episodes, in which only the gripper moved,
-  would get 2.7–4.5 % of the draws and on v4 0.1–0.3 % (the committed EBP-CS sampler, with
-  its clusters: moved-object episodes are 93–94 % of v1's samples over epochs 1–10 and
-  94–98 % of v4's). Runs with `energy.epsilon=1e-3` on v4 (push-eps1e-3-her-ebp-cs-s1–s3:
-  v1's floor for every episode) do not wander: over epochs 3–11 they move the cube in
-  14–25 % of their episodes and end 0.17–0.24 m from it, outside every plain v4 HER-EBP-CS
-  run's range on every fact and at v1's; their still episodes get 2.8–6.4 % of the draws
-  in blocks 0–5, v1's share. Over 50 epochs they pass 0.5 at epochs 28, 21 and 20 (the same
-  seeds without it: 34, 35 and never; v1's: 23, 22 and 23): docs/results/claims.md.
-"""
 
 
 def run_environment(config: dict) -> str:
@@ -276,7 +225,7 @@ def open_loop(actions_by_run: dict[str, list[np.ndarray]]) -> dict[str, object]:
 # ------------------------------------------------------------------ report
 
 
-def render(result: dict) -> str:
+def render(findings: str, result: dict) -> str:
     lines = ["# What the early policies do on FetchPush-v1 and v4", "",
              f"`python -m studies.env_diff.early_policy` — {result['when']}, commit "
              f"{result['commit']}.",
@@ -341,7 +290,8 @@ def render(result: dict) -> str:
         lines.append(f"| {name} | {run['env']} | {run['method']} | {1 - m['moved_share']:.3f} | "
                      f"{m['still_energy']:.2e} | {m['moved_energy']:.3f} | "
                      f"{m['still_draw_share']:.3f} | {'–' if s is None else f'{s:.3f}'} |")
-    lines += ["", "## What it shows", "", FINDINGS]
+    if findings:
+        lines += ["", FINDINGS_HEADING, "", findings.rstrip("\n")]
     return "\n".join(lines) + "\n"
 
 
@@ -383,8 +333,10 @@ def main(argv: list[str] | None = None) -> int:
               "episodes": episodes, "open_loop": loop}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "early_policy.json").write_text(json.dumps(result, indent=1) + "\n")
-    (args.out / "early_policy.md").write_text(render(result))
-    print(render(result))
+    report = args.out / "early_policy.md"
+    text = render(kept_findings(report), result)  # the findings were written by hand: kept
+    report.write_text(text)
+    print(text)
     return 0
 
 

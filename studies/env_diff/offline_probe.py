@@ -3,23 +3,14 @@
     python -m studies.env_diff.offline_probe  # ~35 min beside two runs on 2 cores
     python -m studies.env_diff.offline_probe --quick  # CI: a few episodes and updates, v4 only
 
-`studies.env_diff.cross_sim` found that a pushing policy acts as well in either simulation and that
-the
-v4 runs are slower to *become* one; `studies.env_diff.early_policy` that their first policies
-wander off
-(the gripper ends 0.36 m from the cube's start against 0.18 m on v1). This probe removes the
-closed loop: the same uniform random actions, from the same reset seeds, are stepped in each
-simulation; each data set is loaded into a replay (`hercs.replay_service.replay_core.ReplayCore`,
-the
-service's own core, method HER) and a DDPG learner (`hercs.learner.ddpg.DDPGLearner`, the
-paper's settings) trains on it for one epoch's worth of cycles (40 minibatches, then the target
-update, per cycle), nothing acting in between. Each learned policy then acts deterministically
-on the same evaluation episodes in both simulations.
-
-If the v4-trained policies wander and the v1-trained ones do not, what the simulations answer
-to the same actions carries the difference into learning; if they come out alike, the gap
-grows only in closed loop, from what the policies themselves do.
-
+The closed loop removed: the same uniform random actions, from the same reset seeds, are
+stepped in each simulation; each data set is loaded into the replay's own core (`ReplayCore`,
+method HER) and a DDPG learner with the paper's settings trains on it for one epoch's worth of
+cycles, nothing acting in between; each learned policy then acts deterministically on the same
+evaluation episodes in both simulations. If the v4-trained policies wander and the v1-trained
+ones do not, what the simulations answer to the same actions carries the difference into
+learning; if they come out alike, the gap grows only in closed loop. Why this is asked (what
+cross_sim and early_policy found): docs/results/README.md, "Why v4 learns later".
 Writes docs/results/offline_probe.{json,md} (or --out); with --quick only where --out says.
 """
 

@@ -141,7 +141,9 @@ def test_open_loop_replay_in_a_real_fetchpush_is_deterministic() -> None:
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/early_policy.json not committed")
-def test_the_committed_reports_findings_hold_in_its_data() -> None:
+def test_docs_check_the_committed_findings_hold_in_the_committed_data() -> None:
+    """Not a test of the code: a consistency check of docs/results/early_policy.md's findings
+    against the data committed beside them (early_policy.json)."""
     result = json.loads(REPORT.read_text())
 
     def late(run: dict, key: str) -> float:
