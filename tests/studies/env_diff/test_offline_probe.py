@@ -61,7 +61,9 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
     assert (tmp_path / "offline_probe.md").read_text() == render(result)
 
 
-def test_committed_report_is_its_json() -> None:
+def test_docs_check_the_committed_report_is_its_json_and_its_findings_quote_it() -> None:
+    """A regeneration check (offline_probe.md is its json rendered) and a check of the
+    findings' numbers against the data committed beside them, not a test of the code."""
     if not REPORT.exists():
         print("no committed docs/results/offline_probe.json yet: nothing to check")
         return
