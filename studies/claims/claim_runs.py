@@ -46,20 +46,10 @@ ASSUMED_KEYS: tuple[tuple[str, str, str], ...] = (
     ("training", "schedule", "async"), ("learner", "precision", "fp32"))
 """Settings that older config.yaml files lack; such a run is grouped with these values (the
 only ones that existed when it was made), and the report says so."""
-RUN_NOTES: dict[str, str] = {
-    "push-her-lag7-s2": (
-        "its `policy_lag` reads 60 for epochs 21–50, against 7 before. It was stopped at "
-        "epoch 20 and resumed; the replay kept the 212 episodes acted between the learner's "
-        "last checkpoint and the stop (acknowledged data is never dropped). `policy_lag` "
-        "counts episode ids against the lockstep schedule, so those 212 episodes (53 cycles "
-        "of 4) shift it by 53 for the rest of the run: it measures the kept data against "
-        "the schedule, not staleness. The lag against the learner's current weights "
-        "(`policy_lag_request`) was 1.0 cycle before the stop and after it. The run saw "
-        "10,600 more environment steps than its schedule (2 % of 500,000 by epoch 50), all "
-        "in epoch 21. No claim here counts it: the new default's HER seeds replace the "
-        "legacy ones."),
-}
-"""What a committed run's files need said that they cannot say themselves."""
+NOTES_FILE = "notes.md"
+"""What a committed run's files need said that they cannot say themselves, written by hand in
+the run's folder (docs/results/runs/<run>/notes.md: a heading, then the note); the claims'
+report lists it with the run."""
 MIN_SEEDS = 2
 LEGACY = "legacy"
 LEGACY_LAG_CYCLES = 7  # docs/results/runs/README.md: the median policy lag of the legacy runs
@@ -148,6 +138,7 @@ class Run:
     machine: str = ""  # "AMD EPYC (avx2), boot 5011c83b"; "" where not recorded
     assumed: tuple[str, ...] = ()
     """ASSUMED_KEYS its config.yaml lacks ("training.schedule=async")."""
+    note: str = ""  # its NOTES_FILE's text, on one line; "" where it has none
 
 
 def provenance(run_dir: Path) -> dict[str, str]:
@@ -172,6 +163,15 @@ def provenance(run_dir: Path) -> dict[str, str]:
             "machine": label}
 
 
+def run_note(run_dir: Path) -> str:
+    """The run's NOTES_FILE without its heading, on one line ("" where there is none)."""
+    path = run_dir / NOTES_FILE
+    if not path.is_file():
+        return ""
+    text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("#"))
+    return " ".join(text.split())
+
+
 def assumed_settings(config: dict) -> tuple[str, ...]:
     return tuple(f"{section}.{key}={value}" for section, key, value in ASSUMED_KEYS
                  if key not in (config.get(section) or {}))
@@ -187,7 +187,8 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
         config = yaml.safe_load(RunDir(source).config.read_text()) or {}
         found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
                                             curve, **provenance(source),
-                                            assumed=assumed_settings(config))))
+                                            assumed=assumed_settings(config),
+                                            note=run_note(source))))
     reference = load_reference() if reference_csv is None else load_reference(reference_csv)
     for curve in reference:
         found.append((Group(curve.task, curve.method, env="v1", schedule="authors"),

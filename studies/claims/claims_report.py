@@ -13,7 +13,6 @@ from studies.claims.claim_runs import (
     HIGH,
     LEGACY_LAG_CYCLES,
     MIN_SEEDS,
-    RUN_NOTES,
     THRESHOLD,
     Group,
     Run,
@@ -171,7 +170,7 @@ def _provenance_section(results: Sequence[ClaimResult], groups: dict[Group, list
                   f"{' and '.join(f'`{s}.{k}`' for s, k, _ in ASSUMED_KEYS)} in config.yaml "
                   "and are grouped with the only values there were then "
                   f"({', '.join(f'{v}' for _, _, v in ASSUMED_KEYS)})."]
-    notes = [(name, note) for name, note in sorted(RUN_NOTES.items()) if name in by_name]
+    notes = [(name, run.note) for name, run in sorted(by_name.items()) if run.note]
     if notes:
         lines += ["", "**Notes on runs**", "", *(f"- **{name}**: {note}" for name, note in notes)]
     return [*lines, ""]

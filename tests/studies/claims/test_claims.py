@@ -192,6 +192,19 @@ def test_a_side_whose_runs_stopped_early_says_so(tmp_path: Path) -> None:
     assert "| cs-1 | stopped before epoch 50: left out | – |" in text
 
 
+def test_a_runs_hand_written_note_is_listed_with_it_on_one_line(tmp_path: Path) -> None:
+    noted = _run(tmp_path, "cs-1", "her-cs", 1, _ramp(20))
+    _run(tmp_path, "cs-2", "her-cs", 2, _ramp(25))
+    (noted / claim_runs.NOTES_FILE).write_text("# cs-1\n\nits lag reads 60:\nit was resumed.\n")
+    groups = claim_runs.load_groups(tmp_path)
+    assert {r.name: r.note for rs in groups.values() for r in rs if r.name.startswith("cs")} == {
+        "cs-1": "its lag reads 60: it was resumed.", "cs-2": ""}
+    text = claims_report.report(claims.evaluate([CS_VS_HER], groups, reps=REPS), groups, "cmd",
+                                reps=REPS)
+    assert "**Notes on runs**\n\n- **cs-1**: its lag reads 60: it was resumed." in text
+    assert "**cs-2**" not in text
+
+
 def test_a_claim_with_its_own_epoch_cuts_both_sides_there(tmp_path: Path) -> None:
     """The bf16 runs are 40 epochs: their claim cuts both sides at 40, where a 50-epoch run
     that crosses at 45 is censored (at 40), and the runs' table says at which epoch."""
