@@ -9,8 +9,10 @@ from collections.abc import Sequence
 from hercs.apps.plots import (
     CI_LEVEL,
     DEFAULT_BAND,
+    PLAIN_STYLE,
     WINDOW,
     Curve,
+    FigureStyle,
     Milestones,
     aggregate,
     method_label,
@@ -111,12 +113,14 @@ def fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
 
 
 def fig2_text(ours: dict[str, dict[str, list[Curve]]],
-              reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND) -> str:
+              reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND,
+              style: FigureStyle = PLAIN_STYLE) -> str:
     """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2 (`band`:
-    what the figure's bands are, for its caption)."""
+    what the figure's bands are, for its caption; `style`: a caller's variants, their labels
+    and caption notes, and the command named as the drawer)."""
     parts = [
         "# Fig. 2: ours beside the authors'", "",
-        "Drawn by `hercs plot --figure 2` from the committed runs (docs/results/runs/). Rows "
+        f"Drawn by `{style.drawn_by}` from the committed runs (docs/results/runs/). Rows "
         "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
         "FetchPickAndPlace, FetchSlide. Ours solid (lockstep dash-dotted), the authors' "
         f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
@@ -124,8 +128,7 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         f"seeds' own {WINDOW}-epoch trailing means, are {BAND_CAPTIONS[band]}. Ours: "
         "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled (v1) the authors' "
         "environment, gym Fetch*-v1 on mujoco-py, which the authors' curves are on "
-        "(docs/DESIGN.md §9.6); (lag 7): asynchronous runs of the old, staler default "
-        "(docs/PERFORMANCE.md §2).", "",
+        f"(docs/DESIGN.md §9.6){''.join(f'; {note}' for note in style.caption_notes)}.", "",
     ]
     for pair in FIG2_ROWS:
         for task in FIG2_TASKS:
@@ -133,10 +136,11 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
             title = panel_title(task, pair)
             rows: list[tuple[str, Milestones]] = []
             for key in fig2_keys(pair, mine, ref):
+                label = method_label(key, style.variant_notes)
                 if key in mine:
-                    rows.append((method_label(key) + " (ours)", milestones(aggregate(mine[key]))))
+                    rows.append((label + " (ours)", milestones(aggregate(mine[key]))))
                 if key in ref:
-                    rows.append((method_label(key) + " (authors)",
+                    rows.append((label + " (authors)",
                                  milestones(aggregate(ref[key]))))
             parts.append(markdown_table(title, rows))
             if not has_ours(pair, mine):

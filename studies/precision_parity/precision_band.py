@@ -33,7 +33,6 @@ import numpy as np
 
 from hercs.apps.plot_figures import plot_figure
 from hercs.apps.plots import (
-    LEGACY_LAG,
     Curve,
     PlotError,
     aggregate,
@@ -45,6 +44,7 @@ from hercs.apps.plots import (
     moving_average,
     task_title,
 )
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
 from studies.study_output import git_commit
 
 REPO = Path(__file__).resolve().parents[2]
@@ -105,12 +105,12 @@ def _cut(curve: Curve, epochs: np.ndarray) -> Curve:
 def load_pair(runs: Path, task: str, method: str) -> tuple[list[Curve], list[Curve]]:
     """(fp32 seeds, bf16 seeds) of one task and method in the asynchronous schedule: those of
     the current default where both precisions have runs of it, else those of the old, staler
-    default (`hercs.apps.plots.LEGACY_LAG`), never one of each."""
+    default (`studies.legacy_runs.LEGACY_LAG`), never one of each."""
     title = task_title(task)
-    mine = group(c for c in load_runs(runs) if c.task == title).get(title, {})
+    mine = group(c for c in load_runs(runs, legacy_lag) if c.task == title).get(title, {})
     for lag in ("", LEGACY_LAG):
-        pair = (mine.get(method_key(method, lag=lag), []),
-                mine.get(method_key(method, precision="bf16", lag=lag), []))
+        pair = (mine.get(method_key(method, variant=lag), []),
+                mine.get(method_key(method, precision="bf16", variant=lag), []))
         if all(pair):
             return pair
     return [], []
@@ -121,7 +121,7 @@ def report(fp32: Sequence[Curve], bf16: Sequence[Curve], *, last_epoch: int, tol
     epochs, seeds = compare(fp32, bf16, last_epoch)
     passed = all(s.share_inside >= 1.0 - tolerance for s in seeds)
     ref = milestones(aggregate([_cut(c, epochs) for c in fp32]))
-    title, method = fp32[0].task, method_label(fp32[0].method)
+    title, method = fp32[0].task, method_label(fp32[0].method, LEGACY_NOTES)
 
     def fmt(v: int | None) -> str:
         return "–" if v is None else str(v)

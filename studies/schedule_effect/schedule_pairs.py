@@ -36,7 +36,6 @@ import numpy as np
 from scipy import stats
 
 from hercs.apps.plots import (
-    LEGACY_LAG,
     Curve,
     aggregate,
     group,
@@ -45,6 +44,7 @@ from hercs.apps.plots import (
     milestones,
 )
 from hercs.apps.sweep_cells import DONE_FILE
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -181,7 +181,7 @@ def report(comparisons: Sequence[Comparison], command: str, max_epoch: int = 50)
     if not comparisons:
         lines += ["No task and method has runs in both schedules yet.", ""]
     for c in comparisons:
-        title = f"{c.task} {method_label(c.method)}"
+        title = f"{c.task} {method_label(c.method, LEGACY_NOTES)}"
         lines += [f"## {title}: lockstep against asynchronous, epoch {c.epoch}", "",
                   "| run | schedule | seed | trained with | finished (UTC) | epoch at 0.5 | "
                   f"success at {c.epoch} |", "|---|---|---|---|---|---|---|"]
@@ -220,7 +220,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--epoch must be at least 1, got {args.epoch}")
     if not args.runs.is_dir():
         p.error(f"--runs {args.runs}: not a directory")
-    curves = load_runs(args.runs)
+    curves = load_runs(args.runs, legacy_lag)
     command = " ".join(["python -m studies.schedule_effect",
                         *(sys.argv[1:] if argv is None else argv)])
     text = report(compare_all(curves, args.epoch), command, args.epoch)
