@@ -36,10 +36,14 @@ def write_report(out: Path | None, name: str, summary: Any, text: str) -> None:
     print(f"wrote {out / (name + '.md')}")
 
 
-def kept_findings(report: Path) -> str:
-    """The findings of a report already written (the text after FINDINGS_HEADING, to its end),
-    for the regenerated report to keep; "" where there is no such report or section."""
+def kept_findings(report: Path, heading: str = FINDINGS_HEADING) -> str:
+    """The findings of a report already written (the text under `heading`, to the next `## `
+    heading or the end), for the regenerated report to keep; "" where there is no such
+    report or section."""
     if not report.is_file():
         return ""
-    _, heading, findings = report.read_text().partition(f"\n{FINDINGS_HEADING}\n")
-    return findings.strip("\n") + "\n" if heading else ""
+    _, found, rest = report.read_text().partition(f"\n{heading}\n")
+    if not found:
+        return ""
+    findings = rest.split("\n## ", 1)[0].strip("\n")
+    return findings + "\n" if findings else ""

@@ -20,13 +20,13 @@ from studies.env_diff.dynamics import (
     slide_probe,
     step_replica_check,
 )
-from studies.env_diff.env_diff_report import render_md, versions
+from studies.env_diff.env_diff_report import CONCLUSION_HEADING, render_md, versions
 from studies.env_diff.initial_states import initial_states
 from studies.env_diff.models import all_field_rows, model_rows, option_rows
 from studies.env_diff.rewards import reward_check
 from studies.env_diff.rollouts import rollouts, switch_check, weld_sweep
 from studies.env_diff.sim import TASKS, make_pair, make_v4_variant, variant_name, xml_variant_setup
-from studies.study_output import REPO, git_commit, machine_identity
+from studies.study_output import REPO, git_commit, kept_findings, machine_identity
 
 
 def compare_task(task: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -108,7 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse(argv)
     if args.report_only:
         result = json.loads(Path(f"{args.out}.json").read_text())
-        Path(f"{args.out}.md").write_text(render_md(result))
+        report = Path(f"{args.out}.md")
+        report.write_text(render_md(result, kept_findings(report, CONCLUSION_HEADING)))
         print(f"env_diff: rewrote {args.out}.md", file=sys.stderr)
         return 0
     problem = mujoco_py_problem()
@@ -127,7 +128,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"env_diff: {task} done in {result['tasks'][task]['seconds']} s", file=sys.stderr)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     Path(f"{args.out}.json").write_text(json.dumps(result, indent=1) + "\n")
-    Path(f"{args.out}.md").write_text(render_md(result))
+    report = Path(f"{args.out}.md")  # its conclusion was written by hand: kept
+    report.write_text(render_md(result, kept_findings(report, CONCLUSION_HEADING)))
     print(f"env_diff: wrote {args.out}.md and .json", file=sys.stderr)
     return 0
 

@@ -1,4 +1,4 @@
-"""The report: the versions, the conclusion and the markdown of every task's comparison."""
+"""The report: the versions, the kept conclusion and the markdown of every task's comparison."""
 
 from __future__ import annotations
 
@@ -33,97 +33,14 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-CONCLUSION = """
-Measured on the committed full run (numbers below; "matched" = v4 started in v1's full
-simulator state; counts are episodes).
-
-**What is the same.** Both load the same XML; every physics option both versions have
-(timestep 0.002 s, 20 substeps, so the same 0.04 s control period; Euler; Newton, 100
-iterations; pyramidal cone; impratio 1; no noslip; gravity) and every parameter of the object,
-table, floor, fingers, gripper link, free joint, finger joints and actuators, and the mocap
-weld's solref/solimp/relpose is equal. Of all numeric mjModel fields both bindings expose, the
-ones that differ are bookkeeping (mesh vertex de-duplication, mesh-geom frames, buffer sizes,
-flags); mesh shapes agree to < 0.1 µm. Friction acts the same on the box: a cube launched on the
-table slides 0.96/1.82/3.62 cm on v1 and 0.95/1.85/3.60 cm on v4 (Coulomb's v²/2μg: 1/2/4 cm;
-Push, Pick). The initial-state
-draws are the same for the same seed: object and goal offsets from the initial gripper agree to
-1e-16 m, so the object–goal distances and the 5.5 % (Push) / 2.5 % (Pick) / 0 % (Slide) of
-episodes that start within 5 cm of the goal are identical. Rewards and success agree
-everywhere (compute_reward, is_success, hercs.rl.task_registry.fetch_reward; 0 mismatches on every
-step).
-
-**What differs.**
-
-1. *The mocap weld holds the gripper's orientation about 10× more loosely in MuJoCo 3.* Under
-   uniform random actions the gripper tilts 0.08–0.13° on average (max ≈ 0.5°) on v1 and
-   0.8–1.1° (max 3.4–4.0°) on v4; while pushing the scripted controller's cube, 0.5° (max 1.3°)
-   on v1 and 2.4–3.3° (max 6–8°) on v4 (Push), and in Slide 4° against 29–30° (max 51–52°).
-   The arm moves differently too: in free space at full action v1's gripper moves 27.6/−23.3 mm
-   per step along ±x, v4's 31.8/−30.9 (y is equal, 33.1), and the per-step positions differ by
-   up to 17 mm. The weld's parameters are equal, so the difference is the engine's: according
-   to mujoco issue #1483 (found while porting Metaworld, whose MuJoCo-3 version raised the
-   weld's torquescale to ≈ 5 for it), MuJoCo 3.0 changed how a weld's constraint rows are
-   regularised. Setting v4's weld
-   `torquescale` (eq_data[:, 10], default 1) to 4 brings the mean tilt to v1's in all three
-   tasks (Push 0.085° vs v1 0.078°; Pick 0.093° vs 0.087°; Slide 0.087° vs 0.079°) and the
-   free-space steps to within 3.5 mm of v1's (Push; 4.9 mm Slide, 12 mm Pick).
-2. *So a pushed cube turns, tips and leaves the table more on v4.* The same scripted push
-   from matched states: v1 turned the cube by 6.5° per episode, toppled it (> 30°) in 1/40 and
-   pushed it off the table in 0/40; v4 20°, 6/40, 2/40 (from its own resets 33°, 9/40, 5/40).
-   With torquescale 4: 8°, 0/40, 0/40. In the controlled push at full speed the cube tilts up to
-   3.9° on v1, 17.6° on v4, 4.6° with torquescale 4. The push success of this (crude)
-   controller, 16/40 on v1 against 11/40 (matched) and 14/40 (own resets) on v4 and 17/40 and
-   12/40 with torquescale 4, is within its noise.
-3. *Random exploration moves the object about as often.* Uniform random actions touched the
-   cube in 12/100 episodes on v1 and 14/100 on v4 and moved it by more than 1 cm in 9/100 and
-   11/100 (Pick 13 vs 14, 10 vs 11): no sign that v1 hands HER more object motion to learn from.
-4. *The initial gripper is 1.5 cm further in x on v4 (Push; 1.7 cm Slide).* The setup drags the
-   fingers, pressed into the table (v1 4.9 mm deep, v4 3.0 mm), towards the same mocap target
-   (x 1.3419); v1 gets nearer. Object and goal are drawn relative to the gripper, so the
-   whole initial distribution shifts by the same (−1.49, −0.02, −0.24) cm (v1 − v4) and the
-   task geometry is unchanged. Neither torquescale 4 nor legacy CCD during the setup
-   reproduces v1's start (cause: not found; a hypothesis is the changed constraint
-   regularisation acting on the finger–table contact). In Pick, whose fingers start 12 cm
-   above the table, the gripper starts at the same point (2e-5 m). The resting cube sits
-   0.30 mm into the table on v1, 0.11 mm on v4.
-5. *Slide's puck touches the table at 1 point on v1 and at 5 on v4.* On v1 (MuJoCo 2.1's
-   general convex collision, libccd's MPR) the puck rests 6.0 mm into the table (goal z 0.4140
-   vs 0.4200), creeps 2.3 mm in an episode of zero actions, spins (47° of yaw per random episode
-   vs 5–6°) and, launched on the table, slides 4.3/4.9/6.6 cm where Coulomb's
-   rule (and v4: 0.93/1.9/3.9 cm) says 1/2/4, still moving after 0.6 s (launched at
-   0.14–0.28 m/s). Turning off MuJoCo 3's native and multi-point CCD reproduces all of it
-   (4.2/4.4/6.5 cm, 47° yaw; built from the XML with them off, the resting height is v1's to
-   1e-9 m). For the cube it changes nothing (the
-   object's trajectories are identical with and without it in Push and Pick; the gripper's
-   differ by up to 5.5 mm in Push), nor do constraint islands or a tighter line search (< 0.01
-   mm). In Slide every switch moves the chaotic puck's trajectory by centimetres (CCD 21 cm,
-   islands 16 cm, line search 1.2 cm at most over 10 scripted episodes).
-
-**What may matter to learning (hypotheses, not measured here).** The difference that touches
-Push's learning is 1–2: on v4 the same gripper motion leaves the cube in a less predictable
-pose (turned, tipped, sometimes on the floor, where no later action can move it), which plausibly
-makes Q-learning from hindsight goals slower; v1's faster learning of Push (one seed: 10-epoch
-mean past 0.5 at epoch 21 vs 37) is consistent with that but not shown by it. Exploration (3),
-the initial-state draws and the free-success share are the same, and the 1.5 cm shift (4) only
-moves every position by a constant. For Slide, v1's puck rests on one point, creeps, spins and,
-launched slowly, slides up to 4× as far as v4's (5), while after hard pushes both slide about
-as far (controlled push at full speed: 40 vs 44 cm after contact; scripted push: 66 vs 70 cm):
-a difference in the task itself, whose effect on learning was not measured.
-
-**Can a v4 setting close it?** In the simulation, yes for what was measured:
-`env.unwrapped.model.eq_data[:, 10] = 4` after `make` (gymnasium-robotics has no argument for
-it; the XML's `<weld … torquescale="4">` does the same and also changes the setup, moving the
-initial gripper by 0.7 mm) makes v4's gripper and cube behave like v1's in 1–2; for Slide,
-`torquescale="4"` plus `<flag nativeccd="disable" multiccd="disable">` in the XML (the model_path
-is fixed by each env class, so a patched copy of the assets) reproduces v1's puck (5). Whether
-that closes the learning gap is untested: it needs training runs of HER-EBP-CS on v4 with
-torquescale 4 against v1 and v4, several seeds each.
-"""
-"""The reading of the committed full run (docs/results/env_diff.json), written after it; the
-report puts it above the tables of a full run (not of --quick)."""
+CONCLUSION_HEADING = "## What differs, and what may matter to learning"
+"""The heading of the reading of the committed full run, written by hand after it in
+docs/results/env_diff.md; a regenerated full report keeps it above the tables (not --quick)."""
 
 
-def render_md(result: dict[str, Any]) -> str:
+def render_md(result: dict[str, Any], conclusion: str = "") -> str:
+    """The report of `result`, with `conclusion` (the kept reading, `kept_findings`) above
+    the tables of a full run."""
     L: list[str] = []
     add = L.append
     add("# Fetch*-v1 (mujoco-py, MuJoCo 2.1) against Fetch*-v4 (MuJoCo 3)")
@@ -137,10 +54,10 @@ def render_md(result: dict[str, Any]) -> str:
         "`envs/robotics/assets/fetch`) and run the same task code; v1 steps them with "
         "mujoco-py on MuJoCo 2.1.0, v4 with the mujoco bindings.")
     add("")
-    if not result.get("quick") and CONCLUSION:
-        add("## What differs, and what may matter to learning")
+    if not result.get("quick") and conclusion:
+        add(CONCLUSION_HEADING)
         add("")
-        add(CONCLUSION.strip())
+        add(conclusion.strip())
         add("")
     for task, res in result["tasks"].items():
         L.extend(_task_md(task, res))

@@ -1,6 +1,6 @@
-"""studies/study_output.py: a report's hand-written findings are found under their heading and
-kept by a regenerated report (studies/env_diff/early_policy.py's render), and reports are
-written as JSON beside markdown."""
+"""studies/study_output.py: a report's hand-written findings are found under their heading (to
+the next one) and kept by a regenerated report (studies/env_diff/early_policy.py's render),
+and reports are written as JSON beside markdown."""
 
 from __future__ import annotations
 
@@ -20,6 +20,13 @@ def test_findings_are_the_text_under_their_heading_to_the_end(tmp_path: Path) ->
     assert kept_findings(report) == ""  # a report without findings
     report.write_text(f"# Title\n\n| a |\n\n{FINDINGS_HEADING}\n\n{FINDINGS}\n")
     assert kept_findings(report) == FINDINGS
+
+
+def test_a_section_above_the_tables_ends_at_the_next_heading(tmp_path: Path) -> None:
+    report = tmp_path / "report.md"
+    report.write_text(f"# Title\n\n## The reading\n\n{FINDINGS}\n## Push\n\n| a |\n")
+    assert kept_findings(report, "## The reading") == FINDINGS
+    assert kept_findings(report, "## Pick") == ""
 
 
 def test_a_regenerated_early_policy_report_keeps_its_findings(tmp_path: Path) -> None:
