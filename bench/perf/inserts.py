@@ -19,7 +19,7 @@ for the same wall-clock window, in alternating rounds:
   on the log's thread fall inside the window many times.
 
 Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
-synthetic actor processes is bench/throughput's insert phase. Writes OUT.json and OUT.md.
+synthetic actor processes is bench/perf/throughput's insert phase. Writes OUT.json and OUT.md.
 """
 
 from __future__ import annotations
