@@ -2,14 +2,14 @@
 before the lag sources were settings (2026-11-25) predate `learner.prefetch_depth` in their
 config.yaml, so hercs' plots would average them with the runs of today's default. Every figure
 and table the studies commit keeps them apart as their own variant (`LEGACY_STYLE`, passed to
-hercs.apps.plots), which is why this lives here and not in the product's `hercs plot`.
+hercs.apps.plot_tables), which is why this lives here and not in the product's `hercs plot`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from hercs.apps.plots import FigureStyle
+from hercs.apps.plot_tables import FigureStyle
 
 LEGACY_LAG = "lag7"
 """The variant of asynchronous runs made with the old, staler default: rate tolerance 80, two

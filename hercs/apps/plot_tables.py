@@ -4,16 +4,16 @@ hercs/apps/plots.py's rule."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 from hercs.apps.plots import (
     CI_LEVEL,
     DEFAULT_BAND,
-    PLAIN_STYLE,
     WINDOW,
     Curve,
-    FigureStyle,
     Milestones,
+    VariantOf,
     aggregate,
     method_label,
     method_rank,
@@ -81,6 +81,22 @@ BAND_CAPTIONS: dict[str, str] = {
     "both": f"the bootstrap {CI_LEVEL * 100:.0f} % interval of their mean (seeds resampled, "
             "a fixed RNG seed) and, lighter, their min–max",
 }
+
+
+@dataclass(frozen=True)
+class FigureStyle:
+    """What a caller adds to `hercs plot`'s plain grouping and labels, for the figures it
+    commits: its own variants (`variant_of`), each shown as a note after the label
+    (`variant_notes`: variant → words, "HER-CS (lag 7)") and explained in Fig. 2's caption
+    (`caption_notes`), and the command that drew it (`drawn_by`, for the caption)."""
+
+    variant_of: VariantOf | None = None
+    variant_notes: Mapping[str, str] = field(default_factory=dict)
+    caption_notes: tuple[str, ...] = ()
+    drawn_by: str = "hercs plot --figure 2"
+
+
+PLAIN_STYLE = FigureStyle()
 
 
 FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")

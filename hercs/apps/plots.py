@@ -160,22 +160,6 @@ runs made before a setting existed): the variant for a run's config.yaml, "" for
 `hercs plot` has none: a user's runs are grouped by their settings alone."""
 
 
-@dataclass(frozen=True)
-class FigureStyle:
-    """What a caller adds to `hercs plot`'s plain grouping and labels, for the figures it
-    commits: its own variants (`variant_of`), each shown as a note after the label
-    (`variant_notes`: variant → words, "HER-CS (lag 7)") and explained in Fig. 2's caption
-    (`caption_notes`), and the command that drew it (`drawn_by`, for the caption)."""
-
-    variant_of: VariantOf | None = None
-    variant_notes: Mapping[str, str] = field(default_factory=dict)
-    caption_notes: tuple[str, ...] = ()
-    drawn_by: str = "hercs plot --figure 2"
-
-
-PLAIN_STYLE = FigureStyle()
-
-
 def _env_version(variant: str) -> bool:
     return variant in ("v1", ENV_VERSION_DEFAULT) or variant.startswith("ts")
 

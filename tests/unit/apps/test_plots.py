@@ -524,7 +524,7 @@ def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_pat
     def era(run_config: dict[str, Any]) -> str:
         return "old" if run_config.get("era") == "old" else ""
 
-    style = plots.FigureStyle(variant_of=era, variant_notes={"old": "before"},
+    style = plot_tables.FigureStyle(variant_of=era, variant_notes={"old": "before"},
                               caption_notes=("(before): runs of the old era",),
                               drawn_by="python -m my.study")
     ours = plots.group(plots.load_run(r, style.variant_of) for r in (old, new))
