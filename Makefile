@@ -39,7 +39,7 @@ mujoco-py: $(STAMP)
 slurm:
 	bash deploy/install_slurm.sh
 
-# What tests/fault/test_network_faults.py, bench/net_faults.py and bench/chaos.py build a
+# What tests/fault/test_network_faults.py, bench/faults/net_faults.py and bench/faults/chaos.py build a
 # network between namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root
 # and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or
 # without root, the tests print "SKIPPED: <reason>".
@@ -83,10 +83,9 @@ lint: $(STAMP)
 
 # Redraw the figures that are drawn from committed runs (tests/unit/apps/test_committed_results.py).
 figures: $(STAMP)
-	$(PY) -m hercs.apps.cli plot --figure 2 $$(ls -d docs/results/runs/*/) -o docs/results/fig2.png \
-		--table docs/results/fig2.md > /dev/null
-	$(PY) -m bench.schedule_effect > /dev/null
-	$(PY) -m bench.claims > /dev/null
+	$(PY) -m studies.fig2 > /dev/null
+	$(PY) -m studies.schedule_effect > /dev/null
+	$(PY) -m studies.claims > /dev/null
 
 # Regenerate hercs/proto/hercs_pb2.py(.pyi) from hercs/proto/hercs.proto with the pinned grpcio-tools.
 proto: $(STAMP)

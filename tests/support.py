@@ -72,9 +72,11 @@ def rerun_viewer(port: int, received: Path) -> Iterator[subprocess.Popen[bytes]]
                 viewer.wait()
 
 
-def load_bench(name: str) -> ModuleType:
-    """The benchmark module `bench.<name>` (run as `python -m bench.<name>`)."""
-    return importlib.import_module(f"bench.{name}")
+def load_module(name: str) -> ModuleType:
+    """A benchmark's or a study's module by its dotted name (`bench.perf.learner`,
+    `studies.claims.claims`): neither folder is installed, so tests import them from the
+    checkout."""
+    return importlib.import_module(name)
 
 
 def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:

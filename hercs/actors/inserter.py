@@ -249,7 +249,7 @@ class Inserter:
                     f"expected ({self.actor_id!r}, seq {seq})")
         self.counters.acked += 1
         # one line per ack at DEBUG (HERCS_LOG=DEBUG): which (actor_id, seq) the replay
-        # promised to keep, what bench.net_faults checks the episode log against
+        # promised to keep, what bench.faults.net_faults checks the episode log against
         log.debug("episode (%s, seq %d) acked%s", self.actor_id, seq,
                   " (duplicate)" if ack.duplicate else "")
         if ack.duplicate:

@@ -15,6 +15,8 @@ from hercs.apps.plot_tables import (
     FIG2_EPOCHS,
     FIG2_ROWS,
     FIG2_TASKS,
+    PLAIN_STYLE,
+    FigureStyle,
     fig2_keys,
     fig2_text,
     has_ours,
@@ -192,8 +194,10 @@ def _fit_legends(fig: Any, legends: list[Any], margin_px: float = 4.0) -> None:
 
 def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
-              xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND) -> Path:
-    """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`."""
+              xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND,
+              style: FigureStyle = PLAIN_STYLE) -> Path:
+    """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`; `style`'s variant
+    notes in the labels."""
     _check_band(band)
     plt = _pyplot()
     fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
@@ -211,7 +215,7 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
             mine, ref = ours.get(task, {}), reference.get(task, {})
             for key in fig2_keys(pair, mine, ref):
                 color = colors.get(key) or METHOD_COLORS.get(key)
-                label = method_label(key)
+                label = method_label(key, style.variant_notes)
                 if key in ref:
                     a = aggregate(ref[key])
                     _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
@@ -257,9 +261,10 @@ def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:
 def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
              table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
              xmax: int | None = None, figure: int | None = None,
-             band: str = DEFAULT_BAND) -> int:
+             band: str = DEFAULT_BAND, style: FigureStyle = PLAIN_STYLE) -> int:
     """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`);
-    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours).
+    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours), with
+    a caller's `style` (a study's; `hercs plot` itself draws plainly).
     A folder named twice is read once, with one line on stderr saying how many were."""
     _check_band(band)
     folders, repeated = distinct_run_dirs(run_dirs)
@@ -267,7 +272,7 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
     if repeated:
         notes.append(f"{repeated} run folder{'s' if repeated != 1 else ''} named more than "
                      "once (overlapping globs?): each read once")
-    ours = group((load_run(d) for d in folders), notes)
+    ours = group((load_run(d, style.variant_of) for d in folders), notes)
     for task, methods in ours.items():
         if len(methods) > MAX_GROUPS and figure != 2:
             notes.append(f"{task}: {len(methods)} groups in one panel (past {MAX_GROUPS} a "
@@ -277,8 +282,8 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
         for note in notes:
             print(f"hercs plot: {note}", file=sys.stderr)
         authors = group(load_reference(reference_csv))
-        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band),
-                              fig2_text(ours, authors, band), table)
+        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band, style),
+                              fig2_text(ours, authors, band, style), table)
     ref = group(load_reference(reference_csv)) if reference else None
     if ref is not None:
         missing = sorted(set(ours) - set(ref))

@@ -4,7 +4,8 @@ hercs/apps/plots.py's rule."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 from hercs.apps.plots import (
     CI_LEVEL,
@@ -12,6 +13,7 @@ from hercs.apps.plots import (
     WINDOW,
     Curve,
     Milestones,
+    VariantOf,
     aggregate,
     method_label,
     method_rank,
@@ -81,6 +83,22 @@ BAND_CAPTIONS: dict[str, str] = {
 }
 
 
+@dataclass(frozen=True)
+class FigureStyle:
+    """What a caller adds to `hercs plot`'s plain grouping and labels, for the figures it
+    commits: its own variants (`variant_of`), each shown as a note after the label
+    (`variant_notes`: variant → words, "HER-CS (lag 7)") and explained in Fig. 2's caption
+    (`caption_notes`), and the command that drew it (`drawn_by`, for the caption)."""
+
+    variant_of: VariantOf | None = None
+    variant_notes: Mapping[str, str] = field(default_factory=dict)
+    caption_notes: tuple[str, ...] = ()
+    drawn_by: str = "hercs plot --figure 2"
+
+
+PLAIN_STYLE = FigureStyle()
+
+
 FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")
 FIG2_ROWS: tuple[tuple[str, str], ...] = (("her", "her-cs"), ("her-ebp", "her-ebp-cs"))
 FIG2_EPOCHS = 200
@@ -111,12 +129,14 @@ def fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
 
 
 def fig2_text(ours: dict[str, dict[str, list[Curve]]],
-              reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND) -> str:
+              reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND,
+              style: FigureStyle = PLAIN_STYLE) -> str:
     """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2 (`band`:
-    what the figure's bands are, for its caption)."""
+    what the figure's bands are, for its caption; `style`: a caller's variants, their labels
+    and caption notes, and the command named as the drawer)."""
     parts = [
         "# Fig. 2: ours beside the authors'", "",
-        "Drawn by `hercs plot --figure 2` from the committed runs (docs/results/runs/). Rows "
+        f"Drawn by `{style.drawn_by}` from the committed runs (docs/results/runs/). Rows "
         "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
         "FetchPickAndPlace, FetchSlide. Ours solid (lockstep dash-dotted), the authors' "
         f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
@@ -124,8 +144,7 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         f"seeds' own {WINDOW}-epoch trailing means, are {BAND_CAPTIONS[band]}. Ours: "
         "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled (v1) the authors' "
         "environment, gym Fetch*-v1 on mujoco-py, which the authors' curves are on "
-        "(docs/DESIGN.md §9.6); (lag 7): asynchronous runs of the old, staler default "
-        "(docs/PERFORMANCE.md §2).", "",
+        f"(docs/DESIGN.md §9.6){''.join(f'; {note}' for note in style.caption_notes)}.", "",
     ]
     for pair in FIG2_ROWS:
         for task in FIG2_TASKS:
@@ -133,10 +152,11 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
             title = panel_title(task, pair)
             rows: list[tuple[str, Milestones]] = []
             for key in fig2_keys(pair, mine, ref):
+                label = method_label(key, style.variant_notes)
                 if key in mine:
-                    rows.append((method_label(key) + " (ours)", milestones(aggregate(mine[key]))))
+                    rows.append((label + " (ours)", milestones(aggregate(mine[key]))))
                 if key in ref:
-                    rows.append((method_label(key) + " (authors)",
+                    rows.append((label + " (authors)",
                                  milestones(aggregate(ref[key]))))
             parts.append(markdown_table(title, rows))
             if not has_ours(pair, mine):

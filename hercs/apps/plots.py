@@ -36,7 +36,7 @@ variants (a speed option, compared in docs/PERFORMANCE.md).
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -135,16 +135,16 @@ def task_title(name: str) -> str:
 
 
 def method_key(method: str, schedule: str = "async", precision: str = "fp32",
-               env_version: str = ENV_VERSION_DEFAULT, lag: str = "",
+               env_version: str = ENV_VERSION_DEFAULT, variant: str = "",
                torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT) -> str:
     """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
-    for the learner's mixed precision, `/lag7` for an asynchronous run made with the old,
-    staler default (`lag`, see `legacy_lag`), `/eps0.001` for EBP's `energy.epsilon` other
-    than the default, and `/v1` for the authors' Fetch*-v1 environment, or `/ts4` for v4 with
-    the gripper weld's torquescale 4 (`her-cs/lockstep/bf16/v1` has three)."""
+    for the learner's mixed precision, `/<variant>` for a caller's own grouping (`VariantOf`),
+    `/eps0.001` for EBP's `energy.epsilon` other than the default, and `/v1` for the authors'
+    Fetch*-v1 environment, or `/ts4` for v4 with the gripper weld's torquescale 4
+    (`her-cs/lockstep/bf16/v1` has three)."""
     env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
     eps = "" if energy_epsilon == EPSILON_DEFAULT else f"eps{energy_epsilon:g}"
-    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (lag, ""),
+    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (variant, ""),
                                      (eps, ""), (env, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
 
@@ -154,36 +154,28 @@ def energy_epsilon(config: dict[str, Any]) -> float:
     return float((config.get("energy") or {}).get("epsilon", EPSILON_DEFAULT))
 
 
-LEGACY_LAG = "lag7"
-"""The variant of asynchronous runs made before the lag sources were settings (2026-11-25):
-rate tolerance 80, two batches prefetched plus one held, two episodes queued per actor, a
-policy lag of 7 cycles (docs/results/lag_sources_beside.md) against 2–3 since."""
-
-
-def legacy_lag(config: dict[str, Any]) -> str:
-    """`LEGACY_LAG` for an asynchronous run whose resolved config.yaml (one with a `replay`
-    section, as every run saves) predates `learner.prefetch_depth`, else ""."""
-    schedule = (config.get("training") or {}).get("schedule", "async")
-    resolved = "rate_tolerance_updates" in (config.get("replay") or {})
-    new = "prefetch_depth" in (config.get("learner") or {})
-    return LEGACY_LAG if schedule == "async" and resolved and not new else ""
+VariantOf = Callable[[dict[str, Any]], str]
+"""A caller's own grouping of runs beyond their settings (a study's experiment history, e.g.
+runs made before a setting existed): the variant for a run's config.yaml, "" for none.
+`hercs plot` has none: a user's runs are grouped by their settings alone."""
 
 
 def _env_version(variant: str) -> bool:
     return variant in ("v1", ENV_VERSION_DEFAULT) or variant.startswith("ts")
 
 
-def method_label(key: str) -> str:
+def method_label(key: str, variant_notes: Mapping[str, str] | None = None) -> str:
     """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
-    "HER-CS (v1)", `her-cs/lag7` → "HER-CS (lag 7)"."""
+    "HER-CS (v1)"; a variant named in `variant_notes` (a `FigureStyle`'s) is a note after
+    the environment's: `her-cs/lag7` with {"lag7": "lag 7"} → "HER-CS (lag 7)"."""
+    notes_of = variant_notes or {}
     method, *variants = key.split("/")
     inline = (f"ε {v[3:]}" if v.startswith("eps") else v
-              for v in variants if not _env_version(v) and v != LEGACY_LAG)
+              for v in variants if not _env_version(v) and v not in notes_of)
     label = " ".join((METHOD_LABELS.get(method, method), *inline))
     notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
              for v in variants if _env_version(v)]
-    if LEGACY_LAG in variants:
-        notes.append("lag 7")
+    notes += [notes_of[v] for v in variants if v in notes_of]
     return "".join((label, *(f" ({v})" for v in notes)))
 
 
@@ -221,10 +213,10 @@ def _curve(task: str, method: str, seed: int, points: dict[int, float], source: 
                  source)
 
 
-def load_run(run_dir: str | Path) -> Curve:
-    """`config.yaml` (task.name, run.method, run.seed; the variants of `method_key`) and
-    `metrics.csv` (epoch, success_rate) of one run directory. A repeated epoch keeps its last
-    row."""
+def load_run(run_dir: str | Path, variant_of: VariantOf | None = None) -> Curve:
+    """`config.yaml` (task.name, run.method, run.seed; the variants of `method_key`, with the
+    caller's own from `variant_of`) and `metrics.csv` (epoch, success_rate) of one run
+    directory. A repeated epoch keeps its last row."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PlotError(f"{run_dir}: not a run directory")
@@ -239,7 +231,7 @@ def load_run(run_dir: str | Path) -> Curve:
         method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
                             (config.get("learner") or {}).get("precision", "fp32"),
                             config["task"].get("env_version", ENV_VERSION_DEFAULT),
-                            legacy_lag(config),
+                            variant_of(config) if variant_of is not None else "",
                             float(config["task"].get("weld_torquescale", 1.0)),
                             energy_epsilon(config))
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
@@ -261,13 +253,13 @@ def load_run(run_dir: str | Path) -> Curve:
     return _curve(task_title(task), method, seed, points, str(run_dir))
 
 
-def load_runs(folder: str | Path) -> list[Curve]:
-    """Every run directly under `folder`, by name; folders that are not runs, or have no
-    metrics yet, are passed over (a grid's run-dir holds logs and unfinished runs too)."""
+def load_runs(folder: str | Path, variant_of: VariantOf | None = None) -> list[Curve]:
+    """Every run directly under `folder`, by name (`load_run`); folders that are not runs, or
+    have no metrics yet, are passed over (a grid's run-dir holds logs and unfinished runs)."""
     curves = []
     for run_dir in sorted(p for p in Path(folder).iterdir() if p.is_dir()):
         try:
-            curves.append(load_run(run_dir))
+            curves.append(load_run(run_dir, variant_of))
         except PlotError:
             continue
     return curves

@@ -5,7 +5,7 @@ of improvement P(X > Y), that a run of one arm beats a run of another (ties half
 Mann–Whitney U over n_X·n_Y), with an interval from resampling each arm's runs on its own.
 
 numpy only, so that the product needs no statistics package; the project's own claims
-(bench/claims.py) use rliable itself, whose functions these equal for one task.
+(studies/claims/claims.py) use rliable itself, whose functions these equal for one task.
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ def _zenoh_config(mode: Mode, connect: Sequence[str], listen: Sequence[str],
         "connect/retry": _CONNECT_RETRY,
         # Zenoh's shared-memory transport gives every local sender of messages over 3 KiB a
         # 16 MiB pool that the receiver keeps mapped after the sender is gone: a replay whose
-        # actors restart would grow without bound (measured by bench.throughput). Loopback
+        # actors restart would grow without bound (measured by bench.perf.throughput). Loopback
         # TCP is fast enough for our messages.
         "transport/shared_memory/enabled": False,
     }

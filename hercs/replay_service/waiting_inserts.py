@@ -10,7 +10,7 @@ arrival order. At most `per_actor` inserts of one actor id wait; `refusal` answe
 with `actor_queue_full`, a retry, so the flooder is slowed by its own backoff and the waiting
 inserts' memory stays bounded. A retry of a waiting (actor_id, seq) joins that call
 (hercs.replay_service.table) and is never refused here. `per_actor = 0` is one FIFO in arrival
-order with no bound, kept to measure the difference (bench/fair_share.py).
+order with no bound, kept to measure the difference (bench/perf/fair_share.py).
 """
 
 from __future__ import annotations

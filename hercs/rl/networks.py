@@ -92,7 +92,7 @@ class NumpyActor:
     """μ evaluated with numpy on a frozen copy of an `Actor`'s parameters, for acting.
 
     An actor evaluates μ one observation at a time; at batch size 1 torch's per-call overhead
-    is most of the cost (bench/throughput: ~70 µs per step against ~25 µs here), and every
+    is most of the cost (bench/perf/throughput: ~70 µs per step against ~25 µs here), and every
     microsecond is taken from env stepping. Same arithmetic in float32, so the outputs agree
     with `Actor.forward` to float rounding. Rebuild it whenever the actor's weights change.
     """

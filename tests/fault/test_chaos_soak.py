@@ -1,4 +1,4 @@
-"""The chaos soak's quick mode end to end (bench.chaos): a FetchReach run over mutual TLS
+"""The chaos soak's quick mode end to end (bench.faults.chaos): a FetchReach run over mutual TLS
 whose one actor is on another "host" (a network namespace), SIGKILLed and started again by
 the bench's supervisor, then its host's link cut both ways for 12 s.
 
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import pytest
 
-from bench import chaos
-from bench.chaos_plan import QUICK_PLAN
-from bench.chaos_state import QUICK_SHAPE
-from bench.netns import make_host, problem
+from bench.faults import chaos
+from bench.faults.chaos_plan import QUICK_PLAN
+from bench.faults.chaos_state import QUICK_SHAPE
+from bench.faults.netns import make_host, problem
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
 

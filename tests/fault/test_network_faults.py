@@ -1,8 +1,8 @@
 """A real network between hosts, over mutual TLS: a run whose actor is on another "host" (a
-network namespace behind a veth link, bench.netns) rides out packet loss and a partition;
+network namespace behind a veth link, bench.faults.netns) rides out packet loss and a partition;
 and a client joins a router across a slow link.
 
-The run is bench.net_faults' quick setting (`QUICK`): 10 % of packets dropped each way for
+The run is bench.faults.net_faults' quick setting (`QUICK`): 10 % of packets dropped each way for
 the whole run, and after epoch 1 of 5 every packet dropped both ways for 15 s (longer than
 Zenoh's 10 s lease: the sessions end and the actor reconnects). Needs root, iproute2 and
 iptables (`make netfault-tools`); otherwise skipped with the reason. The namespace, its link
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import net_faults
-from bench.delay_relay import DelayRelay
-from bench.netns import hosts, problem
+from bench.faults import net_faults
+from bench.faults.delay_relay import DelayRelay
+from bench.faults.netns import hosts, problem
 from hercs.apps.certs import make_certs
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig

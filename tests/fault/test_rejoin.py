@@ -1,5 +1,5 @@
 """A client on another "host" comes back after each of repeated cuts of its link, over
-mutual TLS (bench.rejoin): cuts of 2, 12, 30 and 5 s (below, around and well beyond Zenoh's
+mutual TLS (bench.faults.rejoin): cuts of 2, 12, 30 and 5 s (below, around and well beyond Zenoh's
 10 s lease), each followed by an answered request within `REJOIN_BOUND_S` of the heal.
 
 Needs root, iproute2 and iptables (`make netfault-tools`); otherwise skipped with the reason.
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from bench import rejoin
-from bench.netns import hosts, problem
+from bench.faults import rejoin
+from bench.faults.netns import hosts, problem
 from hercs.apps.certs import make_certs
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]

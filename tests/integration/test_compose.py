@@ -271,7 +271,7 @@ def test_services_import_no_view_dependency() -> None:
     modules = ["hercs.apps.cli", "hercs.apps.router", "hercs.apps.certs",
                *(m for m, _ in SERVICES.values() if m != "hercs.apps.live_view")]
     heavy = [*VIEW_ONLY.values(), "pyarrow"]
-    # pandas is a dev-only package here (rliable's, for bench/claims.py), absent from the
+    # pandas is a dev-only package here (rliable's, for studies/claims/claims.py), absent from the
     # image; where installed, scikit-learn imports it and it imports pyarrow: block it so the
     # check sees what the image sees
     code = ("import importlib, sys\n"

@@ -1,7 +1,8 @@
 """A process in another network namespace joins a run through a router it reaches over a
 veth pair — what an actor on another host does with `hercs actor --connect tcp/HOST:7447`.
 
-The namespace (bench.netns, which bench.net_faults and tests/fault/test_network_faults.py
+The namespace (bench.faults.netns, which bench.faults.net_faults and
+tests/fault/test_network_faults.py
 use too) has only its loopback and the veth end 10.123.0.2/24; the router listens on the
 host end 10.123.0.1 (these two test addresses are the only ones touched). Needs root and
 `ip`; skipped with the reason when namespaces cannot be made. Every wait is on a queue, a
@@ -24,7 +25,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench.netns import Host, hosts, problem
+from bench.faults.netns import Host, hosts, problem
 from hercs.apps.router import open_router
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
 from hercs.net.transport import PendingReply, Transport

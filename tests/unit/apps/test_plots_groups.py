@@ -323,3 +323,33 @@ def test_the_readmes_plot_examples_are_readable(monkeypatch: pytest.MonkeyPatch,
         assert inside, f"{' '.join(words)}: a legend runs off the image"
         colours = [c for _, c in solid]
         assert len(set(colours)) == len(colours) <= plots.MAX_GROUPS, solid
+
+
+def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_path: Path) -> None:
+    """`hercs plot` groups by settings alone; a caller's FigureStyle (a study's) adds its own
+    variant, labelled by its note and explained in Fig. 2's caption."""
+    old = _write_run(tmp_path, "her-cs", 1, [0.1, 0.2])
+    new = _write_run(tmp_path, "her-cs", 2, [0.3, 0.4])
+    config = yaml.safe_load(RunDir(old).config.read_text())
+    RunDir(old).config.write_text(yaml.safe_dump({**config, "era": "old"}))
+    assert set(plots.group(plots.load_run(r) for r in (old, new))["FetchPush"]) == {"her-cs"}
+
+    def era(run_config: dict[str, Any]) -> str:
+        return "old" if run_config.get("era") == "old" else ""
+
+    style = plot_tables.FigureStyle(variant_of=era, variant_notes={"old": "before"},
+                              caption_notes=("(before): runs of the old era",),
+                              drawn_by="python -m my.study")
+    ours = plots.group(plots.load_run(r, style.variant_of) for r in (old, new))
+    assert set(ours["FetchPush"]) == {"her-cs", "her-cs/old"}
+    assert plots.method_key("her-cs", "lockstep", variant="old", env_version="v1") == (
+        "her-cs/lockstep/old/v1")
+    assert plots.method_label("her-cs/lockstep/old/v1", style.variant_notes) == (
+        "HER-CS lockstep (v1) (before)")
+    assert plots.method_label("her-cs/old") == "HER-CS old"  # no note given: inline, as is
+    text = plot_tables.fig2_text(ours, {}, style=style)
+    assert "Drawn by `python -m my.study`" in text
+    assert "§9.6); (before): runs of the old era." in text
+    assert "| HER-CS (before) (ours) |" in text
+    plain = plot_tables.fig2_text(ours, {})
+    assert "Drawn by `hercs plot --figure 2`" in plain and "§9.6)." in plain

@@ -1,0 +1,181 @@
+"""Acked inserts per second of the replay table with its real episode log, in process.
+
+    python -m bench.perf.inserts [--quick] [--out docs/results/inserts]
+
+What the replay can acknowledge when inserts arrive from many hosts at once, without Zenoh
+or actors in the way: N threads (the replay's insert workers) each insert pre-built FetchPush
+episodes into one `ReplayTable` (free run, so the rate limiter never holds them) whose log is
+a real `RecoveringLogWriter` on this machine's disk (fsync on every commit). Variants, each
+for the same wall-clock window, in alternating rounds:
+
+- serial, scene on the ack path: 1 thread, and every append waits until its episode's scene
+  is written too (what the replay did before group commit);
+- serial: 1 thread, scenes written by the log's background thread;
+- group commit: `replay.insert_workers` (4) threads, scenes in the background;
+- group commit, no scene: the same with `replay.log_scene=false`;
+- group commit, bounded log: the replay's default log (`replay.log_max_bytes=0`) split every
+  `BOUNDED_SEGMENT` episodes instead of every 5,000, so that the new segments the committing
+  thread starts (a rename, a file, two fsyncs, the replay state) and the closing and pruning
+  on the log's thread fall inside the window many times.
+
+Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
+synthetic actor processes is bench/perf/throughput's insert phase. Writes OUT.json and OUT.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.common import git_commit
+from hercs.config import HercsConfig, apply_overrides
+from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable, Stored
+from hercs.run.runlog import RecoveringLogWriter
+from hercs.wire.codec import episode_to_msg
+from hercs.wire.episode import random_episode
+
+REPO = Path(__file__).resolve().parents[2]
+
+BOUNDED_SEGMENT = 100
+"""Episodes per segment of the bounded-log variant (the default's 5,000 would start none)."""
+VARIANTS = {
+    "serial, scene on the ack path": (1, True, True, 0),
+    "serial": (1, True, False, 0),
+    "group commit": (4, True, False, 0),
+    "group commit, no scene": (4, False, False, 0),
+    "group commit, bounded log": (4, True, False, BOUNDED_SEGMENT),
+}
+"""name → (threads, log the scene, wait for the scene before the ack, episodes per segment:
+0 for one growing segment)."""
+
+
+class _Acked:
+    def __init__(self, counter: list[int], done: threading.Event) -> None:
+        self.counter, self.done_event = counter, done
+
+    def done(self, result: Stored) -> None:
+        self.counter[0] += 1
+        self.done_event.set()
+
+    def fail(self, reason: str, detail: str) -> None:
+        raise RuntimeError(f"insert refused: {reason}: {detail}")
+
+
+class _SceneOnAckPath:
+    """The log as before: an append returns only when its episodes' scenes are written."""
+
+    def __init__(self, log: RecoveringLogWriter) -> None:
+        self.log = log
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
+        self.log.append_many(episodes)
+        writer = self.log._writer  # the live segment's writer
+        if writer is not None:
+            writer.flush_scenes()
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None:
+        self.log.append_cluster_model(msg)
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None:
+        self.log.append_eval_result(msg)
+
+    def rotation_due(self) -> bool:
+        return self.log.rotation_due()
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        self.log.start_segment(state)
+
+
+def measure(name: str, *, window_s: float, pool: list, workdir: Path) -> float:
+    threads, scene, scene_on_path, segment_episodes = VARIANTS[name]
+    # synthetic episodes carry no weights version: no lag bound (the insert path is measured)
+    config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=bench",
+                                             "replay.free_run=true",
+                                             "training.max_policy_lag=-1"])
+    run_dir = Path(tempfile.mkdtemp(dir=workdir))
+    log, _ = RecoveringLogWriter.open(run_dir, run="bench", task="push", scene=scene,
+                                      segment_episodes=segment_episodes,
+                                      max_bytes=0 if segment_episodes else -1)
+    sink = _SceneOnAckPath(log) if scene_on_path else log
+    table = ReplayTable(config=config, core=ReplayCore(config=config,
+                                                       rng=np.random.default_rng(0)),
+                        log=sink)
+    acked = [0]
+    stop = threading.Event()
+
+    def worker(index: int) -> None:
+        seq = 0
+        while not stop.is_set():
+            data, msg = pool[seq % len(pool)]
+            episode = dataclasses.replace(data, actor_id=f"a{index}", seq=seq)
+            answered = threading.Event()
+            table.insert(episode, record=msg, waiter=_Acked(acked, answered))
+            answered.wait()  # one insert in flight per worker, as one actor's inserter
+            seq += 1
+
+    workers = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(threads)]
+    for thread in workers:
+        thread.start()
+    time.sleep(0.3)  # warm-up: files created, first chunks written
+    start, count = time.monotonic(), acked[0]
+    time.sleep(window_s)  # the measurement window itself
+    rate = (acked[0] - count) / (time.monotonic() - start)
+    stop.set()
+    for thread in workers:
+        thread.join(30)
+    log.close()
+    return rate
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="short windows, one round")
+    parser.add_argument("--out", default=str(REPO / "docs/results/inserts"))
+    args = parser.parse_args(argv)
+    window_s, rounds = (0.5, 1) if args.quick else (4.0, 3)
+    spec = apply_overrides(HercsConfig(), ["task.name=push"]).task.spec
+    rng = np.random.default_rng(0)
+    pool = []
+    for i in range(64):
+        episode = random_episode(spec, rng, seq=i)
+        pool.append((episode, episode_to_msg(episode, run="bench", task="push")))
+    rates: dict[str, list[float]] = {name: [] for name in VARIANTS}
+    with tempfile.TemporaryDirectory(dir=REPO) as workdir:  # the repository's disk
+        for _ in range(rounds):
+            for name in VARIANTS:
+                rates[name].append(measure(name, window_s=window_s, pool=pool,
+                                           workdir=Path(workdir)))
+    base = float(np.median(rates["serial, scene on the ack path"]))
+    results = {name: {"episodes_per_s": float(np.median(r)), "rounds": r,
+                      "ratio": float(np.median(r)) / base} for name, r in rates.items()}
+    command = "python -m bench.perf.inserts" + (" --quick" if args.quick else "")
+    lines = ["# Replay inserts acked per second, in process", "",
+             f"`{command}` — git {git_commit()}; {rounds} round(s) of {window_s:g} s per "
+             "variant, median; FetchPush episodes, free run, log fsynced on this disk.", "",
+             "| variant | threads | acked episodes/s | ratio |", "|---|---|---|---|"]
+    for name, row in results.items():
+        lines.append(f"| {name} | {VARIANTS[name][0]} | {row['episodes_per_s']:.0f} | "
+                     f"{row['ratio']:.2f} |")
+    text = "\n".join(lines) + "\n"
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(
+        {"git": git_commit(), "window_s": window_s, "rounds": rounds, "results": results},
+        indent=2) + "\n")
+    out.with_suffix(".md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""Does asynchrony change the result? Each method's lockstep seeds against its asynchronous ones.
+
+    python -m studies.schedule_effect           # every pair in the committed runs → docs/results/
+
+Reads finished runs (config.yaml, metrics.csv and bench_done.json) from `--runs` (default
+docs/results/runs/, the committed ones) and pairs, per task, method and learner precision,
+the runs of `training.schedule=async` with those of `training.schedule=lockstep` (the
+reference's schedule; `bench/sample_efficiency.py --schedule lockstep` trains them). A pair
+needs at least one run on each side.
+
+Per run: the epoch its own 10-epoch trailing mean of the test success first exceeds 0.5 (the
+tables' rule, hercs/apps/plots.py) and that mean after epoch E, where E is the last epoch every run
+of the pair reached (at most `--epoch`, default 50). Per schedule: mean ± sample s.d. over
+seeds at E. The difference lockstep − asynchronous gets a standard error and a 95 % interval
+from Welch's t (each side's own variance); when one side has a single seed, its spread is
+taken to be the other side's (pooled t, that side's degrees of freedom). The difference is
+called resolved when the interval excludes 0.
+
+The runs come from whichever machine trained them (docs/results/runs/README.md lists each),
+and one seed gives other numbers on another CPU (docs/DESIGN.md §10), so seeds here are
+draws, not pairs. Writes `<out>/asynchrony.md` (default docs/results/), a pure function of the
+runs (no date, no commit) so that a test can check the committed file against them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from hercs.apps.plots import (
+    Curve,
+    aggregate,
+    group,
+    load_runs,
+    method_label,
+    milestones,
+)
+from hercs.apps.sweep_cells import DONE_FILE
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
+
+REPO = Path(__file__).resolve().parents[2]
+
+SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}
+OUTPUT = "asynchrony.md"
+
+
+@dataclass(frozen=True)
+class SeedResult:
+    """One run's numbers in a comparison."""
+
+    run: str
+    seed: int
+    commit: str
+    finished: str
+    at_half: int | None
+    success: float
+    """The 10-epoch trailing mean after the pair's last common epoch."""
+
+
+@dataclass(frozen=True)
+class Difference:
+    """lockstep − asynchronous at the pair's last common epoch."""
+
+    value: float
+    stderr: float | None
+    low: float | None
+    high: float | None
+    rule: str
+
+    @property
+    def resolved(self) -> bool | None:
+        if self.low is None or self.high is None:
+            return None
+        return self.low > 0.0 or self.high < 0.0
+
+
+@dataclass(frozen=True)
+class Comparison:
+    task: str
+    method: str  # the asynchronous key: her-cs, her-cs/bf16
+    epoch: int
+    lockstep: list[SeedResult]
+    asynchronous: list[SeedResult]
+    difference: Difference
+
+
+def _done_record(run_dir: Path) -> dict[str, object]:
+    try:
+        return json.loads((run_dir / DONE_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def seed_result(curve: Curve, epoch: int) -> SeedResult:
+    keep = curve.epochs <= epoch
+    cut = Curve(curve.task, curve.method, curve.seed, curve.epochs[keep], curve.success[keep],
+                curve.source)
+    m = milestones(aggregate([cut]))  # one seed: its own trailing mean
+    run_dir = Path(curve.source)
+    done = _done_record(run_dir)
+    assert m.final is not None
+    return SeedResult(run_dir.name, curve.seed, str(done.get("commit", "–")),
+                      str(done.get("finished", "–"))[:16].replace("T", " "),
+                      m.crossing[0.5], m.final)
+
+
+def difference(lockstep: Sequence[float], asynchronous: Sequence[float]) -> Difference:
+    """Welch's t (or pooled when one side has one value) for mean(lockstep) − mean(async)."""
+    a, b = np.asarray(lockstep, dtype=float), np.asarray(asynchronous, dtype=float)
+    value = float(a.mean() - b.mean())
+    na, nb = len(a), len(b)
+    if na >= 2 and nb >= 2:
+        va, vb = a.var(ddof=1) / na, b.var(ddof=1) / nb
+        se = math.sqrt(va + vb)
+        df = ((va + vb) ** 2 / (va ** 2 / (na - 1) + vb ** 2 / (nb - 1))
+              if va + vb > 0 else float(na + nb - 2))
+        rule = f"Welch, {df:.1f} degrees of freedom"
+    elif na + nb >= 3:
+        wide = a if na >= 2 else b
+        se = math.sqrt(wide.var(ddof=1) * (1 / na + 1 / nb))
+        df = float(len(wide) - 1)
+        rule = f"one seed on one side: the other side's spread, {df:.0f} degrees of freedom"
+    else:
+        return Difference(value, None, None, None, "one seed on each side: no spread to use")
+    half = float(stats.t.ppf(0.975, df)) * se
+    return Difference(value, se, value - half, value + half, rule)
+
+
+def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
+    """Every task × method × precision with runs in both schedules, in the tables' order."""
+    out = []
+    for task, methods in group(curves).items():
+        for key, async_curves in methods.items():
+            method, *variants = key.split("/")
+            if "lockstep" in variants:
+                continue
+            # lockstep ignores the asynchronous lag settings: old and new defaults alike pair
+            # with the lockstep runs of the same precision and environment (v1, a v4 weld
+            # setting), whose key is theirs with /lockstep first (the order of
+            # hercs.apps.plots.method_key)
+            partner = "/".join((method, "lockstep", *(v for v in variants if v != LEGACY_LAG)))
+            lock_curves = methods.get(partner, [])
+            if not lock_curves:
+                continue
+            both = [*lock_curves, *async_curves]
+            epoch = min(max_epoch, *(int(c.epochs.max()) for c in both))
+            lock = [seed_result(c, epoch) for c in sorted(lock_curves, key=lambda c: c.seed)]
+            asy = [seed_result(c, epoch) for c in sorted(async_curves, key=lambda c: c.seed)]
+            out.append(Comparison(task, key, epoch, lock, asy, difference(
+                [s.success for s in lock], [s.success for s in asy])))
+    return out
+
+
+def _num(v: float) -> str:
+    return f"{v:+.2f}".replace("0.", ".") if v < 0 or v > 0 else ".00"
+
+
+def _rate(v: float) -> str:
+    return f"{v:.2f}".lstrip("0") if v < 1.0 else "1.00"
+
+
+def report(comparisons: Sequence[Comparison], command: str, max_epoch: int = 50) -> str:
+    lines = [
+        "# Does asynchrony change the result? Lockstep against asynchronous runs", "",
+        f"Drawn by `{command}` from the committed runs (docs/results/runs/; also `make "
+        "figures`). Per run: the epoch its 10-epoch trailing mean of the test success first "
+        "exceeds 0.5 (counted from 0, as in the Fig. 2 tables) and that mean after epoch E, "
+        f"the last epoch every run of the comparison reached (at most {max_epoch}). The difference "
+        "lockstep − asynchronous has a 95 % interval from Student's t; it is resolved when "
+        "the interval excludes 0. Seeds are draws, not pairs: the runs come from different "
+        "machines and commits (the table says which), and one seed gives other numbers on "
+        "another CPU (docs/DESIGN.md §10).", ""]
+    if not comparisons:
+        lines += ["No task and method has runs in both schedules yet.", ""]
+    for c in comparisons:
+        title = f"{c.task} {method_label(c.method, LEGACY_NOTES)}"
+        lines += [f"## {title}: lockstep against asynchronous, epoch {c.epoch}", "",
+                  "| run | schedule | seed | trained with | finished (UTC) | epoch at 0.5 | "
+                  f"success at {c.epoch} |", "|---|---|---|---|---|---|---|"]
+        for schedule, seeds in (("lockstep", c.lockstep), ("async", c.asynchronous)):
+            for s in seeds:
+                at = "–" if s.at_half is None else str(s.at_half)
+                lines.append(f"| {s.run} | {SCHEDULE_LABELS[schedule]} | {s.seed} | {s.commit} "
+                             f"| {s.finished} | {at} | {_rate(s.success)} |")
+        lines += ["", f"| schedule | seeds | success at {c.epoch}, mean ± s.d. |",
+                  "|---|---|---|"]
+        for schedule, seeds in (("lockstep", c.lockstep), ("async", c.asynchronous)):
+            values = np.array([s.success for s in seeds])
+            sd = f"{values.std(ddof=1):.2f}".lstrip("0") if len(values) > 1 else "–"
+            lines.append(f"| {SCHEDULE_LABELS[schedule]} | {len(seeds)} | "
+                         f"{_rate(float(values.mean()))} ± {sd} |")
+        d = c.difference
+        if d.stderr is None or d.low is None or d.high is None:
+            verdict = f"{_num(d.value)}; {d.rule}."
+        else:
+            word = ("**resolved**: the interval excludes 0" if d.resolved else
+                    "**not resolved**: the interval includes 0")
+            verdict = (f"{_num(d.value)}, standard error {_rate(d.stderr)} ({d.rule}), 95 % "
+                       f"interval [{_num(d.low)}, {_num(d.high)}]: {word}.")
+        lines += ["", f"Lockstep − asynchronous after epoch {c.epoch}: {verdict}", ""]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=Path, default=REPO / "docs" / "results" / "runs")
+    p.add_argument("--epoch", type=int, default=50,
+                   help="compare after this epoch at most (default 50)")
+    p.add_argument("--out", type=Path, default=REPO / "docs" / "results")
+    args = p.parse_args(argv)
+    if args.epoch < 1:
+        p.error(f"--epoch must be at least 1, got {args.epoch}")
+    if not args.runs.is_dir():
+        p.error(f"--runs {args.runs}: not a directory")
+    curves = load_runs(args.runs, legacy_lag)
+    command = " ".join(["python -m studies.schedule_effect",
+                        *(sys.argv[1:] if argv is None else argv)])
+    text = report(compare_all(curves, args.epoch), command, args.epoch)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / OUTPUT).write_text(text)
+    print(text, end="")
+    print(f"wrote {args.out / OUTPUT}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,37 @@
+"""bench/perf/learner_cuda.py quick mode: every cell of its tables computed and finite; with a GPU
+the TF32 emulation sits nearer the GPU's own TF32 than fp32 does (no timing is asserted)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "bench.perf.learner_cuda", "--quick", "--out",
+                           str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "learner_cuda.json").read_text())
+    cpu = summary["cpu_updates_per_s"]
+    assert sorted(cpu) == ["bf16", "fp32", "tf32"]
+    assert all(sorted(row) == ["1", "4"] for row in cpu.values()), cpu
+    assert all(math.isfinite(v) and v > 0 for row in cpu.values() for v in row.values())
+    text = (tmp_path / "learner_cuda.md").read_text()
+    assert "| CPU | tf32 |" in text
+    if not torch.cuda.is_available():
+        print("no CUDA device here: only the CPU rows were measured")
+        assert summary["gpu"] is None and "gpu_updates_per_s" not in summary
+        return
+    gpu, emulation = summary["gpu_updates_per_s"], summary["emulation"]
+    assert sorted(gpu) == ["bf16", "fp32", "fp32+gpu-tf32", "tf32"]
+    first = emulation["1"]
+    assert first["tf32_from_gpu_tf32"] < first["fp32_from_gpu_tf32"]
+    products = summary["product_check"]
+    assert products["tf32_emulated"] < products["fp32"]
