@@ -39,9 +39,9 @@ mujoco-py: $(STAMP)
 slurm:
 	bash deploy/install_slurm.sh
 
-# What tests/fault/test_network_faults.py, bench/faults/net_faults.py and bench/faults/chaos.py build a
-# network between namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when root
-# and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or
+# What tests/fault/test_network_faults.py, bench/faults/net_faults.py and bench/faults/chaos.py
+# build a network between namespaced hosts with: Debian's iproute2 (ip, tc) and iptables when
+# root and missing (deploy/install_netfault_tools.sh; nothing is configured). Without them, or
 # without root, the tests print "SKIPPED: <reason>".
 netfault-tools:
 	bash deploy/install_netfault_tools.sh

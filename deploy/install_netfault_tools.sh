@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# `make netfault-tools`: what tests/fault/test_network_faults.py and bench/faults/net_faults.py make a
-# network between namespaced hosts with, from Debian's registry: iproute2 (`ip` for namespaces
+# `make netfault-tools`: what tests/fault/test_network_faults.py and bench/faults/net_faults.py
+# make a network between namespaced hosts with, from Debian's registry: iproute2 (`ip` for namespaces
 # and veth links, `tc` for the tbf rate limit) and iptables (random loss with the `statistic`
 # match, cuts with DROP). As root with apt-get, the missing ones are installed (seconds);
 # otherwise it says why not and succeeds, and the test prints "SKIPPED: <reason>". Nothing is

@@ -42,7 +42,6 @@ SCENE_FLUSH = 256
 actor's pace draws every scene (a bulk insert would outrun SCENE_BACKLOG and drop some)."""
 
 
-
 # -- the run directory: a log written as the replay writes it, left as a kill leaves it ----
 
 def run_config(root: Path, *, endpoint: str, buffer: int | None,
@@ -145,8 +144,6 @@ def write_killed_run(root: Path, *, transitions: int, endpoint: str, buffer: int
         shutil.copyfile(RunDir(run_dir).episode_log, live_copy)
     return KilledRun(config=config, config_path=config_path, episodes=episodes, files=files,
                      live_copy=live_copy)
-
-
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,7 +25,6 @@ ACTOR_EXIT_S = 60.0
 the learner says the run is finished); then it gets SIGTERM."""
 
 
-
 def free_port() -> int:
     """A port free on every address of this namespace (the router listens on each link)."""
     with socket.socket() as sock:
@@ -73,7 +72,6 @@ def start_actor(host: Host, *, index: int, endpoint: str, run: str, certs: Path,
                                 env=dict(os.environ, HERCS_LOG="DEBUG"),
                                 preexec_fn=pdeathsig_preexec())  # dies with the bench
     return Actor(host, ident, log, proc)
-
 
 
 @contextlib.contextmanager
