@@ -1,6 +1,5 @@
-"""studies/claims/claims.py: the per-run numbers (censoring, the cut at the epoch), the grouping by
-config.yaml, the choice between the legacy and the new-default asynchronous runs, the
-not-enough-seeds rule, the stand-ins for rliable's functions, and the command line."""
+"""studies/claims: per-run numbers (censoring, the cut at the epoch), grouping by config.yaml,
+legacy against new-default runs, the not-enough-seeds rule, rliable's stand-ins, the CLI."""
 
 from __future__ import annotations
 
