@@ -1,36 +1,14 @@
 """Learning curves and milestone tables from run directories (`hercs plot`), optionally next
 to the authors' published per-seed results (`docs/reference/authors_success_rates.csv`).
 
-This module holds the runs as curves and the rule below; hercs/apps/plot_tables.py writes the
-milestone tables with it and hercs/apps/plot_figures.py draws the figures (`hercs plot`). Everything
+This module holds the runs as curves and the table rule (docs/DESIGN.md §5: seeds averaged
+over the epochs every seed reached, a trailing 10-epoch moving average, "epoch at x" the first
+epoch strictly above x counted from 0 as in the authors' logs); hercs/apps/plot_tables.py
+writes the milestone tables with it and hercs/apps/plot_figures.py draws the figures. Everything
 but the drawing is a pure function over numbers, so the tests pin the curves and the table
-without drawing.
-
-Table rule (the one that reproduces docs/DESIGN.md §5 from the authors' CSV exactly):
-
-* seeds are aggregated over the epochs that *every* seed of the group reached (a seed that
-  stopped at epoch 125 cuts the group at 125, so "success at epoch 200" is "–");
-* the smoothed curve is the trailing 10-epoch moving average of the seed mean, the mean of
-  epochs max(1, e-9)..e;
-* "epoch at 0.5 / 0.9" is the first epoch whose moving average *exceeds* the threshold,
-  numbered from 0 as in the authors' (OpenAI baselines) logs, i.e. the number of epochs
-  completed before it. Counting from 1 or accepting equality would give docs/DESIGN.md §5 + 1
-  (Push HER reaches exactly 0.500 at its 55th epoch, and §5 says 55, not 54);
-* "success at 50 / 100 / 200" is the moving average after the 50th / 100th / 200th epoch.
-
-Figure rule: each method's 10-epoch moving average of the seed mean (solid) and bands over the
-seeds' own 10-epoch moving averages (`seed_bands`; `--band ci|minmax|both`): the bootstrap 95 %
-interval of their mean (resampling seeds, a fixed RNG seed; the default) and/or, lighter, their
-min–max; the authors' curves dashed, smoothed alike. Every run is drawn to its own end (at each
-epoch, over the seeds that reached it); the legend sits beside the panel, not over the curves.
-Runs with the same task, method and seed are one seed (the longest is kept, with a note on
-stderr); a folder named twice on the command line is read once. A run trained in the lockstep
-schedule (`training.schedule`) is its own method, `<method>/lockstep` ("HER-CS lockstep"), so
-that it is compared with the asynchronous runs instead of averaged into them; likewise a run
-whose learner ran in bf16 (`learner.precision`) is `<method>/bf16`, and a run on the authors'
-Fetch*-v1 (`task.env_version`) is `<method>/v1` ("HER-CS (v1)"), never averaged with v4 runs.
-Fig. 2 draws the paper's methods, their lockstep variants and their v1 runs, not the precision
-variants (a speed option, compared in docs/PERFORMANCE.md).
+without drawing. Runs are grouped by their settings: a run in the lockstep schedule, in bf16 or
+on the authors' Fetch*-v1 is its own group (`<method>/lockstep`, `/bf16`, `/v1`), never
+averaged with the default's; the figure rule is docs/DESIGN.md §6, "Figures".
 """
 
 from __future__ import annotations
