@@ -1,41 +1,17 @@
-"""Chaos soak: a long run over mutual TLS with its actors on other "hosts", while a random
-service is SIGKILLed every 60–120 s and an actor's host is cut off every few minutes.
+"""Chaos soak: a whole run over mutual TLS, actors on other "hosts", under random kills and cuts.
 
     # as root (network namespaces, iptables); each step skips what is committed already
     python -m bench.faults.chaos --fault-free 1 2 3  # fault-free seeds of the soak's configuration
-    python -m bench.faults.chaos  # the soak (chaos seed 1, training seed 1)
+    python -m bench.faults.chaos  # the soak (--chaos-seed 1, training seed 1)
     python -m bench.faults.chaos --report-only  # docs/results/chaos.md from the committed runs
     python -m bench.faults.chaos --quick  # CI, ~80 s: FetchReach, 1 kill, 1 cut
-    python -m bench.faults.chaos --fault-free 3 --subnet 10.127  # beside another soak (own links)
+    python -m bench.faults.chaos --fault-free 3 --subnet 10.127  # beside another soak
 
-The run (`Shape`; default FetchPush, HER-EBP-CS, 20 epochs, seed 1) is `hercs up --actors 0`
-on this host, listening with TLS on each link's host end, and 2 `hercs actor` each in its own
-network namespace (bench.faults.netns, subnet 10.126) behind a veth link, joining across it. The
-schedule (bench.faults.chaos_plan, drawn from `--chaos-seed` and recorded) SIGKILLs a replay,
-learner, clusterer, evaluator (the launcher restarts them) or one of the actors (the bench
-restarts it, as its host's supervisor would: bench.faults.chaos_actors) every uniform(60, 120) s,
-and cuts one actor's link both ways (iptables DROP) for uniform(30, 90) s, uniform(120, 240)
-s after the previous cut healed. `--targets … launcher` also kills `hercs up` itself (router
-and children with it), continued with `hercs up --resume`. Every injection is recorded with
-its time on the run's clock (seconds since the launch), its wall time and pid.
-
-Resumable: the run folder, logs and the soak's state (`<work>/<run>.state.json`: the schedule,
-what was injected, each actor incarnation) live under `--work` (default runs/chaos). A soak
-stopped midway (Ctrl-C, SIGTERM, a crash of the bench) is continued by the same command: the
-run with `hercs up --resume`, new actor incarnations, the schedule where its clock stopped
-(the interruption itself is recorded as an injection). A bench that is SIGKILLed takes its
-run and actors with it (the parent-death signal) but cannot remove its namespaces and
-iptables chains: the next start refuses the subnet until they are gone (`ip netns del
-hnf<pid>-<n>`; `iptables -D INPUT -i hnf<pid>h<n> -j HNF<pid>-<n>`, `-F`, `-X`). A finished
-run gets `chaos.json` and is copied (config.yaml, metrics.csv, chaos.json) to
-`--committed` (docs/results/runs/).
-
-Asserted and reported (bench.faults.chaos_report, docs/results/chaos.{md,json}): `hercs up` exits
-0 and every actor that was not killed on purpose exits 0; every epoch once in metrics.csv;
-every episode an actor logged as acked is in the episode log and none is stored twice
-(bench.faults.net_measure); policy lag p50/p95, inserts/s, epoch median/max; per injection the
-time until the target was back, the next insert and the next epoch; and the success curve
-against the envelope of the fault-free seeds (bench.faults.chaos_envelope).
+`hercs up --actors 0` on this host and 2 `hercs actor` in namespaces (bench.faults.netns); a
+schedule drawn from `--chaos-seed` (bench.faults.chaos_plan) SIGKILLs a service or an actor and
+cuts an actor's link. Resumable: the same command continues a stopped soak from its state under
+`--work`. Report: bench.faults.chaos_report, docs/results/chaos.{md,json}. The schedule, the
+resume and clean-up rules and what is asserted: docs/FAULTS.md, "The chaos soak".
 """
 
 from __future__ import annotations

@@ -1,18 +1,13 @@
 """Does a run's success curve lie where fault-free runs of its configuration lie?
 (bench.faults.chaos)
 
-The envelope at epoch e is [min, max] of the fault-free seeds' success rates at e. Each
-curve is first smoothed by a trailing mean over `window` epochs: one epoch's rate is the
-share of `training.eval_episodes` evaluation episodes that succeeded (20 in FetchPush: a
-binomial spread of ±0.1 around 0.5), so raw curves cross any envelope of a few seeds by
-noise alone.
-
-Even smoothed, an envelope of n seeds holds a fresh draw of the same distribution at one
-epoch only with probability (n − 1)/(n + 1) (the chance that it is neither the smallest nor
-the largest of n + 1), so "inside at every epoch" is a strict test for small n. The check is
-therefore calibrated the same way on the fault-free seeds themselves: each seed against the
-envelope of the others (`leave_one_out`). A chaos curve outside at as many epochs as a
-fault-free seed is outside is no evidence that the faults changed learning.
+The envelope at epoch e is [min, max] of the fault-free seeds' success rates at e, each curve
+first smoothed by a trailing mean over `window` epochs (one epoch's rate is a share of a few
+evaluation episodes, so raw curves cross any envelope by noise alone). An envelope of n seeds
+holds a fresh draw at one epoch only with probability (n − 1)/(n + 1), so the check is
+calibrated on the fault-free seeds themselves: each against the envelope of the others
+(`leave_one_out`). A chaos curve outside at as many epochs as a fault-free seed is no evidence
+that the faults changed learning.
 """
 
 from __future__ import annotations

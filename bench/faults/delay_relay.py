@@ -1,19 +1,13 @@
 """A TCP relay that adds latency: what `tc netem delay` would do, for a kernel without netem.
 
-Each connection accepted on `listen` is forwarded to `target`. Every chunk of bytes read in
-either direction is written to the other side `delay ± jitter` seconds after it was read (a
-uniform draw per chunk, from an injected generator), but never before the chunk read ahead of
-it: a TCP stream cannot reorder, so a chunk whose draw would overtake its predecessor waits
-for it (the delays are thus skewed slightly upwards of the draws with jitter). The delay is
-one way: a request and its reply each get one, so a round trip gets two.
-
-Backpressure: at most `MAX_PENDING` chunks wait per direction; then the relay stops reading
-that side, and TCP flow control slows the sender as a slow path would. A side that closes is
-closed on the other side once its pending chunks are written; an error on either side
-closes both, as a broken path does.
-
-The relay runs an asyncio loop on one daemon thread of the calling process; `start()`
-returns the address it listens on, `close()` closes the listener and every connection.
+Each connection accepted on `listen` is forwarded to `target`; every chunk read in either
+direction is written to the other side `delay ± jitter` seconds later (one draw per chunk from
+an injected generator), but never before the chunk ahead of it, since a TCP stream cannot
+reorder. The delay is one way: a round trip gets two. At most `MAX_PENDING` chunks wait per
+direction, after which the relay stops reading that side and TCP flow control slows the sender,
+as on a slow path. A side that closes is closed on the other once its pending chunks are
+written; an error on either side closes both. The relay runs an asyncio loop on one daemon
+thread; `start()` returns the address it listens on, `close()` closes everything.
 """
 
 from __future__ import annotations

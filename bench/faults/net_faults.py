@@ -1,33 +1,17 @@
-"""Network faults between hosts: a real `hercs up` run over mutual TLS whose actors are on
-"other hosts" (network namespaces behind veth links, bench.faults.netns), one network fault per run.
+"""Network faults between hosts: a real `hercs up` run over mutual TLS whose actors sit in network
+namespaces behind veth links (bench.faults.netns), one network fault per run.
 
     python -m bench.faults.net_faults  # as root, ~15 min: 8 settings, FetchReach, 2 actors
     python -m bench.faults.net_faults --settings loss-10 partition --cut-s 90
     python -m bench.faults.net_faults --quick  # CI size: 1 actor, loss 10 % + a 15 s cut (~1 min)
 
-The router (`hercs up --actors 0`, its services on this host) listens on each link's host
-end with TLS; each actor (`hercs actor --connect tls/HOST:PORT --tls-dir …`) runs in its own
-namespace, so everything it sends or receives crosses its link. Settings (`SETTINGS`; a fault
-is on every actor's link, from before the actors start to the end of the run unless said):
-
-- `baseline`: nothing injected;
-- `loss-2`, `loss-10`: each packet dropped with probability 2 % / 10 %, both directions
-  (iptables `statistic` match);
-- `rate-10mbit`: a 10 Mbit/s token bucket (`tc tbf`) on each direction;
-- `latency-50`, `latency-200`: a relay on the path (bench.faults.delay_relay, the kernel has no
-  netem) holding every chunk 50 ± 10 ms / 200 ms in each direction;
-- `partition`: after epoch `--cut-at`'s progress line, every packet dropped both ways for
-  `--cut-s` seconds (default 60; longer than Zenoh's 10 s lease: sessions end and reconnect);
-- `partition-acks`: the same cut in one direction only, towards the actors: requests
-  arrive, replies are lost — the case the replay's deduplication exists for.
-
-Reported per setting (docs/results/net_faults.{md,json}; read back by bench.faults.net_measure):
-the run finishes (`hercs up`'s and each actor's exit status, every epoch once in
-`metrics.csv`); acked episodes lost (acked by an actor's own log, missing from the episode
-log; target 0); retried inserts stored once (the log's records against its distinct
-`(actor_id, seq)`), beside the retries and the acks of retries the replay had stored
-already; policy lag, inserts/s, the longest time without an insert and epoch time; after a
-cut, the time from the heal to the first insert and to the next epoch line.
+The router (`hercs up --actors 0`) listens with TLS on each link's host end, so everything an
+actor sends crosses its link. `SETTINGS`: baseline, packet loss, a narrow link, latency through
+bench.faults.delay_relay, a two-way cut after epoch `--cut-at` and a cut of the replies only;
+each is described in docs/FAULTS.md, "Network faults". Reported per setting (read back by
+bench.faults.net_measure) in docs/results/net_faults.{md,json}: the run finishes, no acked
+episode is lost, retried inserts are stored once; policy lag, inserts/s, the longest gap
+without an insert, epoch time, and after a cut the time to the next insert and epoch.
 """
 
 from __future__ import annotations

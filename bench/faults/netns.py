@@ -1,28 +1,15 @@
-"""Hosts on one machine: network namespaces behind veth links, and the faults a real network
-between hosts has, made with the kernel's own tools (iproute2's `ip` and `tc`, `iptables`).
+"""Hosts on one machine: network namespaces behind veth links, and the faults of a real network
+between hosts, made with the kernel's own tools (iproute2's `ip` and `tc`, `iptables`).
 
-    this machine (root namespace)                 namespace <name>
-      host_if  host_ip/24  <---- veth link ---->  ns_if  ns_ip/24, lo
-
-A process started with `exec_argv` runs in the namespace: it has only its loopback and the
-veth end, and reaches the root namespace (a router listening on `host_ip`) only across the
-link. Each direction of the link can be impaired on its own, always where the packets
-*arrive*, so that a sender never sees an error a real cut would not give it (an `OUTPUT`
-drop makes the sender's own send fail with EPERM):
-
-- towards the root namespace (the host's side): a chain of this host's own in the root
-  namespace's `INPUT`, matched on `-i host_if` only, so that nothing else on the machine is
-  touched (loopback traffic of the router's local services arrives on `lo`);
-- towards the namespace: a chain in the namespace's own `INPUT` (it goes with the namespace).
-
-Faults: random loss (`-m statistic --mode random`, both directions), a cut (`DROP`, both
-directions or only towards the namespace: replies lost while requests arrive), and a narrow
-link (`tc` `tbf` on both ends' egress). The machine these benches were written on has no
-`netem` (so no `tc` delay): latency comes from `bench.faults.delay_relay` on the path instead.
-
-`problem()` says why none of this can run here (not root, a tool or kernel feature missing,
-the addresses taken); `hosts(n)` makes n namespaces and always removes them, their links and
-the root namespace's chains, even when its body fails.
+A process started with `exec_argv` runs in a namespace that has only its loopback and the veth
+end, so it reaches the root namespace (a router on `host_ip`) only across the link. Faults:
+random loss, a cut (both ways, or only towards the namespace) and a narrow link (`tc tbf`).
+Packets are dropped where they arrive, never on output, so a sender sees no error a real cut
+would not give it, and the root namespace's chain matches only `-i host_if`, leaving the rest
+of the machine alone (details: docs/FAULTS.md, "Network faults"). There is no `netem` here, so
+latency comes from bench.faults.delay_relay. `problem()` says why none of this can run (not
+root, a tool or kernel feature missing, addresses taken); `hosts(n)` makes n namespaces and
+always removes them, their links and chains, even when its body fails.
 """
 
 from __future__ import annotations

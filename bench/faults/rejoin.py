@@ -1,20 +1,16 @@
-"""Does a client come back after a partition? Repeated cuts of one client's link, each
-followed by the time until its next answered request.
+"""Does a client come back after a partition? Repeated cuts of one client's link, each followed
+by the time until its next answered request.
 
     # as root (a network namespace, iptables); prints one line per cut and a summary
     python -m bench.faults.rejoin --cuts 2 12 30 5 20
 
-A router listens with mutual TLS on a veth link's host end (bench.faults.netns); a "replay" client
-on loopback serves `replay/insert`, answering each request with its payload; an "actor"
-client (`python -m bench.faults.rejoin --client`, in the namespace, a plain `hercs.net.transport`
-client as every hercs service opens it) sends one request after another with a short
-timeout and prints a JSON line per answer. The link is cut both ways (iptables DROP) for
-each length in turn, then healed; between cuts the client must have been answered again.
-A cut's `rejoined_s` is the time from its heal to the first answer sent after it.
-
-A cut longer than Zenoh's 10 s lease ends the client's session at the router; the client's
-session reconnects by itself, and hercs.net.transport reopens it where the router's
-declarations did not come back with it (`hercs.net.rediscovery`).
+A router listens with mutual TLS on a veth link's host end (bench.faults.netns); a "replay"
+client on loopback echoes each `replay/insert`; an "actor" client in the namespace (`--client`,
+a plain `hercs.net.transport` client) sends one request after another and prints a JSON line
+per answer. The link is cut both ways for each length in turn, then healed; a cut's
+`rejoined_s` is the time from its heal to the first answer sent after it. A cut longer than
+Zenoh's 10 s lease ends the session; it reconnects by itself, and hercs.net.transport reopens
+it where the router's declarations did not come back (`hercs.net.rediscovery`).
 """
 
 from __future__ import annotations

@@ -3,29 +3,14 @@
     python -m bench.faults.replay_recovery [--quick] [--sizes 1e4,1e5,999950,1e6] [--repeats 3]
                                     [--out docs/results]
 
-For each size, a FetchPush run directory (T = 50 steps: 200 / 2,000 / 20,000 episodes; 10^6
-twice, `SIZES`) gets a real episode log as a killed replay leaves it (HER-CS, the default
-10^6-transition buffer and bounded log; bench/faults/killed_replay_log.py writes it).
-
-Then, `--repeats` times each (the run directory put back as the kill left it before each):
-
-- process: a real `hercs replay` process is started on the run directory (a Zenoh router in
-  this process, on loopback), and a client sends the insert an actor retries after a kill
-  (the last logged episode again) at once; `serving_s` is the time from the start of the
-  process to the ack (the replay's insert queryable is the last it declares). The ack must be
-  a duplicate with the logged id, and the next `ReplayStatus` must count every episode
-  written and hold those the buffer keeps. `recovered_s` is the time to the replay's
-  "replay serving run" log line (its constructor returned: log recovered, queryables
-  declared).
-- in process: the same `ReplayService` constructor, with a stub transport, timed in parts:
-  `open` (seal and number the killed live segment, find the newest replay state, start a new
-  segment), `read` (MCAP chunks read, decompressed and parsed, `pb.Episode` parsed),
-  `decode` (`msg_to_episode`), `store` (`ReplayTable.recover`: the episodes into the buffer,
-  sampling index, normalisers or the saved state), `cluster` (the log's newest cluster model
-  found and adopted).
-
-Reads come from the page cache (the log was just written), as after a kill. Writes
-OUT/replay_recovery.{json,md} (`--out`; nothing without it in `--quick` mode).
+For each size (`SIZES`), a FetchPush run directory gets the episode log a killed HER-CS replay
+leaves (bench/faults/killed_replay_log.py). Then, `--repeats` times each, from that state:
+`process` starts a real `hercs replay` and times its start to the ack of a retried insert
+(`serving_s`, checked to be a duplicate with the logged id) and to its "replay serving run"
+line (`recovered_s`); `in process` times the `ReplayService` constructor in parts: `open`,
+`read`, `decode`, `store` (`ReplayTable.recover`) and `cluster`. Reads come from the page cache,
+as after a kill. Writes OUT/replay_recovery.{json,md} (`--out`; nothing in `--quick` mode
+without it); the findings are in docs/results/faults.md.
 """
 
 from __future__ import annotations

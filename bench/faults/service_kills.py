@@ -3,22 +3,14 @@
     python -m bench.faults.service_kills                 # ~10 min: FetchReach, 6 epochs per fault
     python -m bench.faults.service_kills --quick         # CI: one fault (the actor), 3 short epochs
 
-For each fault a fresh run starts (FetchReach, HER-CS, two actors); once epoch `--kill-at` is
-printed, the target gets SIGKILL:
-
-- `replay`, `learner`, `clusterer`, `evaluator`, `actor`: one child of `hercs up`, which the
-  launcher restarts;
-- `everything`: the launcher and all its children (the router dies with it); the run is then
-  continued with `hercs up --resume RUN_DIR`.
-
-Reported per fault (docs/results/faults.{md,json}):
-- episodes acked before the kill: the distinct `(actor_id, seq)` in the episode log at the
-  moment of the kill (the replay writes and fsyncs before it acks, so every acked episode is
-  there; the replay is read after the kill, from the files only), and how many of them are
-  still in the log at the end (`lost` = the difference; target 0);
-- time to recover: from the kill to the launcher's "started … again" line and to the next
-  epoch's progress line, beside the run's median epoch time;
-- epochs: the rows of `metrics.csv` (target: 1..N, each once) and the launcher's exit status.
+For each fault a fresh run (FetchReach, HER-CS, two actors) starts; after epoch `--kill-at` the
+target gets SIGKILL: one child of `hercs up` (`replay`, `learner`, `clusterer`, `evaluator`,
+`actor`), which the launcher restarts, or `everything` (the launcher with its children),
+continued with `hercs up --resume`. Reported per fault in docs/results/faults.{md,json}: the
+episodes acked before the kill (read from the log's files: the replay fsyncs before it acks)
+and how many are missing at the end (target 0); the time from the kill to the restart and to
+the next epoch, beside the median epoch time; the rows of `metrics.csv` (each epoch once) and
+the launcher's exit status.
 """
 
 from __future__ import annotations

@@ -1,24 +1,16 @@
 """Does a request parked at a replay that is killed end when the replay comes back?
 
     python -m bench.faults.stranded_gets --kills 300 --timeout 30  # one get per request
-    python -m bench.faults.stranded_gets --kills 300 --timeout 30 --ask-again 5  # as learners ask
+    python -m bench.faults.stranded_gets --kills 300 --timeout 30 --ask-again 5  # as learners
 
-A router listens on loopback (as the one inside `hercs up`). A "replay" process serves
-`strand/sample` and parks every query without answering, as the replay parks a sample request
-until its cycle's episodes are stored. A "learner" client sends one request; once the replay
-holds it, the replay is SIGKILLed and a new one, which answers at once, is started (as the
-launcher restarts a killed replay). Each kill ends in one of:
-
-- `answered`: the request got the new replay's answer (Zenoh ended the get sent to the dead
-  replay, and `hercs.net.transport.request` asked again);
-- `stranded`: no reply until the request's own timeout: the get was routed to the dead
-  replay and never ended;
-- `no_queryable`: `request` gave up after its gets found no live queryable (the caller
-  retries: an actor's insert, the learner's `_fetch`).
-
-With `--ask-again S` the client sends the request again whenever one has waited S seconds,
-as the learner's prefetcher does (`hercs.learner.prefetch.ASK_AGAIN_S`): a stranded get then
-costs S, not the whole timeout. Prints one JSON line per kill and a summary line.
+A router on loopback; a "replay" process parks every `strand/sample` query, as the replay parks
+a sample request until its episodes are stored; a "learner" client sends one request, then the
+replay is SIGKILLed and a new one that answers at once is started. Each kill ends `answered`
+(the get to the dead replay ended and `hercs.net.transport.request` asked again), `stranded`
+(no reply until the request's own timeout) or `no_queryable` (the caller retries). With
+`--ask-again S` the client resends a request that has waited S seconds, as the learner's
+prefetcher does (`hercs.learner.prefetch.ASK_AGAIN_S`). Prints one JSON line per kill and a
+summary; the counts measured are in docs/results/faults.md.
 """
 
 from __future__ import annotations

@@ -1,22 +1,15 @@
 """Env steps per CPU-second of the actor's rollout core against raw env stepping
-(issue: actors that pay off, `actor.envs_per_process`).
+(`actor.envs_per_process`: does an actor process with several envs pay off?).
 
     python -m bench.perf.actor_envs            # ~4 min: FetchPush, 1/2/4/8/16 envs per process
     python -m bench.perf.actor_envs --quick    # CI: a few episodes, every figure still computed
 
-In one process with one compute thread (torch and BLAS, `hercs.net.threads`, as every service),
-side by side in alternating slices (these machines are shared and noisy, so the figure that
-matters is the ratio of things timed together):
-
-- raw: the same number of Fetch envs stepped with uniform random actions and reset every T
-  steps — the env's own cost, what no actor can beat;
-- actor: `VectorRollout` with the real exploring `Policy` (the task's networks, one batched
-  call per step for all envs) plus each episode's encoding to its wire message
-  (`episode_to_msg(...).SerializeToString()`), i.e. everything the actor process does per
-  episode except sending it (the inserter thread waits on the network, not the CPU).
-
-ratio = actor steps per CPU-second ÷ raw steps per CPU-second (CPU time of this process,
-`time.process_time`). Target: ≥ 0.95. Writes docs/results/actor_envs.{json,md} (or --out).
+One process, one compute thread, in alternating slices (the machine is shared and noisy, so
+what counts is the ratio of things timed together): raw Fetch envs stepped with random actions,
+against `VectorRollout` with the real exploring `Policy` plus each episode's encoding to its
+wire message, i.e. all the actor does per episode but send it. ratio = actor ÷ raw steps per
+CPU-second (`time.process_time`); target ≥ 0.95. Writes docs/results/actor_envs.{json,md}
+(or --out); discussed in docs/PERFORMANCE.md §8.
 """
 
 from __future__ import annotations

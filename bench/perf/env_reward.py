@@ -3,19 +3,12 @@
     python -m bench.perf.env_reward           # ~1 min
     python -m bench.perf.env_reward --quick   # CI: a few repeats
 
-A task without a spec written in hercs.rl.task_registry (any goal env, `module:factory`) has its
-rewards and successes computed by one instance of its environment (`reward_rule="env"`,
-hercs.rl.goal_env): every HER minibatch relabels its B transitions through the env's
-`compute_reward`. This times, on the same goal pairs, in one process, for tasks that have both:
-
-- the built-in rule (`TaskSpec.compute_reward`: Fetch's distance rule, the hand's position
-  and rotation rule);
-- the same task with `reward_rule="env"` (the env's own `compute_reward` on the batch);
-
-per minibatch of B = 256 (the paper's) and per 1,024 (the `--workers 4` preset), beside the
-time the replay spends on a whole minibatch (`ReplayCore.sample`, HER relabelling included)
-so that the cost reads as a share of serving a batch.
-
+A task without a spec in hercs.rl.task_registry has its rewards and successes computed by an
+instance of its environment (`reward_rule="env"`, hercs.rl.goal_env), so every HER minibatch is
+relabelled through the env's `compute_reward`. For tasks that have both, this times on the
+same goal pairs, in one process, the built-in rule (`TaskSpec.compute_reward`) against the
+env's own, per minibatch of B = 256 and of 1,024 (the `--workers 4` preset), beside the time of
+a whole `ReplayCore.sample` minibatch, so that the cost reads as a share of serving a batch.
 Writes docs/results/env_reward.{json,md} (or --out).
 """
 

@@ -1,26 +1,15 @@
 """Each actor's share of the admitted inserts while one actor floods the replay, with fair
-sharing off (arrival order, the replay before) and on (round-robin across actor ids).
+sharing off (arrival order) and on (round-robin across actor ids).
 
     python -m bench.perf.fair_share [--quick] [--out docs/results/fair_share]
 
-A real replay service (`python -m hercs.apps.cli replay`, started with the launcher's process
-handling) behind a Zenoh router on loopback; every client here has its own Zenoh session:
-
-- the learner's stand-in asks for `MINIBATCHES` minibatches at a fixed pace, so the rate
-  limiter (ρ = 1 update per episode) admits a fixed `capacity` of inserts per second and
-  holds the rest: the actors compete for exactly that capacity;
-- the flooding actor: `FLOOD_SENDERS` of the actors' own `Inserter`s under one actor id
-  (several senders, or a misbehaving client), each fed as fast as it takes episodes, so up to
-  `FLOOD_SENDERS` of its inserts wait at once; it keeps its backoff (0.1 s doubling to 2 s);
-- 3 normal actors: one `Inserter` each, fed at a modest `normal_rate` (an actor stepping its
-  envs: a feed that finds the inserter's queue full waits, as the rollout does).
-
-Per mode (`replay.waiting_inserts_per_actor` 0, then 4, each a fresh replay): the flooder
-alone, then with the 3 normal actors, each over its own window. The fair share of an actor is
-its max-min share of the admitted inserts: a normal actor asks for less than a quarter, so it
-is owed all it asks for (`normal_rate` / admitted rate), the flooder the rest. Synthetic
-episodes act with no weights version, hence `training.max_policy_lag=-1`; the limiter is on
-(not `replay.free_run`): its holding is what the actors share. Writes OUT.json and OUT.md.
+A real replay process behind a Zenoh router on loopback. A stand-in learner asks for
+minibatches at a fixed pace, so the rate limiter admits a fixed capacity of inserts per second
+and holds the rest; a flooding actor runs `FLOOD_SENDERS` of the actors' own `Inserter`s under
+one actor id, fed as fast as they take episodes; 3 normal actors feed one `Inserter` each at a
+modest rate. Per mode (`replay.waiting_inserts_per_actor` 0, then 4, each a fresh replay): the
+flooder alone, then with the normal actors. An actor's fair share is its max-min share of the
+admitted inserts. Writes OUT.json and OUT.md; discussed in docs/PERFORMANCE.md §9.
 """
 
 from __future__ import annotations

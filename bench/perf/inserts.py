@@ -2,24 +2,15 @@
 
     python -m bench.perf.inserts [--quick] [--out docs/results/inserts]
 
-What the replay can acknowledge when inserts arrive from many hosts at once, without Zenoh
-or actors in the way: N threads (the replay's insert workers) each insert pre-built FetchPush
-episodes into one `ReplayTable` (free run, so the rate limiter never holds them) whose log is
-a real `RecoveringLogWriter` on this machine's disk (fsync on every commit). Variants, each
-for the same wall-clock window, in alternating rounds:
-
-- serial, scene on the ack path: 1 thread, and every append waits until its episode's scene
-  is written too (what the replay did before group commit);
-- serial: 1 thread, scenes written by the log's background thread;
-- group commit: `replay.insert_workers` (4) threads, scenes in the background;
-- group commit, no scene: the same with `replay.log_scene=false`;
-- group commit, bounded log: the replay's default log (`replay.log_max_bytes=0`) split every
-  `BOUNDED_SEGMENT` episodes instead of every 5,000, so that the new segments the committing
-  thread starts (a rename, a file, two fsyncs, the replay state) and the closing and pruning
-  on the log's thread fall inside the window many times.
-
-Reports acked episodes/s of each and the ratio to the first. The rate over Zenoh with
-synthetic actor processes is bench/perf/throughput's insert phase. Writes OUT.json and OUT.md.
+What the replay can acknowledge when inserts arrive from many hosts at once, with no Zenoh or
+actors in the way: N threads (the replay's insert workers) insert pre-built FetchPush episodes
+into one free-running `ReplayTable` whose log is a real `RecoveringLogWriter` on this disk
+(fsync on every commit). Variants, each for the same window in alternating rounds: serial with
+the scene on the ack path, serial, group commit (`replay.insert_workers` threads), group commit
+without scenes, and group commit on a bounded log split every `BOUNDED_SEGMENT` episodes so
+that segment changes fall inside the window. Reports acked episodes/s and the ratio to the
+first; OUT.json and OUT.md; discussed in docs/PERFORMANCE.md §6. The rate over Zenoh is
+bench/perf/throughput's insert phase.
 """
 
 from __future__ import annotations

@@ -1,25 +1,16 @@
 """Policy lag against epoch time over the asynchronous schedule's three lag sources.
 
-    python -m bench.perf.lag_sources                       # the grid, FetchPush, one run at a time
-    python -m bench.perf.lag_sources --beside              # each setting beside the old default
-    python -m bench.perf.lag_sources --quick               # CI: two short FetchReach runs
+    python -m bench.perf.lag_sources                # the grid, FetchPush, one run at a time
+    python -m bench.perf.lag_sources --beside       # each setting beside the first one's run
+    python -m bench.perf.lag_sources --quick        # CI: two short FetchReach runs
 
-Each row is one real `hercs up` run (one actor, the default method) with one setting of the
-three sources of policy lag (docs/DESIGN.md §9.1) and of the bound:
-`replay.rate_tolerance_updates` (the limiter's surplus: inserts may run E/ρ episodes ahead of
-the samples), `learner.prefetch_depth` (batches sampled ahead of the one being trained) and
-`actor.insert_queue` (finished episodes waiting behind the one in flight), and
-`training.max_policy_lag`. From its `metrics.csv`: the epoch time (median over the epochs after
-the first, which includes start-up and filling the buffer) and the policy-lag distribution
-(the per-epoch p50 / p95 / max columns, over the same epochs). The first setting is repeated
-last, so the table shows how much the machine drifted while the grid ran. Epoch times are
-reported as ratios to the first setting's mean, since the machine is shared and noisy.
-
-`--beside`: each setting runs at the same time as a run of the first setting (two runs on the
-machine, as when the grid trains two seeds at a time); its ratio is to that run's epoch time,
-measured side by side under the same load, which a shared machine's drift cannot bias.
-
-Writes `docs/results/lag_sources.{json,md}` (`--out`).
+Each row is one real `hercs up` run with one setting of `replay.rate_tolerance_updates`,
+`learner.prefetch_depth`, `actor.insert_queue` (docs/DESIGN.md §9.1) and
+`training.max_policy_lag`; from its `metrics.csv` the median epoch time and the policy-lag
+p50 / p95 / max, over the epochs after the first. The first setting is repeated last to show
+the machine's drift, and epoch times are ratios to the first setting's. `--beside` runs each
+setting at the same time as a run of the first, and takes the ratio to that run, which drift
+cannot bias. Writes docs/results/lag_sources.{json,md} (`--out`); docs/PERFORMANCE.md §2.
 """
 
 from __future__ import annotations

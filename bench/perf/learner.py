@@ -1,27 +1,16 @@
-"""The learner's update against its compute limit on this core (issue: learner at its limit).
+"""The learner's update against its compute limit on this core.
 
     python -m bench.perf.learner            # ~1 min: FetchPush, B = 256, one torch thread
     python -m bench.perf.learner --quick    # CI: a few updates, every figure still computed
 
-Measured in one run, side by side (these machines are shared and noisy, so the figures that
-matter are ratios of things timed together):
-
-- the FLOPs of one `DDPGLearner.update` (forward and backward of actor and critic, the target
-  computation, Adam excluded: it is O(parameters), not O(batch)), counted by
-  `torch.utils.flop_counter.FlopCounterMode` on the real update;
-- the GEMM rate of this core for the update's shape class (B × 256 · 256 × 256) in fp32 and in
-  bf16, from `torch.mm` timed in the same process;
-- the update rate (updates per CPU-second of this thread), `learner.precision` fp32 and bf16;
-- ratio = update rate ÷ (GEMM rate ÷ FLOPs per update): 1.0 would be an update that is
-  nothing but GEMMs at the core's speed;
-- the update's own GEMMs replayed alone: every matrix product of one real update recorded
-  with its shapes, strides and dtype (a `TorchDispatchMode`, below autograd and autocast) and
-  timed without anything else. That is the ceiling of the update as written, with zero
-  overhead: its ratio to the limit says how much the shapes themselves lose (thin first and
-  last layers, transposed operands of the backward pass), and the update's time beyond it is
-  everything else (autograd, element-wise ops, Adam, Python).
-
-Writes docs/results/learner.{json,md} (or --out).
+Side by side in one run (the machine is shared and noisy, so ratios are what counts): the FLOPs
+of one `DDPGLearner.update` (torch's `FlopCounterMode`, Adam excluded), this core's GEMM rate
+for the update's shape class in fp32 and bf16, and the update rate per CPU-second for each
+`learner.precision`; ratio = update rate ÷ (GEMM rate ÷ FLOPs per update). The update's own
+matrix products, recorded with their shapes, strides and dtypes (a `TorchDispatchMode`) and
+replayed alone, give the ceiling of the update as written, so that what the shapes lose and
+what everything else costs read apart. Writes docs/results/learner.{json,md} (or --out);
+discussed in docs/PERFORMANCE.md §4.
 """
 
 from __future__ import annotations

@@ -3,20 +3,15 @@
     python -m bench.perf.learner_cuda           # ~2 min on a CUDA machine
     python -m bench.perf.learner_cuda --quick   # CI: a few updates on whatever device there is
 
-Two questions, measured in one process:
-
-1. **Speed.** Updates per second of `DDPGLearner.update` (FetchPush shapes, the paper's
-   network) at B = 256·N (the `--workers N` preset), wall time with the GPU synchronised, for
-   each `learner.precision` and for fp32 with the GPU's own TF32 products on (what torch 1.10
-   did by default on Ampere); beside the same updates on this machine's CPU with one torch
-   thread (the learner's setting on a small box), timed in the same run.
-2. **TF32 emulation.** `learner.precision=tf32` (hercs/learner/tf32.py) rounds every product's
-   operands to TF32 on any device. From the same seed and minibatches, 200 updates on the GPU
-   in fp32, in emulated TF32 and with the GPU's TF32: the distance of the emulation's actor
-   weights from the GPU TF32 run's, beside fp32's distance from it and beside how far the
-   weights moved. Emulation faithful to the arithmetic = its distance far below fp32's.
-
-Writes docs/results/learner_cuda.{json,md} (or --out); not with --quick unless --out is given.
+Speed: updates per second of `DDPGLearner.update` (FetchPush shapes) at B = 256·N (the
+`--workers N` preset), GPU synchronised, for each `learner.precision` and for fp32 with the
+GPU's own TF32 products, beside the same updates on this CPU with one torch thread. TF32
+emulation: `learner.precision=tf32` (hercs/learner/tf32.py) rounds every product's operands
+to TF32 on any device; from one seed and the same minibatches, 200 updates in fp32, emulated
+TF32 and the GPU's TF32, and the distance of each from the GPU TF32 run's actor weights (the
+emulation is faithful when its distance is far below fp32's). Writes
+docs/results/learner_cuda.{json,md} (or --out; not with --quick unless --out is given);
+discussed in docs/PERFORMANCE.md §10.
 """
 
 from __future__ import annotations

@@ -3,16 +3,13 @@
 
     python -m bench.perf.log_size runs/push-v1-her-s1 [--epochs 200] [--bounds=-1,0,250e6]
 
-Measures a run's log (read only; a finished run's, or one still being written): the bytes on
-disk of its episodes, of their scenes and of its other records (cluster models, evaluation
-results, replay states), each chunk's bytes (with its message indexes) shared among its topics
-by their messages' uncompressed bytes, and the rest of each file (header, schemas, channels,
-summary, footer) as a cost per segment. Then it plays a run of `--epochs` epochs at the run's
-episodes per epoch and buffer size through the bounded log's rules (a new segment every
-buffer / `replay.log_segments_per_buffer` episodes, starting with a replay state; after each,
-`hercs.run.runlog.segments_to_delete`, the replay's own function) and prints the log's size at the
-end of that run and at its largest, for each bound, with the episodes' scenes
-(`replay.log_scene`, the default) and without.
+Reads a run's log (finished or still being written) and splits its bytes into episodes, their
+scenes, other records and a cost per segment (each chunk's bytes shared among its topics by
+their uncompressed bytes). Then it plays a run of `--epochs` epochs at the run's episodes per
+epoch and buffer size through the bounded log's rules (segments of buffer /
+`replay.log_segments_per_buffer` episodes, deleted by `hercs.run.runlog.segments_to_delete`,
+the replay's own function) and prints the log's size at the end and at its largest, per bound,
+with and without scenes. Used for the Disk table of docs/GUIDE.md.
 """
 
 from __future__ import annotations

@@ -4,19 +4,12 @@
     python -m bench.perf.memory --report  # docs/results/memory.md from the CSVs
     python -m bench.perf.memory --quick  # CI: a 2-epoch FetchReach run, sampled
 
-Attaches to runs already started (`hercs up`, `bench.sample_efficiency`): every `--every`
-seconds it reads VmRSS of each process whose command line names the run (the launcher by
-`--run NAME`, its children by `RUN_DIR/config.yaml`), with the run's current epoch (rows of
-metrics.csv), and appends a row per process to docs/results/memory/<run>.csv. It stops when
-no process of the run is left.
-
-The report gives, per run and role, RSS at the first sample, at the end, its peak, and the
-slope of a straight line through the samples of the last half of the epochs (MB per 10
-epochs), beside what the replay's store must grow by: until the buffer is full (1e6
-transitions = 20,000 FetchPush episodes, epoch 100 at 200 episodes an epoch) the replay holds
-every episode it was sent, so its RSS grows by the store's bytes per episode; every other
-service should stay flat once warm. A role is flagged when its late slope exceeds
-`GROWTH_FLAG_MB` per 10 epochs beyond what its store explains.
+Attaches to runs already started: every `--every` seconds it reads VmRSS of each process whose
+command line names the run, with the run's current epoch, into docs/results/memory/<run>.csv,
+and stops when none is left. The report gives per run and role the first, last and peak RSS and
+the slope over the last half of the epochs, beside what the replay's store must grow by while
+the buffer fills; a role growing more than `GROWTH_FLAG_MB` per 10 epochs beyond its store is
+flagged, since every service but the replay should stay flat once warm.
 """
 
 from __future__ import annotations

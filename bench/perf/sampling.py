@@ -3,21 +3,13 @@
     python -m bench.perf.sampling [--quick] [--out docs/results/sampling]
 
 A store of 20,000 FetchPush episodes (1e6 transitions; --quick: 500) with random energies and
-8 cluster labels (a k=8 model: every episode labelled), as a full HER-CS replay holds. For each
-method, in alternating rounds on the same store and generator:
-
-- ours: `sampler.sample` (the draw from the store's `SamplingIndex`, kept up to date on
-  insert; hercs/replay_service/sampling_index.py), `relabel` (HER future relabelling and the gather
-  of o, g, u, r, o2), and both together, i.e. one minibatch of `ReplayCore.sample`;
-- reference: the same draw made the way the samplers made it before the index, rebuilding
-  its structures from the store on every call (a bincount and a stable argsort of the labels
-  for the cluster shares, a cumulative sum of energy + ε for EBP; ~O(N)), plus the
-  per-cluster counts every sampler reports; only the episode draw, since relabelling is the
-  same code for both.
-
-Per-minibatch p50 and p99 (ms) of each, and ratio = ours / reference for the draw. Target
-(issue "performance and scale"): draw + relabel ≤ 0.3 ms per minibatch in-process at 1e6
-transitions for all four samplers. Writes OUT.json and OUT.md.
+8 cluster labels, as a full HER-CS replay holds. Per method, in alternating rounds on the same
+store and generator: ours, `sampler.sample` (the draw from the store's `SamplingIndex`),
+`relabel` (HER relabelling and the gather) and both, i.e. one `ReplayCore.sample` minibatch;
+the reference, the same draw rebuilding its structures from the store on every call (O(N)),
+as the samplers did before the index. Reports p50 and p99 per minibatch and ours ÷ reference
+for the draw; target: draw + relabel ≤ 0.3 ms per minibatch at 1e6 transitions. Writes OUT.json
+and OUT.md; discussed in docs/PERFORMANCE.md §5.
 """
 
 from __future__ import annotations

@@ -4,17 +4,14 @@
     python -m bench.perf.workers_e2e --spec 1:cpu:2 2:cpu:1 --quick   # CI: a short run per spec
     python -m bench.perf.workers_e2e --report DIR   # tables from DIR/w<N>-<device>*-metrics.csv
 
-Each spec `N:DEVICE:EPOCHS` starts `hercs up --workers N --set learner.device=DEVICE` (FetchPush,
-HER-CS, seed 1, the reference schedule) for that many epochs, one after the other on this
-machine, and keeps its `metrics.csv`. What `--workers N` should buy is N× the episodes (and N×
-the minibatch) through the same number of updates in about the same time, where the update at
-N× the minibatch costs about what it costs at 1× (a GPU; docs/PERFORMANCE.md §7 and §10). The
-report gives each run's epoch time (the median of its epochs, so the first epoch's start-up
-counts little), episodes per second and updates per second, and the ratios that answer it:
-episodes per second at N workers over 1 worker on the same device, and CPU over GPU epoch time
-at the same N. A run stopped by its time limit reports the epochs it finished.
-
-Writes docs/results/workers_e2e.{json,md} (or --out DIR); with --quick only where --out is given.
+Each spec `N:DEVICE:EPOCHS` runs `hercs up --workers N --set learner.device=DEVICE` (FetchPush,
+HER-CS, seed 1, the reference schedule), one after another, and keeps its `metrics.csv`.
+`--workers N` should give N× the episodes through the same updates in about the same time
+where a larger minibatch costs little more (a GPU). The report gives each run's median epoch
+time, episodes and updates per second, episodes per second at N over 1 worker on one device,
+and CPU over GPU epoch time at the same N; a run stopped by its time limit reports the epochs
+it finished. Writes docs/results/workers_e2e.{json,md} (or --out DIR; with --quick only where
+--out is given).
 """
 
 from __future__ import annotations

@@ -3,16 +3,14 @@
     python -m studies.env_diff.early_policy  # committed runs + local logs: ~15 min
     python -m studies.env_diff.early_policy --runs RUN_DIR ...  # logs of these runs
 
-Four measurements: (1) the committed runs' `buffer_moved_share` (stored episodes in which the
-object moved more than 5 mm) at epochs SHARE_EPOCHS, by environment and method; (2) from the
-runs' MCAP logs, per epoch block of episodes, the share that moved the cube and the gripper's
-path, travel, height and end distance from the cube; (3) the logged actions of episodes
-1,000–1,099 of the first runs of each environment replayed open loop in v1 and v4 from the same
-reset seeds (needs `make mujoco-py`), which tells simulators answering actions differently
-from policies learning differently; (4) EBP's view: the trajectory energies of still and moved
-episodes and the still ones' share of EBP's draws. The question's origin (v1 passes 0.5 well
-before v4): docs/results/README.md. Writes docs/results/early_policy.{json,md} (or --out DIR),
-keeping the report's hand-written findings (studies/study_output.py).
+Four measurements: (1) the committed runs' `buffer_moved_share` at epochs SHARE_EPOCHS; (2) from
+the runs' MCAP logs, per block of episodes, the share that moved the cube and the gripper's
+path relative to it; (3) logged actions replayed open loop in v1 and v4 from the same resets
+(needs `make mujoco-py`), which tells simulators answering actions differently from policies
+learning differently; (4) EBP's view: the energies of still and moved episodes and the still
+ones' share of its draws. The question: docs/results/README.md, "Why v4 learns later". Writes
+docs/results/early_policy.{json,md} (or --out DIR), keeping the report's hand-written findings
+(studies/study_output.py).
 """
 
 from __future__ import annotations

@@ -2,19 +2,15 @@
 
     python -m studies.sampler_mix runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
 
-Replays a run's episode log (`episodes.mcap`: every acked episode and every cluster model, in
-the order the replay saw them) into a `ReplayCore`, and at every `--every-epochs` epoch
-boundary draws `--minibatches` × 256 episodes from the same buffer with HER's uniform sampler
-and with HER-CS's cluster-balanced one (the cluster model current at that point). For each it
-reports the share of drawn episodes in which the object moved (‖ag_T − ag_0‖ > `--moved`,
-default 1 cm; for Reach the gripper) and in which the episode succeeded, next to the share of
-such episodes in the buffer, and the spread of each draw (effective number of distinct
-episodes, relative to a uniform draw of the same size: 1.0 for HER, lower when a few
-episodes are drawn again and again). It answers "does cluster balancing change what the
-learner sees, and how", on the data of a real run, without training anything.
-
-It needs the whole log: a run longer than 1.25 buffers (epoch 125 of the FetchPush
-default) keeps one only with `replay.log_max_bytes=-1`, or a bound above its log's size.
+Replays a run's episode log (every acked episode and cluster model, in the replay's order) into
+a `ReplayCore`, and at every `--every-epochs` boundary draws `--minibatches` × 256 episodes
+with HER's uniform sampler and with HER-CS's cluster-balanced one (the model current then).
+For each: the share of drawn episodes in which the object moved (more than `--moved`, default
+1 cm; for Reach the gripper) and that succeeded, beside their share in the buffer, and the
+draw's spread (effective distinct episodes relative to a uniform draw). It answers whether
+cluster balancing changes what the learner sees, on a real run's data, without training. It
+needs the whole log: a run longer than 1.25 buffers keeps one only with
+`replay.log_max_bytes=-1` or a bound above its log's size (docs/GUIDE.md).
 """
 
 from __future__ import annotations

@@ -2,24 +2,15 @@
 
     python -m studies.schedule_effect           # every pair in the committed runs → docs/results/
 
-Reads finished runs (config.yaml, metrics.csv and bench_done.json) from `--runs` (default
-docs/results/runs/, the committed ones) and pairs, per task, method and learner precision,
-the runs of `training.schedule=async` with those of `training.schedule=lockstep` (the
-reference's schedule; `bench/sample_efficiency.py --schedule lockstep` trains them). A pair
-needs at least one run on each side.
-
-Per run: the epoch its own 10-epoch trailing mean of the test success first exceeds 0.5 (the
-tables' rule, hercs/apps/plots.py) and that mean after epoch E, where E is the last epoch every run
-of the pair reached (at most `--epoch`, default 50). Per schedule: mean ± sample s.d. over
-seeds at E. The difference lockstep − asynchronous gets a standard error and a 95 % interval
-from Welch's t (each side's own variance); when one side has a single seed, its spread is
-taken to be the other side's (pooled t, that side's degrees of freedom). The difference is
-called resolved when the interval excludes 0.
-
-The runs come from whichever machine trained them (docs/results/runs/README.md lists each),
-and one seed gives other numbers on another CPU (docs/DESIGN.md §10), so seeds here are
-draws, not pairs. Writes `<out>/asynchrony.md` (default docs/results/), a pure function of the
-runs (no date, no commit) so that a test can check the committed file against them.
+Reads finished runs (config.yaml, metrics.csv, bench_done.json) from `--runs` (default
+docs/results/runs/) and pairs, per task, method and learner precision, the runs of
+`training.schedule=async` with those of `lockstep` (the reference's schedule). Per run: the
+epoch its 10-epoch trailing mean first exceeds 0.5 and that mean after epoch E, the last epoch
+all runs of the pair reached (at most `--epoch`); the difference of the schedules' means gets
+a 95 % interval from Welch's t. Seeds are draws, not pairs: the runs come from different
+machines, and one seed gives other numbers on another CPU (docs/DESIGN.md §10). Writes
+`<out>/asynchrony.md` (default docs/results/), which states the method, as a pure function of
+the runs (no date, no commit) so that a test can check the committed file against them.
 """
 
 from __future__ import annotations

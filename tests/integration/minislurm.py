@@ -1,23 +1,15 @@
 """A real Slurm cluster on one machine, for tests: munged, MariaDB, slurmdbd and slurmctld on
-this host, and one slurmd per "host", each in its own network and UTS namespace.
+this host, and one slurmd per "host" (hercs-n1, hercs-n2), each in its own network and UTS
+namespace on a bridge (hsb<pid>, 10.124.0.0/24).
 
-    controller (this host's namespaces)   bridge hsb<pid>, 10.124.0.1/24
-      munged   unix socket ROOT/munge.sock  (pathname sockets reach every namespace)
-      mariadbd 127.0.0.1:<free port>        accounting for sacct
-      slurmdbd 127.0.0.1:<free port>
-      slurmctld 10.124.0.1:<free port>
-    hercs-n1  netns + UTS, 10.124.0.11   slurmd
-    hercs-n2  netns + UTS, 10.124.0.12   slurmd
-
-Each node's daemon runs in a mount namespace of its own too, where ROOT/hosts (naming every
-node) is bound over /etc/hosts, so that a process on one node reaches another by its host
-name, as on a cluster; the rest of the file system is shared, as a cluster's shared storage
-is. All state lives under one temporary folder; `stop()` ends every daemon it started (by
-pid) and removes the namespaces and the bridge. `problem()` says why none can run here (not
-root, a binary missing).
-
-Only this module knows how the cluster is laid out; tests/integration/test_slurm.py uses
-`MiniSlurm.start()`, `env` (SLURM_CONF for the client commands) and the node names.
+Each node's daemon also has a mount namespace where ROOT/hosts, naming every node, is bound
+over /etc/hosts, so a process on one node reaches another by its host name; the rest of the
+file system is shared, as a cluster's shared storage is. munged's pathname socket reaches every
+namespace. All state lives under one temporary folder; `stop()` ends every daemon it started
+(by pid) and removes the namespaces and the bridge. `problem()` says why none can run here
+(not root, a binary missing). Only this module knows the cluster's layout:
+tests/integration/test_slurm.py uses `MiniSlurm.start()`, `env` (SLURM_CONF for the client
+commands) and the node names.
 """
 
 from __future__ import annotations

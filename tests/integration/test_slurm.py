@@ -1,19 +1,16 @@
 """Runs as Slurm jobs on a real Slurm (tests/integration/minislurm.py: slurmctld, slurmdbd and
 two slurmd, each node in its own network and UTS namespace):
 
-(a) `hercs slurm submit`: a 2-epoch FetchReach heterogeneous job, component 0 on hercs-n1,
-    its actor on hercs-n2 joining over mutual TLS; metrics.csv, the episodes' actor and, with
-    `sacct`, where each step ran and how it ended;
-(b) the warning before a job's time limit (sent by the test after epoch 1): the run stops in
-    order, the job requeues itself and the next attempt resumes it, to the end, every epoch
-    once;
-(c) an actor step killed mid-run is started again within the attempt; a node that dies
-    (every process on it killed) fails the job, which requeues and resumes the run;
+(a) `hercs slurm submit`: a 2-epoch FetchReach heterogeneous job, its actor on the other node
+    joining over mutual TLS; where each step ran and how it ended (`sacct`);
+(b) the warning before the time limit: the run stops in order, the job requeues itself and
+    the next attempt resumes it, every epoch once;
+(c) an actor step killed mid-run starts again; a node that dies fails the job, which
+    requeues and resumes the run;
 (d) `hercs sweep --slurm`: a 2-task job array, one sweep cell per task.
 
-Skipped, with the reason, where no cluster can run (not root, Slurm or MariaDB not
-installed: `make slurm`). Slurm tells a client of a job's end only by being asked, so the
-waits poll `sacct`, each with a deadline.
+Skipped, with the reason, where no cluster can run (not root, Slurm or MariaDB missing: `make
+slurm`). Slurm tells a client of a job's end only when asked, so the waits poll `sacct`.
 """
 
 from __future__ import annotations
