@@ -101,7 +101,9 @@ def sample(run_dirs: list[Path], out: Path, every_s: float) -> None:
             handle, writer = files[run_dir]
             for pid, role in sorted(processes.items()):
                 rss = rss_mb(pid)
-                if rss is not None:
+                # None: gone; 0 kB: between address spaces (in its exec, or exiting and not yet
+                # reaped): neither is a sample of a running service's memory
+                if rss:
                     writer.writerow((f"{time.monotonic() - start:.0f}", epoch, role, pid,
                                      f"{rss:.1f}"))
             handle.flush()
