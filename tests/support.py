@@ -22,6 +22,37 @@ from hercs.wire.batch import TransitionBatch
 REPO = Path(__file__).resolve().parents[1]
 
 
+class Clock:
+    """A clock the test moves (`clock.now += seconds`), so that timeouts, retries and periods
+    come without waiting for them."""
+
+    def __init__(self, now: float = 100.0) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def sigterm_after_line(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> str:
+    """Reads `proc`'s stderr to the first line holding `marker`, then stops it with SIGTERM and
+    asserts exit 0 within `timeout_s`; it is killed whatever happens. The line ("" where the
+    stream ended first), for the test to check what it said."""
+    found = ""
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if marker in line:
+                found = line
+                break
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=timeout_s) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return found
+
+
 def free_tcp_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
