@@ -16,10 +16,19 @@ from types import ModuleType
 
 import numpy as np
 
+from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.rl.task_registry import TaskSpec
+from hercs.run.rundir import RunDir
 from hercs.wire.batch import TransitionBatch
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def saved_run_config(run_dir: Path, overrides: list[str]) -> HercsConfig:
+    """The config these overrides make, saved as `run_dir`'s config.yaml, as a run writes it."""
+    config = apply_overrides(HercsConfig(), overrides)
+    save_yaml(config, RunDir(run_dir).config)
+    return config
 
 
 class Clock:
