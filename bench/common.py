@@ -3,6 +3,7 @@ report is written."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 from hercs.apps import provenance
@@ -10,9 +11,15 @@ from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
 from hercs.apps.result_files import add_out_option, report_folder, write_report
 
 __all__ = ["REPO", "VECTOR_EXTENSIONS", "add_out_option", "cpu_info", "git_commit",
-           "machine_identity", "report_folder", "write_report"]
+           "machine_identity", "report_folder", "table_with_notes", "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def table_with_notes(lines: list[str], notes: Iterable[tuple[str, str]]) -> str:
+    """A fault report's markdown: its table lines, then each (row, note) as a list item naming
+    its row."""
+    return "\n".join([*lines, *(f"\n- {row}: {note}" for row, note in notes)]) + "\n"
 
 
 def git_commit() -> str:
