@@ -3,30 +3,25 @@ report is written."""
 
 from __future__ import annotations
 
-import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 from hercs.apps import provenance
 from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
+from hercs.apps.result_files import add_out_option, report_folder, write_report
 
-__all__ = ["REPO", "VECTOR_EXTENSIONS", "cpu_info", "git_commit", "machine_identity",
-           "write_report"]
+__all__ = ["REPO", "VECTOR_EXTENSIONS", "add_out_option", "cpu_info", "git_commit",
+           "machine_identity", "report_folder", "table_with_notes", "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def table_with_notes(lines: list[str], notes: Iterable[tuple[str, str]]) -> str:
+    """A fault report's markdown: its table lines, then each (row, note) as a list item naming
+    its row."""
+    return "\n".join([*lines, *(f"\n- {row}: {note}" for row, note in notes)]) + "\n"
 
 
 def git_commit() -> str:
     """This checkout's short commit (hercs.apps.provenance.git_commit)."""
     return provenance.git_commit(REPO)
-
-
-def write_report(out: Path | None, name: str, summary: Any, text: str) -> None:
-    """`<out>/<name>.json` (the summary) and `<out>/<name>.md` (the rendered text), the folder
-    made if need be; nothing where `out` is None (a quick run without --out)."""
-    if out is None:
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{name}.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / f"{name}.md").write_text(text)
-    print(f"wrote {out / (name + '.md')}")

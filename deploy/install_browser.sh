@@ -6,21 +6,13 @@
 set -euo pipefail
 
 say() { echo "make browser-tools: $*"; }
+source "$(dirname "${BASH_SOURCE[0]}")/apt_lib.sh"
 
 if command -v chromium > /dev/null || command -v chromium-browser > /dev/null; then
     say "chromium is installed"
     exit 0
 fi
-if [ "$(id -u)" -ne 0 ]; then
-    say "SKIPPED: chromium missing and not root: install it to run the browser test"
-    exit 0
-fi
-if ! command -v apt-get > /dev/null; then
-    say "SKIPPED: chromium missing and no apt-get: install it to run the browser test"
-    exit 0
-fi
+install_or_skip chromium "install it to run the browser test"
 say "installing chromium"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
-apt-get install -y -qq --no-install-recommends chromium > /dev/null
+apt_install chromium
 say "installed"

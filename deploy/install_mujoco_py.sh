@@ -33,6 +33,7 @@ LOG=$VENV/mujoco-py-build.log
 
 say() { echo "make mujoco-py: $*"; }
 die() { echo "make mujoco-py: $*" >&2; exit 1; }
+source "$REPO/deploy/apt_lib.sh"
 
 [ -x "$PY" ] || die "no virtualenv at $VENV; run \`make install\` first"
 
@@ -54,9 +55,7 @@ fi
 if [ ${#need[@]} -gt 0 ]; then
     if [ "$(id -u)" -eq 0 ] && command -v apt-get > /dev/null; then
         say "installing Debian packages: ${need[*]}"
-        export DEBIAN_FRONTEND=noninteractive
-        apt-get update -qq
-        apt-get install -y -qq --no-install-recommends "${need[@]}" > /dev/null
+        apt_install "${need[@]}"
     else
         die "missing system packages: ${need[*]}; install them (Debian: apt-get install -y \
 ${need[*]}) and run \`make mujoco-py\` again"

@@ -8,6 +8,7 @@
 set -euo pipefail
 
 say() { echo "make netfault-tools: $*"; }
+source "$(dirname "${BASH_SOURCE[0]}")/apt_lib.sh"
 
 export PATH=$PATH:/usr/sbin:/sbin
 packages=()
@@ -17,16 +18,7 @@ if [ ${#packages[@]} -eq 0 ]; then
     say "iproute2 (ip, tc) and iptables are installed"
     exit 0
 fi
-if [ "$(id -u)" -ne 0 ]; then
-    say "SKIPPED: ${packages[*]} missing and not root: install them to run the network-fault test"
-    exit 0
-fi
-if ! command -v apt-get > /dev/null; then
-    say "SKIPPED: ${packages[*]} missing and no apt-get: install them to run the network-fault test"
-    exit 0
-fi
+install_or_skip "${packages[*]}" "install them to run the network-fault test"
 say "installing ${packages[*]}"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
-apt-get install -y -qq --no-install-recommends "${packages[@]}" > /dev/null
+apt_install "${packages[@]}"
 say "installed"

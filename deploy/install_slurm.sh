@@ -10,6 +10,7 @@ set -euo pipefail
 BINARIES=(slurmctld slurmd slurmdbd sbatch sacct munged mariadbd mariadb-install-db)
 PACKAGES=(slurm-wlm slurmdbd munge mariadb-server mariadb-client)
 say() { echo "make slurm: $*"; }
+source "$(dirname "${BASH_SOURCE[0]}")/apt_lib.sh"
 
 missing=()
 for b in "${BINARIES[@]}"; do
@@ -19,17 +20,9 @@ if [ ${#missing[@]} -eq 0 ]; then
     say "slurm-wlm, slurmdbd, munge and mariadb-server are installed"
     exit 0
 fi
-if [ "$(id -u)" -ne 0 ]; then
-    say "SKIPPED: ${missing[*]} missing and not root: install ${PACKAGES[*]} to run the Slurm test"
-    exit 0
-fi
-if ! command -v apt-get > /dev/null; then
-    say "SKIPPED: ${missing[*]} missing and no apt-get: install Slurm, slurmdbd, munge and MariaDB"
-    exit 0
-fi
+install_or_skip "${missing[*]}" "install ${PACKAGES[*]} to run the Slurm test" \
+    "install Slurm, slurmdbd, munge and MariaDB"
 say "installing ${PACKAGES[*]} (missing: ${missing[*]})"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
 # policy-rc.d exit 101: the packages' post-install scripts start no daemon
 policy=/usr/sbin/policy-rc.d
 made_policy=""
@@ -37,5 +30,5 @@ if [ ! -e "$policy" ]; then
     printf '#!/bin/sh\nexit 101\n' > "$policy" && chmod +x "$policy" && made_policy=1
 fi
 trap '[ -n "$made_policy" ] && rm -f "$policy"' EXIT
-apt-get install -y -qq --no-install-recommends "${PACKAGES[@]}" > /dev/null
+apt_install "${PACKAGES[@]}"
 say "installed"

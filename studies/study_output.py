@@ -4,15 +4,14 @@ bench/common.py so that studies and benchmarks do not import each other."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 from hercs.apps import provenance
 from hercs.apps.provenance import machine_identity
+from hercs.apps.result_files import add_out_option, report_folder, write_report
 
-__all__ = ["FINDINGS_HEADING", "REPO", "git_commit", "kept_findings", "machine_identity",
-           "write_report"]
+__all__ = ["FINDINGS_HEADING", "REPO", "add_out_option", "git_commit", "kept_findings",
+           "machine_identity", "report_folder", "show_and_write", "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
 FINDINGS_HEADING = "## What it shows"
@@ -25,15 +24,13 @@ def git_commit() -> str:
     return provenance.git_commit(REPO)
 
 
-def write_report(out: Path | None, name: str, summary: Any, text: str) -> None:
-    """`<out>/<name>.json` (the summary) and `<out>/<name>.md` (the rendered text), the folder
-    made if need be; nothing where `out` is None (a quick run without --out)."""
-    if out is None:
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{name}.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / f"{name}.md").write_text(text)
-    print(f"wrote {out / (name + '.md')}")
+def show_and_write(path: Path, text: str) -> None:
+    """A markdown-only report (no JSON summary beside it): printed, and written to `path`, its
+    folder made if need be."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    print(text, end="")
+    print(f"wrote {path}")
 
 
 def kept_findings(report: Path, heading: str = FINDINGS_HEADING) -> str:

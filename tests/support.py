@@ -16,10 +16,50 @@ from types import ModuleType
 
 import numpy as np
 
+from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.rl.task_registry import TaskSpec
+from hercs.run.rundir import RunDir
 from hercs.wire.batch import TransitionBatch
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def saved_run_config(run_dir: Path, overrides: list[str]) -> HercsConfig:
+    """The config these overrides make, saved as `run_dir`'s config.yaml, as a run writes it."""
+    config = apply_overrides(HercsConfig(), overrides)
+    save_yaml(config, RunDir(run_dir).config)
+    return config
+
+
+class Clock:
+    """A clock the test moves (`clock.now += seconds`), so that timeouts, retries and periods
+    come without waiting for them."""
+
+    def __init__(self, now: float = 100.0) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def sigterm_after_line(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> str:
+    """Reads `proc`'s stderr to the first line holding `marker`, then stops it with SIGTERM and
+    asserts exit 0 within `timeout_s`; it is killed whatever happens. The line ("" where the
+    stream ended first), for the test to check what it said."""
+    found = ""
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if marker in line:
+                found = line
+                break
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=timeout_s) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return found
 
 
 def free_tcp_port() -> int:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import REPO, git_commit
+from bench.common import REPO, git_commit, table_with_notes
 from bench.faults.delay_relay import DelayRelay
 from bench.faults.net_measure import NetResult, measure
 from bench.faults.netns import Host, hosts, problem
@@ -282,10 +282,7 @@ def report(results: list[NetResult], *, command: str, shape: Shape, note: str,
             f"{r.lag_p50} / {r.lag_p95} | {r.inserts_per_s} | {s(r.longest_insert_gap_s)} | "
             f"{s(r.median_epoch_s)} / {s(r.max_epoch_s)} | {heal} | {r.wall_s} s | "
             f"{'ok' if r.ok else 'FAILED'} |")
-    for r in results:
-        for n in r.notes:
-            lines.append(f"\n- {r.setting}: {n}")
-    return "\n".join(lines) + "\n"
+    return table_with_notes(lines, ((r.setting, n) for r in results for n in r.notes))
 
 
 def main(argv: list[str] | None = None) -> int:

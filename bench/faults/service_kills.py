@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from bench.common import git_commit
+from bench.common import git_commit, table_with_notes
 from hercs.apps.child_process import pdeathsig_preexec
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
@@ -237,10 +237,7 @@ def report(results: list[FaultResult], *, command: str, quick: bool) -> str:
             f"{len(r.epochs_recorded)} ({r.epochs_expected}) | {r.epochs_lost} / "
             f"{r.epochs_twice} | {r.restarted_after_s} s | {r.next_epoch_after_s} s | "
             f"{r.median_epoch_s} s | {r.wall_s} s | {'ok' if r.ok else 'FAILED'} |")
-    for r in results:
-        for note in r.notes:
-            lines.append(f"\n- {r.fault}: {note}")
-    return "\n".join(lines) + "\n"
+    return table_with_notes(lines, ((r.fault, note) for r in results for note in r.notes))
 
 
 def kept_sections(path: Path) -> str:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import git_commit, write_report
+from bench.common import add_out_option, git_commit, report_folder, write_report
 from hercs.actors.rollout import VectorRollout
 from hercs.config import DDPGConfig
 from hercs.net.threads import single_threaded_numerics
@@ -93,8 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", default="push")
     parser.add_argument("--envs", type=int, nargs="+", default=[1, 2, 4, 8, 16])
-    parser.add_argument("--out", type=Path, help="where actor_envs.{json,md} go "
-                        "(default docs/results; not written with --quick unless given)")
+    add_out_option(parser, "actor_envs")
     parser.add_argument("--quick", action="store_true", help="CI: 1 round of 1 episode")
     args = parser.parse_args(argv)
     if any(n < 1 for n in args.envs):
@@ -131,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         met = "met" if r["ratio"] >= TARGET else "not met"
         lines.append(f"| {r['envs']} | {r['actor_steps_per_cpu_s']:.0f} | "
                      f"{r['raw_steps_per_cpu_s']:.0f} | {r['ratio']:.3f} | ≥ {TARGET} ({met}) |")
-    out = args.out if args.out is not None else (None if args.quick else REPO / "docs/results")
+    out = report_folder(args.out, args.quick, REPO)
     write_report(out, "actor_envs", summary, "\n".join(lines) + "\n")
     return 0
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
-from bench.common import git_commit, write_report
+from bench.common import add_out_option, git_commit, report_folder, write_report
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.rl.task_registry import TaskSpec, task_spec
@@ -116,8 +116,7 @@ def report(summary: dict) -> str:  # type: ignore[type-arg]
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", type=Path, help="where env_reward.{json,md} go (default "
-                        "docs/results; not written with --quick unless given)")
+    add_out_option(parser, "env_reward")
     parser.add_argument("--quick", action="store_true", help="CI: a few repeats")
     args = parser.parse_args(argv)
     summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
@@ -126,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                "results": measure(args.quick)}
     text = report(summary)
     print(text)
-    out = args.out or (None if args.quick else REPO / "docs" / "results")
+    out = report_folder(args.out, args.quick, REPO)
     write_report(out, "env_reward", summary, text)
     return 0
 

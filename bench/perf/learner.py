@@ -27,7 +27,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import VECTOR_EXTENSIONS, cpu_info, git_commit, write_report
+from bench.common import (
+    VECTOR_EXTENSIONS,
+    add_out_option,
+    cpu_info,
+    git_commit,
+    report_folder,
+    write_report,
+)
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.rl.task_registry import task_spec
@@ -177,8 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", default="push")
     parser.add_argument("--batch-size", type=int, default=256)
     parser.add_argument("--updates", type=int, default=400, help="timed updates per precision")
-    parser.add_argument("--out", type=Path, help="where learner.{json,md} go "
-                        "(default docs/results; not written with --quick unless given)")
+    add_out_option(parser, "learner")
     parser.add_argument("--quick", action="store_true", help="CI: 10 updates, 200 GEMMs")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -251,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
                      f"{ms / scaling[1] / n:.2f} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    out = args.out or (None if args.quick else REPO / "docs" / "results")
+    out = report_folder(args.out, args.quick, REPO)
     write_report(out, "learner", summary, text)
     return 0
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import git_commit, write_report
+from bench.common import add_out_option, git_commit, report_folder, write_report
 from bench.perf.learner import make_batch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
@@ -147,8 +147,7 @@ def product_check(size: int = 256) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--updates", type=int, default=200, help="timed updates per cell")
-    parser.add_argument("--out", type=Path, help="where learner_cuda.{json,md} go "
-                        "(default docs/results; not written with --quick unless given)")
+    add_out_option(parser, "learner_cuda")
     parser.add_argument("--quick", action="store_true",
                         help="CI: a few updates, on the CPU where there is no GPU")
     args = parser.parse_args(argv)
@@ -177,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                                          max(3, updates // 4), spec, config)
     text = report(summary)
     print(text)
-    out = args.out or (None if args.quick else REPO / "docs" / "results")
+    out = report_folder(args.out, args.quick, REPO)
     write_report(out, "learner_cuda", summary, text)
     return 0
 

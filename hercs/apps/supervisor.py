@@ -107,23 +107,23 @@ class Supervisor:
             self.say(f"hercs up: ignoring a bad {what} message: {exc}", error=True)
             return None
 
+    def _print_progress(self, update: Callable[[], list[str]]) -> None:
+        """Prints the progress lines `update` returns, waking the loop where there are any."""
+        with self._print_lock:  # compute and print as one step, so lines stay in order
+            lines = update()
+            self._say_all(lines)
+        if lines:
+            self.signals.wake()
+
     def on_metrics(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.Metrics, "Metrics")
         if isinstance(msg, pb.Metrics):
-            with self._print_lock:  # compute and print as one step, so lines stay in order
-                lines = self.progress.on_metrics(msg.service, dict(msg.values))
-                self._say_all(lines)
-            if lines:
-                self.signals.wake()
+            self._print_progress(lambda: self.progress.on_metrics(msg.service, dict(msg.values)))
 
     def on_eval(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.EvalResult, "EvalResult")
         if isinstance(msg, pb.EvalResult):
-            with self._print_lock:
-                lines = self.progress.on_eval(int(msg.epoch), msg.success_rate)
-                self._say_all(lines)
-            if lines:
-                self.signals.wake()
+            self._print_progress(lambda: self.progress.on_eval(int(msg.epoch), msg.success_rate))
 
     def on_status(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.ReplayStatus, "ReplayStatus")

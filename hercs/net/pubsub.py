@@ -15,6 +15,7 @@ import zenoh.ext as zext
 
 from hercs.net.queries import (
     join_threads,
+    received,
     undeclare,
 )
 from hercs.net.transport_errors import (
@@ -149,11 +150,7 @@ class Subscription:
             self._entity = self._start(session)
 
     def _run(self, channel: Any) -> None:
-        while True:
-            try:
-                sample = channel.recv()
-            except zenoh.ZError:  # channel closed: undeclared or session closed
-                return
+        for sample in received(channel):
             if self._closing.is_set():
                 return
             try:

@@ -9,7 +9,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import zenoh
@@ -170,11 +170,7 @@ class QueryServer:
             self._pending.discard(pending)
 
     def _run(self, channel: Any) -> None:
-        while True:
-            try:
-                query = channel.recv()
-            except zenoh.ZError:  # channel closed: undeclared or session closed
-                return
+        for query in received(channel):
             reply_key = self.key if self._reply_key_fixed else str(query.key_expr)
             pending = PendingReply(query, reply_key, self._forget)
             del query
@@ -312,6 +308,17 @@ def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> b
             undeclare(listener)
     finally:
         undeclare(querier)
+
+
+def received(channel: Any) -> Iterator[Any]:
+    """What arrives on a Zenoh handler channel, until the channel closes (its entity undeclared
+    or its session closed). The item is yielded, never kept here: a query must be dropped by
+    its consumer for Zenoh to send its final reply."""
+    while True:
+        try:
+            yield channel.recv()
+        except zenoh.ZError:
+            return
 
 
 def undeclare(entity: Any) -> None:

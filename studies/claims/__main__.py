@@ -16,7 +16,7 @@ from studies.claims.claim_statistics import (
 )
 from studies.claims.claims import CLAIMS, evaluate
 from studies.claims.claims_report import OUTPUT, report
-from studies.study_output import REPO
+from studies.study_output import REPO, show_and_write
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -33,10 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     groups = load_groups(args.runs)
     command = " ".join(["python -m studies.claims", *(sys.argv[1:] if argv is None else argv)])
     text = report(evaluate(CLAIMS, groups, reps=args.reps), groups, command, reps=args.reps)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / OUTPUT).write_text(text)
-    print(text, end="")
-    print(f"wrote {args.out / OUTPUT}")
+    show_and_write(args.out / OUTPUT, text)
     return 0
 
 

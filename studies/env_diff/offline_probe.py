@@ -22,7 +22,6 @@ import sys
 import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,7 +31,7 @@ from hercs.errors import ConfigError
 from hercs.rl.policy import Policy, PolicyWeights
 from hercs.wire.episode import EpisodeData
 from studies.env_diff.early_policy import EpisodeFacts, episode_facts, mean_facts
-from studies.study_output import REPO, git_commit, write_report
+from studies.study_output import REPO, add_out_option, git_commit, report_folder, write_report
 
 SIMS = ("v1", "v4")
 DATA_SEED = 555_000
@@ -208,8 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--sims", nargs="+", default=list(SIMS), choices=SIMS)
-    parser.add_argument("--out", type=Path, help="where offline_probe.{json,md} go "
-                        "(default docs/results; not written with --quick unless given)")
+    add_out_option(parser, "offline_probe")
     parser.add_argument("--quick", action="store_true",
                         help="CI: 8 episodes, 2 cycles, one seed, 4 evaluation episodes")
     args = parser.parse_args(argv)
@@ -227,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as err:  # v1 asked for where mujoco-py is not installed
         print(f"studies.env_diff.offline_probe: {err}", file=sys.stderr)
         return 2
-    out = args.out or (None if args.quick else REPO / "docs" / "results")
+    out = report_folder(args.out, args.quick, REPO)
     if out is not None and (out / "offline_probe.json").exists():
         # The reading is written by hand from the tables; a rerun keeps it to be re-read.
         result["findings"] = json.loads((out / "offline_probe.json").read_text()).get(

@@ -36,6 +36,7 @@ from hercs.apps.plots import (
 )
 from hercs.apps.sweep_cells import DONE_FILE
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
+from studies.study_output import show_and_write
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -215,10 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = " ".join(["python -m studies.schedule_effect",
                         *(sys.argv[1:] if argv is None else argv)])
     text = report(compare_all(curves, args.epoch), command, args.epoch)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / OUTPUT).write_text(text)
-    print(text, end="")
-    print(f"wrote {args.out / OUTPUT}")
+    show_and_write(args.out / OUTPUT, text)
     return 0
 
 

@@ -28,19 +28,10 @@ from hercs.run.runlog import (
 )
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode
+from tests.support import Clock
 
 RUN, TASK = "disk-test", "push"
 RETRY_S = 1.0
-
-
-class Clock:
-    """A clock the test moves, so that retries happen without waiting for them."""
-
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 def episode(i: int) -> pb.Episode:

@@ -1,12 +1,11 @@
 """A service told to stop while its router is still unreachable exits 0 promptly."""
 
-import signal
 import subprocess
 import sys
 
 import pytest
 
-from tests.support import free_endpoint
+from tests.support import free_endpoint, sigterm_after_line
 
 pytestmark = pytest.mark.integration
 
@@ -17,13 +16,5 @@ def test_sigterm_while_waiting_for_router(service: str) -> None:
         [sys.executable, "-m", "hercs.apps.cli", service, "--run", "nobody",
          "--connect", free_endpoint(), "--id", "x"],
         stderr=subprocess.PIPE, text=True)
-    try:
-        for line in proc.stderr:  # the first failed attempt is logged at once
-            if "waiting for a Zenoh router" in line:
-                break
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    # the first failed attempt is logged at once
+    sigterm_after_line(proc, "waiting for a Zenoh router", timeout_s=10)

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
@@ -14,7 +13,7 @@ import pytest
 from hercs.net.service_shell import EXIT_UNREACHABLE
 from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from tests.support import free_endpoint
+from tests.support import free_endpoint, sigterm_after_line
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -57,18 +56,9 @@ def test_unknown_run_gives_up_naming_the_known_runs(router_with_a_run: str) -> N
 
 def test_by_default_it_waits_and_says_for_what(router_with_a_run: str) -> None:
     proc = _actor(router_with_a_run, "nobody")
-    try:
-        assert proc.stderr is not None
-        for line in proc.stderr:  # the first failed attempt is logged at once
-            if "waiting for run 'nobody'" in line:
-                assert "runs with a replay on this router: elsewhere" in line
-                break
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=20) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    # the first failed attempt is logged at once
+    line = sigterm_after_line(proc, "waiting for run 'nobody'", timeout_s=20)
+    assert "runs with a replay on this router: elsewhere" in line
 
 
 @pytest.mark.parametrize("value", ["-1", "nan", "inf"])

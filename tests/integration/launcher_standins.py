@@ -179,9 +179,3 @@ def read_events(path: Path) -> list[tuple[str, str]]:
         return []
     return [tuple(line.split()[:2]) for line in path.read_text().splitlines()]  # type: ignore[misc]
 
-class Clock:
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now

@@ -22,14 +22,14 @@ from hercs.apps.progress import Progress
 from hercs.apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig
 from hercs.run.rundir import RunDir
-from tests.integration.launcher_standins import REPO, WAIT_S, Clock
-from tests.support import free_tcp_port
+from tests.integration.launcher_standins import REPO, WAIT_S
+from tests.support import Clock, free_tcp_port
 
 pytestmark = pytest.mark.integration
 
 
 def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
-    clock = Clock()
+    clock = Clock(1000.0)
     progress = Progress(total_epochs=10, clock=clock)
     base = {"env_steps_per_s": 1234.4, "updates_per_s": 456.2, "replay_size": 6000,
             "policy_lag": 1.23}
@@ -64,7 +64,7 @@ def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
 def test_progress_line_shows_each_actors_share_of_the_epochs_episodes() -> None:
     """With several actors, the epoch line gives each one's share of the episodes stored
     since the previous line (actor-id order); one contributing actor: just the count."""
-    clock = Clock()
+    clock = Clock(1000.0)
     progress = Progress(total_epochs=3, clock=clock)
     progress.actors = 3
     for actor, n in (("actor-1", 30), ("actor-0", 60), ("remote-a", 10)):
@@ -79,7 +79,7 @@ def test_progress_line_shows_each_actors_share_of_the_epochs_episodes() -> None:
 
 
 def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
-    clock = Clock()
+    clock = Clock(1000.0)
     progress = Progress(total_epochs=200, clock=clock)
     assert progress.interim() is None
     clock.now += 5  # FIRST_LINE_S

@@ -22,7 +22,8 @@ from hercs.config import load_yaml
 from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
 from hercs.run.rundir import RunDir
-from tests.integration.launcher_standins import WAIT_S, Clock, process_alive, read_events, wait_for
+from tests.integration.launcher_standins import WAIT_S, process_alive, read_events, wait_for
+from tests.support import Clock
 
 pytestmark = pytest.mark.integration
 
@@ -176,7 +177,7 @@ def test_a_child_that_dies_is_restarted_and_the_run_goes_on(up, tmp_path: Path) 
 
 
 def test_progress_line_counts_restarts() -> None:
-    clock = Clock()
+    clock = Clock(1000.0)
     progress = Progress(total_epochs=2, clock=clock)
     progress.restarts = 3
     clock.now += 30

@@ -31,22 +31,29 @@ SERVICE_MODULES = ("hercs.replay_service.replay_shell", "hercs.clusterer.cluster
                    "hercs.actors.evaluator")
 
 
+def up_to_the_end(tmp_path: Path, run: str, args: list[str], timeout_s: float,
+                  ) -> tuple[Launcher, Path]:
+    """Runs `hercs up --task reach --run RUN` with these arguments to its end (exit 0 asserted),
+    the process killed whatever happens; the launcher (its output) and the run directory."""
+    launcher = Launcher(
+        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--run", run,
+         "--run-dir", str(tmp_path / "runs"), "--listen", free_endpoint(), *args],
+        cwd=tmp_path,
+    )
+    try:
+        assert launcher.finish(timeout_s=timeout_s) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    return launcher, tmp_path / "runs" / run
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
                     reason="a service module is not written yet")
 def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
-    launcher = Launcher(
-        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "2",
-         "--actors", "2", "--run", "e2e", "--run-dir", str(tmp_path / "runs"),
-         "--listen", free_endpoint(), "--set", "training.cycles_per_epoch=2",
-         "--set", "training.eval_episodes=2"],
-        cwd=tmp_path,
-    )
-    try:
-        assert launcher.finish(timeout_s=90) == 0, "\n".join(launcher.out + launcher.err)
-    finally:
-        launcher.kill()
-    run_dir = tmp_path / "runs" / "e2e"
+    launcher, run_dir = up_to_the_end(tmp_path, "e2e", [
+        "--epochs", "2", "--actors", "2", "--set", "training.cycles_per_epoch=2",
+        "--set", "training.eval_episodes=2"], timeout_s=90)
     epochs = [line for line in launcher.out
               if line.startswith("epoch") and " running " not in line]
     assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
@@ -72,18 +79,9 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     skip_without_mujoco_py()
     for name in ("LD_LIBRARY_PATH", "MUJOCO_PY_MUJOCO_PATH", "MUJOCO_PY_FORCE_CPU"):
         monkeypatch.delenv(name, raising=False)  # hercs.rl.envs set them in this process
-    launcher = Launcher(
-        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
-         "--epochs", "1", "--run", "v1", "--run-dir", str(tmp_path / "runs"),
-         "--listen", free_endpoint(), "--set", "task.env_version=v1",
-         "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2"],
-        cwd=tmp_path,
-    )
-    try:
-        assert launcher.finish(timeout_s=90) == 0, "\n".join(launcher.out + launcher.err)
-    finally:
-        launcher.kill()
-    run_dir = tmp_path / "runs" / "v1"
+    _, run_dir = up_to_the_end(tmp_path, "v1", [
+        "--method", "her-cs", "--epochs", "1", "--set", "task.env_version=v1",
+        "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2"], timeout_s=90)
     assert load_yaml(RunDir(run_dir).config).task.spec.env_id == "FetchReach-v1"
     rows = list(csv.DictReader(RunDir(run_dir).metrics.open()))
     assert [int(r["epoch"]) for r in rows] == [1] and int(rows[0]["episodes"]) >= 8
@@ -100,20 +98,11 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     every 8 failures: the episode log holds cycle after cycle of 4 episodes, episode i acted
     with weights version i // 4 (the reference's schedule), and metrics.csv's policy lag
     against that schedule is 0."""
-    launcher = Launcher(
-        [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
-         "--epochs", "2", "--actors", "2", "--run", "lockstep", "--run-dir",
-         str(tmp_path / "runs"), "--listen", free_endpoint(),
-         "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
-         "--set", "training.eval_episodes=2", "--set", "cluster.k=2",
-         "--set", "cluster.fgb_size=8"],
-        cwd=tmp_path,
-    )
-    try:
-        assert launcher.finish(timeout_s=120) == 0, "\n".join(launcher.out + launcher.err)
-    finally:
-        launcher.kill()
-    run_dir = tmp_path / "runs" / "lockstep"
+    _, run_dir = up_to_the_end(tmp_path, "lockstep", [
+        "--method", "her-cs", "--epochs", "2", "--actors", "2",
+        "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
+        "--set", "training.eval_episodes=2", "--set", "cluster.k=2",
+        "--set", "cluster.fgb_size=8"], timeout_s=120)
     logged = list(read_episodes(run_dir))
     assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
     assert len(logged) >= 2 * 3 * 4, "every one of the 6 cycles had its 4 episodes"

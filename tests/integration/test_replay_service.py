@@ -46,6 +46,11 @@ def episode_msg(spec, seq: int, actor: str = "a0") -> pb.Episode:
     return episode_to_msg(ep, run="t", task=spec.name)
 
 
+def insert_episodes(client: Transport, spec, seqs: range) -> list[pb.InsertAck]:
+    """Inserts actor a0's episodes of these sequence numbers, one after the other."""
+    return [insert(client, episode_msg(spec, seq)) for seq in seqs]
+
+
 def status(client: Transport) -> pb.ReplayStatus:
     return next_replay_status(client, KEYS.status, TIMEOUT)
 
@@ -59,7 +64,7 @@ def test_acks_dedup_and_rejects(replay, open_client) -> None:
     config, _ = replay
     spec = config.task.spec
     client = open_client()
-    acks = [insert(client, episode_msg(spec, seq)) for seq in range(3)]
+    acks = insert_episodes(client, spec, range(3))
     assert [a.episode_id for a in acks] == [0, 1, 2] and not any(a.duplicate for a in acks)
     again = insert(client, episode_msg(spec, 1))
     assert again.duplicate and again.episode_id == 1
@@ -94,8 +99,7 @@ def test_rate_limiter_holds_samples_until_inserts_arrive(replay, open_client) ->
     config, _ = replay
     spec = config.task.spec
     client = open_client()
-    for seq in range(4):
-        insert(client, episode_msg(spec, seq))
+    insert_episodes(client, spec, range(4))
     # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 16: window for the surplus d = 2I − S
     # is [8 − 16, 8 + 16]. After 4 inserts d = 8: 8 minibatches are admitted (d → 0), the
     # next 8 too (d → −8), the third must wait for inserts.
@@ -112,8 +116,7 @@ def test_rate_limiter_holds_samples_until_inserts_arrive(replay, open_client) ->
     thread.start()
     assert not done.wait(1.0), "the third request must be held by the rate limiter"
     assert status(client).rate_limiter == "holding-samples"
-    for seq in range(4, 8):  # 4 more episodes: d = −8 + 8 = 0 ≥ −8 + 8, admitted
-        insert(client, episode_msg(spec, seq))
+    insert_episodes(client, spec, range(4, 8))  # 4 more episodes: d = −8 + 8 = 0 ≥ −8 + 8, admitted
     assert done.wait(TIMEOUT)
     assert result[0].request_id == 3 and result[0].status.inserts == 8
     thread.join()
@@ -124,8 +127,7 @@ def test_cluster_model_relabels_and_balances_batches(replay, open_client) -> Non
     config, _ = replay
     spec = config.task.spec
     client = open_client()
-    for seq in range(40):
-        insert(client, episode_msg(spec, seq))
+    insert_episodes(client, spec, range(40))
     centroids = np.array([[-1, -1, 0], [1, 1, 0], [-1, 1, 0], [1, -1, 0]], np.float32) * 0.5
     model = pb.ClusterModel(schema_version=SCHEMA_VERSION, version=1,
                             centroids=array_to_msg(centroids), fitted_on=8, failures_seen=8)
@@ -154,7 +156,7 @@ def test_acked_episodes_survive_sigkill(tmp_path: Path, endpoint: str, router: T
     spec = config.task.spec
     client = open_client()
     proc = ServiceProcess("replay", path, "replay", tmp_path)
-    acked = [insert(client, episode_msg(spec, seq)).episode_id for seq in range(12)]
+    acked = [ack.episode_id for ack in insert_episodes(client, spec, range(12))]
     proc.kill()
     proc = ServiceProcess("replay", path, "replay", tmp_path)
     try:

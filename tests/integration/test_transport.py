@@ -26,7 +26,7 @@ from hercs.net.transport import (
 )
 from hercs.reasons import Reason
 from tests.integration.services import OpenClient
-from tests.integration.transport_support import RUN, WAIT_S, echo
+from tests.integration.transport_support import RUN, WAIT_S, echo, request_in_background
 
 pytestmark = pytest.mark.integration
 
@@ -121,15 +121,7 @@ def test_deferred_reply_is_answered_later_from_another_thread(open_client: OpenC
         handler_returned.set()
 
     srv = server.serve_deferred(f"{RUN}/replay/sample", park)
-    result: queue.Queue[bytes | Exception] = queue.Queue()
-
-    def ask() -> None:
-        try:
-            result.put(client.request(f"{RUN}/replay/sample", b"batch?", timeout_s=WAIT_S))
-        except Exception as exc:
-            result.put(exc)
-
-    threading.Thread(target=ask).start()
+    result = request_in_background(client, f"{RUN}/replay/sample", b"batch?")
     pending = parked.get(timeout=WAIT_S)
     assert handler_returned.wait(WAIT_S)
     assert srv.pending == 1 and result.empty()  # held: the request is still waiting
@@ -154,15 +146,7 @@ def test_closing_a_server_answers_parked_queries_unavailable(open_client: OpenCl
     server, client = open_client(), open_client()
     parked: queue.Queue[PendingReply] = queue.Queue()
     srv = server.serve_deferred(f"{RUN}/replay/insert", parked.put)
-    result: queue.Queue[bytes | Exception] = queue.Queue()
-
-    def ask() -> None:
-        try:
-            result.put(client.request(f"{RUN}/replay/insert", b"ep", timeout_s=WAIT_S))
-        except Exception as exc:
-            result.put(exc)
-
-    threading.Thread(target=ask).start()
+    result = request_in_background(client, f"{RUN}/replay/insert", b"ep")
     pending = parked.get(timeout=WAIT_S)
     started = time.monotonic()
     srv.close()
@@ -178,15 +162,7 @@ def test_request_waits_for_a_queryable_declared_after_it_was_sent(
 ) -> None:
     server, client = open_client(), open_client()
     waiting = log_event("waiting up to")
-    result: queue.Queue[bytes | Exception] = queue.Queue()
-
-    def ask() -> None:
-        try:
-            result.put(client.request(f"{RUN}/replay/sample", b"early", timeout_s=WAIT_S))
-        except Exception as exc:
-            result.put(exc)
-
-    threading.Thread(target=ask).start()
+    result = request_in_background(client, f"{RUN}/replay/sample", b"early")
     assert waiting.wait(WAIT_S), "the request never found itself without a queryable"
     server.serve(f"{RUN}/replay/sample", echo)
     assert result.get(timeout=WAIT_S) == b"echo:early"

@@ -19,7 +19,7 @@ import pytest
 
 from hercs.net.transport import PendingReply, Transport, TransportError, TransportTimeout
 from tests.integration.services import OpenClient
-from tests.integration.transport_support import RUN, WAIT_S, echo
+from tests.integration.transport_support import RUN, WAIT_S, echo, request_in_background
 
 pytestmark = pytest.mark.integration
 
@@ -131,15 +131,7 @@ def test_transport_close_undeclares_everything_and_stops_threads_promptly(
     service.declare_alive(f"{RUN}/alive/replay/0")
     assert changes.get(timeout=WAIT_S) == (f"{RUN}/alive/replay/0", True)
     assert {t.name for t in threading.enumerate()} - before  # our threads are running
-    in_flight: queue.Queue[Exception | bytes] = queue.Queue()
-
-    def ask() -> None:
-        try:
-            in_flight.put(service.request(f"{RUN}/held", b"x", timeout_s=WAIT_S))
-        except Exception as exc:
-            in_flight.put(exc)
-
-    threading.Thread(target=ask).start()
+    in_flight = request_in_background(service, f"{RUN}/held", b"x")
     parked.get(timeout=WAIT_S)
 
     started = time.monotonic()

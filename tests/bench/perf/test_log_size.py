@@ -11,22 +11,19 @@ import numpy as np
 import pytest
 
 from bench.perf.log_size import measure, project
-from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
-from hercs.run.rundir import RunDir
 from hercs.run.runlog import EpisodeLogWriter, segment_paths
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode
-from tests.support import REPO
+from tests.support import REPO, saved_run_config
 
 
 @pytest.fixture
 def run_dir(tmp_path: Path) -> Path:
-    config = apply_overrides(HercsConfig(), ["task.name=reach", "run.name=t",
-                                             "replay.buffer_transitions=1000",
-                                             "training.cycles_per_epoch=5"])
-    save_yaml(config, RunDir(tmp_path).config)
+    config = saved_run_config(tmp_path, ["task.name=reach", "run.name=t",
+                                         "replay.buffer_transitions=1000",
+                                         "training.cycles_per_epoch=5"])
     spec = config.task.spec
     for name, ids in (("episodes.000.mcap", range(0, 12)), ("episodes.mcap", range(12, 30))):
         with EpisodeLogWriter(tmp_path / name, run="t", task="reach") as writer:

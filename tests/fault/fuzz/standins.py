@@ -5,7 +5,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import yaml
 
@@ -27,6 +27,16 @@ from tests.fault.fuzz.runs import (
 )
 
 
+def parked(queries: queue.Queue[PendingReply], stop: threading.Event) -> Iterator[PendingReply]:
+    """The queries a stand-in parked, one at a time, until it is told to stop (polled, so
+    that a stop is seen within 0.2 s)."""
+    while not stop.is_set():
+        try:
+            yield queries.get(timeout=0.2)
+        except queue.Empty:
+            continue
+
+
 class ActorRunReplay:
     """Plays `fz-actor`'s replay: serves the run's config and acks each insert after
     `ACK_EVERY_S` (so the actor rolls out slowly), recording the episode's policy version."""
@@ -42,11 +52,7 @@ class ActorRunReplay:
         self._thread.start()
 
     def _ack(self) -> None:
-        while not self._stop.is_set():
-            try:
-                pending = self._inserts.get(timeout=0.2)
-            except queue.Empty:
-                continue
+        for pending in parked(self._inserts, self._stop):
             episode = pb.Episode.FromString(pending.payload)
             if self._stop.wait(ACK_EVERY_S):
                 return
@@ -102,11 +108,7 @@ class LearnerRunReplay:
             self.odd_requests.append(str(msg))
 
     def _serve(self) -> None:
-        while not self._stop.is_set():
-            try:
-                pending = self._requests.get(timeout=0.2)
-            except queue.Empty:
-                continue
+        for pending in parked(self._requests, self._stop):
             self.requests_seen += 1
             self._check(pending.payload)
             payload = None

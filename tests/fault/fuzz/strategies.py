@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from hypothesis import strategies as st
 
@@ -32,6 +34,16 @@ from tests.fault.fuzz.probes import (
 from tests.fault.fuzz.runs import HEADER_MAX_BYTES, LEARNER_N, RUN_A, RUN_L, RUN_R, SEEDS, VALID, K
 
 
+def break_field(msg: Any, name: str, array_kind: str, rng: np.random.Generator) -> None:
+    """Breaks the Array field `name` of `msg` as `array_kind` says (break_array); "missing"
+    clears the field."""
+    if array_kind == "missing":
+        msg.ClearField(name)
+    else:
+        getattr(msg, name).CopyFrom(break_array(msg_to_array(getattr(msg, name)), array_kind,
+                                                rng))
+
+
 @st.composite
 def episode_probes(draw: st.DrawFn) -> Probe:
     what = draw(st.sampled_from(["schema", "run", "task", "actor", "seq", "array", "array",
@@ -60,11 +72,7 @@ def episode_probes(draw: st.DrawFn) -> Probe:
         name = draw(st.sampled_from(["obs", "ag", "g", "actions"]))
         array_kind = draw(st.sampled_from(ARRAY_KINDS))
         kind = f"array:{name}:{array_kind}"
-        if array_kind == "missing":
-            msg.ClearField(name)
-        else:
-            getattr(msg, name).CopyFrom(break_array(msg_to_array(getattr(msg, name)),
-                                                    array_kind, rng))
+        break_field(msg, name, array_kind, rng)
         expect = EPISODE_ARRAY[array_kind]
     elif what == "valid-extreme":  # a new pair, extreme but valid values
         msg.actor_id = draw(st.sampled_from(["ü/∞ actor", "x" * 2000, "a@b@c", "fz-extreme"]))
@@ -210,11 +218,7 @@ def header_probes(draw: st.DrawFn) -> Probe:
         name = draw(st.sampled_from(["final_achieved_goal", "desired_goal"]))
         array_kind = draw(st.sampled_from(ARRAY_KINDS))
         kind = f"goal:{name}:{array_kind}"
-        if array_kind == "missing":
-            msg.ClearField(name)
-        else:
-            getattr(msg, name).CopyFrom(break_array(msg_to_array(getattr(msg, name)),
-                                                    array_kind, rng))
+        break_field(msg, name, array_kind, rng)
         expect = HEADER_ARRAY[array_kind]
     elif what == "oversized":
         msg.actor_id = "x" * (HEADER_MAX_BYTES + draw(st.integers(1, 100)))
@@ -311,11 +315,7 @@ def batch_probes(draw: st.DrawFn) -> Probe:
         name = draw(st.sampled_from(["o", "g", "u", "r", "o2"]))
         array_kind = draw(st.sampled_from(ARRAY_KINDS))
         kind = f"minibatch:{name}:{array_kind}"
-        if array_kind == "missing":
-            mb.ClearField(name)
-        else:
-            getattr(mb, name).CopyFrom(break_array(msg_to_array(getattr(mb, name)), array_kind,
-                                                   rng))
+        break_field(mb, name, array_kind, rng)
         expect = MINIBATCH_ARRAY[array_kind]
     elif what == "stats":
         which = draw(st.sampled_from(["o_stats", "g_stats"]))

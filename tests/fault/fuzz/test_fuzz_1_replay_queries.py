@@ -35,7 +35,7 @@ from tests.fault.fuzz.strategies import (
     episode_request_probes,
     sample_request_probes,
 )
-from tests.fault.fuzz.world import World, check_expect, sent
+from tests.fault.fuzz.world import World, asked_valid, checked_verdicts, sent
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
 
@@ -47,17 +47,10 @@ def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: Wo
     @settings(HYPOTHESIS, max_examples=135)
     @given(probe_lists(mixed(episode_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
-        verdicts = [insert_verdict(p.payload) for p in probes]
-        for probe, verdict in zip(probes, verdicts, strict=True):
-            check_expect(probe, verdict)
+        verdicts = checked_verdicts(probes, insert_verdict)
         known = dict(w.ledger.keys)
         new: dict[tuple[str, int], list[tuple[pb.InsertAck, pb.Episode]]] = {}
-        for probe, verdict, (reply, reason, detail) in zip(
-                probes, verdicts, w.ask(KR.insert, [p.payload for p in probes]), strict=True):
-            if verdict != VALID:
-                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
-                w.ledger.replay_rejects[verdict] += 1
-                continue
+        for probe, reply, reason, detail in asked_valid(w, KR.insert, probes, verdicts):
             assert reply is not None, (probe, reason, detail)
             msg = pb.Episode.FromString(probe.payload)
             ack = pb.InsertAck.FromString(reply)
@@ -91,9 +84,7 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
     @settings(HYPOTHESIS, max_examples=65)
     @given(probe_lists(mixed(sample_request_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
-        verdicts = [sample_verdict(p.payload) for p in probes]
-        for probe, verdict in zip(probes, verdicts, strict=True):
-            check_expect(probe, verdict)
+        verdicts = checked_verdicts(probes, sample_verdict)
         keep = []
         for probe, verdict in zip(probes, verdicts, strict=True):
             if verdict == VALID:
@@ -102,12 +93,8 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
                     w.ledger.skipped["replay/sample (valid, large)"] += 1
                     continue
             keep.append((probe, verdict))
-        answers = w.ask(KR.sample, [p.payload for p, _ in keep])
-        for (probe, verdict), (reply, reason, detail) in zip(keep, answers, strict=True):
-            if verdict != VALID:
-                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
-                w.ledger.replay_rejects[verdict] += 1
-                continue
+        for probe, reply, reason, detail in asked_valid(
+                w, KR.sample, [p for p, _ in keep], [v for _, v in keep]):
             assert reply is not None, (probe, reason, detail)
             msg = pb.SampleRequest.FromString(probe.payload)
             batch = decode_served_batch(reply, spec=SPEC, k=K, batch_size=msg.batch_size,
@@ -130,15 +117,8 @@ def test_replay_episode_queryable_serves_stored_episodes_only(world: World) -> N
     @settings(HYPOTHESIS, max_examples=60)
     @given(probe_lists(mixed(episode_request_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
-        verdicts = [verdict_of(p.payload) for p in probes]
-        for probe, verdict in zip(probes, verdicts, strict=True):
-            check_expect(probe, verdict)
-        for probe, verdict, (reply, reason, detail) in zip(
-                probes, verdicts, w.ask(KR.episode, [p.payload for p in probes]), strict=True):
-            if verdict != VALID:
-                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
-                w.ledger.replay_rejects[verdict] += 1
-                continue
+        verdicts = checked_verdicts(probes, verdict_of)
+        for probe, reply, reason, detail in asked_valid(w, KR.episode, probes, verdicts):
             episode_id = pb.EpisodeRequest.FromString(probe.payload).episode_id
             stored = w.ledger.stored.get(episode_id)
             if stored is None:  # a miss: an error reply, not a reject
@@ -162,16 +142,8 @@ def test_replay_clusterer_state_queryable(world: World) -> None:
     @settings(HYPOTHESIS, max_examples=40)
     @given(probe_lists(mixed(clusterer_state_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
-        verdicts = [verdict_of(p.payload) for p in probes]
-        for probe, verdict in zip(probes, verdicts, strict=True):
-            check_expect(probe, verdict)
-        for probe, verdict, (reply, reason, detail) in zip(
-                probes, verdicts, w.ask(KR.clusterer_state, [p.payload for p in probes]),
-                strict=True):
-            if verdict != VALID:
-                assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
-                w.ledger.replay_rejects[verdict] += 1
-                continue
+        verdicts = checked_verdicts(probes, verdict_of)
+        for probe, reply, reason, detail in asked_valid(w, KR.clusterer_state, probes, verdicts):
             assert reply is not None, (probe, reason, detail)
             state = pb.ClustererState.FromString(reply)
             goals = msg_to_array(state.failed_goals)

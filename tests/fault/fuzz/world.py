@@ -6,7 +6,7 @@ from __future__ import annotations
 import queue
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -143,6 +143,28 @@ def check_expect(probe: Probe, verdict: str) -> None:
     agree: the broken field is caught, and caught for what it is."""
     if probe.expect is not None:
         assert verdict == probe.expect, f"{probe}: the decoders say {verdict!r}"
+
+
+def checked_verdicts(probes: list[Probe], verdict_of: Callable[[bytes], str]) -> list[str]:
+    """Each probe's verdict by the oracle, checked against what its generator expected."""
+    verdicts = [verdict_of(p.payload) for p in probes]
+    for probe, verdict in zip(probes, verdicts, strict=True):
+        check_expect(probe, verdict)
+    return verdicts
+
+
+def asked_valid(w: World, key: str, probes: list[Probe], verdicts: list[str],
+                ) -> Iterator[tuple[Probe, bytes | None, str, str]]:
+    """Asks the replay's queryable `key` with every probe, several in flight: each invalid one
+    must come back as an error reply of its verdict (a replay reject, counted); the valid ones
+    are yielded with their (reply, reason, detail) for the test to check."""
+    answers = w.ask(key, [p.payload for p in probes])
+    for probe, verdict, (reply, reason, detail) in zip(probes, verdicts, answers, strict=True):
+        if verdict != VALID:
+            assert (reply, reason) == (None, verdict) and detail, (probe, reason, detail)
+            w.ledger.replay_rejects[verdict] += 1
+            continue
+        yield probe, reply, reason, detail
 
 
 

@@ -25,7 +25,7 @@ from studies.env_diff.early_policy import (
     replay_open_loop,
     run_environment,
 )
-from tests.support import REPO
+from tests.support import REPO, saved_run_config
 
 REPORT = REPO / "docs" / "results" / "early_policy.json"
 
@@ -51,10 +51,9 @@ def test_an_episodes_facts_are_what_its_observations_say() -> None:
 
 
 def test_logged_episodes_are_counted_per_epoch_block(tmp_path: Path) -> None:
-    config = apply_overrides(HercsConfig(), ["task.name=push", "run.name=t",
-                                             "training.cycles_per_epoch=1",
-                                             "training.episodes_per_cycle=4"])
-    save_yaml(config, RunDir(tmp_path).config)
+    config = saved_run_config(tmp_path, ["task.name=push", "run.name=t",
+                                         "training.cycles_per_epoch=1",
+                                         "training.episodes_per_cycle=4"])
     spec = config.task.spec
     steps = spec.episode_steps
     with EpisodeLogWriter(RunDir(tmp_path).episode_log, run="t", task="push") as writer:

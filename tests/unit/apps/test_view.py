@@ -18,7 +18,6 @@ from hercs.apps.view import (
     run_view,
     select_episodes,
 )
-from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.rl.task_registry import task_spec
@@ -26,6 +25,7 @@ from hercs.run.rundir import RunDir
 from hercs.run.runlog import EpisodeLogWriter
 from hercs.wire.codec import array_to_msg, episode_to_msg
 from hercs.wire.episode import random_episode
+from tests.support import saved_run_config
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -119,9 +119,7 @@ def test_default_view_draws_the_last_epoch_on_the_runs_clock(tmp_path: Path) -> 
     """Without --episodes: the last epoch's episodes (cycles × episodes per cycle from the
     run's config.yaml), and the per-episode scalars also on the wall-clock `time` timeline."""
     _write_run(tmp_path)
-    config = apply_overrides(HercsConfig(), ["training.cycles_per_epoch=2",
-                                             "training.episodes_per_cycle=2"])
-    save_yaml(config, RunDir(tmp_path).config)
+    saved_run_config(tmp_path, ["training.cycles_per_epoch=2", "training.episodes_per_cycle=2"])
     out = tmp_path / "default.rrd"
     result = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "view", str(tmp_path),
                              "--save", str(out)], capture_output=True, text=True, timeout=120)

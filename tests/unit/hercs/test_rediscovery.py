@@ -5,14 +5,7 @@ from __future__ import annotations
 import pytest
 
 from hercs.net.rediscovery import Rediscovery
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
+from tests.support import Clock
 
 
 def test_a_key_never_answered_never_calls_for_a_reopen() -> None:

@@ -5,14 +5,7 @@ from __future__ import annotations
 
 from hercs.learner.evaluations import EvalRequests, PolicyKeeper
 from hercs.run.rundir import BEST
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
+from tests.support import Clock
 
 
 def test_an_epoch_is_asked_for_again_once_per_resend_period_until_answered() -> None:

@@ -13,6 +13,7 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, SampleCall
 from hercs.wire.episode import EpisodeData, random_episode
+from tests.support import Clock
 
 # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 8: d = 2·I − S stays in [0, 16].
 # Inserts are admitted while d + 2 ≤ 16, a request of n while I ≥ 4 and d − n ≥ 0.
@@ -67,14 +68,6 @@ class FakeLog:
 
     def start_segment(self, state: pb.ReplayState) -> None:
         raise AssertionError("this log is never full")
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 @dataclass

@@ -13,9 +13,9 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
+from tests.support import Clock
 from tests.unit.replay_service.table_harness import (
     OVERRIDES,
-    Clock,
     FakeLog,
     Harness,
     Recorder,
