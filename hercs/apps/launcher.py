@@ -133,14 +133,15 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
             print(f"hercs up: {exc}", file=err, flush=True)
             return 1
         config = resolve_run(config, listening=listening)
-        RunDir(run_dir).logs.mkdir(parents=True, exist_ok=True)
-        with native_output_to(RunDir(run_dir).router_log, out, err) as (out, err):
+        files = RunDir(run_dir)
+        files.logs.mkdir(parents=True, exist_ok=True)
+        with native_output_to(files.router_log, out, err) as (out, err):
             launcher = Supervisor(config=config, run_dir=run_dir, signals=signals,
                                  command=command, stop_timeout_s=stop_timeout_s,
                                  ready_timeout_s=ready_timeout_s, out=out, err=err)
             status = 1
             try:
-                save_yaml(config, RunDir(run_dir).config)
+                save_yaml(config, files.config)
                 write_router(run_dir, RouterRecord.for_listen(listening))
                 launcher.say(f"hercs up: {'resuming ' if resume else ''}run "
                              f"{config.run.name}, directory {run_dir}, router on {listening}")

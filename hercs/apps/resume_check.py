@@ -78,16 +78,17 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
     `CannotResume` when its files disagree (module docstring)."""
     from hercs.learner.checkpoint import load_checkpoint
 
-    latest = RunDir(run_dir).checkpoint("latest")
+    files = RunDir(run_dir)
+    latest = files.checkpoint("latest")
     try:
-        state = load_checkpoint(RunDir(run_dir).checkpoints)
+        state = load_checkpoint(files.checkpoints)
     except ValueError as exc:
         best = (f" (`hercs eval {run_dir} --checkpoint best` still reads the best policy)"
-                if (RunDir(run_dir).checkpoint("best")).is_file() else "")
+                if files.checkpoint("best").is_file() else "")
         raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
                            f"{_remedy(run_dir)}") from None
     try:
-        recorded = checked_epochs(RunDir(run_dir).metrics)
+        recorded = checked_epochs(files.metrics)
     except MetricsFileError as exc:
         raise CannotResume(f"{exc}. Which epochs were trained is not known, so the run cannot "
                            f"continue safely; put back a whole copy of {METRICS} and resume "
@@ -136,8 +137,9 @@ def set_aside_for_restart(run_dir: Path) -> Path | None:
         return None
     aside = aside_folder(run_dir)
     aside.mkdir(parents=True)
-    if RunDir(run_dir).config.is_file():
-        shutil.copy2(RunDir(run_dir).config, RunDir(aside).config)
+    config = RunDir(run_dir).config
+    if config.is_file():
+        shutil.copy2(config, RunDir(aside).config)
     for path in moving:
         path.rename(aside / path.name)
     return aside

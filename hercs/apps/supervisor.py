@@ -149,8 +149,8 @@ class Supervisor:
     # ------------------------------------------------------------------ processes
 
     def start(self, spec: ChildSpec, *, restarts: int = 0) -> Child:
-        config_path = RunDir(self.run_dir).config
-        log_path = RunDir(self.run_dir).logs / spec.log_name
+        run_dir = RunDir(self.run_dir)
+        config_path, log_path = run_dir.config, run_dir.logs / spec.log_name
         proc = start_child(self.command(spec, config_path), log_path=log_path)
         child = Child(spec, proc, log_path, restarts=restarts)
         self.children = [c for c in self.children if c.spec != spec or c.proc.poll() is None]

@@ -13,7 +13,6 @@ every construction runs `__post_init__` validation, whose messages name the fiel
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 import re
 from dataclasses import dataclass, field
@@ -55,7 +54,6 @@ hercs.config.task: the task; hercs.config.algorithm: DDPG, HER, clusters, energy
 hercs.config.replay: the replay and its episode log; hercs.config.deploy: the processes and
 how they connect); import them all from here."""
 
-log = logging.getLogger(__name__)
 
 RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 """A run name: never '.', '..', hidden, absolute or nested, and ASCII only."""

@@ -67,18 +67,19 @@ def write_router(run_dir: Path, record: RouterRecord) -> Path:
 
 def read_router(run_dir: Path) -> RouterRecord | None:
     """The record in `run_dir/router.json`, or None while there is none (no run running)."""
+    path = RunDir(run_dir).router
     try:
-        data = json.loads(RunDir(run_dir).router.read_text())
+        data = json.loads(path.read_text())
     except FileNotFoundError:
         return None
     except (OSError, ValueError) as exc:
-        raise RunDirError(f"{RunDir(run_dir).router}: unreadable ({exc}); it is written by the "
+        raise RunDirError(f"{path}: unreadable ({exc}); it is written by the "
                           "run's `hercs up`: is that one running?") from None
     try:
         return RouterRecord(host=str(data["host"]), local=tuple(data["local"]),
                             remote=tuple(data["remote"]), pid=int(data["pid"]))
     except (KeyError, TypeError, ValueError) as exc:
-        raise RunDirError(f"{RunDir(run_dir).router}: not a router record ({exc!r})") from None
+        raise RunDirError(f"{path}: not a router record ({exc!r})") from None
 
 
 def remove_router(run_dir: Path, pid: int | None = None) -> None:
@@ -99,6 +100,7 @@ def wait_router(run_dir: Path, *, timeout_s: float, stop: Callable[[], bool] = l
                 say: Callable[[str], None] | None = None) -> RouterRecord | None:
     """Wait until `run_dir/router.json` exists and return its record; None after `timeout_s`
     (0: wait for ever) or once `stop()` is true. `say` gets a line every 10 s of waiting."""
+    path = RunDir(run_dir).router
     started = time.monotonic()
     next_note = started + 10.0
     while True:
@@ -109,7 +111,7 @@ def wait_router(run_dir: Path, *, timeout_s: float, stop: Callable[[], bool] = l
         if stop() or (timeout_s > 0 and now - started >= timeout_s):
             return None
         if say is not None and now >= next_note:
-            say(f"waiting for {RunDir(run_dir).router} (written once the run's router listens), "
+            say(f"waiting for {path} (written once the run's router listens), "
                 f"{now - started:.0f} s so far")
             next_note = now + 10.0
         time.sleep(ROUTER_POLL_S)

@@ -142,17 +142,25 @@ class RunDir:
         """A retired segment of the episode log: episodes.NNN.mcap."""
         return self.path / f"episodes.{number:03d}.mcap"
 
-    def log_segments(self) -> list[Path]:
-        """The episode log's segments in the order they were written: episodes.000.mcap, …,
-        then episodes.mcap (if there is one)."""
-        numbered = sorted(
+    def _numbered_segments(self) -> list[tuple[int, Path]]:
+        """The retired segments with their numbers, in number order."""
+        return sorted(
             (int(m.group(1)), p) for p in self.path.iterdir()
             if (m := SEGMENT_RE.match(p.name)) is not None
         ) if self.path.is_dir() else []
-        paths = [p for _, p in numbered]
+
+    def log_segments(self) -> list[Path]:
+        """The episode log's segments in the order they were written: episodes.000.mcap, …,
+        then episodes.mcap (if there is one)."""
+        paths = [p for _, p in self._numbered_segments()]
         if self.episode_log.exists():
             paths.append(self.episode_log)
         return paths
+
+    def next_segment(self) -> Path:
+        """The name the live segment takes when it is sealed: one number above the highest."""
+        numbered = self._numbered_segments()
+        return self.segment(numbered[-1][0] + 1 if numbered else 0)
 
 
 class RunDirError(HercsError):

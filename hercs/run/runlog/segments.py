@@ -28,7 +28,7 @@ from mcap.records import DataEnd, Footer, Statistics
 from mcap.writer import MCAP0_MAGIC
 
 from hercs.proto import hercs_pb2 as pb
-from hercs.run.rundir import LIVE_NAME, SEGMENT_RE, RunDir
+from hercs.run.rundir import LIVE_NAME, RunDir
 from hercs.run.runlog.format import (
     FOOTER_PREFIX,
     FOOTER_RECORD_BYTES,
@@ -238,9 +238,7 @@ class EpisodeLog:
 
 def next_segment_path(run_dir: Path) -> Path:
     """The name the live segment takes when it is sealed: one number above the highest."""
-    numbers = [int(m.group(1)) for p in run_dir.iterdir()
-               if (m := SEGMENT_RE.match(p.name)) is not None]
-    return RunDir(run_dir).segment(max(numbers, default=-1) + 1)
+    return RunDir(run_dir).next_segment()
 
 
 class RecoveredLog(Iterator[tuple[int, pb.Episode]]):
