@@ -80,6 +80,12 @@ class LearnerConfig:
     arithmetic of the authors' runs (torch 1.10 on an Ampere GPU, TF32 on by default);
     slower than fp32, for the comparison only."""
 
+    parallel_halves: bool = True
+    """Run each update's two halves at once on two threads (the critic's TD target, loss and
+    backward pass beside the actor's loss, backward pass and Adam step), on a CPU learner.
+    Bit-identical to one thread (tests/unit/learner/test_learner_halves.py); the second thread
+    takes a core the actor leaves idle (docs/PERFORMANCE.md §3). Ignored on a GPU."""
+
     prefetch_depth: int = 0
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and
     transport. In the asynchronous schedule each one lets the rate limiter admit one cycle of

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -99,7 +100,8 @@ class DDPGLearner:
     """Actor, critic, their targets and optimisers; one `update` per minibatch."""
 
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
-                 device: str | torch.device = "cpu", precision: str = "fp32") -> None:
+                 device: str | torch.device = "cpu", precision: str = "fp32",
+                 parallel_halves: bool = False) -> None:
         if precision not in PRECISIONS:
             raise ConfigError(f"learner.precision: got {precision!r}, must be one of "
                               f"{', '.join(PRECISIONS)}")
@@ -119,7 +121,10 @@ class DDPGLearner:
                                             fused=True)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.lr_critic,
                                              fused=True)
-        self._critic_params = list(self.critic.parameters())
+        # the critic's half of each update on a second thread (CPU only: on a GPU both halves
+        # queue on one stream, and a second host thread would only add synchronisation)
+        self._branches = (ThreadPoolExecutor(1, thread_name_prefix="critic-half")
+                          if parallel_halves and self.device.type == "cpu" else None)
         self.o_norm = Normalizer(spec.obs_dim, eps=config.norm_eps, clip_range=config.norm_clip)
         self.g_norm = Normalizer(spec.goal_dim, eps=config.norm_eps, clip_range=config.norm_clip)
         self.updates = 0
@@ -144,50 +149,20 @@ class DDPGLearner:
     def _update(self, batch: TransitionBatch) -> dict[str, float]:
         o, g, u, r, o2 = self._check_batch(batch)
         r = r.reshape(-1, 1)  # (B, 1): so that y broadcasts row-wise, not to (B, B)
-        cfg, max_action = self.config, self.spec.max_action
-
         # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
-        s = self._on_device(preprocess(o, g, self.o_norm, self.g_norm, cfg.clip_obs))
-        s2 = self._on_device(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        s = self._on_device(preprocess(o, g, self.o_norm, self.g_norm, self.config.clip_obs))
         u_t = self._on_device(np.array(u))  # a copy: wire arrays are read-only views
-        r_t = self._on_device(np.array(r))
 
-        # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
-        y = critic_target(
-            r_t, s2,
-            actor_target=self.actor_target, critic_target=self.critic_target,
-            gamma=cfg.gamma,
-            clip_return=return_bounds(self.spec, cfg.gamma) if cfg.clip_return else None,
-        )
-
-        # Critic loss: L_Q = mean (y − Q(s, u))².
-        with self._autocast():
-            q = self.critic(s, u_t).float()
-        critic_loss = (y - q).pow(2).mean()
-
-        # Actor loss: L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s)/max_action)².
-        # The critic's weights are frozen for this pass: L_μ's gradient with respect to them
-        # was computed and thrown away before; now it is not computed at all.
-        with self._autocast():
-            pi = self.actor(s)
-        pi = pi.float()
-        action_l2 = (pi / max_action).pow(2).mean()
-        for param in self._critic_params:
-            param.requires_grad_(False)
-        try:
-            with self._autocast():
-                actor_q = self.critic(s, pi).float()
-        finally:
-            for param in self._critic_params:
-                param.requires_grad_(True)
-        actor_loss = -actor_q.mean() + cfg.action_l2 * action_l2
-
-        # Adam steps, actor then critic.
-        self.actor_optim.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        self.actor_optim.step()
-        self.critic_optim.zero_grad(set_to_none=True)
-        critic_loss.backward()
+        # The two halves read the same parameters and write disjoint gradients, so they may
+        # run at once; the critic's Adam step waits for both, since the actor's backward pass
+        # reads the critic's weights.
+        if self._branches is None:
+            critic_loss, q, y = self._critic_half(s, u_t, o2, g, r)
+            actor_loss, action_l2 = self._actor_half(s)
+        else:
+            critic_half = self._branches.submit(self._critic_half_in_branch, s, u_t, o2, g, r)
+            actor_loss, action_l2 = self._actor_half(s)
+            critic_loss, q, y = critic_half.result()
         self.critic_optim.step()
 
         self.updates += 1
@@ -198,6 +173,54 @@ class DDPGLearner:
             "y_mean": y.mean().item(),
             "action_l2": action_l2.item(),
         }
+
+    def _critic_half(self, s: torch.Tensor, u_t: torch.Tensor, o2: np.ndarray, g: np.ndarray,
+                     r: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The critic's loss and gradients (its Adam step is the caller's)."""
+        cfg = self.config
+        s2 = self._on_device(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
+        r_t = self._on_device(np.array(r))
+        # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
+        y = critic_target(
+            r_t, s2,
+            actor_target=self.actor_target, critic_target=self.critic_target,
+            gamma=cfg.gamma,
+            clip_return=return_bounds(self.spec, cfg.gamma) if cfg.clip_return else None,
+        )
+        # Critic loss: L_Q = mean (y − Q(s, u))².
+        with self._autocast():
+            q = self.critic(s, u_t).float()
+        critic_loss = (y - q).pow(2).mean()
+        self.critic_optim.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        return critic_loss, q, y
+
+    def _critic_half_in_branch(self, *args: Any) -> tuple[torch.Tensor, torch.Tensor,
+                                                          torch.Tensor]:
+        """`_critic_half` on the branch thread: torch's dispatch modes are per thread, so the
+        TF32 products are entered here again (bf16 autocast is entered by the half itself)."""
+        if self.precision != "tf32":
+            return self._critic_half(*args)
+        with TF32Products():
+            return self._critic_half(*args)
+
+    def _actor_half(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The actor's loss, gradients and Adam step.
+
+        L_μ = −mean Q(s, μ(s)) + action_l2 · mean (μ(s)/max_action)², with the critic's
+        weights as constants (`Critic.frozen`): L_μ's gradient with respect to them is not
+        computed at all."""
+        with self._autocast():
+            pi = self.actor(s)
+        pi = pi.float()
+        action_l2 = (pi / self.spec.max_action).pow(2).mean()
+        with self._autocast():
+            actor_q = self.critic.frozen(s, pi).float()
+        actor_loss = -actor_q.mean() + self.config.action_l2 * action_l2
+        self.actor_optim.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_optim.step()
+        return actor_loss, action_l2
 
     def _autocast(self) -> torch.autocast:
         """bf16 autocast of the online networks' passes, or a disabled one (fp32)."""

@@ -87,6 +87,18 @@ class Critic(nn.Module):
         """x: (B, obs_dim + goal_dim), a: (B, action_dim) → Q (B, 1)."""
         return self.net(torch.cat([x, a / self.max_action], dim=-1))
 
+    def frozen(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """`forward` with the weights as constants: gradients reach x and a, never the
+        weights. The same operations as `forward`, so the same numbers; unlike switching the
+        parameters' requires_grad off and on, it is safe beside a thread running `forward`."""
+        h = torch.cat([x, a / self.max_action], dim=-1)
+        for layer in self.net:
+            if isinstance(layer, nn.Linear):
+                h = nn.functional.linear(h, layer.weight.detach(), layer.bias.detach())
+            else:
+                h = layer(h)
+        return h
+
 
 class NumpyActor:
     """μ evaluated with numpy on a frozen copy of an `Actor`'s parameters, for acting.
