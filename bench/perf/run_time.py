@@ -1,0 +1,178 @@
+"""Wall time of whole runs, two settings side by side, against the machine's limit.
+
+    python -m bench.perf.run_time                       # FetchPush HER-CS, 3 seeds × 10 epochs
+    python -m bench.perf.run_time --epochs 50 --seeds 1
+    python -m bench.perf.run_time --quick               # CI: FetchReach, 2 epochs of 5 cycles
+
+Each seed runs `hercs up` once per setting, the settings' order alternating from seed to seed
+(the machine is shared and noisy: what counts is the ratio of runs timed together). The
+default pair is the one-thread learner (`learner.parallel_halves=false`, the old default)
+against today's default. A run's seconds per epoch are its steady state (the metrics' wall
+clock from the end of epoch 1 to the last) and its 50-epoch time is its start-up plus 50 of
+them. The limit is measured in the same process, as docs/PERFORMANCE.md §3 defines it: the
+epoch's updates at this core's 256³ fp32 GEMM rate plus its env steps at the raw FetchPush
+step rate, over the machine's cores. Writes docs/results/run_time.{json,md} (or --out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bench.common import (
+    REPO,
+    add_out_option,
+    git_commit,
+    machine_identity,
+    report_folder,
+    write_report,
+)
+from bench.perf.actor_envs import raw_slice
+from bench.perf.learner import gemm_rate, make_batch, update_flops
+from hercs.config import DDPGConfig, HercsConfig, apply_overrides
+from hercs.learner.ddpg import DDPGLearner
+from hercs.rl.envs import make_env
+from hercs.rl.task_registry import task_spec
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
+
+VARIANTS = (("one thread (old default)", ("learner.parallel_halves=false",)),
+            ("default", ()))
+
+
+def limit_s_per_epoch(task: str, config: HercsConfig, quick: bool) -> dict[str, float]:
+    """The epoch's work at this machine's limits: GEMM-rate updates plus raw env steps, over
+    the cores."""
+    torch.set_num_threads(1)
+    spec = task_spec(task)
+    learner = DDPGLearner(spec=spec, config=DDPGConfig(), seed=0)
+    flops = update_flops(learner, make_batch(spec, 256, np.random.default_rng(0)))
+    rate = gemm_rate(256, 256, torch.float32, repeats=50 if quick else 2000)
+    env = make_env(spec)
+    episodes = 2 if quick else 40
+    started = time.process_time()
+    steps = raw_slice(spec, [env], np.random.default_rng(0), episodes)
+    step_rate = steps / (time.process_time() - started)
+    env.close()
+    training = config.training
+    updates = training.cycles_per_epoch * training.minibatches_per_cycle
+    env_steps = (training.episodes_per_epoch + training.eval_episodes) * spec.episode_steps
+    cores = os.cpu_count() or 1
+    limit = (updates * flops / rate + env_steps / step_rate) / cores
+    return {"update_gflop": flops / 1e9, "gemm_gflops": rate / 1e9, "raw_steps_per_s": step_rate,
+            "updates_per_epoch": updates, "env_steps_per_epoch": env_steps, "cores": cores,
+            "limit_s_per_epoch": limit}
+
+
+def timed_run(args: argparse.Namespace, seed: int, overrides: tuple[str, ...],
+              work: Path) -> dict[str, float]:
+    """One `hercs up` run: its process wall time and its steady seconds per epoch."""
+    name = f"run-{len(list(work.iterdir()))}"
+    command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task, "--method",
+               args.method, "--seed", str(seed), "--epochs", str(args.epochs), "--actors", "1",
+               "--run", name, "--run-dir", str(work), "--listen", "tcp/127.0.0.1:0",
+               *(item for kv in (*args.set, *overrides) for item in ("--set", kv))]
+    started = time.monotonic()
+    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
+    wall = time.monotonic() - started
+    if done.returncode != 0:
+        sys.exit(f"bench.perf.run_time: `{' '.join(command[1:])}` failed "
+                 f"({done.returncode}):\n{done.stderr[-3000:]}")
+    rows = read_rows(RunDir(work / name).metrics)
+    walls = [float(row["wall_s"]) for row in rows]
+    steady = (walls[-1] - walls[0]) / (len(walls) - 1)
+    start_up = wall - walls[-1]
+    return {"wall_s": wall, "s_per_epoch": steady, "start_up_s": start_up,
+            "projected_50_min": (start_up + walls[0] + 49 * steady) / 60.0,
+            "final_success": float(rows[-1]["success_rate"])}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m bench.perf.run_time", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="push")
+    parser.add_argument("--method", default="her-cs")
+    parser.add_argument("--epochs", type=int, default=10)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a config override for every run (repeatable)")
+    parser.add_argument("--quick", action="store_true")
+    add_out_option(parser, "run_time")
+    args = parser.parse_args(argv)
+    if args.epochs < 2 or args.seeds < 1:
+        parser.error(f"--epochs must be ≥ 2 (a steady state needs two epochs) and --seeds ≥ 1 "
+                     f"(got {args.epochs}, {args.seeds})")
+    if args.quick:
+        args.task, args.epochs, args.seeds = "reach", 2, 1
+        args.set = [*args.set, "training.cycles_per_epoch=5"]
+    return args
+
+
+def render(summary: dict[str, Any]) -> str:
+    limit = summary["limit"]
+    names = [name for name, _ in VARIANTS]
+    lines = [
+        "# Run time side by side (`python -m bench.perf.run_time`)", "",
+        f"{summary['date']}, commit `{summary['commit']}`, {summary['machine']['cpu']}, "
+        f"{limit['cores']} cores; `hercs up --task {summary['task']} --method "
+        f"{summary['method']} --epochs {summary['epochs']}`"
+        f"{', quick mode' if summary['quick'] else ''}.", "",
+        f"Limit: {limit['updates_per_epoch']} updates of {limit['update_gflop']:.3f} GFLOP at "
+        f"{limit['gemm_gflops']:.1f} GFLOP/s plus {limit['env_steps_per_epoch']} env steps at "
+        f"{limit['raw_steps_per_s']:.0f} raw steps/s, over {limit['cores']} cores: "
+        f"**{limit['limit_s_per_epoch']:.1f} s per epoch** "
+        f"({limit['limit_s_per_epoch'] * 50 / 60:.1f} min for 50 epochs).", "",
+        "| seed | setting | s per epoch | start-up s | 50 epochs (min) | limit ÷ s per epoch "
+        "| success, last epoch |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for row in summary["runs"]:
+        lines.append(f"| {row['seed']} | {row['setting']} | {row['s_per_epoch']:.1f} | "
+                     f"{row['start_up_s']:.1f} | {row['projected_50_min']:.1f} | "
+                     f"{limit['limit_s_per_epoch'] / row['s_per_epoch']:.2f} | "
+                     f"{row['final_success']:.2f} |")
+    ratios = summary["ratios"]
+    lines += ["", f"{names[0]} ÷ {names[1]}, seconds per epoch, per seed: "
+              + ", ".join(f"{r:.2f}" for r in ratios)
+              + f"; geometric mean **{summary['ratio_geomean']:.2f}×**."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    config = apply_overrides(HercsConfig(), args.set)
+    limit = limit_s_per_epoch(args.task, config, args.quick)
+    runs: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="hercs-run-time-") as tmp:
+        for seed in range(1, args.seeds + 1):
+            order = VARIANTS if seed % 2 else VARIANTS[::-1]
+            for setting, overrides in order:
+                result = timed_run(args, seed, overrides, Path(tmp))
+                runs.append({"seed": seed, "setting": setting, **result})
+                print(f"seed {seed}, {setting}: {result['s_per_epoch']:.1f} s per epoch",
+                      flush=True)
+    by = {(r["seed"], r["setting"]): r["s_per_epoch"] for r in runs}
+    old, new = (name for name, _ in VARIANTS)
+    ratios = [by[(s, old)] / by[(s, new)] for s in range(1, args.seeds + 1)]
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
+               "machine": machine_identity(), "task": args.task, "method": args.method,
+               "epochs": args.epochs, "quick": args.quick, "limit": limit, "runs": runs,
+               "ratios": ratios, "ratio_geomean": float(np.exp(np.mean(np.log(ratios))))}
+    text = render(summary)
+    print(text)
+    write_report(report_folder(args.out, args.quick, REPO), "run_time", summary, text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
