@@ -55,9 +55,17 @@ def gpu_tf32(enabled: bool) -> Iterator[None]:
         matmul.allow_tf32 = before
 
 
+READS, GRAPH, HALVES = "+reads", "+graph", "+halves"
+"""Variants of a precision: `update()` with its five loss reads per update (the old loop's
+path), the captured CUDA graph (`learner.cuda_graph`), the CPU's two halves on two threads
+(`learner.parallel_halves`). Without a suffix: `train()`, the loop's path, eager."""
+
+
 def learner(device: str, precision: str, spec, config: DDPGConfig) -> DDPGLearner:  # type: ignore[no-untyped-def]
-    return DDPGLearner(spec=spec, config=config, seed=0, device=device,
-                       precision="fp32" if precision == GPU_TF32 else precision)
+    base = "fp32" if precision == GPU_TF32 else precision.split("+")[0]
+    return DDPGLearner(spec=spec, config=config, seed=0, device=device, precision=base,
+                       cuda_graph=precision.endswith(GRAPH),
+                       parallel_halves=precision.endswith(HALVES))
 
 
 def updates_per_s(step: Callable[[], None], device: str, updates: int) -> float:
@@ -85,8 +93,12 @@ def speed(device: str, precisions: list[str], workers: list[int], updates: int,
             it = iter(range(10**9))
 
             def step(net: DDPGLearner = net, batches: list[TransitionBatch] = batches,
-                     it: Iterator[int] = it) -> None:
-                net.update(batches[next(it) % len(batches)])
+                     it: Iterator[int] = it, reads: bool = precision.endswith(READS)) -> None:
+                batch = batches[next(it) % len(batches)]
+                if reads:
+                    net.update(batch)
+                else:
+                    net.train(batch)
 
             with gpu_tf32(precision == GPU_TF32):
                 out[precision][n] = updates_per_s(step, device, updates)
@@ -166,13 +178,15 @@ def main(argv: list[str] | None = None) -> int:
         "cpu": platform.processor() or platform.machine(), "torch": torch.__version__,
         "gpu": torch.cuda.get_device_name(0) if has_cuda else None, "quick": args.quick,
         "batch_size": config.batch_size, "updates": updates}
-    gpu_precisions = ["fp32", GPU_TF32, "bf16", "tf32"]
+    gpu_precisions = ["fp32" + READS, "fp32", "fp32" + GRAPH, GPU_TF32, "bf16",
+                      "bf16" + GRAPH, "tf32"]
     if has_cuda:
         summary["gpu_updates_per_s"] = speed("cuda", gpu_precisions, workers, updates, spec,
                                              config)
         summary["emulation"] = emulation("cuda", 10 if args.quick else 200, spec, config)
         summary["product_check"] = product_check()
-    summary["cpu_updates_per_s"] = speed("cpu", ["fp32", "bf16", "tf32"], workers[:2],
+    summary["cpu_updates_per_s"] = speed("cpu", ["fp32" + READS, "fp32", "fp32" + HALVES,
+                                                 "bf16", "tf32"], workers[:2],
                                          max(3, updates // 4), spec, config)
     text = report(summary)
     print(text)

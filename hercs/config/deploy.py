@@ -86,6 +86,12 @@ class LearnerConfig:
     Bit-identical to one thread (tests/unit/learner/test_learner_halves.py); the second thread
     takes a core the actor leaves idle (docs/PERFORMANCE.md §3). Ignored on a GPU."""
 
+    cuda_graph: bool = True
+    """On a GPU, capture the whole update (target, losses, backward passes, fused Adam steps,
+    the loss sums) once as a CUDA graph and replay it per minibatch, the losses read back
+    only for the epoch's metrics row (hercs/learner/cuda_graph.py). The same arithmetic as the
+    eager GPU update to float tolerance. Ignored on a CPU."""
+
     prefetch_depth: int = 0
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and
     transport. In the asynchronous schedule each one lets the rate limiter admit one cycle of

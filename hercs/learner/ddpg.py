@@ -19,13 +19,14 @@ from __future__ import annotations
 import copy
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
 
 from hercs.config import PRECISIONS, DDPGConfig
 from hercs.errors import ConfigError
+from hercs.learner.cuda_graph import CapturedUpdate
 from hercs.learner.tf32 import TF32Products
 from hercs.rl.networks import Actor, Critic, preprocess, to_arrays
 from hercs.rl.normalizer import Normalizer, NormalizerState
@@ -33,6 +34,10 @@ from hercs.rl.policy import PolicyWeights
 from hercs.rl.seeding import int_seed
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.batch import TransitionBatch, transition_shapes
+
+LOSS_NAMES = ("critic_loss", "actor_loss", "q_mean", "y_mean", "action_l2")
+"""What one update reports, in the order of `DDPGLearner.step_tensors`' tensors."""
+LossTensors = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 
 
 def critic_target(
@@ -101,7 +106,7 @@ class DDPGLearner:
 
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
                  device: str | torch.device = "cpu", precision: str = "fp32",
-                 parallel_halves: bool = False) -> None:
+                 parallel_halves: bool = False, cuda_graph: bool = False) -> None:
         if precision not in PRECISIONS:
             raise ConfigError(f"learner.precision: got {precision!r}, must be one of "
                               f"{', '.join(PRECISIONS)}")
@@ -117,16 +122,21 @@ class DDPGLearner:
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         # fused: one kernel per step instead of a loop over the parameters (measured +9 % of
         # updates per CPU-second on this machine's CPU); the same Adam, up to float rounding
+        # capturable on a GPU: Adam's step count stays on the device, as a CUDA graph needs
+        on_gpu = self.device.type == "cuda"
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.lr_actor,
-                                            fused=True)
+                                            fused=True, capturable=on_gpu)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.lr_critic,
-                                             fused=True)
+                                             fused=True, capturable=on_gpu)
         # the critic's half of each update on a second thread (CPU only: on a GPU both halves
         # queue on one stream, and a second host thread would only add synchronisation)
         self._branches = (ThreadPoolExecutor(1, thread_name_prefix="critic-half")
                           if parallel_halves and self.device.type == "cpu" else None)
         self.o_norm = Normalizer(spec.obs_dim, eps=config.norm_eps, clip_range=config.norm_clip)
         self.g_norm = Normalizer(spec.goal_dim, eps=config.norm_eps, clip_range=config.norm_clip)
+        self.loss_sums = torch.zeros(len(LOSS_NAMES), dtype=torch.float64, device=self.device)
+        self._loss_count = 0
+        self._captured = CapturedUpdate(self) if cuda_graph and on_gpu else None
         self.updates = 0
         """Minibatch updates done (Adam steps per network)."""
         self.target_updates = 0
@@ -140,46 +150,76 @@ class DDPGLearner:
         self.o_norm, self.g_norm = o_norm, g_norm
 
     def update(self, batch: TransitionBatch) -> dict[str, float]:
-        """One DDPG step on a minibatch; returns losses and means."""
+        """One DDPG step on a minibatch; returns losses and means (read back to the host: the
+        training loop uses `train`, which does not)."""
+        stats = self.precise(self._eager_step, batch)
+        self.updates += 1
+        return {name: value.item() for name, value in zip(LOSS_NAMES, stats, strict=True)}
+
+    def train(self, batch: TransitionBatch) -> None:
+        """One DDPG step whose losses are added to running sums on the learner's device
+        (`loss_means` reads them): no host synchronisation per update. On a GPU with
+        `cuda_graph`, the whole step is one captured CUDA graph replayed per minibatch."""
+        if self._captured is not None:
+            self._captured.train(self.host_inputs(batch))
+        else:
+            stats = self.precise(self._eager_step, batch)
+            self.loss_sums += torch.stack(stats).double()
+        self._loss_count += 1
+        self.updates += 1
+
+    def loss_means(self) -> dict[str, float]:
+        """The mean of each loss over the `train` steps since the last call (NaN if none),
+        and the sums reset."""
+        sums = self.loss_sums.tolist()
+        count, self._loss_count = self._loss_count, 0
+        self.loss_sums.zero_()  # in place: a captured graph adds to this very tensor
+        return {name: total / count if count else float("nan")
+                for name, total in zip(LOSS_NAMES, sums, strict=True)}
+
+    def precise(self, fn: Any, *args: Any) -> Any:
+        """`fn(*args)` in the learner's precision (TF32 products for tf32; bf16 autocast is
+        entered by each half around its online passes)."""
         if self.precision != "tf32":
-            return self._update(batch)
+            return fn(*args)
         with TF32Products():  # every product of the step, the target and backward included
-            return self._update(batch)
+            return fn(*args)
 
-    def _update(self, batch: TransitionBatch) -> dict[str, float]:
+    def host_inputs(self, batch: TransitionBatch) -> tuple[np.ndarray, ...]:
+        """(s, s', u, r) as float32 host arrays: s = [o, g], s' = [o', g] clipped to
+        ±clip_obs and normalised with the replay's stats; r as (B, 1), so that y broadcasts
+        row-wise, not to (B, B)."""
         o, g, u, r, o2 = self._check_batch(batch)
-        r = r.reshape(-1, 1)  # (B, 1): so that y broadcasts row-wise, not to (B, B)
-        # s = [o, g], s' = [o', g]: clipped to ±clip_obs, normalised with the replay's stats.
-        s = self._on_device(preprocess(o, g, self.o_norm, self.g_norm, self.config.clip_obs))
-        u_t = self._on_device(np.array(u))  # a copy: wire arrays are read-only views
+        clip = self.config.clip_obs
+        return (preprocess(o, g, self.o_norm, self.g_norm, clip),
+                preprocess(o2, g, self.o_norm, self.g_norm, clip),
+                np.array(u),  # a copy: wire arrays are read-only views
+                np.array(r.reshape(-1, 1)))
 
+    def _eager_step(self, batch: TransitionBatch) -> LossTensors:
+        return self.step_tensors(*(self._on_device(a) for a in self.host_inputs(batch)))
+
+    def step_tensors(self, s: torch.Tensor, s2: torch.Tensor, u_t: torch.Tensor,
+                     r_t: torch.Tensor) -> LossTensors:
+        """The update on device tensors, both Adam steps included; the loss tensors in
+        `LOSS_NAMES` order. The update counter is the caller's (a graph capture runs this)."""
         # The two halves read the same parameters and write disjoint gradients, so they may
         # run at once; the critic's Adam step waits for both, since the actor's backward pass
         # reads the critic's weights.
         if self._branches is None:
-            critic_loss, q, y = self._critic_half(s, u_t, o2, g, r)
+            critic_loss, q, y = self._critic_half(s, s2, u_t, r_t)
             actor_loss, action_l2 = self._actor_half(s)
         else:
-            critic_half = self._branches.submit(self._critic_half_in_branch, s, u_t, o2, g, r)
+            critic_half = self._branches.submit(self._critic_half_in_branch, s, s2, u_t, r_t)
             actor_loss, action_l2 = self._actor_half(s)
             critic_loss, q, y = critic_half.result()
         self.critic_optim.step()
+        return critic_loss, actor_loss, q.mean(), y.mean(), action_l2
 
-        self.updates += 1
-        return {
-            "critic_loss": critic_loss.item(),
-            "actor_loss": actor_loss.item(),
-            "q_mean": q.mean().item(),
-            "y_mean": y.mean().item(),
-            "action_l2": action_l2.item(),
-        }
-
-    def _critic_half(self, s: torch.Tensor, u_t: torch.Tensor, o2: np.ndarray, g: np.ndarray,
-                     r: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _critic_half(self, s: torch.Tensor, s2: torch.Tensor, u_t: torch.Tensor,
+                     r_t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The critic's loss and gradients (its Adam step is the caller's)."""
         cfg = self.config
-        s2 = self._on_device(preprocess(o2, g, self.o_norm, self.g_norm, cfg.clip_obs))
-        r_t = self._on_device(np.array(r))
         # Critic target: y = clip(r + γ Q'(s', μ'(s')), −1/(1−γ), 0).
         y = critic_target(
             r_t, s2,
@@ -195,14 +235,12 @@ class DDPGLearner:
         critic_loss.backward()
         return critic_loss, q, y
 
-    def _critic_half_in_branch(self, *args: Any) -> tuple[torch.Tensor, torch.Tensor,
-                                                          torch.Tensor]:
+    def _critic_half_in_branch(self, *args: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,
+                                                                   torch.Tensor]:
         """`_critic_half` on the branch thread: torch's dispatch modes are per thread, so the
-        TF32 products are entered here again (bf16 autocast is entered by the half itself)."""
-        if self.precision != "tf32":
-            return self._critic_half(*args)
-        with TF32Products():
-            return self._critic_half(*args)
+        TF32 products are entered here again."""
+        return cast(tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+                    self.precise(self._critic_half, *args))
 
     def _actor_half(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The actor's loss, gradients and Adam step.
@@ -224,8 +262,10 @@ class DDPGLearner:
 
     def _autocast(self) -> torch.autocast:
         """bf16 autocast of the online networks' passes, or a disabled one (fp32)."""
+        # no cast cache: each region runs one pass, so it saved nothing, and a CUDA graph
+        # capture needs it off
         return torch.autocast(self.device.type, dtype=torch.bfloat16,
-                              enabled=self.precision == "bf16")
+                              enabled=self.precision == "bf16", cache_enabled=False)
 
     def update_targets(self) -> None:
         """Polyak averaging θ' ← polyak·θ' + (1−polyak)·θ for μ' and Q' (once per cycle)."""
@@ -284,6 +324,8 @@ class DDPGLearner:
         self.critic_optim.load_state_dict(state["critic_optim"])
         self.updates = int(state["updates"])
         self.target_updates = int(state["target_updates"])
+        if self._captured is not None:  # the optimisers' state tensors are new objects now
+            self._captured = CapturedUpdate(self)
 
     def _on_device(self, array: np.ndarray) -> torch.Tensor:
         """A host array as a tensor on the learner's device: shared memory on the CPU; on a

@@ -63,7 +63,8 @@ class LearnerService:
         self.learner = DDPGLearner(spec=config.task.spec, config=config.ddpg,
                                    seed=config.run.seed, device=config.learner.device,
                                    precision=config.learner.precision,
-                                   parallel_halves=config.learner.parallel_halves)
+                                   parallel_halves=config.learner.parallel_halves,
+                                   cuda_graph=config.learner.cuda_graph)
         log.info("learner on %s (learner.device=%s), %s", self.learner.device,
                  config.learner.device, config.learner.precision)
         self.loop = LearnerLoop(config=config, learner=self.learner)

@@ -79,8 +79,6 @@ class LearnerLoop:
         self._epoch_lags: list[np.ndarray] = []
         self._epoch_moved = np.zeros(2, np.int64)  # sampled moved, sampled transitions
         self._epoch_buffer_share: list[float] = []
-        self._loss_sums: dict[str, float] = {}
-        self._loss_count = 0
         self._last: ServedBatch | None = None
         self.pending: dict[int, EpochSnapshot] = {}
 
@@ -116,9 +114,7 @@ class LearnerLoop:
         the targets, bump the version."""
         self.learner.set_normalizer_state(batch.o_stats, batch.g_stats)
         for minibatch in batch.minibatches:
-            for name, value in self.learner.update(minibatch).items():
-                self._loss_sums[name] = self._loss_sums.get(name, 0.0) + value
-            self._loss_count += 1
+            self.learner.train(minibatch)  # losses summed on the device, read at the epoch end
         self.learner.update_targets()
         self.version += 1
         self.cycle += 1
@@ -144,7 +140,7 @@ class LearnerLoop:
         updates = self.learner.updates
         draws = self._epoch_draws
         share = (draws / draws.sum()).tolist() if draws.sum() else [0.0] * len(draws)
-        losses = {k: v / max(self._loss_count, 1) for k, v in self._loss_sums.items()}
+        losses = self.learner.loss_means()
         lags = np.concatenate(self._epoch_lags) if self._epoch_lags else np.zeros(0)
         p50, p95, top = ((float(np.percentile(lags, 50)), float(np.percentile(lags, 95)),
                           float(lags.max())) if lags.size else (float("nan"),) * 3)
@@ -169,7 +165,6 @@ class LearnerLoop:
         self._epoch_start, self._epoch_start_steps = now, status.env_steps
         self._epoch_start_updates = updates
         self._epoch_draws = np.zeros_like(self._epoch_draws)
-        self._loss_sums, self._loss_count = {}, 0
         return snap
 
     def record_eval(self, *, epoch: int, success_rate: float,

@@ -20,7 +20,7 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "learner_cuda.json").read_text())
     cpu = summary["cpu_updates_per_s"]
-    assert sorted(cpu) == ["bf16", "fp32", "tf32"]
+    assert sorted(cpu) == ["bf16", "fp32", "fp32+halves", "fp32+reads", "tf32"]
     assert all(sorted(row) == ["1", "4"] for row in cpu.values()), cpu
     assert all(math.isfinite(v) and v > 0 for row in cpu.values() for v in row.values())
     text = (tmp_path / "learner_cuda.md").read_text()
@@ -30,7 +30,8 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
         assert summary["gpu"] is None and "gpu_updates_per_s" not in summary
         return
     gpu, emulation = summary["gpu_updates_per_s"], summary["emulation"]
-    assert sorted(gpu) == ["bf16", "fp32", "fp32+gpu-tf32", "tf32"]
+    assert sorted(gpu) == ["bf16", "bf16+graph", "fp32", "fp32+gpu-tf32", "fp32+graph",
+                           "fp32+reads", "tf32"]
     first = emulation["1"]
     assert first["tf32_from_gpu_tf32"] < first["fp32_from_gpu_tf32"]
     products = summary["product_check"]

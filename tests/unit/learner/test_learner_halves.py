@@ -115,3 +115,21 @@ def test_an_error_in_the_critic_half_reaches_the_caller() -> None:
     learner.critic_target.net[0].weight.data = torch.zeros(3, 3)  # a broken target network
     with pytest.raises(RuntimeError):
         learner.update(batch)
+
+
+def test_train_sums_on_the_device_what_update_returns() -> None:
+    """The loop's `train` + `loss_means` (no host read per update) against the mean of the
+    floats `update` returns, summed in float64 as the loop did: the same numbers."""
+    summed = DDPGLearner(spec=SPEC, config=CONFIG, seed=4, parallel_halves=True)
+    returned = DDPGLearner(spec=SPEC, config=CONFIG, seed=4)
+    rows = []
+    for i in range(UPDATES):
+        batch = random_transition_batch(SPEC, CONFIG.batch_size, seed=i)
+        summed.train(batch)
+        rows.append(returned.update(batch))
+    means = summed.loss_means()
+    assert means == {key: sum(row[key] for row in rows) / UPDATES for key in rows[0]}
+    assert summed.updates == returned.updates == UPDATES
+    for a, b in zip(_state(summed), _state(returned), strict=True):
+        assert torch.equal(a, b)
+    assert all(np.isnan(v) for v in summed.loss_means().values())  # reset by the read
