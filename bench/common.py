@@ -3,15 +3,17 @@ report is written."""
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 from hercs.apps import provenance
 from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
 from hercs.apps.result_files import add_out_option, report_folder, write_report
 
 __all__ = ["REPO", "VECTOR_EXTENSIONS", "add_out_option", "cpu_info", "git_commit",
-           "machine_identity", "report_folder", "table_with_notes", "write_report"]
+           "machine_identity", "report_folder", "show_report", "table_with_notes", "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,3 +27,10 @@ def table_with_notes(lines: list[str], notes: Iterable[tuple[str, str]]) -> str:
 def git_commit() -> str:
     """This checkout's short commit (hercs.apps.provenance.git_commit)."""
     return provenance.git_commit(REPO)
+
+
+def show_report(args: argparse.Namespace, name: str, summary: Any, text: str) -> None:
+    """A benchmark's report printed, then written with its summary where its `--out` and
+    `--quick` say (report_folder, write_report)."""
+    print(text)
+    write_report(report_folder(args.out, args.quick, REPO), name, summary, text)

@@ -26,6 +26,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from bench.common import REPO
 from bench.faults.chaos_plan import QUICK_PLAN, TARGETS, ChaosPlan
 from bench.faults.chaos_record import RECORD, measure_soak
 from bench.faults.chaos_report import write_report
@@ -36,7 +37,6 @@ from bench.faults.remote_actor import sigterm_as_exit
 from hercs.apps.certs import make_certs
 from hercs.run.rundir import RunDir
 
-REPO = Path(__file__).resolve().parents[2]
 WORK = REPO / "runs" / "chaos"
 COMMITTED = REPO / "docs" / "results" / "runs"
 SUBNET = "10.126"

@@ -35,13 +35,11 @@ from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from bench.common import git_commit, table_with_notes
+from bench.common import REPO, git_commit, table_with_notes
 from hercs.apps.child_process import pdeathsig_preexec
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_episodes
-
-REPO = Path(__file__).resolve().parents[2]
 
 FAULTS = ("replay", "learner", "clusterer", "evaluator", "actor", "everything")
 CHILD = {"replay": "replay-0", "learner": "learner-0", "clusterer": "clusterer-0",

@@ -21,11 +21,10 @@ import sys
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 
-from bench.common import add_out_option, git_commit, report_folder, write_report
+from bench.common import REPO, add_out_option, git_commit, report_folder, write_report
 from hercs.actors.rollout import VectorRollout
 from hercs.config import DDPGConfig
 from hercs.net.threads import single_threaded_numerics
@@ -33,8 +32,6 @@ from hercs.rl.envs import make_env
 from hercs.rl.policy import Policy
 from hercs.rl.task_registry import TaskSpec, task_spec
 from hercs.wire.codec import episode_to_msg
-
-REPO = Path(__file__).resolve().parents[2]
 
 TARGET = 0.95
 

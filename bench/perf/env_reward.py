@@ -22,18 +22,16 @@ import sys
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 
 import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
-from bench.common import add_out_option, git_commit, report_folder, write_report
+from bench.common import add_out_option, git_commit, show_report
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.rl.task_registry import TaskSpec, task_spec
 from hercs.wire.episode import random_episode
 
-REPO = Path(__file__).resolve().parents[2]
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")
 
 
@@ -124,9 +122,7 @@ def main(argv: list[str] | None = None) -> int:
                "machine": f"{platform.node()} ({os.cpu_count()} cores)",
                "results": measure(args.quick)}
     text = report(summary)
-    print(text)
-    out = report_folder(args.out, args.quick, REPO)
-    write_report(out, "env_reward", summary, text)
+    show_report(args, "env_reward", summary, text)
     return 0
 
 

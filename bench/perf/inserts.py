@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import git_commit
+from bench.common import REPO, git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.replay_core import ReplayCore
@@ -34,8 +34,6 @@ from hercs.replay_service.table import ReplayTable, Stored
 from hercs.run.runlog import RecoveringLogWriter
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode
-
-REPO = Path(__file__).resolve().parents[2]
 
 BOUNDED_SEGMENT = 100
 """Episodes per segment of the bounded-log variant (the default's 5,000 would start none)."""

@@ -27,12 +27,10 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from bench.common import git_commit, machine_identity
+from bench.common import REPO, git_commit, machine_identity
 from hercs.apps.sweep import free_port
 from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,6 @@ import sys
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -32,15 +31,12 @@ from bench.common import (
     add_out_option,
     cpu_info,
     git_commit,
-    report_folder,
-    write_report,
+    show_report,
 )
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.rl.task_registry import task_spec
 from hercs.wire.batch import TransitionBatch
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 def make_batch(spec, batch_size: int, rng: np.random.Generator) -> TransitionBatch:  # type: ignore[no-untyped-def]
@@ -256,9 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {n} | {config.batch_size * n} | {ms:.1f} | {ms / scaling[1]:.2f} | "
                      f"{ms / scaling[1] / n:.2f} |")
     text = "\n".join(lines) + "\n"
-    print(text)
-    out = report_folder(args.out, args.quick, REPO)
-    write_report(out, "learner", summary, text)
+    show_report(args, "learner", summary, text)
     return 0
 
 

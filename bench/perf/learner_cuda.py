@@ -24,12 +24,11 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from bench.common import add_out_option, git_commit, report_folder, write_report
+from bench.common import add_out_option, git_commit, show_report
 from bench.perf.learner import make_batch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
@@ -38,7 +37,6 @@ from hercs.rl.networks import to_arrays
 from hercs.rl.task_registry import task_spec
 from hercs.wire.batch import TransitionBatch
 
-REPO = Path(__file__).resolve().parents[2]
 GPU_TF32 = "fp32+gpu-tf32"
 """fp32 learner with the GPU's own TF32 matrix products switched on."""
 
@@ -189,9 +187,7 @@ def main(argv: list[str] | None = None) -> int:
                                                  "bf16", "tf32"], workers[:2],
                                          max(3, updates // 4), spec, config)
     text = report(summary)
-    print(text)
-    out = report_folder(args.out, args.quick, REPO)
-    write_report(out, "learner_cuda", summary, text)
+    show_report(args, "learner_cuda", summary, text)
     return 0
 
 

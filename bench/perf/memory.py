@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.common import REPO
 from hercs.config import HercsConfig
 from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
 from hercs.wire.episode import expected_shapes
 
-REPO = Path(__file__).resolve().parents[2]
 OUT = REPO / "docs" / "results" / "memory"
 GROWTH_FLAG_MB = 5.0
 """Late growth, in MB per 10 epochs beyond the store's own, that the report flags."""

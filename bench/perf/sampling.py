@@ -23,15 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import git_commit
+from bench.common import REPO, git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.her import relabel
 from hercs.replay_service.samplers import make_sampler
 from hercs.replay_service.samplers.base import make_info
 from hercs.replay_service.store import EpisodeStore
 from hercs.wire.episode import random_episode
-
-REPO = Path(__file__).resolve().parents[2]
 
 METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
 BATCH = 256

@@ -39,8 +39,35 @@ EXIT_REQUEUED = 0
 """The batch script's status after it requeued its job (Slurm starts it again)."""
 
 
+@dataclass(frozen=True, kw_only=True)
+class JobOptions:
+    """What a run's job and a job array (`ArrayPlan`) both ask of Slurm beyond their
+    resources: limits, the warning before the time limit on which they requeue, and more."""
+
+    time: str = ""
+    signal_before_s: int = 300
+    partition: str = ""
+    account: str = ""
+    sbatch: tuple[str, ...] = ()
+    """More sbatch options for the whole job (each becomes a `#SBATCH` line)."""
+    workdir: Path = Path(".")
+    """The job's working directory (`--chdir`; `plan_from_args` gives the submitting
+    shell's)."""
+
+    def sbatch_options(self, name: str, output: str, *resources: str) -> list[str]:
+        """The script's `#SBATCH` options: the job's name and output file, appending and
+        requeueing on the warning, its folder, then `resources`, then the rest of these."""
+        options = [f"--job-name={name}", f"--output={output}", "--open-mode=append",
+                   "--requeue", f"--signal=B:USR1@{self.signal_before_s}",
+                   f"--chdir={self.workdir}", *resources]
+        options += [f"--time={self.time}"] if self.time else []
+        options += [f"--partition={self.partition}"] if self.partition else []
+        options += [f"--account={self.account}"] if self.account else []
+        return options + list(self.sbatch)
+
+
 @dataclass(frozen=True)
-class JobPlan:
+class JobPlan(JobOptions):
     """What the job asks of Slurm and where the run lives."""
 
     run: str
@@ -52,15 +79,6 @@ class JobPlan:
     actor_cpus: int = 8
     learner_cpus: int = 4
     gpus: int = 0
-    time: str = ""
-    signal_before_s: int = 300
-    partition: str = ""
-    account: str = ""
-    sbatch: tuple[str, ...] = ()
-    """More sbatch options for the whole job (each becomes a `#SBATCH` line)."""
-    workdir: Path = Path(".")
-    """The job's working directory (`--chdir`; `plan_from_args` gives the submitting
-    shell's)."""
 
     def __post_init__(self) -> None:
         for flag, value, least in (("--actor-nodes", self.actor_nodes, 1),
@@ -88,13 +106,7 @@ def render_script(plan: JobPlan) -> str:
     q = shlex.quote
     run_dir, parent, run = q(str(plan.run_dir)), q(str(plan.run_dir.parent)), q(plan.run)
     hercs = " ".join(q(part) for part in plan.hercs)
-    whole = [f"--job-name=hercs-{plan.run}", f"--output={plan.folder}/job-%j.out",
-             "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
-             f"--chdir={plan.workdir}"]
-    whole += [f"--time={plan.time}"] if plan.time else []
-    whole += [f"--partition={plan.partition}"] if plan.partition else []
-    whole += [f"--account={plan.account}"] if plan.account else []
-    whole += list(plan.sbatch)
+    whole = plan.sbatch_options(f"hercs-{plan.run}", f"{plan.folder}/job-%j.out")
     learner = ["--nodes=1", "--ntasks=1", f"--cpus-per-task={plan.learner_cpus}"]
     learner += [f"--gres=gpu:{plan.gpus}"] if plan.gpus else []
     actors = [f"--nodes={plan.actor_nodes}", "--ntasks-per-node=1",
@@ -302,7 +314,7 @@ ARRAY_SCRIPT = "grid.sbatch"
 
 
 @dataclass(frozen=True)
-class ArrayPlan:
+class ArrayPlan(JobOptions):
     """A job array whose task i runs `command i` (i = `$SLURM_ARRAY_TASK_ID`) on one node,
     requeueing itself on Slurm's warning before the time limit (the command must stop in
     order on SIGTERM and continue where it stopped when started again)."""
@@ -313,12 +325,6 @@ class ArrayPlan:
     command: tuple[str, ...]
     indices: tuple[int, ...]
     cpus: int = 4
-    time: str = ""
-    signal_before_s: int = 300
-    partition: str = ""
-    account: str = ""
-    sbatch: tuple[str, ...] = ()
-    workdir: Path = Path(".")
 
     def __post_init__(self) -> None:
         if not self.indices:
@@ -329,14 +335,9 @@ class ArrayPlan:
 
 
 def render_array_script(plan: ArrayPlan) -> str:
-    options = [f"--job-name={plan.name}", f"--output={plan.folder}/task-%A_%a.out",
-               "--open-mode=append", "--requeue", f"--signal=B:USR1@{plan.signal_before_s}",
-               f"--chdir={plan.workdir}", f"--array={','.join(map(str, plan.indices))}",
-               "--nodes=1", "--ntasks=1", f"--cpus-per-task={plan.cpus}"]
-    options += [f"--time={plan.time}"] if plan.time else []
-    options += [f"--partition={plan.partition}"] if plan.partition else []
-    options += [f"--account={plan.account}"] if plan.account else []
-    options += list(plan.sbatch)
+    options = plan.sbatch_options(plan.name, f"{plan.folder}/task-%A_%a.out",
+                                  f"--array={','.join(map(str, plan.indices))}", "--nodes=1",
+                                  "--ntasks=1", f"--cpus-per-task={plan.cpus}")
     head = "\n".join(f"#SBATCH {option}" for option in options)
     command = " ".join(shlex.quote(part) for part in plan.command)
     return f"""#!/bin/bash

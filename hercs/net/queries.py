@@ -204,16 +204,21 @@ class QueryServer:
         join_threads(self._threads)
 
 
-def serve_queryable(
-    session: zenoh.Session,
-    key: str,
-    handler: Callable[[bytes], bytes],
-    *,
-    on_error: Callable[[Exception], None] | None = None,
-    workers: int = 1,
-    capacity: int = 256,
+def serve_deferred(
+    session: zenoh.Session, key: str, handler: Callable[[PendingReply], None], **options: Any,
 ) -> QueryServer:
-    """Answer each query on `key` with `handler(payload)`, run on our own worker thread(s).
+    """Give each query on `key` to `handler` as a `PendingReply`, which it answers now or parks
+    and answers later from any thread (the rate limiter's backpressure). Raising
+    `InvalidMessage` before answering sends an error reply. `options`: QueryServer's
+    (on_error, workers, capacity)."""
+    return QueryServer(session, key, handler, **options)
+
+
+def serve_queryable(
+    session: zenoh.Session, key: str, handler: Callable[[bytes], bytes], **options: Any,
+) -> QueryServer:
+    """Answer each query on `key` with `handler(payload)`, run on our own worker thread(s);
+    `options` as serve_deferred's.
 
     `handler` returns the reply payload or raises `InvalidMessage` (→ error reply with its
     reason). It should be quick: queries wait in a channel of `capacity`, and a full channel
@@ -223,24 +228,7 @@ def serve_queryable(
     def answer_now(pending: PendingReply) -> None:
         pending.reply(handler(pending.payload))
 
-    return QueryServer(session, key, answer_now, on_error=on_error, workers=workers,
-                       capacity=capacity)
-
-
-def serve_deferred(
-    session: zenoh.Session,
-    key: str,
-    handler: Callable[[PendingReply], None],
-    *,
-    on_error: Callable[[Exception], None] | None = None,
-    workers: int = 1,
-    capacity: int = 256,
-) -> QueryServer:
-    """Give each query on `key` to `handler` as a `PendingReply`, which it answers now or parks
-    and answers later from any thread (the rate limiter's backpressure). Raising
-    `InvalidMessage` before answering sends an error reply."""
-    return QueryServer(session, key, handler, on_error=on_error, workers=workers,
-                       capacity=capacity)
+    return serve_deferred(session, key, answer_now, **options)
 
 
 def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: float) -> bytes:

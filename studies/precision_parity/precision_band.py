@@ -38,9 +38,7 @@ from hercs.apps.plots import (
     task_title,
 )
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
-from studies.study_output import git_commit
-
-REPO = Path(__file__).resolve().parents[2]
+from studies.study_output import REPO, git_commit
 
 
 @dataclass(frozen=True)

@@ -34,8 +34,6 @@ from hercs.run.runlog import (
 )
 from hercs.wire.codec import msg_to_cluster_model, msg_to_episode
 
-REPO = Path(__file__).resolve().parents[2]
-
 BATCH = 256
 
 

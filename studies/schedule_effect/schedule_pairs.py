@@ -36,9 +36,7 @@ from hercs.apps.plots import (
 )
 from hercs.apps.sweep_cells import DONE_FILE
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
-from studies.study_output import show_and_write
-
-REPO = Path(__file__).resolve().parents[2]
+from studies.study_output import REPO, show_and_write
 
 SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}
 OUTPUT = "asynchrony.md"

@@ -14,7 +14,9 @@ from pathlib import Path
 import pytest
 
 from hercs.net.transport import Transport
+from hercs.proto.keys import RunKeys
 from tests.integration.launcher_standins import DRIVER, STANDIN, Launcher, process_alive
+from tests.integration.services import OpenClient, OpenRunSide, RunSide
 from tests.support import free_endpoint
 
 
@@ -56,6 +58,13 @@ def procs(tmp_path: Path) -> Iterator[list[subprocess.Popen]]:
             proc.wait(5)
     for log in tmp_path.glob("*.log"):  # shown by pytest on failure
         print(f"---- {log.name}\n{log.read_text()}")
+
+
+@pytest.fixture
+def run_side(open_client: OpenClient, tmp_path: Path, procs: list[subprocess.Popen]
+             ) -> OpenRunSide:
+    """Opens the test's side of the run of that name (services.RunSide)."""
+    return lambda run: RunSide(open_client(), RunKeys(run), tmp_path, procs)
 
 
 @pytest.fixture

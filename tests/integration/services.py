@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
@@ -94,39 +95,51 @@ def wait_for(q: queue.Queue, pred: Callable[[object], bool], what: str) -> objec
             return item
 
 
-def watch_alive(side: Transport, keys: RunKeys) -> queue.Queue:
-    """(key, up) for every liveliness token of the run `keys` that comes or goes, as `side`
-    sees them."""
-    alive: queue.Queue = queue.Queue()
-    side.watch_alive(keys.all_alive, lambda key, up: alive.put((key, up)))
-    return alive
+@dataclass
+class RunSide:
+    """The test's side of one run, where it plays the services it does not start: a client
+    session that watches the run's liveliness tokens, and the services it starts in the run
+    (kept in the `procs` fixture, which kills what is left)."""
+
+    transport: Transport
+    keys: RunKeys
+    tmp_path: Path
+    procs: list[subprocess.Popen]
+    alive: queue.Queue = field(init=False)
+    """(key, up) for every liveliness token of the run that comes or goes."""
+
+    def __post_init__(self) -> None:
+        self.alive = queue.Queue()
+        self.transport.watch_alive(self.keys.all_alive,
+                                   lambda key, up: self.alive.put((key, up)))
+
+    def metrics(self, role: str) -> queue.Queue[dict[str, float]]:
+        """The values of every Metrics message `role` publishes in the run."""
+        metrics: queue.Queue[dict[str, float]] = queue.Queue()
+        self.transport.subscribe(
+            self.keys.metrics(role),
+            lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
+        return metrics
+
+    def start(self, role: str, config: HercsConfig, ident: str) -> subprocess.Popen:
+        """`start_service`, waited for until its liveliness token appears."""
+        proc = start_service(role, config, ident, self.tmp_path)
+        self.procs.append(proc)
+        wait_for(self.alive, lambda c: c == (self.keys.alive(role, ident), True), f"the {role}")
+        return proc
+
+    def stop_cleanly(self, proc: subprocess.Popen, role: str, ident: str) -> None:
+        """SIGTERM: the service exits with 0 within STOP_WITHIN_S, and its token vanishes."""
+        key = self.keys.alive(role, ident)
+        started = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
+        assert time.monotonic() - started < STOP_WITHIN_S
+        wait_for(self.alive, lambda c: c == (key, False), f"{key} to vanish")
 
 
-def subscribe_metrics(side: Transport, keys: RunKeys, role: str) -> queue.Queue[dict[str, float]]:
-    """The values of every Metrics message `role` publishes in the run `keys`."""
-    metrics: queue.Queue[dict[str, float]] = queue.Queue()
-    side.subscribe(keys.metrics(role),
-                   lambda key, raw: metrics.put(dict(pb.Metrics.FromString(raw).values)))
-    return metrics
-
-
-def start_alive(role: str, config: HercsConfig, ident: str, tmp_path: Path,
-                procs: list[subprocess.Popen], alive: queue.Queue, keys: RunKeys
-                ) -> subprocess.Popen:
-    """`start_service`, kept in `procs` (the `procs` fixture kills what is left), and waited
-    for until its liveliness token appears on `alive` (from `watch_alive`)."""
-    proc = start_service(role, config, ident, tmp_path)
-    procs.append(proc)
-    wait_for(alive, lambda c: c == (keys.alive(role, ident), True), f"the {role}")
-    return proc
-
-
-def sigterm_exits_cleanly(proc: subprocess.Popen, alive: queue.Queue, key: str) -> None:
-    started = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=STOP_WITHIN_S + 5) == 0
-    assert time.monotonic() - started < STOP_WITHIN_S
-    wait_for(alive, lambda c: c == (key, False), f"{key} to vanish")
+OpenRunSide = Callable[[str], RunSide]
+"""The `run_side` fixture (conftest.py): the test's side of the run of that name."""
 
 
 def next_replay_status(client: Transport, key: str, timeout_s: float) -> pb.ReplayStatus:

@@ -28,16 +28,7 @@ from hercs.proto.keys import RunKeys
 from hercs.reasons import Reason
 from hercs.rl.policy import Policy
 from hercs.wire.codec import msg_to_array, weights_to_msg
-from tests.integration.services import (
-    WAIT_S,
-    OpenClient,
-    sigterm_exits_cleanly,
-    start_alive,
-    start_service,
-    subscribe_metrics,
-    wait_for,
-    watch_alive,
-)
+from tests.integration.services import WAIT_S, OpenClient, OpenRunSide, start_service, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -118,19 +109,17 @@ class FakeReplay:
 
 @pytest.mark.parametrize("envs_per_process", [1, 3])
 def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
-    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
-    envs_per_process: int,
+    run_side: OpenRunSide, endpoint: str, envs_per_process: int,
 ) -> None:
     """With one env, and with three stepped side by side (`actor.envs_per_process`): the same
     delivery contract, seqs in order, one policy version per episode."""
     served = run_config(endpoint, envs_per_process)
-    keys = RunKeys(RUN)
-    side = open_client()
-    alive = watch_alive(side, keys)
-    metrics = subscribe_metrics(side, keys, "actor")
+    run = run_side(RUN)
+    side, keys = run.transport, run.keys
+    metrics = run.metrics("actor")
     replay = FakeReplay(side, keys)
 
-    start_alive("actor", local_config(endpoint), "a0", tmp_path, procs, alive, keys)
+    actor = run.start("actor", local_config(endpoint), "a0")
     # The run's config is served only now, and its first query is refused: the actor must
     # keep asking.
     config_queries: list[PendingReply] = []
@@ -174,7 +163,7 @@ def test_actor_joins_run_inserts_at_least_once_and_adopts_weights(
     values = wait_for(metrics, lambda m: m["weights_rejected"] >= 1 and m["dropped"] == 1
                       and m["policy_version"] == 7, "metrics after the weights")
     assert values["retries"] >= 2 and values["env_steps"] >= 50 * values["episodes"] > 0
-    sigterm_exits_cleanly(procs[0], alive, keys.alive("actor", "a0"))
+    run.stop_cleanly(actor, "actor", "a0")
 
     acked = set(replay.acks)
     assert acked == set(range(max(acked) + 1)) - {3}, "every seq but the rejected one is acked"

@@ -21,16 +21,7 @@ from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.wire.codec import array_to_msg, msg_to_array
-from tests.integration.services import (
-    WAIT_S,
-    OpenClient,
-    sigterm_exits_cleanly,
-    start_alive,
-    start_service,
-    subscribe_metrics,
-    wait_for,
-    watch_alive,
-)
+from tests.integration.services import WAIT_S, OpenClient, OpenRunSide, start_service, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -72,20 +63,19 @@ def serve_state(replay: Transport, keys: RunKeys, *, goals: np.ndarray | None = 
 
 
 def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
-    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+    open_client: OpenClient, run_side: OpenRunSide, endpoint: str,
 ) -> None:
     config = tiny_config(endpoint)
-    keys = RunKeys(config.run.name)
-    replay = open_client()
-    alive = watch_alive(replay, keys)
+    run = run_side(config.run.name)
+    replay, keys = run.transport, run.keys
     models: queue.Queue[pb.ClusterModel] = queue.Queue()
     replay.subscribe(keys.cluster_model,
                      lambda key, raw: models.put(pb.ClusterModel.FromString(raw)), latest=True)
-    metrics = subscribe_metrics(replay, keys, "clusterer")
+    metrics = run.metrics("clusterer")
     inserted = replay.publisher(keys.inserted, block=True)
     serve_state(replay, keys)  # a fresh run: nothing to continue
 
-    start_alive("clusterer", config, "c0", tmp_path, procs, alive, keys)
+    clusterer = run.start("clusterer", config, "c0")
     assert inserted.wait_for_subscribers(WAIT_S), "the clusterer never subscribed"
 
     rng = np.random.default_rng(0)
@@ -139,7 +129,7 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     assert values["model_version"] == 1 and values["refits"] == 1
     assert models.empty()
 
-    sigterm_exits_cleanly(procs[0], alive, keys.alive("clusterer", "c0"))
+    run.stop_cleanly(clusterer, "clusterer", "c0")
 
 
 def test_a_restarted_clusterer_continues_the_runs_buffer_counts_and_versions(

@@ -8,26 +8,15 @@ with a timeout or the process exit.
 from __future__ import annotations
 
 import queue
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
-from hercs.proto.keys import RunKeys
 from hercs.rl.policy import Policy
 from hercs.wire.codec import weights_to_msg
-from tests.integration.services import (
-    WAIT_S,
-    OpenClient,
-    sigterm_exits_cleanly,
-    start_alive,
-    subscribe_metrics,
-    wait_for,
-    watch_alive,
-)
+from tests.integration.services import WAIT_S, OpenRunSide, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -51,19 +40,18 @@ def weights_msg(policy: Policy, *, version: int, epoch: int, evaluate: bool) -> 
 
 
 def test_evaluator_answers_every_eval_epoch_and_nothing_else(
-    open_client: OpenClient, endpoint: str, tmp_path: Path, procs: list[subprocess.Popen],
+    run_side: OpenRunSide, endpoint: str,
 ) -> None:
     config = tiny_config(endpoint)
-    keys = RunKeys(config.run.name)
-    learner = open_client()
-    alive = watch_alive(learner, keys)
+    run = run_side(config.run.name)
+    learner, keys = run.transport, run.keys
     results: queue.Queue[pb.EvalResult] = queue.Queue()
     learner.subscribe(keys.eval_result, lambda key, raw: results.put(pb.EvalResult.FromString(raw)))
-    metrics = subscribe_metrics(learner, keys, "evaluator")
+    metrics = run.metrics("evaluator")
     weights = learner.publisher(keys.weights, latest=True, block=True)  # as the learner
     policy = Policy(spec=config.task.spec, config=config.ddpg, seed=3)
 
-    start_alive("evaluator", config, "e0", tmp_path, procs, alive, keys)
+    evaluator = run.start("evaluator", config, "e0")
     wait_for(metrics, lambda m: True, "the evaluator's first metrics (it has subscribed)")
 
     weights.put(weights_msg(policy, version=1, epoch=0, evaluate=False))
@@ -88,4 +76,4 @@ def test_evaluator_answers_every_eval_epoch_and_nothing_else(
     # The same policy on fresh goals from one seeded stream: results are plausible, not equal.
     assert all(0.0 <= r.success_rate <= 1.0 for r in later)
 
-    sigterm_exits_cleanly(procs[0], alive, keys.alive("evaluator", "e0"))
+    run.stop_cleanly(evaluator, "evaluator", "e0")

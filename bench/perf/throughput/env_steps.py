@@ -10,7 +10,7 @@ import numpy as np
 
 from bench.perf.throughput import say
 from bench.perf.throughput.harness import Harness
-from bench.perf.throughput.plan import ACTOR_ID, READY_TIMEOUT_S, SEED
+from bench.perf.throughput.plan import ACTOR_ID, SEED
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.rl.envs import make_env
 from hercs.rl.seeding import generator, int_seed
@@ -49,13 +49,8 @@ def measure(bench: Harness) -> None:
         # The wire id is `<ident>@<incarnation>` (hercs/actors/actor_shell.py).
         return actor_id.partition("@")[0] == ACTOR_ID
 
-    try:
-        bench.headers.wait_count(is_ours, p.actor_warmup_episodes, timeout_s=READY_TIMEOUT_S,
-                                alive=actor)
-        turns = bench.alternate(actor, rounds=p.env_rounds, slice_s=p.env_slice_s,
-                               reference=raw)
-    finally:
-        bench.stop(actor)
+    turns = bench.alternate_warmed(actor, bench.headers, is_ours, p.actor_warmup_episodes,
+                                   rounds=p.env_rounds, slice_s=p.env_slice_s, reference=raw)
     arrivals = [t for t, actor_id in bench.headers.snapshot() if is_ours(actor_id)]
     acked = [(t, (i + 1) * T) for i, t in enumerate(arrivals)]  # cumulative env steps
     ours, ours_cpu = turns.system_rates(acked)

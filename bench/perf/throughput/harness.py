@@ -330,6 +330,18 @@ class Harness:
         return out
 
     # -- filling the replay ------------------------------------------------------------------
+    def alternate_warmed(self, child: Child, arrivals: Arrivals, warmed: Callable[[Any], bool],
+                         count: int, *, rounds: int, slice_s: float,
+                         reference: Callable[[float], tuple[float, float, float]]
+                         ) -> Alternation:
+        """`alternate` once `count` of `arrivals` satisfy `warmed` (the child has warmed up);
+        the child is stopped however that ends."""
+        try:
+            arrivals.wait_count(warmed, count, timeout_s=READY_TIMEOUT_S, alive=child)
+            return self.alternate(child, rounds=rounds, slice_s=slice_s, reference=reference)
+        finally:
+            self.stop(child)
+
     def top_up(self, replay: Child, episodes: int) -> None:
         """Insert synthetic episodes until the replay holds at least `episodes`."""
         held = int(self.wait_status(lambda s: True, what="any size", replay=replay)

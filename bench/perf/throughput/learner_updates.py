@@ -12,7 +12,7 @@ import torch
 from bench.perf.learner import gemm_rate, make_batch, update_flops, update_rate
 from bench.perf.throughput import say
 from bench.perf.throughput.harness import Child, Harness
-from bench.perf.throughput.plan import EPISODE_POOL, READY_TIMEOUT_S, SEED
+from bench.perf.throughput.plan import EPISODE_POOL, SEED
 from bench.perf.throughput.synthetic import fill_core
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.learner.ddpg import DDPGLearner
@@ -61,13 +61,10 @@ def measure(bench: Harness, replay: Child) -> None:
     reference = reference_learner(bench, local_batches(bench, 4))
     bench.weights.clear()
     learner = bench.start("learner", "bench-learner")
-    try:
-        bench.weights.wait_count(lambda v: v >= p.learner_warmup_cycles, 1,
-                                timeout_s=READY_TIMEOUT_S, alive=learner)
-        turns = bench.alternate(learner, rounds=p.learner_rounds,
-                               slice_s=p.learner_slice_s, reference=reference)
-    finally:
-        bench.stop(learner)
+    turns = bench.alternate_warmed(learner, bench.weights,
+                                   lambda v: v >= p.learner_warmup_cycles, 1,
+                                   rounds=p.learner_rounds, slice_s=p.learner_slice_s,
+                                   reference=reference)
     progress = [(t, v * p.minibatches_per_cycle) for t, v in bench.weights.snapshot()]
     ours, ours_cpu = turns.system_rates(progress)
     reference_rate, reference_cpu = turns.reference_rate, turns.reference_rate_per_cpu

@@ -4,10 +4,12 @@ messages the barrages start from."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hercs.proto import SCHEMA_VERSION
@@ -25,7 +27,17 @@ from hercs.wire.codec import (
     weights_to_msg,
 )
 from hercs.wire.episode import random_episode
-from tests.fault.fuzz.runs import ACTOR_CONFIG, LEARNER_B, LEARNER_N, RUN_R, SEEDS, SPEC, VALID, K
+from tests.fault.fuzz.runs import (
+    ACTOR_CONFIG,
+    HYPOTHESIS,
+    LEARNER_B,
+    LEARNER_N,
+    RUN_R,
+    SEEDS,
+    SPEC,
+    VALID,
+    K,
+)
 
 
 @dataclass(frozen=True)
@@ -126,8 +138,12 @@ def mixed(draw: st.DrawFn, structured: st.SearchStrategy[Probe], bases: list[byt
     return draw(oversized_probes(bases, limit))
 
 
-def probe_lists(probe: st.SearchStrategy[Probe]) -> st.SearchStrategy[list[Probe]]:
-    return st.lists(probe, min_size=12, max_size=24)
+def run_barrage(send: Callable[[list[Probe]], None], structured: st.SearchStrategy[Probe],
+                bases: list[bytes], limit: int | None, *, examples: int) -> None:
+    """Calls `send` once per Hypothesis example (`examples` of them, under the HYPOTHESIS
+    settings every barrage shares) with 12 to 24 probes, each drawn by `mixed`."""
+    probe_lists = st.lists(mixed(structured, bases, limit), min_size=12, max_size=24)
+    settings(HYPOTHESIS, max_examples=examples)(given(probe_lists)(send))()
 
 
 # ---- arrays with one thing wrong

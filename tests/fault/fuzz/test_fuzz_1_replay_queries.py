@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
 
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
@@ -15,12 +14,10 @@ from tests.fault.fuzz.probes import (
     BASE_EPISODES,
     OTHER_MESSAGES,
     Probe,
-    mixed,
-    probe_lists,
+    run_barrage,
     unknown_field,
 )
 from tests.fault.fuzz.runs import (
-    HYPOTHESIS,
     KR,
     MAX_BYTES,
     MAX_VALID_SAMPLE_ROWS,
@@ -44,8 +41,6 @@ def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: Wo
     w = world
     bases = [m.SerializeToString() for m in BASE_EPISODES]
 
-    @settings(HYPOTHESIS, max_examples=135)
-    @given(probe_lists(mixed(episode_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         verdicts = checked_verdicts(probes, insert_verdict)
         known = dict(w.ledger.keys)
@@ -72,7 +67,7 @@ def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: Wo
             w.ledger.duplicates += len(acks) - 1
         sent(w, "replay/insert", probes)
 
-    barrage()
+    run_barrage(barrage, episode_probes(), bases, MAX_BYTES, examples=135)
     assert sorted(w.ledger.stored) == list(range(len(w.ledger.stored))), "ids are dense"
     w.check_replay_counters()
 
@@ -81,8 +76,6 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
     w = world
     bases = [p for name, p in OTHER_MESSAGES if name == "SampleRequest"]
 
-    @settings(HYPOTHESIS, max_examples=65)
-    @given(probe_lists(mixed(sample_request_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         verdicts = checked_verdicts(probes, sample_verdict)
         keep = []
@@ -104,7 +97,7 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
             assert batch.status.cluster_model_version == w.model_oracle.version
         sent(w, "replay/sample", [p for p, _ in keep])
 
-    barrage()
+    run_barrage(barrage, sample_request_probes(), bases, MAX_BYTES, examples=65)
     w.check_replay_counters()
 
 
@@ -114,8 +107,6 @@ def test_replay_episode_queryable_serves_stored_episodes_only(world: World) -> N
              for i in (0, 3, 200)]
     verdict_of = parse_verdict(pb.EpisodeRequest, MAX_BYTES)
 
-    @settings(HYPOTHESIS, max_examples=60)
-    @given(probe_lists(mixed(episode_request_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         verdicts = checked_verdicts(probes, verdict_of)
         for probe, reply, reason, detail in asked_valid(w, KR.episode, probes, verdicts):
@@ -129,7 +120,7 @@ def test_replay_episode_queryable_serves_stored_episodes_only(world: World) -> N
             assert pb.Episode.FromString(reply) == expected, probe
         sent(w, "replay/episode", probes)
 
-    barrage()
+    run_barrage(barrage, episode_request_probes(), bases, MAX_BYTES, examples=60)
     w.check_replay_counters()
 
 
@@ -139,8 +130,6 @@ def test_replay_clusterer_state_queryable(world: World) -> None:
              + unknown_field(8)]
     verdict_of = parse_verdict(pb.ClustererStateRequest, MAX_BYTES)
 
-    @settings(HYPOTHESIS, max_examples=40)
-    @given(probe_lists(mixed(clusterer_state_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         verdicts = checked_verdicts(probes, verdict_of)
         for probe, reply, reason, detail in asked_valid(w, KR.clusterer_state, probes, verdicts):
@@ -152,5 +141,5 @@ def test_replay_clusterer_state_queryable(world: World) -> None:
             assert state.model_version == w.model_oracle.version
         sent(w, "replay/clusterer_state", probes)
 
-    barrage()
+    run_barrage(barrage, clusterer_state_probes(), bases, MAX_BYTES, examples=40)
     w.check_replay_counters()

@@ -5,13 +5,12 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
-from hypothesis import given, settings
 
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.runlog import MAX_SEQUENCE
 from tests.fault.fuzz.oracles import replay_eval_verdict
-from tests.fault.fuzz.probes import Probe, make_eval, make_model, mixed, probe_lists
-from tests.fault.fuzz.runs import HYPOTHESIS, KR, MAX_BYTES, VALID
+from tests.fault.fuzz.probes import Probe, make_eval, make_model, run_barrage
+from tests.fault.fuzz.runs import KR, MAX_BYTES, VALID
 from tests.fault.fuzz.strategies import cluster_model_probes, eval_result_probes
 from tests.fault.fuzz.world import World, check_expect, sent
 
@@ -22,8 +21,6 @@ def test_replay_cluster_model_subscriber_adopts_only_valid_newer_models(world: W
     w = world
     bases = [make_model(v, v).SerializeToString() for v in (1, 2, 3)]
 
-    @settings(HYPOTHESIS, max_examples=55)
-    @given(probe_lists(mixed(cluster_model_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         for probe in probes:
             verdict = w.model_oracle(probe.payload)  # in send order: the replay's order
@@ -35,7 +32,7 @@ def test_replay_cluster_model_subscriber_adopts_only_valid_newer_models(world: W
             w.model_pub.put(probe.payload)
         sent(w, "cluster/model", probes)
 
-    barrage()
+    run_barrage(barrage, cluster_model_probes(), bases, MAX_BYTES, examples=55)
     w.check_replay_counters()
 
 
@@ -43,8 +40,6 @@ def test_replay_eval_result_subscriber_logs_only_valid_results(world: World) -> 
     w = world
     bases = [make_eval(e, 2 * e).SerializeToString() for e in (1, 2, 3)]
 
-    @settings(HYPOTHESIS, max_examples=45)
-    @given(probe_lists(mixed(eval_result_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         for probe in probes:
             verdict = replay_eval_verdict(probe.payload)
@@ -59,5 +54,5 @@ def test_replay_eval_result_subscriber_logs_only_valid_results(world: World) -> 
             w.puts[KR.eval_result].put(probe.payload)
         sent(w, "eval/result (replay)", probes)
 
-    barrage()
+    run_barrage(barrage, eval_result_probes(), bases, MAX_BYTES, examples=45)
     w.check_replay_counters()

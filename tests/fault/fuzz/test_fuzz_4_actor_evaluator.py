@@ -4,13 +4,12 @@ run progress."""
 from __future__ import annotations
 
 import pytest
-from hypothesis import given, settings
 
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from tests.fault.fuzz.oracles import parse_verdict, weights_verdict
-from tests.fault.fuzz.probes import BASE_WEIGHTS, Probe, make_weights, mixed, probe_lists
-from tests.fault.fuzz.runs import HYPOTHESIS, KA, MAX_BYTES, VALID
+from tests.fault.fuzz.probes import BASE_WEIGHTS, Probe, make_weights, run_barrage
+from tests.fault.fuzz.runs import KA, MAX_BYTES, VALID
 from tests.fault.fuzz.strategies import progress_probes, weights_probes
 from tests.fault.fuzz.world import World, account_weights, check_evaluator, check_expect, sent
 
@@ -21,8 +20,6 @@ def test_actor_and_evaluator_weights_subscribers_adopt_only_valid_weights(world:
     w = world
     bases = [m.SerializeToString() for m in BASE_WEIGHTS]
 
-    @settings(HYPOTHESIS, max_examples=75)
-    @given(probe_lists(mixed(weights_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         for probe in probes:
             verdict, msg = weights_verdict(probe.payload)
@@ -31,7 +28,7 @@ def test_actor_and_evaluator_weights_subscribers_adopt_only_valid_weights(world:
             w.weights_pub.put(probe.payload)
         sent(w, "weights", probes)
 
-    barrage()
+    run_barrage(barrage, weights_probes(), bases, MAX_BYTES, examples=75)
     final = make_weights(version=4_000_000_001, epoch=2, evaluate=True, seed=6)
     w.weights_pub.put(final.SerializeToString())
     account_weights(w, VALID, final, actor=True)
@@ -51,8 +48,6 @@ def test_evaluator_eval_request_subscriber(world: World) -> None:
     bases = [make_weights(version=2000 + i, epoch=10 + i, evaluate=True, seed=i)
              .SerializeToString() for i in range(2)]
 
-    @settings(HYPOTHESIS, max_examples=30)
-    @given(probe_lists(mixed(weights_probes(evaluate=True), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         for probe in probes:
             verdict, msg = weights_verdict(probe.payload)
@@ -61,7 +56,7 @@ def test_evaluator_eval_request_subscriber(world: World) -> None:
             w.puts[KA.eval_request].put(probe.payload)
         sent(w, "eval/request", probes)
 
-    barrage()
+    run_barrage(barrage, weights_probes(evaluate=True), bases, MAX_BYTES, examples=30)
     final = make_weights(version=4_000_000_002, epoch=3, evaluate=True, seed=7)
     w.puts[KA.eval_request].put(final.SerializeToString())
     account_weights(w, VALID, final, actor=False)
@@ -73,8 +68,6 @@ def test_actor_progress_subscriber_ignores_bad_progress(world: World) -> None:
     bases = [pb.RunProgress(schema_version=SCHEMA_VERSION, epoch=1, epochs=9).SerializeToString()]
     verdict_of = parse_verdict(pb.RunProgress, MAX_BYTES)
 
-    @settings(HYPOTHESIS, max_examples=20)
-    @given(probe_lists(mixed(progress_probes(), bases, MAX_BYTES)))
     def barrage(probes: list[Probe]) -> None:
         sending = []
         for probe in probes:
@@ -87,7 +80,7 @@ def test_actor_progress_subscriber_ignores_bad_progress(world: World) -> None:
             w.puts[KA.progress].put(probe.payload)
         sent(w, "run/progress", sending)
 
-    barrage()
+    run_barrage(barrage, progress_probes(), bases, MAX_BYTES, examples=20)
     versions = w.actor_replay.next_versions(lambda v: True, "after the progress messages")
     w.actor_replay.next_versions(lambda v: True, "after the progress messages")
     assert set(versions) <= w.ledger.actor_versions

@@ -7,15 +7,13 @@ import time
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
 
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir
 from tests.fault.fuzz.oracles import batch_verdict, eval_verdict
-from tests.fault.fuzz.probes import BASE_BATCHES, Probe, make_eval, mixed, probe_lists
+from tests.fault.fuzz.probes import BASE_BATCHES, Probe, make_eval, run_barrage
 from tests.fault.fuzz.runs import (
     CYCLES_PER_EPOCH,
-    HYPOTHESIS,
     KL,
     LEARNER_EVAL_MAX_BYTES,
     MAX_VALID_BATCHES,
@@ -24,7 +22,7 @@ from tests.fault.fuzz.runs import (
     WAIT_S,
 )
 from tests.fault.fuzz.strategies import batch_probes, eval_result_probes
-from tests.fault.fuzz.world import World, check_expect, sent
+from tests.fault.fuzz.world import World, capped_verdicts, check_expect, sent
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
 
@@ -33,25 +31,14 @@ def test_learner_skips_and_counts_bad_batches(world: World) -> None:
     w = world
     bases = [m.SerializeToString() for m in BASE_BATCHES]
 
-    @settings(HYPOTHESIS, max_examples=50)
-    @given(probe_lists(mixed(batch_probes(), bases, None)))
     def barrage(probes: list[Probe]) -> None:
-        sending = []
-        for probe in probes:
-            verdict = batch_verdict(probe.payload)
-            check_expect(probe, verdict)
-            if verdict == VALID:
-                if w.ledger.valid_batches >= MAX_VALID_BATCHES:
-                    w.ledger.skipped["replay/sample replies (learner, valid)"] += 1
-                    continue
-                w.ledger.valid_batches += 1
-            else:
-                w.ledger.bad_batches += 1
-            sending.append(probe)
-        w.learner_replay.answer([p.payload for p in sending])
-        sent(w, "replay/sample replies (learner)", sending)
+        sending = capped_verdicts(w, probes, batch_verdict, "replay/sample replies (learner)",
+                                  MAX_VALID_BATCHES, "replay/sample replies (learner, valid)")
+        w.ledger.bad_batches += sum(verdict != VALID for _, verdict in sending)
+        w.learner_replay.answer([probe.payload for probe, _ in sending])
+        sent(w, "replay/sample replies (learner)", [probe for probe, _ in sending])
 
-    barrage()
+    run_barrage(barrage, batch_probes(), bases, None, examples=50)
     assert not w.learner_replay.odd_requests, w.learner_replay.odd_requests[:3]
 
 
@@ -78,9 +65,6 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
     bases = [make_eval(1, version).SerializeToString(),
              make_eval(2, 2 * CYCLES_PER_EPOCH).SerializeToString()]
 
-    @settings(HYPOTHESIS, max_examples=30)
-    @given(probe_lists(mixed(eval_result_probes(epoch=1, version=version), bases,
-                             LEARNER_EVAL_MAX_BYTES)))
     def eval_barrage(probes: list[Probe]) -> None:
         sending = []
         for probe in probes:
@@ -92,7 +76,8 @@ def test_learner_records_only_the_valid_eval_result(world: World) -> None:
             w.puts[KL.eval_result].put(probe.payload)
         sent(w, "eval/result (learner)", sending)
 
-    eval_barrage()
+    run_barrage(eval_barrage, eval_result_probes(epoch=1, version=version), bases,
+                LEARNER_EVAL_MAX_BYTES, examples=30)
     good = make_eval(1, version, success=0.625, distance=0.0425, episodes=8)
     w.puts[KL.eval_result].put(good.SerializeToString())
     values = w.metrics_of("learner", lambda m: m.get("epoch") == 1, "epoch 1 recorded")

@@ -37,7 +37,8 @@ class Ledger:
     """Versions of the cluster models the replay adopted (and logged), in order."""
     replay_evals: list[pb.EvalResult] = field(default_factory=list)
     header_rejects: Counter[str] = field(default_factory=Counter)
-    valid_headers: int = 0
+    valid_sent: Counter[str] = field(default_factory=Counter)
+    """Endpoint → the valid payloads sent to it, for the endpoints that take only so many."""
     actor_versions: set[int] = field(default_factory=set)
     """Versions of valid weights: the only ones the actor may act with."""
     actor_rejects_at_most: int = 0
@@ -48,7 +49,6 @@ class Ledger:
     evaluated: set[tuple[int, int]] = field(default_factory=set)
     """(epoch, version) of the results the evaluator published."""
     bad_batches: int = 0
-    valid_batches: int = 0
 
 
 @dataclass
@@ -153,6 +153,22 @@ def checked_verdicts(probes: list[Probe], verdict_of: Callable[[bytes], str]) ->
     return verdicts
 
 
+def capped_verdicts(w: World, probes: list[Probe], verdict_of: Callable[[bytes], str],
+                    endpoint: str, cap: int, skipped_as: str) -> list[tuple[Probe, str]]:
+    """The probes to send to `endpoint` with their checked verdicts: every invalid one, and
+    the valid ones until it has had `cap` in all (each a costly or lasting effect); the valid
+    ones past that are counted as skipped, under `skipped_as`."""
+    kept = []
+    for probe, verdict in zip(probes, checked_verdicts(probes, verdict_of), strict=True):
+        if verdict == VALID:
+            if w.ledger.valid_sent[endpoint] >= cap:
+                w.ledger.skipped[skipped_as] += 1
+                continue
+            w.ledger.valid_sent[endpoint] += 1
+        kept.append((probe, verdict))
+    return kept
+
+
 def asked_valid(w: World, key: str, probes: list[Probe], verdicts: list[str],
                 ) -> Iterator[tuple[Probe, bytes | None, str, str]]:
     """Asks the replay's queryable `key` with every probe, several in flight: each invalid one
@@ -170,7 +186,7 @@ def asked_valid(w: World, key: str, probes: list[Probe], verdicts: list[str],
 
 def check_clusterer(w: World) -> None:
     expected = {f"rejected_{r}": float(n) for r, n in w.ledger.header_rejects.items()}
-    episodes = len(w.ledger.stored) + w.ledger.valid_headers
+    episodes = len(w.ledger.stored) + w.ledger.valid_sent["replay/inserted"]
     values = w.metrics_of(
         "clusterer", lambda m: m["episodes_seen"] == episodes
         and {k: v for k, v in m.items() if k.startswith("rejected_")} == expected,
