@@ -4,7 +4,10 @@ report is written."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable
+import subprocess
+import sys
+import time
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +16,8 @@ from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
 from hercs.apps.result_files import add_out_option, report_folder, write_report
 
 __all__ = ["REPO", "VECTOR_EXTENSIONS", "add_out_option", "cpu_info", "git_commit",
-           "machine_identity", "report_folder", "show_report", "table_with_notes", "write_report"]
+           "machine_identity", "report_folder", "show_report", "table_with_notes", "timed_cli",
+           "write_report"]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -34,3 +38,16 @@ def show_report(args: argparse.Namespace, name: str, summary: Any, text: str) ->
     `--quick` say (report_folder, write_report)."""
     print(text)
     write_report(report_folder(args.out, args.quick, REPO), name, summary, text)
+
+
+def timed_cli(bench: str, args: Sequence[str]) -> float:
+    """Wall seconds of `python -m hercs.apps.cli ARGS` run in this checkout; the benchmark
+    exits, naming the command and showing its output's end, if it fails."""
+    command = [sys.executable, "-m", "hercs.apps.cli", *args]
+    started = time.monotonic()
+    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
+    wall = time.monotonic() - started
+    if done.returncode != 0:
+        sys.exit(f"{bench}: `hercs {' '.join(args)}` failed ({done.returncode}):\n"
+                 f"{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    return wall

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from datetime import UTC, datetime
@@ -29,14 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bench.common import (
-    REPO,
-    add_out_option,
-    git_commit,
-    machine_identity,
-    report_folder,
-    write_report,
-)
+from bench.common import add_out_option, git_commit, machine_identity, show_report, timed_cli
 from bench.perf.actor_envs import raw_slice
 from bench.perf.learner import gemm_rate, make_batch, update_flops
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
@@ -78,16 +69,10 @@ def timed_run(args: argparse.Namespace, seed: int, overrides: tuple[str, ...],
               work: Path) -> dict[str, float]:
     """One `hercs up` run: its process wall time and its steady seconds per epoch."""
     name = f"run-{len(list(work.iterdir()))}"
-    command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task, "--method",
-               args.method, "--seed", str(seed), "--epochs", str(args.epochs), "--actors", "1",
-               "--run", name, "--run-dir", str(work), "--listen", "tcp/127.0.0.1:0",
-               *(item for kv in (*args.set, *overrides) for item in ("--set", kv))]
-    started = time.monotonic()
-    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
-    wall = time.monotonic() - started
-    if done.returncode != 0:
-        sys.exit(f"bench.perf.run_time: `{' '.join(command[1:])}` failed "
-                 f"({done.returncode}):\n{done.stderr[-3000:]}")
+    wall = timed_cli("bench.perf.run_time", [
+        "up", "--task", args.task, "--method", args.method, "--seed", str(seed), "--epochs",
+        str(args.epochs), "--actors", "1", "--run", name, "--run-dir", str(work), "--listen",
+        "tcp/127.0.0.1:0", *(item for kv in (*args.set, *overrides) for item in ("--set", kv))])
     rows = read_rows(RunDir(work / name).metrics)
     walls = [float(row["wall_s"]) for row in rows]
     steady = (walls[-1] - walls[0]) / (len(walls) - 1)
@@ -168,9 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                "machine": machine_identity(), "task": args.task, "method": args.method,
                "epochs": args.epochs, "quick": args.quick, "limit": limit, "runs": runs,
                "ratios": ratios, "ratio_geomean": float(np.exp(np.mean(np.log(ratios))))}
-    text = render(summary)
-    print(text)
-    write_report(report_folder(args.out, args.quick, REPO), "run_time", summary, text)
+    show_report(args, "run_time", summary, render(summary))
     return 0
 
 

@@ -14,14 +14,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.common import (
-    REPO,
-    add_out_option,
-    git_commit,
-    machine_identity,
-    report_folder,
-    write_report,
-)
+from bench.common import REPO, add_out_option, git_commit, machine_identity, show_report
 from bench.perf.run_profile.proc_sampler import ProcSampler
 from bench.perf.run_profile.report import render
 from bench.perf.run_profile.stacks import GROUPS, group_shares, parse_raw, role_of, top_frames
@@ -143,11 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarise(measured)
     summary.update({"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
                     "machine": machine_identity(), "quick": args.quick, "rate": args.rate})
-    print(render(summary))
-    out = report_folder(args.out, args.quick, REPO)
-    write_report(out, "run_profile", summary, render(summary))
-    if out is not None:
-        write_cores(out / "run_profile_cores.csv", measured["cores"])
+    show_report(args, "run_profile", summary, render(summary))
+    if args.out or not args.quick:
+        write_cores((args.out or REPO / "docs" / "results") / "run_profile_cores.csv",
+                    measured["cores"])
     return 0
 
 

@@ -20,8 +20,10 @@ SERVICE_COMMAND = re.compile(r"hercs\.apps\.cli (\w+)(?:.*--id (\S+))?")
 WAIT_LEAF = re.compile(
     r"park|futex|condvar|pthread_cond_\w*wait|select_select|epoll_wait|poll\b|nanosleep"
     r"|sem_\w*wait|recv|accept|do_futex|wait_optional_timeout|_PyThread_wait|lock_PyThread"
-    r"|acquire_timed|PyThread_acquire_lock|sleep \(|^syscall \(libc", re.IGNORECASE)
-"""A leaf frame of a thread that waits (its sample is idle time, not work)."""
+    r"|acquire_timed|PyThread_acquire_lock|sleep \(|^syscall \(libc|^0x[0-9a-f]+ \(libc\.so",
+    re.IGNORECASE)
+"""A leaf frame of a thread that waits (its sample is idle time, not work). libc's frames
+without a symbol are its internal syscall wrappers (futex and poll waits, in practice)."""
 
 GROUPS = ("GEMMs", "rest of the update", "Adam", "sampling and relabelling",
           "serialisation and Zenoh", "env stepping", "policy inference (actor)",

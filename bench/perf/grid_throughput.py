@@ -1,0 +1,101 @@
+"""Epochs per hour of a grid, runs one at a time against runs side by side.
+
+    python -m bench.perf.grid_throughput                  # FetchPush, her and her-cs, 6 epochs
+    python -m bench.perf.grid_throughput --quick          # CI: FetchReach, 2 epochs of 5 cycles
+
+The same two-run grid (`hercs sweep --methods her her-cs --seeds 1`) with each `--jobs` value,
+the order alternating from round to round (the machine is shared and noisy: what counts is the
+ratio of grids timed together). Epochs per hour = the grid's epochs ÷ its wall time, start-up
+included, since a grid pays it once per run. Writes docs/results/grid_throughput.{json,md} (or
+--out); discussed in docs/PERFORMANCE.md §3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.common import add_out_option, git_commit, machine_identity, show_report, timed_cli
+
+METHODS = ("her", "her-cs")
+
+
+def timed_grid(args: argparse.Namespace, jobs: int, work: Path) -> float:
+    """Wall seconds of one two-run grid with `--jobs jobs`."""
+    run_dir = work / f"grid-{len(list(work.iterdir()))}"
+    return timed_cli("bench.perf.grid_throughput", [
+        "sweep", "--tasks", args.task, "--methods", *METHODS, "--seeds", "1", "--epochs",
+        str(args.epochs), "--jobs", str(jobs), "--run-dir", str(run_dir),
+        *(item for kv in args.set for item in ("--set", kv))])
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m bench.perf.grid_throughput",
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="push")
+    parser.add_argument("--epochs", type=int, default=6)
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a config override for every run (repeatable)")
+    parser.add_argument("--quick", action="store_true")
+    add_out_option(parser, "grid_throughput")
+    args = parser.parse_args(argv)
+    if args.epochs < 1 or args.rounds < 1 or min(args.jobs) < 1:
+        parser.error("--epochs, --rounds and every --jobs value must be ≥ 1")
+    if args.quick:
+        args.task, args.epochs, args.rounds = "reach", 2, 1
+        args.set = [*args.set, "training.cycles_per_epoch=5"]
+    return args
+
+
+def render(summary: dict[str, Any]) -> str:
+    lines = [
+        "# Grid throughput by `--jobs` (`python -m bench.perf.grid_throughput`)", "",
+        f"{summary['date']}, commit `{summary['commit']}`, {summary['machine']['cpu']}, "
+        f"{summary['cores']} cores; each grid: `hercs sweep --tasks {summary['task']} "
+        f"--methods {' '.join(METHODS)} --seeds 1 --epochs {summary['epochs']}`"
+        f"{', quick mode' if summary['quick'] else ''}.", "",
+        "| --jobs | grid wall s, per round | epochs per hour (mean) | against --jobs "
+        f"{summary['jobs'][0]} |",
+        "|---:|---|---:|---:|",
+    ]
+    base = summary["epochs_per_hour"][str(summary["jobs"][0])]
+    for jobs in summary["jobs"]:
+        rate = summary["epochs_per_hour"][str(jobs)]
+        walls = ", ".join(f"{w:.0f}" for w in summary["walls"][str(jobs)])
+        lines.append(f"| {jobs} | {walls} | {rate:.0f} | {rate / base:.2f}× |")
+    lines += ["", f"Best: `--jobs {summary['best_jobs']}`."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    walls: dict[str, list[float]] = {str(j): [] for j in args.jobs}
+    with tempfile.TemporaryDirectory(prefix="hercs-grid-throughput-") as tmp:
+        for round_ in range(args.rounds):
+            order = args.jobs if round_ % 2 == 0 else args.jobs[::-1]
+            for jobs in order:
+                wall = timed_grid(args, jobs, Path(tmp))
+                walls[str(jobs)].append(wall)
+                print(f"round {round_ + 1}, --jobs {jobs}: {wall:.0f} s", flush=True)
+    epochs = len(METHODS) * args.epochs
+    per_hour = {j: float(np.mean([3600.0 * epochs / w for w in ws])) for j, ws in walls.items()}
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
+               "machine": machine_identity(), "cores": os.cpu_count(), "task": args.task,
+               "epochs": args.epochs, "jobs": args.jobs, "quick": args.quick, "walls": walls,
+               "epochs_per_hour": per_hour,
+               "best_jobs": int(max(per_hour, key=lambda j: per_hour[j]))}
+    show_report(args, "grid_throughput", summary, render(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
