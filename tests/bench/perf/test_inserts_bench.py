@@ -22,5 +22,5 @@ def test_quick_mode_measures_every_variant(tmp_path: Path) -> None:
     for row in results.values():
         assert row["episodes_per_s"] > 0 and len(row["rounds"]) == 1
         assert 0 < row["with_scenes_per_s"] <= row["episodes_per_s"] * 1.5
-    assert results["group commit"]["ratio_to_before"] > 0
+    assert results["group commit"]["ratio_to_before_with_scenes"] > 0
     assert results["serial, scene on the ack path"]["ratio"] == 1.0
