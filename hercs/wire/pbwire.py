@@ -7,13 +7,16 @@ does this for its sample replies (`hercs.wire.codec.batch_to_bytes`) and the epi
 per-step scene messages (`hercs.run.runlog.scene`), where building one protobuf object per
 message cost more than the rest of the path. Field numbers come from the descriptors, so a
 schema change cannot silently shift them; tests parse what these functions build.
+`TimestampField.encode_many` encodes a whole episode's times at once (numpy for the varints).
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
+
+import numpy as np
 
 
 class Descriptor(Protocol):
@@ -40,6 +43,10 @@ def varint(value: int) -> bytes:
         value >>= 7
     out.append(value)
     return bytes(out)
+
+
+SMALL_VARINTS = [varint(value) for value in range(1 << 14)]
+"""`varint(n)` for n < 16384 (lengths inside a message), looked up instead of computed."""
 
 
 def field_key(message: Descriptor, name: str, wire_type: int) -> bytes:
@@ -91,3 +98,22 @@ class TimestampField:
         seconds, nanos = divmod(time_ns, 1_000_000_000)
         return length_delimited(self._key, self._seconds + varint(seconds)
                                 + self._nanos + varint(nanos))
+
+    def encode_many(self, times_ns: Sequence[int]) -> list[bytes]:
+        """`encode` of each time: the nanos' varints (at most 5 bytes, < 2^30) computed
+        together with numpy, each distinct second's once (an episode spans a few seconds)."""
+        seconds, nanos = np.divmod(np.asarray(times_ns, dtype=np.int64), 1_000_000_000)
+        if len(times_ns) and seconds.min() < 0:
+            raise ValueError("TimestampField.encode_many: times before the epoch")
+        groups = (nanos[:, None] >> np.arange(0, 35, 7)) & 0x7F
+        widths = 1 + (nanos[:, None] >= (1 << np.arange(7, 35, 7))).sum(axis=1)
+        groups[:, :-1] |= 0x80 * (np.arange(1, 5) < widths[:, None])
+        packed = groups.astype(np.uint8).tobytes()
+        # per (second, nanos width): everything before the nanos' varint, built once
+        heads = {}
+        for second, width in set(zip(seconds.tolist(), widths.tolist(), strict=True)):
+            inner = self._seconds + varint(second) + self._nanos
+            heads[second, width] = self._key + varint(len(inner) + width) + inner
+        out = [heads[key] + packed[5 * i:5 * i + key[1]] for i, key in enumerate(
+            zip(seconds.tolist(), widths.tolist(), strict=True))]
+        return out

@@ -18,7 +18,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -34,7 +34,7 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.rl.task_registry import task_spec
 from hercs.rl.task_spec import TaskSpec
-from hercs.run.runlog import scene
+from hercs.run.runlog import scene, scene_wire
 from hercs.run.runlog.format import (
     CHUNK_BYTES,
     MAX_SEQUENCE,
@@ -50,6 +50,7 @@ from hercs.run.runlog.format import (
     fsync_dir,
     u32,
 )
+from hercs.run.runlog.mcap_bulk import add_message_rows, check_writer, reuse_zstd_contexts
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.codec import msg_to_array
 
@@ -60,6 +61,7 @@ if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, 
                       "(mcap >= 1.6); upgrade the mcap package")
 
 
+reuse_zstd_contexts()  # every append compresses a chunk: ~0.15 ms less each
 _SCENE_UPDATE, _POINT_CLOUD = SceneUpdate(), PointCloud()
 """Instances naming the scene topics' message types (their schemas); the scene's messages
 themselves are built as bytes (`hercs.run.runlog.scene`)."""
@@ -124,6 +126,7 @@ class EpisodeLogWriter:
         try:
             self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES,
                                     compression=compression)
+            check_writer(self._mcap)
             self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
             self._mcap.add_metadata(METADATA_NAME, {
                 "run": run, "task": task, "schema_version": str(SCHEMA_VERSION),
@@ -300,20 +303,15 @@ class EpisodeLogWriter:
             prepared.append(_PreparedEpisode(episode_id, msg, positions, times))
         return prepared
 
-    def _scene_records(self, episode: _PreparedEpisode
-                       ) -> Iterator[tuple[str, Message, int, int, int, bytes]]:
-        """(topic, message type instance, log_time, publish_time, sequence, serialised
-        message) of one episode's scene."""
+    def _scene_messages(self, episode: _PreparedEpisode) -> tuple[list[bytes], list[bytes]]:
+        """One episode's scene: its `/scene` and `/scene/points` messages, one per step."""
         positions, times, msg = episode.positions, episode.times_ns, episode.msg
         labels = {"episode_id": str(episode.episode_id), "actor_id": msg.actor_id,
                   "seq": str(msg.seq), "success": str(bool(msg.success)).lower()}
-        updates = scene.scene_updates(positions, times,
-                                      goal_diameter=2 * self._spec.distance_threshold,
-                                      labels=labels)
-        for update, cloud, t in zip(updates, scene.point_clouds(positions, times), times,
-                                    strict=True):
-            yield TOPIC_SCENE, _SCENE_UPDATE, t, t, episode.episode_id, update
-            yield TOPIC_SCENE_POINTS, _POINT_CLOUD, t, t, episode.episode_id, cloud
+        return (scene_wire.scene_updates(positions, times,
+                                         goal_diameter=2 * self._spec.distance_threshold,
+                                         labels=labels),
+                scene_wire.point_clouds(positions, times))
 
     def _queue_scene(self, episode: _PreparedEpisode) -> None:
         if self._scene_queue is None:
@@ -335,10 +333,10 @@ class EpisodeLogWriter:
                 if episode is None:
                     return
                 # built and serialised outside the lock; only the chunk write holds it
-                records = list(self._scene_records(episode))
+                columns = self._scene_messages(episode)
                 with self._lock:
                     if self._state == "open":
-                        self._write_serialised(records, sync=False)
+                        self._write_rows(episode, columns)
             except Exception as exc:  # a failed write marks the writer failed; log and go on
                 log.warning("%s: scene of episode %s not written: %s", self.path,
                             None if episode is None else episode.episode_id, exc)
@@ -361,22 +359,27 @@ class EpisodeLogWriter:
                 - scene.STEP_NS)
 
     def _write_durably(self, records: Iterable[tuple[str, Message, int, int, int]]) -> None:
-        self._write_serialised(((*record, record[1].SerializeToString()) for record in records),
-                               sync=True)
-
-    def _write_serialised(self, records: Iterable[tuple[str, Message, int, int, int, bytes]],
-                          *, sync: bool) -> None:
-        """Append `records` (with their serialised bytes) as one chunk; with `sync`, fsync
-        and move the durable end."""
+        """Append `records` as one chunk, fsync and move the durable end."""
         try:
-            for topic, msg, log_time, publish_time, sequence, data in records:
+            for topic, msg, log_time, publish_time, sequence in records:
                 self._mcap.add_message(channel_id=self._channel(topic, msg), log_time=log_time,
-                                       data=data, publish_time=publish_time,
-                                       sequence=sequence)
-            if sync:
-                self._sync()
-            else:
-                self._mcap.flush()  # closes the chunk; the next sync makes it durable too
+                                       data=msg.SerializeToString(),
+                                       publish_time=publish_time, sequence=sequence)
+            self._sync()
+        except BaseException as exc:
+            self._state, self._failure = "failed", exc
+            raise
+
+    def _write_rows(self, episode: _PreparedEpisode, columns: tuple[list[bytes], list[bytes]]
+                    ) -> None:
+        """Append one episode's scene (`mcap_bulk`: the step's update, then its points, step
+        by step, as `add_message` would) as one chunk, without fsync."""
+        try:
+            channels = (self._channel(TOPIC_SCENE, _SCENE_UPDATE),
+                        self._channel(TOPIC_SCENE_POINTS, _POINT_CLOUD))
+            add_message_rows(self._mcap, channels, episode.times_ns, episode.episode_id,
+                             columns)
+            self._mcap.flush()  # closes the chunk; the next sync makes it durable too
         except BaseException as exc:
             self._state, self._failure = "failed", exc
             raise

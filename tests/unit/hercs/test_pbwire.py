@@ -52,3 +52,9 @@ def test_timestamp_field_refuses_a_non_timestamp() -> None:
     with pytest.raises(TypeError, match=r"foxglove\.SceneEntity\.lifetime is a "
                        r"google\.protobuf\.Duration"):
         pbwire.TimestampField(SceneEntity.DESCRIPTOR, "lifetime")
+
+
+@given(st.lists(st.integers(min_value=0, max_value=2**63 - 1), max_size=60))
+def test_timestamps_encoded_together_are_encoded_one_by_one(times: list[int]) -> None:
+    field = pbwire.TimestampField(SceneEntity.DESCRIPTOR)
+    assert field.encode_many(times) == [field.encode(t) for t in times]

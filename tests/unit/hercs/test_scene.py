@@ -14,8 +14,9 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 
-from hercs.rl.task_registry import task_spec
-from hercs.run.runlog import scene
+from hercs.rl.task_registry import TaskSpec, task_spec
+from hercs.run.runlog import scene, scene_wire
+from hercs.run.runlog.scene_reference import reference_point_clouds, reference_scene_updates
 
 LABELS = {"episode_id": "7", "actor_id": "actor-0", "seq": "3", "success": "false"}
 
@@ -69,7 +70,7 @@ def test_scene_updates_parse_as_the_messages(task: str) -> None:
     assert p.reached[5] and not p.reached.all()
     start = 1_764_000_000_123_456_789  # a real epoch time in ns: seconds and nanos both set
     times = [start + t * scene.STEP_NS for t in range(len(p.gripper))]
-    updates = scene.scene_updates(p, times, goal_diameter=0.1, labels=LABELS)
+    updates = scene_wire.scene_updates(p, times, goal_diameter=0.1, labels=LABELS)
     assert len(updates) == len(times)
     for t, data in enumerate(updates):
         assert SceneUpdate.FromString(data) == expected_update(p, t, times[t], 0.1), t
@@ -78,7 +79,7 @@ def test_scene_updates_parse_as_the_messages(task: str) -> None:
 def test_point_clouds_parse_as_the_messages() -> None:
     p = positions_of("push", np.random.default_rng(4))
     times = [t * scene.STEP_NS for t in range(len(p.gripper))]  # from 0: seconds 0 at first
-    clouds = scene.point_clouds(p, times)
+    clouds = scene_wire.point_clouds(p, times)
     for t, data in enumerate(clouds):
         cloud = PointCloud.FromString(data)
         assert cloud.frame_id == "world" and cloud.pose.orientation.w == 1.0
@@ -96,9 +97,9 @@ def test_point_clouds_parse_as_the_messages() -> None:
 def test_times_must_match_the_observations() -> None:
     p = positions_of("push", np.random.default_rng(5))
     with pytest.raises(ValueError, match="50 times for 51 observations"):
-        scene.scene_updates(p, list(range(50)), goal_diameter=0.1, labels=LABELS)
+        scene_wire.scene_updates(p, list(range(50)), goal_diameter=0.1, labels=LABELS)
     with pytest.raises(ValueError, match="50 times for 51 observations"):
-        scene.point_clouds(p, list(range(50)))
+        scene_wire.point_clouds(p, list(range(50)))
 
 
 @pytest.mark.parametrize("task", ["PointMaze_UMaze-v3", "HandReach-v3", "HandManipulateBlock-v1"])
@@ -124,3 +125,26 @@ def test_beyond_fetch_the_body_is_the_achieved_goals_first_point(task: str) -> N
         np.testing.assert_array_equal(p.gripper, ag[:, :3])
     np.testing.assert_array_equal(p.goal[:T], g[:, :3] if spec.goal_dim > 2 else p.goal[:T])
     assert p.reached.tolist() == [t == 3 for t in range(T + 1)]
+
+
+@pytest.mark.parametrize("task", ["push", "reach", "PointMaze_UMaze-v3"])
+@pytest.mark.parametrize("start", [0, 127, 4_920_000_000, 1_764_000_000_123_456_789])
+def test_the_same_bytes_as_the_step_by_step_construction(task: str, start: int) -> None:
+    """scene_wire prepares the changing parts for the whole episode at once; every message is
+    the byte string the step-by-step reference builds (starts put varint widths across steps:
+    nanos of 0, 1 and 5 bytes, seconds of 0 and 5 bytes, steps of one and two digits)."""
+    spec = task_spec(task)
+    p = (positions_of(task, np.random.default_rng(6)) if spec.gripper_position
+         else scene.episode_positions(*_maze_arrays(spec), spec))
+    times = [start + t * scene.STEP_NS for t in range(len(p.gripper))]
+    assert scene_wire.scene_updates(p, times, goal_diameter=0.1, labels=LABELS) == \
+        reference_scene_updates(p, times, goal_diameter=0.1, labels=LABELS)
+    assert scene_wire.point_clouds(p, times) == reference_point_clouds(p, times)
+
+
+def _maze_arrays(spec: TaskSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng, T = np.random.default_rng(7), spec.episode_steps
+    g = np.repeat(rng.normal(size=(1, spec.goal_dim)), T, axis=0).astype(np.float32)
+    ag = rng.normal(size=(T + 1, spec.goal_dim)).astype(np.float32)
+    ag[2] = g[0]
+    return rng.normal(size=(T + 1, spec.obs_dim)).astype(np.float32), ag, g
