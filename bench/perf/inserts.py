@@ -34,6 +34,7 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bench.common import REPO, git_commit
+from bench.perf.scene_reference import reference_point_clouds, reference_scene_updates
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.replay_core import ReplayCore
@@ -41,7 +42,6 @@ from hercs.replay_service.table import ReplayTable, Stored
 from hercs.run.runlog import RecoveringLogWriter
 from hercs.run.runlog.format import TOPIC_SCENE, TOPIC_SCENE_POINTS
 from hercs.run.runlog.mcap_bulk import reuse_zstd_contexts
-from hercs.run.runlog.scene_reference import reference_point_clouds, reference_scene_updates
 from hercs.run.runlog.writer import EpisodeLogWriter, _PreparedEpisode
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode

@@ -14,9 +14,9 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 
+from bench.perf.scene_reference import reference_point_clouds, reference_scene_updates
 from hercs.rl.task_registry import TaskSpec, task_spec
 from hercs.run.runlog import scene, scene_wire
-from hercs.run.runlog.scene_reference import reference_point_clouds, reference_scene_updates
 
 LABELS = {"episode_id": "7", "actor_id": "actor-0", "seq": "3", "success": "false"}
 
