@@ -211,8 +211,10 @@ class DDPGLearner:
             actor_loss, action_l2 = self._actor_half(s)
         else:
             critic_half = self._branches.submit(self._critic_half_in_branch, s, s2, u_t, r_t)
-            actor_loss, action_l2 = self._actor_half(s)
-            critic_loss, q, y = critic_half.result()
+            try:
+                actor_loss, action_l2 = self._actor_half(s)
+            finally:  # never leave the critic's half running into the next update
+                critic_loss, q, y = critic_half.result()
         self.critic_optim.step()
         return critic_loss, actor_loss, q.mean(), y.mean(), action_l2
 

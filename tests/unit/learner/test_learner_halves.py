@@ -133,3 +133,26 @@ def test_train_sums_on_the_device_what_update_returns() -> None:
     for a, b in zip(_state(summed), _state(returned), strict=True):
         assert torch.equal(a, b)
     assert all(np.isnan(v) for v in summed.loss_means().values())  # reset by the read
+
+
+def test_an_error_in_the_actor_half_waits_for_the_critic_half() -> None:
+    """The next update must never meet a critic half still writing gradients."""
+    learner = DDPGLearner(spec=SPEC, config=CONFIG, seed=0, parallel_halves=True)
+    actor_failed, finished = threading.Event(), threading.Event()
+    half = learner._critic_half
+
+    def slow_critic_half(*args):  # type: ignore[no-untyped-def]
+        assert actor_failed.wait(timeout=60)  # starts its work only once the actor half failed
+        result = half(*args)
+        finished.set()
+        return result
+
+    def failing_actor_half(s):  # type: ignore[no-untyped-def]
+        actor_failed.set()
+        raise RuntimeError("actor half failed")
+
+    learner._critic_half = slow_critic_half  # type: ignore[method-assign]
+    learner._actor_half = failing_actor_half  # type: ignore[method-assign]
+    with pytest.raises(RuntimeError, match="actor half failed"):
+        learner.update(random_transition_batch(SPEC, CONFIG.batch_size, seed=0))
+    assert finished.is_set()
