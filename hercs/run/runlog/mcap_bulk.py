@@ -6,9 +6,9 @@ chunk closes, each index entry is packed by itself too. For a FetchPush episode'
 ~0.4 ms of the replay's CPU, as much as drawing it. `add_message_rows` writes the same bytes
 (tests/unit/hercs/test_mcap_bulk.py compares whole files) with the headers packed by numpy,
 the records joined once, and a message index that packs its entries in one call. It reaches
-into the writer's private chunk builder and statistics (mcap 1.6; `check_writer` fails at
-once, not mid-append, if a later mcap moved them). `reuse_zstd_contexts` gives mcap's writer a
-zstd compressor per thread instead of a new one per chunk (~0.15 ms each, every append).
+into the writer's private chunk builder and statistics (mcap 1.6); where a later mcap moved
+them, it falls back to `add_message` (`has_bulk_internals`). `reuse_zstd_contexts` gives
+mcap's writer a zstd compressor per thread instead of a new one per chunk (~0.15 ms each).
 """
 
 from __future__ import annotations
@@ -69,16 +69,15 @@ def reuse_zstd_contexts() -> None:
         mcap.writer.zstandard = _ZstdPerThread()  # type: ignore[assignment]
 
 
-def check_writer(writer: McapWriter) -> None:
-    """Raise now if this mcap's Writer lacks the internals `add_message_rows` uses."""
+def has_bulk_internals(writer: McapWriter) -> bool:
+    """Whether this mcap's Writer has the internals `add_message_rows` writes into (mcap 1.6's
+    chunk builder and statistics); without them it writes message by message instead."""
     builder = getattr(writer, "_Writer__chunk_builder", None)
     statistics = getattr(writer, "_Writer__statistics", None)
-    if not (isinstance(statistics, Statistics) and isinstance(
-            getattr(builder, "message_indices", None), dict)
+    return (isinstance(statistics, Statistics)
+            and isinstance(getattr(builder, "message_indices", None), dict)
             and isinstance(getattr(builder, "record_writer", None), RecordBuilder)
-            and hasattr(builder, "num_messages")):
-        raise ImportError("hercs.run.runlog.mcap_bulk needs mcap 1.6's chunked Writer "
-                          "internals (_Writer__chunk_builder, _Writer__statistics)")
+            and hasattr(builder, "num_messages"))
 
 
 def add_message_rows(writer: McapWriter, channel_ids: Sequence[int], times_ns: Sequence[int],
@@ -93,6 +92,12 @@ def add_message_rows(writer: McapWriter, channel_ids: Sequence[int], times_ns: S
     data = [message for row in zip(*columns, strict=True) for message in row]
     if len(data) != n * width:
         raise ValueError(f"{len(data)} messages for {n} steps of {width} channels")
+    if not has_bulk_internals(writer):  # another mcap: its own, slower, public path
+        for i, time_ns in enumerate(times_ns):
+            for channel, message in zip(channel_ids, data[i * width:(i + 1) * width],
+                                        strict=True):
+                writer.add_message(channel, time_ns, message, time_ns, sequence)
+        return
     builder = writer._Writer__chunk_builder  # type: ignore[attr-defined]
     statistics: Statistics = writer._Writer__statistics  # type: ignore[attr-defined]
     times = np.asarray(times_ns, dtype=np.uint64)

@@ -50,7 +50,7 @@ from hercs.run.runlog.format import (
     fsync_dir,
     u32,
 )
-from hercs.run.runlog.mcap_bulk import add_message_rows, check_writer, reuse_zstd_contexts
+from hercs.run.runlog.mcap_bulk import add_message_rows, reuse_zstd_contexts
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.codec import msg_to_array
 
@@ -126,7 +126,6 @@ class EpisodeLogWriter:
         try:
             self._mcap = McapWriter(self._file, chunk_size=CHUNK_BYTES,
                                     compression=compression)
-            check_writer(self._mcap)
             self._mcap.start(library=f"hercs episode_log, {LIBRARY_IDENTIFIER}")
             self._mcap.add_metadata(METADATA_NAME, {
                 "run": run, "task": task, "schema_version": str(SCHEMA_VERSION),
