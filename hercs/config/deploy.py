@@ -90,7 +90,8 @@ class LearnerConfig:
     """On a GPU, capture the whole update (target, losses, backward passes, fused Adam steps,
     the loss sums) once as a CUDA graph and replay it per minibatch, the losses read back
     only for the epoch's metrics row (hercs/learner/cuda_graph.py). The same arithmetic as the
-    eager GPU update to float tolerance. Ignored on a CPU."""
+    eager GPU update to float tolerance. Where the capture fails, the learner says why and
+    trains with the eager update. Ignored on a CPU."""
 
     prefetch_depth: int = 0
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and

@@ -51,6 +51,10 @@ WARMUP_STEPS = 3
 effect on the parameters and the optimisers is undone before the first real step."""
 
 
+class CaptureFailed(RuntimeError):
+    """The update could not be captured; the learner's state is as it was before the try."""
+
+
 class CapturedUpdate:
     """The learner's `step_tensors` captured at the first minibatch, replayed for each."""
 
@@ -92,17 +96,23 @@ class CapturedUpdate:
                         for a in host]
         self._copy_in(host)
         saved = _training_state(learner)
-        side = torch.cuda.Stream(device)
-        side.wait_stream(torch.cuda.current_stream(device))
-        with torch.cuda.stream(side):
-            for _ in range(WARMUP_STEPS):
-                learner.precise(learner.step_tensors, *self.inputs)
-        torch.cuda.current_stream(device).wait_stream(side)
-        _restore_training_state(learner, saved)
-        self.graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(self.graph):
-            stats = learner.precise(learner.step_tensors, *self.inputs)
-            learner.loss_sums.add_(torch.stack(stats).double())
+        try:
+            side = torch.cuda.Stream(device)
+            side.wait_stream(torch.cuda.current_stream(device))
+            with torch.cuda.stream(side):
+                for _ in range(WARMUP_STEPS):
+                    learner.precise(learner.step_tensors, *self.inputs)
+            torch.cuda.current_stream(device).wait_stream(side)
+            _restore_training_state(learner, saved)
+            graph = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(graph):
+                stats = learner.precise(learner.step_tensors, *self.inputs)
+                learner.loss_sums.add_(torch.stack(stats).double())
+        except Exception as exc:  # this torch, GPU or driver cannot capture the update
+            torch.cuda.synchronize(device)
+            _restore_training_state(learner, saved)
+            raise CaptureFailed(f"{type(exc).__name__}: {exc}") from exc
+        self.graph = graph
 
 
 _Saved = tuple[list[torch.Tensor], dict[int, dict[str, torch.Tensor]]]

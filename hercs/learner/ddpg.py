@@ -17,6 +17,7 @@ torch's thread count: that process-wide choice belongs to the service (docs/DESI
 from __future__ import annotations
 
 import copy
+import logging
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, cast
@@ -26,7 +27,7 @@ import torch
 
 from hercs.config import PRECISIONS, DDPGConfig
 from hercs.errors import ConfigError
-from hercs.learner.cuda_graph import CapturedUpdate
+from hercs.learner.cuda_graph import CapturedUpdate, CaptureFailed
 from hercs.learner.tf32 import TF32Products
 from hercs.rl.networks import Actor, Critic, preprocess, to_arrays
 from hercs.rl.normalizer import Normalizer, NormalizerState
@@ -34,6 +35,8 @@ from hercs.rl.policy import PolicyWeights
 from hercs.rl.seeding import int_seed
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.batch import TransitionBatch, transition_shapes
+
+log = logging.getLogger(__name__)
 
 LOSS_NAMES = ("critic_loss", "actor_loss", "q_mean", "y_mean", "action_l2")
 """What one update reports, in the order of `DDPGLearner.step_tensors`' tensors."""
@@ -160,9 +163,15 @@ class DDPGLearner:
         """One DDPG step whose losses are added to running sums on the learner's device
         (`loss_means` reads them): no host synchronisation per update. On a GPU with
         `cuda_graph`, the whole step is one captured CUDA graph replayed per minibatch."""
-        if self._captured is not None:
-            self._captured.train(self.host_inputs(batch))
-        else:
+        captured = self._captured
+        if captured is not None:
+            try:
+                captured.train(self.host_inputs(batch))
+            except CaptureFailed as failure:
+                log.warning("learner.cuda_graph: the update could not be captured (%s); "
+                            "training with the eager update", failure)
+                self._captured = captured = None
+        if captured is None:
             stats = self.precise(self._eager_step, batch)
             self.loss_sums += torch.stack(stats).double()
         self._loss_count += 1

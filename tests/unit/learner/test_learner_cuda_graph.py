@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from hercs.config import DDPGConfig
+from hercs.learner.cuda_graph import CaptureFailed
 from hercs.learner.ddpg import DDPGLearner
 from hercs.rl.task_registry import task_spec
 from tests.support import random_transition_batch
@@ -30,6 +31,26 @@ def test_a_cpu_learner_ignores_the_setting() -> None:
     learner = DDPGLearner(spec=SPEC, config=CONFIG, seed=0, cuda_graph=True)
     assert learner._captured is None
     assert np.isfinite(_train(learner, 2)["critic_loss"])
+
+
+class _Uncapturable:
+    def train(self, host: object) -> None:
+        raise CaptureFailed("RuntimeError: operation not permitted when stream is capturing")
+
+
+def test_a_failed_capture_falls_back_to_the_eager_update_and_says_so(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A torch, GPU or driver that cannot capture must not stop a run: the capture undoes its
+    warm-up and raises CaptureFailed, and the learner goes on eagerly (driven here on the CPU
+    with a stand-in capture that fails)."""
+    plain = DDPGLearner(spec=SPEC, config=CONFIG, seed=6)
+    falling = DDPGLearner(spec=SPEC, config=CONFIG, seed=6)
+    falling._captured = _Uncapturable()  # type: ignore[assignment]
+    with caplog.at_level("WARNING", logger="hercs.learner.ddpg"):
+        assert _train(falling, 5) == _train(plain, 5)
+    assert falling._captured is None and falling.updates == 5
+    assert [r.getMessage() for r in caplog.records if "could not be captured" in
+            r.getMessage()] != []
 
 
 @pytest.mark.skipif(not HAS_CUDA, reason=NO_CUDA)
