@@ -10,7 +10,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import zenoh
 
@@ -204,8 +204,17 @@ class QueryServer:
         join_threads(self._threads)
 
 
+class ServeOptions(TypedDict, total=False):
+    """QueryServer's keyword options, typed once for the two `serve_*` helpers."""
+
+    on_error: Callable[[Exception], None] | None
+    workers: int
+    capacity: int
+
+
 def serve_deferred(
-    session: zenoh.Session, key: str, handler: Callable[[PendingReply], None], **options: Any,
+    session: zenoh.Session, key: str, handler: Callable[[PendingReply], None],
+    **options: Unpack[ServeOptions],
 ) -> QueryServer:
     """Give each query on `key` to `handler` as a `PendingReply`, which it answers now or parks
     and answers later from any thread (the rate limiter's backpressure). Raising
@@ -215,7 +224,8 @@ def serve_deferred(
 
 
 def serve_queryable(
-    session: zenoh.Session, key: str, handler: Callable[[bytes], bytes], **options: Any,
+    session: zenoh.Session, key: str, handler: Callable[[bytes], bytes],
+    **options: Unpack[ServeOptions],
 ) -> QueryServer:
     """Answer each query on `key` with `handler(payload)`, run on our own worker thread(s);
     `options` as serve_deferred's.
