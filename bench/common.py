@@ -15,9 +15,20 @@ from hercs.apps import provenance
 from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
 from hercs.apps.result_files import add_out_option, report_folder, write_report
 
-__all__ = ["REPO", "VECTOR_EXTENSIONS", "add_out_option", "cpu_info", "git_commit",
-           "machine_identity", "report_folder", "show_report", "table_with_notes", "timed_cli",
-           "write_report"]
+__all__ = [
+    "REPO",
+    "VECTOR_EXTENSIONS",
+    "add_out_option",
+    "add_run_options",
+    "cpu_info",
+    "git_commit",
+    "machine_identity",
+    "report_folder",
+    "show_report",
+    "table_with_notes",
+    "timed_cli",
+    "write_report",
+]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,6 +49,38 @@ def show_report(args: argparse.Namespace, name: str, summary: Any, text: str) ->
     `--quick` say (report_folder, write_report)."""
     print(text)
     write_report(report_folder(args.out, args.quick, REPO), name, summary, text)
+
+
+def report_head(module: str, title: str, summary: dict[str, Any], what: str) -> list[str]:
+    """A run-level benchmark report's first lines: `# title (python -m module)`, then `date,
+    commit, CPU, N cores; what` (from the summary's date, commit, machine, cores and quick)."""
+    quick = ", quick mode" if summary["quick"] else ""
+    return [f"# {title} (`python -m {module}`)", "",
+            f"{summary['date']}, commit `{summary['commit']}`, {summary['machine']['cpu']}, "
+            f"{summary['cores']} cores; {what}{quick}.", ""]
+
+
+QUICK_EPOCHS = "training.cycles_per_epoch=5"
+"""The override a run-level benchmark's quick mode adds: epochs of 5 cycles."""
+
+
+def add_run_options(parser: argparse.ArgumentParser, name: str) -> None:
+    """The options of a benchmark made of whole `hercs` runs: `--set` (each run's config
+    overrides), `--quick` and `--out`."""
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a config override for every run (repeatable)")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"CI: a few short runs ({QUICK_EPOCHS})")
+    add_out_option(parser, name)
+
+
+def apply_quick(args: argparse.Namespace, **small: Any) -> None:
+    """With `--quick`: the benchmark's small values (`task="reach"`, `epochs=2`, …) over its
+    arguments, and epochs of 5 cycles for every run."""
+    if args.quick:
+        for name, value in small.items():
+            setattr(args, name, value)
+        args.set = [*args.set, QUICK_EPOCHS]
 
 
 def timed_cli(bench: str, args: Sequence[str]) -> float:

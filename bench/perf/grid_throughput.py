@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import add_out_option, git_commit, machine_identity, show_report, timed_cli
+from bench import common
 
 METHODS = ("her", "her-cs")
 
@@ -29,7 +29,7 @@ METHODS = ("her", "her-cs")
 def timed_grid(args: argparse.Namespace, jobs: int, work: Path) -> float:
     """Wall seconds of one two-run grid with `--jobs jobs`."""
     run_dir = work / f"grid-{len(list(work.iterdir()))}"
-    return timed_cli("bench.perf.grid_throughput", [
+    return common.timed_cli("bench.perf.grid_throughput", [
         "sweep", "--tasks", args.task, "--methods", *METHODS, "--seeds", "1", "--epochs",
         str(args.epochs), "--jobs", str(jobs), "--run-dir", str(run_dir),
         *(item for kv in args.set for item in ("--set", kv))])
@@ -43,26 +43,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--epochs", type=int, default=6)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a config override for every run (repeatable)")
-    parser.add_argument("--quick", action="store_true")
-    add_out_option(parser, "grid_throughput")
+    common.add_run_options(parser, "grid_throughput")
     args = parser.parse_args(argv)
     if args.epochs < 1 or args.rounds < 1 or min(args.jobs) < 1:
         parser.error("--epochs, --rounds and every --jobs value must be ≥ 1")
-    if args.quick:
-        args.task, args.epochs, args.rounds = "reach", 2, 1
-        args.set = [*args.set, "training.cycles_per_epoch=5"]
+    common.apply_quick(args, task="reach", epochs=2, rounds=1)
     return args
 
 
 def render(summary: dict[str, Any]) -> str:
     lines = [
-        "# Grid throughput by `--jobs` (`python -m bench.perf.grid_throughput`)", "",
-        f"{summary['date']}, commit `{summary['commit']}`, {summary['machine']['cpu']}, "
-        f"{summary['cores']} cores; each grid: `hercs sweep --tasks {summary['task']} "
-        f"--methods {' '.join(METHODS)} --seeds 1 --epochs {summary['epochs']}`"
-        f"{', quick mode' if summary['quick'] else ''}.", "",
+        *common.report_head(
+            "bench.perf.grid_throughput", "Grid throughput by `--jobs`", summary,
+            f"each grid: `hercs sweep --tasks {summary['task']} --methods "
+            f"{' '.join(METHODS)} --seeds 1 --epochs {summary['epochs']}`"),
         "| --jobs | grid wall s, per round | epochs per hour (mean) | against --jobs "
         f"{summary['jobs'][0]} |",
         "|---:|---|---:|---:|",
@@ -88,12 +82,12 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"round {round_ + 1}, --jobs {jobs}: {wall:.0f} s", flush=True)
     epochs = len(METHODS) * args.epochs
     per_hour = {j: float(np.mean([3600.0 * epochs / w for w in ws])) for j, ws in walls.items()}
-    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
-               "machine": machine_identity(), "cores": os.cpu_count(), "task": args.task,
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
+               "machine": common.machine_identity(), "cores": os.cpu_count(), "task": args.task,
                "epochs": args.epochs, "jobs": args.jobs, "quick": args.quick, "walls": walls,
                "epochs_per_hour": per_hour,
                "best_jobs": int(max(per_hour, key=lambda j: per_hour[j]))}
-    show_report(args, "grid_throughput", summary, render(summary))
+    common.show_report(args, "grid_throughput", summary, render(summary))
     return 0
 
 

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bench.common import add_out_option, git_commit, machine_identity, show_report, timed_cli
+from bench import common
 from bench.perf.actor_envs import raw_slice
 from bench.perf.learner import gemm_rate, make_batch, update_flops
 from hercs.config import DDPGConfig, HercsConfig, apply_overrides
@@ -69,7 +69,7 @@ def timed_run(args: argparse.Namespace, seed: int, overrides: tuple[str, ...],
               work: Path) -> dict[str, float]:
     """One `hercs up` run: its process wall time and its steady seconds per epoch."""
     name = f"run-{len(list(work.iterdir()))}"
-    wall = timed_cli("bench.perf.run_time", [
+    wall = common.timed_cli("bench.perf.run_time", [
         "up", "--task", args.task, "--method", args.method, "--seed", str(seed), "--epochs",
         str(args.epochs), "--actors", "1", "--run", name, "--run-dir", str(work), "--listen",
         "tcp/127.0.0.1:0", *(item for kv in (*args.set, *overrides) for item in ("--set", kv))])
@@ -89,17 +89,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--method", default="her-cs")
     parser.add_argument("--epochs", type=int, default=10)
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a config override for every run (repeatable)")
-    parser.add_argument("--quick", action="store_true")
-    add_out_option(parser, "run_time")
+    common.add_run_options(parser, "run_time")
     args = parser.parse_args(argv)
     if args.epochs < 2 or args.seeds < 1:
         parser.error(f"--epochs must be ≥ 2 (a steady state needs two epochs) and --seeds ≥ 1 "
                      f"(got {args.epochs}, {args.seeds})")
-    if args.quick:
-        args.task, args.epochs, args.seeds = "reach", 2, 1
-        args.set = [*args.set, "training.cycles_per_epoch=5"]
+    common.apply_quick(args, task="reach", epochs=2, seeds=1)
     return args
 
 
@@ -107,11 +102,10 @@ def render(summary: dict[str, Any]) -> str:
     limit = summary["limit"]
     names = [name for name, _ in VARIANTS]
     lines = [
-        "# Run time side by side (`python -m bench.perf.run_time`)", "",
-        f"{summary['date']}, commit `{summary['commit']}`, {summary['machine']['cpu']}, "
-        f"{limit['cores']} cores; `hercs up --task {summary['task']} --method "
-        f"{summary['method']} --epochs {summary['epochs']}`"
-        f"{', quick mode' if summary['quick'] else ''}.", "",
+        *common.report_head(
+            "bench.perf.run_time", "Run time side by side", summary,
+            f"`hercs up --task {summary['task']} --method {summary['method']} --epochs "
+            f"{summary['epochs']}`"),
         f"Limit: {limit['updates_per_epoch']} updates of {limit['update_gflop']:.3f} GFLOP at "
         f"{limit['gemm_gflops']:.1f} GFLOP/s plus {limit['env_steps_per_epoch']} env steps at "
         f"{limit['raw_steps_per_s']:.0f} raw steps/s, over {limit['cores']} cores: "
@@ -149,11 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     by = {(r["seed"], r["setting"]): r["s_per_epoch"] for r in runs}
     old, new = (name for name, _ in VARIANTS)
     ratios = [by[(s, old)] / by[(s, new)] for s in range(1, args.seeds + 1)]
-    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
-               "machine": machine_identity(), "task": args.task, "method": args.method,
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
+               "machine": common.machine_identity(), "cores": limit["cores"], "task": args.task,
+               "method": args.method,
                "epochs": args.epochs, "quick": args.quick, "limit": limit, "runs": runs,
                "ratios": ratios, "ratio_geomean": float(np.exp(np.mean(np.log(ratios))))}
-    show_report(args, "run_time", summary, render(summary))
+    common.show_report(args, "run_time", summary, render(summary))
     return 0
 
 

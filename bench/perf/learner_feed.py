@@ -1,0 +1,98 @@
+"""How many actors one learner feeds at the paper's 10 updates per episode.
+
+    python -m bench.perf.learner_feed --device cuda            # on a GPU machine: 1–12 actors
+    python -m bench.perf.learner_feed --quick                  # CI: the CPU, 1 and 2 actors
+
+For each actor count N, one `hercs up --task push --method her --actors N` run with the learner
+on `--device`, one after the other. The run's steady updates per second (the median over its
+epochs after the first) says how fast the learner trained; the seconds it waited for batches
+(`batch_wait_s`) say whether it was starved. The learner is fed from the smallest N whose
+updates per second reach 0.95 of the best N's: more actors than that only queue episodes.
+Writes docs/results/learner_feed.{json,md} (or --out); discussed in docs/PERFORMANCE.md §10.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from datetime import UTC, datetime
+from pathlib import Path
+from statistics import median
+from typing import Any
+
+from bench import common
+from hercs.run.metrics import read_rows
+from hercs.run.rundir import RunDir
+
+FED_SHARE = 0.95
+"""A learner is fed at N actors when its updates per second reach this share of the best."""
+
+
+def one_run(args: argparse.Namespace, actors: int, work: Path) -> dict[str, Any]:
+    name = f"actors-{actors}"
+    wall = common.timed_cli("bench.perf.learner_feed", [
+        "up", "--task", args.task, "--method", "her", "--seed", "1", "--epochs",
+        str(args.epochs), "--actors", str(actors), "--run", name, "--run-dir", str(work),
+        "--listen", "tcp/127.0.0.1:0", "--set", f"learner.device={args.device}",
+        *(item for kv in args.set for item in ("--set", kv))])
+    rows = read_rows(RunDir(work / name).metrics)
+    steady = rows[1:] or rows
+    return {"actors": actors, "wall_s": wall,
+            "updates_per_s": median(float(r["updates_per_s"]) for r in steady),
+            "env_steps_per_s": median(float(r["env_steps_per_s"]) for r in steady),
+            "batch_wait_s": median(float(r.get("batch_wait_s") or 0.0) for r in steady)}
+
+
+def fed_at(runs: list[dict[str, Any]]) -> int:
+    """The smallest actor count whose updates per second reach FED_SHARE of the best."""
+    best = max(r["updates_per_s"] for r in runs)
+    return min(r["actors"] for r in runs if r["updates_per_s"] >= FED_SHARE * best)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m bench.perf.learner_feed",
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cuda", help="learner.device (default cuda)")
+    parser.add_argument("--actors", type=int, nargs="+", default=[1, 2, 4, 6, 8, 12])
+    parser.add_argument("--task", default="push")
+    parser.add_argument("--epochs", type=int, default=3)
+    common.add_run_options(parser, "learner_feed")
+    args = parser.parse_args(argv)
+    if args.epochs < 2 or min(args.actors) < 1:
+        parser.error("--epochs must be ≥ 2 (the first is start-up) and every --actors ≥ 1")
+    common.apply_quick(args, device="cpu", task="reach", actors=[1, 2], epochs=2)
+    return args
+
+
+def render(summary: dict[str, Any]) -> str:
+    lines = [
+        *common.report_head(
+            "bench.perf.learner_feed", "Actors one learner feeds", summary,
+            f"learner on `{summary['device']}`, `hercs up --task {summary['task']} --method "
+            f"her --epochs {summary['epochs']} --actors N`"),
+        "| actors | updates/s | env steps/s | learner's wait for batches, s per epoch |",
+        "|---:|---:|---:|---:|",
+    ]
+    lines += [f"| {r['actors']} | {r['updates_per_s']:.0f} | {r['env_steps_per_s']:.0f} | "
+              f"{r['batch_wait_s']:.1f} |" for r in summary["runs"]]
+    lines += ["", f"Fed from **{summary['fed_at']} actor(s)** (updates/s ≥ {FED_SHARE:.0%} of "
+              "the best)."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="hercs-learner-feed-") as tmp:
+        runs = [one_run(args, n, Path(tmp)) for n in args.actors]
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
+               "machine": common.machine_identity(), "cores": os.cpu_count(), "device": args.device,
+               "task": args.task, "epochs": args.epochs, "quick": args.quick, "runs": runs,
+               "fed_at": fed_at(runs)}
+    common.show_report(args, "learner_feed", summary, render(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

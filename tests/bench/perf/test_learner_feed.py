@@ -1,0 +1,31 @@
+"""bench/perf/learner_feed: where a learner counts as fed (pure), and the quick mode's real runs
+with one and two actors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from bench.perf.learner_feed import fed_at
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_fed_at_is_the_fewest_actors_within_five_percent_of_the_best() -> None:
+    runs = [{"actors": 1, "updates_per_s": 300.0}, {"actors": 2, "updates_per_s": 560.0},
+            {"actors": 4, "updates_per_s": 590.0}, {"actors": 8, "updates_per_s": 600.0}]
+    assert fed_at(runs) == 4  # 590 ≥ 0.95 × 600; 560 is not
+    assert fed_at(runs[:1]) == 1
+
+
+def test_quick_mode_runs_each_actor_count(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "bench.perf.learner_feed", "--quick", "--out",
+                           str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    summary = json.loads((tmp_path / "learner_feed.json").read_text())
+    assert [r["actors"] for r in summary["runs"]] == [1, 2]
+    assert all(r["updates_per_s"] > 0 and r["env_steps_per_s"] > 0 for r in summary["runs"])
+    assert summary["fed_at"] == fed_at(summary["runs"])
+    assert "| 2 |" in (tmp_path / "learner_feed.md").read_text()
