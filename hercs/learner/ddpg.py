@@ -1,10 +1,11 @@
 """DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
 
-`DDPGLearner.update(batch)` is one of the reference's `_update_network` calls: the clipped TD
-target from the target networks, the critic's and the actor's losses from the same parameters,
-then an Adam step on each; `update_targets()` is the once-per-cycle Polyak average. The
-formulas are in docs/DESIGN.md §4.6. The normalisers live in the replay, which sees every
-episode; the learner only adopts the statistics it is sent and forwards them with the weights.
+`DDPGLearner.update(batch)` (or `train`, the loop's, which keeps the losses on the device) is
+one of the reference's `_update_network` calls: the clipped TD target from the target networks,
+the critic's and the actor's losses from the same parameters, then an Adam step on each; the
+two halves may run on two threads (`learner.parallel_halves`) and a GPU's may be one CUDA graph
+(`hercs/learner/cuda_graph.py`). `update_targets()` is the once-per-cycle Polyak average
+(docs/DESIGN.md §4.6). The normalisers live in the replay; the learner adopts its statistics.
 
 Precision (`learner.precision`, bf16 or tf32 via `hercs/learner/tf32.py`) and device
 (`learner.device`, `resolve_device`) are as docs/DESIGN.md §4 describes: networks are created
