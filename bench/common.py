@@ -16,14 +16,17 @@ from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
 from hercs.apps.result_files import add_out_option, report_folder, write_report
 
 __all__ = [
+    "QUICK_EPOCHS",
     "REPO",
     "VECTOR_EXTENSIONS",
     "add_out_option",
     "add_run_options",
+    "apply_quick",
     "cpu_info",
     "git_commit",
     "machine_identity",
     "report_folder",
+    "report_head",
     "show_report",
     "table_with_notes",
     "timed_cli",

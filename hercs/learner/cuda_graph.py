@@ -6,7 +6,7 @@ passes, both fused Adam steps, the loss sums) is one graph launch per minibatch;
 normalises the minibatch and copies it into the graph's fixed input tensors. The graph reads
 the parameters, the target networks and the optimisers' state by address, so everything that
 changes them in place between replays (the Polyak update, `load_state_dict` of the networks)
-is seen; `CapturableLearner.load_state_dict` recaptures, since it replaces the optimisers' state.
+is seen; `DDPGLearner.load_state_dict` recaptures, since it replaces the optimisers' state.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from torch import nn
 
 
 class CapturableLearner(Protocol):
-    """What the capture reads of `hercs.learner.ddpg.CapturableLearner` (named here, so that this
+    """What the capture reads of `hercs.learner.ddpg.DDPGLearner` (named here, so that this
     module does not import the learner that uses it)."""
 
     @property
@@ -45,6 +45,7 @@ class CapturableLearner(Protocol):
 
     def step_tensors(self, s: torch.Tensor, s2: torch.Tensor, u_t: torch.Tensor,
                      r_t: torch.Tensor) -> tuple[torch.Tensor, ...]: ...
+
 
 WARMUP_STEPS = 3
 """Eager steps on a side stream before the capture (cuBLAS and the allocator settle); their

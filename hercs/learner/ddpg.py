@@ -21,7 +21,7 @@ import copy
 import logging
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import torch
@@ -220,7 +220,9 @@ class DDPGLearner:
             critic_loss, q, y = self._critic_half(s, s2, u_t, r_t)
             actor_loss, action_l2 = self._actor_half(s)
         else:
-            critic_half = self._branches.submit(self._critic_half_in_branch, s, s2, u_t, r_t)
+            # precise again on that thread: torch's dispatch modes (TF32) are per thread
+            critic_half = self._branches.submit(self.precise, self._critic_half, s, s2, u_t,
+                                                r_t)
             try:
                 actor_loss, action_l2 = self._actor_half(s)
             finally:  # never leave the critic's half running into the next update
@@ -246,13 +248,6 @@ class DDPGLearner:
         self.critic_optim.zero_grad(set_to_none=True)
         critic_loss.backward()
         return critic_loss, q, y
-
-    def _critic_half_in_branch(self, *args: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,
-                                                                   torch.Tensor]:
-        """`_critic_half` on the branch thread: torch's dispatch modes are per thread, so the
-        TF32 products are entered here again."""
-        return cast(tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-                    self.precise(self._critic_half, *args))
 
     def _actor_half(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The actor's loss, gradients and Adam step.

@@ -14,7 +14,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.common import REPO, add_out_option, git_commit, machine_identity, show_report
+from bench.common import (
+    REPO,
+    add_run_options,
+    apply_quick,
+    git_commit,
+    machine_identity,
+    report_folder,
+    show_report,
+)
 from bench.perf.run_profile.proc_sampler import ProcSampler
 from bench.perf.run_profile.report import render
 from bench.perf.run_profile.stacks import GROUPS, group_shares, parse_raw, role_of, top_frames
@@ -29,17 +37,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--method", default="her-cs")
     parser.add_argument("--epochs", type=int, default=10)
     parser.add_argument("--rate", type=int, default=50, help="py-spy samples per second")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a config override passed to `hercs up` (repeatable)")
-    parser.add_argument("--quick", action="store_true",
-                        help="CI: a 1-epoch FetchReach run of 5 cycles, every figure computed")
-    add_out_option(parser, "run_profile")
+    add_run_options(parser, "run_profile")
     args = parser.parse_args(argv)
     if args.epochs < 1 or args.rate < 1:
         parser.error(f"--epochs and --rate must be ≥ 1 (got {args.epochs}, {args.rate})")
-    if args.quick:
-        args.task, args.epochs = "reach", 1
-        args.set = [*args.set, "training.cycles_per_epoch=5"]
+    apply_quick(args, task="reach", epochs=1)
     return args
 
 
@@ -137,9 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     summary.update({"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": git_commit(),
                     "machine": machine_identity(), "quick": args.quick, "rate": args.rate})
     show_report(args, "run_profile", summary, render(summary))
-    if args.out or not args.quick:
-        write_cores((args.out or REPO / "docs" / "results") / "run_profile_cores.csv",
-                    measured["cores"])
+    out = report_folder(args.out, args.quick, REPO)
+    if out is not None:
+        write_cores(out / "run_profile_cores.csv", measured["cores"])
     return 0
 
 
