@@ -85,15 +85,15 @@ def parse_raw(lines: Iterable[str]) -> dict[int, ProcessSamples]:
         if not stack or not count_text.isdigit():
             continue
         frames = stack.split(";")
-        pid, command, depth = None, "", 0
-        for depth, frame in enumerate(frames):  # noqa: B007 — depth is read after the loop
-            match = PROCESS_FRAME.match(frame)
-            if match is None:
-                break
-            pid, command = int(match.group(1)), match.group(2)
-        if pid is None:
+        depth = 0  # the process frames lead; the innermost one is the sampled process
+        while depth < len(frames) and PROCESS_FRAME.match(frames[depth]):
+            depth += 1
+        if depth == 0:
             continue
-        process = processes.setdefault(pid, ProcessSamples(pid, role_of(command)))
+        match = PROCESS_FRAME.match(frames[depth - 1])
+        assert match is not None
+        pid = int(match.group(1))
+        process = processes.setdefault(pid, ProcessSamples(pid, role_of(match.group(2))))
         body = frames[depth:]
         if not body or WAIT_LEAF.search(body[-1]):
             process.idle += int(count_text)
@@ -110,11 +110,10 @@ def group_of(role: str, stack: str) -> str:
         return "start-up (imports)" if _RULES[0][1].search(stack) else "clustering"
     if role == "up":
         return "launcher and router"
-    leaf_first = stack  # the rules read the whole stack; the GEMM rule anchors at its end
-    for group, pattern in _RULES:
+    for group, pattern in _RULES:  # the whole stack; the GEMM rule anchors at its leaf
         if group in {"rest of the update", "Adam", "GEMMs"} and role != "learner":
             continue
-        if pattern.search(leaf_first):
+        if pattern.search(stack):
             return group
     return "other"
 

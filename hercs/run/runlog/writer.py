@@ -64,7 +64,7 @@ if not hasattr(McapWriter, "flush"):  # durability rests on it: fail at import, 
 reuse_zstd_contexts()  # every append compresses a chunk: ~0.15 ms less each
 _SCENE_UPDATE, _POINT_CLOUD = SceneUpdate(), PointCloud()
 """Instances naming the scene topics' message types (their schemas); the scene's messages
-themselves are built as bytes (`hercs.run.runlog.scene`)."""
+themselves are built as bytes (`hercs.run.runlog.scene_wire`)."""
 
 SCENE_BACKLOG = 1024
 """Episodes whose scene may wait to be written; beyond it new episodes get none."""
