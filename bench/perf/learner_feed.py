@@ -79,17 +79,32 @@ def render(summary: dict[str, Any]) -> str:
               f"{r['batch_wait_s']:.1f} |" for r in summary["runs"]]
     lines += ["", f"Fed from **{summary['fed_at']} actor(s)** (updates/s ≥ {FED_SHARE:.0%} of "
               "the best)."]
+    if not summary.get("complete", True):
+        lines += ["", f"Partial: {len(summary['runs'])} of the actor counts "
+                  f"{summary['planned']} were run."]
     return "\n".join(lines) + "\n"
+
+
+def summarise(args: argparse.Namespace, runs: list[dict[str, Any]]) -> dict[str, Any]:
+    return {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
+            "machine": common.machine_identity(), "cores": os.cpu_count(), "device": args.device,
+            "task": args.task, "epochs": args.epochs, "quick": args.quick, "runs": runs,
+            "fed_at": fed_at(runs), "complete": len(runs) == len(args.actors),
+            "planned": args.actors}
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    runs: list[dict[str, Any]] = []
+    folder = common.report_folder(args.out, args.quick, common.REPO)
     with tempfile.TemporaryDirectory(prefix="hercs-learner-feed-") as tmp:
-        runs = [one_run(args, n, Path(tmp)) for n in args.actors]
-    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
-               "machine": common.machine_identity(), "cores": os.cpu_count(), "device": args.device,
-               "task": args.task, "epochs": args.epochs, "quick": args.quick, "runs": runs,
-               "fed_at": fed_at(runs)}
+        for n in args.actors:
+            runs.append(one_run(args, n, Path(tmp)))
+            if n != args.actors[-1]:
+                # the counts so far, kept if a later run fails or a lent machine's time runs out
+                summary = summarise(args, runs)
+                common.write_report(folder, "learner_feed", summary, render(summary))
+    summary = summarise(args, runs)
     common.show_report(args, "learner_feed", summary, render(summary))
     return 0
 
