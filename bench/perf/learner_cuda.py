@@ -214,7 +214,7 @@ def report(s: dict) -> str:  # type: ignore[type-arg]
                   "| precision | " + " | ".join(f"B = {s['batch_size'] * n}"
                                                 for n in workers if n in cpu["fp32"]) + " |",
                   "|---|" + "---|" * len([n for n in workers if n in cpu["fp32"]])]
-        for precision in cpu:
+        for precision in (p for p in cpu if p in gpu):  # the halves are a CPU setting only
             lines.append(f"| {precision} | " + " | ".join(
                 f"{gpu[precision][n] / cpu[precision][n]:.1f}×" for n in workers
                 if n in cpu[precision]) + " |")
