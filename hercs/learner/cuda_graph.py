@@ -108,7 +108,8 @@ class CapturedUpdate:
             graph = torch.cuda.CUDAGraph()
             with torch.cuda.graph(graph):
                 stats = learner.precise(learner.step_tensors, *self.inputs)
-                learner.loss_sums.add_(torch.stack(stats).double())
+                # detached, as in ddpg.loss_row: no autograd chain onto the sums
+                learner.loss_sums.add_(torch.stack(stats).detach().double())
         except Exception as exc:  # this torch, GPU or driver cannot capture the update
             torch.cuda.synchronize(device)
             _restore_training_state(learner, saved)

@@ -105,6 +105,13 @@ def _to_host(value: Any) -> Any:
     return copy.deepcopy(value)
 
 
+def loss_row(stats: LossTensors) -> torch.Tensor:
+    """The update's losses as one float64 row to add to the sums, cut from autograd: the
+    losses require grad, and an in-place sum of them would chain every update's graph onto the
+    sums tensor (measured: +248 MiB per 3,000 updates before this was detached)."""
+    return torch.stack(stats).detach().double()
+
+
 class DDPGLearner:
     """Actor, critic, their targets and optimisers; one `update` per minibatch."""
 
@@ -174,7 +181,7 @@ class DDPGLearner:
                 self._captured = captured = None
         if captured is None:
             stats = self.precise(self._eager_step, batch)
-            self.loss_sums += torch.stack(stats).double()
+            self.loss_sums += loss_row(stats)
         self._loss_count += 1
         self.updates += 1
 

@@ -67,6 +67,7 @@ def test_the_captured_update_matches_the_eager_one(precision: str) -> None:
     for name, array in eager.actor_weights().items():
         np.testing.assert_allclose(graph.actor_weights()[name], array, atol=10 * tolerance)
     assert graph.updates == eager.updates == 30
+    assert graph._captured is not None  # the graph ran: no fallback to the eager update
 
 
 @pytest.mark.skipif(not HAS_CUDA, reason=NO_CUDA)
@@ -82,3 +83,5 @@ def test_a_checkpoint_loaded_into_a_captured_learner_is_recaptured_and_continues
     want, got = _train(eager, 10, first_seed=100), _train(graph, 10, first_seed=100)
     for key in want:
         assert got[key] == pytest.approx(want[key], rel=1e-4, abs=1e-4), key
+    assert graph._captured is not None  # recaptured, not fallen back to the eager update
+    assert graph._captured.graph is not None and not graph.loss_sums.requires_grad

@@ -127,6 +127,8 @@ def test_train_sums_on_the_device_what_update_returns() -> None:
         batch = random_transition_batch(SPEC, CONFIG.batch_size, seed=i)
         summed.train(batch)
         rows.append(returned.update(batch))
+    # the sums hold numbers, not the updates' autograd graphs (a chain of them leaked memory)
+    assert not summed.loss_sums.requires_grad and summed.loss_sums.grad_fn is None
     means = summed.loss_means()
     assert means == {key: sum(row[key] for row in rows) / UPDATES for key in rows[0]}
     assert summed.updates == returned.updates == UPDATES
