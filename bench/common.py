@@ -1,15 +1,16 @@
-"""What every benchmark script shares: the commit its results were measured at, and how a
-report is written."""
+"""What every benchmark script shares: the commit its results were measured at, how a report
+is written, and starting a group of things (hosts, actors) that are all stopped however it ends."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from hercs.apps import provenance
 from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
@@ -21,6 +22,7 @@ __all__ = [
     "VECTOR_EXTENSIONS",
     "add_out_option",
     "add_run_options",
+    "all_started",
     "apply_quick",
     "cpu_info",
     "git_commit",
@@ -34,6 +36,8 @@ __all__ = [
 ]
 
 REPO = Path(__file__).resolve().parents[1]
+
+T = TypeVar("T")
 
 
 def table_with_notes(lines: list[str], notes: Iterable[tuple[str, str]]) -> str:
@@ -97,3 +101,17 @@ def timed_cli(bench: str, args: Sequence[str]) -> float:
         sys.exit(f"{bench}: `hercs {' '.join(args)}` failed ({done.returncode}):\n"
                  f"{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
     return wall
+
+
+@contextlib.contextmanager
+def all_started(items: Sequence[T], start: Callable[[T], object],
+                stop: Callable[[T], object]) -> Iterator[Sequence[T]]:
+    """`start` each item in turn, then the block; `stop` every item however the block or a
+    start ends, those never started included (so `stop` must cope with them)."""
+    try:
+        for item in items:
+            start(item)
+        yield items
+    finally:
+        for item in items:
+            stop(item)

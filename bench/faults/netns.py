@@ -21,6 +21,8 @@ import subprocess
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from bench.common import all_started
+
 TOOLS = ("ip", "tc", "iptables")
 SUBNET = "10.125"
 """Host i's link is SUBNET.i.0/24 (i from 1): the host end .1, the namespace end .2.
@@ -176,10 +178,5 @@ def hosts(count: int, *, subnet: str = SUBNET, first: int = 1) -> Iterator[list[
     """`count` namespaced hosts (indices `first`, `first` + 1, …), removed with their chains
     and links however the body ends."""
     made = [make_host(i, subnet=subnet) for i in range(first, first + count)]
-    try:
-        for host in made:
-            host.create()
+    with all_started(made, Host.create, Host.remove):
         yield made
-    finally:
-        for host in made:
-            host.remove()

@@ -12,6 +12,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
+from bench.common import all_started
 from bench.perf.throughput import BenchError
 from bench.perf.throughput.plan import K_CLUSTERS, REQUEST_TIMEOUT_S, RUN, SEED
 from hercs.net.transport import Transport
@@ -105,13 +106,8 @@ class SyntheticFleet:
     def running(self, n: int) -> Iterator[list[SyntheticActor]]:
         """The first `n` actors insert until the block exits; a failed actor raises then."""
         actors = self.actors[:n]
-        try:
-            for actor in actors:
-                actor.start()
+        with all_started(actors, SyntheticActor.start, SyntheticActor.stop):
             yield actors
-        finally:
-            for actor in actors:
-                actor.stop()
         errors = [a.error for a in actors if a.error is not None]
         if errors:
             raise BenchError(f"a synthetic actor failed: {errors[0]!r}")
