@@ -16,6 +16,7 @@ from types import ModuleType
 
 import numpy as np
 
+from hercs.apps.child_process import stop_process
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.rl.task_registry import TaskSpec
 from hercs.run.rundir import RunDir
@@ -103,13 +104,7 @@ def rerun_viewer(port: int, received: Path) -> Iterator[subprocess.Popen[bytes]]
         wait_for_port(port)
         yield viewer
     finally:
-        if viewer.poll() is None:
-            viewer.send_signal(signal.SIGINT)
-            try:
-                viewer.wait(10)
-            except subprocess.TimeoutExpired:
-                viewer.kill()
-                viewer.wait()
+        stop_process(viewer, signal.SIGINT, grace_s=10)
 
 
 def load_module(name: str) -> ModuleType:

@@ -31,6 +31,7 @@ from pathlib import Path
 from bench.faults.netns import Host, hosts, problem
 from bench.faults.remote_actor import free_port
 from hercs.apps.certs import make_certs
+from hercs.apps.child_process import stop_process
 from hercs.apps.router import open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import zenoh_settings
@@ -164,12 +165,7 @@ def probe(cuts: Sequence[float], *, host: Host, certs: Path,
                 break
     finally:
         if proc is not None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_process(proc, signal.SIGTERM, grace_s=15)
         replay.close()
         router.close()
     return out

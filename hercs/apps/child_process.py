@@ -5,7 +5,8 @@ log file. It leads a process group of its own, so that Ctrl-C at a terminal reac
 parent (which then stops the children in order) and a signal to the group also reaches what
 the child forked. With `PR_SET_PDEATHSIG` = SIGKILL set between fork and exec, the kernel
 kills the child if the parent dies (SIGKILL, crash). That signal fires when the *thread* that
-forked the child exits, so children must be started from the main thread.
+forked the child exits, so children must be started from the main thread. `stop_process` ends
+any child (a benchmark's, a test's): a signal, a grace period, then SIGKILL.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import subprocess
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 _PR_SET_PDEATHSIG = 1
 
@@ -68,6 +70,22 @@ def signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
     """Signal the child's whole process group (it leads it); a group already gone is fine."""
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(proc.pid, sig)
+
+
+def stop_process(proc: subprocess.Popen[Any], sig: int = signal.SIGTERM,
+                 grace_s: float = 15.0) -> bool:
+    """Send `sig` to `proc` if it still runs and give it `grace_s` seconds to end; SIGKILL it
+    (and reap it) if it has not. True if it ended by itself, False if it had to be killed."""
+    if proc.poll() is not None:
+        return True
+    proc.send_signal(sig)
+    try:
+        proc.wait(grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        return False
+    return True
 
 
 def describe_exit(code: int) -> str:

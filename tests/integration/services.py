@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hercs.apps.child_process import stop_process
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
@@ -55,16 +56,10 @@ class ServiceProcess:
 
     def stop(self, timeout_s: float = 20.0) -> int:
         """SIGTERM, wait; returns the exit code (SIGKILL and a failing code if it hangs)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-                self._log.close()
-                raise AssertionError(f"{self.service} ignored SIGTERM for {timeout_s} s:\n"
-                                     f"{self.log_text()[-3000:]}") from None
+        if not stop_process(self.proc, signal.SIGTERM, grace_s=timeout_s):
+            self._log.close()
+            raise AssertionError(f"{self.service} ignored SIGTERM for {timeout_s} s:\n"
+                                 f"{self.log_text()[-3000:]}")
         self._log.close()
         return self.proc.returncode
 

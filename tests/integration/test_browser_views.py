@@ -13,6 +13,7 @@ to load, connect and draw depends on the machine.
 from __future__ import annotations
 
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hercs.apps.child_process import stop_process
 from hercs.apps.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
 from tests.integration.launcher_standins import Launcher
 from tests.support import free_tcp_port, rerun_binary, wait_for_port
@@ -46,13 +48,7 @@ def _chromium() -> str:
 
 
 def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    stop_process(proc, signal.SIGTERM, grace_s=30)
 
 
 SCENE = (slice(int(0.08 * WINDOW[1]), int(0.70 * WINDOW[1])),
