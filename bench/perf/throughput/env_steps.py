@@ -53,13 +53,11 @@ def measure(bench: Harness) -> None:
                                    rounds=p.env_rounds, slice_s=p.env_slice_s, reference=raw)
     arrivals = [t for t, actor_id in bench.headers.snapshot() if is_ours(actor_id)]
     acked = [(t, (i + 1) * T) for i, t in enumerate(arrivals)]  # cumulative env steps
-    ours, ours_cpu = turns.system_rates(acked)
-    reference, reference_cpu = turns.reference_rate, turns.reference_rate_per_cpu
+    ours, ours_cpu, reference, reference_cpu = turns.rates(acked)
     say(f"env steps/s: actor {ours:,.0f}, raw {reference:,.0f}; per CPU-second: actor "
         f"{ours_cpu:,.0f}, raw {reference_cpu:,.0f}")
     bench.details["env"] = {
-        **turns.by_slice(acked, system="actor_steps", reference="raw_steps"),
-        "slice_s": p.env_slice_s, "rounds": p.env_rounds,
+        **turns.details(acked, system="actor_steps", reference="raw_steps"),
         "actor_policy": "initial weights (no learner runs in this phase); the same "
                         "network, so the same inference cost as a trained one",
     }

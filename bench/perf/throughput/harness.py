@@ -310,7 +310,7 @@ class Harness:
         Short alternating slices make both sides see the same background load, which on a
         shared machine drifts within seconds.
         """
-        out = Alternation()
+        out = Alternation(slice_s=slice_s, rounds=rounds)
         child.pause()
         try:
             for _ in range(rounds):

@@ -66,13 +66,11 @@ def measure(bench: Harness, replay: Child) -> None:
                                    rounds=p.learner_rounds, slice_s=p.learner_slice_s,
                                    reference=reference)
     progress = [(t, v * p.minibatches_per_cycle) for t, v in bench.weights.snapshot()]
-    ours, ours_cpu = turns.system_rates(progress)
-    reference_rate, reference_cpu = turns.reference_rate, turns.reference_rate_per_cpu
+    ours, ours_cpu, reference_rate, reference_cpu = turns.rates(progress)
     say(f"updates/s: learner service {ours:.1f}, in process {reference_rate:.1f}; per "
         f"CPU-second: service {ours_cpu:.1f}, in process {reference_cpu:.1f}")
     bench.details["learner"] = {
-        **turns.by_slice(progress, system="service_updates", reference="reference_updates"),
-        "slice_s": p.learner_slice_s, "rounds": p.learner_rounds,
+        **turns.details(progress, system="service_updates", reference="reference_updates"),
         "minibatches_per_cycle": p.minibatches_per_cycle, "batch_size": 256,
         "torch_threads": 1,
     }

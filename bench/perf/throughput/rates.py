@@ -7,6 +7,7 @@ import bisect
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 from bench.perf.throughput import BenchError
 
@@ -71,6 +72,10 @@ def work_in_windows(samples: Sequence[tuple[float, float]],
 class Alternation:
     """What `Harness.alternate` measured."""
 
+    slice_s: float
+    """Seconds each side ran per turn."""
+    rounds: int
+    """System slices, each between two reference slices."""
     reference: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)
     """(work done, wall seconds, CPU seconds of this thread) per reference slice."""
     windows: list[tuple[float, float]] = dataclasses.field(default_factory=list)
@@ -86,20 +91,22 @@ class Alternation:
     def reference_rate_per_cpu(self) -> float:
         return sum(w for w, _, _ in self.reference) / sum(c for _, _, c in self.reference)
 
-    def system_rates(self, samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
-        """(wall-clock rate, rate per CPU second) of the system from (time, cumulative
-        count) samples of its progress."""
+    def rates(self, samples: Sequence[tuple[float, float]]) -> tuple[float, float, float, float]:
+        """(system rate, its rate per CPU second, reference rate, its rate per CPU second), the
+        system's from (time, cumulative count) samples of its progress."""
         work = work_in_windows(samples, self.windows)
-        return pooled_rate(self._slices(samples)), work / sum(self.system_cpu_s)
+        return (pooled_rate(self._slices(samples)), work / sum(self.system_cpu_s),
+                self.reference_rate, self.reference_rate_per_cpu)
 
     def _slices(self, samples: Sequence[tuple[float, float]]) -> list[list[tuple[float, float]]]:
         return [[(t, c) for t, c in samples if a <= t <= b] for a, b in self.windows]
 
-    def by_slice(self, samples: Sequence[tuple[float, float]], *, system: str,
-                 reference: str) -> dict[str, list[float | None]]:
-        """Per-slice rates and CPU shares of both sides, for the JSON details; keys are
-        `<side>_<unit>_per_s_by_slice` and `<side>_cpu_share_by_slice` with `system` and
-        `reference` naming the sides (e.g. "actor_steps", "raw_steps")."""
+    def details(self, samples: Sequence[tuple[float, float]], *, system: str,
+                reference: str) -> dict[str, Any]:
+        """For the JSON details: per-slice rates and CPU shares of both sides, then `slice_s`
+        and `rounds`; the per-slice keys are `<side>_<unit>_per_s_by_slice` and
+        `<side>_cpu_share_by_slice` with `system` and `reference` naming the sides (e.g.
+        "actor_steps", "raw_steps")."""
         return {
             f"{reference}_per_s_by_slice": [w / sec for w, sec, _ in self.reference],
             f"{system}_per_s_by_slice": [pooled_rate([x]) if len(x) > 1 else None
@@ -108,4 +115,5 @@ class Alternation:
                 c / (b - a) for c, (a, b) in zip(self.system_cpu_s, self.windows, strict=True)],
             f"{reference.rsplit('_', 1)[0]}_cpu_share_by_slice": [
                 c / sec for _, sec, c in self.reference],
+            "slice_s": self.slice_s, "rounds": self.rounds,
         }
