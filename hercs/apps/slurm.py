@@ -256,11 +256,28 @@ def plan_from_args(args: argparse.Namespace, config: HercsConfig) -> tuple[Hercs
                    hercs=tuple(args.hercs.split()) if args.hercs else
                    (sys.executable, "-m", "hercs.apps.cli"),
                    actor_nodes=args.actor_nodes, actor_cpus=args.actor_cpus,
-                   learner_cpus=args.learner_cpus, gpus=args.gpus, time=args.time or "",
-                   signal_before_s=args.signal_before, partition=args.partition or "",
-                   account=args.account or "", sbatch=tuple(args.sbatch),
+                   learner_cpus=args.learner_cpus, gpus=args.gpus, time=args.time,
+                   signal_before_s=args.signal_before, partition=args.partition,
+                   account=args.account, sbatch=tuple(args.sbatch),
                    workdir=Path.cwd())
     return config, plan
+
+
+def add_sbatch_arguments(group: argparse._ArgumentGroup, *, prefix: str, scope: str) -> None:
+    """The sbatch options `hercs slurm submit` (for the job) and `hercs sweep --slurm` (for
+    each array task, `prefix` "slurm-") share: `--time`, `--signal-before`, `--partition`,
+    `--account` and `--sbatch`, each named `--<prefix><name>`; `scope` is what they apply to."""
+    group.add_argument(f"--{prefix}time", default="", metavar="LIMIT",
+                       help=f"{scope}'s time limit (sbatch --time); a longer run requeues and "
+                            "resumes")
+    group.add_argument(f"--{prefix}signal-before", type=int, default=300, metavar="S",
+                       help="seconds before the time limit at which the run stops in order and "
+                            "requeues (default 300)")
+    group.add_argument(f"--{prefix}partition", default="", help="sbatch --partition")
+    group.add_argument(f"--{prefix}account", default="", help="sbatch --account")
+    group.add_argument(f"--{prefix}sbatch", action="append", default=[], metavar="OPTION",
+                       help=f"one more sbatch option for {scope}, e.g. "
+                            f"--{prefix}sbatch=--qos=high (repeatable)")
 
 
 def add_submit_arguments(parser: argparse.ArgumentParser) -> None:
@@ -275,16 +292,7 @@ def add_submit_arguments(parser: argparse.ArgumentParser) -> None:
                           "evaluator; default 4)")
     job.add_argument("--gpus", type=int, default=0, metavar="G",
                      help="GPUs for component 0's learner (--gres=gpu:G; default none)")
-    job.add_argument("--time", metavar="LIMIT", help="the job's time limit (sbatch --time); a "
-                     "longer run requeues and resumes")
-    job.add_argument("--signal-before", type=int, default=300, metavar="S",
-                     help="seconds before the time limit at which the run stops in order and "
-                          "requeues (default 300)")
-    job.add_argument("--partition", help="sbatch --partition")
-    job.add_argument("--account", help="sbatch --account")
-    job.add_argument("--sbatch", action="append", default=[], metavar="OPTION",
-                     help="one more sbatch option for the whole job, e.g. --sbatch=--qos=high "
-                          "(repeatable)")
+    add_sbatch_arguments(job, prefix="", scope="the job")
     job.add_argument("--hercs", metavar="COMMAND",
                      help="how the nodes run hercs (default: this Python, -m hercs.apps.cli)")
     job.add_argument("--dry-run", action="store_true",

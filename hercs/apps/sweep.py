@@ -35,6 +35,7 @@ from hercs.apps.plots import (
     EPSILON_DEFAULT,
 )
 from hercs.apps.provenance import git_commit, machine_identity
+from hercs.apps.slurm import add_sbatch_arguments
 from hercs.apps.sweep_cells import (
     DONE_FILE,
     PROG,
@@ -253,15 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="submit the grid as a Slurm job array (needs sbatch)")
     slurm.add_argument("--slurm-cpus", type=int, default=4, metavar="C",
                        help="CPUs per array task (default 4)")
-    slurm.add_argument("--slurm-time", default="", metavar="LIMIT",
-                       help="each task's time limit (sbatch --time); a longer run requeues")
-    slurm.add_argument("--slurm-signal-before", type=int, default=300, metavar="S",
-                       help="seconds before the limit at which a task stops and requeues "
-                            "(default 300)")
-    slurm.add_argument("--slurm-partition", default="", help="sbatch --partition")
-    slurm.add_argument("--slurm-account", default="", help="sbatch --account")
-    slurm.add_argument("--slurm-sbatch", action="append", default=[], metavar="OPTION",
-                       help="one more sbatch option, e.g. --slurm-sbatch=--qos=high")
+    add_sbatch_arguments(slurm, prefix="slurm-", scope="each task")
     slurm.add_argument("--dry-run", action="store_true",
                        help="with --slurm: write the array script and print it, submit nothing")
     slurm.add_argument("--cell-index", type=int, default=None, help=argparse.SUPPRESS)
