@@ -45,6 +45,14 @@ def break_field(msg: Any, name: str, array_kind: str, rng: np.random.Generator) 
 
 
 @st.composite
+def schema_break(draw: st.DrawFn, msg: Any) -> str:
+    """Give `msg` a schema version other than this build's, in place; the reason a receiver
+    refuses it with."""
+    msg.schema_version = draw(other_schema())
+    return "schema_version"
+
+
+@st.composite
 def episode_probes(draw: st.DrawFn) -> Probe:
     what = draw(st.sampled_from(["schema", "run", "task", "actor", "seq", "array", "array",
                                  "array", "array", "array", "valid-extreme", "valid-new"]))
@@ -54,8 +62,7 @@ def episode_probes(draw: st.DrawFn) -> Probe:
     msg.CopyFrom(BASE_EPISODES[seed % len(BASE_EPISODES)])
     kind = what
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect: str | None = "schema_version"
+        expect: str | None = draw(schema_break(msg))
     elif what == "run":
         msg.run = draw(st.sampled_from(["", "t", RUN_A, RUN_L, RUN_R + "x", RUN_R.upper()]))
         expect = "unknown_run"
@@ -99,8 +106,7 @@ def sample_request_probes(draw: st.DrawFn) -> Probe:
         weights_version=draw(st.integers(-(2**63), 2**63 - 1)))
     expect: str | None = VALID
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "run":
         msg.run = draw(st.sampled_from(["", RUN_A, RUN_L, "t"]))
         expect = "unknown_run"
@@ -143,8 +149,7 @@ def cluster_model_probes(draw: st.DrawFn) -> Probe:
     kind = what
     expect: str | None = None  # a valid model's fate depends on the replay's current one
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "centroids":
         array_kind = draw(st.sampled_from(ARRAY_KINDS))
         kind = f"centroids:{array_kind}"
@@ -179,8 +184,7 @@ def eval_result_probes(draw: st.DrawFn, *, epoch: int | None = None,
         episodes=draw(st.integers(1, 2**32 - 1)))
     expect = VALID
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "episodes":
         msg.episodes = 0
         expect = "bad_value"
@@ -212,8 +216,7 @@ def header_probes(draw: st.DrawFn) -> Probe:
     kind = what
     expect: str | None = VALID
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "goal":
         name = draw(st.sampled_from(["final_achieved_goal", "desired_goal"]))
         array_kind = draw(st.sampled_from(ARRAY_KINDS))
@@ -262,8 +265,7 @@ def weights_probes(draw: st.DrawFn, *, evaluate: bool | None = None) -> Probe:
     params = msg.actor_params
     i = int(rng.integers(0, len(params)))
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "param-missing":
         del params[i]
         expect = "bad_value"
@@ -303,8 +305,7 @@ def batch_probes(draw: st.DrawFn) -> Probe:
     kind = what
     expect: str | None = VALID
     if what == "schema":
-        msg.schema_version = draw(other_schema())
-        expect = "schema_version"
+        expect = draw(schema_break(msg))
     elif what == "count":
         n = draw(st.sampled_from([0, 1, LEARNER_N + 1]))
         del msg.minibatches[:]
@@ -342,7 +343,7 @@ def progress_probes(draw: st.DrawFn) -> Probe:
     msg = pb.RunProgress(schema_version=SCHEMA_VERSION, epoch=draw(st.integers(0, 2**64 - 1)),
                          epochs=draw(st.integers(0, 2**64 - 1)), finished=False)
     if draw(st.booleans()):
-        msg.schema_version = draw(other_schema())
+        reason = draw(schema_break(msg))
         msg.finished = draw(st.booleans())  # a finished flag in a bad message is not obeyed
-        return Probe(msg.SerializeToString(), "progress:schema", "schema_version")
+        return Probe(msg.SerializeToString(), "progress:schema", reason)
     return Probe(msg.SerializeToString(), "progress:running", VALID)
