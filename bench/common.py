@@ -27,8 +27,10 @@ __all__ = [
     "cpu_info",
     "git_commit",
     "machine_identity",
+    "parse_run_args",
     "report_folder",
     "report_head",
+    "script_parser",
     "show_report",
     "table_with_notes",
     "timed_cli",
@@ -71,6 +73,13 @@ QUICK_EPOCHS = "training.cycles_per_epoch=5"
 """The override a run-level benchmark's quick mode adds: epochs of 5 cycles."""
 
 
+def script_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
+    """The parser of `python -m module`, whose help shows `doc` (the script's docstring) with
+    its line breaks."""
+    return argparse.ArgumentParser(prog=f"python -m {module}", description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
 def add_run_options(parser: argparse.ArgumentParser, name: str) -> None:
     """The options of a benchmark made of whole `hercs` runs: `--set` (each run's config
     overrides), `--quick` and `--out`."""
@@ -79,6 +88,21 @@ def add_run_options(parser: argparse.ArgumentParser, name: str) -> None:
     parser.add_argument("--quick", action="store_true",
                         help=f"CI: a few short runs ({QUICK_EPOCHS})")
     add_out_option(parser, name)
+
+
+def parse_run_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None, name: str,
+                   problem: Callable[[argparse.Namespace], str | None],
+                   **small: Any) -> argparse.Namespace:
+    """A run-level benchmark's arguments: `parser` (its own options) with `--set`, `--quick`
+    and `--out` added (add_run_options) parses `argv`; `problem(args)`, where not None, is a
+    usage error (checked on the values given, before `--quick` replaces them); then the quick
+    mode's small values (apply_quick)."""
+    add_run_options(parser, name)
+    args = parser.parse_args(argv)
+    if (why := problem(args)) is not None:
+        parser.error(why)
+    apply_quick(args, **small)
+    return args
 
 
 def apply_quick(args: argparse.Namespace, **small: Any) -> None:

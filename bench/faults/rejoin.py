@@ -28,6 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.common import script_parser
 from bench.faults.netns import Host, hosts, problem
 from bench.faults.remote_actor import free_port
 from hercs.apps.certs import make_certs
@@ -176,8 +177,7 @@ def _s(value: float | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.faults.rejoin", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = script_parser("bench.faults.rejoin", __doc__)
     parser.add_argument("--cuts", type=float, nargs="+", default=[2.0, 12.0, 30.0, 5.0, 20.0],
                         help="cut lengths in seconds, in order")
     parser.add_argument("--client", metavar="ENDPOINT", help=argparse.SUPPRESS)

@@ -15,7 +15,6 @@ without it); the findings are in docs/results/faults.md.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import queue
@@ -32,7 +31,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from bench.common import REPO, git_commit, machine_identity, write_report
+from bench.common import REPO, git_commit, machine_identity, script_parser, write_report
 from bench.faults.killed_replay_log import RUN, KilledRun, T, episode_msg, write_killed_run
 from bench.faults.remote_actor import free_port
 from hercs.net.transport import Transport
@@ -292,9 +291,7 @@ def render(summary: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.faults.replay_recovery",
-                                     description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = script_parser("bench.faults.replay_recovery", __doc__)
     parser.add_argument("--quick", action="store_true",
                         help=f"sizes {QUICK_SIZES} with a {QUICK_BUFFER}-transition buffer, "
                              "2 repeats (CI)")

@@ -35,20 +35,20 @@ def timed_grid(args: argparse.Namespace, jobs: int, work: Path) -> float:
         *(item for kv in args.set for item in ("--set", kv))])
 
 
+def usage_problem(args: argparse.Namespace) -> str | None:
+    if args.epochs < 1 or args.rounds < 1 or min(args.jobs) < 1:
+        return "--epochs, --rounds and every --jobs value must be ≥ 1"
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m bench.perf.grid_throughput",
-                                     description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = common.script_parser("bench.perf.grid_throughput", __doc__)
     parser.add_argument("--task", default="push")
     parser.add_argument("--epochs", type=int, default=6)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
-    common.add_run_options(parser, "grid_throughput")
-    args = parser.parse_args(argv)
-    if args.epochs < 1 or args.rounds < 1 or min(args.jobs) < 1:
-        parser.error("--epochs, --rounds and every --jobs value must be ≥ 1")
-    common.apply_quick(args, task="reach", epochs=2, rounds=1)
-    return args
+    return common.parse_run_args(parser, argv, "grid_throughput", usage_problem,
+                                 task="reach", epochs=2, rounds=1)
 
 
 def render(summary: dict[str, Any]) -> str:

@@ -50,20 +50,20 @@ def fed_at(runs: list[dict[str, Any]]) -> int:
     return min(r["actors"] for r in runs if r["updates_per_s"] >= FED_SHARE * best)
 
 
+def usage_problem(args: argparse.Namespace) -> str | None:
+    if args.epochs < 2 or min(args.actors) < 1:
+        return "--epochs must be ≥ 2 (the first is start-up) and every --actors ≥ 1"
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m bench.perf.learner_feed",
-                                     description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = common.script_parser("bench.perf.learner_feed", __doc__)
     parser.add_argument("--device", default="cuda", help="learner.device (default cuda)")
     parser.add_argument("--actors", type=int, nargs="+", default=[1, 2, 4, 6, 8, 12])
     parser.add_argument("--task", default="push")
     parser.add_argument("--epochs", type=int, default=3)
-    common.add_run_options(parser, "learner_feed")
-    args = parser.parse_args(argv)
-    if args.epochs < 2 or min(args.actors) < 1:
-        parser.error("--epochs must be ≥ 2 (the first is start-up) and every --actors ≥ 1")
-    common.apply_quick(args, device="cpu", task="reach", actors=[1, 2], epochs=2)
-    return args
+    return common.parse_run_args(parser, argv, "learner_feed", usage_problem,
+                                 device="cpu", task="reach", actors=[1, 2], epochs=2)
 
 
 def render(summary: dict[str, Any]) -> str:

@@ -82,20 +82,21 @@ def timed_run(args: argparse.Namespace, seed: int, overrides: tuple[str, ...],
             "final_success": float(rows[-1]["success_rate"])}
 
 
+def usage_problem(args: argparse.Namespace) -> str | None:
+    if args.epochs < 2 or args.seeds < 1:
+        return (f"--epochs must be ≥ 2 (a steady state needs two epochs) and --seeds ≥ 1 "
+                f"(got {args.epochs}, {args.seeds})")
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m bench.perf.run_time", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = common.script_parser("bench.perf.run_time", __doc__)
     parser.add_argument("--task", default="push")
     parser.add_argument("--method", default="her-cs")
     parser.add_argument("--epochs", type=int, default=10)
     parser.add_argument("--seeds", type=int, default=3)
-    common.add_run_options(parser, "run_time")
-    args = parser.parse_args(argv)
-    if args.epochs < 2 or args.seeds < 1:
-        parser.error(f"--epochs must be ≥ 2 (a steady state needs two epochs) and --seeds ≥ 1 "
-                     f"(got {args.epochs}, {args.seeds})")
-    common.apply_quick(args, task="reach", epochs=2, seeds=1)
-    return args
+    return common.parse_run_args(parser, argv, "run_time", usage_problem,
+                                 task="reach", epochs=2, seeds=1)
 
 
 def render(summary: dict[str, Any]) -> str:

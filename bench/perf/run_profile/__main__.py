@@ -16,10 +16,9 @@ from typing import Any
 
 from bench.common import (
     REPO,
-    add_run_options,
-    apply_quick,
     git_commit,
     machine_identity,
+    parse_run_args,
     report_folder,
     show_report,
 )
@@ -30,6 +29,12 @@ from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
 
 
+def usage_problem(args: argparse.Namespace) -> str | None:
+    if args.epochs < 1 or args.rate < 1:
+        return f"--epochs and --rate must be ≥ 1 (got {args.epochs}, {args.rate})"
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m bench.perf.run_profile",
                                      description=__doc__)
@@ -37,12 +42,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--method", default="her-cs")
     parser.add_argument("--epochs", type=int, default=10)
     parser.add_argument("--rate", type=int, default=50, help="py-spy samples per second")
-    add_run_options(parser, "run_profile")
-    args = parser.parse_args(argv)
-    if args.epochs < 1 or args.rate < 1:
-        parser.error(f"--epochs and --rate must be ≥ 1 (got {args.epochs}, {args.rate})")
-    apply_quick(args, task="reach", epochs=1)
-    return args
+    return parse_run_args(parser, argv, "run_profile", usage_problem, task="reach", epochs=1)
 
 
 def py_spy() -> str:
