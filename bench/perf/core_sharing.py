@@ -1,0 +1,181 @@
+"""What a core does while the other works: the run's two loads alone and side by side.
+
+    python -m bench.perf.core_sharing            # 4 rounds of 5 s slices (~2 min)
+    python -m bench.perf.core_sharing --quick    # CI: one round of short slices
+
+The machine's limit (docs/PERFORMANCE.md §3) adds the learner's and the actor's work, each at
+the rate its core makes alone, and divides by the cores. That holds only if a core loses nothing
+when the other core is busy: a virtual machine's cores may be two threads of one physical core,
+or share its caches and memory bus. Here each load runs in its own process pinned to one CPU:
+the learner's update (`DDPGLearner.train`, FetchPush, B = 256, fp32, one thread) and raw
+FetchPush env steps (random actions). Each is timed alone, then beside the other (update on one
+CPU, env steps on another) and beside a copy of itself, in alternating rounds. A rate is work
+per CPU-second of the worker, so time the worker waits for a CPU does not count, only what a
+CPU-second yields. Writes docs/results/core_sharing.{json,md} (or --out).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from datetime import UTC, datetime
+from statistics import median
+from typing import Any
+
+from bench import common
+
+PHASES: tuple[tuple[str, ...], ...] = (("update",), ("env",), ("update", "env"),
+                                       ("update", "update"), ("env", "env"))
+"""The loads run at once in each phase, one process per load on its own CPU."""
+
+
+def _load(kind: str):  # type: ignore[no-untyped-def]
+    """A callable doing one unit of `kind` (one update, or one env step)."""
+    import numpy as np
+
+    from hercs.net.threads import single_threaded_numerics
+    from hercs.rl.task_registry import task_spec
+
+    spec = task_spec("push")
+    rng = np.random.default_rng(0)
+    if kind == "update":
+        import torch
+
+        from bench.perf.learner import make_batch
+        from hercs.config import DDPGConfig
+        from hercs.learner.ddpg import DDPGLearner
+
+        torch.set_num_threads(1)
+        single_threaded_numerics()
+        learner = DDPGLearner(spec=spec, config=DDPGConfig(), seed=0)
+        batches = [make_batch(spec, 256, rng) for _ in range(4)]
+        count = iter(range(10**12))
+        return lambda: learner.train(batches[next(count) % 4])
+    from hercs.rl.envs import make_env
+
+    single_threaded_numerics()
+    env = make_env(spec)
+    env.reset(seed=0)
+    steps = iter(range(10**12))
+
+    def step() -> None:
+        env.step(rng.uniform(-1.0, 1.0, spec.action_dim).astype(np.float32))
+        if next(steps) % spec.episode_steps == spec.episode_steps - 1:
+            env.reset()
+    return step
+
+
+def _worker(kind: str, cpu: int, orders: Any, out: Any) -> None:
+    """Build the load once, then for each order (start time, seconds) run it in that window."""
+    os.sched_setaffinity(0, {cpu})
+    work = _load(kind)
+    for _ in range(3):
+        work()
+    out.put(("ready", kind, cpu, 0.0))
+    while (order := orders.get()) is not None:
+        start_at, slice_s = order
+        time.sleep(max(0.0, start_at - time.monotonic()))  # CLOCK_MONOTONIC: one clock for all
+        done, cpu_started = 0, time.process_time()
+        while time.monotonic() - start_at < slice_s:
+            work()
+            done += 1
+        out.put(("rate", kind, cpu, done / (time.process_time() - cpu_started)))
+
+
+class Workers:
+    """One process per (load, CPU), built once and reused by every phase."""
+
+    def __init__(self, cpus: list[int]) -> None:
+        ctx = mp.get_context("spawn")
+        self.out = ctx.Queue()
+        self.orders = {(kind, cpu): ctx.Queue() for kind in ("update", "env") for cpu in cpus}
+        self.procs = [ctx.Process(target=_worker, args=(kind, cpu, q, self.out), daemon=True)
+                      for (kind, cpu), q in self.orders.items()]
+        for proc in self.procs:
+            proc.start()
+        for _ in self.procs:
+            self.out.get(timeout=300)  # every load built and warmed
+        self.cpus = cpus
+
+    def phase(self, loads: tuple[str, ...], slice_s: float) -> list[tuple[str, float]]:
+        """The loads started together, the i-th on the i-th CPU; their rates per CPU-second."""
+        start_at = time.monotonic() + 0.2
+        for kind, cpu in zip(loads, self.cpus, strict=False):
+            self.orders[(kind, cpu)].put((start_at, slice_s))
+        results = [self.out.get(timeout=slice_s + 60) for _ in loads]
+        return [(kind, rate) for _, kind, _, rate in results]
+
+    def close(self) -> None:
+        for q in self.orders.values():
+            q.put(None)
+        for proc in self.procs:
+            proc.join(timeout=30)
+
+
+def measure(rounds: int, slice_s: float, cpus: list[int]) -> dict[str, list[float]]:
+    """Rates per phase and load (`update alone`, `update beside env`, …), over the rounds; the
+    phases' order reversed every other round."""
+    found: dict[str, list[float]] = {}
+    workers = Workers(cpus)
+    try:
+        for r in range(rounds):
+            for loads in (PHASES if r % 2 == 0 else PHASES[::-1]):
+                rates = workers.phase(loads, slice_s)
+                for i, (kind, rate) in enumerate(rates):
+                    others = [k for j, (k, _) in enumerate(rates) if j != i]
+                    label = f"{kind} beside {others[0]}" if others else f"{kind} alone"
+                    found.setdefault(label, []).append(rate)
+    finally:
+        workers.close()
+    return found
+
+
+def summarise(found: dict[str, list[float]]) -> dict[str, Any]:
+    rates = {label: median(values) for label, values in found.items()}
+    share = {label: rates[label] / rates[f"{label.split()[0]} alone"] for label in rates}
+    return {"rates_per_cpu_s": rates, "share_of_alone": share, "samples": found}
+
+
+def render(summary: dict[str, Any]) -> str:
+    rates, share = summary["rates_per_cpu_s"], summary["share_of_alone"]
+    lines = [*common.report_head(
+        "bench.perf.core_sharing", "What a core does while the others work", summary,
+        f"CPUs {summary['cpus']}, {summary['rounds']} rounds of {summary['slice_s']} s slices; "
+        "work per CPU-second of a process pinned to one CPU (median over rounds)"),
+        "| load | beside | per CPU-second | share of alone |", "|---|---|---:|---:|"]
+    for label in sorted(rates):
+        kind, _, other = label.partition(" beside ")
+        unit = "updates" if kind.startswith("update") else "env steps"
+        lines.append(f"| {kind.split()[0]} | {other or '–'} | {rates[label]:.1f} {unit} | "
+                     f"{share[label]:.2f} |")
+    both = (share.get("update beside env", 1.0), share.get("env beside update", 1.0))
+    lines += ["", f"With the other CPU busy, the learner's update makes {both[0]:.0%} of its "
+              f"rate alone and the env steps {both[1]:.0%}; the limit of docs/PERFORMANCE.md §3 "
+              "counts both at 100 %."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = common.script_parser("bench.perf.core_sharing", __doc__)
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--slice-s", type=float, default=5.0)
+    parser.add_argument("--quick", action="store_true", help="CI: one round of 0.5 s slices")
+    common.add_out_option(parser, "core_sharing")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.rounds, args.slice_s = 1, 0.5
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        parser.error("needs at least two CPUs (sched_getaffinity names one)")
+    found = measure(args.rounds, args.slice_s, cpus[:2])
+    summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d"), "commit": common.git_commit(),
+               "machine": common.machine_identity(), "cores": os.cpu_count(), "cpus": cpus[:2],
+               "rounds": args.rounds, "slice_s": args.slice_s, "quick": args.quick,
+               **summarise(found)}
+    common.show_report(args, "core_sharing", summary, render(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
