@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import queue
 import time
+import traceback
 from datetime import UTC, datetime
 from statistics import median
 from typing import Any
@@ -67,20 +69,37 @@ def _load(kind: str):  # type: ignore[no-untyped-def]
 
 
 def _worker(kind: str, cpu: int, orders: Any, out: Any) -> None:
-    """Build the load once, then for each order (start time, seconds) run it in that window."""
-    os.sched_setaffinity(0, {cpu})
-    work = _load(kind)
-    for _ in range(3):
-        work()
-    out.put(("ready", kind, cpu, 0.0))
-    while (order := orders.get()) is not None:
-        start_at, slice_s = order
-        time.sleep(max(0.0, start_at - time.monotonic()))  # CLOCK_MONOTONIC: one clock for all
-        done, cpu_started = 0, time.process_time()
-        while time.monotonic() - start_at < slice_s:
+    """Build the load once, then for each order (start time, seconds) run it in that window;
+    an error goes back to the parent as a message, and a worker whose parent is gone exits."""
+    parent = os.getppid()
+    try:
+        os.sched_setaffinity(0, {cpu})
+        work = _load(kind)
+        for _ in range(3):
             work()
-            done += 1
-        out.put(("rate", kind, cpu, done / (time.process_time() - cpu_started)))
+        out.put(("ready", kind, cpu, 0.0))
+        while os.getppid() == parent:
+            try:
+                order = orders.get(timeout=5)
+            except queue.Empty:
+                continue
+            if order is None:
+                return
+            start_at, slice_s = order
+            time.sleep(max(0.0, start_at - time.monotonic()))  # CLOCK_MONOTONIC: one clock
+            done, cpu_started = 0, time.process_time()
+            while True:  # at least one unit, however late the order came
+                work()
+                done += 1
+                if time.monotonic() - start_at >= slice_s:
+                    break
+            out.put(("rate", kind, cpu, done / (time.process_time() - cpu_started)))
+    except BaseException:
+        out.put(("error", kind, cpu, traceback.format_exc()))
+
+
+START_LEAD_S = 0.5
+"""How far ahead a phase's common start time is set, so that every worker has its order."""
 
 
 class Workers:
@@ -88,29 +107,52 @@ class Workers:
 
     def __init__(self, cpus: list[int]) -> None:
         ctx = mp.get_context("spawn")
+        self.cpus = cpus
         self.out = ctx.Queue()
         self.orders = {(kind, cpu): ctx.Queue() for kind in ("update", "env") for cpu in cpus}
         self.procs = [ctx.Process(target=_worker, args=(kind, cpu, q, self.out), daemon=True)
                       for (kind, cpu), q in self.orders.items()]
-        for proc in self.procs:
-            proc.start()
-        for _ in self.procs:
-            self.out.get(timeout=300)  # every load built and warmed
-        self.cpus = cpus
+        try:
+            for proc in self.procs:
+                proc.start()
+            for _ in self.procs:
+                self._next(timeout_s=300)  # every load built and warmed
+        except BaseException:
+            self.close()
+            raise
+
+    def _next(self, timeout_s: float) -> tuple[str, str, int, Any]:
+        """The next message from a worker; a worker's error, death or silence raises."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                message = self.out.get(timeout=1)
+            except queue.Empty:
+                dead = [p.name for p in self.procs if p.exitcode is not None]
+                if dead:
+                    raise RuntimeError(f"core_sharing: worker(s) {dead} exited") from None
+                continue
+            if message[0] == "error":
+                raise RuntimeError(f"core_sharing: the {message[1]} load on CPU {message[2]} "
+                                   f"failed:\n{message[3]}")
+            return message
+        raise RuntimeError(f"core_sharing: no worker answered in {timeout_s:.0f} s")
 
     def phase(self, loads: tuple[str, ...], slice_s: float) -> list[tuple[str, float]]:
         """The loads started together, the i-th on the i-th CPU; their rates per CPU-second."""
-        start_at = time.monotonic() + 0.2
+        start_at = time.monotonic() + START_LEAD_S
         for kind, cpu in zip(loads, self.cpus, strict=False):
             self.orders[(kind, cpu)].put((start_at, slice_s))
-        results = [self.out.get(timeout=slice_s + 60) for _ in loads]
+        results = [self._next(timeout_s=START_LEAD_S + slice_s + 60) for _ in loads]
         return [(kind, rate) for _, kind, _, rate in results]
 
     def close(self) -> None:
         for q in self.orders.values():
             q.put(None)
-        for proc in self.procs:
+        for proc in (p for p in self.procs if p.pid is not None):  # the started ones
             proc.join(timeout=30)
+            if proc.is_alive():
+                proc.kill()
 
 
 def measure(rounds: int, slice_s: float, cpus: list[int]) -> dict[str, list[float]]:

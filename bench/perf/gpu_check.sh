@@ -6,33 +6,47 @@
 #   bench/perf/gpu_check.sh OUT [SECONDS]
 #
 # Run from the repository root on the GPU machine, whose python3 has torch with CUDA. Packages
-# that machine lacks come as wheels or zips in .whl/ (installed into /tmp/site). Everything lands
-# in a work folder, packed into OUT/gpu_check.tar.gz after every step, so a run cut off by the
-# machine's time limit still returns what it finished. SECONDS (default 540) is the time the
-# whole check may take; the last step gets what is left of it.
+# that machine lacks come as wheels or zips in .whl/, installed into a temporary folder of this
+# check's own. Results land in a work folder, packed into OUT/gpu_check.tar.gz after every
+# step, so a run cut off by the machine's time limit still returns what it finished. SECONDS
+# (default 540) is the time the whole check may take; each step gets at most what is left of
+# it. Exits 1 if a step failed or was skipped.
 set -u
+shopt -s nullglob
 OUT=${1:?usage: bench/perf/gpu_check.sh OUT [SECONDS]}
 DEADLINE=$(( $(date +%s) + ${2:-540} ))
-WORK=$(mktemp -d)/gpu_check
+TMP=$(mktemp -d)
+WORK=$TMP/gpu_check
 mkdir -p "$WORK" "$OUT"
 export PYTHONUNBUFFERED=1
-pack() { tar -czf "$OUT/gpu_check.tar.gz" -C "$(dirname "$WORK")" gpu_check; }
-step() {  # step NAME SECONDS COMMAND...: its output in NAME.txt, its exit status noted
+FAILED=0
+pack() { tar -czf "$OUT/gpu_check.tar.gz" -C "$TMP" gpu_check; }
+left() { echo $(( DEADLINE - $(date +%s) - 20 )); }
+step() {  # step NAME SECONDS COMMAND...: at most SECONDS (or what is left), output in NAME.txt
     local name=$1 limit=$2; shift 2
+    if (( $(left) < limit )); then limit=$(left); fi
+    if (( limit < 30 )); then
+        echo "$name skipped: ${limit}s left" | tee -a "$WORK/status.txt"; FAILED=1; return
+    fi
     echo "== $name (at most ${limit}s): $*"
     timeout -k 10 "$limit" "$@" > "$WORK/$name.txt" 2>&1
-    echo "$name rc $?" | tee -a "$WORK/status.txt"
+    local rc=$?
+    echo "$name rc $rc" | tee -a "$WORK/status.txt"
+    (( rc == 0 )) || FAILED=1
     tail -n 25 "$WORK/$name.txt"
     pack
 }
-left() { echo $(( DEADLINE - $(date +%s) - 20 )); }
 
-if [ -d .whl ]; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-        --target /tmp/site .whl/*.whl || exit 3
-    for z in .whl/*.zip; do python3 -m zipfile -e "$z" /tmp/site || exit 3; done
+if [ -d .whl ]; then  # the packages this machine lacks, into a folder of this check's own
+    wheels=(.whl/*.whl) zips=(.whl/*.zip)
+    if (( ${#wheels[@]} )); then
+        python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+            --target "$TMP/site" "${wheels[@]}" || exit 3
+    fi
+    for z in "${zips[@]}"; do python3 -m zipfile -e "$z" "$TMP/site" || exit 3; done
+    export PYTHONPATH="$TMP/site${PYTHONPATH:+:$PYTHONPATH}"
 fi
-export PYTHONPATH="$PWD:/tmp/site${PYTHONPATH:+:$PYTHONPATH}"
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 
 { nvidia-smi -L; nproc; lscpu | grep "Model name"; git rev-parse --short HEAD 2>/dev/null
   python3 -c "import torch, mujoco, zenoh, gymnasium_robotics; print('torch', torch.__version__,
@@ -46,6 +60,7 @@ print(make_env(task_spec('push')).reset(seed=0)[0]['observation'].shape)"
 step pytest 180 python3 -m pytest -p no:cacheprovider -q tests/unit/learner/test_learner_cuda_graph.py \
     tests/unit/learner/test_learner_device.py tests/bench/perf/test_learner_cuda_bench.py
 step learner_cuda 240 python3 -m bench.perf.learner_cuda --out "$WORK"
-step learner_feed "$(left)" python3 -m bench.perf.learner_feed --device cuda --epochs 4 \
+step learner_feed 100000 python3 -m bench.perf.learner_feed --device cuda --epochs 4 \
     --out "$WORK"
 cat "$WORK/status.txt"
+exit $FAILED

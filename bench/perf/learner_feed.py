@@ -96,14 +96,14 @@ def summarise(args: argparse.Namespace, runs: list[dict[str, Any]]) -> dict[str,
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     runs: list[dict[str, Any]] = []
-    folder = common.report_folder(args.out, args.quick, common.REPO)
     with tempfile.TemporaryDirectory(prefix="hercs-learner-feed-") as tmp:
-        for n in args.actors:
+        for i, n in enumerate(args.actors):
             runs.append(one_run(args, n, Path(tmp)))
-            if n != args.actors[-1]:
+            if args.out is not None and i < len(args.actors) - 1:
                 # the counts so far, kept if a later run fails or a lent machine's time runs out
+                # (only into a folder given: a partial run never replaces the published report)
                 summary = summarise(args, runs)
-                common.write_report(folder, "learner_feed", summary, render(summary))
+                common.write_report(args.out, "learner_feed", summary, render(summary))
     summary = summarise(args, runs)
     common.show_report(args, "learner_feed", summary, render(summary))
     return 0

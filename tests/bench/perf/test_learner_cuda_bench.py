@@ -36,3 +36,19 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
     assert first["tf32_from_gpu_tf32"] < first["fp32_from_gpu_tf32"]
     products = summary["product_check"]
     assert products["tf32_emulated"] < products["fp32"]
+
+
+def test_the_report_of_a_gpu_run_renders_every_table() -> None:
+    """`report` on a GPU run's summary (the committed H200 one, CPU-only rows included), so that
+    a report bug shows here and not on a lent GPU, where it once cost a call."""
+    from bench.perf.learner_cuda import report
+
+    summary = json.loads((REPO / "docs" / "results" / "learner_cuda.json").read_text())
+    for key in ("gpu_updates_per_s", "cpu_updates_per_s"):  # JSON keys back to worker counts
+        summary[key] = {p: {int(n): v for n, v in row.items()} for p, row in summary[key].items()}
+    text = report(summary)
+    ratios = text.split("GPU over CPU")[1].split("TF32 emulation")[0]
+    assert "fp32+halves" in summary["cpu_updates_per_s"] and "| CPU | fp32+halves |" in text
+    assert "| fp32 |" in ratios and "fp32+halves" not in ratios  # a CPU-only setting: no ratio
+    assert all(f"| GPU | {p} |" in text for p in summary["gpu_updates_per_s"])
+    assert "emulated TF32" in text
