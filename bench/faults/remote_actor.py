@@ -18,7 +18,7 @@ from pathlib import Path
 
 from bench.common import REPO
 from bench.faults.netns import Host
-from hercs.apps.child_process import pdeathsig_preexec
+from hercs.apps.child_process import pdeathsig_preexec, stop_process
 
 ACTOR_EXIT_S = 60.0
 """How long an actor may take to stop by itself once `hercs up` has exited (it stops when
@@ -45,12 +45,8 @@ class Actor:
         try:
             return self.proc.wait(timeout=timeout_s), False
         except subprocess.TimeoutExpired:
-            self.proc.terminate()
-            try:
-                return self.proc.wait(timeout=30), True
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                return self.proc.wait(), True
+            stop_process(self.proc, signal.SIGTERM, grace_s=30)
+            return self.proc.returncode, True
 
 
 def actor_ident(index: int) -> str:
