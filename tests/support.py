@@ -5,14 +5,17 @@ minibatches."""
 from __future__ import annotations
 
 import importlib
+import json
 import signal
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -112,6 +115,15 @@ def load_module(name: str) -> ModuleType:
     `studies.claims.claims`): neither folder is installed, so tests import them from the
     checkout."""
     return importlib.import_module(name)
+
+
+def quick_report(module: str, name: str, out: Path) -> tuple[dict[str, Any], str]:
+    """Run `python -m module --quick --out out` in the checkout (failing the test with its
+    stderr's end if it fails) and return its report: `name`.json's summary and `name`.md."""
+    done = subprocess.run([sys.executable, "-m", module, "--quick", "--out", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads((out / f"{name}.json").read_text()), (out / f"{name}.md").read_text()
 
 
 def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatch:

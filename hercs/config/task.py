@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -28,6 +29,11 @@ class TaskConfig:
     episode_steps: int = 0
     """Steps per episode: 0 keeps the task's own horizon (Fetch 50 [HER-py]; PointMaze and
     other envs their registry's); n makes the env with max_episode_steps=n [DESIGN]."""
+    indexed_reads: bool = True
+    """A gymnasium-robotics MuJoCo env (Fetch v4, HandReach) reads its observation by joint
+    and site ids resolved once instead of by name each step: bit-identical, ~1.3x cheaper
+    steps (hercs/rl/indexed_lookups.py, docs/PERFORMANCE.md §3). false: by name, as
+    gymnasium-robotics does (the comparison's baseline)."""
 
     def __post_init__(self) -> None:
         _check(bool(self.name.strip()), "task.name", self.name,
@@ -45,5 +51,6 @@ class TaskConfig:
     @property
     def spec(self) -> TaskSpec:
         """The task on its environment version: what every env factory makes."""
-        return task_spec(self.name, self.env_version, self.weld_torquescale,
+        spec = task_spec(self.name, self.env_version, self.weld_torquescale,
                          self.episode_steps)
+        return spec if self.indexed_reads else dataclasses.replace(spec, indexed_reads=False)

@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from hercs.errors import ConfigError
+from hercs.rl.indexed_lookups import index_lookups
 from hercs.rl.task_spec import FACTORY, TaskSpec
 
 MUJOCO210 = Path(sys.prefix) / "mujoco210"
@@ -148,11 +149,14 @@ def register_envs() -> None:
 
 
 def make_env(spec: TaskSpec, *, render_mode: str | None = None,
-             size: tuple[int, int] | None = None) -> gym.Env:
+             size: tuple[int, int] | None = None, indexed: bool | None = None) -> gym.Env:
     """A fresh env for `spec` (its `env_id`, or its module:factory). Seed it through the
     first `reset(seed=...)`. With `render_mode='rgb_array'`, `render()` returns frames of
     `size` (width, height); rendering does not change the dynamics or the env's random
-    stream. A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
+    stream. A gymnasium-robotics MuJoCo env reads its observation by ids resolved once
+    (`indexed`, by default `spec.indexed_reads`; bit-identical: hercs/rl/indexed_lookups.py).
+    A v1 env where mujoco-py is not
+    installed raises ConfigError (`check_env`)."""
     register_envs()
     check_env(spec)
     # The passive env checker only re-validates spaces on every step; it costs throughput.
@@ -179,6 +183,8 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
                               "package.module:factory") from None
     if spec.weld_torquescale != 1.0:
         set_weld_torquescale(env, spec.weld_torquescale)
+    if spec.indexed_reads if indexed is None else indexed:
+        index_lookups(env)
     return env
 
 

@@ -82,6 +82,9 @@ class TaskSpec:
     """hand rule: the rotation about z is not judged (the pen)."""
     make_kwargs: tuple[tuple[str, Any], ...] = ()
     """Keyword arguments of `gym.make` (or of the factory), as pairs."""
+    indexed_reads: bool = True
+    """`task.indexed_reads`: `make_env` gives a gymnasium-robotics MuJoCo env its observation
+    reads by cached ids (bit-identical)."""
     gripper_position: bool = True
     """obs[0:3] is a position in the world (the Fetch gripper): drawn in scenes."""
 

@@ -3,20 +3,14 @@
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
+from tests.support import quick_report
 
 
 def test_quick_mode_measures_every_load_alone_and_side_by_side(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "-m", "bench.perf.core_sharing", "--quick", "--out",
-                           str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    summary = json.loads((tmp_path / "core_sharing.json").read_text())
+    summary, report = quick_report("bench.perf.core_sharing", "core_sharing", tmp_path)
     rates, share = summary["rates_per_cpu_s"], summary["share_of_alone"]
     assert sorted(rates) == ["env alone", "env beside env", "env beside update", "update alone",
                              "update beside env", "update beside update"]
@@ -25,4 +19,4 @@ def test_quick_mode_measures_every_load_alone_and_side_by_side(tmp_path: Path) -
     for label, values in summary["samples"].items():  # a load beside itself: two per round
         kind, _, other = label.partition(" beside ")
         assert len(values) == summary["rounds"] * (2 if kind == other else 1), label
-    assert "| update | env |" in (tmp_path / "core_sharing.md").read_text()
+    assert "| update | env |" in report

@@ -19,9 +19,9 @@ def test_quick_mode_times_both_settings_and_the_limit(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     summary = json.loads((tmp_path / "run_time.json").read_text())
     runs = {row["setting"]: row for row in summary["runs"]}
-    assert set(runs) == {"one thread (old default)", "default"}
+    assert set(runs) == {"old default", "default"}
     assert all(row["s_per_epoch"] > 0 and row["start_up_s"] > 0 for row in runs.values())
-    assert summary["ratios"] == [pytest.approx(runs["one thread (old default)"]["s_per_epoch"]
+    assert summary["ratios"] == [pytest.approx(runs["old default"]["s_per_epoch"]
                                                / runs["default"]["s_per_epoch"])]
     limit = summary["limit"]
     assert limit["gemm_gflops"] > 0 and limit["raw_steps_per_s"] > 0
