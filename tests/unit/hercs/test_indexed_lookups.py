@@ -25,7 +25,8 @@ def _same(a: object, b: object) -> bool:
     return type(a) is type(b) and a == b
 
 
-@pytest.mark.parametrize("task", ["reach", "push", "slide", "pick", "HandReach-v3"])
+@pytest.mark.parametrize("task", ["reach", "push", "slide", "pick", "HandReach-v3",
+                                  "HandManipulatePenRotate-v1"])
 def test_indexed_reads_are_bit_identical_to_the_modules(task: str) -> None:
     spec = task_spec(task)
     by_name, indexed = make_env(spec, indexed=False), make_env(spec)
