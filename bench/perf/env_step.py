@@ -7,8 +7,9 @@ by ids resolved once (hercs/rl/indexed_lookups.py, the default), side by side.
 Each round steps both envs of a task through the same episodes (same reset seed, same random
 actions), the settings' order alternating from round to round, and times each with the
 thread's CPU clock: what counts is the ratio within a round, since the machine is shared. The
-two envs' last observations are compared to the bit as a check that both stepped the same
-trajectory. Writes docs/results/env_step.{json,md} (or --out).
+two envs' last observations are compared to the bit, a cheap check that both stepped the same
+trajectory (tests/unit/hercs/test_indexed_lookups.py compares every step). Writes
+docs/results/env_step.{json,md} (or --out).
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ def measure(task: str, rounds: int, episodes: int) -> dict[str, Any]:
     return {"env_id": spec.env_id, "steps_per_cpu_s": rates,
             "median_steps_per_cpu_s": {name: median(v) for name, v in rates.items()},
             "ratio_per_round": ratios, "median_ratio": median(ratios),
-            "identical": identical}
+            "same_last_observation": identical}
 
 
 def render(summary: dict[str, Any]) -> str:
@@ -75,12 +76,12 @@ def render(summary: dict[str, Any]) -> str:
         f"{summary['rounds']} rounds of {summary['episodes']} episodes a setting, the order "
         "alternating; env steps per CPU-second of the thread (median over rounds)"),
         "| env | by name | indexed | indexed ÷ by name (median; rounds' range) | "
-        "same trajectory |", "|---|---:|---:|---|---|"]
+        "same last observation |", "|---|---:|---:|---|---|"]
     for found in summary["tasks"].values():
         rate, ratios = found["median_steps_per_cpu_s"], found["ratio_per_round"]
         lines.append(f"| {found['env_id']} | {rate['by name']:.0f} | {rate['indexed']:.0f} | "
                      f"**{found['median_ratio']:.2f}×** ({min(ratios):.2f}–{max(ratios):.2f}) | "
-                     f"{'yes' if found['identical'] else 'NO'} |")
+                     f"{'yes' if found['same_last_observation'] else 'NO'} |")
     return "\n".join(lines) + "\n"
 
 
@@ -102,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
                "rounds": args.rounds, "episodes": args.episodes, "quick": args.quick,
                "tasks": {task: measure(task, args.rounds, args.episodes) for task in args.tasks}}
     common.show_report(args, "env_step", summary, render(summary))
-    return 0 if all(found["identical"] for found in summary["tasks"].values()) else 1
+    return 0 if all(found["same_last_observation"] for found in summary["tasks"].values()) else 1
 
 
 if __name__ == "__main__":

@@ -30,9 +30,9 @@ class TaskConfig:
     """Steps per episode: 0 keeps the task's own horizon (Fetch 50 [HER-py]; PointMaze and
     other envs their registry's); n makes the env with max_episode_steps=n [DESIGN]."""
     indexed_reads: bool = True
-    """A gymnasium-robotics MuJoCo env (Fetch v4, HandReach) reads its observation by joint
-    and site ids resolved once instead of by name each step: bit-identical, ~1.3x cheaper
-    steps (hercs/rl/indexed_lookups.py, docs/PERFORMANCE.md §3). false: by name, as
+    """A gymnasium-robotics MuJoCo env (Fetch v4, the Shadow hand envs) reads its observation
+    by joint and site ids resolved once instead of by name each step: bit-identical, ~1.3x
+    cheaper steps (hercs/rl/indexed_lookups.py, docs/PERFORMANCE.md §3). false: by name, as
     gymnasium-robotics does (the comparison's baseline)."""
 
     def __post_init__(self) -> None:

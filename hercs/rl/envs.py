@@ -155,8 +155,7 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
     `size` (width, height); rendering does not change the dynamics or the env's random
     stream. A gymnasium-robotics MuJoCo env reads its observation by ids resolved once
     (`indexed`, by default `spec.indexed_reads`; bit-identical: hercs/rl/indexed_lookups.py).
-    A v1 env where mujoco-py is not
-    installed raises ConfigError (`check_env`)."""
+    A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
     register_envs()
     check_env(spec)
     # The passive env checker only re-validates spaces on every step; it costs throughput.
@@ -183,7 +182,8 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
                               "package.module:factory") from None
     if spec.weld_torquescale != 1.0:
         set_weld_torquescale(env, spec.weld_torquescale)
-    if spec.indexed_reads if indexed is None else indexed:
+    use_indexed = spec.indexed_reads if indexed is None else indexed
+    if use_indexed:
         index_lookups(env)
     return env
 

@@ -1,12 +1,13 @@
 """The per-step reads of gymnasium-robotics' MuJoCo envs, from ids resolved once.
 
-Every step of a Fetch v4 env builds its observation through `gymnasium_robotics.utils.
-mujoco_utils`, which looks each joint and site up by name (`mj_name2id`) and copies the robot's
-15 joints one slice at a time: ~0.2 ms of a ~0.9 ms FetchPush step on our machine, pure Python
-(docs/PERFORMANCE.md §3). `IndexedMujocoUtils` stands in for that module on one env: the
-functions a step calls answer from ids and joint addresses cached on first use, with the same
-NumPy operations on the same arrays, so the values are bit-identical
-(tests/unit/hercs/test_indexed_lookups.py); every other name is the module's own.
+Every step of a Fetch v4 or Shadow hand env (HandReach, HandManipulate*) builds its observation
+through `gymnasium_robotics.utils.mujoco_utils`, which looks each joint and site up by name
+(`mj_name2id`) and copies the robot's joints one slice at a time: ~0.2 ms of a ~0.9 ms FetchPush
+step on our machine, pure Python (docs/PERFORMANCE.md §3, docs/results/env_step.md).
+`IndexedMujocoUtils` stands in for that module on one env: the functions a step calls answer
+from ids and joint addresses cached on first use, with the same NumPy operations on the same
+arrays, so the values are bit-identical (tests/unit/hercs/test_indexed_lookups.py); every other
+name is the module's own.
 """
 
 from __future__ import annotations
@@ -32,17 +33,17 @@ class IndexedMujocoUtils:
         self._model: Any = None
         self._site_ids: dict[str, int] = {}
         self._robot_joints: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None = None
-        self._hinge_qpos: dict[str, int | None] = {}
+        self._one_coordinate_qpos: dict[str, int | None] = {}
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name == "_utils":  # copy and pickle probe before __init__
-            raise AttributeError(name)
+            raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
         return getattr(self._utils, name)
 
     def _same_model(self, model: Any) -> None:
         if model is not self._model:  # ids belong to one model
             self._model, self._site_ids, self._robot_joints = model, {}, None
-            self._hinge_qpos = {}
+            self._one_coordinate_qpos = {}
 
     def _site_id(self, model: Any, name: str) -> int:
         self._same_model(model)
@@ -84,16 +85,17 @@ class IndexedMujocoUtils:
         return data.qpos[qpos], data.qvel[qvel]
 
     def set_joint_qpos(self, model: Any, data: Any, name: str, value: Any) -> None:
-        """The gripper's fingers are set every step of Push, Reach and Slide: a hinge or slide
-        joint's one coordinate is written by its cached address; other joints (the object's
-        free joint, at a reset) by the module."""
+        """The gripper's fingers (slide joints) are set every step of Push, Reach and Slide: a
+        slide or hinge joint's one coordinate is written by its cached address; other joints
+        (the object's free joint, at a reset) by the module."""
         self._same_model(model)
-        if name not in self._hinge_qpos:
+        if name not in self._one_coordinate_qpos:
             joint_id = self._mj.mj_name2id(model, self._mj.mjtObj.mjOBJ_JOINT, name)
-            hinge = joint_id != -1 and model.jnt_type[joint_id] in (
+            one_coordinate = joint_id != -1 and model.jnt_type[joint_id] in (
                 self._mj.mjtJoint.mjJNT_HINGE, self._mj.mjtJoint.mjJNT_SLIDE)
-            self._hinge_qpos[name] = int(model.jnt_qposadr[joint_id]) if hinge else None
-        address = self._hinge_qpos[name]
+            self._one_coordinate_qpos[name] = (int(model.jnt_qposadr[joint_id])
+                                               if one_coordinate else None)
+        address = self._one_coordinate_qpos[name]
         if address is None:
             self._utils.set_joint_qpos(model, data, name, value)
             return
