@@ -25,6 +25,7 @@ def test_quick_mode_times_both_settings_and_the_limit(tmp_path: Path) -> None:
                                                / runs["default"]["s_per_epoch"])]
     limit = summary["limit"]
     assert limit["gemm_gflops"] > 0 and limit["raw_steps_per_s"] > 0
+    assert limit["indexed_steps_per_s"] > 0 and limit["indexed_limit_s_per_epoch"] > 0
     # 5 cycles of 40 updates, 5 × 4 training and 20 evaluation episodes of 50 steps
     assert (limit["updates_per_epoch"], limit["env_steps_per_epoch"]) == (200, 2000)
     text = (tmp_path / "run_time.md").read_text()
