@@ -38,8 +38,7 @@ from hercs.rl.task_registry import task_spec
 from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
 
-OLD_DEFAULT = "old default"
-VARIANTS = ((OLD_DEFAULT, ("learner.parallel_halves=false", "task.indexed_reads=false")),
+VARIANTS = (("old default", ("learner.parallel_halves=false", "task.indexed_reads=false")),
             ("default", ()))
 """The settings timed side by side: the defaults before this project's levers (a one-thread
 learner, env observations read by name) and today's."""
@@ -56,7 +55,7 @@ def limit_s_per_epoch(task: str, config: HercsConfig, quick: bool) -> dict[str, 
     episodes = 2 if quick else 40
     step_rates = {}
     # the limit's definition predates the indexed reads: gymnasium-robotics' own step (by
-    # name); the indexed step is reported beside it, a limit a run with today's env may beat
+    # name), a limit a run with today's env may beat; the indexed step's limit beside it
     for indexed in (False, True):
         env = make_env(spec, indexed=indexed)
         started = time.process_time()
