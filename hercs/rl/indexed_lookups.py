@@ -31,6 +31,10 @@ class IndexedMujocoUtils:
         self._mj = mujoco
         self._utils = utils
         self._model: Any = None
+        self._forget()
+
+    def _forget(self) -> None:
+        """Drop the cached ids and addresses (they belong to one model)."""
         self._site_ids: dict[str, int] = {}
         self._robot_joints: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None = None
         self._one_coordinate_qpos: dict[str, int | None] = {}
@@ -41,9 +45,14 @@ class IndexedMujocoUtils:
         return getattr(self._utils, name)
 
     def _same_model(self, model: Any) -> None:
-        if model is not self._model:  # ids belong to one model
-            self._model, self._site_ids, self._robot_joints = model, {}, None
-            self._one_coordinate_qpos = {}
+        if model is not self._model:
+            self._model = model
+            self._forget()
+
+    def _one_coordinate(self, model: Any, joint_id: int) -> bool:
+        """Whether the joint exists and has one qpos coordinate (a slide or hinge joint)."""
+        return joint_id != -1 and model.jnt_type[joint_id] in (
+            self._mj.mjtJoint.mjJNT_HINGE, self._mj.mjtJoint.mjJNT_SLIDE)
 
     def _site_id(self, model: Any, name: str) -> int:
         self._same_model(model)
@@ -63,9 +72,7 @@ class IndexedMujocoUtils:
         if self._robot_joints is None or self._robot_joints[0] is not joint_names:
             names = [n for n in joint_names if n.startswith("robot")]
             ids = [self._mj.mj_name2id(model, self._mj.mjtObj.mjOBJ_JOINT, n) for n in names]
-            one_coordinate = (self._mj.mjtJoint.mjJNT_HINGE, self._mj.mjtJoint.mjJNT_SLIDE)
-            if len(ids) < 2 or any(i == -1 or model.jnt_type[i] not in one_coordinate
-                                   for i in ids):
+            if len(ids) < 2 or not all(self._one_coordinate(model, i) for i in ids):
                 qpos = qvel = np.empty(0, dtype=np.intp)
             else:
                 qpos = np.array([model.jnt_qposadr[i] for i in ids], dtype=np.intp)
@@ -91,10 +98,8 @@ class IndexedMujocoUtils:
         self._same_model(model)
         if name not in self._one_coordinate_qpos:
             joint_id = self._mj.mj_name2id(model, self._mj.mjtObj.mjOBJ_JOINT, name)
-            one_coordinate = joint_id != -1 and model.jnt_type[joint_id] in (
-                self._mj.mjtJoint.mjJNT_HINGE, self._mj.mjtJoint.mjJNT_SLIDE)
             self._one_coordinate_qpos[name] = (int(model.jnt_qposadr[joint_id])
-                                               if one_coordinate else None)
+                                               if self._one_coordinate(model, joint_id) else None)
         address = self._one_coordinate_qpos[name]
         if address is None:
             self._utils.set_joint_qpos(model, data, name, value)
