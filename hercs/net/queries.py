@@ -23,6 +23,9 @@ log = logging.getLogger("hercs.net.transport")
 ERROR_ENCODING = "text/plain;hercs-error"
 """Encoding of every hercs error reply; its payload is UTF-8 `"<reason>: <detail>"`."""
 _JOIN_TIMEOUT_S = 5.0
+_RETRY_PAUSE_FIRST_S = 0.01
+_RETRY_PAUSE_MAX_S = 0.5
+"""The pauses between gets to a queryable that is matched but did not answer (`request`)."""
 
 
 class PendingReply:
@@ -252,42 +255,57 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
     if timeout_s <= 0:
         raise ValueError(f"timeout_s: got {timeout_s}, must be > 0")
     deadline = time.monotonic() + timeout_s
-    why = "no queryable answered"
-    # Declarations propagate asynchronously: a queryable declared a moment ago, or one that
-    # is still starting, is not matched and the get ends at once with no reply. Then wait for
-    # a match and ask again; at most 3 gets, so a queryable that drops queries cannot spin us.
-    for _ in range(3):
-        replies = session.get(
-            key,
-            payload=payload,
-            timeout=max(deadline - time.monotonic(), 0.001),
-            target=zenoh.QueryTarget.BEST_MATCHING,
-            consolidation=zenoh.ConsolidationMode.NONE,
-        )
-        for reply in replies:
-            ok = reply.ok
-            if ok is not None:
-                return ok.payload.to_bytes()
-            err = reply.err
-            if err is None:  # a reply is either ok or err
-                continue
-            text = err.payload.to_bytes().decode("utf-8", errors="replace")
-            if str(err.encoding) == ERROR_ENCODING:
-                reason, _, detail = text.partition(": ")
-                raise RemoteError(key, reason, detail)
-            if text == "Timeout":
-                raise TransportTimeout(key, timeout_s, "no reply")
-            raise RemoteError(key, Reason.TRANSPORT, text)
+    # A get that ends at once with no reply found no queryable able to answer. Either none is
+    # declared yet (one still starting, or declared a moment ago and not yet propagated): wait
+    # for a match, then ask again. Or one is matched but did not answer: a server killed a
+    # moment ago whose declaration the router still holds, or one that drops queries. Then ask
+    # again after a pause that doubles up to _RETRY_PAUSE_MAX_S, so a restarting server is
+    # found once it serves, a silent one cannot make us spin, and the request still waits its
+    # whole timeout (three quick empty gets once gave up in milliseconds, "within 30 s").
+    pause = 0.0
+    while True:
+        reply = _get_one(session, key, payload, deadline=deadline, timeout_s=timeout_s)
+        if reply is not None:
+            return reply
         if session.is_closed():
             raise TransportError(f"request to {key!r}: the session closed while it waited")
         remaining = deadline - time.monotonic()
         if remaining <= 0:
-            break
+            raise TransportTimeout(key, timeout_s, "no queryable answered", no_queryable=True)
         log.debug("no queryable on %r answered; waiting up to %.1f s for one", key, remaining)
         if not _wait_for_queryable(session, key, remaining):
-            why = "no queryable appeared"
-            break
-    raise TransportTimeout(key, timeout_s, why, no_queryable=True)
+            raise TransportTimeout(key, timeout_s, "no queryable appeared", no_queryable=True)
+        time.sleep(min(pause, max(deadline - time.monotonic(), 0.0)))
+        pause = min(max(2 * pause, _RETRY_PAUSE_FIRST_S), _RETRY_PAUSE_MAX_S)
+
+
+def _get_one(session: zenoh.Session, key: str, payload: bytes, *, deadline: float,
+             timeout_s: float) -> bytes | None:
+    """One get on `key`: the first ok reply's payload, None if the get ended with no reply;
+    raises `RemoteError` on an error reply and `TransportTimeout` if the queryable that got
+    it held it past `deadline`."""
+    replies = session.get(
+        key,
+        payload=payload,
+        timeout=max(deadline - time.monotonic(), 0.001),
+        target=zenoh.QueryTarget.BEST_MATCHING,
+        consolidation=zenoh.ConsolidationMode.NONE,
+    )
+    for reply in replies:
+        ok = reply.ok
+        if ok is not None:
+            return ok.payload.to_bytes()
+        err = reply.err
+        if err is None:  # a reply is either ok or err
+            continue
+        text = err.payload.to_bytes().decode("utf-8", errors="replace")
+        if str(err.encoding) == ERROR_ENCODING:
+            reason, _, detail = text.partition(": ")
+            raise RemoteError(key, reason, detail)
+        if text == "Timeout":
+            raise TransportTimeout(key, timeout_s, "no reply")
+        raise RemoteError(key, Reason.TRANSPORT, text)
+    return None
 
 
 def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> bool:

@@ -176,6 +176,49 @@ def test_request_with_no_queryable_times_out(open_client: OpenClient) -> None:
     assert 0.3 <= time.monotonic() - started < 2.0
 
 
+def test_request_outlasts_a_matched_queryable_that_does_not_answer(
+    open_client: OpenClient,
+) -> None:
+    # A replay killed a moment ago is still declared at the router: gets routed to it end at
+    # once with no reply while the client still sees a match. A request sent then must keep
+    # asking until the restarted replay answers (it once gave up after three quick gets).
+    server, client = open_client(), open_client()
+    silent_gets = 6
+    asked: list[float] = []
+
+    def on_query(query: Any) -> None:
+        asked.append(time.monotonic())
+        if len(asked) > silent_gets:  # dropping a query unanswered ends its get with no reply
+            query.reply(query.key_expr, b"answered")
+
+    queryable = server.session.declare_queryable(f"{RUN}/replay/insert", on_query)
+    try:
+        assert client.request(f"{RUN}/replay/insert", b"ep", timeout_s=WAIT_S) == b"answered"
+    finally:
+        queryable.undeclare()
+    assert len(asked) == silent_gets + 1
+
+
+def test_request_to_a_queryable_that_never_answers_waits_its_timeout_without_spinning(
+    open_client: OpenClient,
+) -> None:
+    server, client = open_client(), open_client()
+    asked: list[float] = []
+    queryable = server.session.declare_queryable(f"{RUN}/replay/insert",
+                                                 lambda query: asked.append(time.monotonic()))
+    timeout_s = 1.0
+    started = time.monotonic()
+    try:
+        with pytest.raises(TransportTimeout, match=r"no queryable answered within 1 s"):
+            client.request(f"{RUN}/replay/insert", b"ep", timeout_s=timeout_s)
+    finally:
+        queryable.undeclare()
+    assert timeout_s <= time.monotonic() - started < timeout_s + 2.0
+    # the pauses between gets double from 10 ms to 0.5 s: 9 gets fill one second however fast
+    # the machine; a slower one makes fewer
+    assert 1 <= len(asked) <= 10, f"{len(asked)} gets in {timeout_s} s"
+
+
 def test_request_held_past_its_timeout_raises_transport_timeout(open_client: OpenClient) -> None:
     server, client = open_client(), open_client()
     parked: queue.Queue[PendingReply] = queue.Queue()
