@@ -40,10 +40,10 @@ from hercs.apps.sweep_cells import (
     DONE_FILE,
     PROG,
     GridRun,
-    can_resume,
+    cell_state,
     copy_small_files,
+    dry_run_lines,
     finished_folder,
-    is_done,
     parse_variant,
     plan_grid,
     set_aside,
@@ -93,20 +93,21 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     todo: list[GridRun] = []
     resumed: set[GridRun] = set()
     for cell in cells:
-        run_dir = run_root / cell.name
-        if is_done(run_dir):
+        what = cell_state(cell, run_root, committed)
+        if what == "done":
             print(f"[skip] {cell.name}: finished earlier", flush=True)
             continue
-        if committed is not None and is_done(committed / cell.name):
+        if what == "committed":
+            assert committed is not None  # cell_state says "committed" only with a folder
             print(f"[skip] {cell.name}: finished and committed ({committed / cell.name})",
                   flush=True)
             continue
-        if can_resume(run_dir):
+        if what == "resume":
             print(f"[resume] {cell.name}: unfinished, continued where it stopped", flush=True)
             resumed.add(cell)
-        elif run_dir.exists():
+        elif what == "redo":
             print(f"[redo] {cell.name}: never started, moved to "
-                  f"{set_aside(run_dir, run_root)}", flush=True)
+                  f"{set_aside(run_root / cell.name, run_root)}", flush=True)
         todo.append(cell)
 
     results: list[tuple[GridRun, int]] = []
@@ -243,6 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "whose copy is here counts as done on any machine")
     p.add_argument("--report-only", action="store_true",
                    help="train nothing: report the runs finished so far")
+    p.add_argument("--dry-run", action="store_true",
+                   help="start nothing: print what each run would do now (skip, resume or "
+                        "start, with its `hercs up` command); with --slurm, write the array "
+                        "script and print it, submit nothing")
     p.add_argument("--quick", action="store_true",
                    help="CI mode: tiny runs in a temporary folder (seconds per run)")
     slurm = p.add_argument_group(
@@ -255,8 +260,6 @@ def build_parser() -> argparse.ArgumentParser:
     slurm.add_argument("--slurm-cpus", type=int, default=4, metavar="C",
                        help="CPUs per array task (default 4)")
     add_sbatch_arguments(slurm, prefix="slurm-", scope="each task")
-    slurm.add_argument("--dry-run", action="store_true",
-                       help="with --slurm: write the array script and print it, submit nothing")
     slurm.add_argument("--cell-index", type=int, default=None, help=argparse.SUPPRESS)
     return p
 
@@ -322,6 +325,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ConfigError as exc:
             return _fail(str(exc))
     command = f"{PROG} " + " ".join(argv)
+    if args.dry_run and not args.slurm:
+        print(f"sweep (dry run): {len(cells)} runs, {epochs} epochs each, {jobs} at a time, "
+              f"in {run_root}")
+        for line in dry_run_lines(cells, run_root=run_root, committed=committed, epochs=epochs,
+                                  actors=args.actors, overrides=overrides):
+            print(line)
+        print("nothing was started (--dry-run)")
+        if tmp is not None:
+            os.rmdir(tmp)  # --quick's temporary folder, made above and still empty
+        return 0
     print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(methods)} × "
           f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × {args.seeds} seeds), {epochs} "
           f"epochs each, {jobs} at a time, in {run_root}", flush=True)

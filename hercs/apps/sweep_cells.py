@@ -9,6 +9,7 @@ import contextlib
 import json
 import os
 import re
+import shlex
 import shutil
 import sys
 import tempfile
@@ -126,6 +127,20 @@ def can_resume(run_dir: Path) -> bool:
     return RunDir(run_dir).config.is_file()
 
 
+def cell_state(cell: GridRun, run_root: Path, committed: Path | None) -> str:
+    """What a sweep does with `cell` now: "done" (finished in `run_root`), "committed"
+    (finished, its copy in `committed`), "resume" (unfinished, continued), "redo" (a folder
+    that never saved its config, set aside first) or "start"."""
+    run_dir = run_root / cell.name
+    if is_done(run_dir):
+        return "done"
+    if committed is not None and is_done(committed / cell.name):
+        return "committed"
+    if can_resume(run_dir):
+        return "resume"
+    return "redo" if run_dir.exists() else "start"
+
+
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
                overrides: Sequence[str], resume: bool = False) -> list[str]:
     if resume:  # task, method, seed and name come from the run's saved config
@@ -148,6 +163,28 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
     for item in overrides:
         cmd += ["--set", item]
     return cmd
+
+
+def dry_run_lines(cells: Sequence[GridRun], *, run_root: Path, committed: Path | None,
+                  epochs: int, actors: int, overrides: Sequence[str]) -> list[str]:
+    """What `hercs sweep --dry-run` prints: a line per cell, what the sweep would do with it
+    now and the `hercs up` it would run (the router's port chosen at start: 0)."""
+    lines = []
+    for cell in cells:
+        what = cell_state(cell, run_root, committed)
+        if what in ("done", "committed"):
+            folder = finished_folder(cell, run_root, committed)
+            lines.append(f"[skip] {cell.name}: finished ({folder})")
+            continue
+        cmd = up_command(cell, epochs=epochs, run_root=run_root, port=0, actors=actors,
+                         overrides=overrides, resume=what == "resume")
+        shown = shlex.join(["hercs", *cmd[3:]])  # not `python -m hercs.apps.cli`
+        if what == "redo":
+            lines.append(f"[redo] {cell.name}: its folder never saved a config; it would be "
+                         f"set aside, then: {shown}")
+        else:
+            lines.append(f"[{what}] {cell.name}: {shown}")
+    return lines
 
 
 SMALL_FILES = (CONFIG, METRICS, DONE_FILE)

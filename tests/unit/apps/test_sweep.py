@@ -80,7 +80,7 @@ def test_unfinished_run_is_set_aside_and_kept(tmp_path: Path) -> None:
     run = tmp_path / "push-her-s1"
     RunDir(run).logs.mkdir(parents=True)
     RunDir(run).log("learner-0").write_text("killed at epoch 12")
-    assert not se.is_done(run)
+    assert not sc.is_done(run)
     moved = se.set_aside(run, tmp_path)
     assert not run.exists()
     assert moved.parent == tmp_path / sc.UNFINISHED_DIR
@@ -92,6 +92,34 @@ def test_bad_grid_arguments_are_refused(capsys: pytest.CaptureFixture[str]) -> N
     assert "--seeds must be at least 1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         se.main(["--methods", "her-xx"])
+
+
+def test_dry_run_says_what_each_cell_would_do_and_starts_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root, committed = tmp_path / "runs", tmp_path / "committed"
+    finished_run(root, se.GridRun("push", "her", 1), [0.5])
+    RunDir(root / "push-her-cs-s1").config.parent.mkdir(parents=True)
+    RunDir(root / "push-her-cs-s1").config.write_text("run: {name: push-her-cs-s1}\n")
+    (root / "push-her-s2").mkdir()  # a folder that never saved its config
+    finished_run(committed, se.GridRun("push", "her", 3), [0.5])
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+
+    assert se.main(["--tasks", "push", "--methods", "her", "her-cs", "--seeds", "3",
+                    "--epochs", "7", "--run-dir", str(root), "--committed", str(committed),
+                    "--dry-run"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    plan = {line.split(":")[0]: line for line in out if line.startswith("[")}
+    assert list(plan) == ["[skip] push-her-s1", "[resume] push-her-cs-s1",
+                          "[redo] push-her-s2", "[start] push-her-cs-s2",
+                          "[skip] push-her-s3", "[start] push-her-cs-s3"]
+    assert str(committed / "push-her-s3") in plan["[skip] push-her-s3"]
+    assert f"hercs up --resume {root / 'push-her-cs-s1'} --epochs 7" in plan[
+        "[resume] push-her-cs-s1"]
+    assert ("hercs up --task push --method her-cs --seed 3 --epochs 7 --run push-her-cs-s3"
+            in plan["[start] push-her-cs-s3"])
+    assert out[-1] == "nothing was started (--dry-run)"
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
 
 
 @pytest.mark.integration
