@@ -300,8 +300,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     methods = list(dict.fromkeys(args.methods))
     epochs = args.epochs or (1 if args.quick else 100)
     overrides = list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
-    tmp = tempfile.mkdtemp(prefix="hercs-sweep-") if args.quick and not args.run_dir else None
-    run_root = Path(args.run_dir or tmp or Path("runs") / "sweep").resolve()
+    tmp = (tempfile.mkdtemp(prefix="hercs-sweep-")
+           if args.quick and not args.run_dir and not args.dry_run else None)
+    # --quick without --run-dir gets here only in a dry run, which makes no temporary folder
+    default_root = (Path(tempfile.gettempdir()) / "hercs-sweep-NEW" if args.quick
+                    else Path("runs") / "sweep")
+    run_root = Path(args.run_dir or tmp or default_root).resolve()
     out_dir = Path(args.out) if args.out else run_root / "report"
     jobs = args.jobs or max(1, os.cpu_count() or 1)
     committed = Path(args.committed).resolve() if args.committed else None
@@ -327,13 +331,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = f"{PROG} " + " ".join(argv)
     if args.dry_run and not args.slurm:
         print(f"sweep (dry run): {len(cells)} runs, {epochs} epochs each, {jobs} at a time, "
-              f"in {run_root}")
+              f"in {run_root}" + (" (a new temporary folder)" if tmp is None and args.quick
+                                  and not args.run_dir else ""))
         for line in dry_run_lines(cells, run_root=run_root, committed=committed, epochs=epochs,
                                   actors=args.actors, overrides=overrides):
             print(line)
         print("nothing was started (--dry-run)")
-        if tmp is not None:
-            os.rmdir(tmp)  # --quick's temporary folder, made above and still empty
         return 0
     print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(methods)} × "
           f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × {args.seeds} seeds), {epochs} "

@@ -10,7 +10,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any, TypedDict, Unpack
+from typing import Any, Literal, TypedDict, Unpack
 
 import zenoh
 
@@ -25,7 +25,9 @@ ERROR_ENCODING = "text/plain;hercs-error"
 _JOIN_TIMEOUT_S = 5.0
 _RETRY_PAUSE_FIRST_S = 0.01
 _RETRY_PAUSE_MAX_S = 0.5
-"""The pauses between gets to a queryable that is matched but did not answer (`request`)."""
+_LAST_GET_S = 0.05
+"""The pauses between gets to a queryable that is matched but did not answer (`request`), and
+the least time left for which such a get is sent again."""
 
 
 class PendingReply:
@@ -273,9 +275,20 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
         if remaining <= 0:
             raise TransportTimeout(key, timeout_s, "no queryable answered", no_queryable=True)
         log.debug("no queryable on %r answered; waiting up to %.1f s for one", key, remaining)
-        if not _wait_for_queryable(session, key, remaining):
+        found = _wait_for_queryable(session, key, remaining)
+        if found is None:
             raise TransportTimeout(key, timeout_s, "no queryable appeared", no_queryable=True)
-        time.sleep(min(pause, max(deadline - time.monotonic(), 0.0)))
+        if found == "appeared":  # a new queryable: ask it at once
+            pause = 0.0
+        else:
+            remaining = deadline - time.monotonic()
+            if remaining < _LAST_GET_S:
+                # a get this short may end in Zenoh's own timeout before the silent
+                # queryable's empty answer, and be reported as "no reply"
+                time.sleep(max(remaining, 0.0))
+                raise TransportTimeout(key, timeout_s, "no queryable answered",
+                                       no_queryable=True)
+            time.sleep(min(pause, remaining - _LAST_GET_S))
         pause = min(max(2 * pause, _RETRY_PAUSE_FIRST_S), _RETRY_PAUSE_MAX_S)
 
 
@@ -308,8 +321,10 @@ def _get_one(session: zenoh.Session, key: str, payload: bytes, *, deadline: floa
     return None
 
 
-def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> bool:
-    """True once a complete queryable matching `key` is known to this session."""
+def _wait_for_queryable(session: zenoh.Session, key: str,
+                        timeout_s: float) -> Literal["known", "appeared"] | None:
+    """Whether a complete queryable matching `key` is known to this session: "known" at
+    once, "appeared" within `timeout_s`, else None."""
     matched = threading.Event()
     querier = session.declare_querier(key, target=zenoh.QueryTarget.BEST_MATCHING)
     try:
@@ -318,8 +333,9 @@ def _wait_for_queryable(session: zenoh.Session, key: str, timeout_s: float) -> b
         )
         try:
             # zenoh's stub types matching_status as bool; it is a MatchingStatus at run time
-            status = querier.matching_status
-            return status.matching or matched.wait(timeout_s)  # type: ignore[attr-defined]
+            if querier.matching_status.matching:  # type: ignore[attr-defined]
+                return "known"
+            return "appeared" if matched.wait(timeout_s) else None
         finally:
             undeclare(listener)
     finally:

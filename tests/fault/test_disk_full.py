@@ -119,6 +119,7 @@ def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
     before = len(acked)
     error = append_until_refused(writer, acked)
     assert "No space left" in f"{error} {error.__cause__}", error
+    assert "cannot be written since" not in str(error), "the retry was due: it was tried"
     assert writer.failed and writer.recoveries in (0, 1)
     recoveries_while_full, acked_while_full = writer.recoveries, len(acked) - before
     assert logged_ids(run_dir) == acked, "the torn segment still reads back every acked one"

@@ -95,8 +95,12 @@ def test_bad_grid_arguments_are_refused(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_dry_run_says_what_each_cell_would_do_and_starts_nothing(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    def no_training(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a dry run started the grid")
+
+    monkeypatch.setattr(se, "run_grid", no_training)
     root, committed = tmp_path / "runs", tmp_path / "committed"
     finished_run(root, se.GridRun("push", "her", 1), [0.5])
     RunDir(root / "push-her-cs-s1").config.parent.mkdir(parents=True)
