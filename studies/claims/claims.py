@@ -79,6 +79,12 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("ours against the authors', HER-EBP-CS, v4 with ε 1e-3",
           _push("her-ebp-cs", setting="ε 0.001"),
           _push("her-ebp-cs", env="v1", schedule="authors", lag="")),
+    # the same setting for HER-EBP, before it may become v4's default (DESIGN §9.3)
+    Claim("energy ε 1e-3 against the default, HER-EBP, v4",
+          _push("her-ebp", setting="ε 0.001"), _push("her-ebp")),
+    Claim("ours against the authors', HER-EBP, v4 with ε 1e-3",
+          _push("her-ebp", setting="ε 0.001"),
+          _push("her-ebp", env="v1", schedule="authors", lag="")),
     *(Claim(f"ours against the authors', {method_label(m)}, {env}", _push(m, env=env),
             _push(m, env="v1", schedule="authors", lag=""))
       for env in ("v4", "v1") for m in ("her", "her-cs", "her-ebp", "her-ebp-cs")),
