@@ -1,7 +1,9 @@
 """The run log on a disk that fills up, with a real full file system (a small tmpfs): no
 append is reported done that is not on disk, appends are refused while the disk is full, the
 log continues by itself in a new segment when space returns, and closing or reopening the
-log while the disk is full neither crashes nor loses an acked episode."""
+log while the disk is full neither crashes nor loses an acked episode. And one failed append
+without a full disk: a record whose bytes reached the file but whose fsync failed is cut when
+the log is retried (a real MCAP log; only fsync is made to fail, once)."""
 
 from __future__ import annotations
 
@@ -182,3 +184,38 @@ def test_plain_writer_close_on_a_full_disk_does_not_raise(disk: Path) -> None:
     ballast.unlink()
     EpisodeLog.retire(disk, run=RUN, task=TASK)
     assert logged_ids(disk) == [0]
+
+
+def test_a_record_whose_fsync_failed_is_cut_before_the_log_goes_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # never acked, so the caller sends the episode again under its id: it must be in the log
+    # once, and every acked one must read back
+    run_dir, clock = tmp_path / RUN, Clock()
+    writer, _ = RecoveringLogWriter.open(run_dir, run=RUN, task=TASK, retry_s=RETRY_S,
+                                         clock=clock, scene=False)
+    for i in range(3):
+        writer.append_episode(episode(i), episode_id=i)
+
+    real_sync = EpisodeLogWriter._sync
+    fail_next = [True]
+
+    def sync_failing_once(self: EpisodeLogWriter) -> None:
+        if fail_next and fail_next.pop():
+            self._mcap.flush()  # the record's bytes are in the file, complete...
+            raise OSError(errno.EIO, "fsync failed")  # ...but never made durable nor acked
+        real_sync(self)
+
+    monkeypatch.setattr(EpisodeLogWriter, "_sync", sync_failing_once)
+    with pytest.raises((OSError, EpisodeLogError)):
+        writer.append_episode(episode(3), episode_id=3)
+    assert writer.failed
+
+    clock.now += RETRY_S  # the retry is due: the caller sends episode 3 again
+    writer.append_episode(episode(3), episode_id=3)
+    writer.append_episode(episode(4), episode_id=4)
+    writer.close()
+
+    assert logged_ids(run_dir) == [0, 1, 2, 3, 4]
+    assert dict(read_episodes(run_dir))[3] == episode(3)
+    assert len(segment_paths(run_dir)) == 2, "the failed segment sealed, then a new one"
