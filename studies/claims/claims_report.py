@@ -103,10 +103,17 @@ def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run
             for name in side.short:
                 lines.append(f"| {label} | {name} | stopped before epoch {side.epoch}: "
                              "left out | – | – |")
-    unused = sorted((run.name, f"its group is in no claim ({g.task}, {g.label})")
-                    for g, runs in groups.items() if g not in seen and g.schedule != "authors"
-                    for run in runs)
-    unused += [(name, f"a longer run of its group and seed is counted: {kept}")
+    def no_claim(g: Group) -> str:
+        return f"its group is in no claim ({g.task}, {g.label})"
+
+    unused = sorted((run.name, no_claim(g)) for g, runs in groups.items()
+                    if g not in seen and g.schedule != "authors" for run in runs)
+    # a run dropped for a longer one of its seed is in no claim either way: say why that is
+    # where its whole group is in none
+    group_of = {run.name: g for g, runs in groups.items() for run in runs}
+    unused += [(name, f"a longer run of its group and seed is counted: {kept}"
+                if group_of.get(kept) in seen or kept not in group_of
+                else no_claim(group_of[kept]))
                for name, kept in getattr(groups, "dropped", [])]
     if unused:
         lines += ["", "**Committed runs in no claim**, and why:", "", "| run | why |",

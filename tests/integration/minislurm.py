@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import pwd
 import shutil
 import signal
 import socket
@@ -26,8 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 BINARIES = ("munged", "mariadbd", "mariadb-install-db", "mariadb", "slurmdbd", "slurmctld",
-            "slurmd", "sbatch", "sacct", "sacctmgr", "scontrol", "sinfo", "srun", "ip",
-            "unshare", "nsenter")
+            "slurmd", "sbatch", "sacct", "sacctmgr", "scontrol", "scancel", "sinfo", "srun",
+            "ip", "unshare", "nsenter")
 NET = "10.124.0"
 CLUSTER = "hercs"
 START_TIMEOUT_S = 60.0
@@ -68,6 +69,8 @@ class MiniSlurm:
     """CPUs each node declares (they share this machine's cores)."""
     root: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="hs-")))
     procs: list[subprocess.Popen[bytes]] = field(default_factory=list)
+    slurmds: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
+    """Each node's slurmd now (the one `bring_up` started last)."""
     _tag: str = field(default_factory=lambda: str(os.getpid() % 100000))
 
     @property
@@ -113,15 +116,15 @@ class MiniSlurm:
         return proc
 
     def _wait(self, what: str, check: object, proc: subprocess.Popen[bytes] | None = None,
-              log: str | None = None) -> None:
-        deadline = time.monotonic() + START_TIMEOUT_S
+              log: str | None = None, timeout_s: float = START_TIMEOUT_S) -> None:
+        deadline = time.monotonic() + timeout_s
         while not check():  # type: ignore[operator]
             if proc is not None and proc.poll() is not None:
                 tail = (self.root / log).read_text()[-3000:] if log else ""
                 raise RuntimeError(f"{what}: exited {proc.returncode}\n{tail}")
             if time.monotonic() > deadline:
                 tail = (self.root / log).read_text()[-3000:] if log else ""
-                raise RuntimeError(f"{what}: not ready after {START_TIMEOUT_S} s\n{tail}")
+                raise RuntimeError(f"{what}: not ready after {timeout_s:g} s\n{tail}")
             time.sleep(0.2)  # daemons announce readiness only by answering: poll them
 
     def _munge(self) -> None:
@@ -243,32 +246,35 @@ class MiniSlurm:
         # mounts slurmd needs).
         spool = self.root / f"spool-{node}"
         spool.mkdir(exist_ok=True)  # a node brought up again keeps its spool
-        self._spawn(f"slurmd-{node}", [
+        self.slurmds[node] = self._spawn(f"slurmd-{node}", [
             "nsenter", f"--net=/run/netns/{self.ns(node)}", "unshare", "--mount", "--uts",
             "sh", "-c", f'mount --bind "{self.hosts}" /etc/hosts && hostname {node} && '
                         f'exec slurmd -D -N {node} -f "{self.conf}"'])
 
-    def _wait_idle(self) -> None:
+    def _wait_idle(self, timeout_s: float = START_TIMEOUT_S) -> None:
         def idle() -> bool:
             out = subprocess.run(["sinfo", "-h", "-N", "-o", "%N %t"], capture_output=True,
                                  text=True, env=self.env, timeout=20).stdout
             states = dict(line.split() for line in out.splitlines() if line.strip())
             return all(states.get(n) == "idle" for n in self.nodes)
 
-        self._wait("slurmd on every node", idle, None, "slurmctld.log")
+        self._wait("slurmd on every node", idle, None, "slurmctld.log", timeout_s)
 
     # ------------------------------------------------------------------ node failures
 
-    def take_down(self, node: str) -> int:
+    def take_down(self, node: str) -> list[int]:
         """The node dies at once: every process in its network namespace (its slurmd, the
-        steps' slurmstepd and tasks) gets SIGKILL, as at a power loss. Returns how many."""
+        steps' slurmstepd and tasks) gets SIGKILL, as at a power loss. Returns their pids."""
         out = subprocess.run(["ip", "netns", "pids", self.ns(node)], capture_output=True,
                              text=True, check=True).stdout
         pids = [int(p) for p in out.split()]
         for pid in pids:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-        return len(pids)
+        slurmd = self.slurmds.get(node)
+        if slurmd is not None and slurmd.pid in pids:
+            slurmd.wait(30)  # reaped: `restore` tells a dead slurmd by its exit status
+        return pids
 
     def node_state(self, node: str) -> str:
         """`sinfo`'s short state of `node` (idle, alloc, down*, ...)."""
@@ -280,6 +286,20 @@ class MiniSlurm:
         """Start the node's slurmd again (ReturnToService=2: it returns to service when it
         registers)."""
         self._slurmd(self.nodes.index(node), node)
+
+    def restore(self, timeout_s: float = 180.0) -> None:
+        """Back to the state `start()` left: every job cancelled, every node's slurmd running
+        (one a test took down and did not bring up is started again) and every node idle, so
+        that a test that failed half-way does not fail the tests after it. `timeout_s` bounds
+        the wait for idle: a cancelled job's processes get KillWait (10 s) to end, and a node
+        that slurmctld marked down returns when its new slurmd registers."""
+        user = pwd.getpwuid(os.geteuid()).pw_name  # the tests' jobs are all this user's
+        subprocess.run(["scancel", "--user", user], capture_output=True, env=self.env,
+                       timeout=20)
+        for i, node in enumerate(self.nodes):
+            if self.slurmds[node].poll() is not None:
+                self._slurmd(i, node)
+        self._wait_idle(timeout_s)
 
     # ------------------------------------------------------------------ stop
 
