@@ -1,7 +1,7 @@
 """Fault injection: a real `hercs up` run while each service in turn is SIGKILLed.
 
     python -m bench.faults.service_kills                 # ~10 min: FetchReach, 6 epochs per fault
-    python -m bench.faults.service_kills --quick         # CI: one fault (the actor), 3 short epochs
+    python -m bench.faults.service_kills --quick         # CI: one fault (the actor), 6 short epochs
 
 For each fault a fresh run (FetchReach, HER-CS, two actors) starts; after epoch `--kill-at` the
 target gets SIGKILL: one child of `hercs up` (`replay`, `learner`, `clusterer`, `evaluator`,
@@ -259,18 +259,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="where faults.md and faults.json go "
                         "(default docs/results; a temp folder with --quick)")
     parser.add_argument("--quick", action="store_true",
-                        help="CI: the actor fault only, 3 short epochs, into a temp folder")
+                        help="CI: the actor fault only, 6 short epochs, into a temp folder")
     args = parser.parse_args(argv)
     faults, epochs, cycles = args.faults, args.epochs, args.cycles
     tmp = tempfile.TemporaryDirectory(prefix="hercs-faults-")
     out = args.out or (Path(tmp.name) if args.quick else REPO / "docs" / "results")
     kill_at = args.kill_at
     actors = 2
-    if args.quick:  # kill after epoch 1 of 3: an epoch must end after the restart
-        # one actor: the run cannot end without its new incarnation (the rate limiter holds
-        # the learner), so the restart is always seen; with two, a short run could finish on
-        # the other actor's episodes before the launcher restarts the killed one
-        faults, epochs, cycles, kill_at, actors = ["actor"], 3, 2, 1, 1
+    if args.quick:  # kill after epoch 1 of 6: epochs must end after the restart
+        # one actor: the run cannot end without its new incarnation, so the restart is
+        # always seen; with two, a short run could finish on the other actor's episodes
+        # before the launcher restarts the killed one. Six epochs, not three: the rate
+        # limiter lets an actor run ~4 cycles ahead of the learner, and of 3 epochs of 2
+        # cycles an actor had inserted every episode by the end of epoch 1 (net_faults saw
+        # this), so on a fast machine the run could end before the restart
+        faults, epochs, cycles, kill_at, actors = ["actor"], 6, 2, 1, 1
     root = Path(tmp.name) / "runs"
     root.mkdir(parents=True)
     results = []

@@ -2,7 +2,7 @@
 
     python -m bench.perf.memory RUN_DIR [RUN_DIR ...]  # samples until those runs end
     python -m bench.perf.memory --report  # docs/results/memory.md from the CSVs
-    python -m bench.perf.memory --quick  # CI: a 2-epoch FetchReach run, sampled
+    python -m bench.perf.memory --quick  # CI: a 4-epoch FetchReach run, sampled
 
 Attaches to runs already started: every `--every` seconds it reads VmRSS of each process whose
 command line names the run, with the run's current epoch, into docs/results/memory/<run>.csv,
@@ -180,17 +180,19 @@ def main(argv: list[str] | None = None) -> int:
                         "report go (default docs/results/memory/)")
     parser.add_argument("--report", action="store_true", help="write the report and exit")
     parser.add_argument("--quick", action="store_true",
-                        help="CI: sample a 2-epoch FetchReach run started here")
+                        help="CI: sample a 4-epoch FetchReach run started here")
     args = parser.parse_args(argv)
     if args.quick:
         root = Path(tempfile.mkdtemp(prefix="hercs-memory-"))
         out = args.out if args.out != OUT else root / "memory"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "2",
+            [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--epochs", "4",
              "--run", "memory-quick", "--run-dir", str(root), "--set",
              "training.cycles_per_epoch=3", "--set", "training.eval_episodes=2"],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        sample([root / "memory-quick"], out, 1.0)
+        # every 0.25 s over 4 epochs: a sample after epoch 1 however fast the machine runs
+        # the rest (2 epochs sampled every 1 s could end between two samples)
+        sample([root / "memory-quick"], out, 0.25)
         if proc.wait(timeout=600) != 0:
             print("bench.perf.memory --quick: the run failed", file=sys.stderr)
             return 1
