@@ -97,7 +97,7 @@ def measure(store: EpisodeStore, config: HercsConfig, *, rounds: int, per_round:
                 for m in METHODS}
     rng = np.random.default_rng(1)
     spec, future_p = config.task.spec, config.her.future_p
-    eps, repeat = config.energy.epsilon, config.cluster.small_cluster_repeat
+    eps, repeat = config.energy_epsilon, config.cluster.small_cluster_repeat
     for _ in range(rounds):
         for method in METHODS:
             sampler, part = samplers[method], times[method]

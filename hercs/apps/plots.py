@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hercs.config.algorithm import EnergyConfig
+from hercs.config.algorithm import EPSILON_V1, default_energy_epsilon
 from hercs.errors import HercsError
 from hercs.rl.methods import METHODS
 from hercs.run.rundir import RunDir
@@ -52,8 +52,11 @@ MAX_GROUPS = 10
 name fewer."""
 ENV_VERSION_DEFAULT = "v4"
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
-EPSILON_DEFAULT = EnergyConfig().epsilon
-"""EBP's ε added to every trajectory energy; a run with another is its own experiment."""
+EPSILON_UNMARKED = EPSILON_V1
+"""EBP's ε that run names and groups leave unsaid: every run's until 2026-11-28, and v1's
+default still. An EBP run with another (v4's default 1e-3 included) is marked `eps…`, so
+that the runs made before v4's default changed keep their names and groups; ε does nothing
+to HER and HER-CS, whose runs are never marked."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
@@ -114,22 +117,36 @@ def task_title(name: str) -> str:
 
 def method_key(method: str, schedule: str = "async", precision: str = "fp32",
                env_version: str = ENV_VERSION_DEFAULT, variant: str = "",
-               torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT) -> str:
+               torquescale: float = 1.0, energy_epsilon: float = EPSILON_UNMARKED) -> str:
     """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
     for the learner's mixed precision, `/<variant>` for a caller's own grouping (`VariantOf`),
-    `/eps0.001` for EBP's `energy.epsilon` other than the default, and `/v1` for the authors'
-    Fetch*-v1 environment, or `/ts4` for v4 with the gripper weld's torquescale 4
-    (`her-cs/lockstep/bf16/v1` has three)."""
+    `/eps0.001` for an EBP method's `energy.epsilon` other than EPSILON_UNMARKED, and `/v1`
+    for the authors' Fetch*-v1 environment, or `/ts4` for v4 with the gripper weld's
+    torquescale 4 (`her-cs/lockstep/bf16/v1` has three)."""
     env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
-    eps = "" if energy_epsilon == EPSILON_DEFAULT else f"eps{energy_epsilon:g}"
+    eps = f"eps{energy_epsilon:g}" if marks_epsilon(method, energy_epsilon) else ""
     variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (variant, ""),
                                      (eps, ""), (env, ENV_VERSION_DEFAULT)) if v != default)
     return "/".join((method, *variants))
 
 
+def marks_epsilon(method: str, energy_epsilon: float) -> bool:
+    """Whether a run's name and group say its ε: an EBP method's, other than
+    EPSILON_UNMARKED (an unknown method's too: it is not taken for a plain run)."""
+    spec = METHODS.get(method)
+    return (spec is None or spec.energy_prioritised) and energy_epsilon != EPSILON_UNMARKED
+
+
 def energy_epsilon(config: dict[str, Any]) -> float:
-    """A resolved config.yaml's `energy.epsilon` (absent: the default, as before it was saved)."""
-    return float((config.get("energy") or {}).get("epsilon", EPSILON_DEFAULT))
+    """A config.yaml's `energy.epsilon`: absent (saved before it was), 1e-6, every run's then;
+    null (written by hand), the default of its `task.env_version`."""
+    energy = config.get("energy") or {}
+    if "epsilon" not in energy:
+        return EPSILON_V1
+    if energy["epsilon"] is None:
+        return default_energy_epsilon((config.get("task") or {}).get("env_version",
+                                                                     ENV_VERSION_DEFAULT))
+    return float(energy["epsilon"])
 
 
 VariantOf = Callable[[dict[str, Any]], str]

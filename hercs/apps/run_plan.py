@@ -73,7 +73,7 @@ def resolve_run(config: HercsConfig, now: datetime | None = None,
     """The config the children get: a run name, and `connect` = the embedded router, which
     listens on `listening` (default: `transport.listen`; the concrete ports once a port 0
     has been given one). `listen` stays as asked, so that a resumed run picks a port anew."""
-    data = config.to_dict()
+    data = config.resolved().to_dict()
     data["run"]["name"] = config.run.name or default_run_name(config, now)
     data["transport"]["connect"] = loopback_endpoints(listening or config.transport.listen)
     return HercsConfig.from_dict(data)

@@ -3,7 +3,7 @@ and `hercs sweep report`, its learning curves and its claims table (docs/GUIDE.m
 runs").
 
     hercs sweep --tasks push --methods her her-cs --seeds 5 --epochs 50
-    hercs sweep --tasks push --methods her-ebp-cs --seeds 3 --variant eps3:energy.epsilon=1e-3
+    hercs sweep --tasks push --methods her-ebp-cs --seeds 3 --energy-epsilon 1e-6
     hercs sweep report runs/sweep
 
 A sweep is resumable: a finished run (`bench_done.json`) is skipped, an unfinished one resumed
@@ -31,9 +31,6 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from hercs.apps.plots import (
-    EPSILON_DEFAULT,
-)
 from hercs.apps.provenance import git_commit, machine_identity
 from hercs.apps.slurm import add_sbatch_arguments
 from hercs.apps.sweep_cells import (
@@ -53,6 +50,7 @@ from hercs.apps.sweep_cells import (
 from hercs.apps.sweep_report import main_report, write_reports
 from hercs.apps.sweep_slurm import run_one_cell, submit_slurm
 from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
+from hercs.config.algorithm import EPSILON_MUJOCO3, EPSILON_V1
 from hercs.errors import ConfigError
 from hercs.rl.envs import check_env
 from hercs.rl.methods import METHODS
@@ -158,7 +156,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "schedule": r.cell.schedule, "precision": r.cell.precision,
                               "env_version": r.cell.env_version, "env_id": r.cell.env_id,
                               "weld_torquescale": r.cell.weld_torquescale,
-                              "energy_epsilon": r.cell.energy_epsilon,
+                              "energy_epsilon": r.cell.epsilon,
                               "variant": r.cell.variant,
                               "variant_overrides": list(r.cell.variant_overrides),
                               "epochs": epochs,
@@ -213,10 +211,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-version", choices=list(ENV_VERSIONS), default="v4",
                    help="task.env_version of every run (default v4; v1, the authors' Fetch*-v1 "
                         "on mujoco-py after `make mujoco-py`: runs named T-v1-M-sS)")
-    p.add_argument("--energy-epsilon", type=float, default=EPSILON_DEFAULT,
-                   help=f"energy.epsilon of every run (default {EPSILON_DEFAULT:g}; EBP's floor "
-                        "added to every trajectory energy; 1e-3 gives v4's still episodes "
-                        "v1's energy, docs/results/early_policy.md: runs named T-eps1e-3-M-sS)")
+    p.add_argument("--energy-epsilon", type=float, default=None,
+                   help="energy.epsilon of every run (EBP's floor added to every trajectory "
+                        f"energy; default: the environment's, {EPSILON_MUJOCO3:g} on v4, "
+                        f"{EPSILON_V1:g} on v1, docs/DESIGN.md §9.3). An EBP run whose ε is "
+                        f"not {EPSILON_V1:g} is named T-eps1e-3-M-sS")
     p.add_argument("--weld-torquescale", type=float, default=1.0,
                    help="task.weld_torquescale of every run (v4 only; default 1, MuJoCo 3's; "
                         "4 tilts the gripper as v1 does, docs/results/env_diff.md: runs named "
@@ -313,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                          or not args.weld_torquescale > 0):
         return _fail(f"--weld-torquescale {args.weld_torquescale:g} needs --env-version v4 "
                      "and a value > 0")
-    if not args.energy_epsilon > 0:
+    if args.energy_epsilon is not None and not args.energy_epsilon > 0:
         return _fail(f"--energy-epsilon {args.energy_epsilon:g} must be > 0")
     cells = plan_grid(tasks, methods, list(range(1, args.seeds + 1)), args.schedule,
                       args.precision, args.env_version, args.weld_torquescale,

@@ -18,9 +18,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
-from hercs.apps.plots import (
-    EPSILON_DEFAULT,
-)
+from hercs.apps.plots import marks_epsilon
+from hercs.config.algorithm import default_energy_epsilon
 from hercs.errors import ConfigError
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import CONFIG, METRICS, RunDir
@@ -42,7 +41,8 @@ class GridRun:
     precision: str = "fp32"
     env_version: str = "v4"
     weld_torquescale: float = 1.0
-    energy_epsilon: float = EPSILON_DEFAULT
+    energy_epsilon: float | None = None
+    """EBP's ε; None: the default of `env_version` (`epsilon`)."""
     variant: str = ""
     """A `--variant`'s name ("" for none): its overrides are this cell's alone."""
     variant_overrides: tuple[str, ...] = ()
@@ -53,18 +53,32 @@ class GridRun:
         return self.name.rpartition("-s")[0]
 
     @property
+    def epsilon(self) -> float:
+        """The ε the run uses: its variant's, else the one asked for, else its environment's
+        default."""
+        for item in reversed(self.variant_overrides):
+            key, _, value = item.partition("=")
+            if key.strip() == "energy.epsilon":
+                with contextlib.suppress(ValueError):
+                    return float(value)
+        if self.energy_epsilon is None:
+            return default_energy_epsilon(self.env_version)
+        return self.energy_epsilon
+
+    @property
     def name(self) -> str:
         """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
-        version (or a v4 env's weld torquescale, `-ts4`) and EBP's ε other than the default
-        (`-eps1e-3`) after the task: `push-v1-her-cs-lockstep-s2`."""
+        version (or a v4 env's weld torquescale, `-ts4`) and an EBP method's ε other than
+        1e-6 (`-eps1e-3`, v4's default since 2026-11-28: plots.EPSILON_UNMARKED says why)
+        after the task: `push-v1-her-cs-lockstep-s2`."""
         variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
                                                      (self.precision, "fp32"),
                                                      (self.variant, "")) if v != default)
         env = "" if self.env_version == "v4" else f"-{self.env_version}"
         if self.weld_torquescale != 1.0:
             env += f"-ts{self.weld_torquescale:g}"
-        if self.energy_epsilon != EPSILON_DEFAULT:
-            mantissa, exponent = f"{self.energy_epsilon:e}".split("e")
+        if marks_epsilon(self.method, self.epsilon):
+            mantissa, exponent = f"{self.epsilon:e}".split("e")
             env += f"-eps{float(mantissa):g}e{int(exponent)}"
         return f"{self.task}{env}-{self.method}{variant}-s{self.seed}"
 
@@ -75,7 +89,7 @@ class GridRun:
 
 def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int],
               schedule: str = "async", precision: str = "fp32", env_version: str = "v4",
-              weld_torquescale: float = 1.0, energy_epsilon: float = EPSILON_DEFAULT,
+              weld_torquescale: float = 1.0, energy_epsilon: float | None = None,
               variants: Sequence[tuple[str, tuple[str, ...]]] = (("", ()),)
               ) -> list[GridRun]:
     """Every cell, seed-major: all arms of seed 1 before any of seed 2."""
@@ -156,7 +170,7 @@ def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors:
                "--set", f"task.env_version={cell.env_version}"]
         if cell.weld_torquescale != 1.0:
             cmd += ["--set", f"task.weld_torquescale={cell.weld_torquescale:g}"]
-        if cell.energy_epsilon != EPSILON_DEFAULT:
+        if cell.energy_epsilon is not None:
             cmd += ["--set", f"energy.epsilon={cell.energy_epsilon!r}"]
         for item in cell.variant_overrides:
             cmd += ["--set", item]
@@ -237,7 +251,9 @@ def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun
             "name": cell.name, "arm": cell.arm, "task": cell.task, "method": cell.method,
             "seed": cell.seed, "schedule": cell.schedule, "precision": cell.precision,
             "env_version": cell.env_version, "weld_torquescale": cell.weld_torquescale,
-            "energy_epsilon": cell.energy_epsilon, "variant": cell.variant,
+            # as asked (null: the environment's default) and as the run uses it
+            "energy_epsilon": cell.energy_epsilon, "epsilon_used": cell.epsilon,
+            "variant": cell.variant,
             "variant_overrides": list(cell.variant_overrides),
             "state": "done" if record is not None else state.get(cell, (
                 "started, not finished" if (run_root / cell.name).is_dir() else "to do")),
@@ -272,7 +288,8 @@ def read_manifest(run_root: Path) -> tuple[list[GridRun], dict]:
         raise ConfigError(f"{run_root}: no sweep here ({path}: {exc}); give the --run-dir "
                           "of a `hercs sweep`") from exc
     cells = [GridRun(c["task"], c["method"], int(c["seed"]), c["schedule"], c["precision"],
-                     c["env_version"], float(c["weld_torquescale"]), float(c["energy_epsilon"]),
+                     c["env_version"], float(c["weld_torquescale"]),
+                     None if c.get("energy_epsilon") is None else float(c["energy_epsilon"]),
                      c.get("variant", ""), tuple(c.get("variant_overrides", ())))
              for c in manifest["cells"]]
     return cells, manifest

@@ -21,7 +21,7 @@ from hercs.apps import sweep_stats
 from hercs.apps.plot_figures import plot_figure
 from hercs.apps.plot_tables import tables
 from hercs.apps.plots import (
-    EPSILON_DEFAULT,
+    EPSILON_UNMARKED,
     Curve,
     aggregate,
     group,
@@ -54,14 +54,14 @@ def done_key(record: dict) -> str:
     return method_key(record["method"], record.get("schedule", "async"),
                       record.get("precision", "fp32"), record.get("env_version", "v4"),
                       torquescale=float(record.get("weld_torquescale", 1.0)),
-                      energy_epsilon=float(record.get("energy_epsilon", EPSILON_DEFAULT)))
+                      energy_epsilon=float(record.get("energy_epsilon", EPSILON_UNMARKED)))
 
 
 def arm_key(cell: GridRun) -> str:
     """The plot's group key of a cell's arm (hercs.apps.plots.method_key; a `--variant`'s
     name after it): seeds of one arm are drawn as one curve."""
     key = method_key(cell.method, cell.schedule, cell.precision, cell.env_version,
-                     torquescale=cell.weld_torquescale, energy_epsilon=cell.energy_epsilon)
+                     torquescale=cell.weld_torquescale, energy_epsilon=cell.epsilon)
     return f"{key}/{cell.variant}" if cell.variant else key
 
 

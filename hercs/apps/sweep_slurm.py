@@ -22,8 +22,10 @@ def cell_command(args: argparse.Namespace, tasks: Sequence[str], *, run_root: Pa
            "--seeds", str(args.seeds), "--schedule", args.schedule,
            "--precision", args.precision, "--env-version", args.env_version,
            "--weld-torquescale", f"{args.weld_torquescale:g}",
-           "--energy-epsilon", repr(args.energy_epsilon), "--epochs", str(epochs),
+           "--epochs", str(epochs),
            "--actors", str(args.actors), "--run-dir", str(run_root), "--jobs", "1"]
+    if args.energy_epsilon is not None:
+        cmd += ["--energy-epsilon", repr(args.energy_epsilon)]
     if committed is not None:
         cmd += ["--committed", str(committed)]
     for variant in args.variants:

@@ -21,7 +21,13 @@ from typing import Any
 
 import yaml
 
-from hercs.config.algorithm import ClusterConfig, DDPGConfig, EnergyConfig, HERConfig
+from hercs.config.algorithm import (
+    ClusterConfig,
+    DDPGConfig,
+    EnergyConfig,
+    HERConfig,
+    default_energy_epsilon,
+)
 from hercs.config.building import RETIRED_KEYS, StrictBoolLoader, _build, _did_you_mean
 from hercs.config.checks import _check
 from hercs.config.deploy import (
@@ -198,6 +204,19 @@ class HercsConfig:
     def capacity_episodes(self) -> int:
         return self.replay.buffer_transitions // self.task.spec.episode_steps
 
+    @property
+    def energy_epsilon(self) -> float:
+        """energy.epsilon, or task.env_version's default where it is unset."""
+        epsilon = self.energy.epsilon
+        return default_energy_epsilon(self.task.env_version) if epsilon is None else epsilon
+
+    def resolved(self) -> HercsConfig:
+        """This config with the defaults that depend on another field written out
+        (energy.epsilon): what a run saves and gives its services, so that a later change
+        of such a default never changes a run already made."""
+        return dataclasses.replace(
+            self, energy=dataclasses.replace(self.energy, epsilon=self.energy_epsilon))
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -227,8 +246,10 @@ def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
                               f"{_did_you_mean(name, data[section], section + '.')} known in "
                               f"{section}: {sorted(data[section])} (`hercs config` prints "
                               "every field with its value)")
-        if isinstance(data[section][name], str):
+        if isinstance(getattr(getattr(config, section), name), str):
             # A string field takes the text as it is, so a run named "007" stays a string.
+            # (The field's type, not the value an earlier override left: "1e-5" is a string
+            # to YAML, and a later override of the same number field is still a number.)
             data[section][name] = raw
             continue
         try:
@@ -309,4 +330,4 @@ def load_yaml(path: str | Path) -> HercsConfig:
 
 def save_yaml(config: HercsConfig, path: str | Path) -> None:
     """Write the full resolved config (every field, defaults included)."""
-    Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    Path(path).write_text(yaml.safe_dump(config.resolved().to_dict(), sort_keys=False))

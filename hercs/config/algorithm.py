@@ -90,6 +90,20 @@ class ClusterConfig:
         _check(self.kmeans_n_init >= 1, "cluster.kmeans_n_init", self.kmeans_n_init, "be >= 1")
 
 
+EPSILON_V1 = 1e-6
+"""EBP's ε on the authors' simulator (Fetch*-v1, MuJoCo 2.1), and everywhere until 2026-11-28:
+the trembling of a resting object gives every episode ~1e-3 of energy there already."""
+EPSILON_MUJOCO3 = 1e-3
+"""EBP's ε on MuJoCo 3 (v4 and every gymnasium task), where a resting object has 4e-6–4e-5:
+the floor v1's simulator gives, which brings v4's HER-EBP and HER-EBP-CS to the authors'
+(docs/DESIGN.md §9.3)."""
+
+
+def default_energy_epsilon(env_version: str) -> float:
+    """energy.epsilon where a config leaves it unset, by `task.env_version`."""
+    return EPSILON_V1 if env_version == "v1" else EPSILON_MUJOCO3
+
+
 @dataclass
 class EnergyConfig:
     clip_energy: float = 0.5
@@ -109,8 +123,11 @@ class EnergyConfig:
     """Weight of the rotational energy (hand manipulation tasks only) [EBP]."""
     inertia: float = 1.0
     """Moment of inertia I in the rotational term ½·I·‖Δθ/Δt‖² (hand tasks only) [EBP]."""
-    epsilon: float = 1e-6
-    """Added to every trajectory energy so no episode has p = 0 [DESIGN]."""
+    epsilon: float | None = None
+    """Added to every trajectory energy so no episode has p = 0. Unset (null), the simulator's
+    own (`default_energy_epsilon`): 1e-3 on MuJoCo 3 (v4 and every gymnasium task), 1e-6 on
+    the authors' v1, whose resting cube trembles with ~1e-3 of energy of its own; a run saves
+    the value it used (docs/DESIGN.md §9.3) [DESIGN]."""
     temperature: float = 0.99
     """p ∝ e^(1/(temperature + 0.01)) + ε, the reference's form: 0.99 makes the exponent 1
     (p ∝ e + ε, docs/DESIGN.md §4); the reference's default temperature 1 gives 0.990 [EBP]."""
@@ -119,9 +136,10 @@ class EnergyConfig:
     uniformly (`uniform`, HER-CS's draw with EBP only in the whole-buffer fills) [DESIGN]."""
 
     def __post_init__(self) -> None:
-        for name in ("clip_energy", "mass", "gravity", "delta_t", "epsilon", "temperature",
-                     "inertia"):
+        for name in ("clip_energy", "mass", "gravity", "delta_t", "temperature", "inertia"):
             _positive(f"energy.{name}", getattr(self, name))
+        if self.epsilon is not None:
+            _positive("energy.epsilon", self.epsilon)
         _check(self.cluster_fill in ("energy", "uniform"), "energy.cluster_fill",
                self.cluster_fill, "be energy or uniform")
         for name in ("w_potential", "w_kinetic", "w_rotational"):

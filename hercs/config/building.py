@@ -49,6 +49,10 @@ def _build(cls: type, data: Any, where: str) -> Any:
 
 
 def _coerce(hint: Any, value: Any, where: str) -> Any:
+    args = typing.get_args(hint)
+    if type(None) in args:  # `float | None`: null, or a value of the other type
+        (other,) = [a for a in args if a is not type(None)]
+        return None if value is None else _coerce(other, value, where)
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return _build(hint, value, where)
     if hint is bool:

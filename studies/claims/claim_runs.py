@@ -19,12 +19,12 @@ from pathlib import Path
 import yaml
 
 from hercs.apps.plots import (
-    EPSILON_DEFAULT,
     Curve,
     aggregate,
     energy_epsilon,
     load_reference,
     load_runs,
+    marks_epsilon,
     method_label,
     milestones,
     task_title,
@@ -119,12 +119,14 @@ def group_of(config: dict) -> Group:
 
 def experiment_setting(config: dict) -> str:
     """What else a run's config.yaml changes that makes it another experiment than its
-    method's: the v4 weld's torquescale and EBP's ε where not the defaults ("" for none), so
-    that such a run is never taken for a seed of the plain group."""
+    method's: the v4 weld's torquescale other than 1, and an EBP method's ε other than 1e-6
+    (plots.marks_epsilon) ("" for none), so that such a run is never taken for a seed of the
+    plain group."""
     scale = float((config.get("task") or {}).get("weld_torquescale", 1.0))
     eps = energy_epsilon(config)
+    method = str((config.get("run") or {}).get("method", ""))
     return ", ".join(s for s in (f"torquescale {scale:g}" if scale != 1.0 else "",
-                                 f"ε {eps:g}" if eps != EPSILON_DEFAULT else "") if s)
+                                 f"ε {eps:g}" if marks_epsilon(method, eps) else "") if s)
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from hercs.api import read_metrics
-from hercs.apps.plots import energy_epsilon
+from hercs.apps.plots import EPSILON_UNMARKED, energy_epsilon, marks_epsilon
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
 from hercs.run.rundir import RunDir
@@ -63,10 +63,10 @@ def run_environment(config: dict) -> str:
 
 
 def run_method(config: dict) -> str:
-    """The run's method, and EBP's ε where the run set one other than the default."""
+    """The run's method, and EBP's ε where it is one a run's name marks (not 1e-6)."""
     method = str(config.get("run", {}).get("method", "?"))
     epsilon = energy_epsilon(config)
-    return method if epsilon == ENERGY.epsilon else f"{method}, ε {epsilon:g}"
+    return f"{method}, ε {epsilon:g}" if marks_epsilon(method, epsilon) else method
 
 
 def read_config(run: Path) -> dict:
@@ -160,7 +160,7 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
 
 
 def energy_view(facts: Sequence[EpisodeFacts], energy: Sequence[float],
-                epsilon: float = ENERGY.epsilon) -> dict[str, float]:
+                epsilon: float = EPSILON_UNMARKED) -> dict[str, float]:
     """What EBP makes of a block's episodes: the mean trajectory energy of those that left
     the cube still and of those that moved it, and the share of the block's draws the still
     ones would get from a sampler with p ∝ energy + ε (EBP's, leaving out EBP-CS's clusters;

@@ -110,6 +110,8 @@ def test_resolve_run_names_the_run_and_points_children_at_the_router(listen: str
     assert resolved.transport.connect == [connect]
     named = resolve_run(HercsConfig.from_dict({**config.to_dict(), "run": {"name": "mine"}}))
     assert named.run.name == "mine"
+    # the children get, and the run saves, the ε it uses, not "the default"
+    assert config.energy.epsilon is None and resolved.energy.epsilon == 1e-3
 
 
 def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: Path) -> None:

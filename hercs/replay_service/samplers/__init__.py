@@ -31,7 +31,7 @@ def make_sampler(method: str, config: HercsConfig) -> EpisodeSampler:
     except KeyError:
         raise ConfigError(
             f"run.method: got {method!r}, must be one of {list(METHODS)}") from None
-    k, repeat, eps = config.cluster.k, config.cluster.small_cluster_repeat, config.energy.epsilon
+    k, repeat, eps = config.cluster.k, config.cluster.small_cluster_repeat, config.energy_epsilon
     exponent = config.energy.exponent
     if spec.cluster_balanced and spec.energy_prioritised:
         return EnergyClusterSampler(k, epsilon=eps, small_cluster_repeat=repeat,

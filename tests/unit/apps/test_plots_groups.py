@@ -180,7 +180,7 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     assert eps == "her-ebp-cs/eps0.001/ts4"
     assert plots.method_label(eps) == "HER-EBP-CS ε 0.001 (torquescale 4)"
     assert plots.energy_epsilon({"energy": {"epsilon": 0.001}}) == 0.001
-    assert plots.energy_epsilon({}) == plots.EPSILON_DEFAULT
+    assert plots.energy_epsilon({}) == plots.EPSILON_UNMARKED == 1e-6
     with_reference = plot_tables.tables(groups, plots.group(plots.load_reference()))
     assert "| HER-EBP-CS (v1) (ours) | 1 | 3 |" in with_reference
     assert "| HER-EBP-CS (authors) | 5 | 100 | 22 | 31 |" in with_reference

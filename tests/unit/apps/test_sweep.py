@@ -30,7 +30,7 @@ def test_grid_is_seed_major_so_every_method_gets_its_seeds_together() -> None:
 def test_variant_runs_are_named_after_their_schedule_and_precision() -> None:
     names = [c.name for c in se.plan_grid(["push"], ["her-cs"], [2], "lockstep", "bf16")]
     assert names == ["push-her-cs-lockstep-bf16-s2"]
-    assert se.GridRun("push", "her-ebp-cs", 1, precision="bf16").name == "push-her-ebp-cs-bf16-s1"
+    assert se.GridRun("push", "her-cs", 1, precision="bf16").name == "push-her-cs-bf16-s1"
     cmd = se.up_command(se.GridRun("push", "her-ebp-cs", 1, precision="bf16"), epochs=1,
                         run_root=Path("/tmp"), port=1, actors=1, overrides=[])
     sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
@@ -190,8 +190,10 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
 
 
 def test_a_v4_grid_with_a_stiffer_gripper_weld_is_named_and_launched_apart() -> None:
-    cell = se.GridRun("push", "her-ebp-cs", 2, weld_torquescale=4.0)
-    assert cell.name == "push-ts4-her-ebp-cs-s2"
+    cell = se.GridRun("push", "her-cs", 2, weld_torquescale=4.0)
+    assert cell.name == "push-ts4-her-cs-s2"
+    assert se.GridRun("push", "her-ebp-cs", 2, weld_torquescale=4.0).name == (
+        "push-ts4-eps1e-3-her-ebp-cs-s2")  # v4's ε, 1e-3, is marked
     cmd = se.up_command(cell, epochs=3, run_root=Path("/r"), port=1, actors=1, overrides=[])
     assert cmd[-2:] == ["--set", "task.weld_torquescale=4"]
     plain = se.up_command(se.GridRun("push", "her", 1), epochs=3, run_root=Path("/r"), port=1,
@@ -208,8 +210,26 @@ def test_a_grid_with_another_energy_floor_is_named_and_launched_apart() -> None:
     assert cmd[-2:] == ["--set", "energy.epsilon=0.001"]
     plain = se.up_command(se.GridRun("push", "her-ebp-cs", 3), epochs=3, run_root=Path("/r"),
                           port=1, actors=1, overrides=[])
-    assert not any("energy.epsilon" in a for a in plain)
+    assert not any("energy.epsilon" in a for a in plain)  # the config's default decides
     assert se.main(["--energy-epsilon", "0", "--report-only", "--tasks", "push"]) == 2
+
+
+def test_an_ebp_cell_is_named_after_the_epsilon_its_environment_gives_it() -> None:
+    """Since v4's default ε became 1e-3 (docs/DESIGN.md §9.3) a plain v4 EBP cell is the
+    committed `push-eps1e-3-…` runs' experiment and is named like them, so that a sweep with
+    --committed counts them as done; the runs of 1e-6 keep their plain names; v1's default
+    stays 1e-6; HER and HER-CS, which ε does not touch, are never marked."""
+    assert se.GridRun("push", "her-ebp", 1).name == "push-eps1e-3-her-ebp-s1"
+    assert se.GridRun("push", "her-ebp", 1).epsilon == 1e-3
+    assert se.GridRun("push", "her-ebp", 1, energy_epsilon=1e-6).name == "push-her-ebp-s1"
+    assert se.GridRun("push", "her-ebp-cs", 1, env_version="v1").name == "push-v1-her-ebp-cs-s1"
+    assert se.GridRun("push", "her-ebp-cs", 1, env_version="v1").epsilon == 1e-6
+    assert se.GridRun("push", "her-cs", 1, energy_epsilon=1e-3).name == "push-her-cs-s1"
+    assert se.GridRun("push", "her", 1, env_version="v1").name == "push-v1-her-s1"
+    # a variant that sets ε is named after the ε it runs with
+    floor = se.GridRun("push", "her-ebp", 1, variant="floor",
+                       variant_overrides=("energy.epsilon=1e-6",))
+    assert (floor.epsilon, floor.name) == (1e-6, "push-her-ebp-floor-s1")
 
 
 def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Path) -> None:

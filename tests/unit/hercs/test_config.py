@@ -100,7 +100,29 @@ def test_yaml_round_trip(tmp_path: Path) -> None:
     c = apply_overrides(HercsConfig(), ["task.name=pick", "run.method=her-ebp-cs",
                                         "cluster.k=4", "training.epochs=3"])
     save_yaml(c, RunDir(tmp_path).config)
-    assert load_yaml(RunDir(tmp_path).config) == c
+    assert load_yaml(RunDir(tmp_path).config) == c.resolved()
+    assert c.energy.epsilon is None and load_yaml(RunDir(tmp_path).config).energy.epsilon == 1e-3
+
+
+def test_energy_epsilon_defaults_to_its_simulators_and_a_run_saves_the_value() -> None:
+    """ε unset is the simulator's: 1e-3 on MuJoCo 3 (v4), 1e-6 on the authors' v1, whose
+    trembling cube has that floor of its own (docs/DESIGN.md §9.3). It follows an override of
+    the env version made after the default, a value set by hand wins, and a saved config
+    holds the number, so a later change of the rule never changes a run already made."""
+    assert HercsConfig().energy.epsilon is None
+    assert HercsConfig().energy_epsilon == 1e-3
+    v1 = apply_overrides(HercsConfig(), ["task.env_version=v1"])
+    assert v1.energy_epsilon == 1e-6 and v1.resolved().energy.epsilon == 1e-6
+    assert apply_overrides(HercsConfig(), ["energy.epsilon=2e-4"]).energy_epsilon == 2e-4
+    assert apply_overrides(v1, ["energy.epsilon=1e-3"]).energy_epsilon == 1e-3
+    back = apply_overrides(HercsConfig(), ["energy.epsilon=1e-5", "energy.epsilon=null"])
+    assert back.energy.epsilon is None and back.energy_epsilon == 1e-3
+    for bad, message in (("0", "energy.epsilon: got 0.0, must be > 0"),
+                         ("abc", "energy.epsilon: got 'abc', must be a number"),
+                         ("[1]", "must be a number")):
+        with pytest.raises(ConfigError) as err:
+            apply_overrides(HercsConfig(), [f"energy.epsilon={bad}"])
+        assert message in str(err.value)
 
 
 def test_partial_yaml_keeps_defaults_and_rejects_unknown(tmp_path: Path) -> None:

@@ -331,6 +331,16 @@ def test_every_method_has_a_sampler_of_its_kind() -> None:
         assert type(sampler) is kinds[method.cluster_balanced, method.energy_prioritised], name
 
 
+@pytest.mark.parametrize("method", ["her-ebp", "her-ebp-cs"])
+def test_an_ebp_sampler_takes_its_simulators_epsilon_where_the_config_sets_none(
+        method: str) -> None:
+    """energy.epsilon unset: 1e-3 on v4, 1e-6 on the authors' v1 (docs/DESIGN.md §9.3)."""
+    assert HercsConfig().energy.epsilon is None
+    assert make_sampler(method, HercsConfig()).epsilon == 1e-3
+    v1 = HercsConfig(task=dataclasses.replace(HercsConfig().task, env_version="v1"))
+    assert make_sampler(method, v1).epsilon == 1e-6
+
+
 def test_make_sampler_refuses_unknown_method() -> None:
     with pytest.raises(ConfigError, match="'her-per'"):
         make_sampler("her-per", HercsConfig())
