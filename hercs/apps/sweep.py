@@ -40,7 +40,9 @@ from hercs.apps.sweep_cells import (
     cell_state,
     copy_small_files,
     dry_run_lines,
+    epsilon_changed,
     finished_folder,
+    owned_override,
     parse_variant,
     plan_grid,
     set_aside,
@@ -317,6 +319,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     cells = plan_grid(tasks, methods, list(range(1, args.seeds + 1)), args.schedule,
                       args.precision, args.env_version, args.weld_torquescale,
                       args.energy_epsilon, arms)
+    problem = owned_override(args.overrides) or (
+        None if args.energy_epsilon is not None else epsilon_changed(cells, run_root))
+    if problem:
+        return _fail(problem)
     names = [c.name for c in cells]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:

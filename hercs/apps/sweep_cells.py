@@ -54,15 +54,21 @@ class GridRun:
 
     @property
     def epsilon(self) -> float:
-        """The ε the run uses: its variant's, else the one asked for, else its environment's
-        default."""
-        for item in reversed(self.variant_overrides):
+        """The ε the run uses: its variant's, else the one asked for, else the default of its
+        environment (its variant's `task.env_version`, if it sets one)."""
+        given: dict[str, str] = {}
+        for item in self.variant_overrides:  # the last of a key wins, as in `hercs up`
             key, _, value = item.partition("=")
-            if key.strip() == "energy.epsilon":
-                with contextlib.suppress(ValueError):
-                    return float(value)
+            given[key.strip()] = value.strip()
+        env = given.get("task.env_version", self.env_version)
+        if "energy.epsilon" in given:
+            value = given["energy.epsilon"]
+            if value in ("", "null", "~", "Null", "NULL"):
+                return default_energy_epsilon(env)
+            with contextlib.suppress(ValueError):
+                return float(value)
         if self.energy_epsilon is None:
-            return default_energy_epsilon(self.env_version)
+            return default_energy_epsilon(env)
         return self.energy_epsilon
 
     @property
@@ -120,6 +126,45 @@ def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
         raise ConfigError(f"--variant {text!r}: its name {name!r} must be lower-case letters, "
                           "digits, '-', '_' or '.' (it becomes part of each run's name)")
     return name, items
+
+
+SWEEP_FLAGS = {"energy.epsilon": "--energy-epsilon", "task.env_version": "--env-version",
+               "task.weld_torquescale": "--weld-torquescale",
+               "training.schedule": "--schedule", "learner.precision": "--precision"}
+"""Settings a cell's name says, so a sweep takes them by its own flags (or a `--variant`),
+never by `--set`: a run must never train with one and be named after another."""
+
+
+def owned_override(overrides: Sequence[str]) -> str | None:
+    """Why `--set` may not carry one of these overrides, or None."""
+    for item in overrides:
+        key = item.partition("=")[0].strip()
+        if key in SWEEP_FLAGS:
+            return (f"--set {item}: a sweep names its runs after {key}; give it with "
+                    f"{SWEEP_FLAGS[key]} (or in a --variant), not --set")
+    return None
+
+
+def epsilon_changed(cells: Sequence[GridRun], run_root: Path) -> str | None:
+    """Why the sweep in `run_root` must not go on with `cells`, or None: its manifest has
+    cells of the same task, method, seed and arm under another name because they were
+    planned with another ε (a sweep begun before v4's default ε became 1e-3, run again
+    without --energy-epsilon): its runs would be passed over, not continued."""
+    try:
+        old, _ = read_manifest(run_root)
+    except ConfigError:
+        return None
+    names = {c.name for c in cells}
+    same = {(c.task, c.method, c.seed, c.env_version, c.variant) for c in cells}
+    moved = [c for c in old if c.name not in names and c.energy_epsilon is not None
+             and (c.task, c.method, c.seed, c.env_version, c.variant) in same]
+    if not moved:
+        return None
+    return (f"{run_root} holds this sweep's {', '.join(c.name for c in moved[:3])}"
+            f"{' …' if len(moved) > 3 else ''} planned with energy.epsilon "
+            f"{moved[0].energy_epsilon:g}, which the cells would now be named apart from (v4's "
+            f"default ε is 1e-3 since 2026-11-28): give --energy-epsilon "
+            f"{moved[0].energy_epsilon:g} to go on with them, or another --run-dir")
 
 
 def is_done(run_dir: Path) -> bool:

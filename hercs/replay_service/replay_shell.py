@@ -19,14 +19,14 @@ from __future__ import annotations
 import functools
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Generic, TypeVar
 
 import yaml
 
-from hercs.config import HercsConfig, save_yaml
-from hercs.errors import InvalidMessage
+from hercs.config import HercsConfig, load_yaml, save_yaml
+from hercs.errors import ConfigError, InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.net.transport import PendingReply
 from hercs.proto import SCHEMA_VERSION
@@ -303,10 +303,26 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
     return service_main(role="replay", config=config, ident=ident or "replay", body=_work)
 
 
+def saved_epsilon(config: HercsConfig, saved: Path) -> HercsConfig:
+    """`config` with the ε written out: where it leaves ε unset and the run saved a config
+    with a number, that number (a compose run resumed with HERCS_RESUME rebuilds its config
+    from flags, and a run made before v4's default ε changed must keep its own), else its
+    environment's default. The services get it from here (`join_run`)."""
+    if config.energy.epsilon is None and saved.is_file():
+        try:
+            epsilon = load_yaml(saved).energy_epsilon
+        except (ConfigError, OSError) as exc:
+            log.warning("%s: not read for its energy.epsilon (%s); using the default", saved,
+                        exc)
+        else:
+            return replace(config, energy=replace(config.energy, epsilon=epsilon))
+    return config.resolved()
+
+
 def _work(runtime: ServiceRuntime) -> int:
-    config = runtime.config
-    run_dir = run_dir_of(config.run)
+    run_dir = run_dir_of(runtime.config.run)
     run_dir.mkdir(parents=True, exist_ok=True)
+    config = saved_epsilon(runtime.config, RunDir(run_dir).config)
     if not RunDir(run_dir).config.exists():  # `hercs up` writes it; compose runs do not
         save_yaml(config, RunDir(run_dir).config)
     service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)

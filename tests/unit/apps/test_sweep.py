@@ -226,10 +226,41 @@ def test_an_ebp_cell_is_named_after_the_epsilon_its_environment_gives_it() -> No
     assert se.GridRun("push", "her-ebp-cs", 1, env_version="v1").epsilon == 1e-6
     assert se.GridRun("push", "her-cs", 1, energy_epsilon=1e-3).name == "push-her-cs-s1"
     assert se.GridRun("push", "her", 1, env_version="v1").name == "push-v1-her-s1"
-    # a variant that sets ε is named after the ε it runs with
+    # a variant that sets ε, or unsets it, or changes the env version, is named after the ε
+    # it runs with
     floor = se.GridRun("push", "her-ebp", 1, variant="floor",
                        variant_overrides=("energy.epsilon=1e-6",))
     assert (floor.epsilon, floor.name) == (1e-6, "push-her-ebp-floor-s1")
+    unset = se.GridRun("push", "her-ebp", 1, energy_epsilon=1e-6, variant="unset",
+                       variant_overrides=("energy.epsilon=null",))
+    assert unset.epsilon == 1e-3
+    old_sim = se.GridRun("push", "her-ebp", 1, variant="old",
+                         variant_overrides=("task.env_version=v1",))
+    assert old_sim.epsilon == 1e-6
+
+
+def test_a_sweep_refuses_a_set_of_what_its_runs_are_named_after(capsys) -> None:
+    """`--set energy.epsilon=1e-6` would train at 1e-6 a run named (and, with --committed,
+    counted done) as v4's 1e-3 one: the sweep's own flags set what a name says."""
+    for item, flag in (("energy.epsilon=1e-6", "--energy-epsilon"),
+                       ("task.env_version=v1", "--env-version"),
+                       ("learner.precision=bf16", "--precision")):
+        assert se.main(["--set", item, "--report-only", "--tasks", "push"]) == 2
+        assert f"give it with {flag}" in capsys.readouterr().err
+
+
+def test_a_sweep_begun_with_another_epsilon_is_not_passed_over(tmp_path: Path) -> None:
+    """A v4 EBP sweep begun before the default ε became 1e-3 has cells named without `eps`
+    in its manifest: run again without --energy-epsilon it would plan `eps1e-3` cells and
+    pass its runs over; it is refused with the flag that goes on with them."""
+    old = se.plan_grid(["push"], ["her", "her-ebp"], [1, 2], energy_epsilon=1e-6)
+    sc.write_manifest(tmp_path, old, {}, command="hercs sweep", epochs=50, committed=None)
+    new = se.plan_grid(["push"], ["her", "her-ebp"], [1, 2])
+    problem = sc.epsilon_changed(new, tmp_path)
+    assert problem is not None and "push-her-ebp-s1, push-her-ebp-s2" in problem
+    assert "--energy-epsilon 1e-06" in problem
+    assert sc.epsilon_changed(old, tmp_path) is None  # the same ε goes on
+    assert sc.epsilon_changed(new, tmp_path / "elsewhere") is None  # no sweep there
 
 
 def test_the_first_finished_run_of_a_cell_publishes_its_best_policy(tmp_path: Path) -> None:
