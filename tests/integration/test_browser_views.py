@@ -187,9 +187,12 @@ def _loaded(image: np.ndarray) -> bool:
 
 
 @pytest.fixture(scope="module")
-def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str]]:
+def live_run(tmp_path_factory: pytest.TempPathFactory
+             ) -> Iterator[tuple[Path, str, Launcher]]:
     """A real run streamed live into a web-serving Rerun proxy: (its run folder, the URL of
-    the web viewer page that shows the stream)."""
+    the web viewer page that shows the stream, the run). The run has 200 epochs, so it is
+    still going while the tests look (with 3, it had ended before the browser started, and
+    the "live" view showed what the proxy had kept); it is stopped in order at the end."""
     _chromium()
     tmp = tmp_path_factory.mktemp("browser")
     grpc, web = free_tcp_port(), free_tcp_port()
@@ -207,11 +210,11 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
         assert not _shows_the_run(empty), (
             f"the check passes on an empty viewer: goal pixels {_goal_pixels(empty)}")
         run = Launcher([sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach",
-                        "--method", "her-cs", "--epochs", "3", "--run", "browser",
+                        "--method", "her-cs", "--epochs", "200", "--run", "browser",
                         "--run-dir", str(tmp / "runs"), "--listen", "tcp/127.0.0.1:0",
                         "--rerun", stream, "--rerun-every", "1", *SMALL], cwd=tmp)
-        run.wait_for_line(r"^epoch 1/3  success ", RUN_TIMEOUT_S)
-        yield tmp / "runs" / "browser", page
+        run.wait_for_line(r"^epoch 1/200  success ", RUN_TIMEOUT_S)
+        yield tmp / "runs" / "browser", page, run
     finally:
         if run is not None:
             _stop(run.proc)  # in order: SIGTERM
@@ -219,14 +222,15 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
 
 
 def test_the_live_web_view_of_a_running_run_draws_its_episodes(
-        live_run: tuple[Path, str], tmp_path: Path) -> None:
-    _, url = live_run
+        live_run: tuple[Path, str, Launcher], tmp_path: Path) -> None:
+    _, url, run = live_run
     _screenshot_until(url, tmp_path / "live.png", _shows_the_run, "drew the run")
+    assert run.proc.poll() is None, "the run was still going: a live view, not a recording"
 
 
-def test_the_offline_web_view_of_a_run_draws_its_episodes(live_run: tuple[Path, str],
-                                                          tmp_path: Path) -> None:
-    run_dir, _ = live_run
+def test_the_offline_web_view_of_a_run_draws_its_episodes(
+        live_run: tuple[Path, str, Launcher], tmp_path: Path) -> None:
+    run_dir, _, _ = live_run
     web, grpc = free_tcp_port(), free_tcp_port()
     view = Launcher([sys.executable, "-m", "hercs.apps.cli", "view", str(run_dir),
                      "--episodes", "all", "--web", "--web-port", str(web),
