@@ -27,6 +27,9 @@ from hercs.errors import ConfigError, HercsError
 
 def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
     text = yaml.safe_dump(config.to_dict(), sort_keys=False)
+    if config.energy.epsilon is None:  # unset stays unset (a later env version picks it)
+        text += (f"# energy.epsilon null: the simulator's, {config.energy_epsilon:g} with "
+                 f"task.env_version {config.task.env_version} (docs/DESIGN.md §9.3)\n")
     if args.output:
         with open(args.output, "w") as f:
             f.write(text)

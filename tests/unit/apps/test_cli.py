@@ -21,6 +21,20 @@ def test_config_command_resolves_shortcuts_and_overrides(capsys) -> None:
     assert resolved["transport"]["connect"] == ["tcp/10.0.0.2:7447"]
 
 
+def test_config_command_says_the_epsilon_an_unset_field_resolves_to(capsys) -> None:
+    """energy.epsilon stays null in the printed tree (a file made from it and run on v1 gets
+    v1's); a comment says the number this config's env version gives."""
+    for flags, number in (([], "0.001 with task.env_version v4"),
+                          (["--set", "task.env_version=v1"], "1e-06 with task.env_version v1")):
+        assert main(["config", *flags]) == 0
+        out = capsys.readouterr().out
+        assert yaml.safe_load(out)["energy"]["epsilon"] is None
+        assert f"# energy.epsilon null: the simulator's, {number}" in out
+    assert main(["config", "--set", "energy.epsilon=2e-4"]) == 0
+    out = capsys.readouterr().out
+    assert yaml.safe_load(out)["energy"]["epsilon"] == 2e-4 and "# energy.epsilon" not in out
+
+
 def test_bad_config_value_exits_2_with_field_named(capsys) -> None:
     assert main(["config", "--set", "ddpg.gamma=2"]) == 2
     assert "ddpg.gamma: got 2.0" in capsys.readouterr().err
