@@ -18,8 +18,11 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
+import yaml
+
 from hercs.apps.plots import marks_epsilon
 from hercs.config.algorithm import default_energy_epsilon
+from hercs.config.building import StrictBoolLoader
 from hercs.errors import ConfigError
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import CONFIG, METRICS, RunDir
@@ -62,11 +65,11 @@ class GridRun:
             given[key.strip()] = value.strip()
         env = given.get("task.env_version", self.env_version)
         if "energy.epsilon" in given:
-            value = given["energy.epsilon"]
-            if value in ("", "null", "~", "Null", "NULL"):
-                return default_energy_epsilon(env)
-            with contextlib.suppress(ValueError):
-                return float(value)
+            # read as `hercs up` reads an override's value (apply_overrides): YAML's null
+            # unsets it; a value it would refuse names nothing here
+            with contextlib.suppress(yaml.YAMLError, TypeError, ValueError):
+                value = yaml.load(given["energy.epsilon"], Loader=StrictBoolLoader)
+                return default_energy_epsilon(env) if value is None else float(value)
         if self.energy_epsilon is None:
             return default_energy_epsilon(env)
         return self.energy_epsilon
