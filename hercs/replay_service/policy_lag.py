@@ -4,7 +4,7 @@ Two lags per stored episode (docs/DESIGN.md §9.1): against the learner's newest
 when the episode is stored (`policy_lag_request`), and against the cycle the episode holds in
 the lockstep schedule (`policy_lag`, what the lag bound limits). Recent ones are averaged into
 the counters; every schedule lag since the last sample call travels with the next served batch.
-Pure bookkeeping, driven by `ReplayTable` under its lock.
+Pure bookkeeping, driven by `ReplayTable` under its lock; the lag's derivation is the class's.
 """
 
 from __future__ import annotations
@@ -26,6 +26,16 @@ INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 
 class PolicyLagLedger:
+    """Why the lag is never negative and needs no correction after a restart: episode ids run
+    on through every restart (the log keeps them), and a learner at weights version v has
+    kept 40·v minibatches (per cycle: `training.minibatches_per_cycle`), which the rate
+    limiter follows through every restart (`learner_follow`). Its lower bound
+    d = ρ·I − S ≥ ρ·N_min − E is 0 with the defaults (ρ = 10, N_min = 4, E = 40), so
+    version v was published only once I ≥ v·episodes_per_cycle episodes were stored, and an
+    episode acted with it is stored with an id ≥ that: its cycle is ≥ v. Only a window wider
+    than that (E > ρ·N_min) or `--free-run` lets the learner run ahead of lockstep, which then
+    reads as a negative lag: fresher than the lockstep schedule, not staler."""
+
     def __init__(self, episodes_per_cycle: int) -> None:
         self.episodes_per_cycle = episodes_per_cycle
         self._learner_version = 0
@@ -34,43 +44,34 @@ class PolicyLagLedger:
         self._since_sample: deque[int] = deque(maxlen=POLICY_LAGS_KEPT)
         self.newest_request_version: int | None = None
         """The weights version of the latest sample call served (not the highest ever: a
-        restarted learner counts from its checkpoint again); None before the first, when the
-        lag bound refuses nothing (actors act with their own initial policy until then) and
-        after a recovery until that call places the recovered episodes in the schedule."""
-        self._schedule_offset = 0
-        """Episode ids left out of the lockstep schedule that `policy_lag` measures against:
-        after a recovery in the asynchronous schedule, the whole cycles the log holds beyond
-        the resumed learner's weights version (episodes acted after its last checkpoint), so
-        that a restart does not read as 50 cycles of lag. The limiter restarts balanced for
-        the same reason."""
-        self._recovered_unplaced: int | None = None
-        """Recovered episodes whose place in the schedule waits for the learner's first
-        sample call (its weights version); no schedule lag is recorded until then."""
+        restarted learner counts from its checkpoint again). Before the first call it is None
+        in a new run, where the lag bound refuses nothing (actors act with their own initial
+        policy until then), and after a restart the newest version a recovered episode was
+        acted with (`recovered`), so that the bound holds from the first insert on."""
 
-    def recovered(self, count: int) -> None:
-        """`count` episodes came back from the log; place them at the next sample call."""
-        self._recovered_unplaced = count
+    def recovered(self, newest_version: int | None) -> None:
+        """A restarted replay recovered episodes acted with weights up to `newest_version`
+        (None: no episode): those weights existed, so the learner's are at least as new
+        until its first sample call says which version it is at."""
+        if newest_version is not None and self.newest_request_version is None:
+            self.newest_request_version = int(newest_version)
+            self._learner_version = max(self._learner_version, int(newest_version))
 
     def cycle_of(self, episode_id: int) -> int:
         """The lockstep-schedule cycle that policy lag measures episode `episode_id` against."""
-        return schedule_cycle(episode_id - self._schedule_offset, self.episodes_per_cycle)
+        return schedule_cycle(episode_id, self.episodes_per_cycle)
 
     def stored(self, episode_id: int, policy_version: int) -> None:
         """An episode acted with `policy_version` was stored under `episode_id`."""
         self._recent_lags.append(self._learner_version - policy_version)
-        if self._recovered_unplaced is None:
-            # an int64 version far below -1 (valid on the wire) must not overflow the Batch
-            lag = min(max(self.cycle_of(episode_id) - policy_version, INT64_MIN), INT64_MAX)
-            self._recent_schedule_lags.append(lag)
-            self._since_sample.append(lag)
+        # an int64 version far below -1 (valid on the wire) must not overflow the Batch
+        lag = min(max(self.cycle_of(episode_id) - policy_version, INT64_MIN), INT64_MAX)
+        self._recent_schedule_lags.append(lag)
+        self._since_sample.append(lag)
 
     def serving(self, weights_version: int) -> None:
         """A sample call of the learner at `weights_version` is being served."""
         self._learner_version = max(self._learner_version, weights_version)
-        if self._recovered_unplaced is not None:
-            surplus = self._recovered_unplaced // self.episodes_per_cycle - weights_version
-            self._schedule_offset = max(0, surplus) * self.episodes_per_cycle
-            self._recovered_unplaced = None
         self.newest_request_version = weights_version
 
     def bound_refusal(self, bound: PolicyLagBound | None, policy_version: int,

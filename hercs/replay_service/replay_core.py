@@ -68,6 +68,9 @@ class ReplayCore:
         self.env_steps = 0
         self.rejects: Counter[str] = Counter()
         self.cluster_draws_total = np.zeros(config.cluster.k, np.int64)
+        self.newest_policy_version: int | None = None
+        """The newest weights version any stored episode was acted with (None before the
+        first): after a restart, a floor under the learner's newest weights (they existed)."""
         self.failures = 0
         """Inserted episodes that failed (not `TaskSpec.is_success` at their last step)."""
         self.recent_failed_goals: deque[np.ndarray] = deque(maxlen=config.cluster.fgb_size)
@@ -89,13 +92,13 @@ class ReplayCore:
             energy = float(self.store.energy[slot]) if slot is not None else 0.0
             cluster = int(self.store.cluster[slot]) if slot is not None else -1
             return InsertResult(known, True, energy, cluster)
-        energy = (float(trajectory_energy(episode.ag, self.config.energy, self.spec.energy))
-                  if self.spec.energy != "none" else 0.0)
+        energy = self._energy(episode)
         cluster = -1
         if self.cluster_model is not None:
             cluster = int(self.cluster_model.assign(episode.ag[-1:])[0])
         episode_id = self.store.insert(episode, energy=energy, cluster=cluster)
         self._remember(key, episode_id)
+        self._saw_version(episode.policy_version)
         self._update_normalizers(episode)
         if not self.spec.is_success(episode.ag[-1], episode.g[-1]):
             self.failures += 1
@@ -103,6 +106,18 @@ class ReplayCore:
         self.inserts += 1
         self.env_steps += self.spec.episode_steps
         return InsertResult(episode_id, False, energy, cluster)
+
+    def _energy(self, episode: EpisodeData) -> float:
+        """The episode's trajectory energy by its task's energy kind (0 where it has none),
+        the same at insert and at a restore."""
+        if self.spec.energy == "none":
+            return 0.0
+        return float(trajectory_energy(episode.ag, self.config.energy, self.spec.energy))
+
+    def _saw_version(self, policy_version: int) -> None:
+        newest = self.newest_policy_version
+        self.newest_policy_version = (int(policy_version) if newest is None
+                                      else max(newest, int(policy_version)))
 
     # -- a saved state (the bounded episode log) -----------------------------------------------
     def state(self, stored_per_version: Mapping[int, int]) -> ReplayState:
@@ -163,8 +178,8 @@ class ReplayCore:
         def with_energy() -> Iterator[tuple[int, EpisodeData, float]]:
             for episode_id, episode in held:
                 self._remember((episode.actor_id, int(episode.seq)), episode_id)
-                yield episode_id, episode, float(trajectory_energy(episode.ag,
-                                                                   self.config.energy))
+                self._saw_version(episode.policy_version)
+                yield episode_id, episode, self._energy(episode)
 
         self.store.restore(with_energy(), next_id=state.next_episode_id)
         self.o_norm.load_state_dict(state.o_stats)

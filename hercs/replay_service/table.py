@@ -90,8 +90,7 @@ class ReplayTable:
             count = self.core.store.num_inserted
             if count:
                 self.limiter.restart_balanced(count)
-                if self.gate is None:  # lockstep's gate keeps ids and cycles aligned itself
-                    self.lags.recovered(count)
+                self.lags.recovered(self.core.newest_policy_version)
         return mismatched
 
     # -- inserts ---------------------------------------------------------------------------

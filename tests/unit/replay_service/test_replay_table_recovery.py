@@ -6,7 +6,6 @@ from __future__ import annotations
 import threading
 
 import numpy as np
-import pytest
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
@@ -115,29 +114,6 @@ def test_a_learner_asking_again_replaces_its_parked_call() -> None:
         h.insert(seq)
     assert again.results and not overdue.results
     assert h.table.limiter.samples == 16
-
-
-def test_recovered_surplus_episodes_do_not_read_as_policy_lag() -> None:
-    """A resumed asynchronous run: the log holds 4,212 episodes (1,053 cycles) but the learner
-    resumes from its checkpoint at weights version 1,000, so 53 cycles of episodes were acted
-    after that checkpoint. Against the unshifted schedule every later episode would show 53
-    cycles of lag on top of its own; measured from where the learner resumed, it shows its own.
-    """
-    h = make("replay.free_run=true")
-    recovered = [(i, h.episode(i)) for i in range(4212)]
-    h.table.recover(recovered)
-    early = h.episode(9000)  # stored before the learner's first call: no place yet, no lag
-    early.policy_version = 990
-    h.table.insert(early, record=pb.Episode(), waiter=Recorder("early", h.journal))
-    h.sample(8, version=1000)
-    for seq in range(8):  # ids 4213..4220: cycles 1000..1001 once 53 cycles are left out
-        episode = h.episode(10_000 + seq)
-        episode.policy_version = 995
-        h.table.insert(episode, record=pb.Episode(), waiter=Recorder(str(seq), h.journal))
-    got = h.sample(8, version=1001).results[0]
-    ids = range(4213, 4221)
-    assert got.status.policy_lag == pytest.approx(np.mean([(i - 212) // 4 - 995 for i in ids]))
-    assert 5 <= got.status.policy_lag <= 6
 
 
 def test_clusterer_snapshot_holds_the_newest_failed_goals_and_the_counts() -> None:
