@@ -31,6 +31,7 @@ from hercs.apps.plots import (
 )
 from hercs.config import HercsConfig
 from hercs.run.rundir import RunDir
+from studies.authors_peer.peer_run import PEER_SCHEDULE
 from studies.claims.claim_statistics import (
     Score,
 )
@@ -80,6 +81,8 @@ class Group:
         name = method_label(self.method)
         if self.schedule == "authors":
             return f"{name}, authors' ({self.env})"
+        if self.schedule == PEER_SCHEDULE:
+            return f"{name}, authors' code on our {self.env}"
         schedule = f"async ({lag_label(self.lag)})" if self.schedule == "async" else self.schedule
         setting = f", {self.setting}" if self.setting else ""
         return f"{name}, {self.env}, {schedule}, {self.precision}{setting}"
@@ -119,14 +122,17 @@ def group_of(config: dict) -> Group:
 
 def experiment_setting(config: dict) -> str:
     """What else a run's config.yaml changes that makes it another experiment than its
-    method's: the v4 weld's torquescale other than 1, and an EBP method's ε other than 1e-6
-    (plots.marks_epsilon) ("" for none), so that such a run is never taken for a seed of the
+    method's: the v4 weld's torquescale other than 1, an EBP method's ε other than 1e-6
+    (plots.marks_epsilon) and a cluster share rule other than every-cluster ("" for none), so that such a run is never taken for a seed of the
     plain group."""
     scale = float((config.get("task") or {}).get("weld_torquescale", 1.0))
     eps = energy_epsilon(config)
     method = str((config.get("run") or {}).get("method", ""))
+    rule = str((config.get("cluster") or {}).get("share_rule", "every-cluster"))
     return ", ".join(s for s in (f"torquescale {scale:g}" if scale != 1.0 else "",
-                                 f"ε {eps:g}" if marks_epsilon(method, eps) else "") if s)
+                                 f"ε {eps:g}" if marks_epsilon(method, eps) else "",
+                                 f"{rule} share rule" if rule != "every-cluster" else "")
+                     if s)
 
 
 @dataclass(frozen=True)

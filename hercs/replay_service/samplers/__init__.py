@@ -32,12 +32,13 @@ def make_sampler(method: str, config: HercsConfig) -> EpisodeSampler:
         raise ConfigError(
             f"run.method: got {method!r}, must be one of {list(METHODS)}") from None
     k, repeat, eps = config.cluster.k, config.cluster.small_cluster_repeat, config.energy_epsilon
-    exponent = config.energy.exponent
+    exponent, rule = config.energy.exponent, config.cluster.share_rule
     if spec.cluster_balanced and spec.energy_prioritised:
         return EnergyClusterSampler(k, epsilon=eps, small_cluster_repeat=repeat,
-                                    exponent=exponent, cluster_fill=config.energy.cluster_fill)
+                                    exponent=exponent, cluster_fill=config.energy.cluster_fill,
+                                    share_rule=rule)
     if spec.cluster_balanced:
-        return ClusterBalancedSampler(k, small_cluster_repeat=repeat)
+        return ClusterBalancedSampler(k, small_cluster_repeat=repeat, share_rule=rule)
     if spec.energy_prioritised:
         return EnergySampler(epsilon=eps, num_clusters=k, exponent=exponent)
     return UniformSampler(num_clusters=k)

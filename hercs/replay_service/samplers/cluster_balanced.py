@@ -7,8 +7,9 @@ Hindsight-Experience-Replay, her_modules/her.py), stated in docs/DESIGN.md §4.3
 Before any cluster model (every label −1) the draw is HER's uniform one, as the reference's is
 until its failed-goal buffer first fills; episodes still unlabelled once a model exists are
 reachable only through the whole-buffer fills. Where it departs from the reference (every
-cluster gets a share, B < 4k cannot crash: docs/DESIGN.md §9.4) no B=256, k=8 batch's
-distribution changes. The output lists the shares first, then the fills: order within a
+cluster gets a share, B < 4k cannot crash: docs/DESIGN.md §9.4) a B=256, k=8 batch changes
+whenever the highest-numbered cluster is empty: the reference then shares the batch among
+fewer clusters; `cluster.share_rule=reference` draws as it does. The output lists the shares first, then the fills: order within a
 minibatch does not matter, since each entry's timestep is drawn independently.
 
 Cost per call: O(k + B); cluster sizes and members come from the store's `SamplingIndex`.
@@ -37,8 +38,16 @@ class SharePlan:
     """Draws from the whole buffer: B − Σ member_draws."""
 
 
+SHARE_RULES = ("every-cluster", "reference")
+"""`cluster.share_rule`: every one of the k clusters gets a share of ⌊B/k⌋ (hercs' default),
+or, as the reference's code does, the clusters up to the highest label any stored episode has
+(labels 0..m) share the batch, ⌊B/(m+1)⌋ each: when the top clusters are empty, the others'
+shares grow (with k = 8 and cluster 7 empty, 7 shares of 36 instead of 8 of 32)."""
+
+
 def plan_shares(
-    index: SamplingIndex, *, k: int, repeat: int, batch_size: int
+    index: SamplingIndex, *, k: int, repeat: int, batch_size: int,
+    share_rule: str = "every-cluster",
 ) -> SharePlan | None:
     """The share plan for one batch, or None if no episode has a cluster label yet."""
     if index.max_label >= k:
@@ -51,7 +60,8 @@ def plan_shares(
     sizes[: min(k, counts.size)] = counts[:k]
     if sizes.sum() == 0:
         return None
-    share = batch_size // k
+    sharing = k if share_rule == "every-cluster" else int(index.max_label) + 1
+    share = batch_size // sharing
     small = sizes < share // repeat
     member_draws = np.where(small, repeat * sizes, share)
     member_draws[sizes == 0] = 0
@@ -62,7 +72,11 @@ def plan_shares(
     )
 
 
-def check_cluster_args(k: int, small_cluster_repeat: int) -> None:
+def check_cluster_args(k: int, small_cluster_repeat: int,
+                       share_rule: str = "every-cluster") -> None:
+    if share_rule not in SHARE_RULES:
+        raise ConfigError(f"cluster.share_rule: got {share_rule!r}, must be one of "
+                          f"{list(SHARE_RULES)}")
     if k < 1:
         raise ConfigError(f"cluster.k: got {k!r}, must be >= 1")
     if small_cluster_repeat < 1:
@@ -77,17 +91,19 @@ class ClusterBalancedSampler:
     Stateless: the plan is made from the store's current cluster sizes on every call.
     """
 
-    def __init__(self, k: int, *, small_cluster_repeat: int = 4) -> None:
-        check_cluster_args(k, small_cluster_repeat)
+    def __init__(self, k: int, *, small_cluster_repeat: int = 4,
+                 share_rule: str = "every-cluster") -> None:
+        check_cluster_args(k, small_cluster_repeat, share_rule)
         self.k = k
         self.small_cluster_repeat = small_cluster_repeat
+        self.share_rule = share_rule
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
         plan = plan_shares(store.sampling_index, k=self.k, repeat=self.small_cluster_repeat,
-                           batch_size=batch_size)
+                           batch_size=batch_size, share_rule=self.share_rule)
         if plan is None:
             idxs = rng.integers(0, store.size, batch_size)
             fill, balanced = batch_size, False

@@ -37,8 +37,9 @@ class EnergyClusterSampler:
     """HER-EBP-CS as defined in the module docstring."""
 
     def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4,
-                 exponent: float = 1.0, cluster_fill: str = "energy") -> None:
-        check_cluster_args(k, small_cluster_repeat)
+                 exponent: float = 1.0, cluster_fill: str = "energy",
+                 share_rule: str = "every-cluster") -> None:
+        check_cluster_args(k, small_cluster_repeat, share_rule)
         check_epsilon(epsilon)
         if cluster_fill not in ("energy", "uniform"):
             raise ConfigError(f"energy.cluster_fill: got {cluster_fill!r}, must be energy or "
@@ -48,6 +49,7 @@ class EnergyClusterSampler:
         self.exponent = exponent
         self.cluster_fill = cluster_fill
         self.small_cluster_repeat = small_cluster_repeat
+        self.share_rule = share_rule
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
@@ -55,7 +57,7 @@ class EnergyClusterSampler:
         check_request(store, batch_size)
         index = store.sampling_index
         plan = plan_shares(index, k=self.k, repeat=self.small_cluster_repeat,
-                           batch_size=batch_size)
+                           batch_size=batch_size, share_rule=self.share_rule)
         if plan is None:
             rows = np.full(batch_size, WHOLE_BUFFER)
             fill, balanced = batch_size, False

@@ -22,6 +22,7 @@ from hercs.replay_service.samplers import (
     UniformSampler,
     make_sampler,
 )
+from hercs.replay_service.samplers.cluster_balanced import plan_shares
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.methods import METHODS
 from hercs.rl.task_registry import task_spec
@@ -190,6 +191,51 @@ def test_unlabelled_episodes_are_reached_only_through_fills() -> None:
     fill = 256 - 2 * 32
     per_episode = counts[labels == -1] / 2000
     assert abs(per_episode.mean() - fill / len(labels)) < 0.02
+    assert all(i.whole_buffer_draws == fill for i in infos)
+
+
+def _reference_plan(sizes: list[int], batch_size: int) -> tuple[list[int], int]:
+    """The reference code's rule, restated: the clusters 0..m (m the highest label held)
+    share the batch, ⌊B/(m+1)⌋ each; a cluster of n ≥ ⌊share/4⌋ draws its share from its
+    members, a smaller one 4·n, and the rest of its share and the remainder come from the
+    whole buffer. Returns each cluster's member draws and the fill."""
+    top = max(c for c, n in enumerate(sizes) if n)
+    share = batch_size // (top + 1)
+    own = [0 if n == 0 else (share if n >= share // 4 else 4 * n) for n in sizes]
+    return own, batch_size - sum(own)
+
+
+@pytest.mark.parametrize("sizes", [PAPER_LIKE, THRESHOLD_EDGE, [40, 0, 30, 9, 8, 0, 0, 2],
+                                   [50, 40, 30, 20, 10, 9, 8, 7]],
+                         ids=["top-empty", "four-top-empty", "gaps", "none-empty"])
+def test_reference_share_rule_plans_as_the_reference_code(sizes: list[int]) -> None:
+    """`share_rule=reference`: the clusters up to the highest label share the batch (with
+    cluster 7 empty, 7 shares of 36 at B = 256, where every-cluster gives 8 of 32)."""
+    index = _store(_labels(sizes)).sampling_index
+    plan = plan_shares(index, k=K, repeat=REPEAT, batch_size=256, share_rule="reference")
+    assert plan is not None
+    own, fill = _reference_plan(sizes, 256)
+    assert plan.member_draws.tolist() == own and plan.fill == fill
+    every = plan_shares(index, k=K, repeat=REPEAT, batch_size=256)
+    assert every is not None
+    if sizes[-1] == 0:  # the case where the two rules differ
+        assert plan.member_draws.sum() > every.member_draws.sum()
+    else:
+        assert plan.member_draws.tolist() == every.member_draws.tolist()
+
+
+def test_reference_share_rule_draws_its_plan() -> None:
+    """Over 2000 batches of PAPER_LIKE (cluster 7 empty), each regular cluster's own draws
+    per batch are 36 (± 0.5 after the fills' expected part), the small one's members 4 each."""
+    labels = _labels(PAPER_LIKE)
+    store = _store(labels)
+    sampler = ClusterBalancedSampler(K, share_rule="reference")
+    counts, infos = _draw_counts(sampler, store, 256, 2000, seed=9)
+    own, fill = _reference_plan(PAPER_LIKE, 256)
+    for c, n in enumerate(PAPER_LIKE):
+        if n:
+            per_batch = counts[labels == c].sum() / 2000 - fill * n / len(labels)
+            assert abs(per_batch - own[c]) < 0.5, (c, per_batch, own[c])
     assert all(i.whole_buffer_draws == fill for i in infos)
 
 
