@@ -123,8 +123,8 @@ def group_of(config: dict) -> Group:
 def experiment_setting(config: dict) -> str:
     """What else a run's config.yaml changes that makes it another experiment than its
     method's: the v4 weld's torquescale other than 1, an EBP method's ε other than 1e-6
-    (plots.marks_epsilon) and a cluster share rule other than every-cluster ("" for none), so that such a run is never taken for a seed of the
-    plain group."""
+    (plots.marks_epsilon) and a cluster share rule other than every-cluster ("" for none), so
+    that such a run is never taken for a seed of the plain group."""
     scale = float((config.get("task") or {}).get("weld_torquescale", 1.0))
     eps = energy_epsilon(config)
     method = str((config.get("run") or {}).get("method", ""))

@@ -9,8 +9,9 @@ until its failed-goal buffer first fills; episodes still unlabelled once a model
 reachable only through the whole-buffer fills. Where it departs from the reference (every
 cluster gets a share, B < 4k cannot crash: docs/DESIGN.md §9.4) a B=256, k=8 batch changes
 whenever the highest-numbered cluster is empty: the reference then shares the batch among
-fewer clusters; `cluster.share_rule=reference` draws as it does. The output lists the shares first, then the fills: order within a
-minibatch does not matter, since each entry's timestep is drawn independently.
+fewer clusters; `cluster.share_rule=reference` draws as it does. The output lists the shares
+first, then the fills: order within a minibatch does not matter, since each entry's timestep
+is drawn independently.
 
 Cost per call: O(k + B); cluster sizes and members come from the store's `SamplingIndex`.
 """
