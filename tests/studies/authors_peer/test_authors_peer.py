@@ -1,0 +1,156 @@
+"""studies/authors_peer: the stand-ins their code runs on (one-rank MPI, the gym 0.17 calls over
+a real gymnasium-robotics env), the run folder the claims read as a side of its own, the CLI's
+refusals, and, where a checkout of the authors' repository is named by
+HERCS_AUTHORS_CHECKOUT, a real run of their code stopped and resumed."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from hercs.rl.envs import register_envs
+from studies.authors_peer.old_gym import OldGymEnv, gym_module
+from studies.authors_peer.peer_run import PEER_SCHEDULE, PeerRun, write_config
+from studies.authors_peer.single_mpi import SUM, mpi4py_module
+from studies.claims import claim_runs
+
+REPO = Path(__file__).resolve().parents[3]
+CHECKOUT = os.environ.get("HERCS_AUTHORS_CHECKOUT", "")
+
+
+def test_one_rank_mpi_leaves_the_data_as_one_worker_would() -> None:
+    world = mpi4py_module().MPI.COMM_WORLD
+    assert (world.Get_rank(), world.Get_size()) == (0, 1)
+    grads = np.arange(5, dtype=np.float32)
+    out = np.zeros_like(grads)
+    world.Allreduce(grads, out, op=SUM)
+    np.testing.assert_array_equal(out, grads)
+    params = grads.copy()
+    world.Bcast(params, root=0)
+    np.testing.assert_array_equal(params, grads)
+    assert world.allreduce(0.35, op=SUM) == 0.35
+    with pytest.raises(ValueError, match=r"only MPI\.SUM"):
+        world.Allreduce(grads, out, op="max")
+    with pytest.raises(ValueError, match="the only rank is 0"):
+        world.Bcast(params, root=1)
+
+
+def _make(name: str) -> object:
+    import gymnasium as gym
+
+    register_envs()
+    return gym.make(name, disable_env_checker=True)
+
+
+def test_old_gym_calls_over_a_real_fetch_env() -> None:
+    """seed() takes effect at the next reset (the same start twice), reset() gives the
+    observation dict, step() 4 values, and compute_reward is the env's, vectorised."""
+    env = gym_module(_make).make("FetchPush-v4")
+    assert isinstance(env, OldGymEnv) and env._max_episode_steps == 50
+    env.seed(7)
+    first = env.reset()
+    env.seed(7)
+    again = env.reset()
+    np.testing.assert_array_equal(first["observation"], again["observation"])
+    np.testing.assert_array_equal(first["desired_goal"], again["desired_goal"])
+    other = env.reset()  # no new seed: the stream goes on
+    assert not np.array_equal(other["desired_goal"], first["desired_goal"])
+    obs, reward, done, info = env.step(env.action_space.sample())
+    assert set(obs) == {"observation", "achieved_goal", "desired_goal"}
+    assert isinstance(reward, float) and isinstance(done, bool) and "is_success" in info
+    ag = np.stack([obs["achieved_goal"], obs["desired_goal"]])
+    rewards = env.compute_reward(ag, np.stack([obs["desired_goal"]] * 2), None)
+    assert rewards.shape == (2,) and rewards[1] == 0.0
+    env.close()
+
+
+def _peer_folder(root: Path, seed: int, success: list[float]) -> Path:
+    run = PeerRun(checkout=root / "their-checkout", run_dir=root / f"pick-v1-authors-code-s{seed}",
+                  task="pick", seed=seed, epochs=len(success))
+    run.run_dir.mkdir(parents=True)
+    args = argparse.Namespace(n_cycles=50, num_rollouts_per_mpi=4, n_batches=40, cuda=False,
+                              seed=seed, env_name=run.env_id)
+    write_config(run, args, commit="9c1bfa0")
+    with (run.run_dir / "metrics.csv").open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["epoch", "success_rate"])
+        writer.writerows([e, s] for e, s in enumerate(success, start=1))
+    return run.run_dir
+
+
+def test_a_peer_run_is_a_side_of_its_own_in_the_claims(tmp_path: Path) -> None:
+    """Two peer seeds beside one of our HER-CS v1 runs: three groups (ours, the authors'
+    published curves, their code on our v1), the peer's labelled as such, its start commit
+    recorded."""
+    for seed in (121, 123):
+        _peer_folder(tmp_path, seed, [0.1 * seed % 1] * 50)
+    ours = tmp_path / "pick-v1-her-cs-s1"
+    ours.mkdir()
+    (ours / "config.yaml").write_text(yaml.safe_dump(
+        {"run": {"method": "her-cs", "seed": 1}, "task": {"name": "pick", "env_version": "v1"},
+         "training": {"schedule": "lockstep"}}))
+    (ours / "metrics.csv").write_text("epoch,success_rate\n" + "".join(
+        f"{e},0.5\n" for e in range(1, 51)))
+    groups = claim_runs.load_groups(tmp_path)
+    peer = [g for g in groups if g.schedule == PEER_SCHEDULE]
+    assert len(peer) == 1 and [r.seed for r in groups[peer[0]]] == [121, 123]
+    assert peer[0].label == "HER-CS, authors' code on our v1"
+    lockstep = [g for g in groups if g.schedule == "lockstep"]
+    assert len(lockstep) == 1 and groups[lockstep[0]][0].name == "pick-v1-her-cs-s1"
+    config = yaml.safe_load((tmp_path / "pick-v1-authors-code-s121" / "config.yaml").read_text())
+    assert config["peer"]["commit"] == "9c1bfa0" and config["peer"]["started_commit"]
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "studies.authors_peer", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_a_folder_that_is_not_their_checkout_is_refused_up_front(tmp_path: Path) -> None:
+    got = _cli("--checkout", str(tmp_path), "--run-dir", str(tmp_path / "runs"))
+    assert got.returncode == 2
+    assert "not a checkout of the authors' repository" in got.stderr and "train.py" in got.stderr
+    assert not (tmp_path / "runs").exists(), "nothing is written before the run is accepted"
+
+
+@pytest.mark.skipif(not CHECKOUT, reason="HERCS_AUTHORS_CHECKOUT names no checkout of "
+                    "ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-Experience-Replay "
+                    "(it is never copied into this repository)")
+def test_their_code_runs_stops_and_resumes_to_the_same_numbers(tmp_path: Path) -> None:
+    from tests.support import skip_without_mujoco_py
+
+    skip_without_mujoco_py()
+    straight = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "3",
+                    "--run-dir", str(tmp_path / "straight"))
+    assert straight.returncode == 0, straight.stderr[-2000:]
+    first = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "2",
+                 "--run-dir", str(tmp_path / "resumed"))
+    assert first.returncode == 0, first.stderr[-2000:]
+    name = "pick-v1-authors-code-s121"
+    (tmp_path / "resumed" / name / "bench_done.json").unlink()  # as if stopped after epoch 2
+    second = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "3",
+                  "--run-dir", str(tmp_path / "resumed"))
+    assert second.returncode == 0 and "resumed after epoch 2" in second.stdout
+
+    def rows(root: str) -> list[tuple[str, str]]:
+        with (tmp_path / root / name / "metrics.csv").open() as f:
+            return [(r["epoch"], r["success_rate"]) for r in csv.DictReader(f)]
+
+    assert rows("resumed") == rows("straight") and len(rows("straight")) == 3
+    import torch
+
+    def actor(root: str) -> dict[str, torch.Tensor]:
+        nets = torch.load(tmp_path / root / name / "peer_state" / "nets.pt", weights_only=True)
+        return nets["actor_network"]
+
+    straight_actor, resumed_actor = actor("straight"), actor("resumed")
+    assert all(torch.equal(straight_actor[k], resumed_actor[k]) for k in straight_actor), \
+        "the resumed run trained the same policy as the uninterrupted one"
