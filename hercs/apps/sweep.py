@@ -78,6 +78,18 @@ class _Running:
     started: float
 
 
+STARTED_SUFFIX = ".started"
+"""Beside a cell's log: the commit its first life started from (a resumed run may finish with
+another)."""
+
+
+def started_commit(run_root: Path, name: str) -> str:
+    """The commit cell `name` first started from ("" for a run started before this was
+    recorded)."""
+    path = run_root / LOG_DIR / f"{name}{STARTED_SUFFIX}"
+    return path.read_text().strip() if path.is_file() else ""
+
+
 def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,
              overrides: Sequence[str], committed: Path | None = None, command: str = "",
              sweep: Sequence[GridRun] | None = None) -> list[tuple[GridRun, int]]:
@@ -133,6 +145,9 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 # taken before `hercs up` binds it); router.json records it
                 cmd = up_command(cell, epochs=epochs, run_root=run_root, port=0,
                                  actors=actors, overrides=overrides, resume=cell in resumed)
+                started = run_root / LOG_DIR / f"{cell.name}{STARTED_SUFFIX}"
+                if not started.is_file():  # the commit of a cell's first life, kept through
+                    started.write_text(commit + "\n")  # resumes for its bench_done.json
                 log = open(run_root / LOG_DIR / f"{cell.name}.log", "wb")  # noqa: SIM115
                 # its own session: a Ctrl-C at the terminal reaches only this driver, which
                 # stops each run once (a second signal would skip `hercs up`'s orderly stop)
@@ -163,6 +178,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "variant_overrides": list(r.cell.variant_overrides),
                               "epochs": epochs,
                               "wall_s": round(wall, 1), "commit": commit,
+                              "started_commit": started_commit(run_root, r.cell.name),
                               "resumed": r.cell in resumed,
                               "command": " ".join(str(a) for a in r.proc.args[1:]),  # type: ignore[index]
                               "finished": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -150,7 +150,8 @@ class Run:
 
 
 def provenance(run_dir: Path) -> dict[str, str]:
-    """commit, finished and machine from the run's bench_done.json ("" where absent)."""
+    """commit ("started→finished" where they differ), finished and machine from the run's
+    bench_done.json ("" where absent)."""
     path = run_dir / DONE_FILE
     try:
         done = json.loads(path.read_text()) if path.is_file() else {}
@@ -166,7 +167,12 @@ def provenance(run_dir: Path) -> dict[str, str]:
         label = f"{name}{f' ({vector})' if vector else ''}"
         if machine.get("boot_id"):
             label += f", boot {machine['boot_id']}"
-    commit = str(done.get("commit") or "").replace(" (with uncommitted changes)", "+")
+    def short(key: str) -> str:
+        return str(done.get(key) or "").replace(" (with uncommitted changes)", "+")
+
+    commit, started = short("commit"), short("started_commit")
+    if started and started != commit:  # a resumed run that finished with other code
+        commit = f"{started}→{commit}"
     return {"commit": commit, "finished": str(done.get("finished") or "")[:10],
             "machine": label}
 

@@ -141,6 +141,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
         done = json.loads((tmp_path / "runs" / name / se.DONE_FILE).read_text())
         assert (done["task"], done["epochs"], done["env_id"]) == ("reach", 1, "FetchReach-v4")
         assert done["machine"] == se.machine_identity()  # one seed differs across CPUs
+        assert done["started_commit"] == done["commit"]  # one life: started and finished
         rows = RunDir(tmp_path / "runs" / name).metrics.read_text().strip().splitlines()
         assert len(rows) == 2  # header + the one epoch
         committed = tmp_path / "committed" / name  # the small files, ready to commit
@@ -164,6 +165,8 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     (tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).unlink()  # as if interrupted,
     shutil.rmtree(tmp_path / "committed" / "reach-her-cs-s1")  # so never committed either
     shutil.rmtree(tmp_path / "runs" / "reach-her-s1")
+    # as if its first life had run from another commit: the resumed run keeps that one
+    (tmp_path / "runs" / se.LOG_DIR / f"reach-her-cs-s1{se.STARTED_SUFFIX}").write_text("0ld5ta7\n")
     second = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert second.returncode == 0, second.stdout + second.stderr
     assert "[skip] reach-her-s1: finished and committed" in second.stdout
@@ -172,6 +175,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert "[start] reach-her-s1" not in second.stdout
     done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).read_text())
     assert done["resumed"] is True and "--resume" in done["command"]
+    assert done["started_commit"] == "0ld5ta7" and done["commit"] != "0ld5ta7"
     rows = RunDir(tmp_path / "runs" / "reach-her-cs-s1").metrics.read_text().splitlines()
     assert len(rows) == 2, "the resumed run kept its one epoch and trained no other"
 
