@@ -189,12 +189,25 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
 
 def resume(run_dir: str | os.PathLike[str], epochs: int | None = None) -> Run:
     """Continue a stopped run where it stopped, `hercs up --resume RUN_DIR`, to its own
-    number of epochs or to `epochs`. A refused resume (nothing to continue from, a finished
-    run, another `hercs up` holds it) ends at once with the command's exit status and
-    message (`Run.output`; `metrics` and `policy()` then raise HercsError)."""
+    number of epochs or to `epochs`.
+
+    Checks the folder as the command does before anything starts, and raises what it refuses
+    (nothing started): `RunDirError` for a folder that is no run (missing, or without its
+    config.yaml), `ConfigError` for a config that does not load or a bad `epochs`,
+    `CannotResume` for files that would not let the run continue (a checkpoint that does not
+    load, an episode log that is not one, metrics.csv and the checkpoint disagreeing). A run
+    that already finished ends at once with exit 0 and says so (`Run.output`); one that
+    another `hercs up` holds ends at once with exit 2 (`metrics` and `policy()` then raise
+    HercsError)."""
+    from hercs.apps.resume_check import plan_resume
+    from hercs.run.rundir import CONFIG, require_run_dir
+
     folder = Path(run_dir)
-    more = ["--epochs", str(epochs)] if epochs is not None else []
-    return Run._start(["up", "--resume", str(folder), *more], folder, folder.name)
+    require_run_dir(folder, needs=(CONFIG,))
+    argv = ["--resume", str(folder), *(["--epochs", str(epochs)] if epochs is not None else [])]
+    resolved = _resolve(argv)
+    plan_resume(folder, epochs=resolved.training.epochs)
+    return Run._start(["up", *argv], folder, folder.name)
 
 
 class Run:

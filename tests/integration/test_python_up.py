@@ -16,8 +16,11 @@ from pathlib import Path
 import pytest
 
 import hercs
+from hercs.apps.resume_check import CannotResume
+from hercs.apps.run_lock import RunLock
 from hercs.errors import ConfigError, HercsError
-from hercs.run.rundir import RunDir
+from hercs.run.rundir import RunDir, RunDirError
+from tests.run_dirs import make_run
 
 pytestmark = pytest.mark.integration
 
@@ -143,13 +146,46 @@ def test_a_taken_folder_or_a_refused_resume_never_reads_another_runs_files(
     RunDir(taken).metrics.write_text("epoch,success_rate\n1,0.5\n")
     with pytest.raises(ConfigError, match=r"already holds a run.*hercs\.resume"):
         hercs.up(task="reach", name="taken", run_dir=str(tmp_path / "runs"))
-    refused = hercs.resume(taken)  # no config.yaml, no checkpoint: hercs up refuses
-    assert refused.wait(timeout_s=120) == 2
+    with pytest.raises(RunDirError, match=r"it has no config\.yaml"):
+        hercs.resume(taken)  # checked before anything starts, as hercs.up checks its input
+    # a run whose files pass the check but that another `hercs up` holds: the command refuses
+    held = tmp_path / "runs" / "held"
+    make_run(held, epochs=3, trained=1, checkpoint=1)
+    lock = RunLock.take(held)
+    try:
+        refused = hercs.resume(held)
+        assert refused.wait(timeout_s=120) == 2
+    finally:
+        lock.release()
+    assert any("is in use by a running `hercs up`" in line for line in refused.output)
     assert list(refused.rows(timeout_s=10)) == []
     with pytest.raises(HercsError, match="did not start it"):
         refused.metrics  # noqa: B018 - the property raises
     with pytest.raises(HercsError, match="did not start it"):
         refused.resume()
+
+
+@pytest.mark.parametrize(("damage", "error", "message"), [
+    ("missing", RunDirError, "no such folder"),
+    ("no-config", RunDirError, r"it has no config\.yaml"),
+    ("bad-config", ConfigError, "not valid YAML"),
+    ("bad-checkpoint", CannotResume, "not a readable learner checkpoint"),
+    ("bad-epochs", ConfigError, "arguments refused"),
+], ids=["missing", "no-config", "bad-config", "bad-checkpoint", "bad-epochs"])
+def test_resuming_a_folder_that_cannot_be_resumed_raises_at_once(
+        tmp_path: Path, damage: str, error: type[HercsError], message: str) -> None:
+    run = tmp_path / "runs" / "r"
+    if damage != "missing":
+        make_run(run, epochs=3, trained=1, checkpoint=1)
+    if damage == "no-config":
+        RunDir(run).config.unlink()
+    elif damage == "bad-config":
+        RunDir(run).config.write_text("ddpg: [\n")
+    elif damage == "bad-checkpoint":
+        RunDir(run).checkpoint("latest").write_bytes(b"cut short")
+    with pytest.raises(error, match=message):
+        hercs.resume(run, epochs="many" if damage == "bad-epochs" else None)  # type: ignore[arg-type]
+    assert _processes_naming(str(run)) == [], "no `hercs up` was started"
 
 
 def test_a_bad_value_raises_before_anything_starts(tmp_path: Path) -> None:
