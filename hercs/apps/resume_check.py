@@ -19,8 +19,10 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from hercs.errors import HercsError
+from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import MetricsFileError, checked_epochs, epoch_spans
 from hercs.run.rundir import (
     CHECKPOINTS,
@@ -34,6 +36,7 @@ from hercs.run.rundir import (
     RunDir,
     aside_folder,
 )
+from hercs.run.runlog import EpisodeLog, EpisodeLogError
 
 KEPT_ON_RESTART = frozenset({CONFIG, LOGS, SLURM, LOCK, PREVIOUS, ROUTER})
 """What `--restart` leaves in place (config.yaml is also copied aside; logs/ goes on)."""
@@ -82,10 +85,16 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
     latest = files.checkpoint("latest")
     try:
         state = load_checkpoint(files.checkpoints)
-    except ValueError as exc:
+        checkpoint, pending = _checkpoint_epochs(state, latest)
+    except CheckpointError as exc:
         best = (f" (`hercs eval {run_dir} --checkpoint best` still reads the best policy)"
                 if files.checkpoint("best").is_file() else "")
         raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
+                           f"{_remedy(run_dir)}") from None
+    try:
+        EpisodeLog.check(run_dir)  # what the replay reloads: parsed as MCAP, never unpickled
+    except EpisodeLogError as exc:
+        raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
                            f"{_remedy(run_dir)}") from None
     try:
         recorded = checked_epochs(files.metrics)
@@ -106,9 +115,6 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
                 f"would train the run from epoch 1 again over those results. "
                 f"{_remedy(run_dir)}")
         return ResumePlan(checkpoint_epoch=0, recorded=0, finished=False)
-    loop = state["loop"]
-    checkpoint = int(loop["epoch"])
-    pending = {int(e) for e in loop.get("pending", {})}
     past = sorted(e for e in rows if e > checkpoint)
     if past:
         raise CannotResume(
@@ -125,6 +131,19 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
             f"again. {_remedy(run_dir)}")
     finished = checkpoint >= epochs and covers
     return ResumePlan(checkpoint_epoch=checkpoint, recorded=len(rows), finished=finished)
+
+
+def _checkpoint_epochs(state: dict[str, Any] | None, path: Path) -> tuple[int, set[int]]:
+    """The epoch a learner checkpoint was taken at and the epochs it still awaited the
+    evaluation of (0 and none without a checkpoint)."""
+    if state is None:
+        return 0, set()
+    try:
+        loop = state["loop"]
+        return int(loop["epoch"]), {int(e) for e in loop.get("pending", {})}
+    except (KeyError, TypeError, AttributeError, ValueError) as exc:  # data, but not ours
+        raise CheckpointError(f"{path}: not a learner checkpoint of this version of hercs "
+                              f"(its loop state: {type(exc).__name__}: {exc})") from None
 
 
 def set_aside_for_restart(run_dir: Path) -> Path | None:

@@ -21,6 +21,7 @@ from typing import Any
 
 import torch
 
+from hercs.run.checkpoint_file import CheckpointError, read_checkpoint_file
 from hercs.run.rundir import LATEST  # the run directory's names have one owner
 
 log = logging.getLogger(__name__)
@@ -53,19 +54,16 @@ def save_checkpoint(folder: Path, state: dict[str, Any], *, name: str = LATEST) 
 
 
 def load_checkpoint(folder: Path, *, name: str = LATEST) -> dict[str, Any] | None:
-    """The checkpoint in `folder/name`, or None if there is none. A file that does not load
-    raises `ValueError` naming it (a resumed run must not silently start over)."""
+    """The checkpoint in `folder/name`, or None if there is none. A file that does not load,
+    or holds more than data, raises `CheckpointError` naming it (a resumed run must not
+    silently start over; `hercs up --resume` says what would work)."""
     path = folder / name
     if not path.exists():
         return None
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable learner checkpoint ({exc}); move it away "
-                         "to start this run's learner from scratch") from None
-    if not isinstance(state, dict) or "learner" not in state or "loop" not in state:
-        raise ValueError(f"{path}: not a learner checkpoint of this version of hercs (no "
-                         "'learner'/'loop' state); move it away to start from scratch")
+    state = read_checkpoint_file(path, what="learner checkpoint")
+    if "learner" not in state or "loop" not in state:
+        raise CheckpointError(f"{path}: not a learner checkpoint of this version of hercs (no "
+                              "'learner'/'loop' state)")
     return state
 
 
@@ -80,13 +78,11 @@ def save_policy(folder: Path, name: str, *, weights: bytes, epoch: int, success_
 
 def load_policy_file(path: Path) -> dict[str, Any] | None:
     """A `save_policy` file, or None if there is none. A file that does not load raises
-    `ValueError` naming it."""
+    `CheckpointError` naming it."""
     if not path.exists():
         return None
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable policy file ({exc})") from None
-    if not isinstance(state, dict) or "policy" not in state:
-        raise ValueError(f"{path}: not a policy file of this version of hercs (no 'policy')")
+    state = read_checkpoint_file(path, what="policy file")
+    if "policy" not in state:
+        raise CheckpointError(f"{path}: not a policy file of this version of hercs (no "
+                              "'policy')")
     return state

@@ -16,12 +16,14 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from hercs.config import HercsConfig, load_yaml
-from hercs.errors import ConfigError, HercsError, InvalidMessage
+from hercs.errors import ConfigError, InvalidMessage
 from hercs.rl.policy import Policy, PolicyWeights
+from hercs.run.checkpoint_file import CheckpointError, read_checkpoint_file
 from hercs.run.rundir import (
     CONFIG,
     RunDir,
@@ -29,10 +31,6 @@ from hercs.run.rundir import (
     missing_checkpoint,
     require_run_dir,
 )
-
-
-class CheckpointError(HercsError):
-    """A checkpoint file exists but cannot be used; the message names it and says why."""
 
 
 @dataclass
@@ -67,27 +65,15 @@ def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
         if path.parent == RunDir(run_dir).checkpoints:
             require_run_dir(run_dir)  # a folder that is no run: say that first
         raise missing_checkpoint(run_dir, checkpoint, path)
-    import torch
-
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise CheckpointError(f"{path}: not a readable checkpoint ({exc})") from None
-    if not isinstance(state, dict) or not ("policy" in state or "learner" in state):
+    state = read_checkpoint_file(path, what="checkpoint")
+    if not ("policy" in state or "learner" in state):
         raise CheckpointError(f"{path}: neither a policy file (best.pt, epoch-N.pt) nor a "
                               "learner checkpoint (learner.pt) of this version of hercs")
-    config = HercsConfig.from_dict(state["config"]) if "config" in state else \
-        _run_config(run_dir, path)
-    if "policy" in state:
-        weights = _decode_weights(bytes(state["policy"]), config, path)
-        epoch = int(state["epoch"])
-    else:
-        learner, loop = state["learner"], state["loop"]
-        weights = PolicyWeights(version=int(loop.get("version", 0)),
-                                actor={k: v.detach().cpu().numpy().astype(np.float32)
-                                       for k, v in learner["actor"].items()},
-                                o_stats=learner["o_norm"], g_stats=learner["g_norm"])
-        epoch = int(loop["epoch"])
+    try:
+        config, epoch, weights = _contents(state, run_dir, path)
+    except (KeyError, TypeError, AttributeError, ValueError) as exc:  # well-formed data only
+        raise CheckpointError(f"{path}: does not hold what a checkpoint of this version of "
+                              f"hercs holds ({type(exc).__name__}: {exc})") from None
     loaded = LoadedPolicy(config=config, epoch=epoch, source=path, weights=weights)
     try:
         loaded.policy()
@@ -95,6 +81,25 @@ def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
         raise CheckpointError(f"{path}: the policy in it does not fit task "
                               f"{config.task.name} ({exc})") from None
     return loaded
+
+
+def _contents(state: dict[str, Any], run_dir: Path, path: Path
+              ) -> tuple[HercsConfig, int, PolicyWeights]:
+    """The config, epoch and weights a policy file or a learner checkpoint holds."""
+    config = HercsConfig.from_dict(state["config"]) if "config" in state else \
+        _run_config(run_dir, path)
+    if "policy" in state:
+        raw = state["policy"]
+        if not isinstance(raw, bytes):  # bytes(n) of a number would allocate n bytes
+            raise TypeError(f"'policy' is of type {type(raw).__name__}, not the Weights "
+                            "message's bytes")
+        return config, int(state["epoch"]), _decode_weights(raw, config, path)
+    learner, loop = state["learner"], state["loop"]
+    weights = PolicyWeights(version=int(loop.get("version", 0)),
+                            actor={k: v.detach().cpu().numpy().astype(np.float32)
+                                   for k, v in learner["actor"].items()},
+                            o_stats=learner["o_norm"], g_stats=learner["g_norm"])
+    return config, int(loop["epoch"]), weights
 
 
 def _decode_weights(raw: bytes, config: HercsConfig, path: Path) -> PolicyWeights:

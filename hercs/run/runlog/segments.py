@@ -150,14 +150,14 @@ def run_start_ns(segments: list[Path]) -> int | None:
     return 0 if segments else None
 
 
-def _check_metadata(path: Path, *, run: str, task: str) -> None:
+def _check_metadata(path: Path, *, run: str | None, task: str | None) -> None:
     meta, reached_data = _read_metadata(path)
     if meta is None and not reached_data and path.name == LIVE_NAME:
         return  # killed before its first fsync: the writer syncs metadata before any episode
     if meta is None:
         raise EpisodeLogError(f"{path} has no {METADATA_NAME!r} metadata: it is not a hercs "
                               "episode log; move it out of the run directory")
-    if meta.get("run") != run or meta.get("task") != task:
+    if run is not None and (meta.get("run") != run or meta.get("task") != task):
         raise EpisodeLogError(
             f"{path} was written for run {meta.get('run')!r} task {meta.get('task')!r}; this "
             f"replay serves run {run!r} task {task!r}. Refusing to mix logs: use another run "
@@ -198,6 +198,18 @@ class EpisodeLog:
         return writer, cls.recovered(sealed)
 
     @classmethod
+    def check(cls, run_dir: str | os.PathLike[str], *, run: str | None = None,
+              task: str | None = None) -> list[Path]:
+        """The run's segments, in order, once each is known to be a hercs episode log (an
+        MCAP file holding hercs's metadata) and, given `run` and `task`, one written for
+        them; else `EpisodeLogError` naming the first that is not. Reads each file's head
+        only and changes nothing."""
+        segments = cls(run_dir).segments()
+        for segment in segments:
+            _check_metadata(segment, run=run, task=task)
+        return segments
+
+    @classmethod
     def retire(cls, run_dir: str | os.PathLike[str], *, run: str, task: str) -> list[Path]:
         """Everything `open` does before it starts the new live segment: check every
         segment's run and task, seal and number the previous live segment, seal numbered
@@ -208,9 +220,7 @@ class EpisodeLog:
         """
         log_dir = cls(run_dir)
         log_dir.run_dir.mkdir(parents=True, exist_ok=True)
-        for segment in log_dir.segments():  # before changing anything
-            _check_metadata(segment, run=run, task=task)
-        for segment in log_dir.segments():
+        for segment in cls.check(run_dir, run=run, task=task):  # before changing anything
             if segment.name != LIVE_NAME and not _is_finished(segment):
                 _seal_if_space(segment)
         live = log_dir.live_path

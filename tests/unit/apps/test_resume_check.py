@@ -7,11 +7,12 @@ with the old files set aside, never deleted."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import main
+from hercs.apps.cli import build_parser, main
 from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
@@ -162,6 +163,26 @@ def test_restart_sets_the_old_files_aside_and_keeps_config_and_logs(tmp_path: Pa
     again = set_aside_for_restart(run)
     assert again is not None and again != aside and RunDir(aside).metrics.exists()
     assert set_aside_for_restart(run) is None  # nothing left to move
+
+
+def test_the_advice_for_a_damaged_checkpoint_is_a_flag_that_lets_the_run_start(
+        tmp_path: Path) -> None:
+    """Following the message must work: moving only learner.pt away (what it once said)
+    leads to the next refusal (rows without a checkpoint); the flag it names is one
+    `hercs up` takes, and after what that flag does the check lets the run start."""
+    run = tmp_path / "runs" / "r"
+    make_run(run, epochs=4, trained=2, checkpoint=2)
+    corrupt_latest(run)
+    with pytest.raises(CannotResume) as refused:
+        plan_resume(run, epochs=4)
+    said = str(refused.value)
+    assert "move it away" not in said
+    (flag,) = re.findall(r"add (--[a-z-]+)", said)
+    assert flag == "--restart"
+    assert build_parser()[0].parse_args(["up", "--resume", str(run), flag]).restart
+    assert set_aside_for_restart(run) is not None  # what `hercs up --resume RUN --restart` does
+    plan = plan_resume(run, epochs=4)
+    assert (plan.checkpoint_epoch, plan.recorded, plan.finished) == (0, 0, False)
 
 
 def test_restart_needs_resume(capsys) -> None:

@@ -12,6 +12,7 @@ from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
 from hercs.replay_service.replay_core import ReplayCore
+from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
 from hercs.run.rundir import RunDir
 from hercs.wire.episode import random_episode
@@ -122,7 +123,7 @@ def test_checkpoint_write_failure_keeps_the_previous_one(tmp_path, monkeypatch) 
 
 def test_unreadable_checkpoint_is_refused_not_ignored(tmp_path) -> None:
     (tmp_path / "learner.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match=r"learner\.pt: not a readable learner checkpoint"):
+    with pytest.raises(CheckpointError, match=r"learner\.pt: not a readable learner checkpoint"):
         load_checkpoint(tmp_path)
     assert load_checkpoint(tmp_path / "none") is None
 
