@@ -29,7 +29,7 @@ from hercs.config.algorithm import (
     default_energy_epsilon,
 )
 from hercs.config.building import RETIRED_KEYS, StrictBoolLoader, _build, _did_you_mean
-from hercs.config.checks import _check
+from hercs.config.checks import _check, _finite_numbers
 from hercs.config.deploy import (
     LEARNER_DEVICES,
     PRECISIONS,
@@ -181,6 +181,7 @@ class HercsConfig:
     view: ViewConfig = field(default_factory=ViewConfig)
 
     def __post_init__(self) -> None:
+        _finite_numbers(self)  # first: the checks below compare values
         spec = self.task.spec
         _check(spec.energy != "none" or not self.run.spec.energy_prioritised, "run.method",
                self.run.method, f"be her or her-cs on {spec.name}: it has no trajectory energy "

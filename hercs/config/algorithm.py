@@ -43,7 +43,11 @@ class DDPGConfig:
     def __post_init__(self) -> None:
         for name in ("hidden_size", "hidden_layers", "batch_size"):
             _check(getattr(self, name) >= 1, f"ddpg.{name}", getattr(self, name), "be >= 1")
-        for name in ("lr_actor", "lr_critic", "clip_obs", "norm_clip", "norm_eps"):
+        for name in ("lr_actor", "lr_critic"):
+            # Adam moves each weight by about lr per step: past 1 it leaves any sensible scale
+            _check(0 < getattr(self, name) <= 1, f"ddpg.{name}", getattr(self, name),
+                   "lie in (0, 1]")
+        for name in ("clip_obs", "norm_clip", "norm_eps"):
             _positive(f"ddpg.{name}", getattr(self, name))
         _unit_interval("ddpg.gamma", self.gamma, closed=False)
         _unit_interval("ddpg.polyak", self.polyak)

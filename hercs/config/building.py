@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import logging
+import math
 import re
 import typing
 from typing import Any
@@ -74,10 +75,17 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
     if hint is float:
         if isinstance(value, bool):
             raise ConfigError(f"{where}: got {value!r}, must be a number")
+        given = value
         if isinstance(value, str):
             value = _parse_number(value, where)
         if isinstance(value, int | float):
-            return float(value)
+            try:
+                number = float(value)
+            except OverflowError:  # an integer beyond any float
+                number = math.inf
+            if not math.isfinite(number):  # "1e400" too: float() makes it inf
+                raise ConfigError(f"{where}: got {given!r}, must be a finite number")
+            return number
         raise ConfigError(f"{where}: got {value!r}, must be a number")
     if hint is str:
         if isinstance(value, str):

@@ -118,10 +118,21 @@ class LaunchConfig:
     view is never restarted); a child that ran 5 minutes has its count reset [DESIGN]."""
     restart_backoff_s: float = 1.0
     """Delay before the first restart of a child; it doubles with each restart, up to 30 s."""
+    stall_factor: float = 10.0
+    """A run in which no epoch ends for this many times its slowest epoch so far has stalled:
+    `hercs up` says what stopped moving and where to look, stops every service and exits 5.
+    Before its first epoch ends the bound is this many times the first epoch the config
+    predicts on a slow machine (hercs/apps/stall.py). 10 lets an epoch be slowed by a
+    service's restart or a network cut of a minute without a false alarm: the chaos soaks'
+    slowest epochs, with a kill or a cut in them, took 1.5x their median [DESIGN]. 0: never
+    (a learner held in a debugger)."""
 
     def __post_init__(self) -> None:
         _check(self.max_restarts >= 0, "launch.max_restarts", self.max_restarts, "be >= 0")
         _positive("launch.restart_backoff_s", self.restart_backoff_s)
+        _check(self.stall_factor == 0 or self.stall_factor >= 2, "launch.stall_factor",
+               self.stall_factor, "be 0 (never) or >= 2 (below, an epoch a little slower "
+               "than the slowest so far would end the run)")
 
 
 @dataclass

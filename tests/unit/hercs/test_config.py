@@ -181,3 +181,72 @@ def test_a_rate_window_too_narrow_for_the_limiter_is_refused_before_any_service_
         c = apply_overrides(HercsConfig(), ["training.episodes_per_cycle=2",
                                             "replay.rate_tolerance_updates=25", mode])
         assert c.replay.rate_tolerance_updates == 25
+
+
+def _float_fields(config: object, where: str = "") -> list[str]:
+    """The dotted names of every float field of the tree (`float | None` included)."""
+    names = []
+    for item in dataclasses.fields(config):  # type: ignore[arg-type]
+        value, path = getattr(config, item.name), f"{where}{item.name}"
+        if dataclasses.is_dataclass(value):
+            names += _float_fields(value, f"{path}.")
+        elif "float" in str(item.type):
+            names.append(path)
+    return names
+
+
+FLOAT_FIELDS = _float_fields(HercsConfig())
+
+
+@pytest.mark.parametrize("value",
+                         ["inf", "-inf", "nan", ".inf", ".nan", "1e400", "1" + "0" * 400],
+                         ids=["inf", "minus-inf", "nan", "yaml-inf", "yaml-nan", "1e400",
+                              "huge-int"])
+def test_no_float_field_takes_a_number_that_is_not_finite(value: str) -> None:
+    """One mechanism covers every float field, present and future (an infinite learning rate
+    once passed, diverged at the first update and left the run standing still)."""
+    assert {"ddpg.lr_critic", "energy.epsilon", "launch.stall_factor"} <= set(FLOAT_FIELDS)
+    for name in FLOAT_FIELDS:
+        with pytest.raises(ConfigError) as err:
+            apply_overrides(HercsConfig(), [f"{name}={value}"])
+        assert str(err.value).startswith(f"{name}: got "), str(err.value)
+        assert "must be a finite number" in str(err.value)
+
+
+def test_a_yaml_file_with_an_infinite_value_is_refused_naming_the_file_and_field(
+        tmp_path: Path) -> None:
+    (tmp_path / "run.yaml").write_text("ddpg:\n  lr_actor: .inf\n")
+    with pytest.raises(ConfigError, match=r"run\.yaml'?: ddpg\.lr_actor: got inf, must be a "
+                                          r"finite number"):
+        load_yaml(tmp_path / "run.yaml")
+
+
+def test_a_tree_built_in_code_is_walked_too() -> None:
+    """A section constructed directly (the Python API) is checked when the tree is built,
+    fields without a bound of their own included."""
+    from hercs.config import DDPGConfig, LaunchConfig
+
+    with pytest.raises(ConfigError, match=r"^ddpg\.action_l2: got inf, must be a finite"):
+        HercsConfig(ddpg=DDPGConfig(action_l2=float("inf")))
+    with pytest.raises(ConfigError, match=r"^launch\.restart_backoff_s: got nan"):
+        HercsConfig(launch=LaunchConfig(restart_backoff_s=float("nan")))
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [("ddpg.lr_critic=1e300", "ddpg.lr_critic: got 1e+300, must lie in (0, 1]"),
+     ("ddpg.lr_actor=1.5", "ddpg.lr_actor: got 1.5, must lie in (0, 1]"),
+     ("ddpg.lr_actor=0", "ddpg.lr_actor: got 0.0, must lie in (0, 1]"),
+     ("ddpg.polyak=1.01", "ddpg.polyak: got 1.01, must lie in [0, 1]"),
+     ("ddpg.gamma=0", "ddpg.gamma: got 0.0, must lie in (0, 1)"),
+     ("launch.stall_factor=1.5", "launch.stall_factor: got 1.5, must be 0 (never) or >= 2"),
+     ("launch.stall_factor=-1", "launch.stall_factor: got -1.0, must be 0 (never) or >= 2")],
+    ids=["lr-huge", "lr-above-1", "lr-0", "polyak", "gamma-0", "stall-factor-1.5",
+         "stall-factor-negative"],
+)
+def test_bounded_numbers_are_refused_outside_their_bounds(override: str, message: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        apply_overrides(HercsConfig(), [override])
+    assert message in str(err.value)
+    for fine in ("ddpg.lr_critic=1", "launch.stall_factor=0", "launch.stall_factor=2"):
+        assert apply_overrides(HercsConfig(), [fine])
