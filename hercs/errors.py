@@ -13,6 +13,13 @@ class ConfigError(HercsError, ValueError):
     """A configuration value is invalid; the process refuses to start with it."""
 
 
+class Diverged(HercsError):
+    """The learner's losses or weights are no longer finite numbers: nothing trains from them
+    again, and a restart from the checkpoint with the same config would most likely diverge
+    the same way. The learner publishes and saves nothing of them and exits with its own
+    status (`hercs.net.service_shell.EXIT_DIVERGED`), which ends the whole run."""
+
+
 class InvalidMessage(HercsError):
     """A wire message was rejected; it never reaches a buffer, the clusterer or the learner.
 

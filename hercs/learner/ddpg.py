@@ -27,8 +27,9 @@ import numpy as np
 import torch
 
 from hercs.config import PRECISIONS, DDPGConfig
-from hercs.errors import ConfigError
+from hercs.errors import ConfigError, Diverged
 from hercs.learner.cuda_graph import CapturedUpdate, CaptureFailed, loss_row
+from hercs.learner.divergence import nonfinite_losses, nonfinite_tensors, state_tensors
 from hercs.learner.tf32 import TF32Products
 from hercs.rl.networks import Actor, Critic, preprocess, to_arrays
 from hercs.rl.normalizer import Normalizer, NormalizerState
@@ -163,7 +164,8 @@ class DDPGLearner:
     def train(self, batch: TransitionBatch) -> None:
         """One DDPG step whose losses are added to running sums on the learner's device
         (`loss_means` reads them): no host synchronisation per update. On a GPU with
-        `cuda_graph`, the whole step is one captured CUDA graph replayed per minibatch."""
+        `cuda_graph`, the whole step is one captured CUDA graph replayed per minibatch. On a
+        CPU a loss that is not finite raises `Diverged` naming this update."""
         captured = self._captured
         if captured is not None:
             try:
@@ -173,10 +175,31 @@ class DDPGLearner:
                             "training with the eager update", failure)
                 self._captured = captured = None
         if captured is None:
-            stats = self.precise(self._eager_step, batch)
-            self.loss_sums += loss_row(stats)
+            row = loss_row(self.precise(self._eager_step, batch))
+            # On a CPU this costs microseconds and names the very update; on a GPU it would
+            # make the host wait for the device each update, so there `check_finite` finds a
+            # bad loss in the sums once per cycle.
+            if self.device.type == "cpu" and not bool(torch.isfinite(row).all()):
+                raise Diverged(f"update {self.updates + 1}: "
+                               f"{nonfinite_losses(LOSS_NAMES, row.tolist())}")
+            self.loss_sums += row
         self._loss_count += 1
         self.updates += 1
+
+    def check_finite(self, *, first_update: int) -> None:
+        """Raise `Diverged` if a loss of the updates since the last epoch end, or a parameter of
+        μ or Q, is not finite, naming which; the caller says which update its last check
+        passed after (`first_update` is the one after it). Once per cycle, before the weights
+        are published: one read of the loss sums, one of a flag per parameter tensor."""
+        losses = nonfinite_losses(LOSS_NAMES, self.loss_sums.tolist())
+        if losses is not None:  # a sum stays non-finite once one of its losses was
+            raise Diverged(f"updates {first_update}-{self.updates}: {losses} (the losses' sums "
+                           "since the epoch began)")
+        params = nonfinite_tensors([*state_tensors(dict(self.actor.named_parameters()), "actor"),
+                                    *state_tensors(dict(self.critic.named_parameters()),
+                                                   "critic")])
+        if params:
+            raise Diverged(f"after update {self.updates}: {'; '.join(params)}")
 
     def loss_means(self) -> dict[str, float]:
         """The mean of each loss over the `train` steps since the last call (NaN if none),

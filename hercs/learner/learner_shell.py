@@ -9,7 +9,8 @@ Threads:
   late joiners), and at each epoch end the evaluation flag and a checkpoint; when the
   evaluator answers, a `metrics.csv` row and a `Metrics` put for the launcher
   (hercs.learner.evaluations keeps the requests and the policies to keep).
-It exits 0 after the last epoch's evaluation is recorded.
+It exits 0 after the last epoch's evaluation is recorded, and with `EXIT_DIVERGED` (4) where a
+loss or a weight stopped being finite (`Diverged`, saying where and which checkpoint is kept).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from collections import Counter
 from pathlib import Path
 
 from hercs.config import HercsConfig
-from hercs.errors import InvalidMessage
+from hercs.errors import Diverged, InvalidMessage
 from hercs.learner.checkpoint import load_policy_file, save_policy
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests, PolicyKeeper
@@ -33,7 +34,7 @@ from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.metrics import MetricsCsv
-from hercs.run.rundir import RunDir, run_dir_of
+from hercs.run.rundir import LATEST, RunDir, run_dir_of
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.codec import weights_to_msg
 from hercs.wire.validation import parse_message, validate_eval_result
@@ -74,6 +75,8 @@ class LearnerService:
         self.resumed_from = resume_learner_state(
             self.checkpoints, self.files.metrics, learner=self.learner, loop=self.loop,
             eval_requests=self.eval_requests)
+        self.checkpointed_epoch: int | None = self.resumed_from
+        """The epoch of the newest checkpoint on disk (None: none yet)."""
         best = load_policy_file(self.files.checkpoint("best"))
         self.keeper = PolicyKeeper(every=config.training.checkpoint_every,
                                    best_success=None if best is None
@@ -91,8 +94,24 @@ class LearnerService:
         transport.subscribe(keys.eval_result, self._on_eval)
 
     def checkpoint(self) -> None:
-        save_learner_state(self.checkpoints, learner=self.learner, loop=self.loop,
-                           eval_requests=self.eval_requests, config=self.config)
+        try:
+            saved = save_learner_state(self.checkpoints, learner=self.learner, loop=self.loop,
+                                       eval_requests=self.eval_requests, config=self.config)
+        except Diverged as exc:
+            raise Diverged(f"training diverged by the end of epoch {self.loop.epoch}: {exc}; "
+                           f"{self._kept_checkpoint()}") from None
+        if saved:
+            self.checkpointed_epoch = self.loop.epoch
+
+    def _kept_checkpoint(self) -> str:
+        """What a diverged learner leaves to continue from, and how."""
+        if self.checkpointed_epoch is None:
+            return ("no checkpoint was written before it; start a new run with other "
+                    "settings (e.g. a lower ddpg.lr_actor or ddpg.lr_critic)")
+        return (f"the last sound checkpoint, {self.checkpoints / LATEST} of epoch "
+                f"{self.checkpointed_epoch}, is kept: `hercs up --resume {self.run_dir}` "
+                "continues from it, with --set for what diverged (e.g. a lower ddpg.lr_actor "
+                "or ddpg.lr_critic)")
 
     # -- subscriptions -----------------------------------------------------------------------
     def _on_eval(self, key: str, payload: bytes) -> None:
@@ -201,7 +220,10 @@ class LearnerService:
             batch = prefetcher.get()
             if batch is None:
                 break
-            result = self.loop.step(batch)
+            try:
+                result = self.loop.step(batch)
+            except Diverged as exc:  # nothing of this cycle is published or saved
+                raise Diverged(f"{exc}; {self._kept_checkpoint()}") from None
             self.publish_weights(evaluate=result.epoch_ended is not None,
                                  epoch=result.epoch_ended or self.loop.epoch)
             prefetcher.cycle_done()

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from hercs.config import HercsConfig
+from hercs.errors import Diverged
 from hercs.learner.ddpg import DDPGLearner
 from hercs.wire.served import ServedBatch
 
@@ -111,10 +112,21 @@ class LearnerLoop:
 
     def step(self, batch: ServedBatch) -> CycleResult:
         """One cycle: adopt the replay's normaliser stats, update on every minibatch, update
-        the targets, bump the version."""
+        the targets, bump the version. A loss or a weight that is no longer finite raises
+        `Diverged` naming the epoch, the cycle, the update and the value, before the targets
+        or the version change (so nothing of that cycle can be published or saved)."""
         self.learner.set_normalizer_state(batch.o_stats, batch.g_stats)
-        for minibatch in batch.minibatches:
-            self.learner.train(minibatch)  # losses summed on the device, read at the epoch end
+        first_update = self.learner.updates + 1
+        try:
+            for minibatch in batch.minibatches:
+                self.learner.train(minibatch)  # losses summed on the device, read at epoch end
+            # before the targets average the weights in and before anyone publishes them
+            self.learner.check_finite(first_update=first_update)
+        except Diverged as exc:
+            cycles = self.config.training.cycles_per_epoch
+            raise Diverged(f"training diverged in epoch {self.epoch + 1}, cycle "
+                           f"{self.cycle % cycles + 1} of {cycles} (the run's cycle "
+                           f"{self.cycle + 1}), {exc}") from None
         self.learner.update_targets()
         self.version += 1
         self.cycle += 1

@@ -21,23 +21,34 @@ from typing import Any
 import torch
 
 from hercs.config import HercsConfig
+from hercs.errors import Diverged
 from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
+from hercs.learner.divergence import nonfinite_tensors, state_tensors
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.loop import LearnerLoop
 from hercs.run.metrics import recorded_epochs, truncate_metrics
-from hercs.run.rundir import aside_folder
+from hercs.run.rundir import LATEST, aside_folder
 
 log = logging.getLogger("hercs.learner")
 
 
 def save_learner_state(checkpoints: Path, *, learner: DDPGLearner, loop: LearnerLoop,
-                       eval_requests: EvalRequests, config: HercsConfig) -> None:
+                       eval_requests: EvalRequests, config: HercsConfig) -> bool:
+    """Write `checkpoints/learner.pt`; False if the write failed (logged, the previous file
+    kept). A learner state holding a NaN or an inf anywhere (weights, targets, Adam's moments,
+    normalisers) raises `Diverged` instead and leaves the previous checkpoint as it was: a
+    resumed run must never start from numbers it cannot train on. (Adam's second moment can
+    overflow to inf while the weights stay finite: that weight then never moves again.)"""
     state: dict[str, Any] = {
         "learner": learner.state_dict(), "loop": loop.state_dict(),
         "torch_rng": torch.get_rng_state(), "eval_requests": eval_requests.state_dict(),
         "config": config.to_dict()}
-    save_checkpoint(checkpoints, state)
+    bad = nonfinite_tensors(state_tensors(state["learner"], "learner"))
+    if bad:
+        raise Diverged(f"{checkpoints / LATEST} not written, the one there is kept: "
+                       f"{'; '.join(bad)}")
+    return save_checkpoint(checkpoints, state)
 
 
 def resume_learner_state(checkpoints: Path, metrics_path: Path, *, learner: DDPGLearner,

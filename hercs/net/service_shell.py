@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping
 import yaml
 
 from hercs.config import HercsConfig
-from hercs.errors import ConfigError, Unreachable
+from hercs.errors import ConfigError, Diverged, Unreachable
 from hercs.net.backoff import Backoff
 from hercs.net.security import zenoh_settings
 from hercs.net.signals import StopSignals
@@ -59,6 +59,9 @@ EXIT_CONFIG = 2
 """The configuration cannot be used (`ConfigError`): retrying the same command will not help."""
 EXIT_UNREACHABLE = 3
 """The router, or the run's replay, did not answer within `transport.wait_s` (`Unreachable`)."""
+EXIT_DIVERGED = 4
+"""The learner's training diverged (`Diverged`: a loss or a weight not finite); a restart
+would resume from the checkpoint into the same divergence, so `hercs up` stops the run."""
 
 
 THREAD_JOIN_S = 5.0
@@ -169,7 +172,8 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
       ends the wait for an unreachable router (exit 0: nothing had started).
     - Exit status: what `body` returns; `EXIT_CONFIG` (2) for a `ConfigError`, from the
       runtime (e.g. no run name) or from `body`; `EXIT_UNREACHABLE` (3) when the router or
-      the run did not answer within `transport.wait_s`; `EXIT_FAILED` (1) for any other exception,
+      the run did not answer within `transport.wait_s`; `EXIT_DIVERGED` (4) for `Diverged`
+      (the learner's numbers are no longer finite); `EXIT_FAILED` (1) for any other exception,
       logged with its traceback, and for a supervised thread that died
       (`runtime.start_thread`) even if `body` then returned 0. The runtime is closed in
       every case.
@@ -197,6 +201,9 @@ def service_main(*, role: str, config: HercsConfig, body: ServiceBody,
             except Unreachable as exc:
                 log.error("hercs %s: %s", role, exc)
                 status.append(EXIT_UNREACHABLE)
+            except Diverged as exc:
+                log.error("hercs %s: %s; exiting with status %d", role, exc, EXIT_DIVERGED)
+                status.append(EXIT_DIVERGED)
             except ConnectAborted as exc:  # stopped before the router was ever reached
                 log.info("hercs %s: %s", role, exc)
                 status.append(EXIT_OK)
