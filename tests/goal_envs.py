@@ -1,9 +1,12 @@
 """Small goal environments a user could write, for the `module:factory` tests: pure numpy, no
 simulator. `tests.goal_envs:point_on_a_plane` has the whole goal interface; the others each
-lack one part of it."""
+lack one part of it. `reach_with_a_reward_scale_file`'s reward is scaled by a test while a run
+trains."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -58,6 +61,26 @@ class PointOnAPlane(gym.Env):
             raise ValueError("one pair at a time")
         d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
         return -(d >= self.threshold).astype(np.float32)
+
+
+REWARD_SCALE_FILE = "GOAL_ENVS_REWARD_SCALE_FILE"
+"""The environment variable that names `reach_with_a_reward_scale_file`'s scale file."""
+
+
+class RewardScaleFromFile(PointOnAPlane):
+    """`PointOnAPlane` whose miss costs the number in the file `$GOAL_ENVS_REWARD_SCALE_FILE`
+    names, read at every call (1 while there is no such file): a reward whose scale changes
+    while a run trains, as a user's reward with a bug in a branch rarely taken does."""
+
+    def compute_reward(self, achieved_goal, desired_goal, info):  # type: ignore[no-untyped-def]
+        path = os.environ.get(REWARD_SCALE_FILE, "")
+        scale = float(Path(path).read_text()) if path and Path(path).is_file() else 1.0
+        return scale * super().compute_reward(achieved_goal, desired_goal, info)
+
+
+def reach_with_a_reward_scale_file(**kwargs: Any) -> gym.Env:
+    """`reach_on_a_plane` with `RewardScaleFromFile`'s reward."""
+    return TimeLimit(RewardScaleFromFile(goal_offset=0.4), max_episode_steps=10)
 
 
 def point_on_a_plane(**kwargs: Any) -> gym.Env:

@@ -5,7 +5,8 @@ continue without losing results, hercs/apps/resume_check.py), opens the Zenoh ro
 this process, writes the resolved `config.yaml` and `router.json`, and hands the services to
 the `Supervisor` (hercs/apps/supervisor.py), which starts, restarts and finally stops them.
 Exit status: 0 done, 1 a service failed or the router could not listen, 2 the run directory
-cannot be used as asked, 128 + n after signal n.
+cannot be used as asked, 4 the learner's training diverged, 5 the run stalled (no epoch ended
+within its bound), 128 + n after signal n.
 
 Every child runs in its own process group with a parent-death signal (hercs/apps/
 child_process.py), so no child outlives a killed launcher; that signal fires when the forking
@@ -67,8 +68,9 @@ def run_up(
     0 done (or, with `resume`, finished already), 1 a service failed or the router could not
     listen, 2 the run directory is taken, is in use by another `hercs up`, or (with
     `resume`) holds no run or one that cannot continue without losing results (`restart`:
-    start it over, its old files set aside), 128 + n after signal n. Must be called on the
-    main thread."""
+    start it over, its old files set aside), 4 the learner's training diverged
+    (`EXIT_DIVERGED`), 5 the run stalled (`EXIT_STALLED`), 128 + n after signal n. Must be
+    called on the main thread."""
     out = out or sys.stdout
     err = err or sys.stderr
     if threading.current_thread() is not threading.main_thread():
@@ -163,7 +165,7 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
                              f"{run_dir}")
             else:
                 launcher.say(f"hercs up: run {config.run.name} stopped; run directory: "
-                             f"{run_dir}", error=status == 1)
+                             f"{run_dir}", error=status < 128)  # not on a signal: a failure
             return status
 
 

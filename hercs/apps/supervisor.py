@@ -1,6 +1,7 @@
 """The supervisor inside `hercs up`: starts the run's services as child processes, restarts
-one that dies (with back-off, up to `launch.max_restarts`), prints a progress line per epoch
-from what the learner, evaluator and replay publish, and stops everything stage by stage
+one that dies (with back-off, up to `launch.max_restarts`; never a learner whose training
+diverged), prints a progress line per epoch from what the learner, evaluator and replay
+publish, ends a run that stalled (hercs/apps/stall.py), and stops everything stage by stage
 (actors first, the replay last, so that every episode in flight is still acked and logged).
 
 `Supervisor` holds no Zenoh session of its own: `hercs.apps.launcher` subscribes its
@@ -23,10 +24,11 @@ from typing import IO
 from hercs.apps.child_process import describe_exit, log_tail, signal_group, start_child
 from hercs.apps.progress import Progress
 from hercs.apps.run_plan import ChildSpec, CommandFactory, plan_children
+from hercs.apps.stall import StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.backoff import nth_delay
-from hercs.net.service_shell import EXIT_CONFIG
+from hercs.net.service_shell import EXIT_CONFIG, EXIT_DIVERGED
 from hercs.net.signals import StopSignals
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
@@ -42,6 +44,9 @@ MAX_BACKOFF_S = 30.0
 HEALTHY_S = 300.0
 """A child that ran this long before dying has its restart count reset (it was not
 crash-looping)."""
+
+EXIT_STALLED = 5
+"""`hercs up`'s status when the run stalled: no epoch ended within its bound (StallWatch)."""
 
 LIVE_READY_TIMEOUT_S = 30.0
 FINAL_PROGRESS_TIMEOUT_S = 5.0
@@ -83,6 +88,8 @@ class Supervisor:
     def __post_init__(self) -> None:
         self.keys = RunKeys(self.config.run.name)
         self.progress = Progress(self.config.training.epochs)
+        self.stall = StallWatch(factor=self.config.launch.stall_factor,
+                                first_epoch_s=expected_first_epoch_s(self.config))
         self._print_lock = threading.RLock()
         self._ours = {self.keys.alive(s.role, s.ident) for s in plan_children(self.config)}
 
@@ -118,6 +125,9 @@ class Supervisor:
     def on_metrics(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.Metrics, "Metrics")
         if isinstance(msg, pb.Metrics):
+            if msg.service.startswith("learner/") and "epoch" in msg.values:
+                with self._print_lock:
+                    self.stall.epoch_ended(int(msg.values["epoch"]))
             self._print_progress(lambda: self.progress.on_metrics(msg.service, dict(msg.values)))
 
     def on_eval(self, key: str, raw: bytes) -> None:
@@ -136,6 +146,7 @@ class Supervisor:
         if isinstance(msg, pb.EpisodeHeader):
             with self._print_lock:
                 self.progress.on_inserted(msg.actor_id)
+                self.stall.episode_stored()
 
     def on_alive(self, key: str, alive: bool) -> None:
         (self.alive.add if alive else self.alive.discard)(key)
@@ -177,7 +188,8 @@ class Supervisor:
 
     def check_children(self) -> int | None:
         """None while all is well (children that died are scheduled for a restart); 0 once
-        the learner is done; 1 if a child died more often than `launch.max_restarts`."""
+        the learner is done; 1 if a child died more often than `launch.max_restarts` or
+        refused its configuration; `EXIT_DIVERGED` if the learner's training diverged."""
         self._reap_optional()
         exited = [(c, code) for c in self.children
                   if not c.expected_exit and (code := c.proc.poll()) is not None]
@@ -196,6 +208,12 @@ class Supervisor:
             child.expected_exit = True
             restarts = 0 if time.monotonic() - child.started >= HEALTHY_S else child.restarts
             limit = self.config.launch.max_restarts
+            if code == EXIT_DIVERGED:
+                # A restart would resume from its checkpoint into the same divergence.
+                self._report_exit(child, code, then="; its training diverged (its log's last "
+                                                    "lines say where and what is kept), which "
+                                                    "a restart would repeat, so the run stops")
+                return EXIT_DIVERGED
             if code == EXIT_CONFIG:
                 # It refused its configuration: a restart reads the same config.yaml.
                 self._report_exit(child, code, then="; it refused the run's configuration, "
@@ -223,6 +241,17 @@ class Supervisor:
             self.start(spec, restarts=restarts)
             self.restarts_total += 1
             self.progress.restarts = self.restarts_total
+
+    def _stall_report(self) -> str:
+        """What stalled, since when, and where to look."""
+        silent = [f"{c.spec.role} {c.spec.ident}" for c in self.children
+                  if c.proc.poll() is None and c.spec.role not in OPTIONAL_ROLES
+                  and self.keys.alive(c.spec.role, c.spec.ident) not in self.alive]
+        return (f"hercs up: run {self.config.run.name} stalled: {self.stall.describe()}. "
+                + (f"Not seen alive on the router (stopped or hung): {', '.join(silent)}. "
+                   if silent else "")
+                + f"The services' logs are in {RunDir(self.run_dir).logs}; stopping the run "
+                  f"(exit {EXIT_STALLED}).")
 
     def _interrupted(self) -> int:
         sig = self.signals.received[0]
@@ -289,6 +318,13 @@ class Supervisor:
                 return status
             self.restart_due()
             with self._print_lock:
+                # the clock starts once actors can act: remote ones may join much later
+                if self.config.actor.num_actors > 0 or self.progress.actors:
+                    self.stall.begin()
+                if self.stall.stalled():
+                    self.say(self._stall_report(), error=True)
+                    return EXIT_STALLED
+            with self._print_lock:
                 line = self.progress.interim()
                 if line is not None:
                     self.say(line)
@@ -304,6 +340,7 @@ class Supervisor:
             for child in live:
                 child.expected_exit = True
                 child.signal(signal.SIGTERM)
+                child.signal(signal.SIGCONT)  # a stopped child (a stall) handles it only then
             deadline = time.monotonic() + self.stop_timeout_s
             for child in live:
                 while child.proc.poll() is None:

@@ -60,6 +60,10 @@ if behaviour == "crash-once" and not os.path.exists(f"{events}.crashed.{ident}")
     os._exit(3)
 if behaviour == "exit0":
     os._exit(0)
+if behaviour == "diverged":  # what hercs.net.service_shell exits with for Diverged
+    print("hercs learner: training diverged in the stand-in on purpose", file=sys.stderr,
+          flush=True)
+    os._exit(4)
 if behaviour == "config-error":  # what hercs.net.service_shell exits with for a ConfigError
     print("hercs replay: invalid configuration: the stand-in refused it", file=sys.stderr,
           flush=True)

@@ -161,6 +161,25 @@ def test_a_child_that_refuses_its_configuration_stops_the_run_without_restarts(u
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
 
+def test_a_learner_whose_training_diverged_stops_the_run_with_its_status(up) -> None:
+    """Exit 4 (`Diverged`): a restart would resume from the checkpoint into the same
+    divergence, so the others are stopped and `hercs up` exits 4, never restarting it."""
+    launcher = up({"learner-0": "diverged"}, "--run", "diverging", "--actors", "2",
+                  "--set", "launch.restart_backoff_s=0.05")
+
+    assert launcher.finish() == 4
+    report = "\n".join(launcher.err)
+    assert ("hercs up: learner learner-0 exited unexpectedly (exit code 4); its training "
+            "diverged (its log's last lines say where and what is kept), which a restart "
+            "would repeat, so the run stops") in report
+    assert "  | hercs learner: training diverged in the stand-in on purpose" in report
+    assert "run diverging stopped" in report
+    assert "again (restart" not in "\n".join(launcher.out)
+    stopped = {i for what, i in read_events(up.events) if what == "stop"}
+    assert {"actor-0", "actor-1", "replay-0", "evaluator-0", "clusterer-0"} <= stopped
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
 def test_a_child_that_dies_is_restarted_and_the_run_goes_on(up, tmp_path: Path) -> None:
     launcher = up({"actor-1": "crash-once"}, "--run", "bumpy", "--actors", "2",
                   "--set", "launch.restart_backoff_s=0.05")
