@@ -45,6 +45,20 @@ def log_text(run_dir: Path, ident: str) -> str:
     return (RunDir(run_dir).log(ident)).read_text(errors="replace")
 
 
+def lag_never_negative(run_dir: Path, bound: int | None = None) -> None:
+    """Every epoch's recorded policy lag (mean, p50, max) is >= 0, and with `bound` its p50
+    is within it: the schedule a restart continues is the one the episodes were stored in
+    (before the fix, a resumed run read -6.5 every epoch after the resume)."""
+    with RunDir(run_dir).metrics.open(newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["policy_lag_p50"] not in ("", "nan")]
+    assert rows, "no epoch recorded a lag"
+    for r in rows:
+        lags = [float(r[k]) for k in ("policy_lag", "policy_lag_p50", "policy_lag_max")]
+        assert min(lags) >= 0, f"epoch {r['epoch']}: negative policy lag {lags}"
+        if bound is not None:
+            assert lags[1] <= bound, f"epoch {r['epoch']}: lag p50 {lags[1]} past {bound}"
+
+
 def kill_learner_and_finish(launcher: Launcher) -> None:
     """SIGKILL the learner, wait for its restart, then for the run to end with status 0."""
     os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
@@ -61,6 +75,7 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
+    lag_never_negative(run_dir)
     learner_log = log_text(run_dir, "learner-0")
     assert "resumed from the checkpoint of epoch" in learner_log
     report = "\n".join(launcher.err)
@@ -68,6 +83,24 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     assert any(line.startswith("epoch 4/4") and line.endswith("restarts 1")
                for line in launcher.out), launcher.out
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
+def test_a_killed_replay_keeps_the_lag_its_episodes_were_stored_with(tmp_path: Path) -> None:
+    """SIGKILL of the replay in epoch 2 of an asynchronous run: the restarted replay recovers
+    its log and measures every later episode in the same schedule, so no epoch reads a
+    negative lag, and the lag bound holds from its first insert on."""
+    launcher = Launcher(up_argv(tmp_path, "--run", "amnesia"), cwd=tmp_path)
+    run_dir = tmp_path / "runs" / "amnesia"
+    try:
+        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
+        os.kill(launcher.child_pids["replay-0"], signal.SIGKILL)
+        launcher.wait_for_line(r"started replay replay-0 again \(restart 1\)", timeout_s=60)
+        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+    finally:
+        launcher.kill()
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    assert "recovered" in log_text(run_dir, "replay-0")
+    lag_never_negative(run_dir, bound=3)
 
 
 def wait_for_episodes(run_dir: Path, count: int, *, timeout_s: float) -> bool:
@@ -152,6 +185,7 @@ def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path
     finally:
         again.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    lag_never_negative(run_dir, bound=3)  # training.max_policy_lag's default
     assert any("resuming run phoenix" in line for line in again.out)
     replay_log = log_text(run_dir, "replay-0")
     assert "recovered" in replay_log and "acked episodes from the episode log" in replay_log
