@@ -90,7 +90,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from hercs.apps.view import run_view
 
     return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
-                    web_port=args.web_port, grpc_port=args.grpc_port,
+                    web_port=args.web_port, grpc_port=args.grpc_port, web_bind=args.web_bind,
                     open_browser=not args.no_browser)
 
 
@@ -213,11 +213,17 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                         "'spread:200' (every n-th, at most 200), 'all' (default: the last "
                         "epoch's episodes)")
     p.add_argument("--web", action="store_true",
-                   help="serve the web viewer (http://localhost:9090) until Ctrl-C")
+                   help="serve the web viewer (http://127.0.0.1:9090, this machine only) "
+                        "until Ctrl-C")
     p.add_argument("--web-port", type=int, metavar="PORT", help="web viewer's HTTP port "
                    "(9090)")
     p.add_argument("--grpc-port", type=int, metavar="PORT", help="with --web: the port the "
                    "recording is served on to the viewer (9876)")
+    p.add_argument("--web-bind", metavar="ADDRESS",
+                   help="with --web: the address both ports listen on (default 127.0.0.1: "
+                        "this machine only). 0.0.0.0 or one of the host's addresses lets "
+                        "others open the page, and anyone who reaches it sees the run's "
+                        "episodes: there is no login (docs/SECURITY.md)")
     p.add_argument("--no-browser", action="store_true", help="with --web: do not open a browser")
 
     p = sub.add_parser("eval", help="evaluate a run's trained policy; record a video",

@@ -14,6 +14,7 @@ import math
 import os
 import sys
 import time
+import webbrowser
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,12 @@ from hercs.apps.rerun_draw import (
     log_world,
     rerun_executable,
     summarize_episode,
+)
+from hercs.apps.web_viewer import (
+    DEFAULT_BIND,
+    WebViewerError,
+    bind_address,
+    start_web_viewer,
 )
 from hercs.config import load_yaml
 from hercs.errors import HercsError
@@ -320,10 +327,16 @@ def headless_problem(env: Mapping[str, str]) -> str | None:
 
 def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
              web: bool = False, web_port: int | None = None, grpc_port: int | None = None,
-             open_browser: bool = True) -> int:
+             web_bind: str | None = None, open_browser: bool = True) -> int:
     """`hercs view`: 0 on success, 2 on a bad path or selection, or a viewer that cannot
-    open (message on stderr)."""
+    open (message on stderr). With `web`, the web viewer listens on `web_bind` (default:
+    loopback only, `hercs.apps.web_viewer`)."""
     try:
+        if web_bind is not None:
+            if not web:
+                raise ViewError(f"--web-bind {web_bind}: goes with --web (it is the address "
+                                "the web viewer listens on)")
+            bind_address(web_bind)  # before reading the log
         if not (save or web):
             problem = headless_problem(os.environ)
             if problem is not None:
@@ -342,7 +355,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         if not selected:
             raise ViewError(f"--episodes {episodes!r} selects none of the {len(ids)} episodes "
                             f"(ids {ids[0]}..{ids[-1]})")
-    except (ViewError, ValueError, EpisodeLogError) as exc:
+    except (ViewError, WebViewerError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
     metrics = read_metrics(RunDir(run_dir).metrics)
@@ -355,8 +368,13 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
     if save:
         rec.save(save, default_blueprint=layout)
     elif web:
-        url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=layout)
-        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
+        try:
+            viewer = start_web_viewer(bind=web_bind or DEFAULT_BIND, web_port=web_port,
+                                      grpc_port=grpc_port)
+        except (WebViewerError, OSError) as exc:  # OSError: no `rerun` executable to start
+            print(f"hercs view: {exc}", file=sys.stderr)
+            return 2
+        rec.connect_grpc(viewer.stream_url, default_blueprint=layout)
     else:
         rr.spawn(recording=rec, default_blueprint=layout, executable_path=rerun_executable())
     build_recording(rr, rec, run, selected, metrics, log_path)
@@ -372,11 +390,13 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         rec.disconnect()
         print(f"wrote {save}")
     elif web:
-        port = 9090 if web_port is None else web_port
-        print(f"serving the web viewer at http://localhost:{port}/?url={url} (Ctrl-C stops)")
+        print(f"serving the web viewer at {viewer.page_url} (Ctrl-C stops)", flush=True)
+        if open_browser:
+            webbrowser.open(viewer.page_url)
         try:
-            while True:
-                time.sleep(1.0)
+            viewer.proc.wait()  # serving until Ctrl-C, or until rerun itself ends
         except KeyboardInterrupt:
             pass
+        finally:
+            viewer.stop()
     return 0
