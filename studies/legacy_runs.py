@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from hercs.apps.plot_tables import FigureStyle
+from studies.authors_peer.peer_run import PEER_SCHEDULE
 
 LEGACY_LAG = "lag7"
 """The variant of asynchronous runs made with the old, staler default: rate tolerance 80, two
@@ -26,11 +27,14 @@ def legacy_lag(config: dict[str, Any]) -> str:
     return LEGACY_LAG if schedule == "async" and resolved and not new else ""
 
 
-LEGACY_NOTES = {LEGACY_LAG: "lag 7"}
-"""How the legacy variant is labelled: a note after the method, "HER-CS (lag 7)"."""
+LEGACY_NOTES = {LEGACY_LAG: "lag 7", PEER_SCHEDULE: ""}
+"""How the legacy variant is labelled: a note after the method, "HER-CS (lag 7)"; the
+authors' code run here (studies.authors_peer) has no note: its rows say whose it is."""
 LEGACY_STYLE = FigureStyle(
     variant_of=legacy_lag, variant_notes=LEGACY_NOTES,
     caption_notes=("(lag 7): asynchronous runs of the old, staler default "
-                   "(docs/PERFORMANCE.md §2)",),
-    drawn_by="python -m studies.fig2")
+                   "(docs/PERFORMANCE.md §2)",
+                   "(authors' code): the authors' published code run on our v1 stack "
+                   "(studies/authors_peer)"),
+    drawn_by="python -m studies.fig2", not_ours={PEER_SCHEDULE: "authors' code"})
 """The committed figures' styling: hercs' plain one plus the legacy variant."""

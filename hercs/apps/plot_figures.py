@@ -227,7 +227,7 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
                     _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
                     ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
                             linestyle=method_linestyle(key), linewidth=2.0,
-                            label=f"{label} (ours, {_seeds(a.n_seeds)})")
+                            label=f"{label} ({style.whose(key)}, {_seeds(a.n_seeds)})")
             if not has_ours(pair, mine):
                 ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
                         ha="left", va="top", fontsize=10, color="0.4")

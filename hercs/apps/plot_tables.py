@@ -94,6 +94,14 @@ class FigureStyle:
     variant_notes: Mapping[str, str] = field(default_factory=dict)
     caption_notes: tuple[str, ...] = ()
     drawn_by: str = "hercs plot --figure 2"
+    not_ours: Mapping[str, str] = field(default_factory=dict)
+    """Variants whose runs another code made (a peer's, run here): variant → whose, said
+    where a row or legend entry would say "ours"."""
+
+    def whose(self, key: str) -> str:
+        """"ours", or whose runs a group key's variant says they are (`not_ours`)."""
+        return next((self.not_ours[v] for v in key.split("/")[1:] if v in self.not_ours),
+                    "ours")
 
 
 PLAIN_STYLE = FigureStyle()
@@ -154,7 +162,8 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
             for key in fig2_keys(pair, mine, ref):
                 label = method_label(key, style.variant_notes)
                 if key in mine:
-                    rows.append((label + " (ours)", milestones(aggregate(mine[key]))))
+                    rows.append((f"{label} ({style.whose(key)})",
+                                 milestones(aggregate(mine[key]))))
                 if key in ref:
                     rows.append((label + " (authors)",
                                  milestones(aggregate(ref[key]))))

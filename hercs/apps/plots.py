@@ -170,7 +170,7 @@ def method_label(key: str, variant_notes: Mapping[str, str] | None = None) -> st
     label = " ".join((METHOD_LABELS.get(method, method), *inline))
     notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
              for v in variants if _env_version(v)]
-    notes += [notes_of[v] for v in variants if v in notes_of]
+    notes += [notes_of[v] for v in variants if notes_of.get(v)]  # "": no note
     return "".join((label, *(f" ({v})" for v in notes)))
 
 

@@ -154,3 +154,16 @@ def test_their_code_runs_stops_and_resumes_to_the_same_numbers(tmp_path: Path) -
     straight_actor, resumed_actor = actor("straight"), actor("resumed")
     assert all(torch.equal(straight_actor[k], resumed_actor[k]) for k in straight_actor), \
         "the resumed run trained the same policy as the uninterrupted one"
+
+
+def test_fig2_draws_the_peer_as_the_authors_code_not_as_ours(tmp_path: Path) -> None:
+    from studies.fig2.paper_figure import main as fig2
+
+    runs = tmp_path / "runs"
+    for seed in (121, 123):
+        _peer_folder(runs, seed, [min(1.0, e / 60) for e in range(60)])
+    assert fig2(["--runs", str(runs), "-o", str(tmp_path / "fig2.png"),
+                 "--table", str(tmp_path / "fig2.md")]) == 0
+    table = (tmp_path / "fig2.md").read_text()
+    assert "| HER-CS (v1) (authors' code) | 2 |" in table
+    assert "authors-code" not in table and "(authors' code) (ours)" not in table
