@@ -32,6 +32,7 @@ from hercs.replay_service.policy_lag import PolicyLagLedger
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
+    EpisodeIdConflict,
     EpisodeLogSink,
     Parked,
     ParkedInsert,
@@ -149,12 +150,21 @@ class ReplayTable:
                     return
 
     def _commit_groups(self) -> None:
+        """Log a group under the ids the store will give it, the next ones in order (nothing
+        else inserts while the commit lock is held), then store and acknowledge it."""
         while True:
             with self._lock:
                 group, self._ready = self._ready, []
                 if not group:
                     return
                 first_id = self.core.store.num_inserted
+                try:
+                    _check_unstored(self.core, group)
+                except EpisodeIdConflict as exc:  # before anything is logged: no id disagrees
+                    log.error("%s", exc)
+                    self._refuse(group, Reason.INTERNAL, str(exc))
+                    self._drain()
+                    continue
             records = [(first_id + i, item.record) for i, item in enumerate(group)]
             try:
                 self.log.append_many(records)  # durable (fsync) before any ack
@@ -167,28 +177,29 @@ class ReplayTable:
                                                 strict=True):
                         self._store(item, episode_id)
                 else:
-                    self._refuse(group, failure)
+                    self.log_failures += len(group)
+                    self._refuse(group, Reason.LOG_FAILED,
+                                 f"episode not logged, so not stored: {failure}")
                 self._drain()  # parked samples may wait for exactly these inserts
                 state = (self.core.state({} if self.gate is None else +self.gate.stored)
                          if failure is None and self.log.rotation_due() else None)
             if state is not None:  # a bounded log's next segment, while no group is in flight
                 start_segment(self.log, state)
 
-    def _refuse(self, group: list[ParkedInsert], exc: Exception) -> None:
+    def _refuse(self, group: list[ParkedInsert], reason: Reason, detail: str) -> None:
+        """Answer every call of an admitted group that will not be stored."""
         self.limiter.cancel_inserts(len(group))
-        self.log_failures += len(group)
         for item in group:
             del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
             if self.gate is not None:
                 self.gate.cancel(item.episode.policy_version)
             for waiter in item.waiters:
-                waiter.fail(Reason.LOG_FAILED, f"episode not logged, so not stored: {exc}")
+                waiter.fail(reason, detail)
 
     def _store(self, item: ParkedInsert, episode_id: int) -> None:
         episode = item.episode
         del self._parked_keys[(episode.actor_id, int(episode.seq))]
-        result = self.core.insert(episode)
-        assert result.episode_id == episode_id, "log and store disagree on episode ids"
+        result = self.core.insert(episode)  # not stored before (`_check_unstored`): gets episode_id
         self.limiter.store_admitted()
         self.lags.stored(episode_id, episode.policy_version)
         if self.gate is not None:
@@ -395,3 +406,21 @@ class ReplayTable:
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )
 
+
+def _check_unstored(core: ReplayCore, group: list[ParkedInsert]) -> None:
+    """`EpisodeIdConflict` if an episode of `group` is stored already or twice in it: the
+    store would then answer it with its earlier id instead of the next one, and the log
+    would record it under an id the store never gives. `insert` parks an (actor_id, seq) only
+    while it is neither stored nor parked, so this is a broken invariant, refused before
+    anything is logged."""
+    seen: set[tuple[str, int]] = set()
+    for item in group:
+        key = (item.episode.actor_id, int(item.episode.seq))
+        known = core.lookup(*key)
+        if known is not None or key in seen:
+            where = f"stored as episode {known}" if known is not None else "twice in it"
+            raise EpisodeIdConflict(
+                f"a group of {len(group)} admitted inserts holds episode (actor "
+                f"{key[0]!r}, seq {key[1]}) {where}: not logged and not stored, each call "
+                "answered 'internal' (a retry is acknowledged as a duplicate if stored)")
+        seen.add(key)

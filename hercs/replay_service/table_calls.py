@@ -11,6 +11,7 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
+from hercs.errors import HercsError
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.run.runlog.format import EpisodeLogError
@@ -92,6 +93,11 @@ class SampleCall:
 
 class SampleRefused(ValueError):
     """A sample call the rate limiter could never admit; nothing was parked."""
+
+
+class EpisodeIdConflict(HercsError):
+    """An admitted insert the store already holds: logging it would record an id the store
+    does not give it. Found before the log is written; the calls are answered, not stored."""
 
 
 @dataclass
