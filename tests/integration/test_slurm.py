@@ -72,9 +72,11 @@ def env_of(cluster: minislurm.MiniSlurm) -> dict[str, str]:
     return dict(cluster.env, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
 
 
-def slurm_submit(cluster: minislurm.MiniSlurm, *flags: str) -> str:
+def slurm_submit(cluster: minislurm.MiniSlurm, *flags: str, cwd: Path) -> str:
+    """Submit from `cwd` (the test's own folder, as the job's working directory, where a file
+    Slurm names by default would land), never from the repository."""
     done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "slurm", "submit", *flags],
-                          capture_output=True, text=True, env=env_of(cluster), cwd=REPO,
+                          capture_output=True, text=True, env=env_of(cluster), cwd=cwd,
                           timeout=120)
     assert done.returncode == 0, done.stderr
     match = re.search(r"job (\d+) runs", done.stdout)
@@ -120,7 +122,7 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
     job = slurm_submit(cluster, "--task", "reach", "--method", "her-cs", "--epochs", "2",
                        "--run", "het", "--run-dir", str(runs), "--actor-nodes", "1",
                        "--actor-cpus", "1", "--learner-cpus", "1",
-                       "--set", "training.cycles_per_epoch=3", *TINY)
+                       "--set", "training.cycles_per_epoch=3", *TINY, cwd=tmp_path)
     run_dir = runs / "het"
     output = RunDir(run_dir).slurm / f"job-{job}.out"
     rows = wait_job(cluster, job, timeout_s=300, output=output)
@@ -168,7 +170,8 @@ def submit_reach(cluster: minislurm.MiniSlurm, runs: Path, run: str, *, epochs: 
     job = slurm_submit(cluster, "--task", "reach", "--method", "her", "--epochs", str(epochs),
                        "--run", run, "--run-dir", str(runs), "--actor-nodes", "1",
                        "--actor-cpus", "1", "--learner-cpus", "1", "--time", time_limit,
-                       *extra, "--set", "training.cycles_per_epoch=5", *TINY)
+                       *extra, "--set", "training.cycles_per_epoch=5", *TINY,
+                       cwd=runs.parent)
     run_dir = runs / run
     return job, run_dir, RunDir(run_dir).slurm / f"job-{job}.out"
 
@@ -292,7 +295,7 @@ def test_the_grid_as_a_job_array_runs_one_cell_per_task(cluster: minislurm.MiniS
          "--committed", str(committed), "--slurm-cpus", "1", "--slurm-time", "10",
          *(item for o in ("training.cycles_per_epoch=2", "training.eval_episodes=2",
                           "ddpg.hidden_size=64") for item in ("--set", o))],
-        capture_output=True, text=True, env=env_of(cluster), cwd=REPO, timeout=120)
+        capture_output=True, text=True, env=env_of(cluster), cwd=tmp_path, timeout=120)
     assert done.returncode == 0, done.stderr
     match = re.search(r"array job (\d+)", done.stdout)
     assert match, done.stdout
