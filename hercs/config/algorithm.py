@@ -55,10 +55,6 @@ class DDPGConfig:
         _check(self.action_l2 >= 0, "ddpg.action_l2", self.action_l2, "be >= 0")
         _check(self.noise_eps >= 0, "ddpg.noise_eps", self.noise_eps, "be >= 0")
 
-    @property
-    def clip_return_value(self) -> float:
-        return 1.0 / (1.0 - self.gamma)
-
 
 @dataclass
 class HERConfig:

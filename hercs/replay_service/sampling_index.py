@@ -64,13 +64,6 @@ class SamplingIndex:
         counts = np.concatenate([[self.size], self._counts])
         return np.where(rows < counts.size, counts[np.minimum(rows, counts.size - 1)], 0)
 
-    def energy_mass(self, rows: np.ndarray, *, epsilon: float = 0.0,
-                    exponent: float = 1.0) -> np.ndarray:
-        """Σ (energy^exponent + epsilon) over each row."""
-        sums = self._row_sums(epsilon, exponent)
-        rows = np.asarray(rows, np.int64)
-        return sums.cum[sums.start[rows + 1]] - sums.cum[sums.start[rows]]
-
     def members(self, label: int) -> np.ndarray:
         """The slots of cluster `label`, in no particular order (a copy)."""
         if not 0 <= label < len(self._counts):

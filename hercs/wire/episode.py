@@ -37,9 +37,6 @@ class EpisodeData:
     def desired_goal(self) -> np.ndarray:
         return self.g[-1]
 
-    def expected_shapes(self, spec: TaskSpec) -> dict[str, tuple[int, ...]]:
-        return expected_shapes(spec)
-
 
 def expected_shapes(spec: TaskSpec) -> dict[str, tuple[int, ...]]:
     T = spec.episode_steps

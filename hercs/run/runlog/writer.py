@@ -155,12 +155,6 @@ class EpisodeLogWriter:
         (`RecoveringLogWriter` does, so that the failed episode's id can be used again)."""
         return self._durable_end
 
-    @property
-    def last_episode_id(self) -> int | None:
-        """The last episode id logged here (after a replay state: at least the one before
-        its next id); the next append's ids must be above it."""
-        return self._last_episode_id
-
     def append_episode(self, msg: pb.Episode, *, episode_id: int,
                        log_time_ns: int | None = None) -> None:
         """Log one episode and its per-step scene; durable when this returns.

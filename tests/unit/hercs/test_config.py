@@ -19,7 +19,6 @@ def test_defaults_are_the_paper_reference_values() -> None:
     assert (c.ddpg.action_l2, c.ddpg.batch_size, c.ddpg.noise_eps, c.ddpg.random_eps) == (
         1.0, 256, 0.2, 0.3)
     assert (c.ddpg.clip_obs, c.ddpg.norm_clip, c.ddpg.norm_eps) == (200.0, 5.0, 0.01)
-    assert c.ddpg.clip_return_value == pytest.approx(50.0)
     assert c.her.replay_k == 4 and c.her.future_p == pytest.approx(0.8)
     assert (c.training.cycles_per_epoch, c.training.episodes_per_cycle,
             c.training.minibatches_per_cycle, c.training.epochs,

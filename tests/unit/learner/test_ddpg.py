@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from hercs.config import DDPGConfig
-from hercs.learner.ddpg import DDPGLearner, critic_target
+from hercs.learner.ddpg import DDPGLearner, critic_target, return_bounds
 from hercs.rl.networks import Actor, Critic, preprocess
 from hercs.rl.normalizer import Normalizer
 from hercs.rl.policy import Policy
@@ -53,7 +53,7 @@ def test_critic_target_is_clipped_to_minus_one_over_one_minus_gamma_and_zero(
     s2 = torch.randn(b, SPEC.obs_dim + SPEC.goal_dim, generator=torch.Generator().manual_seed(0))
     y = critic_target(r, s2, actor_target=learner.actor_target,
                       critic_target=learner.critic_target, gamma=config.gamma,
-                      clip_return=(-config.clip_return_value, 0.0) if clip else None)
+                      clip_return=return_bounds(SPEC, config.gamma) if clip else None)
     unclipped = r + config.gamma * bias
     want = {"zero": torch.zeros_like(r),
             "floor": torch.full_like(r, -1.0 / (1.0 - config.gamma)),
@@ -242,8 +242,6 @@ def test_update_rejects_malformed_batches(key: str, value: np.ndarray, match: st
 def test_the_return_clip_follows_the_tasks_rewards() -> None:
     """Fetch's −1/0 rewards bound returns to [−1/(1−γ), 0] (the reference's clip);
     PointMaze's 0/1 rewards to [0, 1/(1−γ)]: a Fetch clip there would zero every target."""
-    from hercs.learner.ddpg import return_bounds
-
     assert return_bounds(task_spec("push"), 0.98) == pytest.approx((-50.0, 0.0))
     assert return_bounds(task_spec("PointMaze_UMaze-v3"), 0.98) == pytest.approx((0.0, 50.0))
     assert task_spec("tests.goal_envs:point_on_a_plane").failure_reward == -1.0
