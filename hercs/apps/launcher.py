@@ -161,8 +161,7 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
                 router.close()
                 remove_router(run_dir)
             if status == 0:
-                launcher.say(f"hercs up: run {config.run.name} finished; run directory: "
-                             f"{run_dir}")
+                launcher._say_all(launcher.progress.finished_lines(config.run.name, run_dir))
             else:
                 launcher.say(f"hercs up: run {config.run.name} stopped; run directory: "
                              f"{run_dir}", error=status < 128)  # not on a signal: a failure

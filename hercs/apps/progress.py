@@ -1,13 +1,24 @@
 """The progress lines of `hercs up` (hercs/apps/launcher.py): one per evaluated epoch, and one
 while an epoch runs long, from the learner's `Metrics`, the evaluator's `EvalResult`s, the
-replay's status and the stored episodes' headers. Pure bookkeeping with an injected clock.
+replay's status, the clusterer's `Metrics` and the stored episodes' headers; and the lines
+that end a finished run. Pure bookkeeping with an injected clock.
+
+For a cluster method each epoch line carries the replay's cluster model and its episodes per
+cluster (`clusters v3 [60 0 56 0 40 48 0 0]`), or, before the first model, the failed goals
+counted towards it (`clusters none yet (12/150 failed goals)`); a run that ends without one
+says why (too few failed goals: a policy that rarely fails, as on FetchReach, gives none).
 """
 
 from __future__ import annotations
 
+import shlex
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from hercs.config import HercsConfig
+from hercs.proto import hercs_pb2 as pb
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -28,6 +39,9 @@ FIRST_LINE_S = 5.0
 """The first progress line comes this long after the run starts (before epoch 1 ends)."""
 INTERIM_EVERY_S = 60.0
 """While an epoch runs, a progress line at least this often."""
+RARELY_FAILS = 0.9
+"""An evaluated success from which the end of a run without a cluster model names the
+policy's success as the reason so few goals failed."""
 
 
 class Progress:
@@ -38,9 +52,17 @@ class Progress:
     arrive (or `flush()`); each epoch is printed once.
     """
 
-    def __init__(self, total_epochs: int, *,
+    def __init__(self, total_epochs: int, *, fit_size: int | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
+        """`fit_size`: the failed goals the first cluster model needs (`cluster.fgb_size`);
+        None for a method without clusters, whose lines say nothing of them."""
         self.total_epochs = total_epochs
+        self.fit_size = fit_size
+        self._cluster_version = 0
+        self._cluster_sizes: list[int] = []
+        self._status_seen = False
+        self._clusterer: dict[str, float] = {}
+        """The clusterer's latest `Metrics` (failed_goals_seen, episodes_seen, …)."""
         self.last_printed = 0
         self._pending: dict[int, dict[str, float]] = {}
         self._success: dict[int, float] = {}
@@ -55,6 +77,12 @@ class Progress:
         self.started = clock()
         self.last_line_at: float | None = None
         self._first_epoch: int | None = None  # the first epoch this launcher saw (resume)
+
+    @classmethod
+    def for_run(cls, config: HercsConfig) -> Progress:
+        """The progress of the run `config` describes."""
+        return cls(config.training.epochs,
+                   fit_size=config.cluster.fgb_size if config.run.uses_clusters else None)
 
     def interim(self) -> str | None:
         """A line for an epoch still running: the first `FIRST_LINE_S` after start (so a
@@ -73,6 +101,9 @@ class Progress:
                 + (f"  restarts {self.restarts}" if self.restarts else ""))
 
     def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
+        if service.startswith("clusterer/"):
+            self._clusterer = dict(values)
+            return []
         if not service.startswith("learner/") or "epoch" not in values:
             return []
         epoch = int(values["epoch"])
@@ -85,8 +116,13 @@ class Progress:
         self._success[epoch] = success_rate
         return self._release(final=False)
 
-    def on_replay_size(self, size: float) -> None:
-        self._replay_size = size
+    def on_replay_status(self, status: pb.ReplayStatus) -> None:
+        """The replay's latest status: its size, and its cluster model with the episodes it
+        holds per cluster."""
+        self._replay_size = status.size_episodes
+        self._cluster_version = int(status.cluster_model_version)
+        self._cluster_sizes = [int(n) for n in status.cluster_sizes]
+        self._status_seen = True
 
     def on_inserted(self, actor_id: str) -> None:
         """One more episode stored, from `actor_id` (its share shows on the next line)."""
@@ -104,6 +140,49 @@ class Progress:
         total = sum(counts)
         shares = "/".join(f"{round(100 * n / total)}" for n in counts)
         return f"  actors {self.actors} ({shares} %)"
+
+    def _failed_goals(self) -> int | None:
+        seen = self._clusterer.get("failed_goals_seen")
+        return None if seen is None else int(seen)
+
+    def _clusters_text(self) -> str:
+        """`  clusters v3 [60 0 56 0]` (the model the replay uses, its episodes per cluster),
+        `  clusters none yet (12/150 failed goals)`, or "" for a method without clusters."""
+        if self.fit_size is None:
+            return ""
+        if self._cluster_version > 0:
+            sizes = " ".join(str(n) for n in self._cluster_sizes)
+            return f"  clusters v{self._cluster_version} [{sizes}]"
+        failed = self._failed_goals()
+        counted = "" if failed is None else f" ({min(failed, self.fit_size)}/{self.fit_size} " \
+                                            "failed goals)"
+        return f"  clusters none yet{counted}"
+
+    def finished_lines(self, run_name: str, run_dir: Path) -> list[str]:
+        """The lines that end a finished run: for a cluster method that never had a model,
+        why; last, the run's folder and the command that shows its episodes (and clusters)."""
+        lines = []
+        shows = "its episodes"
+        if self.fit_size is not None:
+            if self._cluster_version > 0 or not self._status_seen:
+                shows = "its episodes and clusters"
+            else:
+                lines.append(f"hercs up: {self._why_no_model()}")
+        return [*lines, f"hercs up: run {run_name} finished; run directory: {run_dir}; "
+                        f"{shows}: hercs view {shlex.quote(str(run_dir))}"]
+
+    def _why_no_model(self) -> str:
+        """`no cluster model: 12 failed goals in 400 episodes, a fit needs …`."""
+        failed = self._failed_goals()
+        episodes = self._clusterer.get("episodes_seen")
+        counted = ("the clusterer reported no count of failed goals" if failed is None else
+                   f"{failed} failed goal{'s' if failed != 1 else ''}"
+                   + ("" if episodes is None else f" in {int(episodes)} episodes"))
+        solved = [e for e, rate in sorted(self._success.items()) if rate >= RARELY_FAILS]
+        reason = (f" (its evaluated success reached {self._success[solved[0]]:.2f} at epoch "
+                  f"{solved[0]}, so few episodes failed)" if solved else "")
+        return (f"no cluster model: {counted}, a fit needs cluster.fgb_size={self.fit_size}"
+                f"{reason}; a longer run or a smaller --set cluster.fgb_size=N fits one")
 
     def flush(self) -> list[str]:
         """Every line still waiting, with `success -` where no result came."""
@@ -126,6 +205,8 @@ class Progress:
         now = self._clock()
         total = int(values.get("epochs", self.total_epochs))
         success = values.get("success_rate", self._success.get(epoch))
+        if success is not None:
+            self._success[epoch] = success
         replay = values.get("replay_size", self._replay_size)
         if self._first_epoch is None:
             self._first_epoch = epoch
@@ -136,6 +217,6 @@ class Progress:
                 f"env {_fmt(values.get('env_steps_per_s'), '.0f')} steps/s  "
                 f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
                 f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
-                + self._actors_text()
+                + self._actors_text() + self._clusters_text()
                 + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
                 + (f"  restarts {self.restarts}" if self.restarts else ""))

@@ -87,7 +87,7 @@ class Supervisor:
 
     def __post_init__(self) -> None:
         self.keys = RunKeys(self.config.run.name)
-        self.progress = Progress(self.config.training.epochs)
+        self.progress = Progress.for_run(self.config)
         self.stall = StallWatch(factor=self.config.launch.stall_factor,
                                 first_epoch_s=expected_first_epoch_s(self.config))
         self._print_lock = threading.RLock()
@@ -139,7 +139,7 @@ class Supervisor:
         msg = self._decode(raw, pb.ReplayStatus, "ReplayStatus")
         if isinstance(msg, pb.ReplayStatus):
             with self._print_lock:
-                self.progress.on_replay_size(msg.size_episodes)
+                self.progress.on_replay_status(msg)
 
     def on_inserted(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.EpisodeHeader, "EpisodeHeader")

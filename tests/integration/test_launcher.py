@@ -21,6 +21,7 @@ from hercs.apps.cli import build_parser, main, resolve_config
 from hercs.apps.progress import Progress
 from hercs.apps.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig
+from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import REPO, WAIT_S
 from tests.support import Clock, free_tcp_port
@@ -49,7 +50,7 @@ def test_progress_prints_one_line_per_epoch_and_waits_for_the_eval() -> None:
         "epoch 4/10  success 0.50  env 1234 steps/s  upd 456/s  replay 6000  lag 1.2  "
         "actors 2  eta 10m00s"]
     # ...or for the next epoch's metrics, or the final flush
-    progress.on_replay_size(7000)
+    progress.on_replay_status(pb.ReplayStatus(size_episodes=7000))
     progress.actors = None
     assert progress.on_metrics("learner/learner-0", {"epoch": 5}) == []
     assert progress.on_metrics("learner/learner-0", {"epoch": 6, "success_rate": 1.0}) == [
@@ -78,12 +79,54 @@ def test_progress_line_shows_each_actors_share_of_the_epochs_episodes() -> None:
     assert "  actors 3  " in line and "%" not in line  # counted afresh for each line
 
 
+def test_a_cluster_methods_lines_carry_its_model_and_episodes_per_cluster() -> None:
+    """Before the first model: the failed goals counted towards it (the clusterer's count,
+    capped at the fit's size); then the replay's model version and its episodes per cluster;
+    the last line names the command that shows them. A method without clusters says
+    nothing of them."""
+    progress = Progress.for_run(HercsConfig.from_dict({"cluster": {"k": 4, "fgb_size": 40}}))
+    progress.on_metrics("clusterer/clusterer-0", {"failed_goals_seen": 12, "episodes_seen": 30})
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1})
+    assert line.endswith("  clusters none yet (12/40 failed goals)  eta 0s")
+    progress.on_replay_status(pb.ReplayStatus(size_episodes=90, cluster_model_version=3,
+                                              cluster_sizes=[60, 0, 26, 4]))
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 2, "success_rate": 0.2})
+    assert "  replay 90  lag -  clusters v3 [60 0 26 4]  eta " in line
+    assert progress.finished_lines("r", Path("runs/my run")) == [
+        "hercs up: run r finished; run directory: runs/my run; its episodes and clusters: "
+        "hercs view 'runs/my run'"]
+
+    plain = Progress.for_run(HercsConfig.from_dict({"run": {"method": "her"}}))
+    plain.on_replay_status(pb.ReplayStatus(size_episodes=90, cluster_sizes=[0] * 8))
+    [line] = plain.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1})
+    assert "clusters" not in line
+    assert plain.finished_lines("r", Path("runs/r")) == [
+        "hercs up: run r finished; run directory: runs/r; its episodes: hercs view runs/r"]
+
+
+@pytest.mark.parametrize("success, why", [
+    (1.0, " (its evaluated success reached 1.00 at epoch 1, so few episodes failed)"),
+    (0.3, ""),
+], ids=["solved", "not-solved"])
+def test_a_cluster_run_that_never_fitted_a_model_says_why_at_its_end(success: float,
+                                                                     why: str) -> None:
+    progress = Progress.for_run(HercsConfig())
+    progress.on_replay_status(pb.ReplayStatus(size_episodes=400, cluster_sizes=[0] * 8))
+    progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": success})
+    progress.on_metrics("clusterer/clusterer-0", {"failed_goals_seen": 12, "episodes_seen": 400})
+    assert progress.finished_lines("r", Path("runs/r")) == [
+        "hercs up: no cluster model: 12 failed goals in 400 episodes, a fit needs "
+        f"cluster.fgb_size=150{why}; a longer run or a smaller --set cluster.fgb_size=N fits "
+        "one",
+        "hercs up: run r finished; run directory: runs/r; its episodes: hercs view runs/r"]
+
+
 def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
     clock = Clock(1000.0)
     progress = Progress(total_epochs=200, clock=clock)
     assert progress.interim() is None
     clock.now += 5  # FIRST_LINE_S
-    progress.on_replay_size(12)
+    progress.on_replay_status(pb.ReplayStatus(size_episodes=12))
     progress.actors = 3
     assert progress.interim() == (
         "epoch 1/200 running  5s since start  replay 12 episodes  actors 3")

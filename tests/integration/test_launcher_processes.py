@@ -66,13 +66,16 @@ def test_run_completes_when_the_learner_exits_0(up, tmp_path: Path) -> None:
 
     assert launcher.finish() == 0, launcher.err
     run_dir = tmp_path / "runs" / "done"
-    assert launcher.out[-1] == f"hercs up: run done finished; run directory: {run_dir}"
+    assert launcher.out[-1] == (f"hercs up: run done finished; run directory: {run_dir}; "
+                                f"its episodes and clusters: hercs view {run_dir}")
     # actors connected and the ETA depend on timing: checked in the pure Progress tests
     ended = [line for line in launcher.out
              if line.startswith("epoch") and " running " not in line]
     assert [re.sub(r"  actors \d+|  eta \S+", "", line) for line in ended] == [
-        "epoch 1/2  success 0.10  env 1001 steps/s  upd 201/s  replay 100  lag 1.5",
-        "epoch 2/2  success 0.20  env 1002 steps/s  upd 202/s  replay 200  lag 1.5",
+        "epoch 1/2  success 0.10  env 1001 steps/s  upd 201/s  replay 100  lag 1.5  "
+        "clusters none yet",  # the stand-ins publish no replay status
+        "epoch 2/2  success 0.20  env 1002 steps/s  upd 202/s  replay 200  lag 1.5  "
+        "clusters none yet",
     ]
     # the resolved config, as the children read it
     config = load_yaml(RunDir(run_dir).config)

@@ -57,14 +57,23 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     epochs = [line for line in launcher.out
               if line.startswith("epoch") and " running " not in line]
     assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
+    # HER-CS on Reach for 8 cycles: far fewer failed goals than the 150 a model needs
     assert all(re.fullmatch(r"epoch \d/2  success \d\.\d\d  env \d+ steps/s  upd \d+/s  "
-                            r"replay \d+  lag [-\d.]+  actors \d+( \([\d/]+ %\))?(  eta \S+)?",
+                            r"replay \d+  lag [-\d.]+  actors \d+( \([\d/]+ %\))?  "
+                            r"clusters none yet( \(\d+/150 failed goals\))?(  eta \S+)?",
                             line)
                for line in epochs), epochs
-    assert launcher.out[-1] == f"hercs up: run e2e finished; run directory: {run_dir}"
+    why = re.fullmatch(r"hercs up: no cluster model: (\d+) failed goals? in (\d+) episodes, a "
+                       r"fit needs cluster\.fgb_size=150.*; a longer run or a smaller --set "
+                       r"cluster\.fgb_size=N fits one", launcher.out[-2])
+    assert why is not None, launcher.out[-2:]
+    assert 0 <= int(why[1]) <= int(why[2])
+    assert launcher.out[-1] == (f"hercs up: run e2e finished; run directory: {run_dir}; "
+                                f"its episodes: hercs view {run_dir}")
     assert load_yaml(RunDir(run_dir).config).run.name == "e2e"
     rows = list(csv.DictReader(RunDir(run_dir).metrics.open()))
     assert [int(r["epoch"]) for r in rows] == [1, 2]
+    assert [r["cluster_model_version"] for r in rows] == ["0", "0"]
     # The updates' wait for batches is accounted per epoch, within the epoch's wall time.
     walls = [float(rows[0]["wall_s"]), float(rows[1]["wall_s"]) - float(rows[0]["wall_s"])]
     assert all(0.0 <= float(r["batch_wait_s"]) <= w for r, w in zip(rows, walls, strict=True))
@@ -98,7 +107,7 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     every 8 failures: the episode log holds cycle after cycle of 4 episodes, episode i acted
     with weights version i // 4 (the reference's schedule), and metrics.csv's policy lag
     against that schedule is 0."""
-    _, run_dir = up_to_the_end(tmp_path, "lockstep", [
+    launcher, run_dir = up_to_the_end(tmp_path, "lockstep", [
         "--method", "her-cs", "--epochs", "2", "--actors", "2",
         "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
         "--set", "training.eval_episodes=2", "--set", "cluster.k=2",
@@ -113,6 +122,14 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
     assert [int(r["weights_version"]) for r in rows] == [3, 6]
     assert any(msg.failures_seen for msg in read_cluster_models(run_dir)), \
         "the clusterer refitted during the run (the lockstep gate waited for its models)"
+    # the epoch lines show the replay's model and its episodes in each of the k = 2 clusters
+    last_epoch = [line for line in launcher.out if line.startswith("epoch 2/2  success")][-1]
+    shown = re.search(r"  clusters v(\d+) \[(\d+) (\d+)\]", last_epoch)
+    assert shown is not None, last_epoch
+    version, *sizes = (int(n) for n in shown.groups())
+    assert version >= int(rows[-1]["cluster_model_version"]) >= 1
+    assert 0 < sum(sizes) <= len(logged), "the stored episodes, each in one cluster"
+    assert launcher.out[-1].endswith(f"; its episodes and clusters: hercs view {run_dir}")
 
 
 # metrics.csv columns that depend on the computation alone. Left out: wall time and rates, and

@@ -76,7 +76,8 @@ print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": 
     assert out["code"] == 0 and out["metrics"] == 3 and out["action"] == [4]
     assert Path(out["dir"]) == tmp_path / "runs" / out["name"]
     assert out["name"].startswith("reach-her-cs-s1-")
-    assert out["last"].endswith("finished; run directory: " + f"runs/{out['name']}")
+    assert out["last"].endswith(f"finished; run directory: runs/{out['name']}; its episodes: "
+                                f"hercs view runs/{out['name']}")
     assert RunDir(Path(out["dir"])).config.is_file()
 
 
