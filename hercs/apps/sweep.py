@@ -7,11 +7,13 @@ runs").
     hercs sweep report runs/sweep
 
 A sweep is resumable: a finished run (`bench_done.json`) is skipped, an unfinished one resumed
-from its checkpoint. Runs go `--jobs` at a time, one per core by default since each run is
-bound by its learner's one torch thread, and seed-major, so every arm has the same number of
-finished seeds as early as possible. `<run-dir>/sweep.json` is the manifest. `--committed DIR`
-keeps each finished run's small files to commit; the report reads them when a run is not
-local. `--quick` is the CI mode; `--slurm` submits a job array (`hercs.apps.sweep_slurm`).
+from its checkpoint, and a run finished with fewer epochs than `--epochs` continued from its
+checkpoint to them (a sweep grows). Runs go `--jobs` at a time, one per core by default since
+each run is bound by its learner's one torch thread, and seed-major, so every arm has the same
+number of finished seeds as early as possible. `<run-dir>/sweep.json` is the manifest.
+`--committed DIR` keeps each finished run's small files to commit; the report reads them when
+a run is not local. `--quick` is the CI mode; `--slurm` submits a job array
+(`hercs.apps.sweep_slurm`).
 """
 
 from __future__ import annotations
@@ -37,11 +39,12 @@ from hercs.apps.sweep_cells import (
     DONE_FILE,
     PROG,
     GridRun,
+    cannot_grow,
     cell_state,
     copy_small_files,
+    done_record,
     dry_run_lines,
     epsilon_changed,
-    finished_folder,
     owned_override,
     parse_variant,
     plan_grid,
@@ -98,14 +101,19 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     A run that exits 0 gets `bench_done.json` (the env id it trained on, command, wall time of
     this invocation, epochs, commit, the CPU and boot id of the machine it finished on);
     one that fails or is interrupted is left in place and the next invocation continues it
-    with `hercs up --resume` (its epochs already trained are kept). The manifest lists
+    with `hercs up --resume` (its epochs already trained are kept). A run finished with fewer
+    than `epochs` is continued the same way to `epochs`; its new record adds the earlier
+    one's wall time and says how many epochs it had (`grown_from_epochs`). The manifest lists
     `sweep`'s cells (default: `cells`; a Slurm array task runs one cell of the sweep)."""
     run_root.mkdir(parents=True, exist_ok=True)
     (run_root / LOG_DIR).mkdir(exist_ok=True)
     todo: list[GridRun] = []
     resumed: set[GridRun] = set()
+    grown: dict[GridRun, dict] = {}  # a finished cell trained on: its earlier record
     for cell in cells:
-        what = cell_state(cell, run_root, committed)
+        what = cell_state(cell, run_root, committed, epochs)
+        if what == "stuck":  # main() refuses such a sweep first (cannot_grow)
+            raise RuntimeError(cannot_grow([cell], run_root, committed, epochs))
         if what == "done":
             print(f"[skip] {cell.name}: finished earlier", flush=True)
             continue
@@ -116,6 +124,11 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
             continue
         if what == "resume":
             print(f"[resume] {cell.name}: unfinished, continued where it stopped", flush=True)
+            resumed.add(cell)
+        elif what == "grow":
+            grown[cell] = done_record(run_root / cell.name)
+            print(f"[grow] {cell.name}: finished {grown[cell].get('epochs')} epochs, "
+                  f"continued from its checkpoint to {epochs}", flush=True)
             resumed.add(cell)
         elif what == "redo":
             print(f"[redo] {cell.name}: never started, moved to "
@@ -169,6 +182,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 wall = time.monotonic() - r.started
                 results.append((r.cell, code))
                 if code == 0:
+                    earlier = grown.get(r.cell, {})
                     record = {"task": r.cell.task, "method": r.cell.method, "seed": r.cell.seed,
                               "schedule": r.cell.schedule, "precision": r.cell.precision,
                               "env_version": r.cell.env_version, "env_id": r.cell.env_id,
@@ -177,9 +191,13 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "variant": r.cell.variant,
                               "variant_overrides": list(r.cell.variant_overrides),
                               "epochs": epochs,
-                              "wall_s": round(wall, 1), "commit": commit,
+                              # a grown run's: the invocations that trained it, together
+                              "wall_s": round(wall + float(earlier.get("wall_s", 0.0)), 1),
+                              "commit": commit,
                               "started_commit": started_commit(run_root, r.cell.name),
                               "resumed": r.cell in resumed,
+                              **({"grown_from_epochs": int(earlier.get("epochs", 0))}
+                                 if earlier else {}),
                               "command": " ".join(str(a) for a in r.proc.args[1:]),  # type: ignore[index]
                               "finished": datetime.now(UTC).isoformat(timespec="seconds"),
                               "machine": machine}
@@ -246,7 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plain", action="store_true",
                    help="with --variant: only the variants' arms, not the plain one")
     p.add_argument("--epochs", type=int, default=None,
-                   help="epochs per run (default 100; 1 with --quick)")
+                   help="epochs per run (default 100; 1 with --quick); a run this sweep "
+                        "finished with fewer is continued from its checkpoint to them")
     p.add_argument("--jobs", type=int, default=None,
                    help="runs at once (default: one per core)")
     p.add_argument("--actors", type=int, default=1, help="actors per run (default 1)")
@@ -336,7 +355,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                       args.precision, args.env_version, args.weld_torquescale,
                       args.energy_epsilon, arms)
     problem = owned_override(args.overrides) or (
-        None if args.energy_epsilon is not None else epsilon_changed(cells, run_root))
+        None if args.energy_epsilon is not None else epsilon_changed(cells, run_root)) or (
+        None if args.report_only else cannot_grow(cells, run_root, committed, epochs))
     if problem:
         return _fail(problem)
     names = [c.name for c in cells]
@@ -375,7 +395,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         write_manifest(run_root, cells, {}, command=command, epochs=epochs,
                        committed=committed)
         todo = [i for i, cell in enumerate(cells)
-                if finished_folder(cell, run_root, committed) is None]
+                if cell_state(cell, run_root, committed, epochs) not in ("done", "committed")]
         return submit_slurm(args, [c.name for c in cells], todo, tasks=tasks,
                             run_root=run_root, committed=committed, epochs=epochs,
                             overrides=overrides)

@@ -174,6 +174,20 @@ def is_done(run_dir: Path) -> bool:
     return (run_dir / DONE_FILE).is_file()
 
 
+def done_record(run_dir: Path) -> dict:
+    """A finished run's `bench_done.json` ({} where it is missing or unreadable)."""
+    try:
+        record = json.loads((run_dir / DONE_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def done_epochs(run_dir: Path) -> int:
+    """The epochs a finished run trained, as its `bench_done.json` records them."""
+    return int(done_record(run_dir).get("epochs", 0))
+
+
 def set_aside(run_dir: Path, root: Path) -> Path:
     """Move an unfinished run out of the way (kept, not deleted: its logs say why it stopped)."""
     dest_root = root / UNFINISHED_DIR
@@ -189,18 +203,41 @@ def can_resume(run_dir: Path) -> bool:
     return RunDir(run_dir).config.is_file()
 
 
-def cell_state(cell: GridRun, run_root: Path, committed: Path | None) -> str:
-    """What a sweep does with `cell` now: "done" (finished in `run_root`), "committed"
-    (finished, its copy in `committed`), "resume" (unfinished, continued), "redo" (a folder
-    that never saved its config, set aside first) or "start"."""
+def cell_state(cell: GridRun, run_root: Path, committed: Path | None, epochs: int) -> str:
+    """What a sweep of `epochs` epochs does with `cell` now: "done" (finished them in
+    `run_root`), "committed" (finished them, its copy in `committed`), "grow" (finished fewer
+    in `run_root`: continued from its checkpoint to `epochs`), "stuck" (finished fewer, but
+    with no checkpoint here to continue from: `cannot_grow` says why), "resume" (unfinished,
+    continued), "redo" (a folder that never saved its config, set aside first) or "start"."""
     run_dir = run_root / cell.name
-    if is_done(run_dir):
+    copy = None if committed is None else committed / cell.name
+    if is_done(run_dir) and done_epochs(run_dir) >= epochs:
         return "done"
-    if committed is not None and is_done(committed / cell.name):
+    if copy is not None and is_done(copy) and done_epochs(copy) >= epochs:
         return "committed"
+    if is_done(run_dir) or (copy is not None and is_done(copy)):
+        return "grow" if RunDir(run_dir).checkpoint("latest").is_file() else "stuck"
     if can_resume(run_dir):
         return "resume"
     return "redo" if run_dir.exists() else "start"
+
+
+def cannot_grow(cells: Sequence[GridRun], run_root: Path, committed: Path | None,
+                epochs: int) -> str | None:
+    """Why this sweep cannot train its cells to `epochs`, or None: a cell finished fewer
+    epochs where no learner checkpoint is kept to continue from (a committed copy keeps
+    none), and training it again from epoch 1 would not be the same run."""
+    stuck = [c for c in cells if cell_state(c, run_root, committed, epochs) == "stuck"]
+    if not stuck:
+        return None
+    folders = [finished_folder(c, run_root, committed) for c in stuck]
+    trained = [done_epochs(f) for f in folders if f is not None]
+    listed = ", ".join(f"{c.name} ({n} epochs, in {f})"
+                       for c, n, f in zip(stuck[:3], trained, folders, strict=False))
+    return (f"--epochs {epochs}: {listed}{' …' if len(stuck) > 3 else ''} finished fewer "
+            "epochs and keeps no learner checkpoint here (checkpoints/learner.pt) to continue "
+            "from, so it cannot be grown; run the sweep where its run folder is, or give "
+            f"--epochs {min(trained, default=epochs)}")
 
 
 def up_command(cell: GridRun, *, epochs: int, run_root: Path, port: int, actors: int,
@@ -233,17 +270,20 @@ def dry_run_lines(cells: Sequence[GridRun], *, run_root: Path, committed: Path |
     now and the `hercs up` it would run (the router's port chosen at start: 0)."""
     lines = []
     for cell in cells:
-        what = cell_state(cell, run_root, committed)
+        what = cell_state(cell, run_root, committed, epochs)
         if what in ("done", "committed"):
             folder = finished_folder(cell, run_root, committed)
             lines.append(f"[skip] {cell.name}: finished ({folder})")
             continue
         cmd = up_command(cell, epochs=epochs, run_root=run_root, port=0, actors=actors,
-                         overrides=overrides, resume=what == "resume")
+                         overrides=overrides, resume=what in ("resume", "grow"))
         shown = shlex.join(["hercs", *cmd[3:]])  # not `python -m hercs.apps.cli`
         if what == "redo":
             lines.append(f"[redo] {cell.name}: its folder never saved a config; it would be "
                          f"set aside, then: {shown}")
+        elif what == "grow":
+            lines.append(f"[grow] {cell.name}: finished {done_epochs(run_root / cell.name)} "
+                         f"epochs; continued from its checkpoint: {shown}")
         else:
             lines.append(f"[{what}] {cell.name}: {shown}")
     return lines
@@ -294,7 +334,16 @@ def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun
     entries = []
     for cell in cells:
         folder = finished_folder(cell, run_root, committed)
-        record = json.loads((folder / DONE_FILE).read_text()) if folder is not None else None
+        record = done_record(folder) if folder is not None else None
+        trained = None if record is None else int(record.get("epochs", 0))
+        if trained is not None and trained >= epochs:
+            now = "done"
+        elif cell in state:
+            now = state[cell]
+        elif trained is not None:  # to be grown to `epochs`
+            now = f"finished {trained} epochs of {epochs}"
+        else:
+            now = "started, not finished" if (run_root / cell.name).is_dir() else "to do"
         entries.append({
             "name": cell.name, "arm": cell.arm, "task": cell.task, "method": cell.method,
             "seed": cell.seed, "schedule": cell.schedule, "precision": cell.precision,
@@ -303,8 +352,7 @@ def write_manifest(run_root: Path, cells: Sequence[GridRun], state: dict[GridRun
             "energy_epsilon": cell.energy_epsilon, "epsilon_used": cell.epsilon,
             "variant": cell.variant,
             "variant_overrides": list(cell.variant_overrides),
-            "state": "done" if record is not None else state.get(cell, (
-                "started, not finished" if (run_root / cell.name).is_dir() else "to do")),
+            "state": now,
             "folder": None if folder is None else str(folder),
             **({} if record is None else {
                 "commit": record.get("commit"), "machine": record.get("machine"),

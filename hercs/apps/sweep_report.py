@@ -12,6 +12,7 @@ import os
 import platform
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -65,13 +66,27 @@ def arm_key(cell: GridRun) -> str:
     return f"{key}/{cell.variant}" if cell.variant else key
 
 
+def common_epoch(curves: dict[str, list[Curve]]) -> int:
+    """The last epoch every run of every arm reached: where a report reads them all."""
+    return min(int(c.epochs.max()) for cs in curves.values() for c in cs)
+
+
+def cut_at(curves: dict[str, list[Curve]], epoch: int) -> dict[str, list[Curve]]:
+    """The curves without their epochs past `epoch` (an arm of runs that went further is
+    read where the others end)."""
+    return {key: [replace(c, epochs=c.epochs[c.epochs <= epoch],
+                          success=c.success[c.epochs <= epoch]) for c in cs]
+            for key, cs in curves.items()}
+
+
 def arm_rows(curves: dict[str, list[Curve]], baseline: str | None,
              compare: Sequence[tuple[str, str]] = (), reps: int = sweep_stats.REPS
              ) -> tuple[int, list[str]]:
     """The claims-style table of one task: per arm the IQM of the success after the last
     epoch every run reached (10-epoch trailing mean) with its interval, and P(arm >
-    `baseline`) and P(X > Y) for each of `compare` (arm labels or keys)."""
-    epoch = min(int(c.epochs.max()) for cs in curves.values() for c in cs)
+    `baseline`) and P(X > Y) for each of `compare` (arm labels or keys; one without a
+    finished run here is said to have none)."""
+    epoch = common_epoch(curves)
     final: dict[str, list[float]] = {}
     for key, cs in curves.items():
         at = [milestones(aggregate([c]), thresholds=(), at_epochs=(epoch,)).at[epoch]
@@ -95,6 +110,9 @@ def arm_rows(curves: dict[str, list[Curve]], baseline: str | None,
         if x in by_label and y in by_label:
             p = sweep_stats.improvement(final[by_label[x]], final[by_label[y]], reps=reps)
             extra.append(f"- P({x} > {y}) = {p.format()}")
+        else:
+            absent = " and ".join(a for a in (x, y) if a not in by_label)
+            extra.append(f"- P({x} > {y}): no finished run of {absent} on this task yet")
     return epoch, lines + (["", *extra] if extra else [])
 
 
@@ -116,25 +134,37 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
         if not done:
             print(f"[report] {stem}: no finished run yet", flush=True)
             continue
-        by_arm: dict[str, list[Curve]] = {}
+        loaded: dict[str, list[Curve]] = {}
         for c in done:
-            by_arm.setdefault(arm_key(c), []).append(load_run(folders[c]))  # type: ignore[arg-type]
+            loaded.setdefault(arm_key(c), []).append(load_run(folders[c]))  # type: ignore[arg-type]
+        epoch = common_epoch(loaded)
+        longer = sorted(Path(c.source).name for cs in loaded.values() for c in cs
+                        if int(c.epochs.max()) > epoch)
+        by_arm = cut_at(loaded, epoch)
         title = by_arm[next(iter(by_arm))][0].task
         ours = {title: by_arm}
+        theirs = cut_at(reference.get(title, {}), epoch)
         heading = title if env_version == "v4" else f"{title}-{env_version}"
-        figure = plot_figure(ours, out_dir / f"{stem}.png", reference)
+        figure = plot_figure(ours, out_dir / f"{stem}.png", {title: theirs})
         walls = [json.loads((folders[c] / DONE_FILE).read_text()) for c in done]  # type: ignore[operator]
         missing = [c.name for c in folders if c not in done]
         # the first arm the user named, when it has runs; else the first arm that has
         planned = arm_key(next(c for c in cells if (c.task, c.env_version) == (task, env_version)))
         baseline = planned if planned in by_arm else arm_key(done[0])
-        epoch, stats = arm_rows(by_arm, baseline, compare, reps)
+        _, stats = arm_rows(by_arm, baseline, compare, reps)
+        against = ("against the authors' published per-seed results (dashed; docs/DESIGN.md "
+                   "§5, `docs/reference/`)" if theirs else
+                   f"(the authors published per-seed results for {', '.join(reference)} only: "
+                   f"none for {title})")
+        cut = (f"; runs that went further are cut there ({', '.join(longer)})" if longer
+               else "")
         lines = [
             f"# {heading}: {PROG} report", "",
-            "Our runs (solid; band: 95 % CI of the seed mean) against the authors' published "
-            "per-seed results (dashed; docs/DESIGN.md §5, `docs/reference/`).", "",
+            f"Every arm is read at epoch {epoch}, the last epoch every finished run reached"
+            f"{cut}.", "",
+            f"Our runs (solid; band: 95 % CI of the seed mean) {against}.", "",
             f"![{heading}]({figure.name})", "",
-            tables(ours, {title: reference.get(title, {})}).rstrip("\n"), "",
+            tables(ours, {title: theirs} if theirs else None).rstrip("\n"), "",
             "## Arms over seeds", "",
             f"Per run, the 10-epoch trailing mean of the test success after epoch {epoch} (the "
             "last every run reached); per arm its IQM and mean with 95 % percentile bootstrap "
@@ -203,6 +233,12 @@ def main_report(argv: Sequence[str]) -> int:
         cells, manifest = read_manifest(run_root)
     except ConfigError as exc:
         return _fail(str(exc))
+    keys = sorted({arm_key(c) for c in cells}, key=method_rank)
+    for arm in (a for pair in args.compare for a in pair):
+        if arm not in keys and arm not in map(method_label, keys):
+            return _fail(f"--compare {arm}: no such arm in the sweep in {run_root}; its arms "
+                         f"are {', '.join(map(method_label, keys))} (by key: "
+                         f"{', '.join(keys)})")
     committed = Path(args.committed).resolve() if args.committed else None
     out_dir = Path(args.out) if args.out else run_root / "report"
     written = write_reports(cells, run_root, out_dir, command=manifest.get("command", ""),

@@ -102,11 +102,11 @@ def test_dry_run_says_what_each_cell_would_do_and_starts_nothing(
 
     monkeypatch.setattr(se, "run_grid", no_training)
     root, committed = tmp_path / "runs", tmp_path / "committed"
-    finished_run(root, se.GridRun("push", "her", 1), [0.5])
+    finished_run(root, se.GridRun("push", "her", 1), [0.5] * 7)
     RunDir(root / "push-her-cs-s1").config.parent.mkdir(parents=True)
     RunDir(root / "push-her-cs-s1").config.write_text("run: {name: push-her-cs-s1}\n")
     (root / "push-her-s2").mkdir()  # a folder that never saved its config
-    finished_run(committed, se.GridRun("push", "her", 3), [0.5])
+    finished_run(committed, se.GridRun("push", "her", 3), [0.5] * 7)
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
 
     assert se.main(["--tasks", "push", "--methods", "her", "her-cs", "--seeds", "3",
@@ -153,8 +153,8 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
             RunDir(tmp_path / "runs" / name).metrics).read_text()
 
     report = (tmp_path / "results" / "reach.md").read_text()
-    assert "| HER (ours) | 1 | 1 |" in report
-    assert "| HER-CS (ours) | 1 | 1 |" in report
+    assert "| HER | 1 | 1 | – |" in report  # no authors' rows for Reach to tell ours apart
+    assert "| HER-CS | 1 | 1 | – |" in report
     assert (tmp_path / "results" / "reach.png").stat().st_size > 10_000
 
     # Resume: a finished run is skipped; one stopped before it was marked done is continued
@@ -170,7 +170,7 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     second = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert second.returncode == 0, second.stdout + second.stderr
     assert "[skip] reach-her-s1: finished and committed" in second.stdout
-    assert "| HER (ours) | 1 | 1 |" in (tmp_path / "results" / "reach.md").read_text()
+    assert "| HER | 1 | 1 | – |" in (tmp_path / "results" / "reach.md").read_text()
     assert "[resume] reach-her-cs-s1" in second.stdout
     assert "[start] reach-her-s1" not in second.stdout
     done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / se.DONE_FILE).read_text())
