@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from hercs.api import (
     LoggedEpisode,
     Metrics,
+    MissingPackage,
     ObservationError,
     TrainedPolicy,
     load_config,
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 __version__ = "0.1.0"
 
 __all__ = [
-    "ConfigError", "HercsError", "LoggedEpisode", "Metrics", "ObservationError",
+    "ConfigError", "HercsError", "LoggedEpisode", "Metrics", "MissingPackage", "ObservationError",
     "Run", "TrainedPolicy", "__version__", "load_config", "load_policy", "read_episodes",
     "read_metrics", "resume", "up",
 ]

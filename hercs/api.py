@@ -49,6 +49,10 @@ class ObservationError(HercsError, ValueError):
     """An observation given to `TrainedPolicy.act` is not one of the policy's task."""
 
 
+class MissingPackage(HercsError, ImportError):
+    """An optional package a call needs is not installed; the message says which."""
+
+
 class TrainedPolicy:
     """A run's trained policy: μ(o, g) with its normalisers, as the run's evaluator acts.
 
@@ -133,9 +137,10 @@ def load_policy(run_dir: str | os.PathLike[str], checkpoint: str = "best", *,
 class Metrics:
     """A run's metrics.csv: one row per evaluated epoch, cells parsed (`MetricValue`).
 
-    Iterate for the rows (dicts by column), or take a column as a float array:
-    `metrics.column("success_rate")`. The columns are hercs.run.metrics.METRICS_COLUMNS for a run
-    of this version (older runs may have fewer)."""
+    Iterate for the rows (dicts by column); take a column by name, `metrics["success_rate"]`
+    (`__getitem__`), or as floats, `metrics.column("success_rate")`; or the whole table as a
+    pandas DataFrame, `metrics.to_pandas()`. The columns are hercs.run.metrics.METRICS_COLUMNS
+    for a run of this version (older runs may have fewer)."""
 
     path: Path
     columns: tuple[str, ...]
@@ -147,10 +152,39 @@ class Metrics:
     def __iter__(self) -> Iterator[dict[str, MetricValue]]:
         return iter(self.rows)
 
-    def column(self, name: str) -> np.ndarray:
-        """A numeric column as float64, nan where a row has no value."""
+    def __getitem__(self, name: str) -> np.ndarray | list[MetricValue]:
+        """Column `name`, one value per row: a numpy array where every cell is a number
+        (int64 where all are integers and none is empty, else float64 with nan where a row
+        has none), else a list of the parsed cells (cluster_sizes' tuples, rejects' dicts)."""
+        self._check_column(name)
+        values = [row.get(name) for row in self.rows]
+        if all(isinstance(v, int) for v in values):
+            return np.array(values, dtype=np.int64)
+        if all(v is None or isinstance(v, int | float) for v in values):
+            return self.column(name)
+        return values
+
+    def _check_column(self, name: str) -> None:
+        if not isinstance(name, str):
+            raise TypeError(f"metrics[{name!r}]: give a column name (str), e.g. "
+                            "metrics['success_rate']; rows are `for row in metrics`")
         if name not in self.columns:
             raise KeyError(f"{self.path}: no column {name!r}; columns: {list(self.columns)}")
+
+    def to_pandas(self) -> Any:
+        """The table as a pandas DataFrame (one row per epoch, the file's column order; list
+        columns hold tuples). Raises `MissingPackage` where pandas is not installed."""
+        try:
+            import pandas as pd  # type: ignore[import-untyped]  # optional, no stubs
+        except ImportError:
+            raise MissingPackage("Metrics.to_pandas needs pandas, which this Python lacks: "
+                                 "pip install pandas (or take columns as arrays: "
+                                 "metrics['success_rate'])") from None
+        return pd.DataFrame(list(self.rows), columns=list(self.columns))
+
+    def column(self, name: str) -> np.ndarray:
+        """A numeric column as float64, nan where a row has no value."""
+        self._check_column(name)
         values = [row.get(name) for row in self.rows]
         bad = [v for v in values if v is not None and not isinstance(v, int | float)]
         if bad:

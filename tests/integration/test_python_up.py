@@ -68,9 +68,11 @@ epochs = [row["epoch"] for row in run.rows(timeout_s=300)]
 code = run.wait()
 policy = run.policy("best")
 obs = {{"observation": np.zeros(10), "desired_goal": np.zeros(3)}}
+transport = hercs.load_config(run.dir).transport
 print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": run.name,
                   "metrics": len(run.metrics), "action": list(policy.act(obs).shape),
-                  "last": run.output[-1]}}))
+                  "last": run.output[-1], "listen": transport.listen,
+                  "connect": transport.connect}}))
 """)
     assert out["epochs"] == [1, 2, 3]
     assert out["code"] == 0 and out["metrics"] == 3 and out["action"] == [4]
@@ -79,6 +81,10 @@ print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": 
     assert out["last"].endswith(f"finished; run directory: runs/{out['name']}; its episodes: "
                                 f"hercs view runs/{out['name']}")
     assert RunDir(Path(out["dir"])).config.is_file()
+    # no listen=: a free port of loopback (docs/python_api.md), the one its services used
+    assert out["listen"] == ["tcp/127.0.0.1:0"]
+    [endpoint] = out["connect"]
+    assert re.fullmatch(r"tcp/127\.0\.0\.1:\d+", endpoint) and not endpoint.endswith(":0")
 
 
 def test_stop_keeps_the_epochs_and_resume_goes_on_to_the_end(tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ tests/integration/test_api_run.py."""
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -191,6 +192,53 @@ def test_read_metrics_parses_each_cell(run_dir: Path) -> None:
     direct = hercs.read_metrics(RunDir(run_dir).metrics)
     assert direct.columns == metrics.columns
     np.testing.assert_array_equal(direct.column("policy_lag_p50"), metrics.column("policy_lag_p50"))
+
+
+def test_a_metrics_column_by_name_and_the_table_in_pandas(run_dir: Path) -> None:
+    metrics = hercs.read_metrics(run_dir)
+    epochs, success = metrics["epoch"], metrics["success_rate"]
+    assert epochs.dtype == np.int64 and epochs.tolist() == [1, 2]
+    assert success.dtype == np.float64 and success.tolist() == [0.25, 0.5]
+    assert np.isnan(metrics["q_mean"]).all()  # empty cells
+    assert metrics["cluster_sizes"] == [(3, 4), (3, 4)]  # not numbers: the parsed cells
+    assert metrics["rejects"] == [None, {"duplicate": 2, "stale": 1}]
+    with pytest.raises(KeyError, match="no column 'succes'; columns: \\['epoch'"):
+        metrics["succes"]
+    with pytest.raises(TypeError, match="give a column name"):
+        metrics[0]  # type: ignore[index]
+    frame = metrics.to_pandas()
+    assert list(frame.columns) == list(METRICS_COLUMNS) and len(frame) == 2
+    assert frame["success_rate"].tolist() == [0.25, 0.5]
+
+
+COMMITTED_RUN = REPO / "docs" / "results" / "runs" / "push-her-cs-s1"
+
+
+@pytest.mark.parametrize("pandas", ["installed", "missing"])
+def test_read_metrics_by_name_in_a_users_interpreter(pandas: str) -> None:
+    """A committed run's metrics.csv read as a user would, in a fresh interpreter; where
+    pandas cannot be imported, to_pandas says what to install."""
+    code = (("import sys; sys.modules['pandas'] = None\n" if pandas == "missing" else "")
+            + "import json, hercs\n"
+            f"m = hercs.read_metrics({str(COMMITTED_RUN)!r})\n"
+            "out = {'success': m['success_rate'].tolist(), 'epochs': m['epoch'].tolist()}\n"
+            "try:\n"
+            "    out['frame'] = m.to_pandas()['success_rate'].tolist()\n"
+            "except hercs.MissingPackage as exc:\n"
+            "    out['frame'] = str(exc)\n"
+            "print(json.dumps(out))\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    with RunDir(COMMITTED_RUN).metrics.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert out["success"] == [float(r["success_rate"]) for r in rows]
+    assert out["epochs"] == list(range(1, len(rows) + 1))
+    assert out["frame"] == (out["success"] if pandas == "installed" else
+                            "Metrics.to_pandas needs pandas, which this Python lacks: pip "
+                            "install pandas (or take columns as arrays: "
+                            "metrics['success_rate'])")
 
 
 # -- read_episodes ----------------------------------------------------------------------------
