@@ -170,8 +170,8 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
     task-method-sSEED-time) and `run_dir` (the folder of runs, default `runs`) are the
     command's flags; `config` a YAML file; `overrides` what `--set` takes, as a list of
     "field=value" strings or a dict ({"ddpg.lr_actor": 5e-4}); `listen` the embedded router's
-    endpoint: by default any free port on loopback, so that several runs can go at once
-    (give "tcp/0.0.0.0:7447", the command's default, to let actors on other hosts join).
+    endpoint: by default any free port on loopback, as the command's (tcp/127.0.0.1:0), so
+    that several runs can go at once (other hosts join a TLS one: docs/python_api.md).
     Raises `ConfigError` (nothing started) for a bad value, as the command exits 2."""
     if listen is None:
         listen = DEFAULT_LISTEN
