@@ -94,12 +94,30 @@ def _cmd_view(args: argparse.Namespace) -> int:
                     open_browser=not args.no_browser)
 
 
+class _PrintVersion(argparse.Action):
+    """`hercs --version`, read when asked (a git call would slow every command's start)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 help: str | None = None) -> None:
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0,
+                         help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        from hercs.apps.provenance import version_text
+
+        print(version_text())
+        parser.exit()
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     parser = argparse.ArgumentParser(
         prog="hercs",
         description="Hindsight Experience Replay with Cluster-based Sampling, as distributed "
                     "services over Eclipse Zenoh.",
     )
+    parser.add_argument("--version", action=_PrintVersion,
+                        help="print the version (and the git commit of a checkout) and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands: dict[str, Command] = {}
 

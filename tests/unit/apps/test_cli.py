@@ -1,6 +1,9 @@
 """The CLI resolves one config and refuses bad flags with a message naming the field."""
 
 import argparse
+import os
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -9,6 +12,8 @@ import pytest
 import yaml
 
 from hercs.apps.cli import build_parser, main
+
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_config_command_resolves_shortcuts_and_overrides(capsys) -> None:
@@ -44,6 +49,60 @@ def test_console_script_help_lists_commands() -> None:
     out = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
     assert "config" in out
+
+
+def test_version_names_the_package_and_the_commit_of_a_checkout(tmp_path: Path) -> None:
+    """From this checkout: the version and its commit; from a copy of the package outside any
+    checkout (as pip installs it): the version alone."""
+    import hercs
+
+    def head() -> str:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, check=True,
+                              capture_output=True, text=True).stdout.strip()
+
+    before = head()
+    here = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "--version"], cwd=REPO,
+                          capture_output=True, text=True, check=True)
+    commits = "|".join(re.escape(c) for c in {before, head()})  # a commit made meanwhile
+    assert re.fullmatch(rf"hercs {re.escape(hercs.__version__)}, commit ({commits})"
+                        r"( \(with uncommitted changes\))?\n", here.stdout), here.stdout
+    shutil.copytree(REPO / "hercs", tmp_path / "hercs",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    installed = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "--version"],
+                               cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)},
+                               capture_output=True, text=True, check=True)
+    assert installed.stdout == f"hercs {hercs.__version__}\n"
+
+
+TAKE_CONFIG = {"config", "up", "slurm submit", "router", "replay", "clusterer", "learner",
+               "evaluator", "actor", "live"}
+"""The commands README's "Configuration" says take --config and --set (sweep: --set only)."""
+
+
+def test_the_commands_the_readme_names_take_config_and_set_and_no_other() -> None:
+    """README's "Configuration": the commands that make or join a run take --config and
+    --set, `hercs sweep` takes --set for its runs, and the others refuse both (exit 2)."""
+    parser, _ = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    taking = set()
+    for name, command in sub.choices.items():
+        inner = [a for a in command._actions if isinstance(a, argparse._SubParsersAction)]
+        for full, each in ([(f"{name} {n}", c) for n, c in inner[0].choices.items()] if inner
+                           else [(name, command)]):
+            if {"--config", "--set"} <= {f for a in each._actions for f in a.option_strings}:
+                taking.add(full)
+    assert taking == TAKE_CONFIG
+    assert ("(`config`, `up`, `slurm submit`, `router` and the services) take\n`--config "
+            "FILE.yaml` and `--set section.field=value`") in (REPO / "README.md").read_text()
+    sweep = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "sweep", "--help"],
+                           cwd=REPO, capture_output=True, text=True, check=True).stdout
+    assert "--set SECTION.FIELD=VALUE" in sweep and "--config" not in sweep
+    for command in (["plot", "r", "-o", "x.png"], ["eval", "r"], ["view", "r"],
+                    ["certs", "d"]):
+        refused = subprocess.run([sys.executable, "-m", "hercs.apps.cli", *command, "--set",
+                                  "ddpg.polyak=0.9"], cwd=REPO, capture_output=True, text=True)
+        assert refused.returncode == 2, command
+        assert "unrecognized arguments: --set ddpg.polyak=0.9" in refused.stderr, command
 
 
 @pytest.mark.parametrize(
