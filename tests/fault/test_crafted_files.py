@@ -126,7 +126,8 @@ def test_hercs_up_resume_refuses_a_crafted_learner_checkpoint_before_anything_st
     done = hercs_command("up", "--resume", str(run), cwd=tmp_path)
     assert done.returncode == 2, done.stdout + done.stderr
     assert done.stderr.startswith(f"hercs up: {latest}: not a readable learner checkpoint: "
-                                  "it names exec, which is neither a tensor nor plain data"), done.stderr
+                                  "it names exec, which is neither a tensor nor plain "
+                                  "data"), done.stderr
     assert "add --restart" in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert snapshot(run) == before, "a refused resume changed the run folder"
     assert not marker.exists()
