@@ -29,15 +29,27 @@ import numpy as np
 from hercs.apps.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
 from hercs.errors import HercsError
 from hercs.rl.seeding import int_seed
-from hercs.rl.task_registry import goal_distance
+from hercs.rl.task_registry import TaskSpec, goal_distance
 from hercs.run.policy_files import LoadedPolicy, read_policy
 
 log = logging.getLogger(__name__)
 
 FPS = 25
 """Video frame rate: the Fetch control period is 0.04 s, so the video plays in real time."""
-FRAME_SIZE = (480, 360)
+FRAME_SIZE = (1280, 720)
+"""Video frames, width × height: 720p, where a Fetch object is 30–55 px wide (`CAMERAS`)."""
 GL_BACKENDS = ("egl", "osmesa")
+_TABLE = {"distance": 1.1, "azimuth": 150.0, "elevation": -40.0, "lookat": (1.34, 0.75, 0.5)}
+CAMERAS: dict[str, dict[str, Any]] = {
+    "FetchReach": _TABLE, "FetchPush": _TABLE, "FetchPickAndPlace": _TABLE,
+    # Slide's goals lie up to 0.6 m beyond the puck, along its longer table
+    "FetchSlide": {"distance": 1.25, "azimuth": 150.0, "elevation": -50.0,
+                   "lookat": (1.3, 0.75, 0.42)},
+}
+"""The video's camera per Fetch task on MuJoCo 3 (v4): from the front left, looking down on
+the table where the object and goals are (x 1.2–1.5 m, y 0.6–0.9 m, goals up to 0.45 m above
+it; Slide's x 0.9–1.7 m); the environment's own camera, from 2.5 m, shows the whole robot
+with the object a few pixels wide. A v1 env (mujoco-py) and any other task keep their own."""
 
 
 class EvalError(HercsError):
@@ -83,6 +95,28 @@ def choose_gl() -> str:
                     "EGL (libegl1) or OSMesa (libosmesa6), or evaluate without --video")
 
 
+def video_camera(spec: TaskSpec) -> dict[str, Any] | None:
+    """The camera `hercs eval --video` films `spec`'s env with (`CAMERAS`), None for its own."""
+    return CAMERAS.get(spec.env_name) if spec.env_version == "v4" else None
+
+
+def video_env(spec: TaskSpec) -> Any:
+    """The env `hercs eval --video` films: `FRAME_SIZE` frames from `video_camera(spec)`, and
+    where that is a Fetch camera, without the mocap body's guide lines (metre-long green bars,
+    drawn only, that cross the table once the gripper moves)."""
+    from hercs.rl.envs import make_env
+
+    camera = video_camera(spec)
+    env = make_env(spec, render_mode="rgb_array", size=FRAME_SIZE, camera=camera)
+    if camera is not None:
+        import mujoco  # type: ignore[import-untyped]
+
+        model = env.unwrapped.model  # type: ignore[attr-defined]  # a MuJoCo robot env's
+        mocap = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "robot0:mocap")
+        model.geom_rgba[model.geom_bodyid == mocap, 3] = 0.0
+    return env
+
+
 def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
              render: bool = False, on_frame: Any = None,
              on_episode_end: Callable[[int, bool, float], None] | None = None) -> EvalSummary:
@@ -94,8 +128,7 @@ def evaluate(policy: LoadedPolicy, *, episodes: int, seed: int | None = None,
 
     config, spec = policy.config, policy.config.task.spec
     actor = policy.policy()
-    size = FRAME_SIZE if render else None
-    env = make_env(spec, render_mode="rgb_array" if render else None, size=size)
+    env = video_env(spec) if render else make_env(spec)
     if seed is None:  # the evaluator's stream: its seed, past the earlier epochs' episodes
         worker = RolloutWorker(spec=spec, env=env, seed=int_seed(config.run.seed, "evaluator"))
         worker.skip((policy.epoch - 1) * config.training.eval_episodes)

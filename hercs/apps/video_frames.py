@@ -3,7 +3,7 @@
 episode's outcome and final distance in a green (success) or red (failure) band.
 
 The outcome is known only when the episode ends, so `AnnotatedEpisodes` holds one episode's
-frames (T + 1 = 51 for Fetch, ~26 MB at 480×360) and writes them then.
+frames (T + 1 = 51 for Fetch, ~140 MB at 1280×720) and writes them then.
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from PIL import Image, ImageDraw, ImageFont
 
 TITLE_S = 1.0
 """How long each episode's title frame stays on screen."""
-BAND_PX = 30
+BAND_SHARE = 18
+"""A text band is 1/18 of the frame's height (40 px at 720p), at least `MIN_BAND_PX`."""
+MIN_BAND_PX = 30
 SUCCESS_RGB = (24, 130, 60)
 FAILURE_RGB = (170, 30, 30)
 TITLE_RGB = (20, 20, 24)
@@ -46,18 +48,25 @@ def title_frame(size: tuple[int, int], lines: list[str]) -> np.ndarray:
     return np.asarray(image)
 
 
+def band_px(height: int) -> int:
+    """The height of each text band on a frame `height` pixels high."""
+    return max(MIN_BAND_PX, height // BAND_SHARE)
+
+
 def annotate(rgb: np.ndarray, top: str, bottom: str, success: bool) -> np.ndarray:
     """`rgb` with a black band of text `top` at its top and a green/red band `bottom` at its
     bottom (the frame's rows under the bands are covered, not shifted)."""
     image = Image.fromarray(np.ascontiguousarray(rgb))
     width, height = image.size
+    band = band_px(height)
     draw = ImageDraw.Draw(image)
-    font = _font(BAND_PX * 2 // 3)
-    draw.rectangle((0, 0, width, BAND_PX), fill=TOP_RGB)
-    draw.text((8, BAND_PX // 2), top, fill=TEXT_RGB, font=font, anchor="lm")
-    draw.rectangle((0, height - BAND_PX, width, height),
+    font = _font(band * 2 // 3)
+    margin = band // 4
+    draw.rectangle((0, 0, width, band), fill=TOP_RGB)
+    draw.text((margin, band // 2), top, fill=TEXT_RGB, font=font, anchor="lm")
+    draw.rectangle((0, height - band, width, height),
                    fill=SUCCESS_RGB if success else FAILURE_RGB)
-    draw.text((8, height - BAND_PX // 2), bottom, fill=TEXT_RGB, font=font, anchor="lm")
+    draw.text((margin, height - band // 2), bottom, fill=TEXT_RGB, font=font, anchor="lm")
     return np.asarray(image)
 
 

@@ -15,10 +15,12 @@ import importlib.util
 import os
 import sys
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from hercs.errors import ConfigError
 from hercs.rl.indexed_lookups import index_lookups
@@ -149,10 +151,13 @@ def register_envs() -> None:
 
 
 def make_env(spec: TaskSpec, *, render_mode: str | None = None,
-             size: tuple[int, int] | None = None, indexed: bool | None = None) -> gym.Env:
+             size: tuple[int, int] | None = None, camera: Mapping[str, Any] | None = None,
+             indexed: bool | None = None) -> gym.Env:
     """A fresh env for `spec` (its `env_id`, or its module:factory). Seed it through the
     first `reset(seed=...)`. With `render_mode='rgb_array'`, `render()` returns frames of
-    `size` (width, height); rendering does not change the dynamics or the env's random
+    `size` (width, height) seen by its free camera, placed by `camera` where given (the
+    `default_camera_config` of a gymnasium-robotics MuJoCo env: distance, azimuth,
+    elevation, lookat); rendering does not change the dynamics or the env's random
     stream. A gymnasium-robotics MuJoCo env reads its observation by ids resolved once
     (`indexed`, by default `spec.indexed_reads`; bit-identical: hercs/rl/indexed_lookups.py).
     A v1 env where mujoco-py is not installed raises ConfigError (`check_env`)."""
@@ -164,6 +169,9 @@ def make_env(spec: TaskSpec, *, render_mode: str | None = None,
         kwargs["render_mode"] = render_mode
     if size is not None:
         kwargs["width"], kwargs["height"] = size
+    if camera is not None:
+        kwargs["default_camera_config"] = {k: np.asarray(v) if isinstance(v, tuple | list)
+                                           else v for k, v in camera.items()}
     if FACTORY.fullmatch(spec.env_id):
         steps = kwargs.pop("max_episode_steps", None)
         env = make_from_factory(spec.env_id, kwargs)

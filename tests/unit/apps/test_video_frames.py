@@ -6,17 +6,18 @@ from __future__ import annotations
 import numpy as np
 
 from hercs.apps.video_frames import (
-    BAND_PX,
     FAILURE_RGB,
     SUCCESS_RGB,
     TITLE_RGB,
     AnnotatedEpisodes,
     annotate,
+    band_px,
     outcome_text,
     title_frame,
 )
 
 SIZE = (480, 360)
+BAND_PX = band_px(360)
 
 
 def _band_colour(rgb: np.ndarray) -> tuple[int, ...]:
