@@ -45,6 +45,7 @@ from hercs.apps.sweep_cells import (
     done_record,
     dry_run_lines,
     epsilon_changed,
+    finished_folder,
     owned_override,
     parse_variant,
     plan_grid,
@@ -126,7 +127,8 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
             print(f"[resume] {cell.name}: unfinished, continued where it stopped", flush=True)
             resumed.add(cell)
         elif what == "grow":
-            grown[cell] = done_record(run_root / cell.name)
+            folder = finished_folder(cell, run_root, committed)
+            grown[cell] = {} if folder is None else done_record(folder)
             print(f"[grow] {cell.name}: finished {grown[cell].get('epochs')} epochs, "
                   f"continued from its checkpoint to {epochs}", flush=True)
             resumed.add(cell)

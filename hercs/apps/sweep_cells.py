@@ -282,8 +282,10 @@ def dry_run_lines(cells: Sequence[GridRun], *, run_root: Path, committed: Path |
             lines.append(f"[redo] {cell.name}: its folder never saved a config; it would be "
                          f"set aside, then: {shown}")
         elif what == "grow":
-            lines.append(f"[grow] {cell.name}: finished {done_epochs(run_root / cell.name)} "
-                         f"epochs; continued from its checkpoint: {shown}")
+            folder = finished_folder(cell, run_root, committed)
+            trained = 0 if folder is None else done_epochs(folder)
+            lines.append(f"[grow] {cell.name}: finished {trained} epochs; continued from its "
+                         f"checkpoint: {shown}")
         else:
             lines.append(f"[{what}] {cell.name}: {shown}")
     return lines
