@@ -154,10 +154,20 @@ class TransportConfig:
     (a session that reconnected after a cut but never relearned the router's declarations:
     hercs.net.rediscovery); repeated reopens of one outage wait twice as long each time, up to
     160 s. 0: never."""
+    cut_off_s: float = 15.0
+    """A service whose requests have found no router for this long (a cut longer than Zenoh's
+    10 s lease ended its session) opens a new session, with a new Zenoh id, and declares
+    everything again: the router takes it as soon as the link is back. Zenoh's own reconnect
+    keeps the old id, which the router can hold for up to a minute after a long two-way cut
+    (docs/results/net_faults.md); shorter cuts are left to it. 0: never."""
 
     def __post_init__(self) -> None:
         _check(math.isfinite(self.rediscover_s) and self.rediscover_s >= 0,
                "transport.rediscover_s", self.rediscover_s, "be a finite number >= 0 (0: never)")
+        _check(self.cut_off_s == 0 or (math.isfinite(self.cut_off_s) and self.cut_off_s >= 10),
+               "transport.cut_off_s", self.cut_off_s, "be 0 (never) or a finite number >= 10 "
+               "(a session without a router is one Zenoh is already reconnecting, an attempt "
+               "every 10 s; a shorter bound would replace that after every cut)")
         for name in ("listen", "connect"):
             for endpoint in getattr(self, name):
                 problem = endpoint_problem(endpoint)

@@ -1,16 +1,17 @@
-"""When a client's session has gone blind: the rule behind `Transport`'s session reopen.
+"""When a client's session has gone blind or been cut off: the rules behind `Transport`'s
+reopen (a new session, so a new Zenoh id, with every declaration made afresh).
 
-After a cut longer than Zenoh's lease a client session reconnects by itself, and the router
-should resend the declarations it missed. Zenoh has open reports where it does not
-(eclipse-zenoh/zenoh#2767, ros2/rmw_zenoh#1029): the session is connected yet finds no
-queryable for a key, and nothing inside Zenoh repairs it. Reopening the session (a new session
-id, so the router sends every declaration afresh) does (docs/DESIGN.md §3, "Threads").
+`Rediscovery`: after a cut a session can be connected yet find no queryable for a key, never
+relearning the router's declarations (reported Zenoh bugs: eclipse-zenoh/zenoh#2767,
+ros2/rmw_zenoh#1029): reopen when a key answered before finds none for `after_s` while the
+session had a router. A queryable really gone (a replay restarting) looks the same, so a
+streak's reopens back off; a key never answered (an actor started before its run) never counts.
 
-`Rediscovery` decides when: a key answered before on this transport has found no queryable for
-`after_s` while the session had a router. A queryable really gone (a replay restarting) looks
-the same from here, so a streak's reopens back off, doubling up to `max_after_s`; an answer on
-the key ends the streak. A key never answered (an actor started before its run) never triggers
-a reopen: there is nothing it has lost.
+`CutOff`: after a two-way cut longer than Zenoh's lease the router attaches the session's own
+reconnect (same Zenoh id) to its old transport of that id, whose queries can go unanswered
+until the dead connection under it is reset, up to a minute after the heal (TCP's back-off;
+docs/results/net_faults.md). A session without a router for `after_s` is reopened: the new id
+is taken as soon as the link is back.
 """
 
 from __future__ import annotations
@@ -93,3 +94,46 @@ class Rediscovery:
         now = self._clock()
         for key in self._missing_since:
             self._missing_since[key] = now
+
+
+class CutOff:
+    """How long a client's session has had no router, and when that calls for a reopen (pure;
+    `Transport` serialises the calls).
+
+    It hears of the requests that found no queryable. The streak starts when the first one
+    that ended with no router was sent: no router answered it since (a query the router had
+    taken would have been answered or timed out instead), though one may have been there while
+    it waited for a queryable, so the streak can start early by one request's timeout. A cut
+    shorter than Zenoh's lease never counts: the session keeps its router. An answer, or a
+    request that ends with a router, ends the streak. No jitter, unlike `Rediscovery`: clients
+    cut off together wait for their link, not for the router, and connect when it heals as
+    Zenoh's own reconnect would have.
+    """
+
+    def __init__(self, *, after_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        if not after_s > 0:
+            raise ValueError(f"after_s: got {after_s}, must be > 0")
+        self.after_s = after_s
+        self._clock = clock
+        self._since: float | None = None
+        self.streak_s = 0.0
+        """How long the session had had no router when a reopen was last called for."""
+
+    def connected(self) -> None:
+        """The session has a router (a request was answered, found one, or a reopen opened
+        one): no streak."""
+        self._since = None
+
+    def no_router(self, *, asked_at: float | None = None) -> bool:
+        """A request sent at `asked_at` (default: now, on this clock) found no queryable and
+        the session has no router now; True when it has had none for `after_s`: reopen now.
+        The streak then starts again, so a reopen that gave up (`transport.wait_s`) is
+        called for again after another `after_s`."""
+        now = self._clock()
+        asked = now if asked_at is None else asked_at
+        self._since = asked if self._since is None else min(self._since, asked)
+        if now - self._since < self.after_s:
+            return False
+        self.streak_s = now - self._since
+        self._since = now
+        return True

@@ -108,7 +108,8 @@ class ServiceRuntime:
         self.transport = Transport.open(mode="client", connect=config.transport.connect,
                                         connect_timeout_s=config.transport.wait_s or None,
                                         stop=self.stop, settings=settings,
-                                        rediscover_s=config.transport.rediscover_s)
+                                        rediscover_s=config.transport.rediscover_s,
+                                        cut_off_s=config.transport.cut_off_s)
         self.alive = self.transport.declare_alive(self.keys.alive(role, self.ident))
         self._metrics = self.transport.publisher(self.keys.metrics(role))
         self._metrics_step = 0

@@ -7,6 +7,7 @@ docs/ZENOH.md."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -32,7 +33,7 @@ from hercs.net.queries import (
     serve_deferred,
     serve_queryable,
 )
-from hercs.net.rediscovery import Rediscovery
+from hercs.net.rediscovery import CutOff, Rediscovery
 from hercs.net.sessions import Mode, open_session
 from hercs.net.transport_errors import (
     ConnectAborted,
@@ -58,6 +59,9 @@ REDISCOVER_S = 20.0
 long, while it had a router, is reopened (`hercs.net.rediscovery`); 0 turns it off."""
 REDISCOVER_MAX_S = 160.0
 """The longest wait between two reopens of one streak (the waits double up to it)."""
+CUT_OFF_S = 15.0
+"""A client session whose requests have found no router for this long is reopened with a new
+Zenoh id (`hercs.net.rediscovery.CutOff`); 0 turns it off."""
 
 
 class Transport:
@@ -67,16 +71,19 @@ class Transport:
     also closed by `close()` (servers first, so parked queries get `unavailable`, then
     subscriptions, publishers and tokens, then the session). Use it as a context manager.
 
-    A client transport reopens its session when it has gone blind (`hercs.net.rediscovery`: a
-    key answered before finds no queryable for `rediscover_s` although the session has a
-    router): a new session is opened (waiting for the router as `open` does), every handle is
-    declared again on it, and the old one is closed. Handles stay valid throughout; requests
-    in flight on the old session end with `TransportError` (callers retry them).
+    A client transport reopens its session when it has gone blind or been cut off
+    (`hercs.net.rediscovery`: a key answered before finds no queryable for `rediscover_s`
+    although the session has a router; or requests have found no router for `cut_off_s`): a
+    new session, with a new Zenoh id, is opened (waiting for the router as `open` does), every
+    handle is declared again on it, and the old one is closed. The reopen runs in the request
+    that called for it, which returns once the router answers or the stop event is set.
+    Handles stay valid throughout; requests in flight on the old session end with
+    `TransportError` (callers retry them).
     """
 
     def __init__(self, session: zenoh.Session, *,
                  reopen: Callable[[], zenoh.Session] | None = None,
-                 rediscover_s: float = 0.0) -> None:
+                 rediscover_s: float = 0.0, cut_off_s: float = 0.0) -> None:
         self.session = session
         self._lock = threading.Lock()
         self._owned: list[Any] = []
@@ -87,6 +94,8 @@ class Transport:
         self._rediscovery = (Rediscovery(after_s=rediscover_s,
                                          max_after_s=max(REDISCOVER_MAX_S, rediscover_s))
                              if reopen is not None and rediscover_s > 0 else None)
+        self._cut_off = (CutOff(after_s=cut_off_s)
+                         if reopen is not None and cut_off_s > 0 else None)
         self.reopens = 0
         """Times this transport reopened its session."""
         self._generation = 0
@@ -96,16 +105,18 @@ class Transport:
              connect_timeout_s: float | None = None,
              stop: threading.Event | None = None,
              settings: Mapping[str, Any] | None = None,
-             rediscover_s: float = REDISCOVER_S) -> Transport:
+             rediscover_s: float = REDISCOVER_S,
+             cut_off_s: float = CUT_OFF_S) -> Transport:
         """`settings`: extra Zenoh config entries (`hercs.net.security.zenoh_settings`).
-        `rediscover_s`: see the class (clients with `connect` endpoints only; 0: never)."""
+        `rediscover_s`, `cut_off_s`: see the class (clients with `connect` endpoints only; 0:
+        never)."""
         def opener() -> zenoh.Session:
             return open_session(mode=mode, connect=connect, listen=listen,
                                 connect_timeout_s=connect_timeout_s, stop=stop,
                                 settings=settings)
 
         reopen = opener if mode != "router" and connect else None
-        return cls(opener(), reopen=reopen, rediscover_s=rediscover_s)
+        return cls(opener(), reopen=reopen, rediscover_s=rediscover_s, cut_off_s=cut_off_s)
 
     def _own(self, declare: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         with self._lock:
@@ -130,11 +141,9 @@ class Transport:
             self._answered(key)
             raise
         except TransportTimeout as exc:
-            if exc.no_queryable and self._blind(key, asked_at=asked_at):
-                assert self._rediscovery is not None
-                self.reopen(f"no queryable on {key!r} for {self._rediscovery.streak_s:.0f} s "
-                            "although it answered before and the session has a router",
-                            generation=generation)
+            why = self._why_reopen(key, asked_at=asked_at) if exc.no_queryable else None
+            if why is not None:
+                self.reopen(why, generation=generation)
             raise
         except zenoh.ZError as exc:  # the session was swapped and closed under this request
             raise TransportError(f"request to {key!r}: {exc}; the caller may retry") from None
@@ -142,28 +151,43 @@ class Transport:
         return reply
 
     def _answered(self, key: str) -> None:
-        if self._rediscovery is not None:
-            with self._rediscovery_lock:
+        with self._rediscovery_lock:
+            if self._rediscovery is not None:
                 self._rediscovery.answered(key)
+            if self._cut_off is not None:
+                self._cut_off.connected()
 
-    def _blind(self, key: str, *, asked_at: float) -> bool:
-        """Whether a request on `key` that found no queryable calls for a reopen now."""
-        if self._rediscovery is None or self._closed:
-            return False
+    def _why_reopen(self, key: str, *, asked_at: float) -> str | None:
+        """Why a request on `key` sent at `asked_at` that found no queryable calls for a
+        reopen now, or None."""
+        if (self._rediscovery is None and self._cut_off is None) or self._closed:
+            return None
         try:
             has_router = any(True for _ in self.session.info.routers_zid())
         except zenoh.ZError:  # closed meanwhile
-            return False
-        if not has_router:  # cut off: Zenoh reconnects by itself, and a reopen would wait too
-            return False
+            return None
         with self._rediscovery_lock:
-            return self._rediscovery.missing(key, asked_at=asked_at)
+            if not has_router:
+                # Zenoh reconnects by itself, but after a long cut the router can hold that
+                # reconnect for a minute (hercs.net.rediscovery.CutOff): a new id is not held
+                if self._cut_off is None or not self._cut_off.no_router(asked_at=asked_at):
+                    return None
+                return (f"no router for {self._cut_off.streak_s:.0f} s (a cut longer than "
+                        "Zenoh's lease); a new session is taken as soon as the link is back")
+            if self._cut_off is not None:
+                self._cut_off.connected()
+            if self._rediscovery is None or not self._rediscovery.missing(key,
+                                                                           asked_at=asked_at):
+                return None
+            return (f"no queryable on {key!r} for {self._rediscovery.streak_s:.0f} s although "
+                    "it answered before and the session has a router")
 
     def reopen(self, why: str, *, generation: int | None = None) -> None:
         """Open a new session, declare every handle on it, close the old one.
 
         Blocks until the router answers (as `open` does; `ConnectAborted` if the stop event is
-        set meanwhile). `generation`: the `_generation` the caller saw; if the session was
+        set meanwhile, `RouterUnreachable` after `connect_timeout_s`: the old session and its
+        tokens then stay). `generation`: the `_generation` the caller saw; if the session was
         reopened since, nothing is done (two threads that went blind together reopen once).
         Liveliness tokens leave before the new session opens, so that watchers see the
         token go and come back, never the reverse; a subscription is undeclared on the old
@@ -180,10 +204,18 @@ class Transport:
             started = time.monotonic()
             with self._lock:
                 owned = list(self._owned)
-            for handle in owned:
-                if isinstance(handle, AliveToken):
-                    handle.suspend()
-            new = self._reopen_session()
+            tokens = [handle for handle in owned if isinstance(handle, AliveToken)]
+            for token in tokens:
+                token.suspend()
+            try:
+                new = self._reopen_session()
+            except TransportError:
+                # stopped, or the router not back within `connect_timeout_s`: the old session
+                # stays and may still reconnect by itself, so its tokens must be there again
+                for token in tokens:
+                    with contextlib.suppress(zenoh.ZError):
+                        token.rebind(self.session)
+                raise
             with self._lock:
                 if self._closed:
                     new.close()
@@ -204,9 +236,11 @@ class Transport:
                 log.info("closing the old Zenoh session: %s", exc)
             self._generation += 1
             self.reopens += 1
-            if self._rediscovery is not None:
-                with self._rediscovery_lock:
+            with self._rediscovery_lock:
+                if self._rediscovery is not None:
                     self._rediscovery.reopened()
+                if self._cut_off is not None:
+                    self._cut_off.connected()
             log.warning("Zenoh session reopened in %.1f s; %d declarations renewed%s",
                         time.monotonic() - started, len(owned) - failed,
                         f", {failed} failed" if failed else "")

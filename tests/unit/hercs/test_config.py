@@ -80,6 +80,8 @@ def test_overrides_are_typed() -> None:
                                     "log), 0 (keep only what resume needs) or a size in bytes"),
         ("replay.log_segments_per_buffer=0", "replay.log_segments_per_buffer: got 0, must be "
                                              ">= 1"),
+        ("transport.cut_off_s=5", "transport.cut_off_s: got 5.0, must be 0 (never) or a "
+                                  "finite number >= 10"),
     ],
     ids=["gamma", "batch0", "batch-float", "bool", "method", "task", "env-version", "fgb",
          "energy-weight",
@@ -87,7 +89,8 @@ def test_overrides_are_typed() -> None:
          "unknown-field",
          "unknown-section", "no-section", "run-name", "run-name-dotdot", "run-name-hidden",
          "endpoint", "endpoint-port", "endpoint-no-slash", "clip-energy", "waiting-inserts",
-         "view-every", "view-url", "view-save", "log-max-bytes", "log-segments"],
+         "view-every", "view-url", "view-save", "log-max-bytes", "log-segments",
+         "cut-off-below-lease"],
 )
 def test_bad_values_are_refused_with_the_field_named(override: str, message: str) -> None:
     with pytest.raises(ConfigError) as err:

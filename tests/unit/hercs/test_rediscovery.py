@@ -1,10 +1,11 @@
-"""The rule that reopens a blind client session (hercs.net.rediscovery), on a fake clock."""
+"""The rules that reopen a blind or cut-off client session (hercs.net.rediscovery), on a fake
+clock."""
 
 from __future__ import annotations
 
 import pytest
 
-from hercs.net.rediscovery import Rediscovery
+from hercs.net.rediscovery import CutOff, Rediscovery
 from tests.support import Clock
 
 
@@ -99,3 +100,46 @@ def test_bad_bounds_are_refused_with_the_value(after_s: float, max_after_s: floa
                                                match: str) -> None:
     with pytest.raises(ValueError, match=match):
         Rediscovery(after_s=after_s, max_after_s=max_after_s)
+
+
+def test_a_session_without_a_router_reopens_after_the_bound_from_the_first_request_sent() -> None:
+    """Inserts that each wait 10 s for a queryable during a cut: the streak counts from the send
+    of the first one that ended without a router, and fires once the bound is reached."""
+    clock = Clock()
+    rule = CutOff(after_s=15.0, clock=clock)
+    fired = []
+    for _ in range(4):
+        asked = clock.now
+        clock.now += 10.0  # the request's timeout: no queryable, no router
+        fired.append(rule.no_router(asked_at=asked))
+        clock.now += 2.0  # the inserter's back-off
+    # the streak from t=100: 10 s (no), 22 s (yes; it restarts then, at t=122), 12 s, 24 s
+    assert fired == [False, True, False, True]
+    assert rule.streak_s == 24.0
+
+
+def test_a_router_seen_or_an_answer_ends_the_streak() -> None:
+    """A cut shorter than the bound plus Zenoh's reconnect never calls for a reopen: the
+    session's own reconnect brings its router back first."""
+    clock = Clock()
+    rule = CutOff(after_s=15.0, clock=clock)
+    for _ in range(3):  # a streak of 14 s each time, ended by the router seen again
+        for _ in range(15):
+            assert not rule.no_router()
+            clock.now += 1.0
+        rule.connected()
+    assert not rule.no_router()
+
+
+def test_concurrent_requests_count_from_the_earliest_send() -> None:
+    clock = Clock()
+    rule = CutOff(after_s=15.0, clock=clock)
+    clock.now += 10.0
+    assert not rule.no_router(asked_at=clock.now - 1.0)  # a short request: since t=109
+    assert rule.no_router(asked_at=clock.now - 15.0)  # a long one sent at t=95: 15 s now
+
+
+@pytest.mark.parametrize("after_s", [0.0, -1.0], ids=["zero", "negative"])
+def test_a_bound_that_is_not_positive_is_refused(after_s: float) -> None:
+    with pytest.raises(ValueError, match=f"after_s: got {after_s}"):
+        CutOff(after_s=after_s)
