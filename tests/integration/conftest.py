@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -23,6 +25,30 @@ from tests.support import free_endpoint
 @pytest.fixture
 def endpoint() -> str:
     return free_endpoint()
+
+
+@pytest.fixture
+def log_event(caplog: pytest.LogCaptureFixture) -> Iterator[Callable[[str], threading.Event]]:
+    """`log_event(text)` → an Event set when hercs.net.transport logs a message containing text."""
+    logger = logging.getLogger("hercs.net.transport")
+    caplog.set_level(logging.DEBUG, logger="hercs.net.transport")
+    spies: list[logging.Handler] = []
+
+    def watch(text: str) -> threading.Event:
+        seen = threading.Event()
+
+        class _Spy(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                if text in record.getMessage():
+                    seen.set()
+
+        spies.append(_Spy())
+        logger.addHandler(spies[-1])
+        return seen
+
+    yield watch
+    for spy in spies:
+        logger.removeHandler(spy)
 
 
 @pytest.fixture

@@ -7,11 +7,10 @@ No sleeps stand in for synchronisation: every wait is on an Event or a queue wit
 
 from __future__ import annotations
 
-import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -29,30 +28,6 @@ from tests.integration.services import OpenClient
 from tests.integration.transport_support import RUN, WAIT_S, echo, request_in_background
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture
-def log_event(caplog: pytest.LogCaptureFixture) -> Iterator[Callable[[str], threading.Event]]:
-    """`log_event(text)` → an Event set when hercs.net.transport logs a message containing text."""
-    logger = logging.getLogger("hercs.net.transport")
-    caplog.set_level(logging.DEBUG, logger="hercs.net.transport")
-    spies: list[logging.Handler] = []
-
-    def watch(text: str) -> threading.Event:
-        seen = threading.Event()
-
-        class _Spy(logging.Handler):
-            def emit(self, record: logging.LogRecord) -> None:
-                if text in record.getMessage():
-                    seen.set()
-
-        spies.append(_Spy())
-        logger.addHandler(spies[-1])
-        return seen
-
-    yield watch
-    for spy in spies:
-        logger.removeHandler(spy)
 
 
 @pytest.mark.parametrize("size", [5, 4 * 1024 * 1024], ids=["small", "4MiB"])
