@@ -5,7 +5,8 @@ of improvement P(X > Y), that a run of one arm beats a run of another (ties half
 Mann–Whitney U over n_X·n_Y), with an interval from resampling each arm's runs on its own.
 
 numpy only, so that the product needs no statistics package; the project's own claims
-(studies/claims/claims.py) use rliable itself, whose functions these equal for one task.
+(studies/claims/claims.py) use rliable's bootstraps around these two functions, which equal
+rliable's for one task (tests/studies/claims/test_claims.py pins them).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The statistics of studies/claims/claims.py over runs' scores: IQM and mean with rliable's
 stratified bootstrap intervals, and the probability of improvement of one side over another
-(rliable's functions, with the two inner ones re-implemented at a fraction of scipy's cost and
-pinned equal to rliable's by tests/studies/claims/test_claims.py)."""
+(rliable's functions; inside the bootstraps, the IQM and P(X > Y) of `hercs sweep report`'s
+statistics, hercs/apps/sweep_stats.py, the one numpy implementation, at a fraction of scipy's
+cost and pinned equal to rliable's by tests/studies/claims/test_claims.py)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+
+from hercs.apps.sweep_stats import iqm, probability_of_improvement
 
 REPS = 10_000
 """Bootstrap replications. With 2–5 runs a side has at most 126 distinct resamples: at 10,000
@@ -67,24 +70,6 @@ def _matrix(scores: Sequence[Score]) -> np.ndarray:
     """(runs × 2): success after EPOCH, epoch at 0.5; rliable's (runs × tasks) layout, the
     two numbers as two tasks so that each is resampled over runs on its own."""
     return np.array([[s.success, float(s.at_half)] for s in scores], dtype=float)
-
-
-def iqm(x: np.ndarray) -> float:
-    """rliable.metrics.aggregate_iqm (scipy's trim_mean, 25 % off each end, all cells)
-    without scipy's per-call overhead, which is most of a bootstrap's time: equal to it
-    (tests/studies/claims/test_claims.py)."""
-    v = np.sort(np.asarray(x, dtype=float).ravel())
-    cut = int(0.25 * len(v))
-    return float(v[cut:len(v) - cut].mean())
-
-
-def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
-    """rliable.metrics.probability_of_improvement for one task: the Mann–Whitney U of x over
-    y divided by n_x·n_y, i.e. the share of pairs (a, b) with a > b, ties counted half;
-    equal to rliable's (tests/studies/claims/test_claims.py) at a thousandth of scipy's cost."""
-    a = np.asarray(x, dtype=float).ravel()[:, None]
-    b = np.asarray(y, dtype=float).ravel()[None, :]
-    return float(((a > b).sum() + 0.5 * (a == b).sum()) / (a.size * b.size))
 
 
 def _estimates(point: Sequence[float], interval: np.ndarray) -> list[Estimate]:

@@ -14,6 +14,7 @@ import pytest
 import yaml
 from rliable import metrics
 
+from hercs.apps import sweep_stats
 from hercs.apps.plots import Curve
 from hercs.run.rundir import RunDir
 from studies.claims import claim_statistics
@@ -296,17 +297,18 @@ def test_output_is_deterministic_and_leaves_numpys_global_rng_alone(tmp_path: Pa
     ([1.0], [0.0, 2.0, 1.0, 1.0, 0.5]),
 ], ids=["distinct", "ties", "censored", "identical", "one-run"])
 def test_probability_of_improvement_equals_rliables(x: list[float], y: list[float]) -> None:
+    """The one implementation the sweep report and the claims' bootstraps share."""
     a, b = np.array(x)[:, None], np.array(y)[:, None]
-    assert claim_statistics.probability_of_improvement(a, b) == pytest.approx(
+    assert sweep_stats.probability_of_improvement(a, b) == pytest.approx(
         metrics.probability_of_improvement(a, b), abs=1e-12)
-    assert claim_statistics.probability_of_improvement(b, a) == pytest.approx(
+    assert sweep_stats.probability_of_improvement(b, a) == pytest.approx(
         metrics.probability_of_improvement(b, a), abs=1e-12)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 8, 20])
 def test_iqm_equals_rliables(n: int) -> None:
     x = np.random.default_rng(n).random((n, 1))
-    assert claim_statistics.iqm(x) == pytest.approx(metrics.aggregate_iqm(x), abs=1e-12)
+    assert sweep_stats.iqm(x) == pytest.approx(metrics.aggregate_iqm(x), abs=1e-12)
 
 
 # ------------------------------------------------------------------------ command line
