@@ -3,10 +3,12 @@ network namespace behind a veth link, bench.faults.netns) rides out packet loss 
 and a client joins a router across a slow link.
 
 The run is bench.faults.net_faults' quick setting (`QUICK`): 10 % of packets dropped each way for
-the whole run, and after epoch 1 of 5 every packet dropped both ways for 15 s (longer than
-Zenoh's 10 s lease: the sessions end and the actor reconnects). Needs root, iproute2 and
-iptables (`make netfault-tools`); otherwise skipped with the reason. The namespace, its link
-and the root namespace's iptables chain are removed however the test ends.
+the whole run, and after epoch 1 of 5 every packet dropped both ways for 60 s (`CUT_S`: far
+longer than Zenoh's 10 s lease, so the sessions end, and long enough for the router's TCP
+retransmissions to back off to ~50 s); the actor must insert again within `HEAL_TO_INSERT_S`
+of the heal. Needs root, iproute2 and iptables (`make netfault-tools`); otherwise skipped with
+the reason. The namespace, its link and the root namespace's iptables chain are removed
+however the test ends.
 """
 
 from __future__ import annotations
@@ -30,14 +32,26 @@ from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
 from tests.support import free_tcp_port
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
+
+CUT_S = 60.0
+"""The cut after which a healed actor waited 47 s for its first insert while its session's
+reconnect was held by the router (docs/results/net_faults.md); a client now reopens its
+session with a new Zenoh id once it has had no router for `transport.cut_off_s`."""
+HEAL_TO_INSERT_S = 15.0
+"""The heal → first insert bound. Measured 1.7-1.9 s in four runs on a loaded 2-core machine
+(46.6 s with `transport.cut_off_s=0` on the actor, the old behaviour). What it is made of: the
+reopen's connect attempt under way (Zenoh retries at most 1 s apart within it), a TLS
+handshake, the inserter's back-off (at most 2 s) and one insert; 15 s leaves room for a machine
+several times slower, and stays far below the old wait, which the TCP back-off of the dead
+connection sets, not the machine."""
 
 
 def test_a_run_rides_out_loss_and_a_partition_and_loses_no_acked_episode(
         tmp_path: Path) -> None:
     if (why := problem()) is not None:
         pytest.skip(why)
-    shape = dataclasses.replace(net_faults.QUICK_SHAPE, timeout_s=180.0)
+    shape = dataclasses.replace(net_faults.QUICK_SHAPE, cut_s=CUT_S, timeout_s=180.0)
     with hosts(shape.actors) as links:
         names = [(host.name, host.chain) for host in links]
         make_certs(tmp_path / "certs", hosts=[host.host_ip for host in links])
@@ -54,6 +68,8 @@ def test_a_run_rides_out_loss_and_a_partition_and_loses_no_acked_episode(
     assert result.longest_insert_gap_s is not None and result.longest_insert_gap_s >= shape.cut_s
     assert result.retries >= 1
     assert result.first_insert_after_heal_s is not None
+    print(f"heal -> first insert: {result.first_insert_after_heal_s} s")
+    assert result.first_insert_after_heal_s <= HEAL_TO_INSERT_S, "the actor was not back soon"
     # nothing of the fault is left on this machine
     netns = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     rules = subprocess.run(["iptables", "-w", "-S"], capture_output=True, text=True).stdout
