@@ -91,11 +91,21 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
                 if files.checkpoint("best").is_file() else "")
         raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
                            f"{_remedy(run_dir)}") from None
-    try:
-        EpisodeLog.check(run_dir)  # what the replay reloads: parsed as MCAP, never unpickled
-    except EpisodeLogError as exc:
-        raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
-                           f"{_remedy(run_dir)}") from None
+    plan = _plan_from(run_dir, state, checkpoint, pending, epochs=epochs)
+    if not plan.finished:  # checked last: the checkpoint and metrics say more about the run
+        try:
+            EpisodeLog.check(run_dir)  # what the replay reloads: parsed as MCAP, not unpickled
+        except EpisodeLogError as exc:
+            raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
+                               f"{_remedy(run_dir)}") from None
+    return plan
+
+
+def _plan_from(run_dir: Path, state: dict[str, Any] | None, checkpoint: int,
+               pending: set[int], *, epochs: int) -> ResumePlan:
+    """`plan_resume`'s reading of metrics.csv against the learner checkpoint `state`."""
+    files = RunDir(run_dir)
+    latest = files.checkpoint("latest")
     try:
         recorded = checked_epochs(files.metrics)
     except MetricsFileError as exc:
