@@ -20,6 +20,7 @@ from hercs.apps.cli_config import (
     resolve_config,
 )
 from hercs.apps.cli_services import SERVICE_EXAMPLES, SERVICES, Command, service_command
+from hercs.apps.output_paths import OutputPathError, check_outputs
 from hercs.apps.plots import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, HercsError
@@ -329,6 +330,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
+        return 2
+    try:
+        check_outputs(args)
+    except OutputPathError as exc:
+        print(f"hercs {args.command}: {exc}", file=sys.stderr)
         return 2
     if args.command in NO_CONFIG_COMMANDS:
         return NO_CONFIG_COMMANDS[args.command](args)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+from hercs.apps.output_paths import OutputPathError, check_output_folder
 from hercs.apps.provenance import git_commit, machine_identity
 from hercs.apps.slurm import add_sbatch_arguments
 from hercs.apps.sweep_cells import (
@@ -312,6 +313,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv[:1] == ["report"]:
         return main_report(argv[1:])
     args = build_parser().parse_args(argv)
+    try:  # where it writes, before any run starts
+        for flag, folder in (("--run-dir", args.run_dir), ("--out", args.out),
+                             ("--committed", args.committed)):
+            if folder:
+                check_output_folder(folder, flag=flag)
+    except OutputPathError as exc:
+        return _fail(str(exc))
     if args.seeds < 1:
         return _fail("--seeds must be at least 1")
     if args.jobs is not None and args.jobs < 1:

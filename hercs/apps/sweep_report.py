@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hercs.apps import sweep_stats
+from hercs.apps.output_paths import OutputPathError, check_output_folder
 from hercs.apps.plot_figures import plot_figure
 from hercs.apps.plot_tables import tables
 from hercs.apps.plots import (
@@ -226,6 +227,11 @@ def build_report_parser() -> argparse.ArgumentParser:
 
 def main_report(argv: Sequence[str]) -> int:
     args = build_report_parser().parse_args(argv)
+    if args.out:
+        try:
+            check_output_folder(args.out, flag="report --out")
+        except OutputPathError as exc:
+            return _fail(str(exc))
     if args.reps < 100:
         return _fail(f"report --reps must be at least 100, got {args.reps}")
     run_root = Path(args.run_dir).resolve()
