@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from hercs.errors import HercsError
 from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import MetricsFileError, checked_epochs, epoch_spans
@@ -82,6 +84,7 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
     from hercs.learner.checkpoint import load_checkpoint
 
     files = RunDir(run_dir)
+    _check_run_name(run_dir)
     latest = files.checkpoint("latest")
     try:
         state = load_checkpoint(files.checkpoints)
@@ -99,6 +102,27 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
             raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
                                f"{_remedy(run_dir)}") from None
     return plan
+
+
+def _check_run_name(run_dir: Path) -> None:
+    """A run resumes under the name it was made with, which is its folder's: its episode log
+    and checkpoints carry it, and so do its Zenoh keys. A copied or renamed folder (whose
+    config.yaml names the old run) is refused here, before anything is written."""
+    try:
+        saved = yaml.safe_load(RunDir(run_dir).config.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return  # the config's own reader says what is wrong with it
+    name = str(((saved.get("run") or {}) if isinstance(saved, dict) else {}).get("name") or "")
+    folder = run_dir.resolve().name
+    if name and name != folder:
+        raise CannotResume(
+            f"{run_dir}: this folder holds run {name!r} (its config.yaml, episode log and "
+            f"checkpoints were written for that name), but the folder is named {folder!r}: a "
+            f"copied or renamed run cannot resume under another name. Resume it under its own "
+            f"(`mv {run_dir} {run_dir.resolve().parent / name}`, where no folder of that name "
+            f"is, then `hercs up --resume {run_dir.resolve().parent / name}`), or start a new "
+            f"run from its settings (`hercs up --config {RunDir(run_dir).config} --run-dir "
+            f"{run_dir.resolve().parent} --run NEW_NAME`). Nothing here was changed")
 
 
 def _plan_from(run_dir: Path, state: dict[str, Any] | None, checkpoint: int,

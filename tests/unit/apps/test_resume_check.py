@@ -213,3 +213,27 @@ def test_the_learner_sets_rows_past_its_checkpoint_aside(tmp_path: Path) -> None
         (aside,) = RunDir(run).previous.iterdir()
         assert recorded_epochs(RunDir(aside).metrics) == [1, 2, 3]
         assert os.listdir(aside) == ["metrics.csv"]
+
+
+@pytest.mark.parametrize("how", ["copied", "renamed"])
+def test_a_copied_or_renamed_run_folder_is_refused_before_anything_is_written(
+        tmp_path: Path, how: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """The folder's name is the run's name: a copy or a rename would resume under a name
+    its episode log and keys do not have (the replay then crash-looped). `hercs up --resume`
+    refuses it with both names and what to do, and its config.yaml is not rewritten."""
+    import shutil
+
+    original = tmp_path / "runs" / "b1"
+    make_run(original, epochs=3, trained=1, checkpoint=1)
+    other = tmp_path / "runs" / "b1-lineb"
+    if how == "copied":
+        shutil.copytree(original, other)
+    else:
+        original.rename(other)
+    before = snapshot(other)
+    with pytest.raises(CannotResume, match=r"holds run 'b1'.*named 'b1-lineb'"):
+        plan_resume(other, epochs=3)
+    assert main(["up", "--resume", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "holds run 'b1'" in err and "--run NEW_NAME" in err and "mv " in err
+    assert snapshot(other) == before, "nothing in the folder changed, config.yaml included"
