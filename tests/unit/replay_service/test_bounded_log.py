@@ -259,3 +259,53 @@ def test_a_bigger_buffer_than_the_log_kept_is_refused_with_the_reason(tmp_path: 
     bigger = config(0, f"replay.buffer_transitions={2 * CAPACITY * 50}")
     with pytest.raises(EpisodeLogError, match=r"written with a smaller replay\.buffer_trans"):
         open_table(bigger, tmp_path / "log")
+
+
+@pytest.mark.parametrize("task", ["push", "PointMaze_UMaze-v3", "HandReach-v3",
+                                  "HandManipulateBlock-v1"])
+def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
+                                                              task: str) -> None:
+    """Replay state written (a split log), replay gone, replay restored from that state and
+    the log's tail: on a Fetch task, a maze (no energy), a hand (joint-space goals) and an
+    in-hand object, the restored buffer's energies are those computed at insert (a restore
+    used to compute them without the task's energy kind, and raised on the non-Fetch ones)."""
+    spec_steps = apply_overrides(HercsConfig(), [f"task.name={task}"]).task.spec.episode_steps
+    cfg = apply_overrides(HercsConfig(), [
+        f"task.name={task}", "run.method=her-cs", f"run.name={RUN}",
+        f"replay.buffer_transitions={CAPACITY * spec_steps}", "replay.free_run=true",
+        "training.max_policy_lag=-1", f"replay.log_max_bytes={UNBOUNDED}"])
+
+    def opened(seed: int) -> tuple[ReplayTable, RecoveringLogWriter, object]:
+        log, recovered = RecoveringLogWriter.open(
+            tmp_path, run=RUN, task=task, scene=False,
+            segment_episodes=cfg.replay.log_segment_episodes(cfg.capacity_episodes),
+            max_bytes=cfg.replay.log_max_bytes)
+        table = ReplayTable(config=cfg, core=ReplayCore(config=cfg,
+                                                        rng=np.random.default_rng(seed)),
+                            log=log)
+        state = recovered.replay_state
+        table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
+                      state=None if state is None else msg_to_replay_state(state))
+        return table, log, state
+
+    first, log, state = opened(0)
+    assert state is None
+    try:
+        for i, episode in enumerate(episodes(cfg, 2 * CAPACITY + 3)):
+            answer = Answer()
+            first.insert(episode, record=episode_to_msg(episode, run=RUN, task=task),
+                         waiter=answer)
+            assert isinstance(answer.result, Stored), answer.result
+            log.flush_upkeep()
+        at_insert = first.core.store.energy.copy()
+    finally:
+        log.close()
+    again, log, state = opened(1)
+    try:
+        assert state is not None, "the log saved a replay state to restore from"
+        np.testing.assert_array_equal(again.core.store.energy, at_insert)
+        assert_same_buffer(first.core, again.core)
+        if first.core.spec.energy != "none":
+            assert at_insert.any(), "random episodes move their goals: some energy"
+    finally:
+        log.close()
