@@ -291,7 +291,7 @@ def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
     first, log, state = opened(0)
     assert state is None
     try:
-        for i, episode in enumerate(episodes(cfg, 2 * CAPACITY + 3)):
+        for episode in episodes(cfg, 2 * CAPACITY + 3):
             answer = Answer()
             first.insert(episode, record=episode_to_msg(episode, run=RUN, task=task),
                          waiter=answer)
