@@ -84,7 +84,6 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
     from hercs.learner.checkpoint import load_checkpoint
 
     files = RunDir(run_dir)
-    _check_run_name(run_dir)
     latest = files.checkpoint("latest")
     try:
         state = load_checkpoint(files.checkpoints)
@@ -96,6 +95,7 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
                            f"{_remedy(run_dir)}") from None
     plan = _plan_from(run_dir, state, checkpoint, pending, epochs=epochs)
     if not plan.finished:  # checked last: the checkpoint and metrics say more about the run
+        _check_run_name(run_dir)
         try:
             EpisodeLog.check(run_dir)  # what the replay reloads: parsed as MCAP, not unpickled
         except EpisodeLogError as exc:

@@ -237,3 +237,14 @@ def test_a_copied_or_renamed_run_folder_is_refused_before_anything_is_written(
     err = capsys.readouterr().err
     assert "holds run 'b1'" in err and "--run NEW_NAME" in err and "mv " in err
     assert snapshot(other) == before, "nothing in the folder changed, config.yaml included"
+
+
+def test_a_renamed_finished_run_is_still_finished(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """A committed run renamed after it finished (the lag-7 runs' folders) starts nothing
+    when resumed: it says it is finished, as before, rather than refusing the name."""
+    run = tmp_path / "runs" / "push-her-s1"
+    make_run(run, epochs=2, trained=2, checkpoint=None)
+    renamed = run.rename(tmp_path / "runs" / "push-her-lag7-s1")
+    assert main(["up", "--resume", str(renamed)]) == 0
+    assert "already finished (2 epochs)" in capsys.readouterr().out
