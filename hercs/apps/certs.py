@@ -1,15 +1,8 @@
 """`hercs certs DIR`: a CA and the certificates of a secured run (docs/SECURITY.md).
 
-Writes into DIR (created, never overwriting a file):
-    ca.pem, ca.key              the run's certificate authority (keep ca.key off the hosts)
-    router.pem, router.key      the router's; its subject alternative names are --host names
-                                and addresses plus localhost and 127.0.0.1
-    <role>.pem, <role>.key      one per role (replay, learner, clusterer, evaluator, actor,
-                                live): common name = the role, which access control matches
-    credentials.txt             (with --credentials) a random password per role, user = role
-
-Certificates are X.509 v3 with ECDSA P-256 keys, as rustls (Zenoh's TLS) requires: the router's
-for serverAuth with SANs, the roles' for clientAuth. Private keys are written mode 0600.
+Writes into DIR, never overwriting a file: `ca.pem`/`ca.key`, `router.pem`/`router.key` (SANs:
+the --host names plus localhost), one `<role>.pem`/`.key` per role (common name = the role) and,
+with --credentials, `credentials.txt`. Keys are ECDSA P-256, as rustls requires; mode 0600.
 """
 
 from __future__ import annotations

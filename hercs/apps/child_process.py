@@ -1,12 +1,9 @@
 """Service child processes, as `hercs up` (hercs/apps/launcher.py) and the benchmarks start them.
 
-A child is `python -m hercs.apps.cli <role> --config FILE --id ID` with its stdout and stderr in a
-log file. It leads a process group of its own, so that Ctrl-C at a terminal reaches only the
-parent (which then stops the children in order) and a signal to the group also reaches what
-the child forked. With `PR_SET_PDEATHSIG` = SIGKILL set between fork and exec, the kernel
-kills the child if the parent dies (SIGKILL, crash). That signal fires when the *thread* that
-forked the child exits, so children must be started from the main thread. `stop_process` ends
-any child (a benchmark's, a test's): a signal, a grace period, then SIGKILL.
+A child is `python -m hercs.apps.cli <role> ...` with its output in a log file, leading its own
+process group, with `PR_SET_PDEATHSIG` = SIGKILL so it dies with its parent. That signal fires
+when the forking *thread* exits: start children from the main thread only.
+`stop_process` ends any child: a signal, a grace period, then SIGKILL.
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """`hercs up`: one whole run on one machine (docs/DESIGN.md §1, §6).
 
-`run_up` takes the run directory (its lock, and for `--resume` the check that the run can
-continue without losing results, hercs/apps/resume_check.py), opens the Zenoh router inside
-this process, writes the resolved `config.yaml` and `router.json`, and hands the services to
-the `Supervisor` (hercs/apps/supervisor.py), which starts, restarts and finally stops them.
-Exit status: 0 done, 1 a service failed or the router could not listen, 2 the run directory
-cannot be used as asked, 4 the learner's training diverged, 5 the run stalled (no epoch ended
-within its bound), 128 + n after signal n.
-
-Every child runs in its own process group with a parent-death signal (hercs/apps/
-child_process.py), so no child outlives a killed launcher; that signal fires when the forking
-*thread* exits, hence `run_up` runs on the main thread only. The embedded router's native
-log lines go to `logs/router.log` (`native_output_to`), not among the progress lines. The
-whole sequence is docs/DESIGN.md §6, "`hercs up`, step by step".
+`run_up` takes the run directory, opens the Zenoh router in this process, writes `config.yaml`
+and `router.json` and hands the services to the `Supervisor`. Exit status: 0 done, 1 a service
+failed, 2 the run directory cannot be used, 4 diverged, 5 stalled, 128 + n after signal n.
+Main thread only (the children's parent-death signal, hercs/apps/child_process.py).
 """
 
 from __future__ import annotations

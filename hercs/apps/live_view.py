@@ -1,16 +1,9 @@
 """`hercs live`: a run streamed to Rerun while it trains (docs/DESIGN.md §6), `hercs up --rerun`.
 
-This module is the shell: recording sinks, subscriptions, episode queries and the loop
-(`LiveViewService`); `LiveRecorder` (hercs/apps/live_recorder.py) draws. The recording has the
-entity paths and timelines of `hercs view`, both drawn with hercs/apps/rerun_draw.py, so the
-live view of a run and an offline view of its episode log look alike; where they differ, and
-why, is in docs/DESIGN.md §6 ("Views"). The recording id is the run name, so a restarted live
-view continues the same recording. Where it goes is the `view` config section (docs/GUIDE.md).
-
-It never holds up or fails training: subscriptions only queue raw bytes (the loop decodes,
-draws and queries); an unreachable viewer is reported once (again only after it came back) while
-the loop keeps draining and any .rrd file keeps being written; a bad message or a failed episode
-query is logged once per minute and skipped. `hercs up` treats this process as optional.
+The shell: sinks, subscriptions, episode queries and the loop (`LiveViewService`);
+`LiveRecorder` (hercs/apps/live_recorder.py) draws, with hercs/apps/rerun_draw.py as `hercs view`
+does. It never holds up or fails training: subscriptions only queue bytes, and a lost viewer,
+a bad message or a failed query is logged and skipped.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Learning curves and milestone tables from run directories (`hercs plot`), optionally next
 to the authors' published per-seed results (`docs/reference/authors_success_rates.csv`).
 
-This module holds the runs as curves and the table rule (docs/DESIGN.md §5: seeds averaged
-over the epochs every seed reached, a trailing 10-epoch moving average, "epoch at x" the first
-epoch strictly above x counted from 0 as in the authors' logs); hercs/apps/plot_tables.py
-writes the milestone tables with it and hercs/apps/plot_figures.py draws the figures. Everything
-but the drawing is a pure function over numbers, so the tests pin the curves and the table
-without drawing. Runs are grouped by their settings: a run in the lockstep schedule, in bf16 or
-on the authors' Fetch*-v1 is its own group (`<method>/lockstep`, `/bf16`, `/v1`), never
-averaged with the default's; the figure rule is docs/DESIGN.md §6, "Figures".
+The runs as curves and the table rule (docs/DESIGN.md §5), as pure functions over numbers;
+plot_tables.py writes the tables and plot_figures.py draws. Runs in another setting (lockstep,
+bf16, Fetch*-v1) are their own group, never averaged with the default's.
 """
 
 from __future__ import annotations
@@ -338,7 +333,7 @@ class Bands:
 
 def seed_bands(curves: Sequence[Curve], rng: np.random.Generator, *, window: int = WINDOW,
                reps: int = CI_REPS, level: float = CI_LEVEL, every_seed: bool = False) -> Bands:
-    """The figure's bands (module docstring). The interval is the percentile interval of
+    """The figure's bands (docs/DESIGN.md §6, "Figures"). The interval is the percentile interval of
     the mean over `reps` resamples of the seeds, drawn with replacement; one draw of seed
     indices serves every epoch that the same seeds reached, so the band is as smooth as the
     curves. With one seed the interval and the min–max are the curve itself."""
@@ -365,7 +360,7 @@ def seed_bands(curves: Sequence[Curve], rng: np.random.Generator, *, window: int
 
 def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
                at_epochs: Sequence[int] = AT_EPOCHS, window: int = WINDOW) -> Milestones:
-    """docs/DESIGN.md §5's numbers for one aggregated method (rule: module docstring)."""
+    """docs/DESIGN.md §5's numbers for one aggregated method (the rule is there)."""
     ma = moving_average(agg.epochs, agg.mean, window)
     crossing: dict[float, int | None] = {}
     for t in thresholds:

@@ -1,16 +1,9 @@
-"""`hercs eval RUN`: load a trained policy and evaluate, watch or record it, with no service
-running.
+"""`hercs eval RUN`: load a trained policy and evaluate, watch or record it, no service running.
 
-    hercs eval runs/RUN                                  # the best policy, 20 episodes
-    hercs eval runs/RUN --checkpoint latest --episodes 50
-    hercs eval runs/RUN --video reach.mp4                # MuJoCo offscreen (EGL, else OSMesa)
-    hercs eval runs/RUN --rerun-save reach.rrd           # the camera images in Rerun
-
-`--checkpoint` is `best` (the default when present), `latest` (`learner.pt`), an epoch N
-(`epoch-NNNN.pt`) or a file path. By default the episodes are the ones the run's evaluator
-used for that epoch (its env, seeded from the run seed and advanced by the earlier epochs'
-episodes), so for a run evaluated in order the first `training.eval_episodes` reproduce the
-success in `metrics.csv`; `--seed S` draws other goals. Actions are μ without noise.
+`--checkpoint` is `best` (default when present), `latest` (`learner.pt`), an epoch N
+(`epoch-NNNN.pt`) or a file. By default the episodes are the ones the run's evaluator used for
+that epoch, so the first `training.eval_episodes` reproduce `metrics.csv`'s success; `--seed S`
+draws other goals. Actions are μ without noise.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
-"""The progress lines of `hercs up` (hercs/apps/launcher.py): one per evaluated epoch, and one
-while an epoch runs long, from the learner's `Metrics`, the evaluator's `EvalResult`s, the
-replay's status, the clusterer's `Metrics` and the stored episodes' headers; and the lines
-that end a finished run. Pure bookkeeping with an injected clock.
+"""The progress lines of `hercs up`: one per evaluated epoch, one while an epoch runs long, and
+those that end a finished run, from what the learner, evaluator, replay and clusterer publish.
 
-For a cluster method each epoch line carries the replay's cluster model and its episodes per
-cluster (`clusters v3 [60 0 56 0 40 48 0 0]`), or, before the first model, the failed goals
-counted towards it (`clusters none yet (12/150 failed goals)`); a run that ends without one
-says why (too few failed goals: a policy that rarely fails, as on FetchReach, gives none).
+Pure bookkeeping with an injected clock. For a cluster method each epoch line carries the
+cluster model and its episodes per cluster, or, before the first model, the failed goals
+counted towards it.
 """
 
 from __future__ import annotations

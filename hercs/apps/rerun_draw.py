@@ -1,11 +1,8 @@
-"""Rerun drawing shared by `hercs view` (hercs/apps/view.py) and the live view
-(hercs/apps/live_view.py): the episode, cluster and curve entities, their colours and the
-default layout, so that a recording made live and one made later from the episode log look
-alike. The entity paths and timelines are listed in hercs/apps/view.py's docstring.
+"""Rerun drawing shared by `hercs view` and the live view: the episode, cluster and curve
+entities, their colours and the default layout, so a live recording and a later one look alike.
 
-Every function takes the `rerun` module (`rr`, imported by the callers only when a recording
-is made, so `hercs --help` stays fast) and a `RecordingStream` (`rec`); none of them reads a
-file or talks to Zenoh.
+Every function takes the `rerun` module (`rr`, imported by callers only when recording, so
+`hercs --help` stays fast) and a `RecordingStream` (`rec`); none reads a file or talks to Zenoh.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """What `hercs up --resume RUN` finds in a run directory, decided before anything starts:
 continue, nothing to do, or refuse, so that a resume never trains over results.
 
-`learner.pt` (epoch C, with the epochs P still awaiting evaluation) and `metrics.csv` (rows R)
-agree when R holds exactly the epochs 1..C not in P, perhaps with rows of P written after the
-checkpoint. With E = `training.epochs`: R covering 1..E with C ≥ E (or no checkpoint at all)
-is a finished run, and nothing starts; otherwise the run continues from C (C = 0 without a
-checkpoint, only when R is empty too: a run stopped before its first epoch ended).
-
-Anything else is refused with what is wrong and what would work (docs/DESIGN.md §8,
-"Whole-run resume"): rows without a checkpoint would be trained over from epoch 1, rows past
-the checkpoint or missing ones would be trained again or lost. `--restart` is the explicit way
-to start such a run over: `set_aside_for_restart` first moves the old run's files into
-`previous/<time>/`.
+`learner.pt` (epoch C, epochs P awaiting evaluation) and `metrics.csv` (rows R) agree when R
+holds exactly the epochs 1..C not in P; anything else is refused, saying what would work.
+`--restart` starts over: `set_aside_for_restart` moves the old files to `previous/<time>/`.
 """
 
 from __future__ import annotations

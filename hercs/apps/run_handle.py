@@ -1,17 +1,9 @@
 """`hercs.up(...)`: start a whole run from Python and hold it by a handle.
 
-    import hercs
-
-    run = hercs.up(task="reach", method="her-cs", epochs=3, seed=1)
-    for row in run.rows():                 # metrics.csv rows, as each epoch ends
-        print(row["epoch"], row["success_rate"])
-    run.wait()                             # the exit status, 0 once the run finished
-    policy = run.policy("best")            # hercs.TrainedPolicy
-
-The run is the `hercs up` a shell starts, as a child process, so training never shares the
-caller's interpreter, GIL or signal handlers. Arguments are resolved as the command line does,
-so a bad value raises `ConfigError` before anything starts. `stop()` is Ctrl-C's orderly stop;
-a run still going when the caller exits, or dies, is stopped the same way.
+The run is `hercs up` in a child process, so training never shares the caller's interpreter,
+GIL or signals; arguments resolve as on the command line (a bad one raises `ConfigError` before
+anything starts). `rows()` yields metrics rows, `wait()` the exit status, `policy("best")` the
+policy; `stop()` is Ctrl-C's orderly stop, also done when the caller exits.
 """
 
 from __future__ import annotations

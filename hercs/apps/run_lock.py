@@ -1,14 +1,9 @@
 """One owner per run directory: the `hercs up` that runs it holds `RUN/owner.lock`.
 
-The lock is `flock(LOCK_EX)` on that file, taken without waiting and held by the launcher for
-its whole life. The kernel drops it when the process dies, however it dies (SIGKILL, a crash,
-a Slurm time limit), so a dead owner never leaves it stuck and a requeued job's
-`hercs up --resume` takes it at once. The file names the owner (pid, host, start, command) for
-the refusal message, trusted only while the lock is held. The owner removes the file as it lets
-go, and `take` locks the file only if it is still the one at the path, so a removal never
-gives two owners two different files. Children never inherit the lock (not inheritable,
-PEP 446, and `close_fds`). On a file system without a shared flock (some Lustre mounts) the
-lock is only as good as the file system's; `take` then goes on without it and says so.
+The lock is `flock(LOCK_EX)`, taken without waiting and held for the launcher's life; the
+kernel drops it however the process dies, so a requeued `hercs up --resume` takes it at once.
+The file names the owner for the refusal message. On a file system without a shared flock
+`take` goes on without the lock and says so.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """`hercs slurm submit`: one run as one heterogeneous Slurm job (docs/CLUSTER.md).
 
-The job script is written into the run directory (`runs/<run>/slurm/job.sbatch`, beside the
-`slurm/config.yaml` it starts the run with), to be read, edited and submitted by hand as well.
-Component 0 runs `hercs up --actors 0` (router over mutual TLS, replay, clusterer, learner,
-evaluator) and component 1 one `hercs actor` per node, which finds the router through
-`router.json`. Each attempt makes its own certificates; an actor step that ends while the run
-goes on is started again within the attempt; Slurm's warning before the time limit stops the
-run in order and requeues the job, whose next attempt continues with `hercs up --resume`, so a
-run may outlast any one job (docs/CLUSTER.md §1, §4, §5).
-
-This module only writes text and calls `sbatch`; the run itself is `hercs up` and
-`hercs actor` as on any machine.
+Writes the job script into the run directory (`runs/<run>/slurm/job.sbatch`, to read, edit or
+submit by hand) and calls `sbatch`: component 0 runs `hercs up --actors 0`, component 1 one
+`hercs actor` per node. Near the time limit the run stops in order and the job is requeued;
+its next attempt continues with `hercs up --resume`.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """When a run has stopped moving: the stall bound of `hercs up` (hercs/apps/supervisor.py).
 
-A run moves when its epochs end. One that ends none for `launch.stall_factor` times its
-slowest epoch so far has stalled, whatever the cause: a service stopped but alive (its
-process not exiting, so never restarted), a learner whose weights every actor refuses, a
-replay that holds every request. Nothing else would end such a run: each service waits,
-correctly, for another. The bound follows the run's own pace, so a slow machine or a heavy
-task is judged by itself, and the slowest epoch includes the first, which includes starting
-every service: a restart mid-run costs less than that. Before the first epoch ends there is
-no pace yet; the bound is then the factor times `expected_first_epoch_s`, what the config's
-first epoch costs on a slow machine.
-
-Pure bookkeeping with an injected clock; the supervisor feeds it and asks `stalled()`.
+A run that ends no epoch for `launch.stall_factor` times its slowest epoch so far (before the
+first, times `expected_first_epoch_s`) has stalled, whatever the cause; nothing else would
+end it, since each service waits, correctly, for another. Pure bookkeeping with an injected
+clock; the supervisor feeds it and asks `stalled()`.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
-"""The supervisor inside `hercs up`: starts the run's services as child processes, restarts
-one that dies (with back-off, up to `launch.max_restarts`; never a learner whose training
-diverged), prints a progress line per epoch from what the learner, evaluator and replay
-publish, ends a run that stalled (hercs/apps/stall.py), and stops everything stage by stage
-(actors first, the replay last, so that every episode in flight is still acked and logged).
+"""The supervisor inside `hercs up`: starts the run's services as child processes, restarts one
+that dies (with back-off, never a diverged learner), prints the progress lines, ends a stalled
+run and stops everything stage by stage (actors first, the replay last).
 
-`Supervisor` holds no Zenoh session of its own: `hercs.apps.launcher` subscribes its
-callbacks on the embedded router and drives `run` and `stop_all` (docs/DESIGN.md §6,
-"`hercs up`, step by step").
+It holds no Zenoh session: `hercs.apps.launcher` subscribes its callbacks on the embedded router
+and drives `run` and `stop_all` (docs/DESIGN.md §6, "`hercs up`, step by step").
 """
 
 from __future__ import annotations

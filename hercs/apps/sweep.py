@@ -2,18 +2,8 @@
 and `hercs sweep report`, its learning curves and its claims table (docs/GUIDE.md, "Grids of
 runs").
 
-    hercs sweep --tasks push --methods her her-cs --seeds 5 --epochs 50
-    hercs sweep --tasks push --methods her-ebp-cs --seeds 3 --energy-epsilon 1e-6
-    hercs sweep report runs/sweep
-
-A sweep is resumable: a finished run (`bench_done.json`) is skipped, an unfinished one resumed
-from its checkpoint, and a run finished with fewer epochs than `--epochs` continued from its
-checkpoint to them (a sweep grows). Runs go `--jobs` at a time, one per core by default since
-each run is bound by its learner's one torch thread, and seed-major, so every arm has the same
-number of finished seeds as early as possible. `<run-dir>/sweep.json` is the manifest.
-`--committed DIR` keeps each finished run's small files to commit; the report reads them when
-a run is not local. `--quick` is the CI mode; `--slurm` submits a job array
-(`hercs.apps.sweep_slurm`).
+Resumable: a finished run (`bench_done.json`) is skipped, an unfinished or shorter one is
+continued from its checkpoint; runs go `--jobs` at a time, seed-major (`<run-dir>/sweep.json`).
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
-"""The statistics of `hercs sweep report`, over the seeds of each arm, as the field reports
-them (Agarwal et al. 2021, "Deep RL at the edge of the statistical precipice"): the IQM
-(interquartile mean) with a 95 % percentile bootstrap interval over runs, and the probability
-of improvement P(X > Y), that a run of one arm beats a run of another (ties half; the
-Mann–Whitney U over n_X·n_Y), with an interval from resampling each arm's runs on its own.
+"""The statistics of `hercs sweep report` over each arm's seeds (Agarwal et al. 2021): the IQM
+with a 95 % percentile bootstrap interval, and the probability of improvement P(X > Y) (ties
+half; Mann–Whitney U over n_X·n_Y) with an interval from resampling each arm on its own.
 
-numpy only, so that the product needs no statistics package; the project's own claims
-(studies/claims/claims.py) use rliable's bootstraps around these two functions, which equal
-rliable's for one task (tests/studies/claims/test_claims.py pins them).
+numpy only, so the product needs no statistics package; these equal rliable's for one task
+(tests/studies/claims/test_claims.py pins them).
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """`hercs view`: a Rerun recording of a run's episode log (docs/DESIGN.md §6).
 
-Reads `episodes.mcap` (a single segment, or a run directory: its numbered segments, then
-`episodes.mcap`) with `hercs.run.runlog`, and `metrics.csv` when it sits beside the log, and
-logs them with rerun-sdk to a spawned viewer (default), an `.rrd` file (`--save`) or the web
-viewer (`--web`). The live view (`hercs up --rerun`, hercs/apps/live_view.py) logs the same
-entities on the same timelines while a run trains: both draw with hercs/apps/rerun_draw.py.
-The timelines, entity paths and colours are docs/DESIGN.md §6, "The Rerun recording".
+Reads `episodes.mcap` (one segment or a run directory's) and `metrics.csv` beside it, and logs
+them to a spawned viewer (default), an `.rrd` file (`--save`) or the web viewer (`--web`).
+The live view draws the same entities with hercs/apps/rerun_draw.py; timelines, entity paths
+and colours are docs/DESIGN.md §6, "The Rerun recording".
 """
 
 from __future__ import annotations
