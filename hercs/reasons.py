@@ -1,17 +1,9 @@
 """The one vocabulary of error-reply reasons, each tagged with what a client does on it.
 
-Every refusal a service sends (`PendingReply.reply_error`, an `InvalidMessage`, a parked call
-failed by the replay table) names one of these; `ReplayStatus.rejects` counts them by value.
-A client decides from the tag alone: `DROP`, the message can never succeed (malformed, wrong
-run or task, a miss): drop it, count it, never resend it unchanged; `SUPERSEDED`, well formed
-but no longer wanted (the lockstep schedule or the lag bound has moved on): drop it quietly
-and act with newer weights; `RETRY`, the service could not answer now (shutting down, a failed
-log write, held past the caller's timeout, too many of the actor's inserts waiting, a handler
-error): send the same bytes again after a backoff.
-
-A reason outside this enum (a newer peer's) is retried with a warning; with
-`HERCS_STRICT_REASONS=1` (set for the test suite) it raises instead, so that a new reason
-added without a tag fails the tests rather than silently meaning "retry".
+`DROP`: can never succeed, drop and count it; `SUPERSEDED`: no longer wanted, drop quietly and
+act with newer weights; `RETRY`: send the same bytes again after a backoff. A reason outside
+this enum is retried with a warning, or raises with `HERCS_STRICT_REASONS=1` (the tests), so a
+new reason without a tag fails the tests rather than silently meaning "retry".
 """
 
 from __future__ import annotations

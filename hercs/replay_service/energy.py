@@ -1,16 +1,8 @@
 """Trajectory energy of energy-based prioritisation (EBP, Zhao & Tresp 2018).
 
-From the achieved-goal trajectory ag_0..ag_T, each transition's gain in potential plus kinetic
-energy, clipped to [0, clip_energy], summed over t = 1..T: docs/DESIGN.md §4.5 gives the
-formulas, and `transition_energy` says where they follow the reference code line by line.
-The replay computes it once per episode on insert, in float64 as the reference's buffers are.
-
-Beyond Fetch (`TaskSpec.energy`, hercs.rl.task_registry.ENERGIES): `points`, an achieved goal
-of k 3-d points (HandReach's five fingertips), sums the terms over its points, our extension
-since the EBP paper has no energy for such tasks; `hand`, a position then a (w, x, y, z)
-quaternion, adds the EBP reference's rotational term over Euler-angle rates, weighted by
-`w_rotational`. As in the reference the angles are not unwrapped: a crossing of ±π counts as a
-fast turn, and the clip bounds what it can add.
+Each transition's gain in potential plus kinetic energy of the achieved goal, clipped to
+[0, clip_energy], summed over t = 1..T (docs/DESIGN.md §4.5); computed once per episode on
+insert, in float64. `points` and `hand` (`TaskSpec.energy`) extend it beyond Fetch.
 """
 
 from __future__ import annotations

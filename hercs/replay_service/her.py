@@ -1,15 +1,9 @@
 """HER "future" relabelling as pure vectorised functions (no environment, injected RNG).
 
-Matches `her_sampler.sample_her_transitions` of the public PyTorch HER code the paper builds
-on (the same code is in the HER-CS authors' her_modules/her.py), with the same draws in the
-same order (`her_indices`), so a seeded run draws what the reference would; the reference uses
-the global np.random, we take a Generator. The rule is in docs/DESIGN.md §4.2.
-
-Rewards come from `reward_fn`, `TaskSpec.compute_reward`, tested equal to the env's own, so the
-replay never holds an environment. `future_t` can be T because ag has T+1 entries (ag_T is
-the achieved goal after the last action). Transitions are `hercs.wire.batch.TransitionBatch`
-(o_t, g, u_t, r_t, o_{t+1}); which episodes go into a batch is the samplers' job
-(hercs.replay_service.samplers): this module takes their slots.
+Matches `her_sampler.sample_her_transitions` of the reference PyTorch HER code, with the same
+draws in the same order (`her_indices`) from a Generator; the rule is docs/DESIGN.md §4.2.
+Rewards come from `TaskSpec.compute_reward`; `future_t` can be T since ag has T+1 entries.
+The samplers choose the episodes; this module takes their slots.
 """
 
 from __future__ import annotations

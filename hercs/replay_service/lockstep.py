@@ -1,17 +1,9 @@
 """The lockstep gate: the replay's admission rules when `training.schedule` is `lockstep`.
 
-It replaces the rate limiter's window (docs/DESIGN.md §9.1, which states the rules). The
-learner asks for cycle c's batch with `SampleRequest.weights_version = c`; the gate admits an
-insert at once or refuses it (`stale_policy` for weights older than the learner's newest
-request, `cycle_full` beyond `episodes_per_cycle` for its version), so nothing waits here: the
-actors wait for weights instead. Cycle c is served once its episodes are stored and, for the
-clustered methods, once no refit is due, since the reference refits in-process before the
-next update. The clusterer is a separate process that may be restarting, so a cycle waits for
-a refit at most `cluster_wait_s` (counted in `late_cluster_models`) and no later cycle waits
-for that refit again. After a replay restart the per-version counts are rebuilt from the
-recovered episodes (`recover`).
-
-Pure bookkeeping under the table's lock; it never blocks.
+It replaces the rate limiter's window (docs/DESIGN.md §9.1 states the rules): an insert is
+admitted at once or refused (`stale_policy`, `cycle_full`), and cycle c is served once its
+episodes are stored and, for the clustered methods, no refit is due (waited for at most
+`cluster_wait_s`). Pure bookkeeping under the table's lock; it never blocks.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """`PolicyLagLedger`: the replay's record of how stale the stored episodes' policies are.
 
-Two lags per stored episode (docs/DESIGN.md §9.1): against the learner's newest weights version
-when the episode is stored (`policy_lag_request`), and against the cycle the episode holds in
-the lockstep schedule (`policy_lag`, what the lag bound limits). Recent ones are averaged into
-the counters; every schedule lag since the last sample call travels with the next served batch.
-Pure bookkeeping, driven by `ReplayTable` under its lock; the lag's derivation is the class's.
+Two lags per stored episode (docs/DESIGN.md §9.1): against the learner's newest weights at
+storage (`policy_lag_request`) and against its lockstep cycle (`policy_lag`, what the lag bound
+limits). Pure bookkeeping, driven by `ReplayTable` under its lock.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Sample-to-insert rate limiter (Reverb's SampleToInsertRatio, restated for hercs).
 
-With I episodes inserted, S minibatches sampled and ρ = updates_per_episode, the limiter keeps
-the surplus d = ρ·I − S (the minibatches the learner is owed) inside a window of half-width E
-around ρ·N_min, its value when sampling may begin: an insert is admitted while the window has
-room for it (else the actor waits), a request for n minibatches once I ≥ N_min and the window
-allows it (else the learner waits). So updates per episode stay at ρ up to a bounded error
-(docs/DESIGN.md §4.7). A window narrower than one request plus one insert could hold both
-sides at once, so the constructor refuses 2E < n_max + ρ. With `free_run` everything is
-admitted and the counts are still kept for the status.
-
-The object is pure bookkeeping: it never blocks. The replay service parks queries that are not
-admitted and retries them after every insert or sample.
+With I episodes inserted, S minibatches sampled and ρ = updates_per_episode, the surplus
+d = ρ·I − S stays within E of ρ·N_min: an insert is admitted while the window has room (else the
+actor waits), a request for n minibatches once I ≥ N_min and the window allows it (else the
+learner waits). Pure bookkeeping, it never blocks; the constructor refuses 2E < n_max + ρ.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """The replay service's core: everything the replay does, with no transport.
 
-`ReplayCore` owns the episode store, the sampler of the configured method, the o/g normalisers,
-the current cluster model and the counters that `ReplayStatus` reports. The Zenoh shell
-(`hercs.replay_service.replay_shell`) decodes messages, asks the rate limiter, calls this object and
-encodes the answers; tests drive this object directly.
-
-Invariants:
-- an (actor_id, seq) pair is stored at most once (`insert` returns `duplicate=True` for a
-  retry of a stored episode and changes nothing);
-- every stored episode carries the cluster of its last achieved goal under the current model
-  (-1 before the first model);
-- normaliser statistics cover every stored episode (HER-sampled transitions, as the
-  reference's `_update_normalizer`), clipped to ±clip_obs first.
+`ReplayCore` owns the episode store, the sampler, the o/g normalisers, the cluster model and
+the status counters. Invariants: an (actor_id, seq) pair is stored at most once; every stored
+episode carries its cluster under the current model (-1 before one); normaliser statistics
+cover every stored episode.
 """
 
 from __future__ import annotations

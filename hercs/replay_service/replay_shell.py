@@ -1,17 +1,9 @@
 """`hercs replay`: the replay service process, a thin Zenoh shell around `ReplayTable`.
 
-It decodes and validates each query, hands it to the table with a waiter that answers the
-query (now or, when the rate limiter holds it, later), and encodes what the waiter is given.
-Every decision (dedup, parking, admission order, expiry, durable logging before the ack) is
-the table's (`hercs.replay_service.table`). Queries are served on our own worker threads, never
-inside Zenoh callbacks. The keys it serves, puts and subscribes to are docs/DESIGN.md §3's
-table; `replay/status` is put about once a second, and parked calls past their caller's
-timeout are answered `expired` at the same pace.
-
-On start the run directory's episode log is replayed into the table (from its newest saved
-replay state on, for a bounded log), so nothing acked is lost across a restart; the rate
-limiter restarts balanced at the recovered size and the log's newest cluster model is adopted
-again (docs/DESIGN.md §6, §8).
+It decodes and validates each query and hands it to the table with a waiter that answers it,
+now or later; every decision is the table's. Queries are served on our own worker threads,
+never inside Zenoh callbacks. On start the episode log is replayed into the table, so nothing
+acked is lost across a restart (docs/DESIGN.md §6, §8).
 """
 
 from __future__ import annotations

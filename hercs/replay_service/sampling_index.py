@@ -1,16 +1,8 @@
 """What the samplers draw from, kept up to date as episodes come, go and are relabelled.
 
-Rebuilding it from the whole store for every minibatch would cost O(N) per draw;
-`SamplingIndex` keeps instead: per-cluster member lists (slots, each with its position for an
-O(1) swap-remove) and counts, updated on every insert, eviction and relabel, so HER-CS's plan
-and its uniform draws are O(k + B) per minibatch; and the cumulative sums of energy + ε along
-each row (row 0: every stored slot; row c+1: cluster c's members, in member-list order),
-recomputed once after a write and reused by every draw until the next, so an energy-weighted
-draw is one binary search per entry, O(B log N). The replay serves a request's 40 minibatches
-in one go and the paper's schedule inserts one episode per 10 minibatches, so the O(N)
-recomputation is paid at most once per request. Sum trees would avoid it but cost more per
-draw at the buffer sizes of the paper (docs/PERFORMANCE.md §5 measures both).
-
+`SamplingIndex` keeps per-cluster member lists and counts (O(1) swap-remove), so HER-CS's draws
+cost O(k + B), and cumulative sums of energy + ε per row (row 0 every slot, row c+1 cluster c),
+recomputed once after a write, so an energy-weighted draw is a binary search, O(B log N).
 Not thread-safe; the store owning it is called by one thread at a time.
 """
 

@@ -1,17 +1,9 @@
-"""A preallocated buffer of whole episodes, with per-episode metadata: a FIFO ring, or the
+"""A preallocated buffer of whole episodes with per-episode metadata: a FIFO ring, or the
 reference's random overwrite once full (`replay.eviction`, docs/DESIGN.md §9.2).
 
-Invariants (enforced by `insert` and `restore`):
-- Episode ids are global and monotonic from 0. Ids below `capacity_episodes` go to slot `id`,
-  later ones to `slot_for(id)`: ``id % capacity_episodes`` for `fifo`, a slot drawn uniformly
-  by a hash of (eviction seed, id) for `random`. The slot is a pure function of the id, so
-  replaying the episode log in id order rebuilds the same buffer.
-- So the valid slots are always ``[0, size)``; array properties are read-only views of it.
-- Every stored array has the task's shapes (`hercs.wire.episode.expected_shapes`); a mismatch is
-  refused before anything is written.
-
-Storage is allocated with ``np.zeros`` (calloc), so a 1e6-transition buffer commits memory only
-as slots are written. The store is not thread-safe: the service serialises calls.
+Episode ids are global and monotonic; an id's slot is a pure function of it (`slot_for`), so
+replaying the log in id order rebuilds the same buffer. Valid slots are `[0, size)`; arrays of
+the wrong shape are refused before anything is written. Not thread-safe.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """The replay table: everything the replay service decides, with no transport (Reverb's
 `Table` is the model).
 
-`ReplayTable` owns the `ReplayCore`, the rate limiter (or in lockstep the `LockstepGate`), the
-queues of parked calls (hercs.replay_service.table_calls), the deduplication of retries, the
-durable log's group commit and the `PolicyLagLedger`. The Zenoh shell
-(hercs.replay_service.replay_shell) calls `insert` or `sample` with a `Waiter` that answers
-a query; unit tests drive it with plain waiters and a fake clock. Every public method takes
-the table's lock; waiters are called under it, so they must only hand their answer over.
-
-The admission rules, the drain, the group commit (logged and fsynced before anything is
-acknowledged), expiry and recovery are docs/DESIGN.md §3, "The replay table".
+`ReplayTable` owns the `ReplayCore`, the rate limiter or lockstep gate, the parked calls, the
+deduplication, the log's group commit and the `PolicyLagLedger`. Every public method takes the
+table's lock and waiters are called under it, so they must only hand their answer over.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """The inserts waiting for the rate limiter, admitted round-robin across actor ids.
 
-While the limiter holds inserts, the order in which it takes the waiting ones decides who gets
-the insert capacity. In arrival order an actor with many inserts waiting (a misbehaving client,
-several senders under one id) takes nearly all of it and the others' inserts time out, so
-`WaitingInserts` keeps a FIFO per actor id and a ring of the actors with inserts waiting:
-with m actors waiting, each gets one admission in m, however many inserts the others have
-waiting (docs/DESIGN.md §3, "Fair sharing between actors"). An actor alone is admitted in
-arrival order. At most `per_actor` inserts of one actor id wait; `refusal` answers one more
-with `actor_queue_full`, a retry, so the flooder is slowed by its own backoff and the waiting
-inserts' memory stays bounded. A retry of a waiting (actor_id, seq) joins that call
-(hercs.replay_service.table) and is never refused here. `per_actor = 0` is one FIFO in arrival
-order with no bound, kept to measure the difference (bench/perf/fair_share.py).
+A FIFO per actor id and a ring of the waiting actors: with m actors waiting each gets one
+admission in m (docs/DESIGN.md §3, "Fair sharing between actors"). At most `per_actor` inserts
+of one id wait; one more is refused `actor_queue_full` (a retry). `per_actor = 0` is one
+unbounded FIFO, kept to measure the difference (bench/perf/fair_share.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """The episode-sampler protocol, what a draw reports, and shared vectorised draw primitives.
 
-A sampler chooses which *episodes* (store slots) go into a minibatch: HER's first sampling.
-It returns slot indices plus a `SampleInfo`, never data; timesteps and goal relabelling are
-hercs.replay_service.her's. Samplers hold no state between calls (so they have no
-``state_dict``): everything they use is read from the store at call time — its
-`SamplingIndex` (hercs.replay_service.sampling_index), which the store keeps up to date, so a draw
-costs O(k + B log N) rather than O(N) — and randomness comes from the injected generator.
+A sampler chooses which *episodes* (store slots) go into a minibatch and returns slot indices
+plus a `SampleInfo`, never data. Samplers hold no state between calls: they read the store's
+`SamplingIndex` (O(k + B log N) per draw) and take randomness from the injected generator.
 """
 
 from __future__ import annotations

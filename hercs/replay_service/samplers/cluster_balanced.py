@@ -1,19 +1,9 @@
 """HER-CS's episode draw: every cluster of final achieved goals gets an equal share of the batch.
 
-The rule is the authors' `clustering_her_random` (ngng9957/Clustering-based-Failed-Goal-Aware-
-Hindsight-Experience-Replay, her_modules/her.py), stated in docs/DESIGN.md §4.3: a share of
-⌊B/k⌋ per cluster, drawn among its members, a small cluster's members each drawn about
-`repeat` times, and what a share cannot use, plus the remainder, drawn from the whole buffer.
-Before any cluster model (every label −1) the draw is HER's uniform one, as the reference's is
-until its failed-goal buffer first fills; episodes still unlabelled once a model exists are
-reachable only through the whole-buffer fills. Where it departs from the reference (every
-cluster gets a share, B < 4k cannot crash: docs/DESIGN.md §9.4) a B=256, k=8 batch changes
-whenever the highest-numbered cluster is empty: the reference then shares the batch among
-fewer clusters; `cluster.share_rule=reference` draws as it does. The output lists the shares
-first, then the fills: order within a minibatch does not matter, since each entry's timestep
-is drawn independently.
-
-Cost per call: O(k + B); cluster sizes and members come from the store's `SamplingIndex`.
+The authors' `clustering_her_random` (docs/DESIGN.md §4.3): ⌊B/k⌋ per cluster drawn among its
+members (a small cluster's each about `repeat` times); what a share cannot use, plus the
+remainder, drawn from the whole buffer. Before any cluster model the draw is HER's uniform one.
+Departures: docs/DESIGN.md §9.4 (`cluster.share_rule=reference` draws as the authors do).
 """
 
 from __future__ import annotations

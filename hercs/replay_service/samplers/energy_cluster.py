@@ -1,16 +1,8 @@
 """HER-EBP-CS's episode draw: cluster-balanced shares, energy-prioritised inside them.
 
-No public code combines the two; this is our definition (docs/DESIGN.md §4.3). With w =
-trajectory energy + ε: how many draws each cluster gets is exactly HER-CS's plan
-(`samplers.cluster_balanced`), so balancing which regions of goal space are replayed stays
-HER-CS's job; inside cluster c a member i is drawn with p = w_i / Σ_{j∈c} w_j, so a small
-cluster's repeated draws also favour its energetic members; every whole-buffer fill is drawn
-with p ∝ w over the buffer; before any cluster model the draw is plain HER-EBP. So the expected
-count of episode i in cluster c per batch is member_draws_c · w_i / W_c + fill · w_i / W, with
-W_c and W the cluster and buffer masses.
-
-The store's `SamplingIndex` keeps the cumulative energies of the buffer and of each cluster,
-so a batch is one binary search per draw (O(k + B log N)). Stateless.
+Our definition (docs/DESIGN.md §4.3), with w = trajectory energy + ε: each cluster's draws are
+HER-CS's plan; inside cluster c member i is drawn with p = w_i / Σ_{j∈c} w_j; whole-buffer fills
+with p ∝ w; before any cluster model it is plain HER-EBP. Stateless; O(k + B log N) per batch.
 """
 
 from __future__ import annotations

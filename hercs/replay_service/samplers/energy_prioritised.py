@@ -1,10 +1,7 @@
 """HER-EBP's episode draw: p(slot) ∝ trajectory energy + ε, with replacement.
 
-The reference (ruizhaogit/EnergyBasedPrioritization, her.py) draws with
-p ∝ e^(1/(temperature+0.01)) (default temperature 1, rank_method 'none', so an exponent of
-0.990) and no ε, so an all-zero buffer divides by zero there. docs/DESIGN.md §4 fixes p ∝ e + ε: the
-exponent is 1, and ε (config.energy.epsilon) keeps every episode drawable and makes an
-all-zero buffer uniform.
+ε (config.energy.epsilon) keeps every episode drawable and makes an all-zero buffer uniform;
+the reference's exponent 1/(temperature + 0.01) is 1 here (docs/DESIGN.md §4).
 """
 
 from __future__ import annotations
