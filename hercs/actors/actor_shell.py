@@ -1,17 +1,8 @@
 """The rollout actor process (`hercs actor`): a thin Zenoh shell around `VectorRollout`.
 
-`run` joins a run by asking the replay for its resolved config, so `hercs actor --connect
-tcp/HOST:7447 --run RUN` on any host needs no config of its own (the local `transport` section
-is kept). It takes the newest `Weights` as a late joiner and loops: one exploring episode per
-env, each handed to the `Inserter` as `(actor_id=<ident>@<incarnation>, seq)`; the incarnation
-is the process's start time, so a restarted actor never reuses a pair the replay has stored.
-Each episode waits for the weights the schedule asks for (`hercs.actors.weights_schedule`), and
-backpressure reaches the env through the blocking `Inserter.submit` (docs/DESIGN.md §3).
-
-On a stop signal the actor flushes its queue for at most `STOP_FLUSH_S`; once `RunProgress`
-says the run is finished it gives the queue up at once, since no learner will sample those
-episodes and retries would keep it alive past its run (a scheduler then records the job as
-cancelled). A dead inserter thread stops the actor with status 1.
+It joins a run by asking the replay for its resolved config, takes the newest `Weights`, and
+hands one exploring episode per env to the `Inserter` as `(actor_id=<ident>@<incarnation>, seq)`;
+the incarnation is the start time, so a restarted actor never reuses a stored pair.
 """
 
 from __future__ import annotations

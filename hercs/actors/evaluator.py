@@ -1,15 +1,8 @@
 """The evaluator process (`hercs evaluator`): deterministic test episodes of epoch-end policies.
 
-Every `Weights` with `evaluate=True` joins a FIFO, so an epoch's policy is never lost to newer
-weights that arrive while another epoch is evaluated; a version already queued or done is
-skipped (the late-joiner cache may repeat one). Each is loaded into the evaluator's own `Policy`
-and run for `training.eval_episodes` episodes without noise in its own env, seeded once, so all
-methods of one seed are tested on the same goals (docs/DESIGN.md §4.8, §9.7). The learner's
-`eval/request` for a lost result is answered from a cache of results, or evaluated (§8).
-
-Results must arrive: the publisher blocks rather than drops, and each put first waits up to
-`SUBSCRIBER_WAIT_S` for the learner to match, since a put with no matched subscriber is lost.
-A stop abandons an evaluation between episodes; no partial result is sent.
+Every `Weights` with `evaluate=True` is queued (FIFO) and evaluated once, without noise, in the
+evaluator's own seeded env; its `EvalResult` must arrive, so the publisher blocks rather than
+drops. A stop abandons an evaluation between episodes; no partial result is sent.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
 """At-least-once delivery of an actor's episodes to the replay, on its own sender thread.
 
-An episode stays with the `Inserter` until an `InsertAck` names its `(actor_id, seq)`. An error
-reply is handled by its reason's disposition (`hercs.reasons`: drop, superseded or retry); a
-retry resends the same bytes after a backoff, which the replay's deduplication makes safe
-(docs/DESIGN.md §3, "Insert: at-least-once"). Episodes go one at a time, in `seq` order.
-
-Backpressure: `submit` blocks while `capacity` episodes wait behind the one in flight, so when
-the replay's rate limiter holds inserts the actor stops stepping its env instead of queueing
-without bound; the default capacity 2 keeps the env stepping through one ack's round trip.
-`close(timeout_s)` flushes for at most `timeout_s` and then gives up the rest (counted
-`abandoned`): an episode never acked may be lost, an acked one never is.
+An episode stays with the `Inserter` until an `InsertAck` names its `(actor_id, seq)`; an error
+reply is handled by its reason's disposition (`hercs.reasons`). `submit` blocks while
+`capacity` episodes wait (backpressure); `close(timeout_s)` gives up what is left after it.
 """
 
 from __future__ import annotations

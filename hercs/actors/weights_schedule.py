@@ -1,10 +1,8 @@
-"""Which weights an actor's next episode must be acted with: the pure core of the actor's
-waits (`ActorService` does the waiting; this decides what for). No clock, no threads.
+"""Which weights an actor's next episode must be acted with: the pure core of the actor's waits.
 
-- asynchronous (`training.schedule: async`), no lag bound: never wait;
-- asynchronous with `training.max_policy_lag` >= 1: when the latest ack asked for newer
-  weights than the policy's, wait for the next Weights to arrive, whatever its version;
-- lockstep: wait for weights of at least `min_version`, which the insert outcomes raise.
+Asynchronous without a lag bound: never wait; asynchronous with `training.max_policy_lag` >= 1:
+after an ack that asked for newer weights, wait for the next Weights, whatever its version;
+lockstep: wait for weights of at least `min_version`. No clock, no threads.
 """
 
 from __future__ import annotations

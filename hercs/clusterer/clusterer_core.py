@@ -1,11 +1,9 @@
 """The clusterer's pure core: classify episodes, keep the failed goals, refit k-means.
 
-Per observed episode (docs/DESIGN.md §4): the episode failed if it did not succeed by
-the task's rule (`TaskSpec.is_success`: ‖ag_T − g‖ below the Fetch radius, 5 cm); a
-failed episode's desired goal g goes into the failed-goal buffer, a successful one is only
-counted. When the buffer has been entirely replaced since the last fit, k-means (k clusters)
-is refitted and a new `ClusterModel` returned for publication. Refit `v` is seeded with
-`int_seed(seed, "clusterer", "kmeans", str(v))`, so a run's models are reproducible.
+An episode failed if it did not succeed by `TaskSpec.is_success`; its desired goal then goes
+into the failed-goal buffer. When the buffer has been entirely replaced since the last fit,
+k-means is refitted (refit `v` seeded with `int_seed(seed, "clusterer", "kmeans", str(v))`) and
+a new `ClusterModel` returned.
 """
 
 from __future__ import annotations

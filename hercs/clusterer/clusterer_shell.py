@@ -1,17 +1,9 @@
-"""The clusterer process (`hercs clusterer`): a thin Zenoh shell around
-`hercs.clusterer.clusterer_core`.
+"""The clusterer process (`hercs clusterer`): a thin Zenoh shell around its core.
 
-`run` subscribes to `keys.inserted`; the subscription thread only parses and checks each
-`EpisodeHeader` and queues (ag_T, g), while `Clusterer.observe` and its k-means refits (tens of
-ms or more) run on the main loop, so Zenoh's receive path is never held up. A bad header is
-counted by reason, logged once per reason per minute and skipped. Each new model is published
-on `keys.cluster_model` with `latest=True`, so a replay that starts later gets it at once.
-For `her` and `her-ebp` the process runs all the same (the topology is uniform) but only
-counts: no one would use a model, and skipping k-means keeps a core free (docs/DESIGN.md §4.4).
-
-On start it asks the replay for `replay/clusterer_state`, so a restarted clusterer continues
-its failed-goal buffer, counts and model numbering (docs/DESIGN.md §8); headers the snapshot
-already counted are skipped.
+The subscription thread only checks `EpisodeHeader`s and queues (ag_T, g); `Clusterer.observe`
+and the k-means refits run on the main loop, so Zenoh's receive path is never held up. Models
+go out on `keys.cluster_model` with `latest=True`; on start it continues from the replay's
+`replay/clusterer_state`.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """The failed-goal buffer (FGB) of HER-CS: a ring of the most recent failed desired goals.
 
-Refit rule (docs/DESIGN.md §4, the paper's "when the FGB is filled with entirely new FGs"):
-a refit is due once `capacity` failed goals have been added since the last fit. The first
-time this holds is when the ring first fills; after each `mark_fitted()` the count restarts, so with
-capacity 150 the fits happen at the 150th, 300th, 450th, … failed goal — each fit sees a
-buffer none of whose goals the previous fit saw.
-
-The authors' code (`rl_modules/replay_buffer.py`, `store_failed_goal`) refits when its ring
-index reaches capacity − 1, i.e. at the 149th, 299th, 449th, … failed goal (the first fit on
-149 goals) and only uses the model once the ring holds 150. We fit one goal later, on a full
-ring; the cadence (every `capacity` failed goals) is the same.
+A refit is due once `capacity` failed goals have been added since the last fit (the paper's
+"when the FGB is filled with entirely new FGs"): with capacity 150, at the 150th, 300th, …
+failed goal, each fit on goals the previous one never saw. The authors' code refits one goal
+earlier (docs/DESIGN.md §9.4).
 """
 
 from __future__ import annotations

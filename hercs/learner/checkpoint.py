@@ -1,13 +1,8 @@
 """The learner's checkpoints: written atomically, the last good one kept.
 
 `runs/<run>/checkpoints/learner.pt` holds what a resumed learner needs to continue exactly at
-the end of the epoch it was taken at: the DDPG state (nets, targets, optimisers, normaliser
-statistics, update counters), the loop's counters (cycle, weights version, epoch, wall time,
-the epochs still waiting for their evaluation), torch's RNG state, and the serialised
-`Weights` of each epoch still waiting for its evaluation (to ask again).
-
-A write goes to `learner.pt.tmp`, is fsynced, then renamed over `learner.pt` (and the folder
-fsynced), so a crash or a full disk at any point leaves the previous checkpoint whole.
+the end of its epoch. A write goes to `learner.pt.tmp`, is fsynced, then renamed over
+`learner.pt` (and the folder fsynced), so a crash or a full disk leaves the previous one whole.
 """
 
 from __future__ import annotations

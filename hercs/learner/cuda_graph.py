@@ -1,12 +1,9 @@
 """The whole DDPG update as one captured CUDA graph (`learner.cuda_graph`, on a GPU).
 
-An eager GPU update is ~170 kernel launches and Python between them: at the paper's minibatch
-the GPU waits on the host. Captured once, the update (TD target, both losses, both backward
-passes, both fused Adam steps, the loss sums) is one graph launch per minibatch; the host only
-normalises the minibatch and copies it into the graph's fixed input tensors. The graph reads
-the parameters, the target networks and the optimisers' state by address, so everything that
-changes them in place between replays (the Polyak update, `load_state_dict` of the networks)
-is seen; `DDPGLearner.load_state_dict` recaptures, since it replaces the optimisers' state.
+One graph launch per minibatch instead of ~170 kernel launches; the host only normalises the
+minibatch and copies it into the graph's fixed inputs. The graph reads parameters, targets and
+optimiser state by address, so in-place changes are seen; `DDPGLearner.load_state_dict`
+recaptures, since it replaces the optimisers' state.
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
 
-`DDPGLearner.update(batch)` (or `train`, the loop's, which keeps the losses on the device) is
-one of the reference's `_update_network` calls: the clipped TD target from the target networks,
-the critic's and the actor's losses from the same parameters, then an Adam step on each; the
-two halves may run on two threads (`learner.parallel_halves`) and a GPU's may be one CUDA graph
-(`hercs/learner/cuda_graph.py`). `update_targets()` is the once-per-cycle Polyak average
-(docs/DESIGN.md §4.6). The normalisers live in the replay; the learner adopts its statistics.
-
-Precision (`learner.precision`, bf16 or tf32 via `hercs/learner/tf32.py`) and device
-(`learner.device`, `resolve_device`) are as docs/DESIGN.md §4 describes: networks are created
-and seeded on the CPU, so a run's initial weights do not depend on the device, and checkpoints
-hold host tensors, so they load on any machine. A minibatch goes to the device as one pinned,
-non-blocking copy per array, overlapping the previous step on a GPU. This module never sets
-torch's thread count: that process-wide choice belongs to the service (docs/DESIGN.md §10).
+`DDPGLearner.update(batch)` (or `train`, the loop's) is one reference `_update_network` call;
+`update_targets()` is the once-per-cycle Polyak average (docs/DESIGN.md §4.6). Networks are
+built on the CPU and checkpoints hold host tensors, so neither depends on the device. Torch's
+thread count is the service's to set, never this module's (docs/DESIGN.md §10).
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """Finding where a learner's numbers stopped being finite, cheaply enough to look often.
 
-An update that makes a loss or a weight NaN or inf is never undone: every later update reads
-those numbers, and an actor refuses weights that hold them, so a run that trains on keeps
-nothing moving. The learner therefore looks: after every update on a CPU (the loss row is
-already on the host, the check costs microseconds), once per cycle everywhere (one read of
-the epoch's loss sums, which stay non-finite once any loss in them was, and one flag per
-parameter tensor, before the weights are published), and over its whole state before a
-checkpoint is written. `DDPGLearner` raises `hercs.errors.Diverged` with what these name.
+A NaN or inf in a loss or weight is never undone, so the learner looks: after every CPU update,
+once per cycle everywhere (the epoch's loss sums and one flag per parameter tensor, before
+weights are published), and over its whole state before a checkpoint. `DDPGLearner` raises
+`hercs.errors.Diverged` with what these name.
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """The learner's epoch-end bookkeeping, pure (no Zenoh, an injected clock): which epochs wait
 for an evaluation and with which weights, which are overdue to be asked for again, and which
-evaluated policies to keep on disk.
-
-`hercs.learner.learner_shell` drives it: it sends what `overdue` returns on `eval/request`, saves
-what
-`PolicyKeeper.files_for` names, and checkpoints `EvalRequests.state_dict()`.
+evaluated policies to keep on disk. `hercs.learner.learner_shell` drives it.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """`hercs learner`: the DDPG learner process, a thin shell around `LearnerLoop`.
 
-Threads:
-- the prefetcher (hercs.learner.prefetch) sends `SampleRequest`s on `replay/sample` (the replay's
-  rate limiter may hold them: that is the backpressure) and queues decoded batches, each with
-  the replay's counters at the time (`hercs.wire.served`);
-- a Zenoh subscription thread (hercs.net.transport) queues `EvalResult`s;
-- the main thread runs cycles: updates, target update, weights broadcast (latest kept for
-  late joiners), and at each epoch end the evaluation flag and a checkpoint; when the
-  evaluator answers, a `metrics.csv` row and a `Metrics` put for the launcher
-  (hercs.learner.evaluations keeps the requests and the policies to keep).
-It exits 0 after the last epoch's evaluation is recorded, and with `EXIT_DIVERGED` (4) where a
-loss or a weight stopped being finite (`Diverged`, saying where and which checkpoint is kept).
+The prefetcher thread (hercs.learner.prefetch) asks `replay/sample` for batches; a subscription
+thread queues `EvalResult`s; the main thread runs cycles, broadcasts weights, checkpoints at each
+epoch end and writes a `metrics.csv` row per evaluation. It exits 0 after the last epoch's
+evaluation is recorded, and `EXIT_DIVERGED` (4) when a loss or weight stops being finite.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """The learner's loop as a pure object: cycles, epochs, weights versions and metrics rows.
 
-`LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one cycle = one pulled
-`ServedBatch` (hercs.wire.served) of `minibatches_per_cycle` minibatches → that many DDPG updates →
-one Polyak target update → a new weights version. Every `cycles_per_epoch` cycles an epoch ends: the
-caller broadcasts the epoch-end policy for evaluation and checkpoints. When the evaluator's
-result for epoch e arrives, `record_eval` completes the epoch's metrics row.
-
-The service (hercs.learner.learner_shell) runs this object in a loop with Zenoh around it; tests
-drive it
-directly with locally built batches.
+`LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one `ServedBatch` of
+`minibatches_per_cycle` minibatches → that many DDPG updates → one Polyak update → a new
+weights version; every `cycles_per_epoch` cycles an epoch ends, and `record_eval` completes
+its metrics row. The service runs it in a loop; tests drive it directly.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """A learner's state across restarts: what its checkpoint holds and how a restarted learner
 continues from it, with the run's metrics.csv made to agree.
 
-If `checkpoints/learner.pt` exists the learner continues from it (the end of the last
-checkpointed epoch): DDPG state, counters, weights version, the run's wall time and the epochs
-waiting for evaluation; `metrics.csv` keeps its rows up to that epoch and a pending epoch that
-already has its row is not evaluated again. Rows of later epochs (possible only after a failed
-checkpoint write, or a file put back by hand) are set aside, never deleted: the whole old file
-goes to `previous/<time>/metrics.csv` and those epochs are trained again. Without a checkpoint
-the learner starts at epoch 0 and sets aside any rows the same way. (`hercs up --resume`
-refuses such a folder before anything starts; this is the learner's own guard, e.g. when
-services run without `hercs up`.)
+With `checkpoints/learner.pt` the learner continues from the end of its epoch; rows of later
+epochs are set aside (the old file to `previous/<time>/metrics.csv`), never deleted. Without
+one it starts at epoch 0, setting rows aside the same way.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """TensorBoard event files beside metrics.csv: the same scalars, one step per epoch.
 
-Written with TensorBoard's own `SummaryWriter` (torch.utils.tensorboard), so any TensorBoard
-reads them (`tensorboard --logdir runs/`). Scalars are grouped by what they measure, so that
-each panel holds one unit: `eval/` (success rate, final distance), `loss/` (critic and actor
-losses, mean Q), `throughput/` (env steps and updates per second, waiting for batches),
-`replay/` (size, policy lag, versions) and `progress/` (counters and wall time).
+Written with torch's `SummaryWriter`, so any TensorBoard reads them. Scalars are grouped so
+each panel holds one unit: `eval/`, `loss/`, `throughput/`, `replay/` and `progress/`.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """TF32 arithmetic of matrix products, emulated on any device (`learner.precision=tf32`).
 
-The authors trained with torch 1.10 on a GPU, where a float32 matrix product on an Ampere or
-newer GPU ran in TF32 by default: each input rounded to TF32's 10 explicit mantissa bits (fp32
-keeps 23), the products summed in fp32, everything else (element-wise ops, Adam, the losses)
-fp32. `TF32Products` reproduces that on any device: inside it, every matrix product torch
-dispatches (forward and backward, since the mode is below autograd) rounds its float32
-operands with `round_to_tf32` and then multiplies in fp32. The rounding rule was chosen to
-match cuBLAS's own TF32 products (docs/results/learner_cuda.md).
+Inside `TF32Products` every matrix product torch dispatches (forward and backward) rounds its
+float32 operands to TF32's 10 mantissa bits (`round_to_tf32`, matching cuBLAS) and multiplies
+in fp32, as the authors' torch 1.10 on an Ampere GPU did by default.
 """
 
 from __future__ import annotations
