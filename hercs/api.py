@@ -1,17 +1,8 @@
-"""The Python API: a run directory's policy, metrics, episodes and config in your own code,
-with no service running. Re-exported by the `hercs` package:
+"""The Python API: a run directory's policy, metrics, episodes and config, no service running.
 
-    import hercs
-
-    policy = hercs.load_policy("runs/RUN")            # checkpoints/best.pt
-    action = policy.act(obs)                          # obs: the env's observation dict
-    metrics = hercs.read_metrics("runs/RUN")          # metrics.csv, numbers parsed
-    for episode in hercs.read_episodes("runs/RUN", last=10): ...
-    config = hercs.load_config("runs/RUN")            # or a YAML file, or the defaults
-
-Arrays go in and come out as numpy; the caller needs no torch. Errors are `HercsError`s that
-name the folder or file, what is missing and what to do. Torch, the episode log and the config
-are imported inside the calls, so that `import hercs` (every hercs process does it) stays light.
+Re-exported by the `hercs` package (`hercs.load_policy`, `read_metrics`, `read_episodes`,
+`load_config`). Arrays are numpy; errors are `HercsError`s naming the file and what to do.
+Torch, the episode log and the config are imported inside the calls, so `import hercs` stays light.
 """
 
 from __future__ import annotations

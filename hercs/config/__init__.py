@@ -1,13 +1,9 @@
 """The one configuration tree. Every default equals the paper's reference value (docs/DESIGN.md §4).
 
-Sources named in the field comments:
-- [HER-py]  the public PyTorch HER implementation the paper builds on (DDPG+HER, arguments.py).
-- [HER-CS]  the authors' code for cluster-based sampling (fgb size, k, small-cluster rule).
-- [EBP]     Zhao & Tresp 2018, energy-based prioritisation (clip_energy for PickAndPlace).
-- [DESIGN]  docs/DESIGN.md: our choice where the paper and the reference code are silent.
-
-Overrides come from YAML (`load_yaml`) and the CLI (`apply_overrides` with `section.field=value`);
-every construction runs `__post_init__` validation, whose messages name the field and value.
+Field comments name their source: [HER-py] the public PyTorch HER code, [HER-CS] the authors'
+cluster code, [EBP] Zhao & Tresp 2018, [DESIGN] our choice (docs/DESIGN.md). Overrides come
+from YAML (`load_yaml`) and the CLI (`apply_overrides`, `section.field=value`); every
+construction runs `__post_init__` validation, naming the field and value.
 """
 
 from __future__ import annotations

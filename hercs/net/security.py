@@ -1,16 +1,9 @@
 """Who may join a run and what each role may do: Zenoh TLS, user/password and access control.
 
-Threat model and set-up: docs/SECURITY.md. Every hercs process authenticates as its role
-(`ROLES`) by a certificate of the run's CA whose common name is the role (mutual TLS,
-`security.tls_*`), a `user:password` line of `security.credentials`, or both. Whenever the
-router authenticates clients it also enforces access control: deny by default, and each role
-may publish, subscribe, query or serve only its own keys (`ROLE_GRANTS`), so an actor can
-insert episodes and read weights but cannot publish weights, models or results nor serve a
-replay key. A router listening beyond loopback without TLS is refused (`listen_problem`) unless
-`security.allow_insecure` says the network is trusted.
-
-The Zenoh configuration keys and ACL semantics this rests on (eclipse-zenoh 1.10.2) are noted
-at `zenoh_settings` and `access_control`.
+Each process authenticates as its role (`ROLES`) by a certificate whose common name is the role,
+a `user:password` line, or both; the router then denies by default and grants each role only
+its own keys (`ROLE_GRANTS`). A router listening beyond loopback without TLS is refused
+(`listen_problem`) unless `security.allow_insecure`. Threat model: docs/SECURITY.md.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """One compute thread per service process.
 
-A hercs run is many single-threaded processes (actors, learner, replay, evaluator, clusterer)
-sharing the host's cores; a library that spreads one process's arithmetic over every core then
-competes with the others. OpenBLAS, under numpy, does so by itself for matrix products of 8
-rows or more: on a busy 2-core machine the actor's batched policy call
-(`actor.envs_per_process` 8) took 3.4 ms instead of 0.15 (`bench/perf/actor_envs.py`). So every
-service (`hercs.net.service_shell.service_main`) limits the BLAS and OpenMP thread pools, and
-torch's
+A run is many single-threaded processes sharing the host's cores, so every service
+(`hercs.net.service_shell.service_main`) limits the BLAS and OpenMP thread pools, and torch's
 intra-op threads where torch is loaded, to one.
 """
 

@@ -1,12 +1,9 @@
 """Environment factory: gymnasium-robotics tasks (or a user's module:factory), seeded, without
 the env checker.
 
-`Fetch*-v4` runs on the mujoco bindings (MuJoCo 3). The authors' `Fetch*-v1` runs on mujoco-py,
-which needs MuJoCo 2.1's binaries and a Cython extension compiled against them: `make mujoco-py`
-puts the binaries in `<venv>/mujoco210`, compiles the extension and sets that folder's `bin/` as
-the extension's run path (RUNPATH), so that no process needs LD_LIBRARY_PATH at its start.
-`prepare_mujoco_py` sets the variables mujoco-py reads at import, in every process that makes
-an env; `check_env` tells a run on v1 at its start when that installation is missing.
+`Fetch*-v4` runs on MuJoCo 3; the authors' `Fetch*-v1` on mujoco-py and MuJoCo 2.1 (`make
+mujoco-py`). `prepare_mujoco_py` sets what mujoco-py reads at import, in every process that
+makes an env; `check_env` says at a run's start when that installation is missing.
 """
 
 from __future__ import annotations

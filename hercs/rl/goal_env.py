@@ -1,16 +1,9 @@
 """Any goal-conditioned environment as a hercs task: its spec read from the environment, its
 reward and success rule from the environment's own functions.
 
-`inspect_goal_env` makes the environment once and checks the goal interface HER needs (as in
-gymnasium-robotics and Stable-Baselines3's HER): dict observations with `observation`,
-`achieved_goal` and `desired_goal`; a 1-d action box symmetric about 0 (the actor's tanh
-output is scaled by its bound); a fixed horizon; a batched `compute_reward`; and
-`info["is_success"]`. What is missing is named in a `ConfigError`, so `hercs up` exits 2
-before it starts any service (docs/DESIGN.md §4.9 has the full list and the reward bounds).
-Success outside a step is the env's vectorised `_is_success` where it has one, else "the
-reward equals the reward of reaching the goal exactly": right for sparse rewards, the setting
-HER is for. The reward functions are an environment instance's (`env_rule`): one per process
-that needs them (replay, clusterer), made once and never stepped.
+`inspect_goal_env` checks the goal interface HER needs (docs/DESIGN.md §4.9) and names what is
+missing in a `ConfigError`, so `hercs up` exits 2 before any service starts. The reward
+functions are an env instance's (`env_rule`), one per process that needs them, never stepped.
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
 """The per-step reads of gymnasium-robotics' MuJoCo envs, from ids resolved once.
 
-Every step of a Fetch v4 or Shadow hand env (HandReach, HandManipulate*) builds its observation
-through `gymnasium_robotics.utils.mujoco_utils`, which looks each joint and site up by name
-(`mj_name2id`) and copies the robot's joints one slice at a time: ~0.2 ms of a ~0.9 ms FetchPush
-step on our machine, pure Python (docs/PERFORMANCE.md §3, docs/results/env_step.md).
-`IndexedMujocoUtils` stands in for that module on one env: the functions a step calls answer
-from ids and joint addresses cached on first use, with the same NumPy operations on the same
-arrays, so the values are bit-identical (tests/unit/hercs/test_indexed_lookups.py); every other
-name is the module's own.
+`IndexedMujocoUtils` stands in for `gymnasium_robotics.utils.mujoco_utils` on one env: the
+functions a step calls answer from ids and joint addresses cached on first use, with the same
+NumPy operations, so the values are bit-identical; every other name is the module's own.
 """
 
 from __future__ import annotations

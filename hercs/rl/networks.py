@@ -1,13 +1,9 @@
 """Actor and critic of DDPG+HER, and the input preprocessing shared by actors and learner.
 
-Shapes and arithmetic follow the reference PyTorch HER code (`rl_modules/models.py`):
-- actor  μ(x)    = max_action · tanh(W_out · relu(… relu(W_1 x)))          x = [o_norm, g_norm]
-- critic Q(x, a) = W_out · relu(… relu(W_1 [x, a / max_action]))
-with `hidden_layers` ReLU layers of `hidden_size` units (3 × 256) and PyTorch's default
-`nn.Linear` initialisation, as the reference.
-
-Seeded construction (`seed=`) builds the layers inside `torch.random.fork_rng`, so the weights
-depend only on the seed and building a network never changes the caller's global torch RNG.
+As the reference PyTorch HER code (`rl_modules/models.py`): actor μ(x) = max_action ·
+tanh(MLP(x)), critic Q(x, a) = MLP([x, a / max_action]), x = [o_norm, g_norm]. Seeded
+construction (`seed=`) runs inside `torch.random.fork_rng`: the weights depend only on the
+seed and the caller's global RNG is untouched.
 """
 
 from __future__ import annotations

@@ -1,17 +1,8 @@
 """Running mean/std normaliser for observations and goals, as in the reference DDPG+HER.
 
-The arithmetic is the reference's (`mpi_utils/normalizer.py` of the PyTorch HER code):
-
-    mean = Σv / n
-    std  = sqrt(max(eps², Σv²/n − mean²))
-    normalize(v) = clip((v − mean) / std, −clip_range, clip_range)
-
-`update` only accumulates the sums; `mean`/`std` change only in `recompute_stats`, so a policy
-uses one fixed set of statistics between recomputations, as the reference's does within a
-cycle. The sums are float64 and the count starts at 0, where the reference's are float32 and
-n+1 (docs/DESIGN.md §9.5); before any data `mean = 0` and `std = 1`. `state_dict()` holds
-exactly the five statistics (sum, sumsq, count, mean, std): the format the replay sends to the
-learner and the learner broadcasts to the actors.
+mean = Σv / n, std = sqrt(max(eps², Σv²/n − mean²)), normalize(v) = clip((v − mean) / std).
+`update` only accumulates float64 sums; `mean`/`std` change only in `recompute_stats`. Before
+any data mean = 0 and std = 1. `state_dict()` holds exactly sum, sumsq, count, mean and std.
 """
 
 from __future__ import annotations

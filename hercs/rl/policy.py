@@ -1,12 +1,7 @@
 """What an actor holds: the actor network, the o/g normalisers and the weights version.
 
-Exploration is the reference's `_select_actions` (`rl_modules/ddpg_agent.py`), per action:
-
-    a = μ(o, g) + noise_eps · max_action · N(0, I)
-    a = clip(a, −max_action, max_action)
-    a = a + Bernoulli(random_eps) · (u − a),      u ~ U[−max_action, max_action]^action_dim
-
-i.e. with probability random_eps the whole action is replaced by a uniform random one.
+Exploration is the reference's `_select_actions`: a = clip(μ(o, g) + noise_eps · max_action ·
+N(0, I)), then with probability random_eps the whole action is replaced by a uniform one.
 `explore=False` returns μ(o, g): the evaluator's deterministic test policy.
 """
 

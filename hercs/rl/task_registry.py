@@ -1,15 +1,9 @@
 """Which task a name means: `task_spec(task.name, …)` → `TaskSpec` (hercs.rl.task_spec).
 
-The replay never steps an environment: everything it needs about a task, the array shapes and
-the reward, lives in a `TaskSpec` (docs/DESIGN.md §4.9). `task.name` is a built-in name or
-gymnasium id (`BUILT_IN`: the Fetch tasks, `PointMaze_*-v3`, `HandReach-v3`,
-`HandManipulate{Block,Egg,Pen}*-v1`), whose specs are written here and tested against the real
-environments, with rewards vectorised in hercs.rl.task_spec; or any other gymnasium id or
-`package.module:factory`, whose spec `hercs.rl.goal_env` reads from the environment itself.
-
-Each Fetch task exists in two versions with the same shapes, horizon and reward
-(`ENV_VERSIONS`): `Fetch*-v4` on MuJoCo 3 (the default) and the authors' `Fetch*-v1` on
-mujoco-py and MuJoCo 2.1 (`make mujoco-py` installs it; docs/DESIGN.md §9.6).
+A built-in name or gymnasium id (`BUILT_IN`: Fetch, PointMaze, HandReach, HandManipulate) has
+its spec written here and tested against the real env; any other id or `module:factory` has
+its spec read from the env (hercs.rl.goal_env). Each Fetch task has a `-v4` (MuJoCo 3, the
+default) and the authors' `-v1` (mujoco-py) version (`ENV_VERSIONS`, docs/DESIGN.md §9.6).
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """Opening a checkpoint file (`best.pt`, `epoch-NNNN.pt`, `learner.pt`) as data, never as code.
 
-A `.pt` file is a pickle, and a plain unpickler calls whatever function the file names: a
-crafted `best.pt` in a run folder someone shared would run its code the moment `hercs eval`
-opened it. `torch.load(weights_only=True)` unpickles with an allow-list instead: tensors,
-dict/list/tuple, str, bytes, numbers, bool and None, plus the globals `ALLOWED_GLOBALS` adds
-here; any other global the file names (`os.system`, a class with a `__reduce__`) is refused
-before it is called (docs/SECURITY.md, "Files").
-
-The one addition: `learner.pt` holds the normalisers' statistics as float64 numpy arrays
-(`hercs.rl.normalizer.Normalizer.state_dict`), which unpickle through numpy's array
-constructor, `ndarray` and `dtype`: they rebuild an array from its raw bytes. Only a float64
-dtype may be built, so an array of any other kind (an object array, whose elements would be
-pickles of their own) is refused.
+`torch.load(weights_only=True)` unpickles with an allow-list, so any other global a file names
+is refused before it is called (docs/SECURITY.md, "Files"). `ALLOWED_GLOBALS` adds numpy's
+array constructor for `learner.pt`'s float64 normaliser statistics; only a float64 dtype may
+be built.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Reading a run's trained policy back from its checkpoints, with no service running: what
 `hercs eval` and `hercs.load_policy` share.
 
-Two kinds of file hold a policy (`hercs.run.rundir` names them):
-- a policy file (`best.pt`, `epoch-NNNN.pt`, written by `hercs.learner.checkpoint.save_policy`):
-  the serialised `Weights` message the run's evaluator received for that epoch, its epoch and
-  success, and the run's config. Decoded here as the evaluator decodes what it receives
-  (`hercs.actors.weights.WeightsDecoder`: schema, array codec, loaded into a policy of the task's
-  sizes), so a policy read from it acts exactly as the evaluator's did;
-- the learner's checkpoint (`learner.pt`): the actor's parameters and the normaliser
-  statistics are taken from the DDPG state; the config from the run's config.yaml.
+A policy file (`best.pt`, `epoch-NNNN.pt`) holds the `Weights` the evaluator received, decoded
+here as the evaluator decodes it, so the policy acts exactly as the evaluator's did; from
+`learner.pt` the actor and normalisers come from the DDPG state, the config from config.yaml.
 """
 
 from __future__ import annotations

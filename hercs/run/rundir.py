@@ -1,11 +1,9 @@
 """A run directory (`runs/<run>/`, made by `hercs up`) and its one owner, `RunDir(path)`: every
-name a run directory holds (config.yaml, metrics.csv, the episode log's segments,
-checkpoints/, logs/, router.json, owner.lock, previous/, slurm/; the table is docs/DESIGN.md
-§6) and checks whose errors say what a folder lacks and what to do. No other module joins a
-run directory's file names.
+name a run directory holds (the table is docs/DESIGN.md §6) and checks whose errors say what a
+folder lacks and what to do. No other module joins a run directory's file names.
 
-The checkpoint names repeat `hercs.learner.checkpoint`'s (which writes them; a unit test keeps
-the two equal) so that readers in the library layer need not import the learner.
+The checkpoint names repeat `hercs.learner.checkpoint`'s (a unit test keeps them equal), so
+readers in the library layer need not import the learner.
 """
 
 from __future__ import annotations

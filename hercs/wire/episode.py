@@ -1,10 +1,8 @@
 """One rollout as plain arrays: what an actor produces and the replay stores.
 
-Shapes, with T = spec.episode_steps:
-    obs      (T+1, obs_dim) float32   o_0 .. o_T
-    ag       (T+1, goal_dim) float32  achieved goal ag_0 .. ag_T (Fetch: 3-d)
-    g        (T, goal_dim)  float32   desired goal at each step (constant in Fetch)
-    actions  (T, action_dim) float32  u_0 .. u_{T-1}
+With T = spec.episode_steps, all float32: obs (T+1, obs_dim) o_0..o_T; ag (T+1, goal_dim) the
+achieved goals ag_0..ag_T (Fetch: 3-d); g (T, goal_dim) the desired goal at each step (constant
+in Fetch); actions (T, action_dim) u_0..u_{T-1}.
 """
 
 from __future__ import annotations

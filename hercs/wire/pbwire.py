@@ -1,13 +1,8 @@
 """Protobuf wire-format pieces for the two hot paths that assemble messages from parts.
 
-A serialised message is a sequence of (key, value) fields in any order, and a repeated or
-message field may come in several pieces; so a message can be written as the bytes of its
-constant part (serialised once by protobuf) followed by the fields that change. The replay
-does this for its sample replies (`hercs.wire.codec.batch_to_bytes`) and the episode log for its
-per-step scene messages (`hercs.run.runlog.scene`), where building one protobuf object per
-message cost more than the rest of the path. Field numbers come from the descriptors, so a
-schema change cannot silently shift them; tests parse what these functions build.
-`TimestampField.encode_many` encodes a whole episode's times at once (numpy for the varints).
+A message may be written as its constant part's bytes (serialised once by protobuf) followed by
+the fields that change; the replay's sample replies and the episode log's scene messages do
+so. Field numbers come from the descriptors, so a schema change cannot silently shift them.
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
 """The served batch: what one sample call hands from the replay to the learner, as one Python
 type with one field list shared with its wire message, and its one encode/decode pair.
 
-Forms from the store to an update (docs/DESIGN.md §3, "One served batch"): the sampler's
-slots → `TransitionBatch` (HER relabelling, hercs.wire.batch) → `ServedBatch` (here) → `Batch`
-bytes → the same `ServedBatch` in the learner → tensors (hercs.learner.ddpg).
-
-`ReplayCounters` mirrors `ReplayStatus` field for field (a test holds them equal): the replay
-puts it on `replay/status` about once a second and nests the same snapshot in every `Batch`,
-so the learner needs no subscription to write its metrics rows.
+`ReplayCounters` mirrors `ReplayStatus` field for field (a test holds them equal) and travels
+in every `Batch`, so the learner needs no subscription to write its metrics rows.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
 """The run log: `runs/<run>/episodes.mcap` and its sealed segments, written by the replay and
 read by the views and benchmarks.
 
-- `format`: topics, file names, constants and `EpisodeLogError`;
-- `writer`: `EpisodeLogWriter`, appends that are durable (fsync) before the replay acks;
-- `reader`: messages back from a segment or a run directory, tolerant of a torn tail;
-- `segments`: sealing a killed writer's file and `EpisodeLog.open`, the recovery on restart;
-- `recovering`: `RecoveringLogWriter`, the replay's writer that outlives a full disk and
-  splits a bounded log into segments;
-- `pruning`: which old segments a bounded log deletes, and the replay state resume starts from;
-- `scene`: the Foxglove scene messages logged with each episode.
-
+Modules: `format` (topics, constants, the error), `writer`, `reader`, `segments` (sealing and
+recovery), `recovering` (outlives a full disk), `pruning` (a bounded log), `scene` (Foxglove).
 The names below are the package's public interface; import them from `hercs.run.runlog`.
 """
 

@@ -1,16 +1,8 @@
 """The run log's format, shared by its writer (the replay) and its readers (views, bench).
 
-The topics, their messages and MCAP sequence numbers, the `hercs.episode_log` metadata record
-and the synthetic timeline are docs/DESIGN.md §6's ("The MCAP log"); the constants here are
-their one definition. The timeline puts episode k's observations at S + k·span + t·40 ms,
-span = (T+2)·40 ms, from the run's real start S (`start_time_ns`, the same in every segment),
-so episodes never overlap and a viewer's clock starts at the day and hour the run started;
-`hercs.run.runlog.scene` builds it. publish_time is the real wall clock of the append.
-
-The log is split by job: this module (topics, constants, the error), `writer` (appends that
-are durable before an ack), `reader` (messages back, tolerant of a torn tail), `segments`
-(the run directory's segments across restarts: sealing and recovery) and `pruning` (which
-old segments a bounded log deletes).
+The one definition of the topics, MCAP sequence numbers, metadata record and synthetic timeline
+of docs/DESIGN.md §6 ("The MCAP log"): episode k's observations at S + k·span + t·40 ms,
+span = (T+2)·40 ms, from the run's real start S, so episodes never overlap.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Many MCAP messages into a writer's open chunk at once: the scene's 102 per episode.
 
-`mcap.writer.Writer.add_message` builds a `Message` record object, packs its five header fields
-one by one and updates the statistics and the chunk's message index, per message; after the
-chunk closes, each index entry is packed by itself too. For a FetchPush episode's scene that was
-~0.4 ms of the replay's CPU, as much as drawing it. `add_message_rows` writes the same bytes
-(tests/unit/hercs/test_mcap_bulk.py compares whole files) with the headers packed by numpy,
-the records joined once, and a message index that packs its entries in one call. It reaches
-into the writer's private chunk builder and statistics (mcap 1.6); where a later mcap moved
-them, it falls back to `add_message` (`has_bulk_internals`). `reuse_zstd_contexts` gives
-mcap's writer a zstd compressor per thread instead of a new one per chunk (~0.15 ms each).
+`add_message_rows` writes the bytes `Writer.add_message` would (a test compares whole files),
+with headers packed by numpy and records joined once. It reaches into mcap 1.6's private chunk
+builder; where a later mcap moved it, it falls back to `add_message` (`has_bulk_internals`).
+`reuse_zstd_contexts` gives the writer one zstd compressor per thread.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """A bounded log: which old segments may be deleted, and the replay state resume starts from.
 
-With a bounded log the replay starts a new segment every `replay.log_segments_per_buffer`-th
-of a buffer with a `/replay_state`: what it derived from the earlier episodes, and the oldest
-episode its buffer held, `first_held_id`; a restarted replay needs only the episodes from there
-on (docs/DESIGN.md §6, "A bounded log"). Hence the rule (`segments_to_delete`, pure):
-
-    a segment may be deleted iff it comes before the newest segment that starts with a state
-    and every episode it holds has an id below that state's first_held_id;
-
-and only the oldest go, while the log is above the bound, so the log stays one contiguous run
-of ids (readers and recovery rely on it), even after a crash part way. Ids increase along the
-log, so a segment's ids are bounded by the next segment's first id: reading each segment's head
-(up to its first episode) is enough, and no segment is read whole.
+`segments_to_delete` (pure): a segment may be deleted iff it comes before the newest segment
+that starts with a state and every episode it holds has an id below that state's
+first_held_id; only the oldest go, so the log stays one contiguous run of ids
+(docs/DESIGN.md §6, "A bounded log").
 """
 
 from __future__ import annotations

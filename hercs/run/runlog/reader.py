@@ -1,17 +1,9 @@
 """Reading the run log back: messages of one segment or of a whole run directory, in file
 order, tolerant of a writer that was killed.
 
-A killed writer leaves a file with no summary or footer and perhaps a torn last record, which
-mcap's own readers refuse, so `SegmentReader` walks the top-level records itself: a record cut
-short or with no MCAP opcode is the torn tail and ends the scan quietly; complete chunks are
-decoded with mcap's record classes and their CRC checked. A chunk that fails its CRC or does
-not decompress is the torn tail too, unless an intact chunk follows it: then the file is
-damaged in the middle and `EpisodeLogError` is raised rather than silently dropping acked data.
-
-A restarted replay reads its whole buffer back, so reading is kept lean: records are walked
-with `struct`, only messages on the topics asked for become `LoggedMessage`s, and a chunk
-whose message indexes name only other topics (an episode's scene messages, when episodes are
-read) is not decompressed (`SegmentReader._unwanted_channels` says when that is safe).
+A torn tail (a record cut short, a chunk failing its CRC or not decompressing) ends the scan
+quietly; a bad chunk followed by an intact one raises `EpisodeLogError` rather than drop
+acked data. Chunks holding only topics not asked for are not decompressed.
 """
 
 from __future__ import annotations

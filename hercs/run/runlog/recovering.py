@@ -1,17 +1,9 @@
 """A run-log writer that outlives a full disk: `RecoveringLogWriter`.
 
-An `EpisodeLogWriter` whose append failed part way (no space left, an I/O error) may end in a
-torn record, so it refuses every later append. The replay must not stay unable to log, and so
-to ack, once space returns, nor crash when it stops or restarts on a full disk. This writer, on
-the first append after a failure (at most once per `retry_s`), cuts the torn segment back to
-the end of the last append that returned (what the failed append wrote was never acked, and
-its id goes to the next episode), retires it and continues in a new live segment; until that
-works every append raises `EpisodeLogError` at once, so the replay refuses the insert
-(`log_failed`) and the actor retries. Nothing is acked that is not on disk.
-
-It also starts a bounded log's new segments (`start_segment`, docs/DESIGN.md §6); closing the
-old writer and pruning run on a background thread, off the ack path. A crash at any point
-leaves segments that `EpisodeLog.open` seals and a log that is still a contiguous run of ids.
+After a failed append it cuts the torn segment back to the last append that returned and
+continues in a new segment (tried at most once per `retry_s`); until then every append raises
+`EpisodeLogError`, the replay refuses the insert and the actor retries. Nothing is acked that
+is not on disk. It also starts a bounded log's new segments (`start_segment`).
 """
 
 from __future__ import annotations

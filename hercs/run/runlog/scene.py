@@ -1,18 +1,9 @@
 """Foxglove scene for one logged episode: gripper, object and goal per step.
 
-Pure functions from an `Episode`'s arrays to the positions in Foxglove messages, so that
-`episodes.mcap` shows the episode in 3D without our code (docs/DESIGN.md §6):
-`foxglove.SceneUpdate` on `/scene` (the gripper a sphere, the object a 5 cm cube, the goal a
-translucent sphere twice the success threshold across, green while the achieved goal is inside
-it), which Foxglove draws and Rerun 0.41's MCAP importer keeps raw; and `foxglove.PointCloud`
-on `/scene/points`, the same positions as coloured points, which Rerun converts to `Points3D`.
-Positions are in the MuJoCo world frame (metres, z up), frame id `world` (`episode_positions`);
-beyond Fetch the moving body is the achieved goal's first point (`goal_point`), and a task
-whose goal has no position part gets no scene.
-
-The messages themselves, as bytes, come from `hercs.run.runlog.scene_wire`. Times are offsets
-from 0 on the synthetic timeline of `hercs.run.runlog.format` (observations 40 ms apart, the
-Fetch control period); the writer adds the run's start.
+Pure functions from an `Episode`'s arrays to the positions in `foxglove.SceneUpdate` (`/scene`)
+and `foxglove.PointCloud` (`/scene/points`) messages, so `episodes.mcap` shows the episode in
+3D without our code (docs/DESIGN.md §6). Positions are in the MuJoCo world frame (metres,
+z up); the bytes come from `hercs.run.runlog.scene_wire`.
 """
 
 from __future__ import annotations

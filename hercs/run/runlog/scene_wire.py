@@ -1,15 +1,9 @@
 """A whole episode's scene messages at once: the parts that change by step prepared together.
 
-The messages of `hercs.run.runlog.scene` (a `foxglove.SceneUpdate` and a `foxglove.PointCloud`
-per observation) differ from step to step only in the timestamp, the step's digits and the
-fixed-width poses, points and goal colour. Each entity's fixed-width tail (primitive and pose
-keys, position, orientation, size and colour) is one numpy row per step, the timestamps are
-encoded together (`pbwire.TimestampField.encode_many`), and the length prefixes that depend
-on the step's width come from a table; a message is then one `bytes.join` of ~10 pieces
-instead of ~40 bytes operations, and this runs on the replay's core. The bytes are those of the
-step-by-step construction (tests/unit/hercs/test_scene.py checks them against it and parses
-them against protobuf's messages). A field's pieces parse in wire order, so the step comes
-after the labels in `metadata`.
+Each entity's fixed-width tail is one numpy row per step and the timestamps are encoded
+together, so a message is one `bytes.join` of ~10 pieces; the bytes equal the step-by-step
+construction's (tests/unit/hercs/test_scene.py). A field's pieces parse in wire order, so the
+step comes after the labels in `metadata`.
 """
 
 from __future__ import annotations

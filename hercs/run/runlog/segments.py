@@ -1,17 +1,9 @@
 """The run directory's segments across restarts: sealing a killed writer's file and opening
 the log of a run again (`EpisodeLog.open`).
 
-Segments: MCAP cannot be appended to after a torn tail or a footer, so each writer gets a
-fresh file. The live segment is always `episodes.mcap`. `EpisodeLog.open` seals the previous
-live segment if it was not finished (`seal_segment`: cut the torn tail, append DataEnd, a
-summary rebuilt from the scan, footer and magic, so Rerun and Foxglove open it without a
-recovery mode), renames it to `episodes.<n>.mcap` (n = 000, 001, … in order of writing), then
-opens a new `episodes.mcap`. Readers of a run directory read the numbered segments in order,
-then `episodes.mcap`. Episode ids continue across segments (the caller assigns them: one more
-than the last recovered id). A replay with a bounded log also starts a new segment while it
-runs (`RecoveringLogWriter.start_segment`), and deletes old ones (`hercs.run.runlog.pruning`):
-the numbered segments then start above 000, and the episode ids above 0.
-
+The live segment is always `episodes.mcap`; `EpisodeLog.open` seals an unfinished one
+(`seal_segment`), renames it `episodes.<n>.mcap` (000, 001, … in order) and opens a new one.
+Readers read the numbered segments in order, then `episodes.mcap`; ids continue across them.
 """
 
 from __future__ import annotations

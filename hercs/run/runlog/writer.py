@@ -1,13 +1,9 @@
 """Appending to the run log: `EpisodeLogWriter`, one MCAP segment whose every append is on disk
 when it returns (docs/DESIGN.md §3, "durable before ack"; §6, the MCAP log).
 
-An append writes its messages as one zstd chunk (mcap's `Writer.flush()` closes the chunk and
-writes its message indexes), then fsyncs; the replay acks only after it returns, and
-`append_many` is the group commit (several episodes, one chunk, one fsync). Scene messages are
-derived data, about two thirds of an append's CPU: a background thread builds them and writes
-them in their own chunks without fsync, so a crash can lose the last episodes' scenes, never an
-episode; past `SCENE_BACKLOG` waiting episodes new ones get no scene (`scenes_dropped`), so
-memory stays bounded and inserts never wait for a drawing.
+Each append is one zstd chunk, then fsync; `append_many` is the group commit. Scenes are built
+and written on a background thread without fsync: a crash can lose the last scenes, never an
+episode; past `SCENE_BACKLOG` waiting episodes new ones get no scene.
 """
 
 from __future__ import annotations
