@@ -23,10 +23,12 @@ def plot_formats() -> tuple[str, ...]:
     return tuple(sorted(FigureCanvasBase.get_supported_filetypes()))
 
 
-def check_output_file(path: str | Path, *, flag: str, formats: Iterable[str] | None = None
-                      ) -> Path:
+def check_output_file(path: str | Path, *, flag: str, formats: Iterable[str] | None = None,
+                      makes_folder: bool = False) -> Path:
     """`path` as a file the command may create or replace; `formats`: the suffixes (without
-    the dot) its writer takes, None for any. Raises OutputPathError naming `flag`."""
+    the dot) its writer takes, None for any; `makes_folder`: the writer makes a missing
+    folder itself (`hercs plot -o`), so only the nearest existing one is checked. Raises
+    OutputPathError naming `flag`."""
     out = Path(path)
     if formats is not None:
         allowed = tuple(formats)
@@ -37,7 +39,10 @@ def check_output_file(path: str | Path, *, flag: str, formats: Iterable[str] | N
                                   f"(one of: {', '.join(allowed)})")
     if out.is_dir():
         raise OutputPathError(f"{flag} {path}: is a folder; give a file name")
-    _check_folder(out.parent if str(out.parent) else Path("."), flag=flag, path=path)
+    if makes_folder:
+        check_output_folder(out.parent, flag=flag)
+    else:
+        _check_folder(out.parent, flag=flag, path=path)
     return out
 
 
@@ -66,21 +71,24 @@ def _check_folder(folder: Path, *, flag: str, path: str | Path) -> None:
 
 VIDEO_FORMATS: tuple[str, ...] = ("mp4", "mkv", "mov")
 """Containers the eval video's H.264 stream goes into (imageio-ffmpeg picks by the suffix)."""
-OUTPUT_FILES: dict[str, tuple[tuple[str, str, Callable[[], tuple[str, ...]] | None], ...]] = {
-    "config": (("output", "-o", None),),
-    "plot": (("output", "-o", plot_formats), ("table", "--table", None)),
-    "view": (("save", "--save", lambda: ("rrd",)),),
-    "eval": (("video", "--video", lambda: VIDEO_FORMATS),
-             ("rerun_save", "--rerun-save", lambda: ("rrd",))),
+Formats = Callable[[], tuple[str, ...]] | None
+OUTPUT_FILES: dict[str, tuple[tuple[str, str, Formats, bool], ...]] = {
+    "config": (("output", "-o", None, False),),
+    "plot": (("output", "-o", plot_formats, True), ("table", "--table", None, False)),
+    "view": (("save", "--save", lambda: ("rrd",), False),),
+    "eval": (("video", "--video", lambda: VIDEO_FORMATS, False),
+             ("rerun_save", "--rerun-save", lambda: ("rrd",), False)),
 }
-"""Per command: the attribute, the flag and the formats (None: any) of each file it writes."""
+"""Per command: the attribute, the flag, the formats (None: any) of each file it writes, and
+whether its writer makes a missing folder (the figure of `hercs plot` always did)."""
 
 
 def check_outputs(args: argparse.Namespace) -> None:
     """Every output path of `args.command`, before any work (OutputPathError)."""
-    for attr, flag, formats in OUTPUT_FILES.get(args.command, ()):
+    for attr, flag, formats, makes_folder in OUTPUT_FILES.get(args.command, ()):
         value = getattr(args, attr, None)
         if value:
-            check_output_file(value, flag=flag, formats=formats() if formats else None)
+            check_output_file(value, flag=flag, formats=formats() if formats else None,
+                              makes_folder=makes_folder)
     if args.command == "certs":
         check_output_folder(args.out, flag="DIR")

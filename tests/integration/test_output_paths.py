@@ -21,7 +21,7 @@ def cases(tmp: Path) -> list[tuple[str, list[str], str]]:
     a_file = tmp / "a-file"
     a_file.write_text("")
     return [
-        ("plot-folder", ["plot", str(RUN), "-o", str(missing / "x.png")], "-o"),
+        ("plot-folder", ["plot", str(RUN), "-o", str(a_file / "x.png")], "-o"),
         ("plot-format", ["plot", str(RUN), "-o", str(tmp / "x.jpgg")], "'jpgg'"),
         ("plot-table", ["plot", str(RUN), "-o", str(tmp / "x.png"),
                         "--table", str(missing / "t.md")], "--table"),
