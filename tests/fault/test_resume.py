@@ -59,10 +59,11 @@ def lag_never_negative(run_dir: Path, bound: int | None = None) -> None:
             assert lags[1] <= bound, f"epoch {r['epoch']}: lag p50 {lags[1]} past {bound}"
 
 
-def kill_learner_and_finish(launcher: Launcher) -> None:
-    """SIGKILL the learner, wait for its restart, then for the run to end with status 0."""
-    os.kill(launcher.child_pids["learner-0"], signal.SIGKILL)
-    launcher.wait_for_line(r"started learner learner-0 again \(restart 1\)", timeout_s=60)
+def kill_and_finish(launcher: Launcher, ident: str = "learner-0") -> None:
+    """SIGKILL service `ident`, wait for its restart, then for the run to end with status 0."""
+    os.kill(launcher.child_pids[ident], signal.SIGKILL)
+    role = ident.split("-")[0]
+    launcher.wait_for_line(rf"started {role} {ident} again \(restart 1\)", timeout_s=60)
     assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
 
 
@@ -71,7 +72,7 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     run_dir = tmp_path / "runs" / "bumpy"
     try:
         launcher.wait_for_line(r"^epoch 2/4  success", timeout_s=RUN_S)
-        kill_learner_and_finish(launcher)
+        kill_and_finish(launcher)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
@@ -93,9 +94,7 @@ def test_a_killed_replay_keeps_the_lag_its_episodes_were_stored_with(tmp_path: P
     run_dir = tmp_path / "runs" / "amnesia"
     try:
         launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["replay-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started replay replay-0 again \(restart 1\)", timeout_s=60)
-        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+        kill_and_finish(launcher, "replay-0")
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
@@ -135,7 +134,7 @@ def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
         # epoch the margin was 3)
         launcher.wait_for_line(r"^epoch 1/4", timeout_s=RUN_S)
         assert wait_for_episodes(run_dir, 4 * (16 + 5), timeout_s=RUN_S)
-        kill_learner_and_finish(launcher)
+        kill_and_finish(launcher)
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4], "no epoch missing, none twice"
@@ -149,9 +148,7 @@ def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> No
     run_dir = tmp_path / "runs" / "actorless"
     try:
         launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        os.kill(launcher.child_pids["actor-0"], signal.SIGKILL)
-        launcher.wait_for_line(r"started actor actor-0 again \(restart 1\)", timeout_s=60)
-        assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
+        kill_and_finish(launcher, "actor-0")
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
@@ -278,7 +275,7 @@ def test_a_learner_killed_mid_epoch_changes_only_the_wall_time(tmp_path: Path) -
         first = int(metrics_rows(run_dir)[0]["episodes"])
         # half of epoch 2's episodes stored: the learner is mid-epoch, its checkpoint behind
         assert wait_for_episodes(run_dir, first + cycles * per_cycle // 2, timeout_s=RUN_S)
-        kill_learner_and_finish(launcher)
+        kill_and_finish(launcher)
     finally:
         launcher.kill()
     rows = metrics_rows(run_dir)
