@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from hercs.apps.plot_tables import FigureStyle
-from studies.authors_peer.peer_run import PEER_SCHEDULE
+from studies.authors_peer import PEER_SCHEDULE
 
 LEGACY_LAG = "lag7"
 """The variant of asynchronous runs made with the old, staler default: rate tolerance 80, two

@@ -28,11 +28,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from studies.authors_peer import PEER_SCHEDULE
 from studies.authors_peer.old_gym import gym_module
 from studies.authors_peer.single_mpi import mpi4py_module
 
-PEER_SCHEDULE = "authors-code"
-"""`training.schedule` of a peer run's config.yaml: its own group in the claims and Fig. 2."""
 TASK_ENV = {"push": "FetchPush-v1", "pick": "FetchPickAndPlace-v1", "slide": "FetchSlide-v1",
             "reach": "FetchReach-v1"}
 KMEANS_N_INIT = 10

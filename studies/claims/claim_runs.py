@@ -31,7 +31,7 @@ from hercs.apps.plots import (
 )
 from hercs.config import HercsConfig
 from hercs.run.rundir import RunDir
-from studies.authors_peer.peer_run import PEER_SCHEDULE
+from studies.authors_peer import PEER_SCHEDULE
 from studies.claims.claim_statistics import (
     Score,
 )

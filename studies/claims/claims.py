@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from hercs.apps.plots import (
     method_label,
 )
-from studies.authors_peer.peer_run import PEER_SCHEDULE
+from studies.authors_peer import PEER_SCHEDULE
 from studies.claims.claim_runs import EPOCH, LEGACY, MIN_SEEDS, Group, Run, new_default_lag, score
 from studies.claims.claim_statistics import (
     REPS,
