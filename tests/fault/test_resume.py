@@ -67,6 +67,20 @@ def kill_and_finish(launcher: Launcher, ident: str = "learner-0") -> None:
     assert launcher.finish(timeout_s=RUN_S) == 0, "\n".join(launcher.out + launcher.err)
 
 
+def run_killing_after_epoch_1(tmp_path: Path, run: str, ident: str, *extra: str) -> Path:
+    """A run whose service `ident` is SIGKILLed after epoch 1 (`kill_and_finish`); its folder,
+    checked to hold every epoch once."""
+    launcher = Launcher(up_argv(tmp_path, "--run", run, *extra), cwd=tmp_path)
+    try:
+        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
+        kill_and_finish(launcher, ident)
+    finally:
+        launcher.kill()
+    run_dir = tmp_path / "runs" / run
+    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    return run_dir
+
+
 def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path: Path) -> None:
     launcher = Launcher(up_argv(tmp_path, "--run", "bumpy"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "bumpy"
@@ -90,14 +104,7 @@ def test_a_killed_replay_keeps_the_lag_its_episodes_were_stored_with(tmp_path: P
     """SIGKILL of the replay in epoch 2 of an asynchronous run: the restarted replay recovers
     its log and measures every later episode in the same schedule, so no epoch reads a
     negative lag, and the lag bound holds from its first insert on."""
-    launcher = Launcher(up_argv(tmp_path, "--run", "amnesia"), cwd=tmp_path)
-    run_dir = tmp_path / "runs" / "amnesia"
-    try:
-        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        kill_and_finish(launcher, "replay-0")
-    finally:
-        launcher.kill()
-    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    run_dir = run_killing_after_epoch_1(tmp_path, "amnesia", "replay-0")
     assert "recovered" in log_text(run_dir, "replay-0")
     lag_never_negative(run_dir, bound=3)
 
@@ -144,14 +151,7 @@ def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
 def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> None:
     """The run's only actor (the last --actors wins): the run cannot end on another actor's
     episodes before the killed one is back, so its new incarnation always inserts."""
-    launcher = Launcher(up_argv(tmp_path, "--run", "actorless", "--actors", "1"), cwd=tmp_path)
-    run_dir = tmp_path / "runs" / "actorless"
-    try:
-        launcher.wait_for_line(r"^epoch 1/4  success", timeout_s=RUN_S)
-        kill_and_finish(launcher, "actor-0")
-    finally:
-        launcher.kill()
-    assert epochs_recorded(run_dir) == [1, 2, 3, 4]
+    run_dir = run_killing_after_epoch_1(tmp_path, "actorless", "actor-0", "--actors", "1")
     wire_ids = [line.split("wire id ")[1].split(")")[0]
                 for line in log_text(run_dir, "actor-0").splitlines() if "wire id" in line]
     assert len(wire_ids) == 2 and wire_ids[0] != wire_ids[1], wire_ids
