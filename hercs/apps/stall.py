@@ -45,9 +45,12 @@ class StallWatch:
     """How long since the run last moved, against its bound.
 
     `begin()` starts the clock (when the run's actors can act: at once with local actors,
-    at the first remote actor's arrival without); `epoch_ended(epoch)` is a move, timed
-    against the last; `episode_stored()` is noted for the report but is not a move (actors
-    may store episodes for a learner that never finishes an epoch).
+    at the first remote actor's arrival without); `hold()` stops it while a run of remote
+    actors has none (a node that died, a host that left: waiting for actors is the scheduler's
+    or the user's business, not a stall) and the next `begin()` starts it afresh;
+    `epoch_ended(epoch)` is a move, timed against the last; `episode_stored()` is noted for
+    the report but is not a move (actors may store episodes for a learner that never finishes
+    an epoch).
     """
 
     def __init__(self, *, factor: float, first_epoch_s: float,
@@ -66,6 +69,10 @@ class StallWatch:
         """Start the clock; later calls change nothing."""
         if self.since is None:
             self.since = self._clock()
+
+    def hold(self) -> None:
+        """Stop the clock until the next `begin()`: no actor can act."""
+        self.since = None
 
     def epoch_ended(self, epoch: int) -> None:
         """Epoch `epoch` ended now (a repeated or older epoch is not a move)."""

@@ -315,9 +315,12 @@ class Supervisor:
                 return status
             self.restart_due()
             with self._print_lock:
-                # the clock starts once actors can act: remote ones may join much later
+                # the clock runs while actors can act: remote ones may join much later, and
+                # leave (a dead node, whose job Slurm requeues once it sees the node down)
                 if self.config.actor.num_actors > 0 or self.progress.actors:
                     self.stall.begin()
+                else:
+                    self.stall.hold()
                 if self.stall.stalled():
                     self.say(self._stall_report(), error=True)
                     return EXIT_STALLED

@@ -49,6 +49,26 @@ def test_the_bound_follows_the_slowest_epoch_so_far() -> None:
     assert not watch.stalled() and watch.bound_s == 180, "epoch 3 took 60 s, the slowest"
 
 
+def test_a_run_without_actors_is_held_not_stalled_and_starts_afresh_when_they_return(
+        ) -> None:
+    """Remote actors gone (their node died): the run waits for them, for as long as it
+    takes; back, they get the whole bound again, at the pace timed before."""
+    clock = Clock()
+    watch = StallWatch(factor=3, first_epoch_s=1000.0, clock=clock)
+    watch.begin()
+    clock.now += 10
+    watch.epoch_ended(1)
+    clock.now += 29
+    watch.hold()
+    clock.now += 10_000
+    assert not watch.stalled() and watch.quiet_s() == 0
+    watch.begin()
+    clock.now += 29
+    assert not watch.stalled(), "the bound counts from the actors' return"
+    clock.now += 1
+    assert watch.stalled() and watch.bound_s == 30
+
+
 def test_factor_0_never_stalls() -> None:
     clock = Clock()
     watch = StallWatch(factor=0, first_epoch_s=1.0, clock=clock)
