@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hercs.config.checks import _check, _positive, _unit_interval
+from hercs.rl.share_rules import SHARE_RULES
 
 
 @dataclass
@@ -82,9 +83,10 @@ class ClusterConfig:
     kmeans_n_init: int = 10
     """k-means restarts per refit (scikit-learn; seeded)."""
     share_rule: str = "every-cluster"
-    """Which clusters share a batch: `every-cluster` (each of the k gets ⌊B/k⌋) or
-    `reference` (the reference code's: the clusters up to the highest label in the buffer,
-    so empty top clusters give their shares to the others) [HER-CS]."""
+    """Which clusters share a batch (a row of hercs.rl.share_rules.SHARE_RULES):
+    `every-cluster` (each of the k gets ⌊B/k⌋) or `reference` (the reference code's: the
+    clusters up to the highest label in the buffer, so empty top clusters give their shares
+    to the others) [HER-CS]."""
 
     def __post_init__(self) -> None:
         _check(self.k >= 1, "cluster.k", self.k, "be >= 1")
@@ -92,8 +94,8 @@ class ClusterConfig:
         _check(self.small_cluster_repeat >= 1, "cluster.small_cluster_repeat",
                self.small_cluster_repeat, "be >= 1")
         _check(self.kmeans_n_init >= 1, "cluster.kmeans_n_init", self.kmeans_n_init, "be >= 1")
-        _check(self.share_rule in ("every-cluster", "reference"), "cluster.share_rule",
-               self.share_rule, "be every-cluster or reference")
+        _check(self.share_rule in SHARE_RULES, "cluster.share_rule", self.share_rule,
+               f"be one of {list(SHARE_RULES)}")
 
 
 EPSILON_V1 = 1e-6

@@ -15,6 +15,7 @@ import numpy as np
 from hercs.errors import ConfigError, SamplingError
 from hercs.replay_service.samplers.base import SampleInfo, SampleSource, check_request, make_info
 from hercs.replay_service.sampling_index import SamplingIndex
+from hercs.rl.share_rules import SHARE_RULES
 
 
 @dataclass(frozen=True)
@@ -27,13 +28,6 @@ class SharePlan:
     """(k,) int64 draws from c's own members: share, repeat·n_c or 0."""
     fill: int
     """Draws from the whole buffer: B − Σ member_draws."""
-
-
-SHARE_RULES = ("every-cluster", "reference")
-"""`cluster.share_rule`: every one of the k clusters gets a share of ⌊B/k⌋ (hercs' default),
-or, as the reference's code does, the clusters up to the highest label any stored episode has
-(labels 0..m) share the batch, ⌊B/(m+1)⌋ each: when the top clusters are empty, the others'
-shares grow (with k = 8 and cluster 7 empty, 7 shares of 36 instead of 8 of 32)."""
 
 
 def plan_shares(
@@ -51,7 +45,12 @@ def plan_shares(
     sizes[: min(k, counts.size)] = counts[:k]
     if sizes.sum() == 0:
         return None
-    sharing = k if share_rule == "every-cluster" else int(index.max_label) + 1
+    sharing = SHARE_RULES[share_rule](int(index.max_label), k)
+    if sharing <= index.max_label:
+        raise SamplingError(
+            f"share rule {share_rule!r} splits the batch among {sharing} clusters but the "
+            f"store holds cluster label {index.max_label}: its shares would not fit the "
+            "batch; no batch drawn")
     share = batch_size // sharing
     small = sizes < share // repeat
     member_draws = np.where(small, repeat * sizes, share)
