@@ -20,7 +20,8 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from hercs.errors import ConfigError
-from hercs.net.security import ROLES, ROUTER_NAME
+from hercs.net.security import ROUTER_NAME
+from hercs.roles import ROLES
 
 VALID_DAYS = 825
 """Validity of every certificate made here (about 27 months)."""

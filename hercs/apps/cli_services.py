@@ -12,36 +12,15 @@ from collections.abc import Callable
 from typing import NoReturn
 
 from hercs.config import HercsConfig
+from hercs.roles import SERVICE_ROLES
 
 Command = Callable[[argparse.Namespace, HercsConfig], int]
 
-# Service commands: each module has `run(config, *, ident) -> int` (exit status). Imported only
-# when used, so `hercs --help` stays fast.
-SERVICE_EXAMPLES = {
-    "replay": "hercs replay --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "clusterer": "hercs clusterer --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "learner": "hercs learner --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "evaluator": "hercs evaluator --connect tcp/127.0.0.1:7447 --run myrun --task push",
-    "actor": "hercs actor --connect tcp/LEARNER_HOST:7447 --run myrun",
-    "live": "hercs live --connect tcp/LEARNER_HOST:7447 --run myrun --rerun",
-}
-
 SERVICES: dict[str, tuple[str, str]] = {
-    "replay": ("hercs.replay_service.replay_shell",
-               "run the replay service (episode store, HER, samplers)"),
-    "clusterer": ("hercs.clusterer.clusterer_shell",
-                  "run the clusterer (failed goals, k-means refits)"),
-    "learner": ("hercs.learner.learner_shell", "run the DDPG learner (updates, weights, epochs)"),
-    "actor": ("hercs.actors.actor_shell",
-              "run a rollout actor (join a run with --connect and --run)"),
-    "evaluator": ("hercs.actors.evaluator", "run the evaluator (deterministic test episodes)"),
-    "live": ("hercs.apps.live_view", "stream a run to Rerun while it trains (what `hercs up "
-                                "--rerun` starts; join a run with --connect and --run)"),
-}
-
-
-HARD_EXIT_SERVICES = frozenset(module for role, (module, _) in SERVICES.items()
-                               if role != "live")
+    r.name: (r.module, r.summary) for r in SERVICE_ROLES.values()}
+"""Each service command's module and help line (hercs/roles.py)."""
+SERVICE_EXAMPLES = {r.name: r.example for r in SERVICE_ROLES.values()}
+HARD_EXIT_SERVICES = frozenset(r.module for r in SERVICE_ROLES.values() if r.hard_exit)
 """Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
 flushes its recording in an exit handler)."""
 

@@ -11,10 +11,7 @@ from pathlib import Path
 
 from hercs.apps.child_process import service_argv
 from hercs.config import HercsConfig
-
-START_ORDER = ("replay", "live", "clusterer", "learner", "evaluator", "actor")
-"""Roles in start order; the replay alone first (it serves the config and the insert queryable),
-then the live view if enabled (before any episode is made)."""
+from hercs.roles import SERVICE_ROLES
 
 
 @dataclass(frozen=True)
@@ -43,7 +40,8 @@ def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
 
 def plan_children(config: HercsConfig) -> list[ChildSpec]:
     """Every child of a run, in start order (the live view only with `view.live`)."""
-    roles = [r for r in START_ORDER if r != "actor" and (r != "live" or config.view.live)]
+    roles = [r.name for r in SERVICE_ROLES.values()  # in start order
+             if not r.actor_node and (not r.optional or config.view.live)]
     specs = [ChildSpec(role, f"{role}-0") for role in roles]
     specs += [ChildSpec("actor", f"actor-{i}") for i in range(config.actor.num_actors)]
     return specs

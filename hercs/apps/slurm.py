@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.errors import ConfigError
+from hercs.roles import SERVICE_ROLES
 from hercs.run.rundir import CONFIG, SLURM, RunDir, holds_a_run
 
 ACTOR_RESTART_S = 2
@@ -25,6 +26,10 @@ ACTOR_RESTART_S = 2
 `ACTOR_RESTART_MAX_S`, while restarted steps keep failing fast."""
 ACTOR_RESTART_MAX_S = 60
 
+BESIDE_THE_LEARNER = ", ".join(r.name for r in SERVICE_ROLES.values() if not r.actor_node)
+"""Component 0's roles (hercs/roles.py; the live view only with `view.live`)."""
+ON_ACTOR_NODES = ", ".join(r.name for r in SERVICE_ROLES.values() if r.actor_node)
+"""Component 1's: one process a node."""
 SCRIPT = "job.sbatch"
 TIME = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
 """Slurm's --time forms: M, M:S, H:M:S, D-H, D-H:M, D-H:M:S."""
@@ -108,8 +113,8 @@ def render_script(plan: JobPlan) -> str:
     return f"""#!/bin/bash
 # hercs run {plan.run} as one heterogeneous Slurm job, written by `hercs slurm submit`
 # (docs/CLUSTER.md). Edit it and submit it again with: sbatch {plan.folder / SCRIPT}
-#   component 0: router, replay, clusterer, learner, evaluator (`hercs up --actors 0`)
-#   component 1: one actor per node, {plan.actor_cpus} envs each, over mutual TLS
+#   component 0: router, {BESIDE_THE_LEARNER} (`hercs up --actors 0`)
+#   component 1: one {ON_ACTOR_NODES} per node, {plan.actor_cpus} envs each, over mutual TLS
 # Slurm warns {plan.signal_before_s} s before the time limit: the run stops in order and the
 # job requeues itself; the next attempt resumes the run (`hercs up --resume`).
 {head}

@@ -29,12 +29,15 @@ from hercs.net.service_shell import EXIT_CONFIG, EXIT_DIVERGED
 from hercs.net.signals import StopSignals
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
+from hercs.roles import SERVICE_ROLES
 from hercs.run.rundir import RunDir
 from hercs.wire.validation import parse_message
 
-STOP_STAGES = (("actor",), ("evaluator", "learner", "clusterer", "live"), ("replay",))
-"""Roles stopped together, stage after stage; the replay last."""
-OPTIONAL_ROLES = frozenset({"live"})
+STOP_STAGES = tuple(tuple(r.name for r in SERVICE_ROLES.values() if r.stop_stage == stage)
+                    for stage in sorted({r.stop_stage for r in SERVICE_ROLES.values()}))
+"""Roles stopped together, stage after stage (hercs/roles.py): the actors first, the replay
+last."""
+OPTIONAL_ROLES = frozenset(r.name for r in SERVICE_ROLES.values() if r.optional)
 """Roles whose exit does not end the run: watching training must never stop it."""
 MAX_BACKOFF_S = 30.0
 """Restart delays double from `launch.restart_backoff_s` up to this."""

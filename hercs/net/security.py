@@ -1,9 +1,10 @@
 """Who may join a run and what each role may do: Zenoh TLS, user/password and access control.
 
-Each process authenticates as its role (`ROLES`) by a certificate whose common name is the role,
-a `user:password` line, or both; the router then denies by default and grants each role only
-its own keys (`ROLE_GRANTS`). A router listening beyond loopback without TLS is refused
-(`listen_problem`) unless `security.allow_insecure`. Threat model: docs/SECURITY.md.
+Each process authenticates as its role (`hercs.roles.ROLES`) by a certificate whose common
+name is the role, a `user:password` line, or both; the router then denies by default and
+grants each role only its own keys (`ROLE_GRANTS`). A router listening beyond loopback
+without TLS is refused (`listen_problem`) unless `security.allow_insecure`. Threat model:
+docs/SECURITY.md.
 """
 
 from __future__ import annotations
@@ -16,9 +17,6 @@ from typing import Any
 from hercs.config import SecurityConfig, endpoint_parts
 from hercs.errors import ConfigError
 from hercs.proto.keys import ROOT
-
-ROLES = ("replay", "learner", "clusterer", "evaluator", "actor", "live")
-"""The identities a client can authenticate as: its certificate's common name and its user."""
 
 ROUTER_NAME = "router"
 """The common name of the router's certificate (its SAN carries its addresses)."""

@@ -26,13 +26,15 @@ from hercs.apps.cli import build_parser, resolve_config
 from hercs.apps.cli_services import SERVICES
 from hercs.config import HercsConfig
 from hercs.net.security import listen_problem
+from hercs.roles import SERVICE_ROLES
 
 pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[2]
 ROUTER = "tls/router:7447"
 SECRETS = "/run/secrets"
-ROLES = {"router", "replay", "clusterer", "learner", "evaluator", "actor"}
+ROLES = {"router"} | {r.name for r in SERVICE_ROLES.values() if r.compose}
+"""The compose services: the router and every role deployed there (hercs/roles.py)."""
 
 _VAR = re.compile(r"\$\$|\$\{(\w+)(?::?-([^}]*))?\}|\$(\w+)")
 

@@ -8,7 +8,8 @@ import pytest
 
 from hercs.config import SecurityConfig
 from hercs.errors import ConfigError
-from hercs.net.security import ROLE_GRANTS, ROLES, access_control, is_loopback, zenoh_settings
+from hercs.net.security import ROLE_GRANTS, access_control, is_loopback, zenoh_settings
+from hercs.roles import ROLES
 
 TLS = "transport/link/tls/"
 

@@ -1,0 +1,35 @@
+"""The one table of service roles (hercs/roles.py) and what is derived from it: the CLI's
+service commands, `hercs up`'s children and stop stages, the certificates, the ACL."""
+
+from __future__ import annotations
+
+import importlib
+
+from hercs.apps.cli import build_parser
+from hercs.apps.run_plan import plan_children
+from hercs.apps.supervisor import OPTIONAL_ROLES, STOP_STAGES
+from hercs.config import HercsConfig, apply_overrides
+from hercs.net.security import ROLE_GRANTS
+from hercs.roles import ROLES, SERVICE_ROLES
+
+
+def test_every_role_is_a_cli_command_running_its_module() -> None:
+    parser, commands = build_parser()
+    for role in SERVICE_ROLES.values():
+        args = parser.parse_args([role.name, "--run", "r"])
+        assert args.command == role.name and role.name in commands
+        assert callable(importlib.import_module(role.module).run), role.module
+
+
+def test_hercs_up_starts_the_replay_first_and_stops_it_last() -> None:
+    config = apply_overrides(HercsConfig(), ["view.live=true", "actor.num_actors=2"])
+    started = [spec.role for spec in plan_children(config)]
+    assert started == ["replay", "live", "clusterer", "learner", "evaluator", "actor", "actor"]
+    assert STOP_STAGES[0] == ("actor",) and STOP_STAGES[-1] == ("replay",)
+    assert sorted(r for stage in STOP_STAGES for r in stage) == sorted(ROLES)
+    assert "live" not in [s.role for s in plan_children(HercsConfig())]
+    assert OPTIONAL_ROLES == {"live"}
+
+
+def test_every_role_has_its_grants() -> None:
+    assert set(ROLE_GRANTS) == set(ROLES)
