@@ -11,7 +11,7 @@ from hercs.actors.weights import WeightsDecoder
 from hercs.clusterer.clusterer_shell import decode_header
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_shell import (
+from hercs.replay_service.replay_messages import (
     MAX_BATCH_SIZE,
     MAX_MINIBATCHES_PER_REQUEST,
     MAX_ROWS_PER_REQUEST,

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_shell import MAX_BATCH_SIZE, MAX_MINIBATCHES_PER_REQUEST
+from hercs.replay_service.replay_messages import MAX_BATCH_SIZE, MAX_MINIBATCHES_PER_REQUEST
 from hercs.wire.codec import array_to_msg, msg_to_array
 from tests.fault.fuzz.probes import (
     ARRAY_KINDS,
