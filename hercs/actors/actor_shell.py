@@ -13,6 +13,8 @@ import time
 
 import numpy as np
 
+from hercs.actors.actor_identity import LatestWeights, incarnation
+from hercs.actors.actor_metrics import actor_metrics, unacked
 from hercs.actors.inserter import Inserter
 from hercs.actors.rollout import VectorRollout
 from hercs.actors.weights import WeightsDecoder
@@ -23,11 +25,11 @@ from hercs.net.service_shell import ServiceRuntime, join_run, service_main
 from hercs.net.transport import TransportError
 from hercs.proto import hercs_pb2 as pb
 from hercs.rl.envs import make_env
-from hercs.rl.policy import Policy, PolicyWeights
+from hercs.rl.policy import Policy
 from hercs.rl.seeding import generator, int_seed
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import EpisodeData
+from hercs.wire.episode import EpisodeData, EpisodeIdentity
 from hercs.wire.validation import parse_message
 
 log = logging.getLogger(__name__)
@@ -35,49 +37,6 @@ log = logging.getLogger(__name__)
 STOP_FLUSH_S = 3.0
 """On stop, queued inserts get this long to be acked before they are given up."""
 METRICS_EVERY_EPISODES = 10
-
-
-def incarnation() -> str:
-    """This process's incarnation: its start time in milliseconds, base 36 (unique per
-    restart of an id on one host, ordered, short)."""
-    value, digits = time.time_ns() // 1_000_000, "0123456789abcdefghijklmnopqrstuvwxyz"
-    out = ""
-    while value:
-        value, rest = divmod(value, 36)
-        out = digits[rest] + out
-    return out or "0"
-
-
-# --------------------------------------------------------------------------- weights
-
-
-class LatestWeights:
-    """A one-slot mailbox: the subscription thread `offer`s, the rollout loop `take`s.
-
-    The most recently received weights win (not the highest version: a learner restarted
-    without its checkpoint counts from 0 again, and its weights must still be adopted).
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Condition()
-        self._pending: PolicyWeights | None = None
-
-    def offer(self, weights: PolicyWeights) -> None:
-        with self._lock:
-            self._pending = weights
-            self._lock.notify_all()
-
-    def wait(self, timeout_s: float) -> None:
-        """Return once weights are pending, or after `timeout_s`."""
-        with self._lock:
-            if self._pending is None:
-                self._lock.wait(timeout_s)
-
-    def take(self) -> PolicyWeights | None:
-        """The weights received since the last `take`, newest only; None if none."""
-        with self._lock:
-            weights, self._pending = self._pending, None
-        return weights
 
 
 # --------------------------------------------------------------------------- the actor
@@ -177,7 +136,9 @@ class ActorService:
                     break
                 acted_with = self.policy.version
                 superseded_before = self.inserter.counters.superseded
-                if not self._submit(self.worker.run_episodes(self._act), acted_with):
+                made = self.worker.run_episodes(self._act, EpisodeIdentity(
+                    actor_id=self.actor_id, first_seq=self.episodes, policy_version=acted_with))
+                if not self._submit(made):
                     break  # stopped while the queue was full: the rest are not sent
                 if self.schedule.lockstep and not self._await_outcome(acted_with,
                                                                       superseded_before):
@@ -197,13 +158,11 @@ class ActorService:
                  self.unacked, c.retries)
         return 0
 
-    def _submit(self, episodes: list[EpisodeData], acted_with: int) -> bool:
-        """Tag and hand each episode to the inserter; False if stopped while it was full."""
+    def _submit(self, episodes: list[EpisodeData]) -> bool:
+        """Hand each episode to the inserter; False if stopped while it was full."""
         for episode in episodes:
-            episode.actor_id, episode.seq = self.actor_id, self.episodes
-            episode.policy_version = acted_with
             msg = episode_to_msg(episode, run=self.config.run.name, task=self.spec.name)
-            if not self.inserter.submit(self.episodes, msg.SerializeToString(),
+            if not self.inserter.submit(episode.seq, msg.SerializeToString(),
                                         stop=self.runtime.stop):
                 return False
             self.episodes += 1
@@ -250,28 +209,14 @@ class ActorService:
 
     @property
     def unacked(self) -> int:
-        """Episodes submitted and not acked, dropped or superseded: queued, in flight or
-        given up."""
-        c = self.inserter.counters
-        return self.episodes - c.acked - c.dropped - c.superseded
+        return unacked(self.episodes, self.inserter.counters)
 
     def publish_metrics(self, *, steps_per_s: float) -> None:
-        c = self.inserter.counters
         try:
-            self.runtime.publish_metrics({
-                "env_steps": self.worker.env_steps,
-                "episodes": self.episodes,
-                "env_steps_per_s": steps_per_s,
-                "acked": c.acked,
-                "retries": c.retries,
-                "dropped": c.dropped,
-                "superseded": c.superseded,
-                "unacked": self.unacked,
-                "duplicates": c.duplicates,
-                "insert_blocked_s": c.blocked_s,
-                "policy_version": self.policy.version,
-                "weights_rejected": self.weights_rejected,
-            })
+            self.runtime.publish_metrics(actor_metrics(
+                self.inserter.counters, env_steps=self.worker.env_steps,
+                episodes=self.episodes, steps_per_s=steps_per_s,
+                policy_version=self.policy.version, weights_rejected=self.weights_rejected))
         except TransportError as exc:  # metrics are best effort
             self._warn.warn("metrics", f"could not publish metrics: {exc}")
 

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from hercs.rl.task_registry import TaskSpec
-from hercs.wire.episode import EpisodeData, expected_shapes
+from hercs.wire.episode import EpisodeData, EpisodeIdentity, expected_shapes
 
 ActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(observation, desired goal) -> action, for one step; with (n, dim) arrays, n actions."""
@@ -63,8 +63,11 @@ class VectorRollout:
                 env.reset(seed=self._seeds[i])
                 self._seeds[i] = None
 
-    def run_episodes(self, act: ActFn) -> list[EpisodeData]:
-        """One episode per env, in env order."""
+    def run_episodes(self, act: ActFn,
+                     identity: EpisodeIdentity | None = None) -> list[EpisodeData]:
+        """One episode per env, in env order; with `identity`, env i's episode is made with
+        its actor id, seq `first_seq + i` and policy version (else the defaults: an
+        evaluation's episodes go nowhere)."""
         infos: list[dict] = [{} for _ in self.envs]
         for i, env in enumerate(self.envs):
             obs, _ = env.reset(seed=self._seeds[i])
@@ -78,9 +81,12 @@ class VectorRollout:
                 obs, _, _, _, infos[i] = env.step(actions[i])
                 self._record(i, t + 1, obs)
         self.env_steps += T * len(self.envs)
+        who = identity or EpisodeIdentity(actor_id="", first_seq=0, policy_version=-1)
         return [EpisodeData(obs=self._obs[i].copy(), ag=self._ag[i].copy(), g=self._g[i].copy(),
                             actions=self._actions[i].copy(),
-                            success=bool(infos[i].get(self.spec.success_key, 0.0)))
+                            success=bool(infos[i].get(self.spec.success_key, 0.0)),
+                            actor_id=who.actor_id, seq=who.first_seq + i,
+                            policy_version=who.policy_version)
                 for i in range(len(self.envs))]
 
     def close(self) -> None:

@@ -36,6 +36,17 @@ class EpisodeData:
         return self.g[-1]
 
 
+@dataclass(frozen=True)
+class EpisodeIdentity:
+    """Who made a batch of episodes, given to them as they are made (`VectorRollout`): the
+    actor's wire id, the first episode's seq (the others follow in env order) and the weights
+    version they were acted with."""
+
+    actor_id: str
+    first_seq: int
+    policy_version: int
+
+
 def expected_shapes(spec: TaskSpec) -> dict[str, tuple[int, ...]]:
     T = spec.episode_steps
     return {

@@ -6,7 +6,7 @@ import pytest
 from hercs.actors.rollout import RolloutWorker, VectorRollout
 from hercs.rl.envs import make_env
 from hercs.rl.task_registry import task_spec
-from hercs.wire.episode import expected_shapes
+from hercs.wire.episode import EpisodeIdentity, expected_shapes
 
 
 @pytest.mark.parametrize("task", ["reach", "push"])
@@ -86,3 +86,19 @@ def test_vector_rollout_is_n_rollout_workers_with_one_policy_call_per_step() -> 
         vector.close()
         for w in singles:
             w.close()
+
+
+def test_episodes_are_made_with_their_identity() -> None:
+    """An actor's episodes get their actor id, seq (one per env, in env order) and policy
+    version where they are made: nothing tags them after."""
+    spec = task_spec("reach")
+    vector = VectorRollout(spec=spec, envs=[make_env(spec) for _ in range(3)], seeds=[1, 2, 3])
+    try:
+        made = vector.run_episodes(lambda o, g: np.zeros((len(o), 4)), EpisodeIdentity(
+            actor_id="a@k1", first_seq=12, policy_version=5))
+        assert [(e.actor_id, e.seq, e.policy_version) for e in made] == [
+            ("a@k1", 12, 5), ("a@k1", 13, 5), ("a@k1", 14, 5)]
+        plain = vector.run_episodes(lambda o, g: np.zeros((len(o), 4)))
+        assert {(e.actor_id, e.policy_version) for e in plain} == {("", -1)}
+    finally:
+        vector.close()
