@@ -14,7 +14,7 @@ from typing import Any, TypeVar
 
 from hercs.apps import provenance
 from hercs.apps.provenance import VECTOR_EXTENSIONS, cpu_info, machine_identity
-from hercs.apps.result_files import add_out_option, report_folder, write_report
+from reports import add_out_option, report_folder, write_report
 
 __all__ = [
     "QUICK_EPOCHS",

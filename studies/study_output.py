@@ -8,7 +8,7 @@ from pathlib import Path
 
 from hercs.apps import provenance
 from hercs.apps.provenance import machine_identity
-from hercs.apps.result_files import add_out_option, report_folder, write_report
+from reports import add_out_option, report_folder, write_report
 
 __all__ = ["FINDINGS_HEADING", "REPO", "add_out_option", "git_commit", "kept_findings",
            "machine_identity", "report_folder", "show_and_write", "write_report"]

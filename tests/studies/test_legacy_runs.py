@@ -1,26 +1,27 @@
-"""studies/legacy_runs.py: which configs are the legacy variant, and the styling the committed
-figures get from it."""
+"""studies/legacy_runs: the studies' name for the old lag default is hercs' key of a run made
+with it, so their reports and `hercs plot` group the same runs."""
 
 from __future__ import annotations
 
+from hercs.apps.plot_series import series_key
 from hercs.apps.plots import method_label
-from studies.legacy_runs import LEGACY_LAG, LEGACY_STYLE, legacy_lag
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 
-RESOLVED = {"replay": {"rate_tolerance_updates": 80}}
-
-
-def test_only_a_resolved_asynchronous_config_without_prefetch_depth_is_legacy() -> None:
-    assert legacy_lag(RESOLVED) == LEGACY_LAG  # async is the default schedule
-    assert legacy_lag({**RESOLVED, "training": {"schedule": "async"}}) == LEGACY_LAG
-    assert legacy_lag({**RESOLVED, "learner": {"prefetch_depth": 3}}) == ""
-    assert legacy_lag({**RESOLVED, "training": {"schedule": "lockstep"}}) == ""
-    assert legacy_lag({"task": {"name": "push"}}) == ""  # not a resolved config: no replay
+OLD = {"run": {"method": "her-cs", "seed": 1}, "task": {"name": "push"},
+       "replay": {"rate_tolerance_updates": 80.0}}  # saved before learner.prefetch_depth
 
 
-def test_the_committed_figures_label_and_explain_the_legacy_variant() -> None:
-    assert LEGACY_STYLE.variant_of is legacy_lag
-    assert method_label(f"her-cs/{LEGACY_LAG}", LEGACY_STYLE.variant_notes) == "HER-CS (lag 7)"
+def test_a_run_of_the_old_default_has_the_legacy_lag_in_its_key() -> None:
+    assert series_key(OLD) == f"her-cs/{LEGACY_LAG}"
+    assert series_key({**OLD, "training": {"schedule": "lockstep"}}) == "her-cs/lockstep"
+    new = {**OLD, "replay": {"rate_tolerance_updates": 40.0},
+           "learner": {"prefetch_depth": 0}, "actor": {"insert_queue": 0},
+           "training": {"max_policy_lag": 3}}
+    assert series_key(new) == "her-cs"
+
+
+def test_the_studies_label_it_lag_7_where_hercs_plot_names_its_settings() -> None:
+    assert method_label(f"her-cs/{LEGACY_LAG}", LEGACY_NOTES) == "HER-CS (lag 7)"
     assert method_label(f"her-ebp-cs/lockstep/bf16/{LEGACY_LAG}",
-                        LEGACY_STYLE.variant_notes) == "HER-EBP-CS lockstep bf16 (lag 7)"
-    assert any(note.startswith("(lag 7): ") for note in LEGACY_STYLE.caption_notes)
-    assert LEGACY_STYLE.drawn_by == "python -m studies.fig2"
+                        LEGACY_NOTES) == "HER-EBP-CS lockstep bf16 (lag 7)"
+    assert method_label(f"her-cs/{LEGACY_LAG}") == "HER-CS (lag 80/3/2/∞)"

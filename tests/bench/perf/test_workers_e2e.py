@@ -57,6 +57,7 @@ def test_epoch_times_come_from_the_cumulative_wall_clock() -> None:
         summarise("w1-cpu", 1, "cpu", [])
 
 
+@pytest.mark.docs_check
 def test_the_committed_device_report_is_what_its_metrics_give() -> None:
     committed = json.loads((REPO / "docs" / "results" / "workers_e2e.json").read_text())
     runs = runs_from_dir(COMMITTED)

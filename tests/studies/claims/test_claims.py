@@ -334,6 +334,7 @@ def test_command_writes_claims_md(tmp_path: Path) -> None:
     assert few.returncode == 2 and "--reps must be at least 100, got 10" in few.stderr
 
 
+@pytest.mark.docs_check
 def test_docs_check_every_committed_run_a_claim_leaves_out_is_listed_with_the_reason(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The audit's finding: chaos and fault-free runs were left out silently by the

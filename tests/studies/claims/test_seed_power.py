@@ -104,6 +104,7 @@ def test_quick_mode_runs_and_writes_its_json_rendered(tmp_path) -> None:
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/seed_power.json not committed")
+@pytest.mark.docs_check
 def test_docs_check_the_committed_report_is_its_json_rendered_and_power_grows() -> None:
     """A regeneration check of docs/results/seed_power.md, and of what it shows (more seeds,
     more power; few false gains) against the json committed beside it."""

@@ -119,6 +119,7 @@ def test_random_action_statistics_cover_every_observation_dimension_and_repeat()
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/cross_sim.json not committed")
+@pytest.mark.docs_check
 def test_docs_check_the_committed_report_is_what_its_json_gives() -> None:
     """A regeneration check: docs/results/cross_sim.md is what render makes of the json."""
     result = json.loads(REPORT.read_text())
@@ -126,6 +127,7 @@ def test_docs_check_the_committed_report_is_what_its_json_gives() -> None:
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/cross_sim.json not committed")
+@pytest.mark.docs_check
 def test_docs_check_the_committed_findings_hold_in_the_committed_json() -> None:
     """Not a test of the code: the findings written in docs/results/cross_sim.md against the
     data committed beside them."""

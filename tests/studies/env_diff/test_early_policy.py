@@ -140,6 +140,7 @@ def test_open_loop_replay_in_a_real_fetchpush_is_deterministic() -> None:
 
 
 @pytest.mark.skipif(not REPORT.exists(), reason="docs/results/early_policy.json not committed")
+@pytest.mark.docs_check
 def test_docs_check_the_committed_findings_hold_in_the_committed_data() -> None:
     """Not a test of the code: a consistency check of docs/results/early_policy.md's findings
     against the data committed beside them (early_policy.json)."""

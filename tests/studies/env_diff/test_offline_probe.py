@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from hercs.rl.envs import mujoco_py_problem
 from hercs.rl.task_registry import task_spec
@@ -61,6 +62,7 @@ def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
     assert (tmp_path / "offline_probe.md").read_text() == render(result)
 
 
+@pytest.mark.docs_check
 def test_docs_check_the_committed_report_is_its_json_and_its_findings_quote_it() -> None:
     """A regeneration check (offline_probe.md is its json rendered) and a check of the
     findings' numbers against the data committed beside them, not a test of the code."""

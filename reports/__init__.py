@@ -1,6 +1,7 @@
 """How a benchmark (bench/) or a study (studies/) writes its result: a JSON summary beside its
 rendered markdown, in docs/results unless `--out` says where, and nowhere for a quick run.
-Here in hercs, beside provenance, because bench and studies do not import each other."""
+A package of its own below both (bench and studies do not import each other; the product,
+hercs, has no use for it)."""
 
 from __future__ import annotations
 
