@@ -85,7 +85,7 @@ lint: $(STAMP)
 
 # Redraw the figures that are drawn from committed runs (tests/unit/apps/test_committed_results.py).
 figures: $(STAMP)
-	$(PY) -m studies.fig2 > /dev/null
+	$(VENV)/bin/hercs plot --figure 2 docs/results/runs/*/ -o docs/results/fig2.png --table docs/results/fig2.md > /dev/null
 	$(PY) -m studies.schedule_effect > /dev/null
 	$(PY) -m studies.claims > /dev/null
 

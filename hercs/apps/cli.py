@@ -65,7 +65,8 @@ def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from hercs.apps.plot_figures import run_plot
+    from hercs.apps.plot_command import run_plot
+    from hercs.apps.plot_series import SeriesChoice
     from hercs.errors import HercsError
     from hercs.run.rundir import METRICS, require_run_dir
 
@@ -73,7 +74,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         for run_dir in args.run_dirs:  # what a folder lacks, before plots reads any
             require_run_dir(run_dir, needs=(METRICS,))
         return run_plot(args.run_dirs, args.output, reference=args.reference, table=args.table,
-                        xmax=args.xmax, figure=args.figure, band=args.band)
+                        xmax=args.xmax, figure=args.figure, band=args.band,
+                        choice=SeriesChoice(tuple(args.series), args.all_series))
     except HercsError as exc:
         print(f"hercs plot: {exc}", file=sys.stderr)
         return 2
@@ -203,14 +205,24 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                        description="10-epoch mean of the seed mean of the success rate per "
                                    "epoch, with a bootstrap 95 % interval band (and/or the "
                                    "min–max band), one panel per task, the legend beside it; "
-                                   "milestone tables on stdout. A folder named twice is read "
-                                   "once.")
+                                   "milestone tables on stdout. Runs that differ by their seed "
+                                   "alone are one series, labelled by what differs from the "
+                                   "defaults (schedule, precision, lag T/P/Q/B, ε, env). A "
+                                   "panel draws at most 6 series (the authors' included): "
+                                   "those with the fewest settings changed, v1 next; stderr "
+                                   "names the rest. A folder named twice is read once.")
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (config.yaml + "
                    "metrics.csv)")
     p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
     p.add_argument("--reference", action="store_true",
-                   help="overlay the authors' per-seed curves (installed with hercs: "
-                        "hercs/apps/data/authors_success_rates.csv)")
+                   help="overlay the authors' per-seed curves of the methods drawn (installed "
+                        "with hercs: hercs/apps/data/authors_success_rates.csv)")
+    p.add_argument("--series", action="append", default=[], metavar="PATTERN",
+                   help="draw the series whose key or label matches (shell-style, any case; "
+                        "repeatable), instead of the default choice: '*lag*', 'her-cs/*', "
+                        "'*lockstep*'")
+    p.add_argument("--all-series", action="store_true",
+                   help="draw every series, however many (the tables always list them all)")
     p.add_argument("--table", metavar="FILE.md", help="also write the tables here")
     p.add_argument("--xmax", type=int, metavar="EPOCH",
                    help="x axis end (default: the last epoch of our runs; 200 with --figure 2)")
@@ -219,7 +231,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                         "min–max over seeds; both: the interval and, lighter, the min–max")
     p.add_argument("--figure", type=int, choices=[2],
                    help="the paper's figure layout: 2 = Fig. 2 (2x3 panels: HER vs HER-CS and "
-                        "HER-EBP vs HER-EBP-CS on Push, PickAndPlace, Slide; authors dashed)")
+                        "HER-EBP vs HER-EBP-CS on Push, PickAndPlace, Slide; authors dashed), "
+                        "as docs/results/fig2.png is drawn")
 
     p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
                        description="3D trajectories of gripper, object and goal per episode, "

@@ -1,27 +1,20 @@
-"""`hercs plot`: the learning-curve figures (one panel per task, or the paper's Fig. 2)
-and the run that writes them with their tables."""
+"""`hercs plot`'s drawing: the learning-curve figures, one panel per task or the paper's
+Fig. 2 (plot_command.py chooses what they draw and writes them with their tables)."""
 
 from __future__ import annotations
 
-import sys
-from collections import Counter
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hercs.apps.plot_series import whose
 from hercs.apps.plot_tables import (
     FIG2_EPOCHS,
     FIG2_ROWS,
     FIG2_TASKS,
-    PLAIN_STYLE,
-    FigureStyle,
-    fig2_keys,
-    fig2_text,
-    has_ours,
-    panel_title,
-    tables,
+    Panel,
+    fig2_panels,
 )
 from hercs.apps.plots import (
     BANDS,
@@ -30,20 +23,15 @@ from hercs.apps.plots import (
     DEFAULT_BAND,
     DPI,
     LEGEND_W,
-    MAX_GROUPS,
     METHOD_COLORS,
     PANEL_H,
     PANEL_W,
-    REFERENCE_CSV,
     WINDOW,
     Bands,
     Curve,
     PlotError,
     aggregate,
     assign_colors,
-    group,
-    load_reference,
-    load_run,
     method_label,
     method_linestyle,
     method_rank,
@@ -72,7 +60,7 @@ def _save_figure(plt: Any, fig: Any, output: str | Path) -> Path:
     return output
 
 
-def _check_band(band: str) -> None:
+def check_band(band: str) -> None:
     if band not in BANDS:
         raise PlotError(f"band must be one of {', '.join(BANDS)}, got {band!r}")
 
@@ -125,13 +113,13 @@ def _seeds(n: int) -> str:
 def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
                 reference: dict[str, dict[str, list[Curve]]] | None = None,
                 xmax: int | None = None, band: str = DEFAULT_BAND) -> Path:
-    """One panel per task, its legend beside it: per method the 10-epoch moving average of
-    the seed mean with its bands (`seed_bands`; ours solid, the authors' dashed and smoothed
-    alike; the authors' bands only for the methods we ran, the other methods' reference
-    means thin). The x axis spans our epochs unless `xmax` is given."""
+    """One panel per task, its legend beside it: per series of `ours` the 10-epoch moving
+    average of the seed mean with its bands (`seed_bands`; ours solid, the authors' dashed
+    and smoothed alike, for the methods of `reference` given: `run_plot` passes those of
+    the series drawn). The x axis spans our epochs unless `xmax` is given."""
     from matplotlib.ticker import MaxNLocator
 
-    _check_band(band)
+    check_band(band)
     plt = _pyplot()
     tasks = list(ours)
     colors = _colors(ours)
@@ -143,9 +131,10 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         for method in sorted(set(ours[task]) | set(ref), key=method_rank):
             color = colors.get(method) or METHOD_COLORS.get(method)
             label = method_label(method)
-            mine = method in ours[task]
-            if mine:
+            if method in ours[task]:
                 a = aggregate(ours[task][method], every_seed=False)
+                if whose(method) != "ours":  # another program's runs say whose
+                    label = f"{label}, {whose(method)}"
                 _fill_bands(ax, seed_bands(ours[task][method], _band_rng()), color, band)
                 ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
                         linestyle=method_linestyle(method), linewidth=2.0, zorder=3,
@@ -153,12 +142,10 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
             if method in ref:
                 a = aggregate(ref[method])
                 keep = a.epochs <= right
-                if mine:  # the authors' band only where it compares to ours
-                    _fill_bands(ax, seed_bands(ref[method], _band_rng(), every_seed=True),
-                                color, band, strength=0.6, right=right)
+                _fill_bands(ax, seed_bands(ref[method], _band_rng(), every_seed=True),
+                            color, band, strength=0.6, right=right)
                 ax.plot(a.epochs[keep], moving_average(a.epochs, a.mean)[keep], "--",
-                        color=color, linewidth=1.4 if mine else 1.0,
-                        alpha=0.9 if mine else 0.6,
+                        color=color, linewidth=1.4, alpha=0.9,
                         label=f"{label}, authors' ({_seeds(a.n_seeds)})")
         ax.set_title(task)
         ax.set_xlabel("epoch")
@@ -195,110 +182,45 @@ def _fit_legends(fig: Any, legends: list[Any], margin_px: float = 4.0) -> None:
 def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
               xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND,
-              style: FigureStyle = PLAIN_STYLE) -> Path:
-    """The paper's Fig. 2 layout (2 × 3 panels), rule in `fig2_text`; `style`'s variant
-    notes in the labels."""
-    _check_band(band)
+              panels: list[Panel] | None = None) -> Path:
+    """The paper's Fig. 2 layout (2 × 3 panels, `fig2_panels`; rule in `fig2_text`)."""
+    check_band(band)
+    panels = panels if panels is not None else fig2_panels(ours, reference)
     plt = _pyplot()
     fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
                              figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
                              dpi=DPI, squeeze=False)
-    for r, pair in enumerate(FIG2_ROWS):
-        # colours per row, so that no two groups of a panel share one; a group keeps its
+    for i, panel in enumerate(panels):
+        r, c = divmod(i, len(FIG2_TASKS))
+        # colours per row, so that no two series of a panel share one; a series keeps its
         # colour across the row's tasks
-        colors = assign_colors({key for task in FIG2_TASKS
-                                for key in fig2_keys(pair, ours.get(task, {}),
-                                                     reference.get(task, {}))
-                                if key in ours.get(task, {})})
-        for c, task in enumerate(FIG2_TASKS):
-            ax = axes[r][c]
-            mine, ref = ours.get(task, {}), reference.get(task, {})
-            for key in fig2_keys(pair, mine, ref):
-                color = colors.get(key) or METHOD_COLORS.get(key)
-                label = method_label(key, style.variant_notes)
-                if key in ref:
-                    a = aggregate(ref[key])
-                    _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
-                                band, strength=0.4)
-                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), "--", color=color,
-                            linewidth=1.3, label=f"{label} (authors, {_seeds(a.n_seeds)})")
-                if key in mine:
-                    a = aggregate(mine[key], every_seed=False)
-                    _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
-                    ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
-                            linestyle=method_linestyle(key), linewidth=2.0,
-                            label=f"{label} ({style.whose(key)}, {_seeds(a.n_seeds)})")
-            if not has_ours(pair, mine):
-                ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
-                        ha="left", va="top", fontsize=10, color="0.4")
-            ax.set_title(panel_title(task, pair), fontsize=10)
-            ax.set_xlim(0, xmax)
-            ax.set_ylim(-0.01, 1.01)
-            ax.set_xlabel("epoch")
-            ax.set_ylabel("success rate")
-            ax.grid(True, alpha=0.3)
-            ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+        colors = assign_colors({k for p in panels[r * len(FIG2_TASKS):(r + 1) * len(FIG2_TASKS)]
+                                for k in p.drawn})
+        ax = axes[r][c]
+        mine, ref = ours.get(panel.task, {}), reference.get(panel.task, {})
+        for key in sorted({*panel.drawn, *panel.authors}, key=method_rank):
+            color = colors.get(key) or METHOD_COLORS.get(key)
+            label = method_label(key)
+            if key in panel.authors:
+                a = aggregate(ref[key])
+                _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
+                            band, strength=0.4)
+                ax.plot(a.epochs, moving_average(a.epochs, a.mean), "--", color=color,
+                        linewidth=1.3, label=f"{label} (authors, {_seeds(a.n_seeds)})")
+            if key in panel.drawn:
+                a = aggregate(mine[key], every_seed=False)
+                _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
+                ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
+                        linestyle=method_linestyle(key), linewidth=2.0,
+                        label=f"{label} ({whose(key)}, {_seeds(a.n_seeds)})")
+        if not panel.drawn and not panel.left:
+            ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
+                    ha="left", va="top", fontsize=10, color="0.4")
+        ax.set_title(panel.title, fontsize=10)
+        ax.set_xlim(0, xmax)
+        ax.set_ylim(-0.01, 1.01)
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("success rate")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
     return _save_figure(plt, fig, output)
-
-
-# ------------------------------------------------------------------------------------- CLI
-
-def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:
-    """The run folders in the order given, each once (the shell glob `push-her-*` also
-    matches `push-her-cs-*`, so a command line can name a folder twice), and how many
-    folders were named more than once."""
-    counts = Counter(Path(d).resolve() for d in run_dirs)
-    seen: set[Path] = set()
-    out = []
-    for d in run_dirs:
-        key = Path(d).resolve()
-        if key not in seen:
-            seen.add(key)
-            out.append(Path(d))
-    return out, sum(1 for n in counts.values() if n > 1)
-
-
-def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
-             table: str | None = None, reference_csv: str | Path = REFERENCE_CSV,
-             xmax: int | None = None, figure: int | None = None,
-             band: str = DEFAULT_BAND, style: FigureStyle = PLAIN_STYLE) -> int:
-    """`hercs plot`: the figure at `output`, the tables on stdout (and in `table`);
-    `figure=2` draws the paper's Fig. 2 layout (the authors' curves always beside ours), with
-    a caller's `style` (a study's; `hercs plot` itself draws plainly).
-    A folder named twice is read once, with one line on stderr saying how many were."""
-    _check_band(band)
-    folders, repeated = distinct_run_dirs(run_dirs)
-    notes: list[str] = []
-    if repeated:
-        notes.append(f"{repeated} run folder{'s' if repeated != 1 else ''} named more than "
-                     "once (overlapping globs?): each read once")
-    ours = group((load_run(d, style.variant_of) for d in folders), notes)
-    for task, methods in ours.items():
-        if len(methods) > MAX_GROUPS and figure != 2:
-            notes.append(f"{task}: {len(methods)} groups in one panel (past {MAX_GROUPS} a "
-                         "figure is hard to read); name fewer run folders, e.g. "
-                         "runs/push-her-s* runs/push-her-cs-s* for two methods' seeds")
-    if figure == 2:
-        for note in notes:
-            print(f"hercs plot: {note}", file=sys.stderr)
-        authors = group(load_reference(reference_csv))
-        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band, style),
-                              fig2_text(ours, authors, band, style), table)
-    ref = group(load_reference(reference_csv)) if reference else None
-    if ref is not None:
-        missing = sorted(set(ours) - set(ref))
-        if missing:
-            notes.append(f"--reference: the authors published no curves for {', '.join(missing)}"
-                         f" (they did for {', '.join(sorted(ref))}); drawn without them")
-    for note in notes:
-        print(f"hercs plot: {note}", file=sys.stderr)
-    return _write_outputs(plot_figure(ours, output, ref, xmax, band), tables(ours, ref), table)
-
-
-def _write_outputs(path: Path, text: str, table: str | None) -> int:
-    print(text, end="")
-    if table:
-        Path(table).write_text(text)
-        print(f"wrote {table}")
-    print(f"wrote {path}")
-    return 0

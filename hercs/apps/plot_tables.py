@@ -4,16 +4,16 @@ hercs/apps/plots.py's rule."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
+from hercs.apps.plot_series import DEFAULT_CHOICE, DEFAULT_LAG, SeriesChoice, series_list, whose
 from hercs.apps.plots import (
     CI_LEVEL,
     DEFAULT_BAND,
     WINDOW,
     Curve,
     Milestones,
-    VariantOf,
     aggregate,
     method_label,
     method_rank,
@@ -72,8 +72,6 @@ def tables(ours: dict[str, dict[str, list[Curve]]],
     return "\n".join(parts) + ("\n" + TABLE_NOTE if parts else "")
 
 
-
-
 BAND_CAPTIONS: dict[str, str] = {
     "ci": f"the bootstrap {CI_LEVEL * 100:.0f} % interval of their mean (seeds resampled, "
           "a fixed RNG seed)",
@@ -83,68 +81,80 @@ BAND_CAPTIONS: dict[str, str] = {
 }
 
 
-@dataclass(frozen=True)
-class FigureStyle:
-    """What a caller adds to `hercs plot`'s plain grouping and labels, for the figures it
-    commits: its own variants (`variant_of`), each shown as a note after the label
-    (`variant_notes`: variant → words, "HER-CS (lag 7)") and explained in Fig. 2's caption
-    (`caption_notes`), and the command that drew it (`drawn_by`, for the caption)."""
-
-    variant_of: VariantOf | None = None
-    variant_notes: Mapping[str, str] = field(default_factory=dict)
-    caption_notes: tuple[str, ...] = ()
-    drawn_by: str = "hercs plot --figure 2"
-    not_ours: Mapping[str, str] = field(default_factory=dict)
-    """Variants whose runs another code made (a peer's, run here): variant → whose, said
-    where a row or legend entry would say "ours"."""
-
-    def whose(self, key: str) -> str:
-        """"ours", or whose runs a group key's variant says they are (`not_ours`)."""
-        return next((self.not_ours[v] for v in key.split("/")[1:] if v in self.not_ours),
-                    "ours")
-
-
-PLAIN_STYLE = FigureStyle()
-
-
 FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")
 FIG2_ROWS: tuple[tuple[str, str], ...] = (("her", "her-cs"), ("her-ebp", "her-ebp-cs"))
 FIG2_EPOCHS = 200
 
 
-def panel_title(task: str, pair: tuple[str, str]) -> str:
-    return f"{task}: {' vs '.join(method_label(m) for m in pair)}"
-
-
 def in_panel(key: str, pair: tuple[str, str]) -> bool:
-    """Whether a Fig. 2 panel of `pair` draws method key `key`: the pair's methods, their
-    schedule variants (lockstep) and their runs on v1, not the learner's precision variants
-    (bf16)."""
+    """Whether a Fig. 2 panel of `pair` may draw method key `key`: the pair's methods and
+    their variants, not the learner's precision variants (bf16: a speed option, compared in
+    docs/PERFORMANCE.md)."""
     method, *variants = key.split("/")
     return method in pair and "bf16" not in variants
 
 
-def has_ours(pair: tuple[str, str], ours: dict[str, list[Curve]]) -> bool:
-    """Whether we ran any of the pair's methods (or their variants) on this task."""
-    return any(in_panel(key, pair) for key in ours)
+@dataclass(frozen=True)
+class Panel:
+    """One panel of Fig. 2: our series it draws and leaves out (`SeriesChoice`), and the
+    authors' curves beside them."""
+
+    task: str
+    pair: tuple[str, str]
+    drawn: list[str]
+    left: list[str]
+    authors: list[str]
+
+    @property
+    def title(self) -> str:
+        return f"{self.task}: {' vs '.join(method_label(m) for m in self.pair)}"
 
 
-def fig2_keys(pair: tuple[str, str], ours: dict[str, list[Curve]],
-               ref: dict[str, list[Curve]]) -> list[str]:
-    """The method keys of one panel, in the paper's order (`in_panel`)."""
-    keys = {k for k in (*ours, *ref) if in_panel(k, pair)}
-    return sorted(keys, key=method_rank)
+def fig2_panels(ours: dict[str, dict[str, list[Curve]]],
+                reference: dict[str, dict[str, list[Curve]]],
+                choice: SeriesChoice = DEFAULT_CHOICE) -> list[Panel]:
+    """The 2 × 3 panels, row by row. The authors' curves of both methods are drawn (the
+    paper's figure), or with `--series` those of the methods drawn; by default our series
+    fill what they leave of `choice.limit`."""
+    panels = []
+    for pair in FIG2_ROWS:
+        for task in FIG2_TASKS:
+            mine, ref = ours.get(task, {}), reference.get(task, {})
+            authors = [m for m in pair if m in ref]
+            limit = replace(choice, limit=max(0, choice.limit - len(authors)))
+            drawn, left = limit.choose((k for k in mine if in_panel(k, pair)),
+                                       lambda _key, _drawn: 1)
+            if choice.patterns:
+                authors = [m for m in authors if any(k.split("/")[0] == m for k in drawn)]
+            panels.append(Panel(task, pair, drawn, left, authors))
+    return panels
+
+
+def _caption_notes(keys: set[str]) -> str:
+    """What the labels of `keys` need said, each only where such a series is drawn."""
+    notes = ["ε: an EBP run's energy floor `energy.epsilon` where it is not 1e-6"]
+    if any("lag=" in k for k in keys):
+        default = DEFAULT_LAG.component().removeprefix("lag=").replace(",", "/")
+        notes.append("(lag T/P/Q/B): an asynchronous run's policy-lag settings where they are "
+                     f"not the default {default}, `replay.rate_tolerance_updates` / "
+                     "`learner.prefetch_depth` / `actor.insert_queue` / "
+                     "`training.max_policy_lag` (∞: no bound; docs/PERFORMANCE.md §2)")
+    notes += [f"({whose(k)}): runs made by the {whose(k)}, not by hercs"
+              for k in sorted(keys) if whose(k) != "ours"]
+    return "".join(f"; {n}" for n in dict.fromkeys(notes))
 
 
 def fig2_text(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], band: str = DEFAULT_BAND,
-              style: FigureStyle = PLAIN_STYLE) -> str:
-    """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2 (`band`:
-    what the figure's bands are, for its caption; `style`: a caller's variants, their labels
-    and caption notes, and the command named as the drawer)."""
+              choice: SeriesChoice = DEFAULT_CHOICE) -> str:
+    """docs/results/fig2.md: one milestone table per panel of the paper's Fig. 2, every
+    series of ours in it and the authors' curves of the panel's methods, then the series
+    the figure leaves out (`band`: what the figure's bands are, for its caption)."""
+    panels = fig2_panels(ours, reference, choice)
+    keys = {k for p in panels for k in (*p.drawn, *p.left)}
     parts = [
         "# Fig. 2: ours beside the authors'", "",
-        f"Drawn by `{style.drawn_by}` from the committed runs (docs/results/runs/). Rows "
+        "Drawn by `hercs plot --figure 2` from the run folders given. Rows "
         "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
         "FetchPickAndPlace, FetchSlide. Ours solid (lockstep dash-dotted), the authors' "
         f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
@@ -152,22 +162,24 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         f"seeds' own {WINDOW}-epoch trailing means, are {BAND_CAPTIONS[band]}. Ours: "
         "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled (v1) the authors' "
         "environment, gym Fetch*-v1 on mujoco-py, which the authors' curves are on "
-        f"(docs/DESIGN.md §9.6){''.join(f'; {note}' for note in style.caption_notes)}.", "",
+        f"(docs/DESIGN.md §9.6){_caption_notes(keys)}. A panel draws at most "
+        f"{choice.limit} series, the authors' two and ours with the fewest settings changed "
+        "from hercs' defaults (those on v1 next); each table lists every series, and under "
+        "it those the figure leaves out (`hercs plot --all-series` or `--series PATTERN` "
+        "draws them).", "",
     ]
-    for pair in FIG2_ROWS:
-        for task in FIG2_TASKS:
-            mine, ref = ours.get(task, {}), reference.get(task, {})
-            title = panel_title(task, pair)
-            rows: list[tuple[str, Milestones]] = []
-            for key in fig2_keys(pair, mine, ref):
-                label = method_label(key, style.variant_notes)
-                if key in mine:
-                    rows.append((f"{label} ({style.whose(key)})",
-                                 milestones(aggregate(mine[key]))))
-                if key in ref:
-                    rows.append((label + " (authors)",
-                                 milestones(aggregate(ref[key]))))
-            parts.append(markdown_table(title, rows))
-            if not has_ours(pair, mine):
-                parts += ["No runs of ours yet.", ""]
+    for panel in panels:
+        mine, ref = ours.get(panel.task, {}), reference.get(panel.task, {})
+        rows: list[tuple[str, Milestones]] = []
+        for key in sorted({*panel.drawn, *panel.left, *panel.authors}, key=method_rank):
+            label = method_label(key)
+            if key in mine:
+                rows.append((f"{label} ({whose(key)})", milestones(aggregate(mine[key]))))
+            if key in panel.authors:
+                rows.append((label + " (authors)", milestones(aggregate(ref[key]))))
+        parts.append(markdown_table(panel.title, rows))
+        if not panel.drawn and not panel.left:
+            parts += ["No runs of ours yet.", ""]
+        elif panel.left:
+            parts += [f"Not drawn: {series_list(panel.left)}.", ""]
     return "\n".join(parts) + "\n" + TABLE_NOTE

@@ -3,23 +3,33 @@ to the authors' published per-seed results (`docs/reference/authors_success_rate
 
 The runs as curves and the table rule (docs/DESIGN.md §5), as pure functions over numbers;
 plot_tables.py writes the tables and plot_figures.py draws. Runs in another setting (lockstep,
-bf16, Fetch*-v1) are their own group, never averaged with the default's.
+bf16, Fetch*-v1, another lag…: hercs/apps/plot_series.py) are their own group, never averaged
+with the default's.
 """
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
 
-from hercs.config.algorithm import EPSILON_V1, default_energy_epsilon
+# the series' vocabulary, importable from here as before it had its own module
+from hercs.apps.plot_series import ENV_VERSION_DEFAULT as ENV_VERSION_DEFAULT
+from hercs.apps.plot_series import EPSILON_UNMARKED as EPSILON_UNMARKED
+from hercs.apps.plot_series import METHOD_LABELS as METHOD_LABELS
+from hercs.apps.plot_series import METHOD_ORDER as METHOD_ORDER
+from hercs.apps.plot_series import VariantOf as VariantOf
+from hercs.apps.plot_series import energy_epsilon as energy_epsilon
+from hercs.apps.plot_series import is_env_version, series_key
+from hercs.apps.plot_series import marks_epsilon as marks_epsilon
+from hercs.apps.plot_series import method_key as method_key
+from hercs.apps.plot_series import method_label as method_label
+from hercs.apps.plot_series import method_rank as method_rank
 from hercs.errors import HercsError
-from hercs.rl.methods import METHODS
 from hercs.run.rundir import RunDir
 
 REFERENCE_CSV = Path(__file__).resolve().parent / "data" / "authors_success_rates.csv"
@@ -28,8 +38,6 @@ TASK_TITLES: dict[str, str] = {
     "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",
     "slide": "FetchSlide",
 }
-METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
-METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
 METHOD_COLORS: dict[str, str] = {
     "her": "#0072B2", "her-cs": "#D55E00", "her-ebp": "#009E73", "her-ebp-cs": "#E69F00",
 }
@@ -42,16 +50,6 @@ VARIANT_PALETTE: tuple[str, ...] = (
 """Colours for the other groups of a figure (a variant, another environment), taken in the
 methods' order: Okabe & Ito's remaining sky blue and reddish purple, Paul Tol's muted scheme,
 black: 12 groups besides the four methods before a colour is reused."""
-MAX_GROUPS = 10
-"""Past this many groups in one panel a figure is hard to read; `hercs plot` says how to
-name fewer."""
-ENV_VERSION_DEFAULT = "v4"
-"""`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
-EPSILON_UNMARKED = EPSILON_V1
-"""EBP's ε that run names and groups leave unsaid: every run's until 2026-11-28, and v1's
-default still. An EBP run with another (v4's default 1e-3 included) is marked `eps…`, so
-that the runs made before v4's default changed keep their names and groups; ε does nothing
-to HER and HER-CS, whose runs are never marked."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
@@ -110,65 +108,6 @@ def task_title(name: str) -> str:
     return TASK_TITLES.get(name, name)
 
 
-def method_key(method: str, schedule: str = "async", precision: str = "fp32",
-               env_version: str = ENV_VERSION_DEFAULT, variant: str = "",
-               torquescale: float = 1.0, energy_epsilon: float = EPSILON_UNMARKED) -> str:
-    """How runs are grouped: the method, with `/lockstep` for the lockstep schedule, `/bf16`
-    for the learner's mixed precision, `/<variant>` for a caller's own grouping (`VariantOf`),
-    `/eps0.001` for an EBP method's `energy.epsilon` other than EPSILON_UNMARKED, and `/v1`
-    for the authors' Fetch*-v1 environment, or `/ts4` for v4 with the gripper weld's
-    torquescale 4 (`her-cs/lockstep/bf16/v1` has three)."""
-    env = env_version if torquescale == 1.0 else f"ts{torquescale:g}"
-    eps = f"eps{energy_epsilon:g}" if marks_epsilon(method, energy_epsilon) else ""
-    variants = (v for v, default in ((schedule, "async"), (precision, "fp32"), (variant, ""),
-                                     (eps, ""), (env, ENV_VERSION_DEFAULT)) if v != default)
-    return "/".join((method, *variants))
-
-
-def marks_epsilon(method: str, energy_epsilon: float) -> bool:
-    """Whether a run's name and group say its ε: an EBP method's, other than
-    EPSILON_UNMARKED (an unknown method's too: it is not taken for a plain run)."""
-    spec = METHODS.get(method)
-    return (spec is None or spec.energy_prioritised) and energy_epsilon != EPSILON_UNMARKED
-
-
-def energy_epsilon(config: dict[str, Any]) -> float:
-    """A config.yaml's `energy.epsilon`: absent (saved before it was), 1e-6, every run's then;
-    null (written by hand), the default of its `task.env_version`."""
-    energy = config.get("energy") or {}
-    if "epsilon" not in energy:
-        return EPSILON_V1
-    if energy["epsilon"] is None:
-        return default_energy_epsilon((config.get("task") or {}).get("env_version",
-                                                                     ENV_VERSION_DEFAULT))
-    return float(energy["epsilon"])
-
-
-VariantOf = Callable[[dict[str, Any]], str]
-"""A caller's own grouping of runs beyond their settings (a study's experiment history, e.g.
-runs made before a setting existed): the variant for a run's config.yaml, "" for none.
-`hercs plot` has none: a user's runs are grouped by their settings alone."""
-
-
-def _env_version(variant: str) -> bool:
-    return variant in ("v1", ENV_VERSION_DEFAULT) or variant.startswith("ts")
-
-
-def method_label(key: str, variant_notes: Mapping[str, str] | None = None) -> str:
-    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-cs/v1` →
-    "HER-CS (v1)"; a variant named in `variant_notes` (a `FigureStyle`'s) is a note after
-    the environment's: `her-cs/lag7` with {"lag7": "lag 7"} → "HER-CS (lag 7)"."""
-    notes_of = variant_notes or {}
-    method, *variants = key.split("/")
-    inline = (f"ε {v[3:]}" if v.startswith("eps") else v
-              for v in variants if not _env_version(v) and v not in notes_of)
-    label = " ".join((METHOD_LABELS.get(method, method), *inline))
-    notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
-             for v in variants if _env_version(v)]
-    notes += [notes_of[v] for v in variants if notes_of.get(v)]  # "": no note
-    return "".join((label, *(f" ({v})" for v in notes)))
-
-
 def assign_colors(keys: Iterable[str]) -> dict[str, str]:
     """A colour per group key of one figure: the four methods their own (METHOD_COLORS),
     and so does a method's run on another environment when it is that method's only group
@@ -178,7 +117,7 @@ def assign_colors(keys: Iterable[str]) -> dict[str, str]:
     colors = {k: METHOD_COLORS[k] for k in ordered if k in METHOD_COLORS}
     for key in ordered:  # `her/v1` without `her` drawn: HER's colour, beside the authors' HER
         method, *variants = key.split("/")
-        if (len(variants) == 1 and _env_version(variants[0]) and method in METHOD_COLORS
+        if (len(variants) == 1 and is_env_version(variants[0]) and method in METHOD_COLORS
                 and method not in ordered
                 and not any(k.split("/")[0] == method for k in colors if k != method)):
             colors[key] = METHOD_COLORS[method]
@@ -216,14 +155,9 @@ def load_run(run_dir: str | Path, variant_of: VariantOf | None = None) -> Curve:
             raise PlotError(f"{run_dir}: no {path.name} in this run directory")
     try:
         config = yaml.safe_load(config_path.read_text()) or {}
-        task, method = config["task"]["name"], config["run"]["method"]
+        task = config["task"]["name"]
         seed = int(config["run"]["seed"])
-        method = method_key(method, (config.get("training") or {}).get("schedule", "async"),
-                            (config.get("learner") or {}).get("precision", "fp32"),
-                            config["task"].get("env_version", ENV_VERSION_DEFAULT),
-                            variant_of(config) if variant_of is not None else "",
-                            float(config["task"].get("weld_torquescale", 1.0)),
-                            energy_epsilon(config))
+        method = series_key(config, variant_of)
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc
@@ -275,17 +209,19 @@ def group(curves: Iterable[Curve], notes: list[str] | None = None
     Runs of the same task, method and seed are one seed, not several: the one with the most
     epochs is kept (a note in `notes` names the others)."""
     by_seed: dict[tuple[str, str, int], Curve] = {}
+    repeats: list[str] = []
     for c in curves:
         key = (c.task, c.method, c.seed)
         kept = by_seed.get(key)
         if kept is not None:
             longer, other = (c, kept) if len(c.epochs) > len(kept.epochs) else (kept, c)
-            if notes is not None:
-                notes.append(f"{other.source or 'a run'} has the same task, method and seed "
-                             f"({c.task}, {c.method}, seed {c.seed}) as {longer.source}: "
-                             "counted once, with the longer run")
+            repeats.append(f"{other.source or 'a run'} (as {longer.source or 'another'})")
             c = longer
         by_seed[key] = c
+    if repeats and notes is not None:  # one line, however many: a list would bury the rest
+        notes.append(f"{len(repeats)} run{'s' if len(repeats) != 1 else ''} with the same "
+                     "task, series and seed as another, counted once, with the longer run: "
+                     + ", ".join(repeats))
     out: dict[str, dict[str, list[Curve]]] = {}
     for c in by_seed.values():
         out.setdefault(c.task, {}).setdefault(c.method, []).append(c)
@@ -369,9 +305,3 @@ def milestones(agg: Aggregate, thresholds: Sequence[float] = THRESHOLDS,
     lookup = dict(zip(agg.epochs.tolist(), ma.tolist(), strict=True))
     return Milestones(crossing, {e: lookup.get(e) for e in at_epochs}, agg.n_seeds,
                       len(agg.epochs), float(ma[-1]) if len(ma) else None)
-
-
-def method_rank(key: str) -> tuple[int, str]:
-    """The paper's order; a variant right after its method."""
-    method = key.partition("/")[0]
-    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), key)

@@ -1,6 +1,6 @@
-"""`python -m studies.fig2`: docs/results/fig2.{png,md} from the committed runs, drawn by
-hercs.apps.plot_figures.run_plot (the layout and the tables' rule are the product's) with the
-legacy variant of studies/legacy_runs.py kept apart, as every committed figure does."""
+"""`python -m studies.fig2`: docs/results/fig2.{png,md} from the committed runs, by running
+`hercs plot --figure 2 docs/results/runs/*/ -o … --table …` itself: the figure, its labels
+and its series are the product's, so what a user's command draws is what is committed."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from hercs.apps.plot_figures import run_plot
+from hercs.apps.cli import main as hercs
 from hercs.apps.plots import BANDS, DEFAULT_BAND
-from studies.legacy_runs import LEGACY_STYLE
 from studies.study_output import REPO
 
 RESULTS = REPO / "docs" / "results"
@@ -27,6 +26,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.runs.is_dir():
         parser.error(f"--runs {args.runs}: not a directory")
-    runs = sorted(str(p) for p in args.runs.iterdir() if p.is_dir())
-    return run_plot(runs, str(args.output), table=str(args.table), figure=2, band=args.band,
-                    style=LEGACY_STYLE)
+    runs = sorted(str(p) for p in args.runs.iterdir() if p.is_dir())  # the shell's runs/*/
+    return hercs(["plot", "--figure", "2", *runs, "-o", str(args.output),
+                  "--table", str(args.table), "--band", args.band])

@@ -37,7 +37,7 @@ from hercs.apps.plots import (
     moving_average,
     task_title,
 )
-from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 from studies.study_output import REPO, git_commit
 
 
@@ -98,7 +98,7 @@ def load_pair(runs: Path, task: str, method: str) -> tuple[list[Curve], list[Cur
     the current default where both precisions have runs of it, else those of the old, staler
     default (`studies.legacy_runs.LEGACY_LAG`), never one of each."""
     title = task_title(task)
-    mine = group(c for c in load_runs(runs, legacy_lag) if c.task == title).get(title, {})
+    mine = group(c for c in load_runs(runs) if c.task == title).get(title, {})
     for lag in ("", LEGACY_LAG):
         pair = (mine.get(method_key(method, variant=lag), []),
                 mine.get(method_key(method, precision="bf16", variant=lag), []))

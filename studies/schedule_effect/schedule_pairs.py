@@ -35,7 +35,7 @@ from hercs.apps.plots import (
     milestones,
 )
 from hercs.apps.sweep_cells import DONE_FILE
-from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES, legacy_lag
+from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 from studies.study_output import REPO, show_and_write
 
 SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}
@@ -210,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--epoch must be at least 1, got {args.epoch}")
     if not args.runs.is_dir():
         p.error(f"--runs {args.runs}: not a directory")
-    curves = load_runs(args.runs, legacy_lag)
+    curves = load_runs(args.runs)
     command = " ".join(["python -m studies.schedule_effect",
                         *(sys.argv[1:] if argv is None else argv)])
     text = report(compare_all(curves, args.epoch), command, args.epoch)

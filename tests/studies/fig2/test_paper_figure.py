@@ -1,5 +1,5 @@
-"""studies/fig2: the command draws the figure and writes its tables with the studies' styling
-(a legacy run kept apart and labelled), and refuses a folder that is not there."""
+"""studies/fig2: the command is `hercs plot --figure 2` (a run of the old lag default kept apart
+and labelled by its settings), and refuses a folder that is not there."""
 
 from __future__ import annotations
 
@@ -21,7 +21,10 @@ def _run(root: Path, name: str, seed: int, legacy: bool) -> None:
     config = {"run": {"method": "her-cs", "seed": seed}, "task": {"name": "push"},
               "replay": {"rate_tolerance_updates": 80}}
     if not legacy:
-        config["learner"] = {"prefetch_depth": 3}
+        config["learner"] = {"prefetch_depth": 0}
+        config["replay"] = {"rate_tolerance_updates": 40}
+        config["actor"] = {"insert_queue": 0}
+        config["training"] = {"max_policy_lag": 3}
     RunDir(run).config.write_text(yaml.safe_dump(config))
     rows = ["epoch,success_rate"] + [f"{e},{min(1.0, e / 20)}" for e in range(1, 31)]
     RunDir(run).metrics.write_text("\n".join(rows) + "\n")
@@ -36,8 +39,8 @@ def test_the_figure_and_its_tables_keep_the_legacy_runs_apart(tmp_path: Path) ->
     assert main(["--runs", str(runs), "-o", str(figure), "--table", str(table)]) == 0
     text = table.read_text()
     assert figure.stat().st_size > 10_000
-    assert "Drawn by `python -m studies.fig2`" in text and "(lag 7): asynchronous runs" in text
-    assert "| HER-CS (lag 7) (ours) | 1 |" in text and "| HER-CS (ours) | 1 |" in text
+    assert "Drawn by `hercs plot --figure 2`" in text and "(lag T/P/Q/B): an asynch" in text
+    assert "| HER-CS (lag 80/3/2/∞) (ours) | 1 |" in text and "| HER-CS (ours) | 1 |" in text
 
 
 def test_a_missing_runs_folder_is_refused(tmp_path: Path) -> None:

@@ -1,18 +1,19 @@
-"""Regeneration checks: the committed figures are what studies/fig2 (`hercs plot`'s Fig. 2 with
-the studies' styling), studies/schedule_effect and studies/claims compute from the committed
-runs: a run added under docs/results/runs/ without redrawing docs/results/fig2.md,
-asynchrony.md and claims.md (`make figures`) fails here."""
+"""Regeneration checks: the committed figures are what `hercs plot --figure 2` (run here as a
+user runs it), studies/schedule_effect and studies/claims compute from the committed runs: a
+run added under docs/results/runs/ without redrawing docs/results/fig2.md, asynchrony.md and
+claims.md (`make figures`) fails here."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from hercs.apps import plot_tables, plots
+from hercs.apps import plots
 from hercs.run.rundir import RunDir
-from studies.legacy_runs import LEGACY_STYLE, legacy_lag
-from tests.support import load_module
+from tests.support import REPO, load_module
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
 
@@ -21,20 +22,28 @@ def committed_runs() -> list[Path]:
     return sorted(p for p in (RESULTS / "runs").iterdir() if RunDir(p).metrics.is_file())
 
 
-def test_fig2_tables_equal_what_studies_fig2_computes_from_the_committed_runs() -> None:
+def test_the_committed_fig2_is_what_hercs_plot_figure_2_writes(tmp_path: Path) -> None:
+    """The README's and `make figures`' command, in its own process, over every committed
+    run folder (the shell's docs/results/runs/*/): its table is the committed one, byte for
+    byte, and stderr names each panel's series left out and the flags that draw them."""
     runs = committed_runs()
     assert runs, "docs/results/runs/ holds no run"
-    ours = plots.group(plots.load_run(run, legacy_lag) for run in runs)
-    expected = plot_tables.fig2_text(ours, plots.group(plots.load_reference()),
-                                     style=LEGACY_STYLE)
-    assert (RESULTS / "fig2.md").read_text() == expected, (
-        "docs/results/fig2.md is not what the committed runs give: run `make figures`")
-    assert (RESULTS / "fig2.png").stat().st_size > 10_000
+    figure, table = tmp_path / "fig2.png", tmp_path / "fig2.md"
+    done = subprocess.run(
+        [sys.executable, "-m", "hercs.apps.cli", "plot", "--figure", "2",
+         *(f"{run}/" for run in runs), "-o", str(figure), "--table", str(table)],
+        cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert table.read_text() == (RESULTS / "fig2.md").read_text(), (
+        "docs/results/fig2.md is not what `hercs plot --figure 2` writes: run `make figures`")
+    assert figure.stat().st_size > 10_000 and (RESULTS / "fig2.png").stat().st_size > 10_000
+    assert "FetchPush: HER vs HER-CS: 3 more series not drawn" in done.stderr
+    assert "HER-CS (lag 80/3/2/∞)" in done.stderr and "--all-series" in done.stderr
 
 
 def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committed_runs() -> None:
     effect = load_module("studies.schedule_effect.schedule_pairs")
-    curves = [plots.load_run(run, legacy_lag) for run in committed_runs()]
+    curves = [plots.load_run(run) for run in committed_runs()]
     expected = effect.report(effect.compare_all(curves, 50), "python -m studies.schedule_effect")
     assert (RESULTS / effect.OUTPUT).read_text() == expected, (
         "docs/results/asynchrony.md is not what the committed runs give: run `make figures`")

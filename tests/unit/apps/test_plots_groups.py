@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
-from hercs.apps import plot_figures, plot_tables, plots
+from hercs.apps import plot_command, plot_tables, plots
 from hercs.apps.cli import main
+from hercs.apps.plot_series import MAX_SERIES, SeriesChoice
 from hercs.run.rundir import RunDir
 from tests.unit.apps.plot_runs import CURVES, _write_lockstep_run, _write_run, _write_variant_run
 
@@ -225,7 +226,7 @@ def test_a_folder_named_twice_is_read_once_with_one_line_saying_so(tmp_path: Pat
     assert captured.err.splitlines() == [
         "hercs plot: 2 run folders named more than once (overlapping globs?): each read once"]
     assert "| HER-CS | 2 | 6 |" in captured.out  # two seeds, not four
-    assert plot_figures.distinct_run_dirs([*her, her[0], f"{her[1]}/"]) == (her, 2)
+    assert plot_command.distinct_run_dirs([*her, her[0], f"{her[1]}/"]) == (her, 2)
 
 
 @pytest.mark.parametrize("band", ["ci", "minmax", "both"])
@@ -241,7 +242,7 @@ def test_cli_refuses_an_unknown_band(run_dirs: list[Path], tmp_path: Path, capsy
     assert exit_info.value.code == 2
     assert "invalid choice: 'sd'" in capsys.readouterr().err
     with pytest.raises(plots.PlotError, match="got 'sd'"):
-        plot_figures.run_plot([str(run_dirs[0])], str(tmp_path / "f.png"), band="sd")
+        plot_command.run_plot([str(run_dirs[0])], str(tmp_path / "f.png"), band="sd")
 
 
 def test_figure_2_caption_names_the_band_drawn() -> None:
@@ -292,21 +293,21 @@ def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
         config.update(settings[i // 4])
         RunDir(run).config.write_text(yaml.safe_dump(config))
         dirs.append(run)
-    fig = _drawn(monkeypatch, lambda: plot_figures.run_plot(
-        [str(d) for d in dirs], str(tmp_path / "many.png"), reference=True))
+    fig = _drawn(monkeypatch, lambda: plot_command.run_plot(
+        [str(d) for d in dirs], str(tmp_path / "many.png"), reference=True,
+        choice=SeriesChoice(every=True)))
     inside, solid = _legends_inside_and_colours(fig)
     assert len(solid) == 20 and inside
     assert fig.get_figheight() > plots.PANEL_H  # grown, not clipped
     # the methods' 4 and the palette's 12 colours, then the palette starts over
     assert len({color for _, color in solid}) == 16
-    assert "20 groups in one panel (past 10 a figure is hard to read); name fewer" in \
-        capsys.readouterr().err
+    assert "not drawn" not in capsys.readouterr().err  # --all-series: nothing left out
 
 
 def test_the_readmes_plot_examples_are_readable(monkeypatch: pytest.MonkeyPatch,
                                                 tmp_path: Path) -> None:
-    """Every `hercs plot` line of the README that draws committed runs: at most MAX_GROUPS
-    groups, every legend inside the image and no colour on two of our groups."""
+    """Every `hercs plot` line of the README that draws committed runs: at most MAX_SERIES
+    series, every legend inside the image and no colour on two of our groups."""
     readme = (REPO / "README.md").read_text()
     commands = [line.split("#")[0].split() for line in readme.splitlines()
                 if re.match(r"^(\.venv/bin/)?hercs plot docs/results/runs/", line)]
@@ -317,17 +318,17 @@ def test_the_readmes_plot_examples_are_readable(monkeypatch: pytest.MonkeyPatch,
         assert folders, f"{' '.join(words)}: matches no committed run"
         reference = "--reference" in words
         fig = _drawn(monkeypatch, lambda folders=folders, reference=reference:
-                     plot_figures.run_plot(folders, str(tmp_path / "readme.png"),
+                     plot_command.run_plot(folders, str(tmp_path / "readme.png"),
                                            reference=reference))
         inside, solid = _legends_inside_and_colours(fig)
         assert inside, f"{' '.join(words)}: a legend runs off the image"
         colours = [c for _, c in solid]
-        assert len(set(colours)) == len(colours) <= plots.MAX_GROUPS, solid
+        assert len(set(colours)) == len(colours) <= MAX_SERIES, solid
 
 
 def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_path: Path) -> None:
-    """`hercs plot` groups by settings alone; a caller's FigureStyle (a study's) adds its own
-    variant, labelled by its note and explained in Fig. 2's caption."""
+    """`hercs plot` groups by settings alone; a caller's `variant_of` (a study's) adds its
+    own variant, labelled by its note."""
     old = _write_run(tmp_path, "her-cs", 1, [0.1, 0.2])
     new = _write_run(tmp_path, "her-cs", 2, [0.3, 0.4])
     config = yaml.safe_load(RunDir(old).config.read_text())
@@ -337,19 +338,10 @@ def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_pat
     def era(run_config: dict[str, Any]) -> str:
         return "old" if run_config.get("era") == "old" else ""
 
-    style = plot_tables.FigureStyle(variant_of=era, variant_notes={"old": "before"},
-                              caption_notes=("(before): runs of the old era",),
-                              drawn_by="python -m my.study")
-    ours = plots.group(plots.load_run(r, style.variant_of) for r in (old, new))
+    ours = plots.group(plots.load_run(r, era) for r in (old, new))
     assert set(ours["FetchPush"]) == {"her-cs", "her-cs/old"}
     assert plots.method_key("her-cs", "lockstep", variant="old", env_version="v1") == (
         "her-cs/lockstep/old/v1")
-    assert plots.method_label("her-cs/lockstep/old/v1", style.variant_notes) == (
+    assert plots.method_label("her-cs/lockstep/old/v1", {"old": "before"}) == (
         "HER-CS lockstep (v1) (before)")
     assert plots.method_label("her-cs/old") == "HER-CS old"  # no note given: inline, as is
-    text = plot_tables.fig2_text(ours, {}, style=style)
-    assert "Drawn by `python -m my.study`" in text
-    assert "§9.6); (before): runs of the old era." in text
-    assert "| HER-CS (before) (ours) |" in text
-    plain = plot_tables.fig2_text(ours, {})
-    assert "Drawn by `hercs plot --figure 2`" in plain and "§9.6)." in plain
