@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from hercs.apps.live_recorder import LiveRecorder
-from hercs.apps.rerun_draw import APP_ID, blueprint, rerun_executable
+from hercs.apps.rerun_draw import APP_ID, rerun_executable
+from hercs.apps.rerun_layout import blueprint
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, join_run, service_main
@@ -76,7 +77,7 @@ def open_recording(rr: Any, config: HercsConfig) -> Any:
     if view.save:
         Path(view.save).parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(view.save))
-    rec.set_sinks(*sinks, default_blueprint=blueprint())
+    rec.set_sinks(*sinks, default_blueprint=blueprint(task=config.task.spec))
     return rec
 
 

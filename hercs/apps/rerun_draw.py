@@ -33,9 +33,12 @@ FAILURE_RGBA = (220, 30, 30, 160)
 
 GRIPPER_RADIUS = 0.002
 OBJECT_RADIUS = 0.004
-CENTROID_RADIUS = 0.02
-FAILED_GOAL_RADIUS = 0.006
-GOAL_RADIUS = 0.012
+# Goal and centroid radii in ui points (the same size on screen at any zoom): hundreds of
+# goals a few centimetres apart, drawn as spheres of a world size, hid the table and one
+# another. The centroids, k of them, are the large marks.
+CENTROID_POINTS = 10.0
+FAILED_GOAL_POINTS = 1.5
+GOAL_POINTS = 3.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -143,7 +146,7 @@ def log_episode(rr, rec, ep: EpisodeSummary) -> None:
             positions=ep.goal,
             colors=np.repeat(np.array([SUCCESS_RGBA if ep.success else FAILURE_RGBA],
                                       np.uint8), n, axis=0),
-            radii=np.full(n, GOAL_RADIUS, np.float32)),
+            radii=np.full(n, rr.Radius.ui_points(GOAL_POINTS), np.float32)),
     )
     rec.set_time("episode", sequence=ep.episode_id)
     outcome = "success" if ep.success else "FAILED"
@@ -181,8 +184,8 @@ def log_centroids(rr, rec, logged: LoggedModel) -> None:
     k = model.k
     rec.log("world/centroids", rr.Points3D(
         goal_point(model.centroids), colors=cluster_colors(np.arange(k)),
-        radii=np.full(k, CENTROID_RADIUS, np.float32),
-        labels=[f"c{i}" for i in range(k)]))
+        radii=np.full(k, rr.Radius.ui_points(CENTROID_POINTS), np.float32),
+        labels=[f"c{i}" for i in range(k)], show_labels=True))  # the only labelled points
     rec.log("log/cluster_models", rr.TextLog(
         f"cluster model v{model.version}: k={k}, fitted on {model.n_goals} failed goals "
         f"({model.failures_seen} seen), applies from episode {logged.at_episode}"))
@@ -199,7 +202,8 @@ def log_failed_goals(rr, rec, *, at_episode: int, goals: np.ndarray,
     rec.set_time("episode", sequence=at_episode)
     points = goal_point(goals) if len(goals) else np.zeros((0, 3), np.float32)
     rec.log("world/failed_goals", rr.Points3D(
-        points, colors=colors, radii=np.full(len(goals), FAILED_GOAL_RADIUS, np.float32)))
+        points, colors=colors, radii=np.full(len(goals), rr.Radius.ui_points(FAILED_GOAL_POINTS),
+                                      np.float32)))
 
 
 def declare_curve(rr, rec, name: str) -> str:
@@ -214,50 +218,3 @@ def rerun_executable() -> str | None:
     looks for one on PATH."""
     rerun_exe = Path(sys.executable).parent / "rerun"
     return str(rerun_exe) if rerun_exe.exists() else None
-
-
-def blueprint(selected: Sequence[int] = (), *, has_object: bool = False):
-    """The default layout: the 3D scene large, the curves, per-episode scalars and the text
-    logs beside it, the `episode` timeline active with the drawn episodes' span selected.
-    With an object (push, pick, slide) the 3D view shows the object paths and leaves the
-    gripper paths out (one click in the blueprint panel brings them back): two hundred of each
-    hide the clusters' shapes."""
-    import rerun.blueprint as rrb
-    from rerun.blueprint.components import AbsoluteTimeRange
-
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            # one rule per path: Rerun's filters take `**` only at the end of a path
-            rrb.Spatial3DView(origin="world", name="episodes (3D)", contents=(
-                ["+ world/**", *(f"- world/episodes/{i:06d}/gripper" for i in selected)]
-                if has_object else "world/**")),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="curves", name="success rate",
-                                   contents=["curves/success_rate"]),
-                rrb.TimeSeriesView(origin="curves", name="throughput",
-                                   contents=["curves/env_steps_per_s", "curves/updates_per_s"]),
-                rrb.TimeSeriesView(origin="episodes", name="episodes",
-                                   contents=["episodes/final_distance"]),
-                # one unit per panel: a panel of every curve mixed 0..1 with 0..30,000
-                rrb.Tabs(
-                    rrb.TimeSeriesView(origin="curves", name="losses",
-                                       contents=["curves/critic_loss", "curves/actor_loss",
-                                                 "curves/q_mean"]),
-                    rrb.TimeSeriesView(origin="curves", name="replay size",
-                                       contents=["curves/replay_size"]),
-                    rrb.TimeSeriesView(origin="curves", name="policy lag",
-                                       contents=["curves/policy_lag"]),
-                    rrb.TimeSeriesView(origin="curves", name="clusters",
-                                       contents=["curves/cluster_sizes"]),
-                    rrb.TimeSeriesView(origin="curves", name="cluster share",
-                                       contents=["curves/cluster_share"]),
-                    rrb.TimeSeriesView(origin="episodes", name="success, cluster",
-                                       contents=["episodes/success", "episodes/cluster"])),
-                rrb.TextLogView(origin="log", name="log"),
-            ),
-            column_shares=[3, 2],
-        ),
-        rrb.TimePanel(timeline="episode", time_selection=AbsoluteTimeRange(
-            min=min(selected), max=max(selected)) if selected else None),
-        collapse_panels=False,
-    )

@@ -23,7 +23,6 @@ from hercs.apps.rerun_draw import (
     APP_ID,
     EpisodeSummary,
     LoggedModel,
-    blueprint,
     declare_curve,
     log_centroids,
     log_episode,
@@ -33,6 +32,7 @@ from hercs.apps.rerun_draw import (
     rerun_executable,
     summarize_episode,
 )
+from hercs.apps.rerun_layout import blueprint
 from hercs.apps.web_viewer import (
     DEFAULT_BIND,
     WebViewerError,
@@ -230,17 +230,23 @@ def read_metrics(path: Path) -> dict[str, list[str]]:
 # Logging
 
 
-def log_clusters(rr, rec, run: RunLog, selected: Sequence[int]) -> None:
-    """Centroids at each refit; the accumulated failed goals at each refit and each selected
-    episode (so that scrubbing the `episode` timeline shows them grow)."""
+def cluster_times(run: RunLog, selected: Sequence[int]) -> list[int]:
+    """The `episode` times at which `world/failed_goals` is logged, in order: each refit and
+    each selected episode (so that scrubbing the `episode` timeline shows them grow)."""
+    return sorted(set(selected) | {m.at_episode for m in run.models})
+
+
+def log_clusters(rr, rec, run: RunLog, times: Sequence[int], *, centroids: bool) -> None:
+    """The centroids at each refit (with `centroids`), and the accumulated failed goals at each
+    of `times` coloured by the model current then."""
     failed_ids = np.array([e.episode_id for e in run.episodes if not e.success], np.int64)
     dim = len(run.episodes[0].desired_goal) if run.episodes else 3
     failed_goals = np.array([e.desired_goal for e in run.episodes if not e.success],
                             np.float32).reshape(-1, dim)
-    for model in run.models:
-        log_centroids(rr, rec, model)
+    if centroids:
+        for model in run.models:
+            log_centroids(rr, rec, model)
     model_starts = np.array([m.at_episode for m in run.models], np.int64)
-    times = sorted(set(selected) | {m.at_episode for m in run.models})
     for t in times:
         current = np.searchsorted(model_starts, t, side="right") - 1
         log_failed_goals(rr, rec, at_episode=t, goals=failed_goals[failed_ids <= t],
@@ -285,6 +291,8 @@ def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[s
                         continue
                     rec.set_time("epoch", sequence=int(epoch))
                     rec.log(f"curves/{name}", rr.Scalars(parts))
+                # what is logged after the curves (the clusters) is not on `epoch`
+                rec.disable_timeline("epoch")
                 logged.append(f"curves/{name}")
         return logged
     results = list(read_eval_results(log_path))  # no metrics.csv: the evaluator's results
@@ -300,13 +308,20 @@ def log_curves(rr, rec, metrics: dict[str, list[str]], log_path: Path) -> list[s
 
 def build_recording(rr, rec, run: RunLog, selected: Sequence[int],
                     metrics: dict[str, list[str]], log_path: Path) -> None:
+    """Log the run, what the view opens on first: the web viewer ingests and paints the
+    stream in the order it is sent, and on a slow machine a few hundred chunks take it a
+    minute. So the curves, the cluster models and the failed goals at the last selected
+    episode come first (a few dozen chunks), then the episodes newest first, then the failed
+    goals' history for scrubbing; the picture drawn once all arrived is the same."""
     log_world(rr, rec)
-    by_id = {e.episode_id: e for e in run.episodes}
-    for episode_id in selected:
-        log_episode(rr, rec, by_id[episode_id])
-    log_episode_scalars(rr, rec, run.episodes)
-    log_clusters(rr, rec, run, selected)
     log_curves(rr, rec, metrics, log_path)
+    log_episode_scalars(rr, rec, run.episodes)
+    times = cluster_times(run, selected)
+    log_clusters(rr, rec, run, times[-1:], centroids=True)
+    by_id = {e.episode_id: e for e in run.episodes}
+    for episode_id in reversed(selected):
+        log_episode(rr, rec, by_id[episode_id])
+    log_clusters(rr, rec, run, times[:-1], centroids=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -362,7 +377,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
 
     rec = rr.RecordingStream(APP_ID)
     rec.send_recording_name(f"{run_dir.name} ({run.task})")
-    layout = blueprint(selected, has_object=task_spec(run.task).has_object)
+    layout = blueprint(selected, task=task_spec(run.task))
     if save:
         rec.save(save, default_blueprint=layout)
     elif web:
