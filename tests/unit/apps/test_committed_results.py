@@ -22,6 +22,7 @@ def committed_runs() -> list[Path]:
     return sorted(p for p in (RESULTS / "runs").iterdir() if RunDir(p).metrics.is_file())
 
 
+@pytest.mark.docs_check
 def test_the_committed_fig2_is_what_hercs_plot_figure_2_writes(tmp_path: Path) -> None:
     """The README's and `make figures`' command, in its own process, over every committed
     run folder (the shell's docs/results/runs/*/): its table is the committed one, byte for
@@ -41,6 +42,7 @@ def test_the_committed_fig2_is_what_hercs_plot_figure_2_writes(tmp_path: Path) -
     assert "HER-CS (lag 80/3/2/∞)" in done.stderr and "--all-series" in done.stderr
 
 
+@pytest.mark.docs_check
 def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committed_runs() -> None:
     effect = load_module("studies.schedule_effect.schedule_pairs")
     curves = [plots.load_run(run) for run in committed_runs()]
@@ -50,6 +52,7 @@ def test_asynchrony_report_equals_what_schedule_effect_computes_from_the_committ
 
 
 @pytest.mark.slow  # the bootstrap at the committed file's 10,000 reps: ~10 s
+@pytest.mark.docs_check
 def test_claims_equal_what_claims_py_computes_from_the_committed_runs() -> None:
     claim_runs = load_module("studies.claims.claim_runs")
     claims = load_module("studies.claims.claims")

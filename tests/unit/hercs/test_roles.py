@@ -28,7 +28,7 @@ def test_hercs_up_starts_the_replay_first_and_stops_it_last() -> None:
     assert STOP_STAGES[0] == ("actor",) and STOP_STAGES[-1] == ("replay",)
     assert sorted(r for stage in STOP_STAGES for r in stage) == sorted(ROLES)
     assert "live" not in [s.role for s in plan_children(HercsConfig())]
-    assert OPTIONAL_ROLES == {"live"}
+    assert {"live"} == OPTIONAL_ROLES
 
 
 def test_every_role_has_its_grants() -> None:
