@@ -31,14 +31,15 @@ UNCLUSTERED = (170, 170, 170)
 SUCCESS_RGBA = (30, 200, 60, 160)
 FAILURE_RGBA = (220, 30, 30, 160)
 
-GRIPPER_RADIUS = 0.002
-OBJECT_RADIUS = 0.004
-# Goal and centroid radii in ui points (the same size on screen at any zoom): hundreds of
-# goals a few centimetres apart, drawn as spheres of a world size, hid the table and one
-# another. The centroids, k of them, are the large marks.
+# Radii in ui points (the same size on screen at any zoom): hundreds of goals a few
+# centimetres apart, drawn as spheres of a world size, hid the table and one another, and
+# paths centimetres wide near the camera hid the centroids. The centroids, k of them, are
+# the large marks.
 CENTROID_POINTS = 10.0
 FAILED_GOAL_POINTS = 1.5
 GOAL_POINTS = 3.0
+OBJECT_PATH_POINTS = 1.25
+GRIPPER_PATH_POINTS = 0.75
 
 
 # --------------------------------------------------------------------------------------------
@@ -130,13 +131,14 @@ def log_episode(rr, rec, ep: EpisodeSummary) -> None:
     base = f"world/episodes/{ep.episode_id:06d}"
     color = cluster_colors(np.array([ep.cluster]))[0]
     if ep.obj is not None:
-        _growing_strips(rr, rec, f"{base}/object", ep.episode_id, ep.obj, color, OBJECT_RADIUS)
+        _growing_strips(rr, rec, f"{base}/object", ep.episode_id, ep.obj, color,
+                        rr.Radius.ui_points(OBJECT_PATH_POINTS))
         gripper_color = color.copy()
         gripper_color[3] = 110
     else:
         gripper_color = color
     _growing_strips(rr, rec, f"{base}/gripper", ep.episode_id, ep.gripper, gripper_color,
-                    GRIPPER_RADIUS)
+                    rr.Radius.ui_points(GRIPPER_PATH_POINTS))
     n = len(ep.goal)
     rec.send_columns(
         f"{base}/goal",

@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.rerun_draw import CENTROID_POINTS, FAILED_GOAL_POINTS, GOAL_POINTS
+from hercs.apps.rerun_draw import (
+    CENTROID_POINTS,
+    FAILED_GOAL_POINTS,
+    GOAL_POINTS,
+    GRIPPER_PATH_POINTS,
+    OBJECT_PATH_POINTS,
+)
 from hercs.apps.rerun_layout import (
     FETCH_EYE,
     FETCH_ROBOT_BASE_X,
@@ -52,8 +58,9 @@ def test_the_camera_looks_at_the_committed_demo_s_clusters() -> None:
     assert off < 0.2, f"a centroid {off:.2f} m from where the camera looks"
 
 
-def test_goals_are_small_points_and_centroids_large() -> None:
-    assert FAILED_GOAL_POINTS < GOAL_POINTS < CENTROID_POINTS / 2
+def test_goals_and_paths_are_thin_and_centroids_large() -> None:
+    thin = max(FAILED_GOAL_POINTS, OBJECT_PATH_POINTS, GRIPPER_PATH_POINTS)
+    assert thin < GOAL_POINTS < CENTROID_POINTS / 2
 
 
 def test_only_the_centroids_are_labelled_and_the_layout_holds_the_camera(
