@@ -347,7 +347,7 @@ build_image() {
     # The services image starts the CLI and its service modules, without the view/plot deps.
     docker run --rm --network none --entrypoint python3 "$IMAGE" -c '
 import importlib, sys
-for m in ("hercs.apps.cli", "hercs.apps.router", "hercs.replay_service.replay_shell", "hercs.clusterer.clusterer_shell",
+for m in ("hercs.apps.cli", "hercs.apps.launch.router", "hercs.replay_service.replay_shell", "hercs.clusterer.clusterer_shell",
           "hercs.learner.learner_shell", "hercs.actors.actor_shell", "hercs.actors.evaluator"):
     importlib.import_module(m)
 heavy = sorted({"rerun", "matplotlib", "pyarrow", "imageio_ffmpeg"} & set(sys.modules))

@@ -1,7 +1,7 @@
 """hercs: Hindsight Experience Replay with Cluster-based Sampling, as distributed services.
 
 The Python API (README "Python API"): `up` starts a run, `resume` continues a stopped one,
-each returning a `Run` handle (`hercs.apps.run_handle`); `load_policy`, `read_metrics`,
+each returning a `Run` handle (`hercs.apps.cli.run_handle`); `load_policy`, `read_metrics`,
 `read_episodes` and `load_config` read a run directory (`hercs.api`).
 """
 
@@ -23,7 +23,7 @@ from hercs.api import (
 from hercs.errors import ConfigError, HercsError
 
 if TYPE_CHECKING:
-    from hercs.apps.run_handle import Run, resume, up
+    from hercs.apps.cli.run_handle import Run, resume, up
 
 __version__ = "0.1.0"
 
@@ -38,7 +38,7 @@ def __getattr__(name: str) -> Any:
     """`up`, `resume` and `Run` on first use: the launcher's imports stay out of every
     service's `import hercs`."""
     if name in ("up", "resume", "Run"):
-        from hercs.apps import run_handle
+        from hercs.apps.cli import run_handle
 
         return getattr(run_handle, name)
     raise AttributeError(f"module 'hercs' has no attribute {name!r}")

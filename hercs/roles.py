@@ -37,7 +37,7 @@ SERVICE_ROLES: dict[str, ServiceRole] = {r.name: r for r in (
                 "run the replay service (episode store, HER, samplers)",
                 "hercs replay --connect tcp/127.0.0.1:7447 --run myrun --task push",
                 stop_stage=2),
-    ServiceRole("live", "hercs.apps.live_view",
+    ServiceRole("live", "hercs.apps.views.live_view",
                 "stream a run to Rerun while it trains (what `hercs up --rerun` starts; join "
                 "a run with --connect and --run)",
                 "hercs live --connect tcp/LEARNER_HOST:7447 --run myrun --rerun",

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.apps.child_process import stop_process
+from hercs.apps.launch.child_process import stop_process
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.rl.task_registry import TaskSpec
 from hercs.run.rundir import RunDir

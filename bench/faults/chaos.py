@@ -34,7 +34,7 @@ from bench.faults.chaos_soak import Soak
 from bench.faults.chaos_state import QUICK_SHAPE, Shape, SoakState, new_state
 from bench.faults.netns import hosts, problem
 from bench.faults.remote_actor import sigterm_as_exit
-from hercs.apps.certs import make_certs
+from hercs.apps.deploy.certs import make_certs
 from hercs.run.rundir import RunDir
 
 WORK = REPO / "runs" / "chaos"

@@ -108,7 +108,7 @@ class Soak:
 
     def _stop_up(self, sig: int) -> None:
         """Signal the launcher and wait until it and its children are gone (they die with
-        it: PR_SET_PDEATHSIG, hercs/apps/child_process.py)."""
+        it: PR_SET_PDEATHSIG, hercs/apps/launch/child_process.py)."""
         assert self.up is not None
         children = [pid for ident in self.up.pids if (pid := self._child(ident)) is not None]
         with contextlib.suppress(ProcessLookupError):

@@ -42,7 +42,7 @@ from bench.faults.remote_actor import (
     start_actor,
 )
 from bench.faults.service_kills import EPOCH, Up
-from hercs.apps.certs import make_certs
+from hercs.apps.deploy.certs import make_certs
 from hercs.run.rundir import RunDir
 
 CUTS = ("", "both", "to-actors")

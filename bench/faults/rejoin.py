@@ -31,9 +31,9 @@ from pathlib import Path
 from bench.common import script_parser
 from bench.faults.netns import Host, hosts, problem
 from bench.faults.remote_actor import free_port
-from hercs.apps.certs import make_certs
-from hercs.apps.child_process import stop_process
-from hercs.apps.router import open_router
+from hercs.apps.deploy.certs import make_certs
+from hercs.apps.launch.child_process import stop_process
+from hercs.apps.launch.router import open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import zenoh_settings
 from hercs.net.transport import Transport, TransportError

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from bench.common import REPO
 from bench.faults.netns import Host
-from hercs.apps.child_process import pdeathsig_preexec, stop_process
+from hercs.apps.launch.child_process import pdeathsig_preexec, stop_process
 
 ACTOR_EXIT_S = 60.0
 """How long an actor may take to stop by itself once `hercs up` has exited (it stops when

@@ -36,7 +36,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from bench.common import REPO, git_commit, table_with_notes
-from hercs.apps.child_process import pdeathsig_preexec
+from hercs.apps.launch.child_process import pdeathsig_preexec
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_episodes

@@ -31,7 +31,7 @@ import numpy as np
 from bench.common import REPO, git_commit, machine_identity
 from bench.perf.throughput.harness import Child, Latest, free_endpoint
 from hercs.actors.inserter import Inserter
-from hercs.apps.router import open_router
+from hercs.apps.launch.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import SCHEMA_VERSION

@@ -53,7 +53,7 @@ export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 torch.cuda.is_available(), torch.cuda.get_device_name(0), 'mujoco', mujoco.__version__)"
 } > "$WORK/machine.txt" 2>&1
 cat "$WORK/machine.txt"
-step imports 60 python3 -c "import hercs.apps.cli, hercs.learner.ddpg, hercs.replay_service, \
+step imports 60 python3 -c "import hercs.apps.cli.main, hercs.learner.ddpg, hercs.replay_service, \
 hercs.clusterer, hercs.actors, hercs.run.runlog.writer, zenoh, zstandard
 from hercs.rl.envs import make_env; from hercs.rl.task_registry import task_spec
 print(make_env(task_spec('push')).reset(seed=0)[0]['observation'].shape)"

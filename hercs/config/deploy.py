@@ -122,7 +122,7 @@ class LaunchConfig:
     """A run in which no epoch ends for this many times its slowest epoch so far has stalled:
     `hercs up` says what stopped moving and where to look, stops every service and exits 5.
     Before its first epoch ends the bound is this many times the first epoch the config
-    predicts on a slow machine (hercs/apps/stall.py). 10 lets an epoch be slowed by a
+    predicts on a slow machine (hercs/apps/launch/stall.py). 10 lets an epoch be slowed by a
     service's restart or a network cut of a minute without a false alarm: the chaos soaks'
     slowest epochs, with a kill or a cut in them, took 1.5x their median [DESIGN]. 0: never
     (a learner held in a debugger)."""

@@ -1,6 +1,6 @@
 """Committed runs as the claims read them: grouped by what their config.yaml says (everything
 but the seed: task, environment, method, schedule, precision, the policy-lag setting and other
-experiment settings), and scored per run with hercs/apps/plots.py's rule (the Fig. 2 tables'):
+experiment settings), and scored per run with hercs/apps/plots/curves.py's rule (Fig. 2's):
 its success after epoch EPOCH (the 10-epoch trailing mean there) and the epoch its trailing
 mean first exceeds 0.5, counted from 0; a run that never does by EPOCH counts as EPOCH
 (censored: a lower bound). Every run is cut at EPOCH, and a run with fewer epochs is left out.
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import yaml
 
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     Curve,
     aggregate,
     energy_epsilon,
@@ -42,7 +42,7 @@ HIGH = 0.9
 """The second milestone, where a task is close to solved (PickAndPlace's runs pass it by
 epoch 100; few Push runs do by 50)."""
 DONE_FILE = "bench_done.json"
-"""`hercs sweep`'s record of a finished run (hercs/apps/sweep.py): commit, time, machine."""
+"""`hercs sweep`'s record of a finished run (hercs/apps/sweep/grid.py): commit, time, machine."""
 ASSUMED_KEYS: tuple[tuple[str, str, str], ...] = (
     ("training", "schedule", "async"), ("learner", "precision", "fp32"))
 """Settings that older config.yaml files lack; such a run is grouped with these values (the

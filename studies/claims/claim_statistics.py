@@ -1,7 +1,7 @@
 """The statistics of studies/claims/claims.py over runs' scores: IQM and mean with rliable's
 stratified bootstrap intervals, and the probability of improvement of one side over another
 (rliable's functions; inside the bootstraps, the IQM and P(X > Y) of `hercs sweep report`'s
-statistics, hercs/apps/sweep_stats.py, the one numpy implementation, at a fraction of scipy's
+statistics, hercs/apps/sweep/stats.py, the one numpy implementation, at a fraction of scipy's
 cost and pinned equal to rliable's by tests/studies/claims/test_claims.py)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hercs.apps.sweep_stats import iqm, probability_of_improvement
+from hercs.apps.sweep.stats import iqm, probability_of_improvement
 
 REPS = 10_000
 """Bootstrap replications. With 2–5 runs a side has at most 126 distinct resamples: at 10,000

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     method_label,
 )
 from studies.authors_peer import PEER_SCHEDULE

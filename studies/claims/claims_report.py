@@ -206,7 +206,7 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "per-seed curves (docs/reference/authors_success_rates.csv); also `make figures`, and "
         "a test checks this file against them. All on FetchPush, but for the PickAndPlace "
         f"lines, which are read at epoch {PICK_EPOCH}.", "",
-        "**Per run** (hercs/apps/plots.py's rule, the Fig. 2 tables'): *success after epoch "
+        "**Per run** (hercs/apps/plots/curves.py's rule, the Fig. 2 tables'): *success after epoch "
         f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
         f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "
         f"counted from 0 (epochs completed before it), and likewise the *epoch at {HIGH:g}*. "

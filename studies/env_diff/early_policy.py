@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from hercs.api import read_metrics
-from hercs.apps.plots import EPSILON_UNMARKED, energy_epsilon, marks_epsilon
+from hercs.apps.plots.curves import EPSILON_UNMARKED, energy_epsilon, marks_epsilon
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
 from hercs.run.rundir import RunDir

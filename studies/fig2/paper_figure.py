@@ -8,8 +8,8 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from hercs.apps.cli import main as hercs
-from hercs.apps.plots import BANDS, DEFAULT_BAND
+from hercs.apps.cli.main import main as hercs
+from hercs.apps.plots.curves import BANDS, DEFAULT_BAND
 from studies.study_output import REPO
 
 RESULTS = REPO / "docs" / "results"

@@ -24,8 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hercs.apps.plot_figures import plot_figure
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     Curve,
     PlotError,
     aggregate,
@@ -37,6 +36,7 @@ from hercs.apps.plots import (
     moving_average,
     task_title,
 )
+from hercs.apps.plots.figures import plot_figure
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 from studies.study_output import REPO, git_commit
 

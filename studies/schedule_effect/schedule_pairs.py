@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     Curve,
     aggregate,
     group,
@@ -34,7 +34,7 @@ from hercs.apps.plots import (
     method_label,
     milestones,
 )
-from hercs.apps.sweep_cells import DONE_FILE
+from hercs.apps.sweep.cells import DONE_FILE
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 from studies.study_output import REPO, show_and_write
 
@@ -135,7 +135,7 @@ def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
             # lockstep ignores the asynchronous lag settings: old and new defaults alike pair
             # with the lockstep runs of the same precision and environment (v1, a v4 weld
             # setting), whose key is theirs with /lockstep first (the order of
-            # hercs.apps.plots.method_key)
+            # hercs.apps.plots.curves.method_key)
             partner = "/".join((method, "lockstep", *(v for v in variants if v != LEGACY_LAG)))
             lock_curves = methods.get(partner, [])
             if not lock_curves:

@@ -21,7 +21,7 @@ import torch
 import yaml
 
 import hercs
-from hercs.apps.resume_check import CannotResume
+from hercs.apps.launch.resume_check import CannotResume
 from hercs.errors import ConfigError, HercsError
 from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.rundir import RunDir

@@ -24,8 +24,8 @@ import pytest
 from bench.faults import net_faults
 from bench.faults.delay_relay import DelayRelay
 from bench.faults.netns import hosts, problem
-from hercs.apps.certs import make_certs
-from hercs.apps.router import open_router
+from hercs.apps.deploy.certs import make_certs
+from hercs.apps.launch.router import open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import zenoh_settings
 from hercs.net.transport import Transport

@@ -14,7 +14,7 @@ import pytest
 
 from bench.faults import rejoin
 from bench.faults.netns import hosts, problem
-from hercs.apps.certs import make_certs
+from hercs.apps.deploy.certs import make_certs
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
 

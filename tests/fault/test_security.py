@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.certs import make_certs
-from hercs.apps.router import open_router
+from hercs.apps.deploy.certs import make_certs
+from hercs.apps.launch.router import open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import listen_problem, zenoh_settings
 from hercs.net.transport import RouterUnreachable, Transport, TransportError

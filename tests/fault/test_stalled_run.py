@@ -26,7 +26,7 @@ pytestmark = pytest.mark.integration
 RUN_S = 240.0
 FACTOR = 2
 LAUNCHER_POLL_S = 1.0
-"""How often the supervisor's loop looks (hercs.apps.supervisor._POLL_S)."""
+"""How often the supervisor's loop looks (hercs.apps.launch.supervisor._POLL_S)."""
 LATE_S = LAUNCHER_POLL_S + 4.0
 """How far past its bound a stall may be reported: one poll, and the scheduling of a busy
 machine."""

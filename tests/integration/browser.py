@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.child_process import stop_process
+from hercs.apps.launch.child_process import stop_process
 
 WINDOW = (1280, 800)
 

@@ -95,8 +95,8 @@ while True:
 # Runs `hercs up` (argv after the first four) with the stand-ins as children.
 DRIVER = r'''
 import sys
-from hercs.apps.cli import build_parser, resolve_config
-from hercs.apps.launcher import run_up
+from hercs.apps.cli.main import build_parser, resolve_config
+from hercs.apps.launch.launcher import run_up
 standin, events, behaviours, stop_timeout = sys.argv[1:5]
 args = build_parser()[0].parse_args(["up", *sys.argv[5:]])
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hercs.apps.child_process import stop_process
+from hercs.apps.launch.child_process import stop_process
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb

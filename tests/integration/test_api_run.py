@@ -119,7 +119,7 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
     import torch
 
     from hercs.actors.weights import WeightsDecoder
-    from hercs.apps.policy_eval import load_policy as eval_loads
+    from hercs.apps.evaluation.policy_eval import load_policy as eval_loads
     from hercs.config import HercsConfig
     from hercs.rl.policy import Policy
 

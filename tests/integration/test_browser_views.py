@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
+from hercs.apps.views.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
 from tests.integration.browser import WINDOW, chromium, loaded, screenshot_until, stop
 from tests.integration.launcher_standins import Launcher
 from tests.support import free_tcp_port, rerun_binary, wait_for_port

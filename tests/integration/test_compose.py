@@ -22,8 +22,8 @@ from typing import Any
 import pytest
 import yaml
 
-from hercs.apps.cli import build_parser, resolve_config
-from hercs.apps.cli_services import SERVICES
+from hercs.apps.cli.main import build_parser, resolve_config
+from hercs.apps.cli.services import SERVICES
 from hercs.config import HercsConfig
 from hercs.net.security import listen_problem
 from hercs.roles import SERVICE_ROLES
@@ -270,8 +270,8 @@ def test_dockerfile_installs_cpu_torch_then_every_package() -> None:
 def test_services_import_no_view_dependency() -> None:
     """The services image lacks rerun-sdk, matplotlib and imageio-ffmpeg: no module a service
     command imports may import them at module level (only `hercs view|plot|live|eval` do)."""
-    modules = ["hercs.apps.cli", "hercs.apps.router", "hercs.apps.certs",
-               *(m for m, _ in SERVICES.values() if m != "hercs.apps.live_view")]
+    modules = ["hercs.apps.cli", "hercs.apps.launch.router", "hercs.apps.deploy.certs",
+               *(m for m, _ in SERVICES.values() if m != "hercs.apps.views.live_view")]
     heavy = [*VIEW_ONLY.values(), "pyarrow"]
     # pandas is a dev-only package here (rliable's, for studies/claims/claims.py), absent from the
     # image; where installed, scikit-learn imports it and it imports pyarrow: block it so the

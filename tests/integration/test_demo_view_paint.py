@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.rerun_draw import APP_ID, PALETTE, UNCLUSTERED
-from hercs.apps.rerun_layout import blueprint
+from hercs.apps.views.rerun_draw import APP_ID, PALETTE, UNCLUSTERED
+from hercs.apps.views.rerun_layout import blueprint
 from hercs.rl.task_registry import task_spec
 from tests.integration.browser import chromium, screenshot_until, stop
 from tests.integration.launcher_standins import Launcher

@@ -1,6 +1,7 @@
-"""`hercs eval --video` (hercs/apps/policy_eval.py): a 1280×720 video of a committed run's
-policy, filmed by a camera that frames the table, so the object is tens of pixels wide, not a
-few as from the environment's own camera. Skipped where MuJoCo has no offscreen OpenGL."""
+"""`hercs eval --video` (hercs/apps/evaluation/policy_eval.py): a 1280×720 video of a
+committed run's policy, filmed by a camera that frames the table, so the object is tens of
+pixels wide, not a few as from the environment's own camera. Skipped where MuJoCo has no
+offscreen OpenGL."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.video_frames import band_px
+from hercs.apps.evaluation.video_frames import band_px
 from tests.support import REPO
 
 pytestmark = pytest.mark.integration
@@ -28,7 +29,7 @@ import json, os, sys
 os.environ["MUJOCO_GL"] = sys.argv[1]
 import mujoco
 import numpy as np
-from hercs.apps.policy_eval import FRAME_SIZE, video_env
+from hercs.apps.evaluation.policy_eval import FRAME_SIZE, video_env
 from hercs.rl.envs import make_env
 from hercs.rl.task_registry import task_spec
 
@@ -50,7 +51,7 @@ print(json.dumps([there.shape[1], there.shape[0], int(cols.min()), int(cols.max(
 
 @pytest.fixture(scope="module")
 def gl() -> str:
-    from hercs.apps.policy_eval import EvalError, choose_gl
+    from hercs.apps.evaluation.policy_eval import EvalError, choose_gl
 
     try:
         return choose_gl()

@@ -1,4 +1,4 @@
-"""`hercs up` (hercs.apps.launcher), its pure parts: progress lines, run resolution, the
+"""`hercs up` (hercs.apps.launch.launcher), its pure parts: progress lines, run resolution, the
 planned children, refusals before anything starts.
 
 The pure parts: test_launcher.py; process management with stand-in children (the `up`
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import build_parser, main, resolve_config
-from hercs.apps.progress import Progress
-from hercs.apps.run_plan import plan_children, resolve_run, service_command
+from hercs.apps.cli.main import build_parser, main, resolve_config
+from hercs.apps.launch.progress import Progress
+from hercs.apps.launch.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir

@@ -1,4 +1,4 @@
-"""`hercs up` (hercs.apps.launcher) with stand-in children and a real embedded router: start
+"""`hercs up` (hercs.apps.launch.launcher) with stand-in children and a real embedded router: start
 order, failure reports, restarts, shutdown order and no orphan processes.
 
 The pure parts: test_launcher.py; process management with stand-in children (the `up`
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.apps.progress import Progress
+from hercs.apps.launch.progress import Progress
 from hercs.config import load_yaml
 from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys

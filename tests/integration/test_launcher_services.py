@@ -1,4 +1,4 @@
-"""`hercs up` (hercs.apps.launcher) with the real services: end to end, lockstep runs, the
+"""`hercs up` (hercs.apps.launch.launcher) with the real services: end to end, lockstep runs, the
 authors' v1 env.
 
 The pure parts: test_launcher.py; process management with stand-in children (the `up`

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 import hercs
-from hercs.apps.resume_check import CannotResume
-from hercs.apps.run_lock import RunLock
+from hercs.apps.launch.resume_check import CannotResume
+from hercs.apps.launch.run_lock import RunLock
 from hercs.errors import ConfigError, HercsError
 from hercs.run.rundir import RunDir, RunDirError
 from tests.run_dirs import make_run

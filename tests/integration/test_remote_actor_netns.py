@@ -26,7 +26,7 @@ import pytest
 import yaml
 
 from bench.faults.netns import Host, hosts, problem
-from hercs.apps.router import open_router
+from hercs.apps.launch.router import open_router
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
 from hercs.net.transport import PendingReply, Transport
 from hercs.proto import SCHEMA_VERSION

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import main
+from hercs.apps.cli.main import main
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import STANDIN, Launcher
@@ -28,8 +28,8 @@ WAIT_S = 60.0
 # `hercs up ARGS` with the stand-ins as children (as test_launcher's DRIVER, with --resume).
 DRIVER = r'''
 import sys
-from hercs.apps.cli import build_parser, resolve_config
-from hercs.apps.launcher import run_up
+from hercs.apps.cli.main import build_parser, resolve_config
+from hercs.apps.launch.launcher import run_up
 standin, events, behaviours = sys.argv[1:4]
 args = build_parser()[0].parse_args(["up", *sys.argv[4:]])
 
@@ -126,7 +126,7 @@ def test_the_routers_own_log_goes_to_its_log_file_and_hercs_messages_to_the_term
 NATIVE = r'''
 import os, sys
 from pathlib import Path
-from hercs.apps.launcher import native_output_to
+from hercs.apps.launch.launcher import native_output_to
 with native_output_to(Path(sys.argv[1]), sys.stdout, sys.stderr) as (out, err):
     os.write(1, b"native stdout line, as Zenoh's logger writes\n")
     os.write(2, b"native stderr line\n")

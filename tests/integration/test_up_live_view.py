@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
-from hercs.apps.view import read_run_log
+from hercs.apps.views.view import read_run_log
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import Launcher, process_alive
 from tests.support import free_endpoint, free_tcp_port, rerun_viewer

@@ -15,7 +15,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from hercs.apps.cli import main
+from hercs.apps.cli.main import main
 from tests.integration.launcher_standins import Launcher
 from tests.support import free_tcp_port
 from tests.unit.apps.test_view import _write_run

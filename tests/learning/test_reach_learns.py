@@ -132,7 +132,7 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
 def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: str) -> None:
     """The kept policy, on the goals the run's evaluator used for its epoch, scores exactly
     the success and final distance in metrics.csv."""
-    from hercs.apps.policy_eval import evaluate, load_policy
+    from hercs.apps.evaluation.policy_eval import evaluate, load_policy
 
     policy = load_policy(run_dir, checkpoint)
     recorded = {int(r["epoch"]): r for r in rows(run_dir)}
@@ -148,7 +148,7 @@ def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: 
 
 
 def test_eval_records_a_video_of_every_step(run_dir: Path, tmp_path: Path) -> None:
-    from hercs.apps.policy_eval import EvalError, choose_gl
+    from hercs.apps.evaluation.policy_eval import EvalError, choose_gl
 
     try:
         choose_gl()

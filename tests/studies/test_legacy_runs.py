@@ -3,8 +3,8 @@ with it, so their reports and `hercs plot` group the same runs."""
 
 from __future__ import annotations
 
-from hercs.apps.plot_series import series_key
-from hercs.apps.plots import method_label
+from hercs.apps.plots.curves import method_label
+from hercs.apps.plots.series import series_key
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 
 OLD = {"run": {"method": "her-cs", "seed": 1}, "task": {"name": "push"},

@@ -1,6 +1,6 @@
 """The system under test: an embedded Zenoh router on a free loopback port, an observing
 client, `python -m hercs.apps.cli <role>` children (started and stopped with the launcher's
-hercs/apps/child_process.py), the synthetic actors, and the measurements so far."""
+hercs/apps/launch/child_process.py), the synthetic actors, and the measurements so far."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from bench.perf.throughput.plan import (
 from bench.perf.throughput.rates import Alternation
 from bench.perf.throughput.synthetic import SyntheticFleet, episode_pool
 from bench.perf.throughput.throughput_report import Figure, parse_proc_status_kib
-from hercs.apps.child_process import log_tail, service_argv, signal_group, start_child
-from hercs.apps.router import open_router
+from hercs.apps.launch.child_process import log_tail, service_argv, signal_group, start_child
+from hercs.apps.launch.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
@@ -52,7 +52,7 @@ def free_endpoint() -> str:
 
 
 class Child:
-    """One service process of the run (hercs/apps/child_process.py: `python -m hercs.apps.cli
+    """One service process of the run (hercs/apps/launch/child_process.py: `python -m hercs.apps.cli
     <role>` in its own process group, killed if this process dies), with what the phases read of
     it."""
 

@@ -27,7 +27,7 @@ RAW = [
     f"{LEARNER};run (threading.py:982);park_timeout (zenoh/zenoh.abi3.so) 40",
     f"{ACTOR};step (gymnasium_robotics/envs/robot_env.py:341);mj_step (libmujoco.so) 5",
     f"{ACTOR};act (hercs/rl/policy.py:91);forward (torch/nn/modules/linear.py:134) 3",
-    f"{UP};main (hercs/apps/cli.py:10) 1",
+    f"{UP};main (hercs/apps/cli/main.py:10) 1",
     "no process frame 3",
     "",
 ]

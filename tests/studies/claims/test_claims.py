@@ -14,8 +14,8 @@ import pytest
 import yaml
 from rliable import metrics
 
-from hercs.apps import sweep_stats
-from hercs.apps.plots import Curve
+from hercs.apps.plots.curves import Curve
+from hercs.apps.sweep import stats as sweep_stats
 from hercs.run.rundir import RunDir
 from studies.claims import claim_statistics
 from tests.support import load_module

@@ -13,7 +13,7 @@ import pytest
 import yaml
 from scipy import stats
 
-from hercs.apps.plots import load_run
+from hercs.apps.plots.curves import load_run
 from hercs.run.rundir import RunDir
 from tests.support import load_module
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from hercs.apps import sweep as se
+from hercs.apps.sweep import grid as se
 from hercs.run.rundir import RunDir
 
 

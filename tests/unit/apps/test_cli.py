@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.apps.cli import build_parser, main
+from hercs.apps.cli.main import build_parser, main
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -182,7 +182,7 @@ def test_workers_preset_scales_episodes_batch_and_actors(capsys, tmp_path: Path)
 
 EXIT_AFTER_CLOSE_SCRIPT = """
 import logging, sys, threading
-from hercs.apps.cli_services import exit_after_close
+from hercs.apps.cli.services import exit_after_close
 logging.basicConfig(level=logging.INFO, format="%(message)s")
 release = threading.Event()
 def late_writer():
@@ -223,7 +223,7 @@ def test_a_v1_run_without_mujoco_py_exits_2_before_it_starts(command: str, tmp_p
 
 
 def _joined(argv: list[str]):
-    from hercs.apps.cli import join_endpoints, resolve_config
+    from hercs.apps.cli.main import join_endpoints, resolve_config
 
     args = build_parser()[0].parse_args(argv)
     return join_endpoints(args, resolve_config(args))

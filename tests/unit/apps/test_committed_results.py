@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps import plots
+from hercs.apps.plots import curves as plots
 from hercs.run.rundir import RunDir
 from tests.support import REPO, load_module
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hercs.apps.cli import main
+from hercs.apps.cli.main import main
 from hercs.config import HercsConfig, save_yaml
 from hercs.run.rundir import RunDir
 

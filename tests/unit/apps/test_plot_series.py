@@ -1,4 +1,4 @@
-"""`hercs plot`'s series (hercs/apps/plot_series.py), run as a user runs it: every setting that
+"""`hercs plot`'s series (hercs/apps/plots/series.py), run as a user runs it: every setting that
 differs is in the key and the label, a panel draws at most MAX_SERIES by default and stderr
 names the rest, `--series` / `--all-series` draw others, `--reference` only the methods drawn."""
 
@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 import yaml
 
-from hercs.apps import plot_command
-from hercs.apps.plot_series import MAX_SERIES, SeriesChoice, method_label, series_key
+from hercs.apps.plots import command as plot_command
+from hercs.apps.plots.series import MAX_SERIES, SeriesChoice, method_label, series_key
 from hercs.run.rundir import RunDir
 from tests.support import REPO
 from tests.unit.apps.plot_runs import _write_run

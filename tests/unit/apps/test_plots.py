@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps import plot_figures, plot_tables, plots
+from hercs.apps.plots import curves as plots
+from hercs.apps.plots import figures as plot_figures
+from hercs.apps.plots import tables as plot_tables
 from tests.unit.apps.plot_runs import CURVES, _write_run
 
 

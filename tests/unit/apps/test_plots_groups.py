@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from hercs.apps import plot_command, plot_tables, plots
-from hercs.apps.cli import main
-from hercs.apps.plot_series import MAX_SERIES, SeriesChoice
+from hercs.apps.cli.main import main
+from hercs.apps.plots import command as plot_command
+from hercs.apps.plots import curves as plots
+from hercs.apps.plots import tables as plot_tables
+from hercs.apps.plots.series import MAX_SERIES, SeriesChoice
 from hercs.run.rundir import RunDir
 from tests.unit.apps.plot_runs import CURVES, _write_lockstep_run, _write_run, _write_variant_run
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import build_parser, main
-from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
+from hercs.apps.cli.main import build_parser, main
+from hercs.apps.launch.resume_check import CannotResume, plan_resume, set_aside_for_restart
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
 from tests.run_dirs import make_run

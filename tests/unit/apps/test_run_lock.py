@@ -1,4 +1,4 @@
-"""A run directory has one owner at a time (hercs.apps.run_lock): a second `hercs up` on a
+"""A run directory has one owner at a time (hercs.apps.launch.run_lock): a second `hercs up` on a
 folder another live process holds is refused at once, naming it; an owner that was killed
 leaves nothing stuck. The holder is a real second process."""
 
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import main
-from hercs.apps.run_lock import RunBusy, RunLock, read_owner
+from hercs.apps.cli.main import main
+from hercs.apps.launch.run_lock import RunBusy, RunLock, read_owner
 from hercs.run.rundir import RunDir
 from tests.run_dirs import make_run
 
@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[3]
 HOLDER = """
 import sys, time
 from pathlib import Path
-from hercs.apps.run_lock import RunLock
+from hercs.apps.launch.run_lock import RunLock
 lock = RunLock.take(Path(sys.argv[1]))
 print("held", flush=True)
 time.sleep(600)

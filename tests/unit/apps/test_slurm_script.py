@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps.cli import main
-from hercs.apps.slurm import ArrayPlan, JobPlan, render_array_script, render_script
+from hercs.apps.cli.main import main
+from hercs.apps.deploy.slurm import ArrayPlan, JobPlan, render_array_script, render_script
 from hercs.errors import ConfigError
 from hercs.run.rundir import RunDir
 
@@ -49,8 +49,8 @@ def test_dry_run_prints_a_heterogeneous_job_and_writes_nothing(tmp_path: Path, c
 
 
 def test_submit_writes_the_runs_config_for_its_first_attempt(tmp_path: Path) -> None:
-    from hercs.apps.cli import build_parser, resolve_config
-    from hercs.apps.slurm import plan_from_args, write_job
+    from hercs.apps.cli.main import build_parser, resolve_config
+    from hercs.apps.deploy.slurm import plan_from_args, write_job
     from hercs.config import load_yaml
 
     args = build_parser()[0].parse_args(["slurm", "submit", "--task", "reach", "--run", "r2",

@@ -1,11 +1,11 @@
-"""The stall bound of `hercs up` (hercs/apps/stall.py): the run's own pace times
+"""The stall bound of `hercs up` (hercs/apps/launch/stall.py): the run's own pace times
 `launch.stall_factor`, from the config's first epoch until an epoch has been timed."""
 
 from __future__ import annotations
 
 import pytest
 
-from hercs.apps.stall import STARTUP_S, StallWatch, expected_first_epoch_s
+from hercs.apps.launch.stall import STARTUP_S, StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig, apply_overrides
 from tests.support import Clock
 

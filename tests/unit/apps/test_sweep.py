@@ -1,4 +1,4 @@
-"""`hercs sweep` (hercs/apps/sweep.py, sweep_cells.py, sweep_report.py): the grid plan, its
+"""`hercs sweep` (hercs/apps/sweep/grid.py, sweep_cells.py, sweep_report.py): the grid plan, its
 names, resume rules, publishing, and its quick mode end to end. Variants, the manifest, the
 report's statistics: test_sweep_variants.py."""
 
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps import sweep as se
-from hercs.apps import sweep_cells as sc
-from hercs.apps import sweep_report as sr
+from hercs.apps.sweep import cells as sc
+from hercs.apps.sweep import grid as se
+from hercs.apps.sweep import report as sr
 from hercs.run.rundir import RunDir
 from tests.support import REPO
 from tests.unit.apps.sweep_runs import finished_run

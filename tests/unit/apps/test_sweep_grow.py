@@ -1,4 +1,4 @@
-"""`hercs sweep` grown and reported (hercs/apps/sweep.py, sweep_cells.py, sweep_report.py):
+"""`hercs sweep` grown and reported (hercs/apps/sweep/grid.py, sweep_cells.py, sweep_report.py):
 a finished cell trained on to a larger `--epochs` from its checkpoint; one that cannot be
 refused; the report reading every arm at one epoch, naming the authors' curves only where
 they exist, and refusing a `--compare` of an arm the sweep does not have."""
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from hercs.apps import sweep as se
-from hercs.apps import sweep_cells as sc
+from hercs.apps.sweep import cells as sc
+from hercs.apps.sweep import grid as se
 from hercs.run.rundir import RunDir
 from tests.support import REPO
 from tests.unit.apps.sweep_runs import finished_run

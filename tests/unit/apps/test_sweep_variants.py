@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps import sweep as se
-from hercs.apps import sweep_cells as sc
-from hercs.apps import sweep_report as sr
-from hercs.apps import sweep_stats
+from hercs.apps.sweep import cells as sc
+from hercs.apps.sweep import grid as se
+from hercs.apps.sweep import report as sr
+from hercs.apps.sweep import stats as sweep_stats
 from hercs.errors import ConfigError
 from hercs.run.rundir import RunDir
 from tests.support import REPO
@@ -155,7 +155,7 @@ def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
     plan the same cells in the same order."""
     import argparse
 
-    from hercs.apps.sweep_slurm import cell_command
+    from hercs.apps.sweep.slurm_array import cell_command
 
     args = argparse.Namespace(methods=["her"], seeds=1, schedule="async", precision="fp32",
                               env_version="v4", weld_torquescale=1.0, energy_epsilon=1e-6,

@@ -1,11 +1,11 @@
-"""hercs/apps/video_frames.py: a title frame per episode, the step on every frame and the
+"""hercs/apps/evaluation/video_frames.py: a title frame per episode, the step on every frame and the
 outcome band in the outcome's colour, written only once the episode's outcome is known."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from hercs.apps.video_frames import (
+from hercs.apps.evaluation.video_frames import (
     FAILURE_RGB,
     SUCCESS_RGB,
     TITLE_RGB,

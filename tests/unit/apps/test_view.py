@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.cli import main
-from hercs.apps.view import (
+from hercs.apps.cli.main import main
+from hercs.apps.views.view import (
     headless_problem,
     parse_selection,
     read_run_log,

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hercs.apps.rerun_draw import (
+from hercs.apps.views.rerun_draw import (
     CENTROID_POINTS,
     FAILED_GOAL_POINTS,
     GOAL_POINTS,
     GRIPPER_PATH_POINTS,
     OBJECT_PATH_POINTS,
 )
-from hercs.apps.rerun_layout import (
+from hercs.apps.views.rerun_layout import (
     FETCH_EYE,
     FETCH_ROBOT_BASE_X,
     FETCH_TABLE_CENTRE,

@@ -11,7 +11,7 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from hercs.apps.view import read_run_log
+from hercs.apps.views.view import read_run_log
 from hercs.clusterer.clusterer_core import Clusterer
 from hercs.config import ClusterConfig
 from hercs.errors import InvalidMessage

@@ -48,10 +48,10 @@ def test_the_wheel_installs_one_top_level_package_hercs_with_every_subpackage(wh
     missing = sorted(p for p in packages if f"{p}/__init__.py" not in names)
     assert missing == [], f"packages missing from the wheel: {missing}"
     assert "hercs/proto/hercs.proto" in names  # package data: the schema beside its code
-    assert "hercs/apps/data/authors_success_rates.csv" in names  # hercs plot --reference
+    assert "hercs/apps/plots/data/authors_success_rates.csv" in names  # hercs plot --reference
     [entry_points] = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
     text = zipfile.ZipFile(wheel).read(entry_points).decode()
-    assert "hercs = hercs.apps.cli:main" in text
+    assert "hercs = hercs.apps.cli.main:main" in text
 
 
 def test_hercs_runs_beside_a_labs_own_learner_and_proto(wheel: Path, tmp_path: Path) -> None:
@@ -72,7 +72,7 @@ def test_hercs_runs_beside_a_labs_own_learner_and_proto(wheel: Path, tmp_path: P
         "from hercs.proto import hercs_pb2\n"
         "assert learner.WHOSE == 'lab' and proto.WHOSE == 'lab', (learner, proto)\n"
         "assert hercs_pb2.Episode(run='r').run == 'r'\n"
-        "from hercs.apps.plots import REFERENCE_CSV, load_reference\n"
+        "from hercs.apps.plots.curves import REFERENCE_CSV, load_reference\n"
         "runs = {(c.task, c.method) for c in load_reference()}\n"
         "assert ('FetchPush', 'her-cs') in runs and len(runs) == 12, runs\n"
         "print(hercs.__file__); print(hercs.learner.ddpg.__file__); print(REFERENCE_CSV)\n"

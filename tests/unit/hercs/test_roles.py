@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import importlib
 
-from hercs.apps.cli import build_parser
-from hercs.apps.run_plan import plan_children
-from hercs.apps.supervisor import OPTIONAL_ROLES, STOP_STAGES
+from hercs.apps.cli.main import build_parser
+from hercs.apps.launch.run_plan import plan_children
+from hercs.apps.launch.supervisor import OPTIONAL_ROLES, STOP_STAGES
 from hercs.config import HercsConfig, apply_overrides
 from hercs.net.security import ROLE_GRANTS
 from hercs.roles import ROLES, SERVICE_ROLES

@@ -82,7 +82,7 @@ class _Spawner:
         return result  # type: ignore[return-value]
 
     def _serve(self) -> None:
-        from hercs.apps.child_process import pdeathsig_preexec
+        from hercs.apps.launch.child_process import pdeathsig_preexec
 
         while True:
             argv, answer = self._requests.get()
@@ -132,8 +132,8 @@ def _yaml_value(value: Any) -> str:
 
 def _resolve(argv: list[str]) -> HercsConfig:
     """`hercs up ARGV`'s config, with its run name fixed: what the child will run."""
-    from hercs.apps.cli import build_parser, resolve_config
-    from hercs.apps.run_plan import default_run_name
+    from hercs.apps.cli.main import build_parser, resolve_config
+    from hercs.apps.launch.run_plan import default_run_name
 
     parser = build_parser()[0]
     said = io.StringIO()
@@ -191,7 +191,7 @@ def resume(run_dir: str | os.PathLike[str], epochs: int | None = None) -> Run:
     that already finished ends at once with exit 0 and says so (`Run.output`); one that
     another `hercs up` holds ends at once with exit 2 (`metrics` and `policy()` then raise
     HercsError)."""
-    from hercs.apps.resume_check import plan_resume
+    from hercs.apps.launch.resume_check import plan_resume
     from hercs.run.rundir import CONFIG, require_run_dir
 
     folder = Path(run_dir)

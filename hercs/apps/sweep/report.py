@@ -1,6 +1,6 @@
 """`hercs sweep report`: per task, a sweep's learning curves beside the authors', its milestone
 table, and per arm the IQM of the final success with its 95 % interval and the probability
-of improvement over another arm (`hercs.apps.sweep_stats`), with the command, commits and
+of improvement over another arm (`hercs.apps.sweep.stats`), with the command, commits and
 machines."""
 
 from __future__ import annotations
@@ -18,11 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hercs.apps import sweep_stats
 from hercs.apps.output_paths import OutputPathError, check_output_folder
-from hercs.apps.plot_figures import plot_figure
-from hercs.apps.plot_tables import tables
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     EPSILON_UNMARKED,
     Curve,
     aggregate,
@@ -34,8 +31,11 @@ from hercs.apps.plots import (
     method_rank,
     milestones,
 )
+from hercs.apps.plots.figures import plot_figure
+from hercs.apps.plots.tables import tables
 from hercs.apps.provenance import cpu_info
-from hercs.apps.sweep_cells import DONE_FILE, PROG, GridRun, finished_folder, read_manifest
+from hercs.apps.sweep import stats as sweep_stats
+from hercs.apps.sweep.cells import DONE_FILE, PROG, GridRun, finished_folder, read_manifest
 from hercs.errors import ConfigError
 
 
@@ -51,8 +51,8 @@ def machine_description() -> str:
 
 
 def done_key(record: dict) -> str:
-    """The method key (hercs.apps.plots.method_key) of a `bench_done.json` record; older records
-    have no schedule, precision or env version (async, fp32, v4)."""
+    """The method key (hercs.apps.plots.curves.method_key) of a `bench_done.json` record;
+    older records have no schedule, precision or env version (async, fp32, v4)."""
     return method_key(record["method"], record.get("schedule", "async"),
                       record.get("precision", "fp32"), record.get("env_version", "v4"),
                       torquescale=float(record.get("weld_torquescale", 1.0)),
@@ -60,7 +60,7 @@ def done_key(record: dict) -> str:
 
 
 def arm_key(cell: GridRun) -> str:
-    """The plot's group key of a cell's arm (hercs.apps.plots.method_key; a `--variant`'s
+    """The plot's group key of a cell's arm (hercs.apps.plots.curves.method_key; a `--variant`'s
     name after it): seeds of one arm are drawn as one curve."""
     key = method_key(cell.method, cell.schedule, cell.precision, cell.env_version,
                      torquescale=cell.weld_torquescale, energy_epsilon=cell.epsilon)
@@ -171,7 +171,7 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "last every run reached); per arm its IQM and mean with 95 % percentile bootstrap "
             f"intervals over runs ({reps:,} resamples), and P(arm > {method_label(baseline)}), "
             "that a run of the arm beats one of it (ties half), with an interval from resampling "
-            "each arm on its own (hercs/apps/sweep_stats.py). With few seeds an interval "
+            "each arm on its own (hercs/apps/sweep/stats.py). With few seeds an interval "
             "describes these seeds: an interval of P that excludes .5 is a lead, not a "
             "verdict.", "",
             *stats, "",

@@ -3,7 +3,7 @@
 `run_up` takes the run directory, opens the Zenoh router in this process, writes `config.yaml`
 and `router.json` and hands the services to the `Supervisor`. Exit status: 0 done, 1 a service
 failed, 2 the run directory cannot be used, 4 diverged, 5 stalled, 128 + n after signal n.
-Main thread only (the children's parent-death signal, hercs/apps/child_process.py).
+Main thread only (the children's parent-death signal, hercs/apps/launch/child_process.py).
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from hercs.apps.resume_check import CannotResume, plan_resume, set_aside_for_restart
-from hercs.apps.router import RouterListenError, open_router_anywhere
-from hercs.apps.run_lock import RunBusy, RunLock
-from hercs.apps.run_plan import (
+from hercs.apps.launch.resume_check import CannotResume, plan_resume, set_aside_for_restart
+from hercs.apps.launch.router import RouterListenError, open_router_anywhere
+from hercs.apps.launch.run_lock import RunBusy, RunLock
+from hercs.apps.launch.run_plan import (
     CommandFactory,
     resolve_run,
     service_command,
 )
-from hercs.apps.supervisor import Supervisor
+from hercs.apps.launch.supervisor import Supervisor
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError
 from hercs.net.signals import StopSignals

@@ -1,4 +1,4 @@
-"""Service child processes, as `hercs up` (hercs/apps/launcher.py) and the benchmarks start them.
+"""Service child processes, as `hercs up` and the benchmarks start them.
 
 A child is `python -m hercs.apps.cli <role> ...` with its output in a log file, leading its own
 process group, with `PR_SET_PDEATHSIG` = SIGKILL so it dies with its parent. That signal fires

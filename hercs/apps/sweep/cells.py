@@ -20,7 +20,7 @@ from pathlib import Path
 
 import yaml
 
-from hercs.apps.plots import marks_epsilon
+from hercs.apps.plots.curves import marks_epsilon
 from hercs.config.algorithm import default_energy_epsilon
 from hercs.config.building import StrictBoolLoader
 from hercs.errors import ConfigError

@@ -243,7 +243,7 @@ def submit(script: Path) -> str:
 def plan_from_args(args: argparse.Namespace, config: HercsConfig) -> tuple[HercsConfig, JobPlan]:
     """The run's config (named, absolute run_dir, no local actors, the actor nodes' cores as
     envs per process) and the job's plan, from `hercs slurm submit`'s flags."""
-    from hercs.apps.run_plan import default_run_name
+    from hercs.apps.launch.run_plan import default_run_name
 
     name = config.run.name or default_run_name(config)
     parent = Path(config.run.run_dir).absolute()

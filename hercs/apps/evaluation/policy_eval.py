@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.apps.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
+from hercs.apps.evaluation.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
 from hercs.errors import HercsError
 from hercs.rl.seeding import int_seed
 from hercs.rl.task_registry import TaskSpec, goal_distance

@@ -8,15 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.apps.plot_series import whose
-from hercs.apps.plot_tables import (
-    FIG2_EPOCHS,
-    FIG2_ROWS,
-    FIG2_TASKS,
-    Panel,
-    fig2_panels,
-)
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     BANDS,
     CI_LEVEL,
     CI_SEED,
@@ -37,6 +29,14 @@ from hercs.apps.plots import (
     method_rank,
     moving_average,
     seed_bands,
+)
+from hercs.apps.plots.series import whose
+from hercs.apps.plots.tables import (
+    FIG2_EPOCHS,
+    FIG2_ROWS,
+    FIG2_TASKS,
+    Panel,
+    fig2_panels,
 )
 
 

@@ -1,5 +1,5 @@
-"""The live view's core (`hercs live`, hercs/apps/live_view.py): a run's decoded messages in,
-the entities of `hercs view` out, drawn with hercs/apps/rerun_draw.py. No Zenoh here: the shell
+"""The live view's core (`hercs live`, views/live_view.py): a run's decoded messages in, the
+entities of `hercs view` out, drawn with views/rerun_draw.py. No Zenoh here: the shell
 subscribes, parses and queries; tests drive `LiveRecorder` with messages directly.
 """
 
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.apps.rerun_draw import (
+from hercs.apps.views.rerun_draw import (
     EpisodeOutcome,
     LoggedModel,
     declare_curve,

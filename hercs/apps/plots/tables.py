@@ -1,5 +1,5 @@
 """The milestone tables of `hercs plot` (`--table`) and docs/results/fig2.md, computed with
-hercs/apps/plots.py's rule."""
+hercs/apps/plots/curves.py's rule."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from hercs.apps.plot_series import DEFAULT_CHOICE, DEFAULT_LAG, SeriesChoice, series_list, whose
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     CI_LEVEL,
     DEFAULT_BAND,
     WINDOW,
@@ -19,6 +18,7 @@ from hercs.apps.plots import (
     method_rank,
     milestones,
 )
+from hercs.apps.plots.series import DEFAULT_CHOICE, DEFAULT_LAG, SeriesChoice, series_list, whose
 
 
 def _fmt_rate(v: float | None) -> str:

@@ -9,10 +9,7 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from hercs.apps.plot_figures import check_band, plot_fig2, plot_figure
-from hercs.apps.plot_series import DEFAULT_CHOICE, SeriesChoice, series_list
-from hercs.apps.plot_tables import FIG2_EPOCHS, fig2_panels, fig2_text, tables
-from hercs.apps.plots import (
+from hercs.apps.plots.curves import (
     DEFAULT_BAND,
     REFERENCE_CSV,
     Curve,
@@ -23,6 +20,9 @@ from hercs.apps.plots import (
     method_label,
     method_rank,
 )
+from hercs.apps.plots.figures import check_band, plot_fig2, plot_figure
+from hercs.apps.plots.series import DEFAULT_CHOICE, SeriesChoice, series_list
+from hercs.apps.plots.tables import FIG2_EPOCHS, fig2_panels, fig2_text, tables
 
 
 def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:

@@ -3,7 +3,7 @@ to the authors' published per-seed results (`docs/reference/authors_success_rate
 
 The runs as curves and the table rule (docs/DESIGN.md §5), as pure functions over numbers;
 plot_tables.py writes the tables and plot_figures.py draws. Runs in another setting (lockstep,
-bf16, Fetch*-v1, another lag…: hercs/apps/plot_series.py) are their own group, never averaged
+bf16, Fetch*-v1, another lag…: hercs/apps/plots/series.py) are their own group, never averaged
 with the default's.
 """
 
@@ -18,17 +18,17 @@ import numpy as np
 import yaml
 
 # the series' vocabulary, importable from here as before it had its own module
-from hercs.apps.plot_series import ENV_VERSION_DEFAULT as ENV_VERSION_DEFAULT
-from hercs.apps.plot_series import EPSILON_UNMARKED as EPSILON_UNMARKED
-from hercs.apps.plot_series import METHOD_LABELS as METHOD_LABELS
-from hercs.apps.plot_series import METHOD_ORDER as METHOD_ORDER
-from hercs.apps.plot_series import VariantOf as VariantOf
-from hercs.apps.plot_series import energy_epsilon as energy_epsilon
-from hercs.apps.plot_series import is_env_version, series_key
-from hercs.apps.plot_series import marks_epsilon as marks_epsilon
-from hercs.apps.plot_series import method_key as method_key
-from hercs.apps.plot_series import method_label as method_label
-from hercs.apps.plot_series import method_rank as method_rank
+from hercs.apps.plots.series import ENV_VERSION_DEFAULT as ENV_VERSION_DEFAULT
+from hercs.apps.plots.series import EPSILON_UNMARKED as EPSILON_UNMARKED
+from hercs.apps.plots.series import METHOD_LABELS as METHOD_LABELS
+from hercs.apps.plots.series import METHOD_ORDER as METHOD_ORDER
+from hercs.apps.plots.series import VariantOf as VariantOf
+from hercs.apps.plots.series import energy_epsilon as energy_epsilon
+from hercs.apps.plots.series import is_env_version, series_key
+from hercs.apps.plots.series import marks_epsilon as marks_epsilon
+from hercs.apps.plots.series import method_key as method_key
+from hercs.apps.plots.series import method_label as method_label
+from hercs.apps.plots.series import method_rank as method_rank
 from hercs.errors import HercsError
 from hercs.run.rundir import RunDir
 

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+from hercs.apps.deploy.slurm import add_sbatch_arguments
 from hercs.apps.output_paths import OutputPathError, check_output_folder
 from hercs.apps.provenance import git_commit, machine_identity
-from hercs.apps.slurm import add_sbatch_arguments
-from hercs.apps.sweep_cells import (
+from hercs.apps.sweep.cells import (
     DONE_FILE,
     PROG,
     GridRun,
@@ -44,8 +44,8 @@ from hercs.apps.sweep_cells import (
     up_command,
     write_manifest,
 )
-from hercs.apps.sweep_report import main_report, write_reports
-from hercs.apps.sweep_slurm import run_one_cell, submit_slurm
+from hercs.apps.sweep.report import main_report, write_reports
+from hercs.apps.sweep.slurm_array import run_one_cell, submit_slurm
 from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
 from hercs.config.algorithm import EPSILON_MUJOCO3, EPSILON_V1
 from hercs.errors import ConfigError

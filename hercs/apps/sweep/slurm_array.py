@@ -41,8 +41,8 @@ def submit_slurm(args: argparse.Namespace, names: Sequence[str], todo: Sequence[
                  tasks: Sequence[str], run_root: Path, committed: Path | None, epochs: int,
                  overrides: Sequence[str]) -> int:
     """Submit the unfinished cells `todo` (indices into `names`) as one job array
-    (hercs.apps.slurm)."""
-    from hercs.apps.slurm import ArrayPlan, render_array_script, submit_array
+    (hercs.apps.deploy.slurm)."""
+    from hercs.apps.deploy.slurm import ArrayPlan, render_array_script, submit_array
 
     if not todo:
         print(f"every cell is finished; nothing to submit (hercs sweep report {run_root})")

@@ -2,7 +2,7 @@
 
 Reads `episodes.mcap` (one segment or a run directory's) and `metrics.csv` beside it, and logs
 them to a spawned viewer (default), an `.rrd` file (`--save`) or the web viewer (`--web`).
-The live view draws the same entities with hercs/apps/rerun_draw.py; timelines, entity paths
+The live view draws the same entities with hercs/apps/views/rerun_draw.py; timelines, entity paths
 and colours are docs/DESIGN.md §6, "The Rerun recording".
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hercs.apps.rerun_draw import (
+from hercs.apps.views.rerun_draw import (
     APP_ID,
     EpisodeSummary,
     LoggedModel,
@@ -32,8 +32,8 @@ from hercs.apps.rerun_draw import (
     rerun_executable,
     summarize_episode,
 )
-from hercs.apps.rerun_layout import blueprint
-from hercs.apps.web_viewer import (
+from hercs.apps.views.rerun_layout import blueprint
+from hercs.apps.views.web_viewer import (
     DEFAULT_BIND,
     WebViewerError,
     bind_address,
@@ -343,7 +343,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
              web_bind: str | None = None, open_browser: bool = True) -> int:
     """`hercs view`: 0 on success, 2 on a bad path or selection, or a viewer that cannot
     open (message on stderr). With `web`, the web viewer listens on `web_bind` (default:
-    loopback only, `hercs.apps.web_viewer`)."""
+    loopback only, `hercs.apps.views.web_viewer`)."""
     try:
         if web_bind is not None:
             if not web:

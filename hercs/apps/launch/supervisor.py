@@ -2,8 +2,8 @@
 that dies (with back-off, never a diverged learner), prints the progress lines, ends a stalled
 run and stops everything stage by stage (actors first, the replay last).
 
-It holds no Zenoh session: `hercs.apps.launcher` subscribes its callbacks on the embedded router
-and drives `run` and `stop_all` (docs/DESIGN.md §6, "`hercs up`, step by step").
+It holds no Zenoh session: `hercs.apps.launch.launcher` subscribes its callbacks on the
+embedded router and drives `run` and `stop_all` (docs/DESIGN.md §6, "`hercs up`, step by step").
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from hercs.apps.child_process import describe_exit, log_tail, signal_group, start_child
-from hercs.apps.progress import Progress
-from hercs.apps.run_plan import ChildSpec, CommandFactory, plan_children
-from hercs.apps.stall import StallWatch, expected_first_epoch_s
+from hercs.apps.launch.child_process import describe_exit, log_tail, signal_group, start_child
+from hercs.apps.launch.progress import Progress
+from hercs.apps.launch.run_plan import ChildSpec, CommandFactory, plan_children
+from hercs.apps.launch.stall import StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.backoff import nth_delay

@@ -12,16 +12,16 @@ from collections.abc import Callable
 
 import yaml
 
-from hercs.apps.cli_config import (
+from hercs.apps.cli.config_flags import (
     JOINERS,
     add_config_arguments,
     add_rerun_arguments,
     join_endpoints,
     resolve_config,
 )
-from hercs.apps.cli_services import SERVICE_EXAMPLES, SERVICES, Command, service_command
+from hercs.apps.cli.services import SERVICE_EXAMPLES, SERVICES, Command, service_command
 from hercs.apps.output_paths import OutputPathError, check_outputs
-from hercs.apps.plots import BANDS, DEFAULT_BAND
+from hercs.apps.plots.curves import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, HercsError
 
@@ -43,7 +43,7 @@ def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
 
 
 def _cmd_up(args: argparse.Namespace, config: HercsConfig) -> int:
-    from hercs.apps.launcher import run_up
+    from hercs.apps.launch.launcher import run_up
 
     return run_up(config, resume=bool(args.resume), restart=args.restart)
 
@@ -53,20 +53,20 @@ EXIT_NO_ROUTER = 3
 
 
 def _cmd_slurm(args: argparse.Namespace, config: HercsConfig) -> int:
-    from hercs.apps.slurm import run_submit
+    from hercs.apps.deploy.slurm import run_submit
 
     return run_submit(args, config)
 
 
 def _cmd_router(args: argparse.Namespace, config: HercsConfig) -> int:
-    from hercs.apps.router import run_router
+    from hercs.apps.launch.router import run_router
 
     return run_router(config)
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from hercs.apps.plot_command import run_plot
-    from hercs.apps.plot_series import SeriesChoice
+    from hercs.apps.plots.command import run_plot
+    from hercs.apps.plots.series import SeriesChoice
     from hercs.errors import HercsError
     from hercs.run.rundir import METRICS, require_run_dir
 
@@ -84,13 +84,13 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from hercs.apps.sweep import main as sweep_main
+    from hercs.apps.sweep.grid import main as sweep_main
 
     return sweep_main(args.sweep_args)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from hercs.apps.view import run_view
+    from hercs.apps.views.view import run_view
 
     return run_view(args.path, save=args.save, episodes=args.episodes, web=args.web,
                     web_port=args.web_port, grpc_port=args.grpc_port, web_bind=args.web_bind,
@@ -107,7 +107,7 @@ class _PrintVersion(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: object, option_string: str | None = None) -> None:
-        from hercs.apps.provenance import version_text
+        from hercs.apps.cli.version import version_text
 
         print(version_text())
         parser.exit()
@@ -136,7 +136,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         description="Start a whole run locally. The router is embedded and listens on --listen "
                     "(use tcp/0.0.0.0:PORT to let actors on other hosts join); the services "
                     "connect to it on this host. --rerun adds the "
-                    "live view (hercs/apps/live_view.py), which training never waits for. Example: "
+                    "live view (hercs/apps/views/live_view.py), which training never waits "
+                    "for. Example: "
                     "hercs up --task push --method her-cs --epochs 50 --seed 1",
     )
     add_config_arguments(p, "up")
@@ -169,7 +170,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                     "--method her-cs --epochs 100 --actor-nodes 4 --actor-cpus 8 --gpus 1 "
                     "--time 2:00:00")
     add_config_arguments(p, "slurm")
-    from hercs.apps.slurm import add_submit_arguments
+    from hercs.apps.deploy.slurm import add_submit_arguments
 
     add_submit_arguments(p)
     commands["slurm"] = _cmd_slurm
@@ -216,7 +217,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p.add_argument("-o", "--output", required=True, metavar="FIG.png", help="figure to write")
     p.add_argument("--reference", action="store_true",
                    help="overlay the authors' per-seed curves of the methods drawn (installed "
-                        "with hercs: hercs/apps/data/authors_success_rates.csv)")
+                        "with hercs: hercs/apps/plots/data/authors_success_rates.csv)")
     p.add_argument("--series", action="append", default=[], metavar="PATTERN",
                    help="draw the series whose key or label matches (shell-style, any case; "
                         "repeatable), instead of the default choice: '*lag*', 'her-cs/*', "
@@ -237,7 +238,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     p = sub.add_parser("view", help="open (or --save) a Rerun recording of a run's episode log",
                        description="3D trajectories of gripper, object and goal per episode, "
                                    "success, clusters, failed goals, centroids and the learning "
-                                   "curve (entity paths: see hercs/apps/view.py).")
+                                   "curve (entity paths: see hercs/apps/views/view.py).")
     p.add_argument("path", metavar="PATH", help="episodes.mcap or a run directory")
     p.add_argument("--save", metavar="OUT.rrd", help="write an .rrd file instead of a viewer")
     p.add_argument("--episodes", metavar="SELECTION",
@@ -288,14 +289,14 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from hercs.apps.policy_eval import run_eval
+    from hercs.apps.evaluation.policy_eval import run_eval
 
     return run_eval(args.run_dir, checkpoint=args.checkpoint, episodes=args.episodes,
                     seed=args.seed, video=args.video, rerun_save=args.rerun_save)
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
-    from hercs.apps.certs import run_certs
+    from hercs.apps.deploy.certs import run_certs
 
     try:
         return run_certs(args.out, hosts=args.hosts, credentials=args.credentials)

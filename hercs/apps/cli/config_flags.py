@@ -1,4 +1,4 @@
-"""How every `hercs` command builds its one `HercsConfig` (hercs/apps/cli.py): defaults
+"""How every `hercs` command builds its one `HercsConfig` (hercs/apps/cli/main.py): defaults
 (docs/DESIGN.md §4) ← `--config FILE.yaml` ← shortcut flags (`--task`, `--method`, …) ←
 `--set section.field=value`; which command takes which flag; `--resume`; the Rerun flags."""
 

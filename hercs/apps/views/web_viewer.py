@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from hercs.apps.child_process import describe_exit, pdeathsig_preexec, stop_process
+from hercs.apps.launch.child_process import describe_exit, pdeathsig_preexec, stop_process
 from hercs.errors import HercsError
 
 DEFAULT_BIND = "127.0.0.1"

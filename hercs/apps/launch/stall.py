@@ -1,4 +1,4 @@
-"""When a run has stopped moving: the stall bound of `hercs up` (hercs/apps/supervisor.py).
+"""When a run has stopped moving: the stall bound of `hercs up` (hercs/apps/launch/supervisor.py).
 
 A run that ends no epoch for `launch.stall_factor` times its slowest epoch so far (before the
 first, times `expected_first_epoch_s`) has stalled, whatever the cause; nothing else would

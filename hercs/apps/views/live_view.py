@@ -1,7 +1,7 @@
 """`hercs live`: a run streamed to Rerun while it trains (docs/DESIGN.md §6), `hercs up --rerun`.
 
 The shell: sinks, subscriptions, episode queries and the loop (`LiveViewService`);
-`LiveRecorder` (hercs/apps/live_recorder.py) draws, with hercs/apps/rerun_draw.py as `hercs view`
+`LiveRecorder` (views/live_recorder.py) draws, with views/rerun_draw.py as `hercs view`
 does. It never holds up or fails training: subscriptions only queue bytes, and a lost viewer,
 a bad message or a failed query is logged and skipped.
 """
@@ -15,9 +15,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hercs.apps.live_recorder import LiveRecorder
-from hercs.apps.rerun_draw import APP_ID, rerun_executable
-from hercs.apps.rerun_layout import blueprint
+from hercs.apps.views.live_recorder import LiveRecorder
+from hercs.apps.views.rerun_draw import APP_ID, rerun_executable
+from hercs.apps.views.rerun_layout import blueprint
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, join_run, service_main

@@ -1,5 +1,5 @@
-"""What `hercs up` runs (hercs/apps/launcher.py): the run's name, where its children connect, and
-its children in start order, each with the command that starts it.
+"""What `hercs up` runs (hercs/apps/launch/launcher.py): the run's name, where its children
+connect, and its children in start order, each with the command that starts it.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
-from hercs.apps.child_process import service_argv
+from hercs.apps.launch.child_process import service_argv
 from hercs.config import HercsConfig
 from hercs.roles import SERVICE_ROLES
 

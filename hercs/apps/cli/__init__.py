@@ -1,0 +1,1 @@
+"""The `hercs` command and `hercs.launch`, its Python form: parser, flags, services."""

@@ -1,0 +1,1 @@
+"""A run beyond one host: its certificates and its Slurm job."""

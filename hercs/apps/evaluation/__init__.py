@@ -1,0 +1,1 @@
+"""`hercs eval`: a trained policy's success rate and its video."""

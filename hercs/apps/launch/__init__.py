@@ -1,0 +1,1 @@
+"""`hercs up`: the run's router and processes, their supervision, stall and resume."""

@@ -1,0 +1,1 @@
+"""`hercs plot`: learning curves, the paper's Fig. 2 layout and their tables."""

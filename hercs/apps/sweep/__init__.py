@@ -1,0 +1,1 @@
+"""`hercs sweep`: grids of runs, resumable, locally or as a Slurm array, and reports."""

@@ -1,0 +1,1 @@
+"""Rerun views of a run: offline from its log, live while it trains, on the web."""
