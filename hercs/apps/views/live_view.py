@@ -12,14 +12,11 @@ import logging
 import queue
 import time
 from collections.abc import Callable
-from pathlib import Path
-from typing import Any
 
 from hercs.apps.views.live_recorder import LiveRecorder
-from hercs.apps.views.rerun_draw import APP_ID, rerun_executable
-from hercs.apps.views.rerun_layout import blueprint
+from hercs.apps.views.live_sinks import ViewerHealth, close_recording, open_recording
 from hercs.config import HercsConfig
-from hercs.errors import ConfigError, InvalidMessage
+from hercs.errors import InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, join_run, service_main
 from hercs.net.transport import RemoteError, TransportError
 from hercs.proto import SCHEMA_VERSION
@@ -33,91 +30,16 @@ from hercs.wire.validation import (
 
 log = logging.getLogger("hercs.live")
 
-SPAWN_PORT = 9876
-"""Port of the viewer that `view.viewer: spawn` starts (rerun-sdk's default)."""
 EPISODE_TIMEOUT_S = 2.0
 FINAL_FETCH_S = 3.0
 """On stop, the headers already received are still drawn, and their wanted trajectories
 fetched for at most this long: the replay stops after the live view (`hercs up`'s stop
 order), so the recording keeps the run's last drawn episodes."""
 FLUSH_PERIOD_S = 5.0
-FLUSH_TIMEOUT_S = 1.0
 METRICS_PERIOD_S = 5.0
 _POLL_S = 0.25
 _MAX_BATCH = 512
 _HEADER_MAX_BYTES = 64 * 1024
-
-
-# --------------------------------------------------------------------------------------------
-# Where the recording goes
-
-
-def open_recording(rr: Any, config: HercsConfig) -> Any:
-    """A `RecordingStream` (id = the run name) with the sinks `config.view` asks for and the
-    `hercs view` layout. A viewer that cannot be spawned is logged, not raised: the .rrd file,
-    if any, is still written."""
-    view = config.view
-    if view.viewer == "none" and not view.save:
-        raise ConfigError("view.viewer: got 'none' with view.save '', the live view would show "
-                          "nothing; give a viewer ('spawn' or a URL) or a file to save")
-    rec = rr.RecordingStream(APP_ID, recording_id=config.run.name)
-    rec.send_recording_name(f"{config.run.name} ({config.task.name}, {config.run.method}, "
-                            "live)")
-    sinks = []
-    if view.viewer == "spawn":
-        try:
-            rr.spawn(port=SPAWN_PORT, connect=False, recording=rec,
-                     executable_path=rerun_executable())
-        except Exception as exc:  # e.g. no rerun executable: keep the file sink going
-            log.warning("could not start a Rerun viewer (%s); streaming to port %d anyway, "
-                        "connect one with `rerun --port %d`", exc, SPAWN_PORT, SPAWN_PORT)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
-    elif view.viewer != "none":
-        sinks.append(rr.GrpcSink(view.viewer))
-    if view.save:
-        Path(view.save).parent.mkdir(parents=True, exist_ok=True)
-        sinks.append(rr.FileSink(view.save))
-    rec.set_sinks(*sinks, default_blueprint=blueprint(task=config.task.spec))
-    return rec
-
-
-class ViewerHealth:
-    """Notices a viewer that cannot be reached or went away, without ever raising: rerun-sdk
-    keeps accepting log calls then (the .rrd file sink keeps being written), only a flush
-    reports the broken gRPC sink. Warns once, and again only after the viewer came back."""
-
-    def __init__(self, rec: Any, *, viewer: str, save: str) -> None:
-        self.rec = rec
-        self.viewer = viewer
-        self.save = save
-        self.ok = True
-        self.errors = 0
-
-    def check(self) -> bool:
-        """Flush (at most `FLUSH_TIMEOUT_S`); True if everything buffered went out."""
-        try:
-            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        except Exception as exc:  # rerun-sdk raises RuntimeError; nothing here may escape
-            self.errors += 1
-            if self.ok:
-                self.ok = False
-                log.warning("the Rerun viewer (%s) cannot be reached or went away: %s; the live "
-                            "view keeps draining%s, training is not affected", self.viewer, exc,
-                            f" and writing {self.save}" if self.save else "")
-            return False
-        if not self.ok:
-            self.ok = True
-            log.info("the Rerun viewer (%s) is reachable again", self.viewer)
-        return True
-
-
-def close_recording(rec: Any) -> None:
-    """Flush what is buffered (bounded) and close the sinks; the .rrd gets its footer."""
-    try:
-        rec.flush(timeout_sec=2 * FLUSH_TIMEOUT_S)
-    except Exception as exc:  # the viewer is gone; the file sink is still closed below
-        log.info("final flush: %s", exc)
-    rec.disconnect()
 
 
 # --------------------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from hercs.apps.sweep import grid as se
+from hercs.apps.sweep import cells as sweep_cells
 from hercs.run.rundir import RunDir
 
 
@@ -18,7 +18,7 @@ def finished_run(root: Path, cell, success: list[float]) -> None:
         f"task: {{name: {cell.task}, env_version: {cell.env_version}}}\n")
     rows = [f"{e},{v}" for e, v in enumerate(success, start=1)]
     RunDir(run).metrics.write_text("\n".join(["epoch,success_rate", *rows]) + "\n")
-    (run / se.DONE_FILE).write_text(json.dumps(
+    (run / sweep_cells.DONE_FILE).write_text(json.dumps(
         {"task": cell.task, "method": cell.method, "seed": cell.seed,
          "env_version": cell.env_version, "env_id": cell.env_id, "epochs": len(success),
          "wall_s": 60.0, "commit": "abc"}))

@@ -20,7 +20,7 @@ from rerun.chunk import RrdReader
 
 from hercs.apps.cli.main import main
 from hercs.apps.views.live_recorder import LiveRecorder, header_outcome
-from hercs.apps.views.live_view import ViewerHealth
+from hercs.apps.views.live_sinks import ViewerHealth
 from hercs.errors import ConfigError, InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION

@@ -1,4 +1,4 @@
-"""`hercs sweep` grown and reported (hercs/apps/sweep/grid.py, sweep_cells.py, sweep_report.py):
+"""`hercs sweep` grown and reported (hercs/apps/sweep/grid.py, sc.py, sr.py):
 a finished cell trained on to a larger `--epochs` from its checkpoint; one that cannot be
 refused; the report reading every arm at one epoch, naming the authors' curves only where
 they exist, and refusing a `--compare` of an arm the sweep does not have."""
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from hercs.apps.sweep import cells as sc
-from hercs.apps.sweep import grid as se
+from hercs.apps.sweep import runner as sweep_runner
 from hercs.run.rundir import RunDir
 from tests.support import REPO
 from tests.unit.apps.sweep_runs import finished_run
@@ -38,7 +38,8 @@ def test_a_finished_cell_grows_to_a_larger_epochs_from_its_checkpoint(tmp_path: 
     run = runs / "reach-her-cs-s1"
     epoch_1 = RunDir(run).metrics.read_text().splitlines()
     assert len(epoch_1) == 2
-    started = (runs / se.LOG_DIR / f"reach-her-cs-s1{se.STARTED_SUFFIX}").read_text().strip()
+    logs = runs / sweep_runner.LOG_DIR
+    started = (logs / f"reach-her-cs-s1{sweep_runner.STARTED_SUFFIX}").read_text().strip()
 
     again = _hercs(*sweep, "--epochs", "1")  # as many epochs: nothing to do
     assert "[skip] reach-her-cs-s1: finished earlier" in again.stdout, again.stdout
@@ -65,7 +66,7 @@ def test_a_cell_finished_elsewhere_with_fewer_epochs_is_refused_not_passed_over(
     """Its committed copy keeps no learner checkpoint: it cannot be grown here, and skipping
     it would leave the sweep short of what --epochs asks; nothing starts (exit 2)."""
     runs, committed = tmp_path / "runs", tmp_path / "committed"
-    finished_run(committed, se.GridRun("push", "her", 1), [0.1] * 3)
+    finished_run(committed, sc.GridRun("push", "her", 1), [0.1] * 3)
     done = _hercs("sweep", "--tasks", "push", "--methods", "her", "--seeds", "1",
                   "--epochs", "5", "--run-dir", str(runs), "--committed", str(committed))
     assert done.returncode == 2, done.stdout + done.stderr
@@ -82,7 +83,7 @@ def test_a_cell_finished_elsewhere_with_fewer_epochs_is_refused_not_passed_over(
 
 def test_a_dry_run_says_which_cells_would_grow(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    cell = se.GridRun("push", "her", 1)
+    cell = sc.GridRun("push", "her", 1)
     finished_run(runs, cell, [0.1] * 3)
     RunDir(runs / cell.name).checkpoints.mkdir()
     RunDir(runs / cell.name).checkpoint("latest").write_bytes(b"a learner checkpoint")
@@ -97,10 +98,10 @@ def test_the_report_reads_every_arm_at_one_epoch_and_names_it(tmp_path: Path) ->
     """HER ran 12 epochs, HER-CS 8: both are read after epoch 8 (HER's curve is cut there),
     in the milestone table too; the authors' Push curves are cut there as well."""
     runs = tmp_path / "runs"
-    her, her_cs = se.plan_grid(["push"], ["her", "her-cs"], [1])
+    her, her_cs = sc.plan_grid(["push"], ["her", "her-cs"], [1])
     finished_run(runs, her, [0.2] * 8 + [1.0] * 4)
     finished_run(runs, her_cs, [0.6] * 8)
-    se.write_manifest(runs, [her, her_cs], {}, command="hercs sweep x", epochs=8,
+    sc.write_manifest(runs, [her, her_cs], {}, command="hercs sweep x", epochs=8,
                       committed=None)
     done = _hercs("sweep", "report", str(runs), "--out", str(tmp_path / "out"), "--reps", "200")
     assert done.returncode == 0, done.stdout + done.stderr
@@ -117,10 +118,10 @@ def test_the_report_reads_every_arm_at_one_epoch_and_names_it(tmp_path: Path) ->
 def test_a_task_the_authors_did_not_publish_is_reported_without_their_curves(
         tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    cells = se.plan_grid(["reach"], ["her", "her-cs"], [1])
+    cells = sc.plan_grid(["reach"], ["her", "her-cs"], [1])
     for cell in cells:
         finished_run(runs, cell, [0.9, 1.0])
-    se.write_manifest(runs, cells, {}, command="hercs sweep x", epochs=2, committed=None)
+    sc.write_manifest(runs, cells, {}, command="hercs sweep x", epochs=2, committed=None)
     done = _hercs("sweep", "report", str(runs), "--out", str(tmp_path / "out"), "--reps", "200")
     assert done.returncode == 0, done.stdout + done.stderr
     text = (tmp_path / "out" / "reach.md").read_text()
@@ -133,10 +134,10 @@ def test_a_task_the_authors_did_not_publish_is_reported_without_their_curves(
 def test_compare_of_an_arm_not_in_the_sweep_is_refused_with_the_arms_there(
         tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    cells = se.plan_grid(["push"], ["her", "her-cs"], [1])
+    cells = sc.plan_grid(["push"], ["her", "her-cs"], [1])
     for cell in cells:
         finished_run(runs, cell, [0.5])
-    se.write_manifest(runs, cells, {}, command="hercs sweep x", epochs=1, committed=None)
+    sc.write_manifest(runs, cells, {}, command="hercs sweep x", epochs=1, committed=None)
     done = _hercs("sweep", "report", str(runs), "--out", str(tmp_path / "out"),
                   "--compare", "HER-EBP", "HER")
     assert done.returncode == 2, done.stdout + done.stderr

@@ -23,18 +23,18 @@ from tests.unit.apps.sweep_runs import finished_run
 # ------------------------------------------------------------------ variants and manifest
 
 def test_a_variant_is_an_arm_of_its_own_named_and_launched_with_its_overrides() -> None:
-    name, items = se.parse_variant("lr5e-4:ddpg.lr_actor=5e-4, ddpg.lr_critic=5e-4")
+    name, items = sc.parse_variant("lr5e-4:ddpg.lr_actor=5e-4, ddpg.lr_critic=5e-4")
     assert (name, items) == ("lr5e-4", ("ddpg.lr_actor=5e-4", "ddpg.lr_critic=5e-4"))
-    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2], variants=[("", ()), (name, items)])
+    cells = sc.plan_grid(["push"], ["her", "her-cs"], [1, 2], variants=[("", ()), (name, items)])
     assert [c.name for c in cells] == [
         "push-her-s1", "push-her-cs-s1", "push-her-lr5e-4-s1", "push-her-cs-lr5e-4-s1",
         "push-her-s2", "push-her-cs-s2", "push-her-lr5e-4-s2", "push-her-cs-lr5e-4-s2"]
     assert cells[2].arm == "push-her-lr5e-4" and sr.arm_key(cells[2]) == "her/lr5e-4"
-    cmd = se.up_command(cells[2], epochs=1, run_root=Path("/r"), port=1, actors=1,
+    cmd = sc.up_command(cells[2], epochs=1, run_root=Path("/r"), port=1, actors=1,
                         overrides=["ddpg.polyak=0.9"])
     sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
     assert sets[-3:] == ["ddpg.lr_actor=5e-4", "ddpg.lr_critic=5e-4", "ddpg.polyak=0.9"]
-    plain = se.up_command(cells[0], epochs=1, run_root=Path("/r"), port=1, actors=1,
+    plain = sc.up_command(cells[0], epochs=1, run_root=Path("/r"), port=1, actors=1,
                           overrides=[])
     assert not any("lr_actor" in a for a in plain)
 
@@ -46,7 +46,7 @@ def test_a_variant_is_an_arm_of_its_own_named_and_launched_with_its_overrides() 
 ])
 def test_a_malformed_variant_is_refused_with_what_to_write(text: str, why: str) -> None:
     with pytest.raises(ConfigError, match=why):
-        se.parse_variant(text)
+        sc.parse_variant(text)
 
 
 def test_bad_variants_stop_the_sweep_before_any_run(capsys: pytest.CaptureFixture[str],
@@ -64,10 +64,10 @@ def test_bad_variants_stop_the_sweep_before_any_run(capsys: pytest.CaptureFixtur
 def test_the_manifest_says_where_every_cell_stands_and_the_report_reads_it(
         tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2])
+    cells = sc.plan_grid(["push"], ["her", "her-cs"], [1, 2])
     for cell, success in zip(cells[:3], ([0.1] * 12, [0.9] * 12, [0.3] * 12), strict=True):
         finished_run(runs, cell, success)
-    path = se.write_manifest(runs, cells, {cells[3]: "running"}, command="hercs sweep x",
+    path = sc.write_manifest(runs, cells, {cells[3]: "running"}, command="hercs sweep x",
                              epochs=12, committed=None)
     manifest = json.loads(path.read_text())
     assert [(c["name"], c["state"]) for c in manifest["cells"]] == [
@@ -76,7 +76,7 @@ def test_the_manifest_says_where_every_cell_stands_and_the_report_reads_it(
     assert manifest["cells"][0]["commit"] == "abc" and manifest["command"] == "hercs sweep x"
     again, _ = sc.read_manifest(runs)
     assert again == cells
-    assert se.main_report([str(runs), "--out", str(tmp_path / "out"), "--reps", "200",
+    assert sr.main_report([str(runs), "--out", str(tmp_path / "out"), "--reps", "200",
                            "--compare", "HER-CS", "HER"]) == 0
     text = (tmp_path / "out" / "push.md").read_text()
     # HER-CS's one run (.90) beats both of HER's (.10, .30): P = 1 in every resample
@@ -115,7 +115,7 @@ def test_bootstrap_intervals_by_hand() -> None:
 def test_a_variant_may_not_take_a_name_the_runs_naming_uses(name: str) -> None:
     # `her` + variant `cs` would be named like a her-cs run: push-her-cs-s1
     with pytest.raises(ConfigError, match="one hercs gives runs itself"):
-        se.parse_variant(f"{name}:ddpg.polyak=0.9")
+        sc.parse_variant(f"{name}:ddpg.polyak=0.9")
 
 
 def test_repeated_tasks_and_methods_are_one_arm_each(capsys: pytest.CaptureFixture[str],
@@ -130,13 +130,13 @@ def test_manifest_writers_at_once_never_fail_or_leave_half_a_file(tmp_path: Path
     own and an atomic rename."""
     import threading
 
-    cells = se.plan_grid(["push"], ["her", "her-cs"], [1, 2, 3])
+    cells = sc.plan_grid(["push"], ["her", "her-cs"], [1, 2, 3])
     errors: list[BaseException] = []
 
     def write() -> None:
         try:
             for _ in range(30):
-                se.write_manifest(tmp_path, cells, {}, command="x", epochs=1, committed=None)
+                sc.write_manifest(tmp_path, cells, {}, command="x", epochs=1, committed=None)
                 json.loads((tmp_path / sc.MANIFEST).read_text())  # always whole
         except BaseException as exc:  # collected for the assertion
             errors.append(exc)

@@ -11,13 +11,8 @@ import numpy as np
 import pytest
 
 from hercs.apps.cli.main import main
-from hercs.apps.views.view import (
-    headless_problem,
-    parse_selection,
-    read_run_log,
-    run_view,
-    select_episodes,
-)
+from hercs.apps.views.episode_selection import parse_selection, select_episodes
+from hercs.apps.views.view import headless_problem, read_run_log, run_view
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.rl.task_registry import task_spec
