@@ -27,7 +27,7 @@ from hercs.rl.normalizer import Normalizer, NormalizerState
 from hercs.rl.policy import PolicyWeights
 from hercs.rl.seeding import int_seed
 from hercs.rl.task_registry import TaskSpec
-from hercs.wire.batch import TransitionBatch, transition_shapes
+from hercs.wire.batch import CheckedBatch, TransitionBatch, transition_shapes
 
 log = logging.getLogger(__name__)
 
@@ -358,7 +358,10 @@ class DDPGLearner:
 
     def _check_batch(self, batch: TransitionBatch) -> TransitionBatch:
         """The same minibatch with float32 arrays of checked shapes (r as (B,): a (B,) r plus
-        a (B, 1) Q' would silently broadcast to (B, B), so `update` reshapes it)."""
+        a (B, 1) Q' would silently broadcast to (B, B), so `update` reshapes it); a
+        `CheckedBatch` (decoded from the wire, checked there) as it is."""
+        if isinstance(batch, CheckedBatch):
+            return batch
         o, g, u, r, o2 = (np.asarray(value, dtype=np.float32) for value in batch)
         b = o.shape[0] if o.ndim == 2 else -1
         want = transition_shapes(self.spec, b)

@@ -34,6 +34,14 @@ class TransitionBatch(NamedTuple):
         return int(self.r.shape[0])
 
 
+class CheckedBatch(TransitionBatch):
+    """A batch already checked against its task (`decode_minibatch`: float32, the task's
+    shapes, r as (B,), all finite): the learner takes it as it is. A served batch is built
+    once (HER relabelling in the replay) and checked once (on arrival)."""
+
+    __slots__ = ()
+
+
 TRANSITION_FIELDS: tuple[str, ...] = TransitionBatch._fields
 """("o", "g", "u", "r", "o2"): the codec and the learner's shape checks iterate over it."""
 

@@ -19,7 +19,7 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.rl.task_registry import TaskSpec
-from hercs.wire.batch import TRANSITION_FIELDS, TransitionBatch, transition_shapes
+from hercs.wire.batch import TRANSITION_FIELDS, CheckedBatch, TransitionBatch, transition_shapes
 from hercs.wire.codec import msg_to_array, msg_to_episode, msg_to_minibatch
 from hercs.wire.episode import EpisodeData, expected_shapes
 
@@ -137,7 +137,7 @@ def decode_minibatch(msg: pb.Minibatch, spec: TaskSpec, *, batch_size: int,
     shapes = transition_shapes(spec, batch_size)
     for name in TRANSITION_FIELDS:
         _check_array(f"{where}.{name}", getattr(msg, name), shapes[name], length_axis=False)
-    return msg_to_minibatch(msg, where=where)
+    return CheckedBatch(*msg_to_minibatch(msg, where=where))
 
 
 def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> None:

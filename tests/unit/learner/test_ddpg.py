@@ -245,3 +245,25 @@ def test_the_return_clip_follows_the_tasks_rewards() -> None:
     assert return_bounds(task_spec("push"), 0.98) == pytest.approx((-50.0, 0.0))
     assert return_bounds(task_spec("PointMaze_UMaze-v3"), 0.98) == pytest.approx((0.0, 50.0))
     assert task_spec("tests.goal_envs:point_on_a_plane").failure_reward == -1.0
+
+
+def test_a_batch_checked_on_arrival_is_taken_as_it_is_and_gives_the_same_update() -> None:
+    """A served batch is checked once: `decode_minibatch` checks it against the task and
+    returns a `CheckedBatch`, which the learner does not check again; a batch handed to
+    `update` directly is still checked."""
+    from hercs.errors import InvalidMessage
+    from hercs.wire.batch import CheckedBatch
+    from hercs.wire.codec import minibatch_to_msg
+    from hercs.wire.validation import decode_minibatch
+
+    batch = _batch(SPEC, 8, seed=3)
+    checked = decode_minibatch(minibatch_to_msg(batch), SPEC, batch_size=8)
+    assert isinstance(checked, CheckedBatch)
+    learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
+    assert learner._check_batch(checked) is checked
+    twin = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
+    assert learner.update(checked) == twin.update(batch)
+    with pytest.raises(ValueError, match="'u' has shape"):
+        learner.update(batch._replace(u=batch.u[:, :2]))
+    with pytest.raises(InvalidMessage, match=r"Minibatch\.u"):
+        decode_minibatch(minibatch_to_msg(batch._replace(u=batch.u[:, :2])), SPEC, batch_size=8)
