@@ -37,6 +37,7 @@ from bench.faults.remote_actor import free_port
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
+from hercs.replay_service import replay_recovery
 from hercs.replay_service import replay_shell as replay_service
 from hercs.replay_service.table import ReplayTable
 from hercs.run.runlog import RecoveringLogWriter, latest_replay_state, segment_paths
@@ -153,11 +154,11 @@ class _Clock:
 
 def time_in_process(run: KilledRun) -> dict[str, Any]:
     """`ReplayService(...)` on the killed run, its recovery's parts timed (module docstring).
-    The service module's names are wrapped for the call and put back after it."""
+    The recovery module's names are wrapped for the call and put back after it."""
     clock = _Clock()
-    module = replay_service
+    module = replay_recovery
     saved = {name: getattr(module, name) for name in
-             ("RecoveringLogWriter", "ReplayTable", "msg_to_episode")}
+             ("RecoveringLogWriter", "ReplayTable", "msg_to_episode", "_restore_cluster_model")}
 
     class TimedRecovered:
         def __init__(self, recovered: Any) -> None:
@@ -187,18 +188,14 @@ def time_in_process(run: KilledRun) -> dict[str, Any]:
                 clock.spent["store"] += (time.perf_counter() - start
                                          - (clock.spent["read"] + clock.spent["decode"] - before))
 
-    class TimedService(replay_service.ReplayService):
-        def _restore_cluster_model(self, *args: Any, **kwargs: Any) -> None:
-            with clock.phase("cluster"):
-                super()._restore_cluster_model(*args, **kwargs)
-
     patches = {"RecoveringLogWriter": TimedLog, "ReplayTable": TimedTable,
-               "msg_to_episode": clock.timed("decode", saved["msg_to_episode"])}
+               "msg_to_episode": clock.timed("decode", saved["msg_to_episode"]),
+               "_restore_cluster_model": clock.timed("cluster", saved["_restore_cluster_model"])}
     for name, value in patches.items():
         setattr(module, name, value)
     try:
         start = time.perf_counter()
-        service = TimedService(config=run.config,
+        service = replay_service.ReplayService(config=run.config,
                                runtime=_StubRuntime(RunKeys(RUN)),  # type: ignore[arg-type]
                                run_dir=run.run_dir)
         total = time.perf_counter() - start

@@ -42,7 +42,7 @@ HIGH = 0.9
 """The second milestone, where a task is close to solved (PickAndPlace's runs pass it by
 epoch 100; few Push runs do by 50)."""
 DONE_FILE = "bench_done.json"
-"""`hercs sweep`'s record of a finished run (hercs/apps/sweep/grid.py): commit, time, machine."""
+"""`hercs sweep`'s record of a finished run (hercs/apps/sweep/runner.py): commit, time, machine."""
 ASSUMED_KEYS: tuple[tuple[str, str, str], ...] = (
     ("training", "schedule", "async"), ("learner", "precision", "fp32"))
 """Settings that older config.yaml files lack; such a run is grouped with these values (the

@@ -1,4 +1,4 @@
-"""`hercs sweep` (hercs/apps/sweep/grid.py, sc.py, sr.py): the grid plan, its
+"""`hercs sweep` (hercs/apps/sweep/: grid.py, runner.py, cells.py, report.py): the grid plan, its
 names, resume rules, publishing, and its quick mode end to end. Variants, the manifest, the
 report's statistics: test_sweep_variants.py."""
 

@@ -1,4 +1,4 @@
-"""`hercs sweep` grown and reported (hercs/apps/sweep/grid.py, sc.py, sr.py):
+"""`hercs sweep` grown and reported (hercs/apps/sweep/: grid.py, runner.py, cells.py, report.py):
 a finished cell trained on to a larger `--epochs` from its checkpoint; one that cannot be
 refused; the report reading every arm at one epoch, naming the authors' curves only where
 they exist, and refusing a `--compare` of an arm the sweep does not have."""
