@@ -68,18 +68,19 @@ def unknown_episode(episode_id: int, first: int, end: int) -> InvalidMessage:
 def cluster_model(msg: pb.ClusterModel, *, k: int, goal_dim: int) -> ClusterModel:
     """A checked cluster model: k centroids of the goal's size, a version the log can hold."""
     validate_centroids(msg, k=k, goal_dim=goal_dim)
-    if msg.version > MAX_SEQUENCE:  # checked before adopting: the log could not hold it
-        raise InvalidMessage(Reason.BAD_VALUE,
-                             f"ClusterModel.version {msg.version} is above {MAX_SEQUENCE}, "
-                             "the largest the episode log holds")
+    _check_loggable("ClusterModel.version", msg.version)  # before adopting it
     return msg_to_cluster_model(msg)
 
 
 def check_eval_result(msg: pb.EvalResult) -> None:
     validate_eval_result(msg)
-    if msg.epoch > MAX_SEQUENCE:
-        raise InvalidMessage(Reason.BAD_VALUE,
-                             f"EvalResult.epoch {msg.epoch} is above {MAX_SEQUENCE}, "
+    _check_loggable("EvalResult.epoch", msg.epoch)
+
+
+def _check_loggable(field: str, value: int) -> None:
+    """A sequence number the episode log can hold (it is logged with the message)."""
+    if value > MAX_SEQUENCE:
+        raise InvalidMessage(Reason.BAD_VALUE, f"{field} {value} is above {MAX_SEQUENCE}, "
                              "the largest the episode log holds")
 
 

@@ -23,7 +23,6 @@ import pytest
 import yaml
 
 from hercs.apps.cli.main import build_parser, resolve_config
-from hercs.apps.cli.services import SERVICES
 from hercs.config import HercsConfig
 from hercs.net.security import listen_problem
 from hercs.roles import SERVICE_ROLES
@@ -135,7 +134,7 @@ def test_every_service_runs_a_valid_hercs_command(env: dict[str, str],
         assert service["entrypoint"] == ENTRYPOINT, name
         assert service["environment"]["HERCS_SET"] == env.get("HERCS_SET", ""), name
         args, config = parse_command(name, effective_command(service))
-        assert args.command == name and name in SERVICES
+        assert args.command == name and name in SERVICE_ROLES
         assert config.transport.connect == [ROUTER], f"{name} must reach the router by name"
         assert config.run.name == expected["run"], name
         assert "runs:/runs" in service["volumes"], name
@@ -271,7 +270,7 @@ def test_services_import_no_view_dependency() -> None:
     """The services image lacks rerun-sdk, matplotlib and imageio-ffmpeg: no module a service
     command imports may import them at module level (only `hercs view|plot|live|eval` do)."""
     modules = ["hercs.apps.cli", "hercs.apps.launch.router", "hercs.apps.deploy.certs",
-               *(m for m, _ in SERVICES.values() if m != "hercs.apps.views.live_view")]
+               *(r.module for r in SERVICE_ROLES.values() if r.compose)]
     heavy = [*VIEW_ONLY.values(), "pyarrow"]
     # pandas is a dev-only package here (rliable's, for studies/claims/claims.py), absent from the
     # image; where installed, scikit-learn imports it and it imports pyarrow: block it so the

@@ -19,11 +19,12 @@ from hercs.apps.cli.config_flags import (
     join_endpoints,
     resolve_config,
 )
-from hercs.apps.cli.services import SERVICE_EXAMPLES, SERVICES, Command, service_command
+from hercs.apps.cli.services import Command, service_command
 from hercs.apps.output_paths import OutputPathError, check_outputs
 from hercs.apps.plots.curves import BANDS, DEFAULT_BAND
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, HercsError
+from hercs.roles import SERVICE_ROLES
 
 
 def _cmd_config(args: argparse.Namespace, config: HercsConfig) -> int:
@@ -183,16 +184,17 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     add_config_arguments(p, "router")
     commands["router"] = _cmd_router
 
-    for name, (module, help_text) in SERVICES.items():
+    for role in SERVICE_ROLES.values():
+        name, help_text = role.name, role.summary
         p = sub.add_parser(name, help=help_text,
                            description=f"{help_text[0].upper()}{help_text[1:]}: one process of "
                                        "a run, what `hercs up` and docker-compose.yml start. "
-                                       f"Example: {SERVICE_EXAMPLES[name]}")
+                                       f"Example: {role.example}")
         add_config_arguments(p, name)
         if name == "live":
             add_rerun_arguments(p)
         p.add_argument("--id", dest="ident", help="process id (default: host name + short uuid)")
-        commands[name] = service_command(module)
+        commands[name] = service_command(role.module)
 
     p = sub.add_parser(
         "sweep", help="a grid of runs (tasks × methods × seeds × variants), resumable, locally "

@@ -16,10 +16,6 @@ from hercs.roles import SERVICE_ROLES
 
 Command = Callable[[argparse.Namespace, HercsConfig], int]
 
-SERVICES: dict[str, tuple[str, str]] = {
-    r.name: (r.module, r.summary) for r in SERVICE_ROLES.values()}
-"""Each service command's module and help line (hercs/roles.py)."""
-SERVICE_EXAMPLES = {r.name: r.example for r in SERVICE_ROLES.values()}
 HARD_EXIT_SERVICES = frozenset(r.module for r in SERVICE_ROLES.values() if r.hard_exit)
 """Services whose process ends with `exit_after_close` (not the live view: the Rerun SDK
 flushes its recording in an exit handler)."""
