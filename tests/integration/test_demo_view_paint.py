@@ -4,18 +4,21 @@ both the learning curves and the 3D scene's clusters show; the time from asking 
 to that picture must stay within a bound sized from this machine's own speed.
 
 The bound: 10 s, the issue's target, or `FLOOR_FACTOR` times what the same browser takes to
-paint a recording of one curve in the same layout (the control), whichever is longer. That
-recording is Rerun's own cost (its wasm viewer loading, connecting and drawing a first
-frame) and no data of ours; it scales with the machine, so the bound holds on a machine twice
-as slow or beside another load, and what the test guards is the time our recording adds.
+paint a recording of one curve in the same layout (the control) plus the time between the
+demo's last two pictures, whichever is longer. That recording is Rerun's own cost (its wasm
+viewer loading, connecting and drawing a first frame) and no data of ours; it scales with
+the machine, so the bound holds on a machine twice as slow or beside another load, and what
+the test guards is the time our recording adds. A picture takes Chromium's software
+rasteriser 2-4 s here, so a paint is known to within one picture: that is the added term.
+The clock starts once Chromium runs (a user's browser is already open).
 
-Measured on the 2-core development machine under 4-6x CPU oversubscription (two training runs
-and another engineer's tests beside it, load average 8-15), 2026-11-28: the one-curve
-recording painted after 33-46 s and the demo after 24-52 s (0.7-1.2x its control in the
-same test, three runs), and all of it had arrived after 1.5-2.5 min. Before this change the
-curves were sent after the 3 MB of episodes and were still empty after 100 s (issue 47 saw
-~78 s). So 10 s is not met on this machine under that load, and Rerun's own startup (the
-one-curve recording) already takes longer than that.
+Measured on the idle 2-core development machine, 2026-11-28, ten runs: the demo painted
+after 7.0-10.5 s (median 9.1 s; 8 of 10 within 10 s; at the second or third picture), the
+one-curve recording after 4.2-10.2 s (median 5.9 s). Under 4-6x CPU oversubscription (two
+training runs and another engineer's tests beside it, load average 8-15, clock then started
+with Chromium) the one-curve recording painted after 33-46 s and the demo after 24-52 s.
+Before this change the curves were sent after the 3 MB of episodes and were still empty
+after 100 s (issue 47 saw ~78 s).
 """
 
 from __future__ import annotations
@@ -40,10 +43,9 @@ REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "docs" / "demo" / "push-her-cs"
 PAINT_TARGET_S = 10.0
 FLOOR_FACTOR = 2.0
-"""The demo's first paint over the one-curve recording's: measured 0.7-1.2 (a screenshot
-comes once a frame is rendered, 10-20 s apart under that load: a frame of slack). With the
-curves sent last, as before, there were none after 100 s, over 2.2x a one-curve recording
-at that load."""
+"""The demo's first paint over the one-curve recording's, less one picture: measured 0.7-1.5
+(idle and under load). With the curves sent last, as before, there were none after 100 s,
+over 10x a one-curve recording idle and over 2.2x at load average 8-15."""
 DEADLINE_S = 300.0
 SCENE = ((0.08, 0.84), (0.02, 0.58))
 """The 3D view in hercs's layout (side panels collapsed), as fractions of the page's height
@@ -137,9 +139,11 @@ def test_the_demo_log_paints_its_curves_and_clusters_at_once(tmp_path: Path) -> 
                                  settled=tmp_path / "demo-settled.png")  # docs/images/'s
     finally:
         stop(view.proc)
-    bound_s = max(PAINT_TARGET_S, FLOOR_FACTOR * floor_s)
+    bound_s = max(PAINT_TARGET_S, FLOOR_FACTOR * floor_s + shown.shot_s)
     print(f"demo log painted after {shown.after_s:.1f} s (one curve: {floor_s:.1f} s; bound "
-          f"{bound_s:.1f} s); picture: {tmp_path / 'demo.png'}")
+          f"{bound_s:.1f} s, a picture taking {shown.shot_s:.1f} s); picture: "
+          f"{tmp_path / 'demo.png'}")
     assert shown.after_s <= bound_s, (
         f"the demo log's curves and clusters took {shown.after_s:.1f} s to paint, over "
-        f"{bound_s:.1f} s (a recording of one curve painted in {floor_s:.1f} s)")
+        f"{bound_s:.1f} s (a recording of one curve painted in {floor_s:.1f} s, a picture took "
+        f"{shown.shot_s:.1f} s)")
