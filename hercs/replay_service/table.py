@@ -1,9 +1,8 @@
 """The replay table: everything the replay service decides, with no transport (Reverb's
-`Table` is the model).
-
-`ReplayTable` owns the `ReplayCore`, the rate limiter or lockstep gate, the parked calls, the
-deduplication, the log's group commit and the `PolicyLagLedger`. Every public method takes the
-table's lock and waiters are called under it, so they must only hand their answer over.
+`Table` is the model). `ReplayTable` owns the `ReplayCore`, the rate limiter or lockstep gate,
+the parked calls (hercs.replay_service.parked_calls), the log's group commit and the
+`PolicyLagLedger`. Every public method takes the table's lock and waiters are called under it,
+so they must only hand their answer over.
 """
 
 from __future__ import annotations
@@ -14,7 +13,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from typing import Any
 
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
@@ -22,13 +20,13 @@ from hercs.reasons import Reason
 from hercs.replay_service.admission import admission_for
 from hercs.replay_service.learner_follow import follow_learner
 from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S
+from hercs.replay_service.parked_calls import ParkedCalls, check_unstored
 from hercs.replay_service.policy_lag import PolicyLagLedger
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
     EpisodeIdConflict,
     EpisodeLogSink,
-    Parked,
     ParkedInsert,
     ParkedSample,
     SampleCall,
@@ -36,9 +34,7 @@ from hercs.replay_service.table_calls import (
     Stored,
     Waiter,
     start_segment,
-    take_expired,
 )
-from hercs.replay_service.waiting_inserts import WaitingInserts
 from hercs.rl.cluster_model import ClusterModel
 from hercs.wire.episode import EpisodeData
 from hercs.wire.replay_state import ReplayState
@@ -61,11 +57,8 @@ class ReplayTable:
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
-        self._ready: list[ParkedInsert] = []
-        """Admitted inserts, in admission order, waiting for the next group commit."""
-        self._inserts = WaitingInserts(per_actor=config.replay.waiting_inserts_per_actor)
-        self._samples: deque[ParkedSample] = deque()
-        self._parked_keys: dict[tuple[str, int], ParkedInsert] = {}
+        self._parked = ParkedCalls(
+            waiting_inserts_per_actor=config.replay.waiting_inserts_per_actor)
         self.lags = PolicyLagLedger(config.training.episodes_per_cycle)
         self.log_failures = 0
         """Inserts refused because their log append failed."""
@@ -104,12 +97,12 @@ class ReplayTable:
                 waiter.done(Stored(episode, known, duplicate=True,
                                    next_policy_version=self._next_version(episode)))
                 return
-            parked = self._parked_keys.get(key)
+            parked = self._parked.joined(key)
             if parked is not None:  # a retry of a call still waiting: answer both together
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
-            refusal = self._inserts.refusal(episode.actor_id)
+            refusal = self._parked.inserts.refusal(episode.actor_id)
             if refusal is None and self.gate is not None:
                 refusal = self.gate.refuse_insert(episode.policy_version)
             if refusal is not None:
@@ -120,8 +113,7 @@ class ReplayTable:
                 self.gate.admit(episode.policy_version)
             item = ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
                                  record=record)
-            self._inserts.append(item)
-            self._parked_keys[key] = item
+            self._parked.park_insert(item)
             self._drain()
         self._commit()
 
@@ -140,7 +132,7 @@ class ReplayTable:
             finally:
                 self._commit_lock.release()
             with self._lock:  # admitted while we held the commit lock, after our last look?
-                if not self._ready:
+                if not self._parked.ready:
                     return
 
     def _commit_groups(self) -> None:
@@ -148,12 +140,12 @@ class ReplayTable:
         else inserts while the commit lock is held), then store and acknowledge it."""
         while True:
             with self._lock:
-                group, self._ready = self._ready, []
+                group = self._parked.take_ready()
                 if not group:
                     return
                 first_id = self.core.store.num_inserted
                 try:
-                    _check_unstored(self.core, group)
+                    check_unstored(self.core, group)
                 except EpisodeIdConflict as exc:  # before anything is logged: no id disagrees
                     log.error("%s", exc)
                     self._refuse(group, Reason.INTERNAL, str(exc))
@@ -184,7 +176,7 @@ class ReplayTable:
         """Answer every call of an admitted group that will not be stored."""
         self.limiter.cancel_inserts(len(group))
         for item in group:
-            del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
+            self._parked.forget(item)
             if self.gate is not None:
                 self.gate.cancel(item.episode.policy_version)
             for waiter in item.waiters:
@@ -192,8 +184,8 @@ class ReplayTable:
 
     def _store(self, item: ParkedInsert, episode_id: int) -> None:
         episode = item.episode
-        del self._parked_keys[(episode.actor_id, int(episode.seq))]
-        result = self.core.insert(episode)  # not stored before (`_check_unstored`): gets episode_id
+        self._parked.forget(item)
+        result = self.core.insert(episode)  # not stored before (`check_unstored`): gets episode_id
         self.limiter.store_admitted()
         self.lags.stored(episode_id, episode.policy_version)
         if self.gate is not None:
@@ -226,7 +218,7 @@ class ReplayTable:
                                           self._next_episode_id())
         if refusal is None:
             return False
-        del self._parked_keys[(episode.actor_id, int(episode.seq))]
+        self._parked.forget(item)
         self.core.count_reject(refusal[0])
         for waiter in item.waiters:
             waiter.fail(*refusal)
@@ -245,8 +237,9 @@ class ReplayTable:
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
             self._learner = follow_learner(call, self._learner, self.limiter,
-                                           self._samples)
-            self._samples.append(ParkedSample([waiter], self._deadline(timeout_s), call=call))
+                                           self._parked.samples)
+            self._parked.park_sample(ParkedSample([waiter], self._deadline(timeout_s),
+                                                  call=call))
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
@@ -276,25 +269,26 @@ class ReplayTable:
         progressed = True
         while progressed:
             progressed = False
-            while self._inserts and self.limiter.can_insert():
-                parked = self._inserts.popleft()
+            parked = self._parked
+            while parked.inserts and self.limiter.can_insert():
+                item = parked.inserts.popleft()
                 progressed = True
-                if self._refuse_stale(parked):
+                if self._refuse_stale(item):
                     continue
-                self._ready.append(parked)
+                parked.ready.append(item)
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
             if self.gate is not None:
                 ready: list[ParkedSample] = []
                 waiting: deque[ParkedSample] = deque()
-                for item in self._samples:
-                    (ready if self._can_serve(item) else waiting).append(item)
-                self._samples = waiting
-                for item in ready:
-                    self._serve(item)
+                for sample in parked.samples:
+                    (ready if self._can_serve(sample) else waiting).append(sample)
+                parked.samples = waiting
+                for sample in ready:
+                    self._serve(sample)
                 progressed = progressed or bool(ready)
                 continue
-            while self._samples and self._can_serve(self._samples[0]):
-                self._serve(self._samples.popleft())
+            while parked.samples and self._can_serve(parked.samples[0]):
+                self._serve(parked.samples.popleft())
                 progressed = True
 
     def _can_serve(self, item: ParkedSample) -> bool:
@@ -320,20 +314,17 @@ class ReplayTable:
         many calls were dropped. The order of the calls that stay is unchanged."""
         now = self.clock()
         with self._lock:
-            inserts, samples = self._inserts.take_expired(now), take_expired(self._samples, now)
-            for item in inserts:
-                del self._parked_keys[(item.episode.actor_id, int(item.episode.seq))]
-            expired: list[Parked[Any]] = [*inserts, *samples]
+            expired = self._parked.take_expired(now)
             for parked in expired:
                 for waiter in parked.waiters:
                     waiter.fail(Reason.EXPIRED, "the rate limiter held this call past its "
                                                 "caller's timeout; the caller retries")
-            if inserts or samples or self.gate is not None:
+            if expired or self.gate is not None:
                 # A dropped head of a queue may have held admissible calls; in lockstep a
                 # sample may have waited long enough for a late cluster model.
                 self._drain()
         self._commit()
-        return len(inserts) + len(samples)
+        return len(expired)
 
     # -- cluster model, eval results, stored episodes ---------------------------------------
     def adopt_cluster_model(self, model: ClusterModel, record: pb.ClusterModel | None) -> bool:
@@ -384,7 +375,7 @@ class ReplayTable:
 
     def _counters(self) -> ReplayCounters:
         core = self.core
-        waiting_inserts, waiting_samples = len(self._inserts), len(self._samples)
+        waiting_inserts, waiting_samples = self._parked.waiting()
         return ReplayCounters(
             size_episodes=core.store.size, size_transitions=core.store.num_transitions,
             inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
@@ -400,21 +391,3 @@ class ReplayTable:
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )
 
-
-def _check_unstored(core: ReplayCore, group: list[ParkedInsert]) -> None:
-    """`EpisodeIdConflict` if an episode of `group` is stored already or twice in it: the
-    store would then answer it with its earlier id instead of the next one, and the log
-    would record it under an id the store never gives. `insert` parks an (actor_id, seq) only
-    while it is neither stored nor parked, so this is a broken invariant, refused before
-    anything is logged."""
-    seen: set[tuple[str, int]] = set()
-    for item in group:
-        key = (item.episode.actor_id, int(item.episode.seq))
-        known = core.lookup(*key)
-        if known is not None or key in seen:
-            where = f"stored as episode {known}" if known is not None else "twice in it"
-            raise EpisodeIdConflict(
-                f"a group of {len(group)} admitted inserts holds episode (actor "
-                f"{key[0]!r}, seq {key[1]}) {where}: not logged and not stored, each call "
-                "answered 'internal' (a retry is acknowledged as a duplicate if stored)")
-        seen.add(key)

@@ -1,6 +1,6 @@
 """What the replay table (hercs.replay_service.table) is called with and answers: inserts and
-sample calls, the waiters that get each answer (now or once the rate limiter admits it), the
-parked calls in its queues, and the sink the episode log is."""
+sample calls, the waiters that get each answer (now or once the rate limiter admits it), a
+parked call, and the sink the episode log is."""
 
 from __future__ import annotations
 
