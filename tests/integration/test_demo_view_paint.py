@@ -1,24 +1,8 @@
-"""`hercs view` of the committed demo log paints at once (issue 47): headless Chromium opens
-the web viewer that `hercs view docs/demo/push-her-cs --web` serves and is photographed until
-both the learning curves and the 3D scene's clusters show; the time from asking for the page
-to that picture must stay within a bound sized from this machine's own speed.
-
-The bound: 10 s, the issue's target, or `FLOOR_FACTOR` times what the same browser takes to
-paint a recording of one curve in the same layout (the control) plus the time between the
-demo's last two pictures, whichever is longer. That recording is Rerun's own cost (its wasm
-viewer loading, connecting and drawing a first frame) and no data of ours; it scales with
-the machine, so the bound holds on a machine twice as slow or beside another load, and what
-the test guards is the time our recording adds. A picture takes Chromium's software
-rasteriser 2-4 s here, so a paint is known to within one picture: that is the added term.
-The clock starts once Chromium runs (a user's browser is already open).
-
-Measured on the idle 2-core development machine, 2026-11-28, ten runs: the demo painted
-after 7.0-10.5 s (median 9.1 s; 8 of 10 within 10 s; at the second or third picture), the
-one-curve recording after 4.2-10.2 s (median 5.9 s). Under 4-6x CPU oversubscription (two
-training runs and another engineer's tests beside it, load average 8-15, clock then started
-with Chromium) the one-curve recording painted after 33-46 s and the demo after 24-52 s.
-Before this change the curves were sent after the 3 MB of episodes and were still empty
-after 100 s (issue 47 saw ~78 s).
+"""`hercs view --web` of the committed demo log paints its curves and clusters at once (issue
+47): headless Chromium photographs the page until both show, within 10 s or `FLOOR_FACTOR` x
+Rerun's own time to paint a one-curve recording (the control, measured in the same test) plus
+one picture's time, whichever is longer, so the bound scales with the machine. The
+measurements behind it: docs/DESIGN.md §6, "The Rerun recording".
 """
 
 from __future__ import annotations
