@@ -187,12 +187,6 @@ def batch_to_bytes(header: pb.Batch, minibatches: Sequence[TransitionBatch]) -> 
     return b"".join(parts)
 
 
-def msg_to_minibatch(msg: pb.Minibatch, *, where: str = "Minibatch") -> TransitionBatch:
-    """Arrays as sent; shapes are checked by the learner against its task."""
-    return TransitionBatch(*(msg_to_array(getattr(msg, name), where=f"{where}.{name}")
-                             for name in TRANSITION_FIELDS))
-
-
 def weights_to_msg(*, version: int, actor_params: Mapping[str, np.ndarray],
                    o_stats: Mapping[str, np.ndarray | float],
                    g_stats: Mapping[str, np.ndarray | float], epoch: int,

@@ -20,7 +20,7 @@ from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.batch import TRANSITION_FIELDS, CheckedBatch, TransitionBatch, transition_shapes
-from hercs.wire.codec import msg_to_array, msg_to_episode, msg_to_minibatch
+from hercs.wire.codec import msg_to_array, msg_to_episode
 from hercs.wire.episode import EpisodeData, expected_shapes
 
 M = TypeVar("M", bound=Message)
@@ -53,9 +53,10 @@ def parse_message(raw: bytes, cls: type[M], *, max_bytes: int) -> M:
 
 
 def _check_array(where: str, msg: pb.Array, shape: tuple[int, ...],
-                     length_axis: bool) -> None:
-    """Why a float32 array of exactly `shape`, all finite, is not what `msg` holds (None if
-    it is). `length_axis`: a mismatch only in the first axis is `bad_length`."""
+                 length_axis: bool) -> np.ndarray:
+    """`msg`'s values (a read-only view of its bytes) if they are a float32 array of exactly
+    `shape`, all finite; else `InvalidMessage` saying why. `length_axis`: a mismatch only in
+    the first axis is `bad_length`."""
     if not msg.dtype and not msg.data and not msg.shape:
         raise InvalidMessage(Reason.MISSING_FIELD, f"{where} is missing")
     if msg.dtype != "float32":
@@ -72,6 +73,7 @@ def _check_array(where: str, msg: pb.Array, shape: tuple[int, ...],
         index = tuple(int(i) for i in np.argwhere(~finite)[0])
         raise InvalidMessage(Reason.NON_FINITE,
                              f"{where}: non-finite value {values[index]!r} at index {index}")
+    return values
 
 
 def validate_episode(
@@ -135,9 +137,8 @@ def decode_minibatch(msg: pb.Minibatch, spec: TaskSpec, *, batch_size: int,
     """A `Minibatch` as the learner takes it: every field float32 of the task's shape with
     `batch_size` rows, all finite; else `InvalidMessage` naming the field."""
     shapes = transition_shapes(spec, batch_size)
-    for name in TRANSITION_FIELDS:
-        _check_array(f"{where}.{name}", getattr(msg, name), shapes[name], length_axis=False)
-    return CheckedBatch(*msg_to_minibatch(msg, where=where))
+    return CheckedBatch(*(_check_array(f"{where}.{name}", getattr(msg, name), shapes[name],
+                                       length_axis=False) for name in TRANSITION_FIELDS))
 
 
 def validate_centroids(msg: pb.ClusterModel, *, k: int, goal_dim: int = 3) -> None:

@@ -16,12 +16,14 @@ from hercs.wire.codec import (
     minibatch_to_msg,
     msg_to_array,
     msg_to_episode,
-    msg_to_minibatch,
     msg_to_stats,
     named_to_arrays,
     stats_to_msg,
 )
 from hercs.wire.episode import random_episode
+from hercs.wire.validation import decode_minibatch
+
+PUSH = task_spec("push")  # obs 25, goal 3, action 4: the minibatches below
 
 
 @pytest.mark.parametrize(
@@ -132,7 +134,8 @@ def test_minibatch_round_trip() -> None:
                             r=-rng.integers(0, 2, 8), o2=rng.random((8, 25)))
     msg = minibatch_to_msg(batch)
     assert {f.name for f, _ in msg.ListFields()} == set(TRANSITION_FIELDS)
-    back = msg_to_minibatch(pb.Minibatch.FromString(msg.SerializeToString()))
+    back = decode_minibatch(pb.Minibatch.FromString(msg.SerializeToString()), PUSH,
+                            batch_size=8)
     assert isinstance(back, TransitionBatch)
     for name, value, got in zip(TRANSITION_FIELDS, batch, back, strict=True):
         np.testing.assert_array_equal(got, value.astype(np.float32), err_msg=name)
@@ -163,7 +166,7 @@ def test_batch_to_bytes_is_the_message_serialize_to_string_gives(count: int,
     fast = pb.Batch.FromString(batch_to_bytes(pb.Batch(**fields), minibatches))
     assert fast == plain
     for mb, msg in zip(minibatches, fast.minibatches, strict=True):
-        np.testing.assert_array_equal(msg_to_minibatch(msg).o, mb.o)
+        np.testing.assert_array_equal(decode_minibatch(msg, PUSH, batch_size=batch_size).o, mb.o)
     if minibatches:
         with pytest.raises(ValueError, match="must not hold minibatches"):
             batch_to_bytes(plain, minibatches)
