@@ -84,31 +84,37 @@ class Normalizer:
         return fresh
 
     def load_state_dict(self, state: Mapping[str, np.ndarray | float]) -> None:
-        """Adopt statistics produced by another normaliser's `state_dict` (e.g. off the wire).
-
-        All five keys are required; vectors must have shape (size,), everything must be finite,
-        `std` positive and `count` a non-negative whole number. On error nothing is changed.
-        """
-        missing = [k for k in STAT_KEYS if k not in state]
-        if missing:
-            raise ValueError(f"Normalizer.load_state_dict: missing key(s) {missing}; "
-                             f"need {list(STAT_KEYS)}")
-        vectors = {}
-        for key in ("sum", "sumsq", "mean", "std"):
-            arr = np.asarray(state[key], dtype=np.float64)
-            if arr.shape != (self.size,):
-                raise ValueError(f"Normalizer.load_state_dict: {key!r} has shape {arr.shape}, "
-                                 f"expected ({self.size},)")
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"Normalizer.load_state_dict: {key!r} holds NaN or Inf")
-            vectors[key] = arr.copy()
-        if np.any(vectors["std"] <= 0):
-            raise ValueError("Normalizer.load_state_dict: 'std' must be > 0 everywhere, "
-                             f"got min {vectors['std'].min()!r}")
-        count = float(np.asarray(state["count"]).reshape(()))
-        if not (np.isfinite(count) and count >= 0 and count.is_integer()):
-            raise ValueError(f"Normalizer.load_state_dict: 'count' got {count!r}, "
-                             "must be a whole number >= 0")
+        """Adopt statistics produced by another normaliser's `state_dict` (e.g. off the wire),
+        as `checked_state` requires them; on error nothing is changed."""
+        vectors, count = checked_state(state, self.size)
         self.sum, self.sumsq = vectors["sum"], vectors["sumsq"]
         self.mean, self.std = vectors["mean"], vectors["std"]
-        self.count = int(count)
+        self.count = count
+
+
+def checked_state(state: Mapping[str, np.ndarray | float], size: int
+                  ) -> tuple[dict[str, np.ndarray], int]:
+    """A normaliser state's vectors (float64 copies) and count, if a normaliser of `size` may
+    hold it: all five keys, vectors of shape (size,), everything finite, `std` positive and
+    `count` a non-negative whole number; else ValueError saying which."""
+    missing = [k for k in STAT_KEYS if k not in state]
+    if missing:
+        raise ValueError(f"Normalizer.load_state_dict: missing key(s) {missing}; "
+                         f"need {list(STAT_KEYS)}")
+    vectors = {}
+    for key in ("sum", "sumsq", "mean", "std"):
+        arr = np.asarray(state[key], dtype=np.float64)
+        if arr.shape != (size,):
+            raise ValueError(f"Normalizer.load_state_dict: {key!r} has shape {arr.shape}, "
+                             f"expected ({size},)")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"Normalizer.load_state_dict: {key!r} holds NaN or Inf")
+        vectors[key] = arr.copy()
+    if np.any(vectors["std"] <= 0):
+        raise ValueError("Normalizer.load_state_dict: 'std' must be > 0 everywhere, "
+                         f"got min {vectors['std'].min()!r}")
+    count = float(np.asarray(state["count"]).reshape(()))
+    if not (np.isfinite(count) and count >= 0 and count.is_integer()):
+        raise ValueError(f"Normalizer.load_state_dict: 'count' got {count!r}, "
+                         "must be a whole number >= 0")
+    return vectors, int(count)

@@ -17,7 +17,7 @@ from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.reasons import Reason
-from hercs.rl.normalizer import Normalizer, NormalizerState
+from hercs.rl.normalizer import NormalizerState, checked_state
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.batch import TransitionBatch
 from hercs.wire.codec import batch_to_bytes, msg_to_stats, stats_to_msg
@@ -129,7 +129,7 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
     for stats, size, where in ((o_stats, spec.obs_dim, "Batch.o_stats"),
                                (g_stats, spec.goal_dim, "Batch.g_stats")):
         try:
-            Normalizer(size).load_state_dict(stats)
+            checked_state(stats, size)
         except ValueError as exc:
             raise InvalidMessage(Reason.BAD_VALUE, f"{where}: {exc}") from None
     if len(msg.cluster_draws) not in (0, k):
