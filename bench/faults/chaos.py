@@ -1,18 +1,9 @@
 """Chaos soak: a whole run over mutual TLS, actors on other "hosts", under random kills and cuts.
 
-    # as root (network namespaces, iptables); each step skips what is committed already
-    python -m bench.faults.chaos --fault-free 1 2 3  # fault-free seeds of the soak's configuration
-    python -m bench.faults.chaos  # the soak (--chaos-seed 1, training seed 1)
-    python -m bench.faults.chaos --report-only  # docs/results/chaos.md from the committed runs
-    python -m bench.faults.chaos --quick  # CI, ~80 s: FetchReach, 1 kill, 1 cut
-    python -m bench.faults.chaos --fault-free 3 --subnet 10.127  # beside another soak
+    python -m bench.faults.chaos  # as root: the soak (--chaos-seed 1, training seed 1); resumable
 
-`hercs up --actors 0` on this host and 2 `hercs actor` in namespaces (bench.faults.netns); a
-schedule drawn from `--chaos-seed` (bench.faults.chaos_plan) SIGKILLs a service or an actor and
-cuts an actor's link. Resumable: the same command continues a stopped soak from its state under
-`--work`. Report: bench.faults.chaos_report, docs/results/chaos.{md,json}. The schedule, the
-resume and clean-up rules and what is asserted: docs/FAULTS.md, "The chaos soak".
-"""
+Also `--fault-free SEED ...`, `--report-only` and `--quick` (CI, ~80 s). Schedule, resume,
+clean-up and what is asserted: docs/FAULTS.md, "The chaos soak"; docs/results/chaos.md."""
 
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """The chaos soak's remote actors and their supervisor (bench.faults.chaos).
 
-An actor on another host is not a child of `hercs up`: nothing restarts it there but that
-host's own supervisor (systemd's `Restart=on-failure`, a Slurm requeue). This module plays
-that part for the actors the soak starts in network namespaces: an actor the schedule
-SIGKILLs is started again `RESTART_S` later, and one that dies by itself while the run goes
-on (a non-zero exit) is started again at once and noted. Each start is an incarnation with
-its own log file (`<run>.<id>.<n>.log`; `hercs actor` with HERCS_LOG=DEBUG writes one line
-per ack, which bench.faults.net_measure reads back) and, on the wire, its own actor id
-(`<id>@<start time>`), so no restart reuses an (actor_id, seq) pair.
+Plays the supervisor of the actors' hosts: starts each actor in its namespace, and again after
+a kill or a death, each start an incarnation with its own log and actor id. Why and how:
+docs/FAULTS.md, "The chaos soak".
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
 """Does a run's success curve lie where fault-free runs of its configuration lie?
 (bench.faults.chaos)
 
-The envelope at epoch e is [min, max] of the fault-free seeds' success rates at e, each curve
-first smoothed by a trailing mean over `window` epochs (one epoch's rate is a share of a few
-evaluation episodes, so raw curves cross any envelope by noise alone). An envelope of n seeds
-holds a fresh draw at one epoch only with probability (n − 1)/(n + 1), so the check is
-calibrated on the fault-free seeds themselves: each against the envelope of the others
-(`leave_one_out`). A chaos curve outside at as many epochs as a fault-free seed is no evidence
-that the faults changed learning.
+The envelope of the fault-free seeds' smoothed curves, with the check calibrated on those seeds
+themselves (`leave_one_out`). Why so: docs/FAULTS.md, "The chaos soak".
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """The chaos soak's schedule (bench.faults.chaos): what is injected when, drawn up front from one
 seed so that a soak can be repeated, recorded and resumed.
 
-Two independent streams on one clock (seconds since the run was launched):
-
-- kills: gaps drawn uniformly from `kill_gap_s`; each kill's target uniformly among
-  `targets` ("actor" is one target, its host then drawn uniformly among the actors, so that
-  each service is as likely to die as the actors together);
-- cuts: the first starts `cut_gap_s` after the launch, each next one `cut_gap_s` after the
-  previous one healed; each cuts one actor's host (uniform) for a length drawn from `cut_s`.
-
-The streams overlap freely (a kill during a cut is a case a real network has). A schedule
-runs past any plausible run (`horizon_s`); what the run does not reach is not injected.
-"""
+Two independent streams on one clock (seconds since the launch), kills and cuts, which may
+overlap; a schedule runs past any plausible run (`horizon_s`). The rules: docs/FAULTS.md,
+"The chaos soak"."""
 
 from __future__ import annotations
 

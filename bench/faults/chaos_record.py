@@ -1,10 +1,7 @@
 """A chaos soak's record (`chaos.json`, one per run, bench/faults/chaos.py): the schedule and
-every injection, each with what followed it: `back` (a killed service's "started … again"
-line, a killed launcher's "resuming run" line, a killed or cut actor's "remote actor … joined"
-line: the router sees its session again), the next insert (of that actor's new incarnation
-after its kill, of that actor after a cut, of anyone otherwise) and the next epoch line, all
-from the end of the injection; and bench.faults.net_measure's row of the whole run (exit
-statuses, epochs, acked / lost / stored twice, retries, lag, inserts/s, epoch times).
+every injection, each with the times from its end to the target's return, the next insert and
+the next epoch, and bench.faults.net_measure's row of the whole run. What is reported:
+docs/FAULTS.md, "The chaos soak".
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
 """A TCP relay that adds latency: what `tc netem delay` would do, for a kernel without netem.
 
-Each connection accepted on `listen` is forwarded to `target`; every chunk read in either
-direction is written to the other side `delay ± jitter` seconds later (one draw per chunk from
-an injected generator), but never before the chunk ahead of it, since a TCP stream cannot
-reorder. The delay is one way: a round trip gets two. At most `MAX_PENDING` chunks wait per
-direction, after which the relay stops reading that side and TCP flow control slows the sender,
-as on a slow path. A side that closes is closed on the other once its pending chunks are
-written; an error on either side closes both. The relay runs an asyncio loop on one daemon
-thread; `start()` returns the address it listens on, `close()` closes everything.
+Each chunk is forwarded `delay ± jitter` seconds later, never before the chunk ahead of it;
+`start()` returns the address it listens on, `close()` closes everything. Its rules:
+docs/FAULTS.md, "Network faults".
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
-"""A replay's run directory as a SIGKILL leaves it, for bench/faults/replay_recovery.py to
-recover from: a real episode log written the way the replay writes it (random FetchPush-shaped
-episodes inserted one by one into a `ReplayTable` whose log is the replay's
-`RecoveringLogWriter`, every episode with its Foxglove scene, a cluster model every
-`cluster.fgb_size` episodes), by a child process that ends with `os._exit` once every append
-is on disk, so that its live segment is left unsealed; and how to put the directory back so
-before each recovery.
+"""A replay's run directory as a SIGKILL leaves it, for bench/faults/replay_recovery.py: a real
+episode log written as the replay writes it, its live segment left unsealed, and how to put the
+directory back before each recovery.
 
     python -m bench.faults.killed_replay_log CONFIG EPISODES   # the writer child
 """

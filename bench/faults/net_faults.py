@@ -1,18 +1,9 @@
-"""Network faults between hosts: a real `hercs up` run over mutual TLS whose actors sit in network
-namespaces behind veth links (bench.faults.netns), one network fault per run.
+"""Network faults between hosts: a real `hercs up` run over mutual TLS, one fault per run.
 
     python -m bench.faults.net_faults  # as root, ~15 min: 8 settings, FetchReach, 2 actors
-    python -m bench.faults.net_faults --settings loss-10 partition --cut-s 90
-    python -m bench.faults.net_faults --quick  # CI size: 1 actor, loss 10 % + a 15 s cut (~1 min)
 
-The router (`hercs up --actors 0`) listens with TLS on each link's host end, so everything an
-actor sends crosses its link. `SETTINGS`: baseline, packet loss, a narrow link, latency through
-bench.faults.delay_relay, a two-way cut after epoch `--cut-at` and a cut of the replies only;
-each is described in docs/FAULTS.md, "Network faults". Reported per setting (read back by
-bench.faults.net_measure) in docs/results/net_faults.{md,json}: the run finishes, no acked
-episode is lost, retried inserts are stored once; policy lag, inserts/s, the longest gap
-without an insert, epoch time, and after a cut the time to the next insert and epoch.
-"""
+Actors sit in network namespaces (bench.faults.netns). Settings and method: docs/FAULTS.md,
+"Network faults"; results: docs/results/net_faults.{md,json}."""
 
 from __future__ import annotations
 

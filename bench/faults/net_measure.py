@@ -1,14 +1,8 @@
 """What a network-fault run (bench.faults.net_faults) leaves behind, read back into one row: the
 acks its actors logged, the episode log, `metrics.csv` and the launcher's progress lines.
 
-- acked: every `(actor_id, seq)` an actor's inserter logged as acked (its DEBUG line, the
-  actors run with HERCS_LOG=DEBUG); lost: those missing from the episode log at the end;
-- stored twice: the log's records minus its distinct `(actor_id, seq)`; the actors' stopping
-  lines give their episodes, retries, superseded and unacked counts, and the ack lines how
-  many retries the replay answered as already stored (`duplicate`);
-- policy lag: the median of the epochs' `policy_lag_p50` and the largest `policy_lag_p95`;
-  inserts/s over the span of the log's insert times (wall clock, written by the replay);
-  epoch time between the launcher's progress lines; after a cut, the heal to the first insert.
+Acked, lost and stored twice (docs/FAULTS.md, "Network faults"), retries, policy lag, inserts/s,
+epoch time and, after a cut, the heal to the first insert.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Hosts on one machine: network namespaces behind veth links, and the faults of a real network
-between hosts, made with the kernel's own tools (iproute2's `ip` and `tc`, `iptables`).
+between hosts (loss, cuts, a narrow link), made with iproute2's `ip` and `tc` and `iptables`.
 
-A process started with `exec_argv` runs in a namespace that has only its loopback and the veth
-end, so it reaches the root namespace (a router on `host_ip`) only across the link. Faults:
-random loss, a cut (both ways, or only towards the namespace) and a narrow link (`tc tbf`).
-Packets are dropped where they arrive, never on output, so a sender sees no error a real cut
-would not give it, and the root namespace's chain matches only `-i host_if`, leaving the rest
-of the machine alone (details: docs/FAULTS.md, "Network faults"). There is no `netem` here, so
-latency comes from bench.faults.delay_relay. `problem()` says why none of this can run (not
-root, a tool or kernel feature missing, addresses taken); `hosts(n)` makes n namespaces and
-always removes them, their links and chains, even when its body fails.
-"""
+`problem()` says why none of this can run; `hosts(n)` makes n namespaces and always removes them,
+their links and chains. Latency comes from bench.faults.delay_relay (no netem here). How the
+faults are made: docs/FAULTS.md, "Network faults"."""
 
 from __future__ import annotations
 

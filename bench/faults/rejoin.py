@@ -1,17 +1,9 @@
 """Does a client come back after a partition? Repeated cuts of one client's link, each followed
 by the time until its next answered request.
 
-    # as root (a network namespace, iptables); prints one line per cut and a summary
-    python -m bench.faults.rejoin --cuts 2 12 30 5 20
+    python -m bench.faults.rejoin --cuts 2 12 30 5 20  # as root; one line per cut and a summary
 
-A router listens with mutual TLS on a veth link's host end (bench.faults.netns); a "replay"
-client on loopback echoes each `replay/insert`; an "actor" client in the namespace (`--client`,
-a plain `hercs.net.transport` client) sends one request after another and prints a JSON line
-per answer. The link is cut both ways for each length in turn, then healed; a cut's
-`rejoined_s` is the time from its heal to the first answer sent after it. A cut longer than
-Zenoh's 10 s lease ends the session; it reconnects by itself, and hercs.net.transport reopens
-it where the router's declarations did not come back (`hercs.net.rediscovery`).
-"""
+A router with mutual TLS on a veth link (bench.faults.netns); results: docs/FAULTS.md."""
 
 from __future__ import annotations
 

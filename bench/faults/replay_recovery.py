@@ -1,17 +1,9 @@
 """How long a killed replay takes to serve again, by the transitions its log holds.
 
     python -m bench.faults.replay_recovery [--quick] [--sizes 1e4,1e5,999950,1e6] [--repeats 3]
-                                    [--out docs/results]
 
-For each size (`SIZES`), a FetchPush run directory gets the episode log a killed HER-CS replay
-leaves (bench/faults/killed_replay_log.py). Then, `--repeats` times each, from that state:
-`process` starts a real `hercs replay` and times its start to the ack of a retried insert
-(`serving_s`, checked to be a duplicate with the logged id) and to its "replay serving run"
-line (`recovered_s`); `in process` times the `ReplayService` constructor in parts: `open`,
-`read`, `decode`, `store` (`ReplayTable.recover`) and `cluster`. Reads come from the page cache,
-as after a kill. Writes OUT/replay_recovery.{json,md} (`--out`; nothing in `--quick` mode
-without it); the findings are in docs/results/faults.md.
-"""
+A real `hercs replay` started on a killed replay's log, and its constructor timed in parts.
+Writes OUT/replay_recovery.{json,md} (`--out`); method and findings: docs/results/faults.md."""
 
 from __future__ import annotations
 

@@ -1,17 +1,9 @@
 """Fault injection: a real `hercs up` run while each service in turn is SIGKILLed.
 
     python -m bench.faults.service_kills                 # ~10 min: FetchReach, 6 epochs per fault
-    python -m bench.faults.service_kills --quick         # CI: one fault (the actor), 6 short epochs
 
-For each fault a fresh run (FetchReach, HER-CS, two actors) starts; after epoch `--kill-at` the
-target gets SIGKILL: one child of `hercs up` (`replay`, `learner`, `clusterer`, `evaluator`,
-`actor`), which the launcher restarts, or `everything` (the launcher with its children),
-continued with `hercs up --resume`. Reported per fault in docs/results/faults.{md,json}: the
-episodes acked before the kill (read from the log's files: the replay fsyncs before it acks)
-and how many are missing at the end (target 0); the time from the kill to the restart and to
-the next epoch, beside the median epoch time; the rows of `metrics.csv` (each epoch once) and
-the launcher's exit status.
-"""
+One fresh run per fault; reported per fault (acked episodes lost, time to restart and to the
+next epoch, `metrics.csv` rows, exit status) in docs/results/faults.{md,json}."""
 
 from __future__ import annotations
 

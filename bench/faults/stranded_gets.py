@@ -1,17 +1,9 @@
 """Does a request parked at a replay that is killed end when the replay comes back?
 
-    python -m bench.faults.stranded_gets --kills 300 --timeout 30  # one get per request
     python -m bench.faults.stranded_gets --kills 300 --timeout 30 --ask-again 5  # as learners
 
-A router on loopback; a "replay" process parks every `strand/sample` query, as the replay parks
-a sample request until its episodes are stored; a "learner" client sends one request, then the
-replay is SIGKILLed and a new one that answers at once is started. Each kill ends `answered`
-(the get to the dead replay ended and `hercs.net.transport.request` asked again), `stranded`
-(no reply until the request's own timeout) or `no_queryable` (the caller retries). With
-`--ask-again S` the client resends a request that has waited S seconds, as the learner's
-prefetcher does (`hercs.learner.prefetch.ASK_AGAIN_S`). Prints one JSON line per kill and a
-summary; the counts measured are in docs/results/faults.md.
-"""
+Each kill ends `answered`, `stranded` or `no_queryable`; prints one JSON line per kill and a
+summary. The method and the counts measured: docs/results/faults.md."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
-"""Env steps per CPU-second of the actor's rollout core against raw env stepping
-(`actor.envs_per_process`: does an actor process with several envs pay off?).
+"""Env steps per CPU-second of the actor's rollout core against raw env stepping.
 
     python -m bench.perf.actor_envs            # ~4 min: FetchPush, 1/2/4/8/16 envs per process
-    python -m bench.perf.actor_envs --quick    # CI: a few episodes, every figure still computed
 
-One process, one compute thread, in alternating slices (the machine is shared and noisy, so
-what counts is the ratio of things timed together): raw Fetch envs stepped with random actions,
-against `VectorRollout` with the real exploring `Policy` plus each episode's encoding to its
-wire message, i.e. all the actor does per episode but send it. ratio = actor ÷ raw steps per
-CPU-second (`time.process_time`); target ≥ 0.95. Writes docs/results/actor_envs.{json,md}
-(or --out); discussed in docs/PERFORMANCE.md §8.
-"""
+Does `actor.envs_per_process` pay off? Target ≥ 0.95. Writes docs/results/actor_envs.{json,md}
+(or --out); method and results: docs/PERFORMANCE.md §8."""
 
 from __future__ import annotations
 

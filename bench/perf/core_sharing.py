@@ -1,18 +1,9 @@
 """What a core does while the other works: the run's two loads alone and side by side.
 
     python -m bench.perf.core_sharing            # 4 rounds of 5 s slices (~2 min)
-    python -m bench.perf.core_sharing --quick    # CI: one round of short slices
 
-The machine's limit (docs/PERFORMANCE.md §3) adds the learner's and the actor's work, each at
-the rate its core makes alone, and divides by the cores. That holds only if a core loses nothing
-when the other core is busy: a virtual machine's cores may be two threads of one physical core,
-or share its caches and memory bus. Here each load runs in its own process pinned to one CPU:
-the learner's update (`DDPGLearner.train`, FetchPush, B = 256, fp32, one thread) and raw
-FetchPush env steps (random actions). Each is timed alone, then beside the other (update on one
-CPU, env steps on another) and beside a copy of itself, in alternating rounds. A rate is work
-per CPU-second of the worker, so time the worker waits for a CPU does not count, only what a
-CPU-second yields. Writes docs/results/core_sharing.{json,md} (or --out).
-"""
+The learner's update and raw env steps, each pinned to one CPU, alone, beside the other and
+beside a copy of itself. Writes docs/results/core_sharing.{json,md}; docs/PERFORMANCE.md §3."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
 """What rewards computed by the environment cost against the built-in vectorised rules.
 
     python -m bench.perf.env_reward           # ~1 min
-    python -m bench.perf.env_reward --quick   # CI: a few repeats
 
-A task without a spec in hercs.rl.task_registry has its rewards and successes computed by an
-instance of its environment (`reward_rule="env"`, hercs.rl.goal_env), so every HER minibatch is
-relabelled through the env's `compute_reward`. For tasks that have both, this times on the
-same goal pairs, in one process, the built-in rule (`TaskSpec.compute_reward`) against the
-env's own, per minibatch of B = 256 and of 1,024 (the `--workers 4` preset), beside the time of
-a whole `ReplayCore.sample` minibatch, so that the cost reads as a share of serving a batch.
-Writes docs/results/env_reward.{json,md} (or --out).
-"""
+Per minibatch of B = 256 and 1,024, beside a whole `ReplayCore.sample` minibatch. Writes
+docs/results/env_reward.{json,md} (or --out), which states the method."""
 
 from __future__ import annotations
 

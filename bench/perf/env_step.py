@@ -1,16 +1,9 @@
-"""An env step's CPU cost with the observation read by name (gymnasium-robotics' own code) and
-by ids resolved once (hercs/rl/indexed_lookups.py, the default), side by side.
+"""An env step's CPU cost with the observation read by name and by ids resolved once, side by side.
 
     python -m bench.perf.env_step                 # Push and PickAndPlace v4, 6 rounds
-    python -m bench.perf.env_step --quick         # CI: Reach, 2 short rounds
 
-Each round steps both envs of a task through the same episodes (same reset seed, same random
-actions), the settings' order alternating from round to round, and times each with the
-thread's CPU clock: what counts is the ratio within a round, since the machine is shared. The
-two envs' last observations are compared to the bit, a cheap check that both stepped the same
-trajectory (tests/unit/hercs/test_indexed_lookups.py compares every step). Writes
-docs/results/env_step.{json,md} (or --out).
-"""
+Writes docs/results/env_step.{json,md} (or --out). Method and results: docs/PERFORMANCE.md §3,
+"Env steps read by id"."""
 
 from __future__ import annotations
 

@@ -3,14 +3,7 @@ sharing off (arrival order) and on (round-robin across actor ids).
 
     python -m bench.perf.fair_share [--quick] [--out docs/results/fair_share]
 
-A real replay process behind a Zenoh router on loopback. A stand-in learner asks for
-minibatches at a fixed pace, so the rate limiter admits a fixed capacity of inserts per second
-and holds the rest; a flooding actor runs `FLOOD_SENDERS` of the actors' own `Inserter`s under
-one actor id, fed as fast as they take episodes; 3 normal actors feed one `Inserter` each at a
-modest rate. Per mode (`replay.waiting_inserts_per_actor` 0, then 4, each a fresh replay): the
-flooder alone, then with the normal actors. An actor's fair share is its max-min share of the
-admitted inserts. Writes OUT.json and OUT.md; discussed in docs/PERFORMANCE.md §9.
-"""
+Writes OUT.json and OUT.md; method and results: docs/PERFORMANCE.md §9."""
 
 from __future__ import annotations
 

@@ -1,14 +1,9 @@
 """Epochs per hour of a grid, runs one at a time against runs side by side.
 
     python -m bench.perf.grid_throughput                  # FetchPush, her and her-cs, 6 epochs
-    python -m bench.perf.grid_throughput --quick          # CI: FetchReach, 2 epochs of 5 cycles
 
-The same two-run grid (`hercs sweep --methods her her-cs --seeds 1`) with each `--jobs` value,
-the order alternating from round to round (the machine is shared and noisy: what counts is the
-ratio of grids timed together). Epochs per hour = the grid's epochs ÷ its wall time, start-up
-included, since a grid pays it once per run. Writes docs/results/grid_throughput.{json,md} (or
---out); discussed in docs/PERFORMANCE.md §3.
-"""
+Writes docs/results/grid_throughput.{json,md} (or --out); method and results:
+docs/PERFORMANCE.md §3, "The grid's jobs"."""
 
 from __future__ import annotations
 

@@ -2,17 +2,8 @@
 
     python -m bench.perf.inserts [--quick] [--out docs/results/inserts]
 
-What the replay can acknowledge when inserts arrive from many hosts at once, with no Zenoh or
-actors in the way: N threads (the replay's insert workers) insert pre-built FetchPush episodes
-into one free-running `ReplayTable` whose log is a real `RecoveringLogWriter` on this disk
-(fsync on every commit). Variants, each for the same window in alternating rounds: serial with
-the scene on the ack path, serial, group commit (`replay.insert_workers` threads), the same with
-the scene path before 2026-11-27 (step by step, `scene_reference`), group commit without scenes,
-and group commit on a bounded log split every `BOUNDED_SEGMENT` episodes. Reports acked
-episodes/s, the rate with every scene written (until the scene thread has drained), dropped
-scenes and the ratio to the first; OUT.json and OUT.md; docs/PERFORMANCE.md §6. The rate over
-Zenoh is bench/perf/throughput's insert phase.
-"""
+N insert threads into one `ReplayTable` on a real fsynced log, serial against group commit,
+with and without scenes. Method and results: docs/results/inserts.md, docs/PERFORMANCE.md §6."""
 
 from __future__ import annotations
 

@@ -1,17 +1,9 @@
 """Policy lag against epoch time over the asynchronous schedule's three lag sources.
 
-    python -m bench.perf.lag_sources                # the grid, FetchPush, one run at a time
     python -m bench.perf.lag_sources --beside       # each setting beside the first one's run
-    python -m bench.perf.lag_sources --quick        # CI: two short FetchReach runs
 
-Each row is one real `hercs up` run with one setting of `replay.rate_tolerance_updates`,
-`learner.prefetch_depth`, `actor.insert_queue` (docs/DESIGN.md §9.1) and
-`training.max_policy_lag`; from its `metrics.csv` the median epoch time and the policy-lag
-p50 / p95 / max, over the epochs after the first. The first setting is repeated last to show
-the machine's drift, and epoch times are ratios to the first setting's. `--beside` runs each
-setting at the same time as a run of the first, and takes the ratio to that run, which drift
-cannot bias. Writes docs/results/lag_sources.{json,md} (`--out`); docs/PERFORMANCE.md §2.
-"""
+One real `hercs up` run per setting; `--beside` takes each ratio to a run started with it.
+Writes docs/results/lag_sources.{json,md} (`--out`); method and results: docs/PERFORMANCE.md §2."""
 
 from __future__ import annotations
 

@@ -1,17 +1,9 @@
 """The learner's update against its compute limit on this core.
 
     python -m bench.perf.learner            # ~1 min: FetchPush, B = 256, one torch thread
-    python -m bench.perf.learner --quick    # CI: a few updates, every figure still computed
 
-Side by side in one run (the machine is shared and noisy, so ratios are what counts): the FLOPs
-of one `DDPGLearner.update` (torch's `FlopCounterMode`, Adam excluded), this core's GEMM rate
-for the update's shape class in fp32 and bf16, and the update rate per CPU-second for each
-`learner.precision`; ratio = update rate ÷ (GEMM rate ÷ FLOPs per update). The update's own
-matrix products, recorded with their shapes, strides and dtypes (a `TorchDispatchMode`) and
-replayed alone, give the ceiling of the update as written, so that what the shapes lose and
-what everything else costs read apart. Writes docs/results/learner.{json,md} (or --out);
-discussed in docs/PERFORMANCE.md §4.
-"""
+FLOPs per update, this core's GEMM rate, the update rate per precision and the update's own
+GEMMs replayed alone. Writes docs/results/learner.{json,md} (or --out); docs/PERFORMANCE.md §4."""
 
 from __future__ import annotations
 

@@ -1,18 +1,9 @@
 """The learner on a GPU: update rate against the CPU, and how close the TF32 emulation is.
 
     python -m bench.perf.learner_cuda           # ~2 min on a CUDA machine
-    python -m bench.perf.learner_cuda --quick   # CI: a few updates on whatever device there is
 
-Speed: updates per second of `DDPGLearner.update` (FetchPush shapes) at B = 256·N (the
-`--workers N` preset), GPU synchronised, for each `learner.precision` and for fp32 with the
-GPU's own TF32 products, beside the same updates on this CPU with one torch thread. TF32
-emulation: `learner.precision=tf32` (hercs/learner/tf32.py) rounds every product's operands
-to TF32 on any device; from one seed and the same minibatches, 200 updates in fp32, emulated
-TF32 and the GPU's TF32, and the distance of each from the GPU TF32 run's actor weights (the
-emulation is faithful when its distance is far below fp32's). Writes
-docs/results/learner_cuda.{json,md} (or --out; not with --quick unless --out is given);
-discussed in docs/PERFORMANCE.md §10.
-"""
+Writes docs/results/learner_cuda.{json,md} (or --out; not with --quick unless --out is given).
+Method and results: docs/PERFORMANCE.md §10."""
 
 from __future__ import annotations
 

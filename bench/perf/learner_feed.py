@@ -1,15 +1,9 @@
 """How many actors one learner feeds at the paper's 10 updates per episode.
 
     python -m bench.perf.learner_feed --device cuda            # on a GPU machine: 1–12 actors
-    python -m bench.perf.learner_feed --quick                  # CI: the CPU, 1 and 2 actors
 
-For each actor count N, one `hercs up --task push --method her --actors N` run with the learner
-on `--device`, one after the other. The run's steady updates per second (the median over its
-epochs after the first) says how fast the learner trained; the seconds it waited for batches
-(`batch_wait_s`) say whether it was starved. The learner is fed from the smallest N whose
-updates per second reach 0.95 of the best N's: more actors than that only queue episodes.
-Writes docs/results/learner_feed.{json,md} (or --out); discussed in docs/PERFORMANCE.md §10.
-"""
+One `hercs up --actors N` run per N; the learner is fed from the smallest N whose updates per
+second reach 0.95 of the best N's. Writes docs/results/learner_feed.{json,md}; PERFORMANCE §10."""
 
 from __future__ import annotations
 

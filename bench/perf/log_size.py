@@ -1,16 +1,9 @@
-"""What a run's episode log takes on disk, and what a longer run's would take with each
-`replay.log_max_bytes` setting.
+"""What a run's episode log takes on disk, and a longer run's with each `replay.log_max_bytes`.
 
     python -m bench.perf.log_size runs/push-v1-her-s1 [--epochs 200] [--bounds=-1,0,250e6]
 
-Reads a run's log (finished or still being written) and splits its bytes into episodes, their
-scenes, other records and a cost per segment (each chunk's bytes shared among its topics by
-their uncompressed bytes). Then it plays a run of `--epochs` epochs at the run's episodes per
-epoch and buffer size through the bounded log's rules (segments of buffer /
-`replay.log_segments_per_buffer` episodes, deleted by `hercs.run.runlog.segments_to_delete`,
-the replay's own function) and prints the log's size at the end and at its largest, per bound,
-with and without scenes. Used for the Disk table of docs/GUIDE.md.
-"""
+Splits a run's log by what it holds and plays a longer run through the bounded log's rules
+(used for the Disk table of docs/GUIDE.md)."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
 """Memory of each service over a long run: RSS sampled from /proc while the run trains.
 
     python -m bench.perf.memory RUN_DIR [RUN_DIR ...]  # samples until those runs end
-    python -m bench.perf.memory --report  # docs/results/memory.md from the CSVs
-    python -m bench.perf.memory --quick  # CI: a 4-epoch FetchReach run, sampled
 
-Attaches to runs already started: every `--every` seconds it reads VmRSS of each process whose
-command line names the run, with the run's current epoch, into docs/results/memory/<run>.csv,
-and stops when none is left. The report gives per run and role the first, last and peak RSS and
-the slope over the last half of the epochs, beside what the replay's store must grow by while
-the buffer fills; a role growing more than `GROWTH_FLAG_MB` per 10 epochs beyond its store is
-flagged, since every service but the replay should stay flat once warm.
-"""
+`--report` writes docs/results/memory.md from the CSVs, flagging a role that grows beyond its
+store (`GROWTH_FLAG_MB`): every service but the replay should stay flat once warm."""
 
 from __future__ import annotations
 

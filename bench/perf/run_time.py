@@ -1,19 +1,9 @@
-"""Wall time of whole runs, two settings side by side, against the machine's limit.
+"""Wall time of whole runs, the old default against today's, side by side with the machine's limit.
 
     python -m bench.perf.run_time                       # FetchPush HER-CS, 3 seeds × 10 epochs
-    python -m bench.perf.run_time --epochs 50 --seeds 1
     python -m bench.perf.run_time --quick               # CI: FetchReach, 2 epochs of 5 cycles
 
-Each seed runs `hercs up` once per setting, the settings' order alternating from seed to seed
-(the machine is shared and noisy: what counts is the ratio of runs timed together): the old
-default (a one-thread learner and env observations read by name: `learner.parallel_halves=
-false`, `task.indexed_reads=false`) against today's default. A run's seconds per epoch are its
-steady state (the metrics' wall clock from the end of epoch 1 to the last) and its 50-epoch
-time is its start-up plus 50 of them. The limit is measured in the same process, as
-docs/PERFORMANCE.md §3 defines it: the epoch's updates at this core's 256³ fp32 GEMM rate plus
-its env steps at the raw FetchPush step rate (the env as gymnasium-robotics ships it, reading
-by name), over the machine's cores. Writes docs/results/run_time.{json,md} (or --out).
-"""
+Writes docs/results/run_time.{json,md} (or --out). Method and results: docs/PERFORMANCE.md §3."""
 
 from __future__ import annotations
 

@@ -2,15 +2,8 @@
 
     python -m bench.perf.sampling [--quick] [--out docs/results/sampling]
 
-A store of 20,000 FetchPush episodes (1e6 transitions; --quick: 500) with random energies and
-8 cluster labels, as a full HER-CS replay holds. Per method, in alternating rounds on the same
-store and generator: ours, `sampler.sample` (the draw from the store's `SamplingIndex`),
-`relabel` (HER relabelling and the gather) and both, i.e. one `ReplayCore.sample` minibatch;
-the reference, the same draw rebuilding its structures from the store on every call (O(N)),
-as the samplers did before the index. Reports p50 and p99 per minibatch and ours ÷ reference
-for the draw; target: draw + relabel ≤ 0.3 ms per minibatch at 1e6 transitions. Writes OUT.json
-and OUT.md; discussed in docs/PERFORMANCE.md §5.
-"""
+Ours against the same draw rebuilt from the store on every call, at 1e6 transitions. Writes
+OUT.json and OUT.md; method and results: docs/results/sampling.md, docs/PERFORMANCE.md §5."""
 
 from __future__ import annotations
 

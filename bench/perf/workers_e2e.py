@@ -1,18 +1,9 @@
 """A whole run's speed with `--workers N`, the learner on the GPU or the CPU (PERFORMANCE §7).
 
     python -m bench.perf.workers_e2e                      # on a CUDA machine: ~8 min
-    python -m bench.perf.workers_e2e --spec 1:cpu:2 2:cpu:1 --quick   # CI: a short run per spec
-    python -m bench.perf.workers_e2e --report DIR   # tables from DIR/w<N>-<device>*-metrics.csv
 
-Each spec `N:DEVICE:EPOCHS` runs `hercs up --workers N --set learner.device=DEVICE` (FetchPush,
-HER-CS, seed 1, the reference schedule), one after another, and keeps its `metrics.csv`.
-`--workers N` should give N× the episodes through the same updates in about the same time
-where a larger minibatch costs little more (a GPU). The report gives each run's median epoch
-time, episodes and updates per second, episodes per second at N over 1 worker on one device,
-and CPU over GPU epoch time at the same N; a run stopped by its time limit reports the epochs
-it finished. Writes docs/results/workers_e2e.{json,md} (or --out DIR; with --quick only where
---out is given).
-"""
+Each spec `N:DEVICE:EPOCHS` is one `hercs up --workers N --set learner.device=DEVICE` run. Writes
+docs/results/workers_e2e.{json,md} (or --out DIR); results: docs/PERFORMANCE.md §7."""
 
 from __future__ import annotations
 

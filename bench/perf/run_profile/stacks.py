@@ -1,10 +1,8 @@
 """py-spy's raw output of a whole run, parsed and sorted into the function groups of the profile.
 
-A raw line is `frame;frame;…;frame COUNT`, outermost first. With `--subprocesses` the stack
-starts with one `process PID:"command line"` frame per ancestor, so the innermost such frame
-names the process the sample came from. With `--native`, threads parked in native code (Zenoh's
-runtime, condition variables, select) are sampled as if they ran: those samples are idle, and
-are dropped here; each process's CPU time comes from /proc, the samples only split it.
+A raw line is `frame;frame;…;frame COUNT`, outermost first; the innermost `process PID:...`
+frame names the process. Samples of threads parked in native waits are idle and dropped; each
+process's CPU time comes from /proc (docs/PERFORMANCE.md §3, "Where the time goes").
 """
 
 from __future__ import annotations
