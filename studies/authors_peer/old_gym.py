@@ -1,10 +1,8 @@
 """The old `gym` API (0.17, what the authors' code calls) over a gymnasium environment.
 
-Their code calls `gym.make(name)`, `env.seed(n)`, `env.reset()` returning the observation
-alone, `env.step(a)` returning 4 values, `env._max_episode_steps` and `env.compute_reward`.
-`OldGymEnv` turns each of these into gymnasium's call and nothing more: the seed is given to the
-next reset (gymnasium seeds there), `done` is `terminated or truncated`, and the environment is
-made by hercs' own factory, so `Fetch*-v1` is gymnasium-robotics' port on mujoco-py.
+`OldGymEnv` turns `gym.make`, `seed`, `reset`, a 4-value `step`, `_max_episode_steps` and
+`compute_reward` into gymnasium's calls and nothing more (the seed goes to the next reset, `done`
+is `terminated or truncated`); the env comes from hercs' own factory (`Fetch*-v1`: mujoco-py).
 """
 
 from __future__ import annotations

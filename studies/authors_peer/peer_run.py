@@ -1,12 +1,8 @@
 """One run of the authors' `train.py` on our v1 stack, written in our run format.
 
-Their algorithm runs as published. What is adapted, and only that: `gym` and `mpi4py` are the
-stand-ins of `old_gym` and `single_mpi`; `args.cuda` (parsed as a string, so always true) is
-the device this machine has; scikit-learn's `KMeans` gets `n_init=10`, its default in the 0.24
-releases their Python 3.6 could install (1.4 made it "auto", one init); torch uses the thread
-count asked for. Their class is subclassed only to read each epoch's test success into our
-`metrics.csv` and to snapshot the whole state at an epoch's end, so that a stopped run resumes
-where it was (their code has no resume).
+Their algorithm runs as published, with only the stand-ins and settings listed in
+docs/results/README.md; their class is subclassed only to record each epoch's test success in
+our `metrics.csv` and to snapshot the state at an epoch's end, so that a stopped run resumes.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
 """Committed runs as the claims read them: grouped by what their config.yaml says (everything
-but the seed: task, environment, method, schedule, precision, the policy-lag setting and other
-experiment settings), and scored per run with hercs/apps/plots/curves.py's rule (Fig. 2's):
-its success after epoch EPOCH (the 10-epoch trailing mean there) and the epoch its trailing
-mean first exceeds 0.5, counted from 0; a run that never does by EPOCH counts as EPOCH
-(censored: a lower bound). Every run is cut at EPOCH, and a run with fewer epochs is left out.
-
-A config without `learner.prefetch_depth` and `training.max_policy_lag` is *legacy* (the old
-default); one with them is grouped by their values (and `actor.insert_queue`'s), and the
-values equal to hercs.config's defaults are the *new default*.
+but the seed; *legacy* and *new default* lag settings told apart) and scored per run with
+hercs/apps/plots/curves.py's rule (success after EPOCH, epoch at 0.5, censored at EPOCH). The
+rules: docs/results/claims.md.
 """
 from __future__ import annotations
 

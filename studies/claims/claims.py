@@ -1,10 +1,7 @@
 """The project's claims as the field states them (rliable, Agarwal et al. 2021): which two
-groups of runs each claim compares (`CLAIMS`) and what each side and claim gets: per side, IQM
-and mean with 95 % stratified bootstrap percentile intervals; per claim, the probability of
-improvement P(X > Y) with its interval from resampling each side on its own
-(studies/claims/claim_statistics.py). A claim whose sides run asynchronously takes the new
-default lag setting when every asynchronous side has at least MIN_SEEDS runs of it, else the
-legacy runs, and says which; a side with fewer than MIN_SEEDS runs gets no numbers.
+groups of runs each claim compares (`CLAIMS`), per side IQM and mean with 95 % bootstrap
+intervals, per claim P(X > Y) with its interval (studies/claims/claim_statistics.py). The
+rules, the lag setting each claim takes and MIN_SEEDS: docs/results/claims.md.
 """
 from __future__ import annotations
 

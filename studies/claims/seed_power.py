@@ -1,18 +1,9 @@
 """How many seeds a side would show HER-CS's gain over HER? (seed power)
 
     python -m studies.claims.seed_power          # ~1 min; writes docs/results/seed_power.{json,md}
-    python -m studies.claims.seed_power --quick  # CI: fewer simulations, nothing written
 
-claims.md calls a claim shown when the 95 % interval of P(X > Y) excludes .5. For each claim's
-two sides, the runs' scores (success after epoch 50; the epoch the 10-epoch mean passes 0.5)
-are the populations of simulated studies of n runs a side: each run one of the side's runs
-drawn with replacement plus Gaussian noise of Silverman's bandwidth, shrunk towards the side's
-mean so that the draws keep the runs' variance (Silverman 1986, §6.4.1), clipped to the score's
-range (a censored run stays censored). The share of studies whose interval's low end is above
-.5 is the *power* at n, a plug-in estimate, rough with 5–6 seeds a side; both sides drawn from
-the pooled runs give the rate of false gains. Why it is asked (neither the authors' seeds nor
-ours show the gain): docs/results/README.md.
-"""
+Simulated studies of n runs a side, drawn from the committed runs (smoothed bootstrap); the
+method is stated in docs/results/seed_power.md, why it is asked in docs/results/README.md."""
 
 from __future__ import annotations
 

@@ -1,17 +1,9 @@
 """Trained in one simulation, acting in the other: is FetchPush-v4 harder to act in, or to learn?
 
     python -m studies.env_diff.cross_sim                 # the local HER-EBP-CS runs: ~1 h
-    python -m studies.env_diff.cross_sim --runs RUN ... --epochs 10 20 --episodes 50 --targets v1 v4
 
-Each run's `epoch-N` checkpoints act deterministically on `--episodes` initial states and goals
-in each target: `v1` (mujoco-py), `v4`, and `v4-tsK` (v4 with the mocap weld's torquescale K);
-the same env seeds on every target make each policy's comparison paired. Part 2 gives every
-target the same random actions from the same resets: the spread of each observation field and
-how often the cube turned or fell. Needs the runs' checkpoints (not committed) and, for v1,
-mujoco-py (else v1 is left out with the reason). Results accumulate in
-docs/results/cross_sim.json (or --out DIR), so an interrupted run continues; cross_sim.md is
-rendered from it. The question: docs/results/README.md, "Why v4 learns later".
-"""
+Needs the runs' checkpoints (not committed) and, for v1, mujoco-py. Results accumulate in
+docs/results/cross_sim.json (or --out DIR); cross_sim.md is rendered from it."""
 
 from __future__ import annotations
 

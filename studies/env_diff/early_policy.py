@@ -1,17 +1,9 @@
 """What the early policies do on FetchPush-v1 and v4: how often they move the cube, and why.
 
     python -m studies.env_diff.early_policy  # committed runs + local logs: ~15 min
-    python -m studies.env_diff.early_policy --runs RUN_DIR ...  # logs of these runs
 
-Four measurements: (1) the committed runs' `buffer_moved_share` at epochs SHARE_EPOCHS; (2) from
-the runs' MCAP logs, per block of episodes, the share that moved the cube and the gripper's
-path relative to it; (3) logged actions replayed open loop in v1 and v4 from the same resets
-(needs `make mujoco-py`), which tells simulators answering actions differently from policies
-learning differently; (4) EBP's view: the energies of still and moved episodes and the still
-ones' share of its draws. The question: docs/results/README.md, "Why v4 learns later". Writes
-docs/results/early_policy.{json,md} (or --out DIR), keeping the report's hand-written findings
-(studies/study_output.py).
-"""
+Writes docs/results/early_policy.{json,md} (or --out DIR), whose sections 1–4 give each
+measurement, keeping its hand-written findings; the question: docs/results/README.md."""
 
 from __future__ import annotations
 

@@ -1,18 +1,9 @@
 """Does the same exploration teach a different policy in FetchPush-v1 and v4? (offline probe)
 
     python -m studies.env_diff.offline_probe  # ~35 min beside two runs on 2 cores
-    python -m studies.env_diff.offline_probe --quick  # CI: a few episodes and updates, v4 only
 
-The closed loop removed: the same uniform random actions, from the same reset seeds, are
-stepped in each simulation; each data set is loaded into the replay's own core (`ReplayCore`,
-method HER) and a DDPG learner with the paper's settings trains on it for one epoch's worth of
-cycles, nothing acting in between; each learned policy then acts deterministically on the same
-evaluation episodes in both simulations. If the v4-trained policies wander and the v1-trained
-ones do not, what the simulations answer to the same actions carries the difference into
-learning; if they come out alike, the gap grows only in closed loop. Why this is asked (what
-cross_sim and early_policy found): docs/results/README.md, "Why v4 learns later".
-Writes docs/results/offline_probe.{json,md} (or --out); with --quick only where --out says.
-"""
+Learns offline from the same random actions in each simulation, then evaluates in both. Writes
+docs/results/offline_probe.{json,md} (or --out); why it is asked: docs/results/README.md."""
 
 from __future__ import annotations
 

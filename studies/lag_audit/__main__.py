@@ -1,14 +1,8 @@
 """`python -m studies.lag_audit`: docs/results/lag_audit.md from the committed runs.
 
-Before the fix, a resumed asynchronous run measured policy lag against a schedule shifted by
-the whole cycles its log held beyond the resumed learner's checkpoint; the learner then redid
-those cycles, so every later episode read that many cycles too low (often below zero) and the
-lag bound, which reads the same number, could not refuse anything. The shift is a whole number
-per resume. This study splits each run's per-epoch lags (metrics.csv: mean, p50, max) where
-they jump, takes the shift of each piece as the whole number that brings its median p50 to that
-of the runs of its lag setting that never read a negative lag, and reports the lag each piece
-implies (recorded + shift): whether it stayed within the bound is then a reading, not an
-assumption, since only the p50 is matched.
+Splits each resumed run's per-epoch policy lags where they jump (the whole-cycle shift of the
+bug fixed in hercs/replay_service/policy_lag.py) and reports the lag each piece implies. The bug
+and the method: docs/FAULTS.md ("the policy lag through a restart") and docs/results/lag_audit.md.
 """
 
 from __future__ import annotations

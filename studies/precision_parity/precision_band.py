@@ -2,16 +2,8 @@
 
     python -m studies.precision_parity          # FetchPush HER-EBP-CS, epochs 1–40, committed runs
 
-Reads finished runs (config.yaml + metrics.csv) from `--runs` (default docs/results/runs/): the
-asynchronous fp32 runs of `--task`/`--method` and the same with `learner.precision=bf16`. The
-band at each epoch is min–max over the fp32 seeds of their 10-epoch trailing mean (the tables'
-smoothing); a bf16 seed is inside when its own trailing mean is. bf16 may become the default
-only if every bf16 seed is inside at every epoch but `--tolerance` of them (default 10 %: a
-band of three seeds is itself a noisy edge). Above the band counts as outside: a precision
-that changes how fast the agent learns changes the reported results, whichever way. Per seed:
-epochs inside, above and below, epochs at 0.5 and 0.9, and the last success. Writes
-`<out>/bf16_parity.{md,png}` (default docs/results/); discussed in docs/PERFORMANCE.md §4.
-"""
+Writes `<out>/bf16_parity.{md,png}` (default docs/results/), which states the band and the rule;
+discussed in docs/PERFORMANCE.md §4."""
 
 from __future__ import annotations
 

@@ -2,16 +2,8 @@
 
     python -m studies.sampler_mix runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
 
-Replays a run's episode log (every acked episode and cluster model, in the replay's order) into
-a `ReplayCore`, and at every `--every-epochs` boundary draws `--minibatches` × 256 episodes
-with HER's uniform sampler and with HER-CS's cluster-balanced one (the model current then).
-For each: the share of drawn episodes in which the object moved (more than `--moved`, default
-1 cm; for Reach the gripper) and that succeeded, beside their share in the buffer, and the
-draw's spread (effective distinct episodes relative to a uniform draw). It answers whether
-cluster balancing changes what the learner sees, on a real run's data, without training. It
-needs the whole log: a run longer than 1.25 buffers keeps one only with
-`replay.log_max_bytes=-1` or a bound above its log's size (docs/GUIDE.md).
-"""
+Replays a run's episode log into a `ReplayCore` and compares each sampler's draws with the
+buffer, without training. Needs the whole log (docs/GUIDE.md on `replay.log_max_bytes`)."""
 
 from __future__ import annotations
 

@@ -2,16 +2,8 @@
 
     python -m studies.schedule_effect           # every pair in the committed runs → docs/results/
 
-Reads finished runs (config.yaml, metrics.csv, bench_done.json) from `--runs` (default
-docs/results/runs/) and pairs, per task, method and learner precision, the runs of
-`training.schedule=async` with those of `lockstep` (the reference's schedule). Per run: the
-epoch its 10-epoch trailing mean first exceeds 0.5 and that mean after epoch E, the last epoch
-all runs of the pair reached (at most `--epoch`); the difference of the schedules' means gets
-a 95 % interval from Welch's t. Seeds are draws, not pairs: the runs come from different
-machines, and one seed gives other numbers on another CPU (docs/DESIGN.md §10). Writes
-`<out>/asynchrony.md` (default docs/results/), which states the method, as a pure function of
-the runs (no date, no commit) so that a test can check the committed file against them.
-"""
+Writes `<out>/asynchrony.md` (default docs/results/), which states the method, as a pure
+function of the runs (no date, no commit) so that a test can check the committed file."""
 
 from __future__ import annotations
 
