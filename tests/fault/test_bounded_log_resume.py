@@ -1,14 +1,8 @@
-"""A replay with a small bounded episode log, SIGKILLed right after the ack of the episode
-that fills a segment (while it starts the next segment, closes the old one and prunes the
-log: the kill lands before, during or after), resumes the buffer it would have without the
-bound: the same episodes under the same ids, retries still deduplicated, the log on disk
-under its bound plus one segment once pruned. Real `hercs replay` process, real Zenoh on
-loopback, real MCAP. (The exact comparison with a log kept whole is
-tests/unit/replay_service/test_bounded_log.py.)
-
-Reach with a 1,000-transition buffer (20 episodes) and 5-episode segments; no learner, so the
-limiter runs free (`replay.free_run`), and synthetic episodes act with no weights version
-(`training.max_policy_lag=-1`)."""
+"""A replay with a small bounded episode log, SIGKILLed right after the ack of the episode that
+fills a segment, resumes the buffer it would have without the bound: the same episodes under
+the same ids, retries still deduplicated, the log under its bound plus one segment once pruned.
+Real `hercs replay`, Zenoh and MCAP; Reach, 20-episode buffer, 5-episode segments. (The exact
+comparison with a log kept whole: tests/unit/replay_service/test_bounded_log.py.)"""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
-"""Files in a run folder are data (issue 46): a crafted `best.pt`, `learner.pt`, episode log
-or config.yaml whose pickle or YAML tag would run code when opened is refused with a message
-naming it, through what a user runs (`hercs eval RUN`, `hercs view RUN`, `hercs up --resume
-RUN` as commands; `hercs.load_policy`, `hercs.read_episodes` and `hercs.resume` in Python),
-and the code never runs: the marker file it would create never appears.
-
-Each crafted file is first shown to be hostile: opened the unsafe way (`torch.load` with
-`weights_only=False`, `yaml.unsafe_load`) a copy of it does create its marker."""
+"""Files in a run folder are data (issue 46): a crafted `best.pt`, `learner.pt`, episode log or
+config.yaml that would run code when opened is refused with a message naming it, through the
+commands and the Python API a user runs, and its marker file never appears. Each crafted file
+is first shown to be hostile: opened the unsafe way, a copy of it creates its marker."""
 
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """Divergence is an error, not a hang: numbers that cannot train are refused before anything
-starts, and a real `hercs up` run whose learner diverges mid-run stops with exit 4, saying
-where and what, its last sound checkpoint kept and loadable, no weights published that the
-actors would refuse, and nothing restarted.
-
-The divergence is a user's reward gone wild: `tests.goal_envs:reach_with_a_reward_scale_file`
-reads its miss reward's scale from a file the test writes once epoch 1 is recorded (1e30:
-finite, but its squared TD error is not), with the TD target's clip off (`ddpg.clip_return`)
-so that the reward reaches the critic's loss. Every wait is on a launcher line or its exit,
-with a timeout.
+starts, and a real `hercs up` run whose learner diverges mid-run (a user's reward scale set to
+1e30 after epoch 1, `tests.goal_envs:reach_with_a_reward_scale_file`) exits 4 saying where and
+what, its last sound checkpoint loadable, no weights the actors would refuse published, nothing
+restarted. Every wait is on a launcher line or its exit, with a timeout.
 """
 
 from __future__ import annotations

@@ -1,14 +1,8 @@
 """A real network between hosts, over mutual TLS: a run whose actor is on another "host" (a
-network namespace behind a veth link, bench.faults.netns) rides out packet loss and a partition;
-and a client joins a router across a slow link.
-
-The run is bench.faults.net_faults' quick setting (`QUICK`): 10 % of packets dropped each way for
-the whole run, and after epoch 1 of 5 every packet dropped both ways for 60 s (`CUT_S`: far
-longer than Zenoh's 10 s lease, so the sessions end, and long enough for the router's TCP
-retransmissions to back off to ~50 s); the actor must insert again within `HEAL_TO_INSERT_S`
-of the heal. Needs root, iproute2 and iptables (`make netfault-tools`); otherwise skipped with
-the reason. The namespace, its link and the root namespace's iptables chain are removed
-however the test ends.
+network namespace, bench.faults.netns) rides out 10 % loss and a 60 s partition (`QUICK`,
+`CUT_S`), inserting again within `HEAL_TO_INSERT_S` of the heal; and a client joins a router
+across a slow link. Needs root, iproute2 and iptables (`make netfault-tools`); otherwise
+skipped. Why these sizes: docs/FAULTS.md, "Network faults".
 """
 
 from __future__ import annotations

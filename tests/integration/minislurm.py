@@ -1,15 +1,8 @@
 """A real Slurm cluster on one machine, for tests: munged, MariaDB, slurmdbd and slurmctld on
-this host, and one slurmd per "host" (hercs-n1, hercs-n2), each in its own network and UTS
-namespace on a bridge (hsb<pid>, 10.124.0.0/24).
-
-Each node's daemon also has a mount namespace where ROOT/hosts, naming every node, is bound
-over /etc/hosts, so a process on one node reaches another by its host name; the rest of the
-file system is shared, as a cluster's shared storage is. munged's pathname socket reaches every
-namespace. All state lives under one temporary folder; `stop()` ends every daemon it started
-(by pid) and removes the namespaces and the bridge. `problem()` says why none can run here
-(not root, a binary missing). Only this module knows the cluster's layout:
-tests/integration/test_slurm.py uses `MiniSlurm.start()`, `env` (SLURM_CONF for the client
-commands) and the node names.
+this host, and one slurmd per "host" (hercs-n1, hercs-n2) in its own namespaces on a bridge.
+All state lives under one temporary folder; `stop()` ends every daemon it started (by pid) and
+removes the namespaces and the bridge; `problem()` says why none can run here. Only this module
+knows the cluster's layout (docs/CLUSTER.md §8).
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
-"""The Python API on a real run: a short `hercs up` on FetchReach, then, in a fresh process
-that imports only hercs and numpy, `hercs.load_policy(run_dir).act(obs)`:
-
-- on observations of real FetchReach resets, it chooses exactly the actions of the policy the
-  run's evaluator built from the same epoch's Weights (the policy file's bytes through the
-  evaluator's decoder, acting with explore=False), and those `hercs eval` loads;
-- stepping the evaluator's own episodes (its seed, its env stream) with it reproduces the
-  success and final distance the evaluator reported in metrics.csv;
-- `read_metrics`, `read_episodes` and `load_config` read the run back.
+"""The Python API on a real run: after a short `hercs up` on FetchReach, a fresh process that
+imports only hercs and numpy checks that `hercs.load_policy(run_dir).act(obs)` chooses exactly
+the evaluator's actions and reproduces its reported success and final distance, and that
+`read_metrics`, `read_episodes` and `load_config` read the run back.
 """
 
 from __future__ import annotations

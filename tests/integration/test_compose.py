@@ -1,11 +1,7 @@
-"""docker-compose.yml and the Dockerfile, checked statically (no Docker engine runs here):
-every service's command is a valid `hercs` command line resolving to the right config, the
-services find the router by its service name, actors can be scaled, and what `docker compose
-config` would refuse (undeclared volumes, unknown depends_on, a missing build context) is
-absent. Compose's `${VAR:-default}` interpolation is applied as compose does, and so is the
-services' entrypoint (deploy/compose-entrypoint.sh: HERCS_SET, refusing a reused run), which is
-also run here with a stand-in `hercs`. `make compose-test` (deploy/compose_test.sh) runs the
-compose file for real in a Docker engine.
+"""docker-compose.yml and the Dockerfile, checked statically (no Docker engine runs here): valid
+`hercs` commands and configs, the router found by its service name, actors scalable, nothing
+`docker compose config` would refuse, compose's interpolation and the entrypoint
+(deploy/compose-entrypoint.sh) applied as compose does. `make compose-test` runs it for real.
 """
 
 from __future__ import annotations

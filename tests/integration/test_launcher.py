@@ -1,10 +1,8 @@
 """`hercs up` (hercs.apps.launch.launcher), its pure parts: progress lines, run resolution, the
 planned children, refusals before anything starts.
 
-The pure parts: test_launcher.py; process management with stand-in children (the `up`
-fixture): test_launcher_processes.py; the real services end to end:
-test_launcher_services.py. Every wait is on process exit, a launcher output line, a
-file's contents or a Zenoh event, with a timeout.
+Stand-in children (the `up` fixture): test_launcher_processes.py; the real services end to
+end: test_launcher_services.py.
 """
 
 from __future__ import annotations

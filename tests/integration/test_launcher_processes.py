@@ -1,10 +1,8 @@
 """`hercs up` (hercs.apps.launch.launcher) with stand-in children and a real embedded router: start
 order, failure reports, restarts, shutdown order and no orphan processes.
 
-The pure parts: test_launcher.py; process management with stand-in children (the `up`
-fixture): test_launcher_processes.py; the real services end to end:
-test_launcher_services.py. Every wait is on process exit, a launcher output line, a
-file's contents or a Zenoh event, with a timeout.
+The pure parts: test_launcher.py; the real services: test_launcher_services.py. Every wait is
+on process exit, a launcher output line, a file's contents or a Zenoh event, with a timeout.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """`hercs up` (hercs.apps.launch.launcher) with the real services: end to end, lockstep runs, the
 authors' v1 env.
 
-The pure parts: test_launcher.py; process management with stand-in children (the `up`
-fixture): test_launcher_processes.py; the real services end to end:
-test_launcher_services.py. Every wait is on process exit, a launcher output line, a
-file's contents or a Zenoh event, with a timeout.
+The pure parts: test_launcher.py; stand-in children: test_launcher_processes.py. Every wait is
+on process exit, a launcher output line, a file's contents or a Zenoh event, with a timeout.
 """
 
 from __future__ import annotations

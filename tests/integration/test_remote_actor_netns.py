@@ -1,12 +1,7 @@
-"""A process in another network namespace joins a run through a router it reaches over a
-veth pair — what an actor on another host does with `hercs actor --connect tcp/HOST:7447`.
-
-The namespace (bench.faults.netns, which bench.faults.net_faults and
-tests/fault/test_network_faults.py
-use too) has only its loopback and the veth end 10.123.0.2/24; the router listens on the
-host end 10.123.0.1 (these two test addresses are the only ones touched). Needs root and
-`ip`; skipped with the reason when namespaces cannot be made. Every wait is on a queue, a
-Zenoh event or a process exit, with a timeout.
+"""A process in another network namespace joins a run through a router it reaches over a veth
+pair, as an actor on another host does with `hercs actor --connect tcp/HOST:7447`
+(bench.faults.netns; only 10.123.0.1 and .2 are touched). Needs root and `ip`; skipped with the
+reason otherwise. Every wait is on a queue, a Zenoh event or a process exit, with a timeout.
 """
 
 from __future__ import annotations

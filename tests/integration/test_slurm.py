@@ -1,16 +1,8 @@
-"""Runs as Slurm jobs on a real Slurm (tests/integration/minislurm.py: slurmctld, slurmdbd and
-two slurmd, each node in its own network and UTS namespace):
-
-(a) `hercs slurm submit`: a 2-epoch FetchReach heterogeneous job, its actor on the other node
-    joining over mutual TLS; where each step ran and how it ended (`sacct`);
-(b) the warning before the time limit: the run stops in order, the job requeues itself and
-    the next attempt resumes it, every epoch once;
-(c) an actor step killed mid-run starts again; a node that dies fails the job, which
-    requeues and resumes the run;
-(d) `hercs sweep --slurm`: a 2-task job array, one sweep cell per task.
-
-Skipped, with the reason, where no cluster can run (not root, Slurm or MariaDB missing: `make
-slurm`). Slurm tells a client of a job's end only when asked, so the waits poll `sacct`.
+"""Runs as Slurm jobs on a real Slurm (tests/integration/minislurm.py): `hercs slurm submit` of
+a heterogeneous job, the time-limit warning and requeue with resume, a killed actor step and a
+dead node, and `hercs sweep --slurm` as a job array. Skipped, with the reason, where no cluster
+can run (`make slurm`). Slurm reports a job's end only when asked, so the waits poll `sacct`.
+The test cluster and its timings: docs/CLUSTER.md §8.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
-"""A whole distributed run (`hercs up`: router, replay, clusterer, learner, evaluator and two
-actors as real processes over Zenoh on loopback) that must actually learn FetchReach, and whose
-run directory must show the system's contracts: ratio held, clusters fitted and balanced,
-weights reaching the actors, every acked episode logged once, no process left behind.
-
-Cycles per epoch are scaled down for CI (10 instead of 50); the ratios are the paper's
-(4 episodes and 40 minibatches of 256 per cycle: 10 updates per episode).
+"""A whole distributed run (`hercs up`, every service as a real process over Zenoh on loopback)
+must learn FetchReach, and its run directory must show the system's contracts: ratio held,
+clusters fitted and balanced, weights reaching the actors, every acked episode logged once, no
+process left behind. 10 cycles per epoch instead of 50; the paper's ratios (10 updates per episode).
 """
 
 from __future__ import annotations

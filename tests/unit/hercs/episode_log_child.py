@@ -1,15 +1,9 @@
 """Child process of the episode-log fault tests: appends episodes 0, 1, 2, … to a new log and
-prints each id on stdout only after `append_episode` returned (the moment the replay would
-ack). It never closes the log: the parent SIGKILLs it mid-stream.
+prints each id once `append_episode` returned (when the replay would ack); the parent SIGKILLs it.
 
-    python episode_log_child.py LOG_PATH TASK [MAX_FILE_BYTES]
+    python episode_log_child.py LOG_PATH TASK [MAX_FILE_BYTES]  # the limit fails a write part way
 
-With MAX_FILE_BYTES the process's file size limit (RLIMIT_FSIZE) makes a write fail part way
-through, as a full disk does: the child then prints `failed <error>`, tries one more append,
-prints `refused` if the writer refuses it, and exits.
-
-`make_episode` is shared with the test so that the parent can check recovered content.
-"""
+`make_episode` is shared with the test so that the parent can check recovered content."""
 
 from __future__ import annotations
 

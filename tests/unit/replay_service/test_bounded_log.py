@@ -1,12 +1,8 @@
-"""A bounded episode log (`replay.log_max_bytes`) under the real replay table and the real
-MCAP writer on disk: the log stays under its bound plus one segment while the buffer evicts,
-and a replay recovered from it is the replay recovered from the same log kept whole (same
-buffer in the same slots, dedup keys, counts, failed goals, normalisers, lockstep counts and
-the next batches drawn), and holds the same buffer as one recovered from an unsplit log.
-
-Synthetic episodes: `training.max_policy_lag=-1` (they act with no weights version) and
-`replay.free_run=true` (no learner samples). Reach, 1,000 transitions = 20 episodes a buffer,
-so 5-episode segments (`replay.log_segments_per_buffer` 4)."""
+"""A bounded episode log (`replay.log_max_bytes`) under the real replay table and MCAP writer:
+the log stays under its bound plus one segment while the buffer evicts, and a replay recovered
+from it is the replay recovered from the same log kept whole (same buffer and slots, dedup
+keys, counts, normalisers, next batches). Synthetic Reach episodes, no learner, 20-episode
+buffer in 5-episode segments."""
 
 from __future__ import annotations
 
