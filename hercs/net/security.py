@@ -1,11 +1,8 @@
 """Who may join a run and what each role may do: Zenoh TLS, user/password and access control.
-
-Each process authenticates as its role (`hercs.roles.ROLES`) by a certificate whose common
-name is the role, a `user:password` line, or both; the router then denies by default and
-grants each role only its own keys (`ROLE_GRANTS`). A router listening beyond loopback
-without TLS is refused (`listen_problem`) unless `security.allow_insecure`. Threat model:
-docs/SECURITY.md.
-"""
+Each process authenticates as its role (`hercs.roles`) by a certificate named for the role, a
+`user:password` line, or both; the router denies by default and grants each role only its own
+keys (`ROLE_GRANTS`). A router listening beyond loopback without TLS is refused
+(`listen_problem`) unless `security.allow_insecure`. Threat model: docs/SECURITY.md."""
 
 from __future__ import annotations
 

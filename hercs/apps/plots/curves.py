@@ -1,10 +1,8 @@
-"""Learning curves and milestone tables from run directories (`hercs plot`), optionally next
-to the authors' published per-seed results (`docs/reference/authors_success_rates.csv`).
-
-The runs as curves and the table rule (docs/DESIGN.md §5), as pure functions over numbers;
-plot_tables.py writes the tables and plot_figures.py draws. Runs in another setting (lockstep,
-bf16, Fetch*-v1, another lag…: hercs/apps/plots/series.py) are their own group, never averaged
-with the default's.
+"""Learning curves and milestone tables from run directories (`hercs plot`), beside the
+authors' published per-seed results (data/authors_success_rates.csv, a copy of
+docs/reference/'s), as pure functions over numbers (the table rule: docs/DESIGN.md §5);
+tables.py writes the tables, figures.py draws. Runs in another setting (lockstep, bf16,
+Fetch*-v1, another lag…: series.py) are groups of their own, never averaged with the default's.
 """
 
 from __future__ import annotations

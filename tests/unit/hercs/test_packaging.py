@@ -87,3 +87,16 @@ def test_hercs_runs_beside_a_labs_own_learner_and_proto(wheel: Path, tmp_path: P
     cli = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "--help"], cwd=lab, env=env,
                          capture_output=True, text=True, timeout=120)
     assert cli.returncode == 0 and "up" in cli.stdout, cli.stderr
+
+
+def test_every_link_in_the_checkout_resolves() -> None:
+    """A moved file leaves no dangling link behind (docs/reference/authors_success_rates.csv
+    pointed at the data's old folder after the apps split)."""
+    listed = subprocess.run(["git", "ls-files", "-s"], cwd=REPO, capture_output=True,
+                            text=True)
+    if listed.returncode != 0:
+        pytest.skip(f"not a git checkout, so no tracked links to check: {listed.stderr.strip()}")
+    links = [line.split("\t", 1)[1] for line in listed.stdout.splitlines()
+             if line.startswith("120000 ")]  # git's mode for a symbolic link
+    dangling = [link for link in links if not (REPO / link).exists()]
+    assert not dangling, f"links whose target is gone: {dangling}"
