@@ -16,13 +16,14 @@ from hercs.replay_service.table_calls import (
     take_expired,
 )
 from hercs.replay_service.waiting_inserts import WaitingInserts
+from hercs.wire.episode import EpisodeData
 
 InsertKey = tuple[str, int]
 """(actor_id, seq): what a retry of an insert shares with its first call."""
 
 
-def insert_key(item: ParkedInsert) -> InsertKey:
-    return (item.episode.actor_id, int(item.episode.seq))
+def insert_key(episode: EpisodeData) -> InsertKey:
+    return (episode.actor_id, int(episode.seq))
 
 
 class ParkedCalls:
@@ -42,14 +43,14 @@ class ParkedCalls:
 
     def park_insert(self, item: ParkedInsert) -> None:
         self.inserts.append(item)
-        self._by_key[insert_key(item)] = item
+        self._by_key[insert_key(item.episode)] = item
 
     def park_sample(self, item: ParkedSample) -> None:
         self.samples.append(item)
 
     def forget(self, item: ParkedInsert) -> None:
         """An insert is stored or answered: a later call with its key is a new one."""
-        del self._by_key[insert_key(item)]
+        del self._by_key[insert_key(item.episode)]
 
     def take_ready(self) -> list[ParkedInsert]:
         """The admitted inserts, for one group commit (they stay parked until forgotten)."""
@@ -77,7 +78,7 @@ def check_unstored(core: ReplayCore, group: list[ParkedInsert]) -> None:
     logged."""
     seen: set[InsertKey] = set()
     for item in group:
-        key = insert_key(item)
+        key = insert_key(item.episode)
         known = core.lookup(*key)
         if known is not None or key in seen:
             where = f"stored as episode {known}" if known is not None else "twice in it"

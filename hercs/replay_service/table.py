@@ -20,7 +20,7 @@ from hercs.reasons import Reason
 from hercs.replay_service.admission import admission_for
 from hercs.replay_service.learner_follow import follow_learner
 from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S
-from hercs.replay_service.parked_calls import ParkedCalls, check_unstored
+from hercs.replay_service.parked_calls import ParkedCalls, check_unstored, insert_key
 from hercs.replay_service.policy_lag import PolicyLagLedger
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
@@ -89,7 +89,7 @@ class ReplayTable:
         `record` is what goes into the log (the message as received). `timeout_s`: the
         caller's own timeout; a call still parked after it is answered `expired`.
         """
-        key = (episode.actor_id, int(episode.seq))
+        key = insert_key(episode)
         with self._lock:
             known = self.core.lookup(*key)
             if known is not None:

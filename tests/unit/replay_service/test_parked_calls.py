@@ -38,7 +38,7 @@ def test_a_parked_insert_is_joined_by_its_key_until_it_is_forgotten() -> None:
     assert calls.joined(("a", 7)) is item and calls.waiting() == (0, 0)
     assert calls.take_ready() == [item] and calls.ready == []
     calls.forget(item)
-    assert calls.joined(insert_key(item)) is None
+    assert calls.joined(insert_key(item.episode)) is None
 
 
 def test_expiry_takes_the_waiting_calls_past_their_deadline_and_frees_their_keys() -> None:
