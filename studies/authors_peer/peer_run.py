@@ -199,6 +199,17 @@ def snapshot_epoch(folder: Path) -> int:
     return int(json.loads(meta.read_text())["epoch"]) if meta.is_file() else 0
 
 
+def restore_cluster_centres(kmeans: Any, centers: np.ndarray) -> None:
+    """Give their k-means object the saved `centers`, label i still centre i (their share rule
+    reads labels in order), and leave its settings as they were, so that every later refit
+    starts as theirs does (k-means++ draws, KMEANS_N_INIT tries), not from these centres."""
+    settings = {k: v for k, v in kmeans.get_params().items() if k in ("init", "n_init")}
+    # fitting on the centres themselves, started at them, returns them in their order
+    kmeans.set_params(init=centers, n_init=1)
+    kmeans.fit(centers)
+    kmeans.set_params(**settings)
+
+
 def load_snapshot(agent: Any, folder: Path) -> dict[str, Any]:
     """Put the snapshot in `folder` back into `agent` (made as their launch() makes it);
     returns its meta (epoch, wall_s)."""
@@ -223,11 +234,7 @@ def load_snapshot(agent: Any, folder: Path) -> dict[str, Any]:
                         "total_count", "mean", "std"):
                 setattr(norm, key, arrays[f"{prefix}.{key}"].copy())
         if "cluster_centers" in arrays:
-            centers = arrays["cluster_centers"]
-            # fitting on the centres themselves, started at them, returns them in their order
-            # (label i stays centre i, which their share rule depends on)
-            buf.cluster.set_params(init=centers, n_init=1)
-            buf.cluster.fit(centers)
+            restore_cluster_centres(buf.cluster, arrays["cluster_centers"])
         keys = arrays["np_rng_keys"]
     name, pos, has_gauss, gauss = meta["np_rng"]
     np.random.set_state((name, keys, pos, has_gauss, gauss))

@@ -18,7 +18,13 @@ import yaml
 
 from hercs.rl.envs import register_envs
 from studies.authors_peer.old_gym import OldGymEnv, gym_module
-from studies.authors_peer.peer_run import PEER_SCHEDULE, PeerRun, write_config
+from studies.authors_peer.peer_run import (
+    KMEANS_N_INIT,
+    PEER_SCHEDULE,
+    PeerRun,
+    restore_cluster_centres,
+    write_config,
+)
 from studies.authors_peer.single_mpi import SUM, mpi4py_module
 from studies.claims import claim_runs
 
@@ -84,6 +90,29 @@ def _peer_folder(root: Path, seed: int, success: list[float]) -> Path:
         writer.writerow(["epoch", "success_rate"])
         writer.writerows([e, s] for e, s in enumerate(success, start=1))
     return run.run_dir
+
+
+def test_restored_centres_keep_their_labels_and_later_refits_start_as_theirs() -> None:
+    """A resumed peer run's k-means: the saved centres in their order, then every later refit
+    exactly the uninterrupted run's (their unseeded k-means++ draws from NumPy's global stream,
+    which a snapshot restores). Until 2026-11-29 later refits started from the saved centres."""
+    from sklearn.cluster import KMeans
+
+    rng = np.random.default_rng(7)
+    before, after = rng.normal(size=(150, 3)), rng.normal(loc=2.0, size=(150, 3))
+    straight = KMeans(n_clusters=8, n_init=KMEANS_N_INIT)
+    np.random.seed(1)
+    straight.fit(before)
+    resumed = KMeans(n_clusters=8, n_init=KMEANS_N_INIT)
+    restore_cluster_centres(resumed, straight.cluster_centers_)
+    np.testing.assert_allclose(resumed.cluster_centers_, straight.cluster_centers_, atol=1e-12)
+    np.testing.assert_array_equal(resumed.predict(before), straight.predict(before))
+    assert resumed.get_params()["init"] == "k-means++"
+    assert resumed.get_params()["n_init"] == KMEANS_N_INIT
+    for model in (straight, resumed):
+        np.random.seed(2)
+        model.fit(after)
+    np.testing.assert_allclose(resumed.cluster_centers_, straight.cluster_centers_, atol=1e-12)
 
 
 def test_a_peer_run_is_a_side_of_its_own_in_the_claims(tmp_path: Path) -> None:
