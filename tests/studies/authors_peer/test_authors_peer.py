@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import subprocess
 import sys
@@ -174,6 +175,8 @@ def test_their_code_runs_stops_and_resumes_to_the_same_numbers(tmp_path: Path) -
             return [(r["epoch"], r["success_rate"]) for r in csv.DictReader(f)]
 
     assert rows("resumed") == rows("straight") and len(rows("straight")) == 3
+    done = json.loads((tmp_path / "resumed" / name / "bench_done.json").read_text())
+    assert done["command"].startswith("-m studies.authors_peer --checkout "), done["command"]
     import torch
 
     def actor(root: str) -> dict[str, torch.Tensor]:
