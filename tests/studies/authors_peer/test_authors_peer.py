@@ -116,6 +116,36 @@ def test_restored_centres_keep_their_labels_and_later_refits_start_as_theirs() -
     np.testing.assert_allclose(resumed.cluster_centers_, straight.cluster_centers_, atol=1e-12)
 
 
+def test_our_share_plan_by_hand_when_the_top_cluster_is_empty() -> None:
+    """Seven clusters of 100 and an empty eighth: the reference rule splits the batch seven
+    ways (36 each, 4 filled from the whole buffer), ours eight ways (32 each, 32 filled)."""
+    from studies.authors_peer.sampler_check import labels_of, our_draws
+
+    labels = labels_of([100] * 7 + [0])
+    np.testing.assert_allclose(our_draws(labels, 8, "reference")[:7], 36 + 4 / 7)
+    np.testing.assert_allclose(our_draws(labels, 8, "every-cluster")[:7], 32 + 32 / 7)
+    assert our_draws(labels, 8, "every-cluster")[7] == 0
+
+
+@pytest.mark.skipif(not CHECKOUT, reason="HERCS_AUTHORS_CHECKOUT names no checkout of the "
+                    "authors' repository (it is never copied into this repository)")
+def test_our_reference_share_rule_draws_what_their_sampler_draws() -> None:
+    from studies.authors_peer.sampler_check import (
+        labels_of,
+        our_draws,
+        their_draws,
+        their_sampler,
+    )
+
+    sampler = their_sampler(Path(CHECKOUT))
+    np.random.seed(3)
+    for sizes in ([100] * 7 + [0], [5000, 10, 22, 294, 7000, 8, 6000, 80], [3, 0, 50, 0, 9, 1]):
+        labels = labels_of(sizes)
+        theirs = their_draws(sampler, labels, len(sizes), batches=400)
+        # a mean of 400 draws of at most ~42 each: sd < 0.35; 2 draws is over 5 sd
+        assert np.abs(our_draws(labels, len(sizes), "reference") - theirs).max() < 2.0, sizes
+
+
 def test_a_peer_run_is_a_side_of_its_own_in_the_claims(tmp_path: Path) -> None:
     """Two peer seeds beside one of our HER-CS v1 runs: three groups (ours, the authors'
     published curves, their code on our v1), the peer's labelled as such, its start commit
