@@ -12,7 +12,6 @@ import csv
 import importlib
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ from hercs.replay_service.samplers.cluster_balanced import ClusterBalancedSample
 from hercs.replay_service.sampling_index import SamplingIndex
 from hercs.rl.cluster_model import assign_clusters
 from hercs.rl.share_rules import SHARE_RULES
+from studies.authors_peer.peer_run import checkout_commit
 from studies.study_output import (
     FINDINGS_HEADING,
     REPO,
@@ -89,20 +89,15 @@ def per_epoch_plans(metrics: Path, sampler: Any, batches: int) -> list[dict[str,
     return rows
 
 
-@dataclass
 class SnapshotBuffer:
     """A peer snapshot's buffer as our samplers read a store (SampleSource)."""
 
-    cluster: np.ndarray
-    size: int = 0
-    energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    sampling_index: SamplingIndex = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.size = len(self.cluster)
+    def __init__(self, cluster: np.ndarray) -> None:
+        self.cluster = cluster
+        self.size = len(cluster)
         self.energy = np.zeros(self.size)
         self.sampling_index = SamplingIndex(self.size)
-        self.sampling_index.rebuild(self.energy, self.cluster.astype(np.int64))
+        self.sampling_index.rebuild(self.energy, cluster.astype(np.int64))
 
 
 def snapshot_mix(snapshot: Path, sampler: Any, batches: int, seed: int) -> dict[str, Any]:
@@ -134,7 +129,8 @@ def snapshot_mix(snapshot: Path, sampler: Any, batches: int, seed: int) -> dict[
 def render(summary: dict[str, Any], findings: str) -> str:
     lines = [f"# {NAME}: our HER-CS draw against the authors' sampler", "",
              f"`python -m studies.authors_peer.sampler_check` at {summary['commit']}, their "
-             f"code at {summary['checkout']}; {summary['batches']} batches of {BATCH} per case.",
+             f"code at their {summary['their_commit']}; {summary['batches']} batches of "
+             f"{BATCH} per case.",
              "", "## Draws per cluster on their runs' cluster sizes", "",
              "Per peer run, over its epochs with a cluster model: the largest difference, in "
              "draws of one batch, between one cluster's draws from our plan (expected) and from "
@@ -191,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = per_epoch_plans(run / "metrics.csv", sampler, batches)
         plans[run.name] = rows[-10:] if args.quick else rows
     summary: dict[str, Any] = {"commit": git_commit(), "batches": batches, "plans": plans,
-                               "checkout": str(args.checkout),
+                               "their_commit": checkout_commit(args.checkout),
                                # the sd of a mean of `batches` draws of at most ~share(≈36)
                                "noise_draws": float(np.sqrt(36 / batches))}
     if args.snapshot:
