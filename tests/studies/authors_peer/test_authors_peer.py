@@ -146,6 +146,29 @@ def test_our_reference_share_rule_draws_what_their_sampler_draws() -> None:
         assert np.abs(our_draws(labels, len(sizes), "reference") - theirs).max() < 2.0, sizes
 
 
+def test_acted_episodes_counts_moved_lifted_and_reached_by_hand(tmp_path: Path) -> None:
+    """Four episodes a 'peer snapshot', two an epoch: one still, one pushed 1 cm, one lifted
+    5 cm onto its goal, one trembling 1 mm; blocks of one epoch."""
+    from studies.authors_peer.acted_episodes import main
+
+    ag = np.zeros((4, 51, 3))
+    ag[1, 30:, 0] = 0.01
+    ag[2, 20:, 2] = 0.05
+    ag[3, 10, 1] = 0.001
+    goals = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 0, 0.05], [1.0, 0, 0]])
+    state = tmp_path / "pick-v1-authors-code-s9" / "peer_state"
+    state.mkdir(parents=True)
+    np.savez(state / "arrays.npz", **{"buffer.ag": ag, "buffer.g": np.repeat(
+        goals[:, None], 50, axis=1)})
+    (state.parent / "config.yaml").write_text(yaml.safe_dump(
+        {"training": {"cycles_per_epoch": 1, "episodes_per_cycle": 2, "epochs": 2}}))
+    assert main([str(state), "--block", "1", "--out", str(tmp_path / "out")]) == 0
+    summary = json.loads((tmp_path / "out" / "acted_episodes.json").read_text())
+    assert summary["runs"]["pick-v1-authors-code-s9"] == [
+        {"moved": 0.5, "lifted": 0.0, "success": 0.0},
+        {"moved": 0.5, "lifted": 0.5, "success": 0.5}]
+
+
 def test_a_peer_run_is_a_side_of_its_own_in_the_claims(tmp_path: Path) -> None:
     """Two peer seeds beside one of our HER-CS v1 runs: three groups (ours, the authors'
     published curves, their code on our v1), the peer's labelled as such, its start commit

@@ -1,8 +1,9 @@
 """studies/sampler_mix/sampler_draws.py: the effective share by hand, and a real run's log read back
-(a 1-epoch `hercs sweep --quick` run of HER-CS)."""
+(a 1-epoch `hercs sweep --quick` run of HER-CS), also by studies.authors_peer.acted_episodes."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -43,3 +44,12 @@ def test_a_real_runs_log_is_read_back_one_row_per_epoch_mark(tmp_path: Path) -> 
     # no cluster model yet in so short a run: both samplers draw uniformly, spread ≈ 1
     spread = [float(x) for x in rows[0].rstrip(" |").rsplit("|", 1)[1].split("/")]
     assert all(0.9 < x < 1.1 for x in spread), rows[0]
+    # the same log, read by studies.authors_peer.acted_episodes: one row per epoch of each kind
+    acted = subprocess.run([sys.executable, "-m", "studies.authors_peer.acted_episodes",
+                            str(tmp_path / "runs" / "reach-her-cs-s1"), "--block", "1",
+                            "--out", str(tmp_path / "acted")], capture_output=True, text=True,
+                           timeout=120, cwd=REPO)
+    assert acted.returncode == 0, acted.stderr
+    blocks = json.loads((tmp_path / "acted" / "acted_episodes.json").read_text())["runs"]
+    assert len(blocks["reach-her-cs-s1"]) == 1
+    assert all(0.0 <= share <= 1.0 for share in blocks["reach-her-cs-s1"][0].values())
