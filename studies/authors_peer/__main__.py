@@ -52,9 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     # the runner's own arguments, read before run_peer hands sys.argv to their train.py
-    argv = list(sys.argv[1:] if argv is None else argv)
+    own_argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(own_argv)
     checkout = args.checkout.resolve()
     missing = [f for f in NEEDED if not (checkout / f).is_file()]
     if missing:
@@ -88,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   "epochs": run.epochs, "wall_s": float(rows[-1]["wall_s"]),
                   "wall_s_this_life": round(time.monotonic() - started, 1),
                   "commit": git_commit_here(), "peer_commit": checkout_commit(checkout),
-                  "command": shlex.join(["-m", "studies.authors_peer", *argv]),
+                  "command": shlex.join(["-m", "studies.authors_peer", *own_argv]),
                   "finished": datetime.now(UTC).isoformat(timespec="seconds"),
                   "machine": machine_identity()}
         (run.run_dir / DONE_FILE).write_text(json.dumps(record, indent=2))

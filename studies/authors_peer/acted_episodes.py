@@ -18,7 +18,12 @@ import yaml
 
 from hercs.run.runlog.reader import read_episodes
 from hercs.wire.codec import msg_to_episode
-from studies.authors_peer.sampler_check import LIFTED_M, MOVED_M, SUCCESS_M
+from studies.authors_peer.sampler_check import (
+    LIFTED_M,
+    MOVED_M,
+    SUCCESS_M,
+    episode_kinds,
+)
 from studies.study_output import (
     FINDINGS_HEADING,
     REPO,
@@ -31,14 +36,6 @@ from studies.study_output import (
 
 NAME = "acted_episodes"
 KINDS = ("moved", "lifted", "success")
-
-
-def episode_kinds(ag: np.ndarray, goal: np.ndarray) -> dict[str, np.ndarray]:
-    """(N, T+1, 3) achieved goals and (N, 3) goals → per episode: moved, lifted, success."""
-    final = ag[:, -1]
-    return {"moved": np.linalg.norm(ag - ag[:, :1], axis=-1).max(axis=1) > MOVED_M,
-            "lifted": final[:, 2] > ag[:, 0, 2] + LIFTED_M,
-            "success": np.linalg.norm(final - goal, axis=-1) < SUCCESS_M}
 
 
 def load_source(path: Path) -> tuple[str, int, np.ndarray, np.ndarray]:

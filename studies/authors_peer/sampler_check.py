@@ -38,6 +38,14 @@ SMALL_CLUSTER_REPEAT = 4  # their her.py: a cluster under share/4 members gets 4
 MOVED_M, LIFTED_M, SUCCESS_M = 0.005, 0.03, 0.05
 
 
+def episode_kinds(ag: np.ndarray, goal: np.ndarray) -> dict[str, np.ndarray]:
+    """(N, T+1, 3) achieved goals and (N, 3) goals → per episode: moved, lifted, success."""
+    final = ag[:, -1]
+    return {"moved": np.linalg.norm(ag - ag[:, :1], axis=-1).max(axis=1) > MOVED_M,
+            "lifted": final[:, 2] > ag[:, 0, 2] + LIFTED_M,
+            "success": np.linalg.norm(final - goal, axis=-1) < SUCCESS_M}
+
+
 def their_sampler(checkout: Path) -> Any:
     """Their `her_sampler('future', 4)` from the checkout (her_modules/her.py)."""
     sys.path.insert(0, str(checkout))
@@ -105,11 +113,8 @@ def snapshot_mix(snapshot: Path, sampler: Any, batches: int, seed: int) -> dict[
     and successful episodes in the buffer, in their batches and in ours (each share rule)."""
     with np.load(snapshot / "arrays.npz", allow_pickle=False) as z:
         ag, g, centres = z["buffer.ag"], z["buffer.g"][:, -1, :], z["cluster_centers"]
-    final = ag[:, -1, :]
-    kinds = {"moved": np.linalg.norm(ag - ag[:, :1], axis=-1).max(axis=1) > MOVED_M,
-             "lifted": final[:, 2] > ag[:, 0, 2] + LIFTED_M,
-             "success": np.linalg.norm(final - g, axis=-1) < SUCCESS_M}
-    labels = assign_clusters(final, centres).astype(np.int64)
+    kinds = episode_kinds(ag, g)
+    labels = assign_clusters(ag[:, -1, :], centres).astype(np.int64)
     np.random.seed(seed)
     clustered = [np.flatnonzero(labels == c).tolist() for c in range(int(labels.max()) + 1)]
     drawn = {"buffer (HER's uniform draw)": np.arange(len(labels)),
