@@ -38,13 +38,23 @@ NAME = "acted_episodes"
 KINDS = ("moved", "lifted", "success")
 
 
+def is_peer_state(path: Path) -> bool:
+    """A peer run's snapshot folder (its buffer in arrays.npz), not a run folder."""
+    return (path / "arrays.npz").is_file()
+
+
+def run_folder(path: Path) -> Path:
+    """The run folder holding config.yaml: a peer snapshot's parent, else the path itself."""
+    return path.parent if is_peer_state(path) else path
+
+
 def load_source(path: Path) -> tuple[str, int, np.ndarray, np.ndarray]:
     """(name, episodes an epoch, ag, goal) of the episodes of the run's epochs in acting order
     (episode id // episodes an epoch is the epoch of the lockstep schedule; an asynchronous
     run's actors act a few past the last epoch, left out): a peer_state folder's buffer, or
     a run directory's episode log; the epoch's size and count from the run's config.yaml."""
-    peer = (path / "arrays.npz").is_file()
-    run = path.parent if peer else path
+    peer = is_peer_state(path)
+    run = run_folder(path)
     config = yaml.safe_load((run / "config.yaml").read_text())["training"]
     per_epoch = int(config["cycles_per_epoch"]) * int(config["episodes_per_cycle"])
     last = per_epoch * int(config["epochs"])
@@ -100,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.block < 1:
         p.error(f"--block {args.block}: must be >= 1")
     for source in args.sources:
-        run = source.parent if (source / "arrays.npz").is_file() else source
+        run = run_folder(source)
         if not (run / "config.yaml").is_file():
             p.error(f"{source}: neither a run folder nor a peer run's peer_state (no "
                     f"config.yaml in {run})")

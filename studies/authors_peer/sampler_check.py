@@ -57,9 +57,15 @@ def labels_of(sizes: Sequence[int]) -> np.ndarray:
     return np.repeat(np.arange(len(sizes)), sizes).astype(np.int64)
 
 
+def their_clusters(labels: np.ndarray) -> list[list[int]]:
+    """The members of each label up to the highest present, as their replay buffer hands them
+    to `clustering_her_random` (an empty label is an empty list)."""
+    return [np.flatnonzero(labels == c).tolist() for c in range(int(labels.max()) + 1)]
+
+
 def their_draws(sampler: Any, labels: np.ndarray, k: int, batches: int) -> np.ndarray:
     """Mean draws per cluster label (0..k-1) in one batch of their sampler, over `batches`."""
-    clustered = [np.flatnonzero(labels == c).tolist() for c in range(int(labels.max()) + 1)]
+    clustered = their_clusters(labels)
     counts = np.zeros(k)
     for _ in range(batches):
         counts += np.bincount(labels[sampler.clustering_her_random(len(labels), BATCH,
@@ -116,7 +122,7 @@ def snapshot_mix(snapshot: Path, sampler: Any, batches: int, seed: int) -> dict[
     kinds = episode_kinds(ag, g)
     labels = assign_clusters(ag[:, -1, :], centres).astype(np.int64)
     np.random.seed(seed)
-    clustered = [np.flatnonzero(labels == c).tolist() for c in range(int(labels.max()) + 1)]
+    clustered = their_clusters(labels)
     drawn = {"buffer (HER's uniform draw)": np.arange(len(labels)),
              "their sampler": np.concatenate([sampler.clustering_her_random(
                  len(labels), BATCH, clustered) for _ in range(batches)])}
