@@ -29,6 +29,9 @@ from hercs.wire.episode import expected_shapes
 OUT = REPO / "docs" / "results" / "memory"
 GROWTH_FLAG_MB = 5.0
 """Late growth, in MB per 10 epochs beyond the store's own, that the report flags."""
+MIN_SERVICE_RSS_MB = 1.0
+"""Below this a process is mid-exec or exiting, not a running service (the interpreter alone
+holds several MB)."""
 COLUMNS = ("time_s", "epoch", "role", "pid", "rss_mb")
 
 
@@ -94,9 +97,10 @@ def sample(run_dirs: list[Path], out: Path, every_s: float) -> None:
             handle, writer = files[run_dir]
             for pid, role in sorted(processes.items()):
                 rss = rss_mb(pid)
-                # None: gone; 0 kB: between address spaces (in its exec, or exiting and not yet
-                # reaped): neither is a sample of a running service's memory
-                if rss:
+                # None: gone; under 1 MB: between address spaces (in its exec, or exiting and
+                # not yet reaped; a few kB, which would print as 0.0). A running Python service
+                # holds tens of MB, so neither is a sample of its memory
+                if rss is not None and rss >= MIN_SERVICE_RSS_MB:
                     writer.writerow((f"{time.monotonic() - start:.0f}", epoch, role, pid,
                                      f"{rss:.1f}"))
             handle.flush()
