@@ -121,8 +121,15 @@ CLAIMS: tuple[Claim, ...] = (
             _pick("her-cs", env="v1"), epoch=ABLATION_EPOCH)
       for arm, side in (("lockstep", _pick("her-cs", env="v1", schedule="lockstep")),
                         ("the reference's share rule",
-                         _pick("her-cs", env="v1", setting="reference share rule")),
-                        ("tf32", _pick("her-cs", env="v1", precision="tf32")))),
+                         _pick("her-cs", env="v1", setting="reference share rule")))),
+    # arm c runs lockstep, so that it differs from arm a's lockstep HER-CS (same commit) in
+    # the learner's arithmetic alone
+    Claim("PickAndPlace: tf32 against fp32, HER-CS, v1, lockstep, at epoch 60",
+          _pick("her-cs", env="v1", schedule="lockstep", precision="tf32"),
+          _pick("her-cs", env="v1", schedule="lockstep"), epoch=ABLATION_EPOCH),
+    Claim("PickAndPlace: tf32 lockstep against the authors', HER-CS, v1, at epoch 60",
+          _pick("her-cs", env="v1", schedule="lockstep", precision="tf32"),
+          _pick("her-cs", env="v1", schedule="authors", lag=""), epoch=ABLATION_EPOCH),
 )
 
 
