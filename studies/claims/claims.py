@@ -22,6 +22,7 @@ from studies.claims.claim_statistics import (
     SideStats,
     epoch_stats,
     improvement,
+    rank_test_p,
     side_stats,
 )
 
@@ -158,6 +159,9 @@ class ClaimResult:
     """None unless both sides have MIN_SEEDS runs."""
     high: EpochStats | None = None
     """The epoch at HIGH; None unless both sides have MIN_SEEDS runs."""
+    exact_p: tuple[float, float, float] | None = None
+    """`rank_test_p` of the success, of reaching THRESHOLD earlier and of reaching HIGH
+    earlier; None unless both sides have MIN_SEEDS runs."""
 
 
 def _side(groups: dict[Group, list[Run]], g: Group, epoch: int) -> Side:
@@ -213,9 +217,15 @@ def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int
         x, y = resolve(claim, groups, claim.epoch or epoch)
         both = x.n >= MIN_SEEDS and y.n >= MIN_SEEDS
         high = epoch_stats(_highs(x), _highs(y), reps, seed) if both else None
+        # earlier is better: the epochs enter negated, as in P(X earlier)
+        exact = (rank_test_p([s.success for s in x.scores], [s.success for s in y.scores], seed),
+                 rank_test_p([-s.at_half for s in x.scores], [-s.at_half for s in y.scores],
+                             seed),
+                 rank_test_p([-e for e in _highs(x)], [-e for e in _highs(y)], seed)
+                 ) if both else None
         out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y),
                                improvement(x.scores, y.scores, reps, seed) if both else None,
-                               high))
+                               high, exact))
     return out
 
 

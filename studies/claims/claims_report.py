@@ -37,6 +37,11 @@ def _epoch(v: float) -> str:
     return f"{v:.1f}"
 
 
+def _p(v: float) -> str:
+    """A p-value to 3 places (.036, 1.00 at the top)."""
+    return "1.00" if v >= 0.9995 else f"{v:.3f}"[1:]
+
+
 def _est(e: Estimate, fmt: Callable[[float], str]) -> str:
     return f"{fmt(e.value)} [{fmt(e.low)}, {fmt(e.high)}]"
 
@@ -60,12 +65,15 @@ def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
                           for s in side.scores) for side in (r.x, r.y))
             head += f" {cx} / {cy} |"
         if r.x_stats is None or r.y_stats is None or r.improvement is None or r.high is None:
-            lines.append(head + f" {_not_enough(r)} | – | – | – | – |")
+            lines.append(head + f" {_not_enough(r)} | – | – | – | – | – |")
             continue
+        exact = "" if r.exact_p is None else \
+            f" {_p(r.exact_p[('success', 'epoch', 'high').index(which)])} |"
         if which == "high":
             h = r.high
             cells = [_est(e, _epoch) for e in (h.x_iqm, h.y_iqm, h.x_mean, h.y_mean)]
-            lines.append(head + " " + " | ".join(cells) + f" | {_est(h.earlier, _rate)} |")
+            lines.append(head + " " + " | ".join(cells) + f" | {_est(h.earlier, _rate)} |"
+                         + exact)
             continue
         if which == "success":
             cells = [_est(st.success_iqm, _rate) for st in (r.x_stats, r.y_stats)]
@@ -75,7 +83,7 @@ def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
             cells = [_est(st.epoch_iqm, _epoch) for st in (r.x_stats, r.y_stats)]
             cells += [_est(st.epoch_mean, _epoch) for st in (r.x_stats, r.y_stats)]
             poi = r.improvement[1]
-        lines.append(head + " " + " | ".join(cells) + f" | {_est(poi, _rate)} |")
+        lines.append(head + " " + " | ".join(cells) + f" | {_est(poi, _rate)} |" + exact)
     return lines
 
 
@@ -228,8 +236,13 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         f"{THRESHOLD:g}, beating is getting there earlier, and two censored runs tie. The "
         "point estimates are rliable's functions'; inside the bootstrap, numpy equivalents "
         "(equal to them, tests/studies/claims/test_claims.py) stand in for them, scipy's per-call "
-        f"cost being most of its time. A side with fewer than {MIN_SEEDS} seeds gets no "
-        "numbers.", "",
+        f"cost being most of its time. **Exact p**: the two-sided p of P(X > Y) = .5 under "
+        "the null that the two sides' runs are exchangeable, from every split of the pooled "
+        "runs into sides of these sizes (`scipy.stats.permutation_test`, a Mann–Whitney test "
+        "whose ties count half; studies/claims/claim_statistics.py `rank_test_p`). Unlike the "
+        "bootstrap interval it does not undercover at small n, and it shows what a seed count "
+        "can say at all: with 3 seeds a side no result gives less than .100, with 2 less than "
+        f".333. A side with fewer than {MIN_SEEDS} seeds gets no numbers.", "",
         "**Groups**: runs are seeds of one experiment when their config.yaml agrees on "
         "task.name, task.env_version (absent: v4; v1 is the authors' gym/mujoco-py "
         "environment), run.method, training.schedule and learner.precision, and, when "
@@ -248,22 +261,22 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         "one seed gives other numbers on another CPU (docs/DESIGN.md §10).", "",
         f"## Success after epoch {epoch}", "",
         "| claim | X | Y | seeds X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] | exact p |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "success"), "",
         f"## Epoch at which the 10-epoch mean first exceeds {THRESHOLD:g}", "",
         f"Censored: runs that never did by epoch {epoch}, counted as {epoch}. "
         "P(X earlier): the probability that a run of X gets there before a run of Y.", "",
         "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "epoch"), "",
         f"## Epoch at which the 10-epoch mean first exceeds {HIGH:g}", "",
         f"As above, for {HIGH:g}: close to solved. Censored: runs that never did by their "
         "claim's epoch, counted as that epoch.", "",
         "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "high"), "",
         *_groups_section(results, groups, epoch),
         *_provenance_section(results, groups),
