@@ -326,7 +326,7 @@ def test_the_exact_p_is_the_mann_whitney_tests(nx: int, ny: int) -> None:
         assert got == pytest.approx(want, abs=1e-12 if exact else 0.02)
 
 
-def test_the_exact_p_counts_ties_half_and_identical_sides_are_no_evidence() -> None:
+def test_the_exact_p_of_identical_sides_is_1_and_full_separation_is_its_floor() -> None:
     assert claim_statistics.rank_test_p([0.3, 0.3, 0.3], [0.3, 0.3, 0.3]) == pytest.approx(1.0)
     # fully separated, 3 against 3: 1 split of 20 a tail, twice for two sides
     assert claim_statistics.rank_test_p([4, 5, 6], [1, 2, 3]) == pytest.approx(0.1)
