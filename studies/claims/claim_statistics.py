@@ -7,6 +7,7 @@ permutation p of P(X > Y) (`rank_test_p`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -159,9 +160,7 @@ def epoch_stats(x: Sequence[int], y: Sequence[int], reps: int = REPS,
 
 
 def _splits(nx: int, ny: int) -> int:
-    from math import comb
-
-    return comb(nx + ny, nx)
+    return math.comb(nx + ny, nx)
 
 
 def rank_test_p(x: Sequence[float], y: Sequence[float], seed: int = RNG_SEED) -> float:

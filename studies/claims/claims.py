@@ -212,20 +212,24 @@ def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int
             cache[key] = side_stats(side.scores, reps, seed)
         return cache[key]
 
+    def exact_ps(x: Side, y: Side) -> tuple[float, float, float]:
+        """`rank_test_p` of the success and of the epochs at THRESHOLD and HIGH, the epochs
+        negated (earlier is better), as in P(X earlier)."""
+        pairs = [([s.success for s in side.scores], [-s.at_half for s in side.scores],
+                  [-e for e in _highs(side)]) for side in (x, y)]
+        success, half, high = (rank_test_p(a, b, seed) for a, b in zip(*pairs, strict=True))
+        return success, half, high
+
     out = []
     for claim in claims:
         x, y = resolve(claim, groups, claim.epoch or epoch)
-        both = x.n >= MIN_SEEDS and y.n >= MIN_SEEDS
-        high = epoch_stats(_highs(x), _highs(y), reps, seed) if both else None
-        # earlier is better: the epochs enter negated, as in P(X earlier)
-        exact = (rank_test_p([s.success for s in x.scores], [s.success for s in y.scores], seed),
-                 rank_test_p([-s.at_half for s in x.scores], [-s.at_half for s in y.scores],
-                             seed),
-                 rank_test_p([-e for e in _highs(x)], [-e for e in _highs(y)], seed)
-                 ) if both else None
-        out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y),
-                               improvement(x.scores, y.scores, reps, seed) if both else None,
-                               high, exact))
+        if x.n >= MIN_SEEDS and y.n >= MIN_SEEDS:
+            out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y),
+                                   improvement(x.scores, y.scores, reps, seed),
+                                   epoch_stats(_highs(x), _highs(y), reps, seed),
+                                   exact_ps(x, y)))
+        else:
+            out.append(ClaimResult(claim, x, y, stats_of(x), stats_of(y), None))
     return out
 
 

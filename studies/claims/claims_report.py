@@ -37,6 +37,10 @@ def _epoch(v: float) -> str:
     return f"{v:.1f}"
 
 
+_EXACT_P_OF = {"success": 0, "epoch": 1, "high": 2}
+"""Which of ClaimResult.exact_p each table reports."""
+
+
 def _p(v: float) -> str:
     """A p-value to 3 places (.036, 1.00 at the top)."""
     return "1.00" if v >= 0.9995 else f"{v:.3f}"[1:]
@@ -64,11 +68,11 @@ def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
             cx, cy = (sum(s.censored_high if which == "high" else s.censored
                           for s in side.scores) for side in (r.x, r.y))
             head += f" {cx} / {cy} |"
-        if r.x_stats is None or r.y_stats is None or r.improvement is None or r.high is None:
+        if (r.x_stats is None or r.y_stats is None or r.improvement is None or r.high is None
+                or r.exact_p is None):
             lines.append(head + f" {_not_enough(r)} | – | – | – | – | – |")
             continue
-        exact = "" if r.exact_p is None else \
-            f" {_p(r.exact_p[('success', 'epoch', 'high').index(which)])} |"
+        exact = f" {_p(r.exact_p[_EXACT_P_OF[which]])} |"
         if which == "high":
             h = r.high
             cells = [_est(e, _epoch) for e in (h.x_iqm, h.y_iqm, h.x_mean, h.y_mean)]
