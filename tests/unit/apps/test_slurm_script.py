@@ -109,7 +109,12 @@ log() {{ echo "LOG $*"; }}
 srun() {{
     echo "SRUN $*"
     code=$(head -n 1 {codes}); sed -i 1d {codes}
-    sleep {srun_sleeps_s}
+    # like srun, end the task on TERM: a shell function's `&` is a subshell, and a TERM
+    # that killed it in a foreground `sleep` would leave the sleep holding stdout
+    local task=""
+    trap '[ -n "$task" ] && kill -TERM "$task" 2> /dev/null; exit 143' TERM
+    sleep {srun_sleeps_s} > /dev/null & task=$!
+    wait "$task"
     return "$code"
 }}
 {function.group(0)}
