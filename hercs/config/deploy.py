@@ -77,7 +77,8 @@ class LearnerConfig:
     losses and normaliser [DESIGN]. Pays only where bf16 matrix products are native (recent
     GPUs; CPUs with AVX-512 BF16 or AMX): docs/PERFORMANCE.md §4. tf32: every matrix product
     rounds its operands to TF32's 10 mantissa bits and sums in fp32, on any device: the
-    arithmetic of the authors' runs (torch 1.10 on an Ampere GPU, TF32 on by default);
+    arithmetic of the authors' runs had their GPU been Ampere or newer (torch 1.10.1 turned
+    TF32 on there by default; their GPU model is not published);
     slower than fp32, for the comparison only."""
 
     parallel_halves: bool = True

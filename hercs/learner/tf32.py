@@ -2,7 +2,8 @@
 
 Inside `TF32Products` every matrix product torch dispatches (forward and backward) rounds its
 float32 operands to TF32's 10 mantissa bits (`round_to_tf32`, matching cuBLAS) and multiplies
-in fp32, as the authors' torch 1.10 on an Ampere GPU did by default.
+in fp32, as the authors' torch 1.10.1 did by default on an Ampere-or-newer GPU (which GPU they
+trained on is not published: on an older one their products were fp32).
 """
 
 from __future__ import annotations

@@ -277,7 +277,7 @@ def run_peer(run: PeerRun) -> int:
     sys.argv = their_args(run)
     args = train.get_args()
     args.cuda = (torch.cuda.is_available() if run.device == "auto" else run.device == "cuda")
-    if args.cuda:  # torch 1.10's default on Ampere, which they trained with
+    if args.cuda:  # torch 1.10's default on an Ampere-or-newer GPU (their GPU is not published)
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
     args.save_dir = str(scratch / "saved_models") + "/"
