@@ -16,6 +16,7 @@ from pathlib import Path
 
 from studies.authors_peer.peer_run import (
     PEER_SCHEDULE,
+    PRECISIONS,
     TASK_ENV,
     PeerRun,
     checkout_commit,
@@ -30,6 +31,14 @@ NEEDED = ("train.py", "rl_modules/ddpg_agent.py", "rl_modules/replay_buffer.py",
 DONE_FILE = "bench_done.json"
 
 
+def precision_of(run_dir: Path) -> str:
+    """The arithmetic the run trained in, as its config.yaml records it."""
+    import yaml
+
+    config = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+    return str((config.get("learner") or {}).get("precision", "fp32"))
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m studies.authors_peer",
                                 description=(__doc__ or "").split("\n\n")[0])
@@ -42,9 +51,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, default=100)
     p.add_argument("--run-dir", type=Path, default=Path("runs/authors_peer"),
                    help="the folder the run folder goes in")
-    p.add_argument("--name", help="the run folder's name (default <task>-v1-authors-code-s<seed>)")
+    p.add_argument("--name", help="the run folder's name (default <task>-v1-authors-code-s<seed>, "
+                   "<task>-v1-authors-code-tf32-s<seed> with --precision tf32)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--precision", choices=PRECISIONS, default="auto",
+                   help="their matrix products' arithmetic: auto (default) is torch 1.10.1's "
+                        "default, TF32 on a GPU and fp32 on a CPU; tf32 on a CPU emulates a "
+                        "GPU's TF32 (about twice as slow); fp32 on a GPU turns TF32 off")
     p.add_argument("--quick", action="store_true",
                    help="a check that it runs: 2 cycles an epoch, 2 test episodes")
     return p
@@ -69,11 +83,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m studies.authors_peer: Fetch*-v1 needs mujoco-py: {problem}; "
               "`make mujoco-py` installs it", file=sys.stderr)
         return 2
-    name = args.name or f"{args.task}-v1-authors-code-s{args.seed}"
+    marked = "-tf32" if args.precision == "tf32" else ""
+    name = args.name or f"{args.task}-v1-authors-code{marked}-s{args.seed}"
     run = PeerRun(checkout=checkout, run_dir=(args.run_dir / name).resolve(), task=args.task,
                   seed=args.seed, epochs=args.epochs, threads=args.threads,
                   device=args.device, cycles=2 if args.quick else 50,
-                  test_rollouts=2 if args.quick else 20)
+                  test_rollouts=2 if args.quick else 20, precision=args.precision)
     if (run.run_dir / DONE_FILE).is_file():
         print(f"{run.run_dir}: finished ({DONE_FILE}); nothing to do")
         return 0
@@ -85,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         record = {"task": run.task, "method": "her-cs", "seed": run.seed,
                   "schedule": PEER_SCHEDULE, "env_version": "v1", "env_id": run.env_id,
+                  "precision": precision_of(run.run_dir),
                   "epochs": run.epochs, "wall_s": float(rows[-1]["wall_s"]),
                   "wall_s_this_life": round(time.monotonic() - started, 1),
                   "commit": git_commit_here(), "peer_commit": checkout_commit(checkout),

@@ -50,10 +50,41 @@ class PeerRun:
     device: str = "auto"  # auto: CUDA where torch has it (their --cuda default), else CPU
     cycles: int = 50  # their --n-cycles; smaller only for a quick check
     test_rollouts: int = 20  # their --n-test-rollouts
+    precision: str = "auto"  # PRECISIONS: "auto" is torch 1.10.1's default on the device
 
     @property
     def env_id(self) -> str:
         return TASK_ENV[self.task]
+
+
+PRECISIONS = ("auto", "fp32", "tf32")
+"""The arithmetic of their matrix products: "auto" is what torch 1.10.1, their README's, did by
+default (TF32 on a CUDA GPU, which we take to be Ampere or newer; fp32 on a CPU); "tf32" on a
+CPU emulates it (hercs/learner/tf32.py: every product of their update, target and rollouts);
+"fp32" on a GPU turns TF32 off."""
+
+
+def resolved_precision(precision: str, cuda: bool) -> str:
+    """"fp32" or "tf32": `precision` with "auto" resolved for the device."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision {precision!r}: must be one of {', '.join(PRECISIONS)}")
+    if precision == "auto":
+        return "tf32" if cuda else "fp32"
+    return precision
+
+
+def precision_mismatch(run_dir: Path, precision: str) -> str | None:
+    """Why `run_dir` cannot be resumed in `precision` (its config.yaml says another), or None:
+    a run trained in one arithmetic and continued in another would be neither."""
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        return None
+    config = yaml.safe_load(path.read_text()) or {}
+    before = (config.get("learner") or {}).get("precision", "fp32")
+    if before == precision:
+        return None
+    return (f"{run_dir}: trained in {before} (its config.yaml's learner.precision), asked to "
+            f"continue in {precision}; give --precision {before}, or another --name")
 
 
 def make_gymnasium_env(name: str, **kwargs: Any) -> Any:
@@ -100,13 +131,16 @@ def git_commit_here() -> str:
 
 # --------------------------------------------------------------------------- the run files
 
-def write_config(run: PeerRun, args: Any, commit: str) -> None:
-    """config.yaml: what the claims group by (task, env, method, seed, schedule), their
+def write_config(run: PeerRun, args: Any, commit: str, precision: str = "") -> None:
+    """config.yaml: what the claims group by (task, env, method, seed, schedule, precision:
+    `precision`, default the device's as `resolved_precision` gives it), their
     arguments as train.py resolved them, and the hercs commit the run started from (kept
     through resumes; bench_done.json gets the finishing one)."""
     path = run.run_dir / "config.yaml"
     old = yaml.safe_load(path.read_text()) if path.is_file() else None
     started = ((old or {}).get("peer") or {}).get("started_commit") or git_commit_here()
+    precision = precision or resolved_precision("auto", bool(args.cuda))
+    emulated = precision == "tf32" and not args.cuda
     config = {
         "run": {"method": "her-cs", "seed": run.seed, "name": run.run_dir.name,
                 "run_dir": str(run.run_dir.parent)},
@@ -115,13 +149,15 @@ def write_config(run: PeerRun, args: Any, commit: str) -> None:
                      "cycles_per_epoch": args.n_cycles,
                      "episodes_per_cycle": args.num_rollouts_per_mpi,
                      "minibatches_per_cycle": args.n_batches},
-        "learner": {"precision": "fp32" if not args.cuda else "tf32"},
+        "learner": {"precision": precision},
         "peer": {"code": "ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-Experience-"
                          "Replay", "checkout": str(run.checkout), "commit": commit,
                  "started_commit": started,
                  "adapted": ["gym 0.17 API over gymnasium-robotics", "one-rank MPI",
                              f"device {'cuda' if args.cuda else 'cpu'}",
-                             f"KMeans n_init={KMEANS_N_INIT}", f"torch threads {run.threads}"],
+                             f"KMeans n_init={KMEANS_N_INIT}", f"torch threads {run.threads}",
+                             *(["TF32 products emulated (hercs/learner/tf32.py)"]
+                               if emulated else [])],
                  "args": {k: (v if isinstance(v, (int, float, str, bool)) else str(v))
                           for k, v in sorted(vars(args).items())}},
     }
@@ -256,6 +292,12 @@ def run_peer(run: PeerRun) -> int:
     from sklearn.cluster import KMeans
 
     torch.set_num_threads(run.threads)
+    cuda = torch.cuda.is_available() if run.device == "auto" else run.device == "cuda"
+    precision = resolved_precision(run.precision, cuda)
+    mismatch = precision_mismatch(run.run_dir, precision)
+    if mismatch is not None:  # refused before anything in the run folder changes
+        print(f"python -m studies.authors_peer: {mismatch}", file=sys.stderr)
+        return 2
     install_stand_ins(run.checkout)
     train = importlib.import_module("train")
     replay_buffer = importlib.import_module("rl_modules.replay_buffer")
@@ -276,12 +318,12 @@ def run_peer(run: PeerRun) -> int:
 
     sys.argv = their_args(run)
     args = train.get_args()
-    args.cuda = (torch.cuda.is_available() if run.device == "auto" else run.device == "cuda")
-    if args.cuda:  # torch 1.10's default on an Ampere-or-newer GPU (their GPU is not published)
-        torch.backends.cuda.matmul.allow_tf32 = True
-        torch.backends.cudnn.allow_tf32 = True
+    args.cuda = cuda
+    if cuda:  # torch 1.10's default: TF32 on an Ampere-or-newer GPU (theirs unpublished)
+        torch.backends.cuda.matmul.allow_tf32 = precision == "tf32"
+        torch.backends.cudnn.allow_tf32 = precision == "tf32"
     args.save_dir = str(scratch / "saved_models") + "/"
-    write_config(run, args, checkout_commit(run.checkout))
+    write_config(run, args, checkout_commit(run.checkout), precision)
     steps_per_epoch = args.n_cycles * args.num_rollouts_per_mpi * 50
     started = time.monotonic()
 
@@ -323,6 +365,11 @@ def run_peer(run: PeerRun) -> int:
             return success
 
     train.ddpg_agent = RecordedAgent
-    with contextlib.chdir(scratch):
+    arithmetic: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
+    if precision == "tf32" and not args.cuda:
+        from hercs.learner.tf32 import TF32Products
+
+        arithmetic = TF32Products()  # every product their code makes, as a GPU's TF32 would
+    with contextlib.chdir(scratch), arithmetic:
         train.launch(args)
     return 0

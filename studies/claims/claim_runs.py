@@ -75,8 +75,9 @@ class Group:
         name = method_label(self.method)
         if self.schedule == "authors":
             return f"{name}, authors' ({self.env})"
-        if self.schedule == PEER_SCHEDULE:
-            return f"{name}, authors' code on our {self.env}"
+        if self.schedule == PEER_SCHEDULE:  # their code's arithmetic: fp32 on our CPUs
+            marked = f", {self.precision}" if self.precision != "fp32" else ""
+            return f"{name}, authors' code on our {self.env}{marked}"
         schedule = f"async ({lag_label(self.lag)})" if self.schedule == "async" else self.schedule
         setting = f", {self.setting}" if self.setting else ""
         return f"{name}, {self.env}, {schedule}, {self.precision}{setting}"

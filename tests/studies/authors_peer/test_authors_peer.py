@@ -23,6 +23,8 @@ from studies.authors_peer.peer_run import (
     KMEANS_N_INIT,
     PEER_SCHEDULE,
     PeerRun,
+    precision_mismatch,
+    resolved_precision,
     restore_cluster_centres,
     write_config,
 )
@@ -79,13 +81,14 @@ def test_old_gym_calls_over_a_real_fetch_env() -> None:
     env.close()
 
 
-def _peer_folder(root: Path, seed: int, success: list[float]) -> Path:
-    run = PeerRun(checkout=root / "their-checkout", run_dir=root / f"pick-v1-authors-code-s{seed}",
-                  task="pick", seed=seed, epochs=len(success))
+def _peer_folder(root: Path, seed: int, success: list[float], precision: str = "") -> Path:
+    marked = "-tf32" if precision == "tf32" else ""
+    run = PeerRun(checkout=root / "their-checkout", task="pick", seed=seed,
+                  run_dir=root / f"pick-v1-authors-code{marked}-s{seed}", epochs=len(success))
     run.run_dir.mkdir(parents=True)
     args = argparse.Namespace(n_cycles=50, num_rollouts_per_mpi=4, n_batches=40, cuda=False,
                               seed=seed, env_name=run.env_id)
-    write_config(run, args, commit="9c1bfa0")
+    write_config(run, args, commit="9c1bfa0", precision=precision)
     with (run.run_dir / "metrics.csv").open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["epoch", "success_rate"])
@@ -192,6 +195,41 @@ def test_a_peer_run_is_a_side_of_its_own_in_the_claims(tmp_path: Path) -> None:
     assert config["peer"]["commit"] == "9c1bfa0" and config["peer"]["started_commit"]
 
 
+def test_precision_auto_is_their_torch_default_and_a_run_keeps_its_own(tmp_path: Path) -> None:
+    """auto: TF32 on a GPU, fp32 on a CPU (torch 1.10.1's defaults); a run folder trained in
+    one arithmetic is refused in the other, with both named and the way out."""
+    assert resolved_precision("auto", cuda=False) == "fp32"
+    assert resolved_precision("auto", cuda=True) == "tf32"
+    assert resolved_precision("tf32", cuda=False) == "tf32"
+    assert resolved_precision("fp32", cuda=True) == "fp32"
+    with pytest.raises(ValueError, match="'bf16': must be one of auto, fp32, tf32"):
+        resolved_precision("bf16", cuda=False)
+    assert precision_mismatch(tmp_path / "none-yet", "tf32") is None
+    fp32 = _peer_folder(tmp_path, 121, [0.1], precision="")  # a CPU run's config, as before
+    tf32 = _peer_folder(tmp_path, 121, [0.1], precision="tf32")
+    assert yaml.safe_load((fp32 / "config.yaml").read_text())["learner"]["precision"] == "fp32"
+    config = yaml.safe_load((tf32 / "config.yaml").read_text())
+    assert config["learner"]["precision"] == "tf32"
+    assert "TF32 products emulated (hercs/learner/tf32.py)" in config["peer"]["adapted"]
+    assert precision_mismatch(fp32, "fp32") is None and precision_mismatch(tf32, "tf32") is None
+    why = precision_mismatch(fp32, "tf32")
+    assert why is not None and "trained in fp32" in why and "continue in tf32" in why
+    assert "--precision fp32" in why
+
+
+def test_tf32_peer_runs_are_a_side_of_their_own(tmp_path: Path) -> None:
+    for seed in (121, 123):
+        _peer_folder(tmp_path, seed, [0.2] * 50)
+        _peer_folder(tmp_path, seed, [0.4] * 50, precision="tf32")
+    groups = claim_runs.load_groups(tmp_path)
+    peer = {g.label: [r.name for r in groups[g]] for g in groups if g.schedule == PEER_SCHEDULE}
+    assert peer == {
+        "HER-CS, authors' code on our v1": ["pick-v1-authors-code-s121",
+                                            "pick-v1-authors-code-s123"],
+        "HER-CS, authors' code on our v1, tf32": ["pick-v1-authors-code-tf32-s121",
+                                                  "pick-v1-authors-code-tf32-s123"]}
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "studies.authors_peer", *args], cwd=REPO,
                           capture_output=True, text=True, timeout=120)
@@ -202,6 +240,11 @@ def test_a_folder_that_is_not_their_checkout_is_refused_up_front(tmp_path: Path)
     assert got.returncode == 2
     assert "not a checkout of the authors' repository" in got.stderr and "train.py" in got.stderr
     assert not (tmp_path / "runs").exists(), "nothing is written before the run is accepted"
+
+
+def test_an_unknown_precision_is_refused_by_name(tmp_path: Path) -> None:
+    got = _cli("--checkout", str(tmp_path), "--precision", "fp16")
+    assert got.returncode == 2 and "--precision: invalid choice: 'fp16'" in got.stderr
 
 
 @pytest.mark.skipif(not CHECKOUT, reason="HERCS_AUTHORS_CHECKOUT names no checkout of "
@@ -252,3 +295,42 @@ def test_fig2_draws_the_peer_as_the_authors_code_not_as_ours(tmp_path: Path) -> 
     table = (tmp_path / "fig2.md").read_text()
     assert "| HER-CS (v1) (authors' code) | 2 |" in table
     assert "authors-code" not in table and "(authors' code) (ours)" not in table
+
+
+@pytest.mark.skipif(not CHECKOUT, reason="HERCS_AUTHORS_CHECKOUT names no checkout of "
+                    "ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-Experience-Replay "
+                    "(it is never copied into this repository)")
+def test_their_code_in_tf32_trains_in_tf32_and_keeps_to_it(tmp_path: Path) -> None:
+    """The same seed in fp32 and in emulated TF32 (one quick epoch, 80 updates) trains two
+    different policies, each run folder recording its arithmetic; the fp32 folder is refused
+    a TF32 continuation and left as it was. (That one seed in one arithmetic trains the same
+    policy twice, the stop-and-resume test shows.)"""
+    from tests.support import skip_without_mujoco_py
+
+    skip_without_mujoco_py()
+    runs = tmp_path / "runs"
+    for precision in ("auto", "tf32"):
+        got = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "1", "--run-dir", str(runs),
+                   "--precision", precision)
+        assert got.returncode == 0, got.stderr[-2000:]
+    import torch
+
+    def actor(name: str) -> dict[str, torch.Tensor]:
+        nets = torch.load(runs / name / "peer_state" / "nets.pt", weights_only=True)
+        return nets["actor_network"]
+
+    fp32, tf32 = actor("pick-v1-authors-code-s121"), actor("pick-v1-authors-code-tf32-s121")
+    assert all(torch.isfinite(w).all() for w in tf32.values())
+    assert any(not torch.equal(fp32[k], tf32[k]) for k in fp32), "TF32 changed no weight"
+    for name, precision in (("pick-v1-authors-code-s121", "fp32"),
+                            ("pick-v1-authors-code-tf32-s121", "tf32")):
+        config = yaml.safe_load((runs / name / "config.yaml").read_text())
+        assert config["learner"]["precision"] == precision
+        assert json.loads((runs / name / "bench_done.json").read_text())["precision"] == precision
+    metrics = (runs / "pick-v1-authors-code-s121" / "metrics.csv").read_text()
+    (runs / "pick-v1-authors-code-s121" / "bench_done.json").unlink()  # as if unfinished
+    refused = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "2", "--run-dir", str(runs),
+                   "--precision", "tf32", "--name", "pick-v1-authors-code-s121")
+    assert refused.returncode == 2
+    assert "trained in fp32" in refused.stderr and "--precision fp32" in refused.stderr
+    assert (runs / "pick-v1-authors-code-s121" / "metrics.csv").read_text() == metrics
