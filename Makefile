@@ -63,8 +63,9 @@ slurm-test: $(STAMP) slurm
 run: $(STAMP)
 	$(VENV)/bin/hercs up --task push --method her-cs --epochs 4 --actors 2
 
+# --durations: the 25 slowest tests, so that the suite's time has names (CI's aim: < 25 min).
 test: lint
-	$(PY) -m pytest -q -m "not docs_check" tests
+	$(PY) -m pytest -q --durations=25 -m "not docs_check" tests
 
 # The committed reports and figures against the committed runs (the tests marked docs_check: a
 # finding or a figure is checked where it is made, not as a contract of the code). Run it after
