@@ -22,21 +22,16 @@ from studies.authors_peer.peer_run import (
     checkout_commit,
     git_commit_here,
     metrics_rows,
+    precision_mismatch,
+    resolved_precision,
     run_peer,
+    uses_cuda,
 )
 
 NEEDED = ("train.py", "rl_modules/ddpg_agent.py", "rl_modules/replay_buffer.py",
           "her_modules/her.py", "mpi_utils/normalizer.py")
 """What a checkout of their repository holds (a folder without it is refused up front)."""
 DONE_FILE = "bench_done.json"
-
-
-def precision_of(run_dir: Path) -> str:
-    """The arithmetic the run trained in, as its config.yaml records it."""
-    import yaml
-
-    config = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
-    return str((config.get("learner") or {}).get("precision", "fp32"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-dir", type=Path, default=Path("runs/authors_peer"),
                    help="the folder the run folder goes in")
     p.add_argument("--name", help="the run folder's name (default <task>-v1-authors-code-s<seed>, "
-                   "<task>-v1-authors-code-tf32-s<seed> with --precision tf32)")
+                   "<task>-v1-authors-code-tf32-s<seed> where the products are TF32)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--precision", choices=PRECISIONS, default="auto",
@@ -83,12 +78,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m studies.authors_peer: Fetch*-v1 needs mujoco-py: {problem}; "
               "`make mujoco-py` installs it", file=sys.stderr)
         return 2
-    marked = "-tf32" if args.precision == "tf32" else ""
+    cuda = uses_cuda(args.device)
+    precision = resolved_precision(args.precision, cuda)  # the name says the one used
+    marked = "-tf32" if precision == "tf32" else ""
     name = args.name or f"{args.task}-v1-authors-code{marked}-s{args.seed}"
     run = PeerRun(checkout=checkout, run_dir=(args.run_dir / name).resolve(), task=args.task,
                   seed=args.seed, epochs=args.epochs, threads=args.threads,
                   device=args.device, cycles=2 if args.quick else 50,
-                  test_rollouts=2 if args.quick else 20, precision=args.precision)
+                  test_rollouts=2 if args.quick else 20, precision=precision)
+    mismatch = precision_mismatch(run.run_dir, precision)  # finished or not
+    if mismatch is not None:
+        print(f"python -m studies.authors_peer: {mismatch}", file=sys.stderr)
+        return 2
     if (run.run_dir / DONE_FILE).is_file():
         print(f"{run.run_dir}: finished ({DONE_FILE}); nothing to do")
         return 0
@@ -100,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         record = {"task": run.task, "method": "her-cs", "seed": run.seed,
                   "schedule": PEER_SCHEDULE, "env_version": "v1", "env_id": run.env_id,
-                  "precision": precision_of(run.run_dir),
+                  "precision": precision, "tf32_emulated": precision == "tf32" and not cuda,
                   "epochs": run.epochs, "wall_s": float(rows[-1]["wall_s"]),
                   "wall_s_this_life": round(time.monotonic() - started, 1),
                   "commit": git_commit_here(), "peer_commit": checkout_commit(checkout),

@@ -50,7 +50,7 @@ class PeerRun:
     device: str = "auto"  # auto: CUDA where torch has it (their --cuda default), else CPU
     cycles: int = 50  # their --n-cycles; smaller only for a quick check
     test_rollouts: int = 20  # their --n-test-rollouts
-    precision: str = "auto"  # PRECISIONS: "auto" is torch 1.10.1's default on the device
+    precision: str = "auto"  # PRECISIONS ("auto": torch 1.10.1's default on the device)
 
     @property
     def env_id(self) -> str:
@@ -73,15 +73,27 @@ def resolved_precision(precision: str, cuda: bool) -> str:
     return precision
 
 
-def precision_mismatch(run_dir: Path, precision: str) -> str | None:
-    """Why `run_dir` cannot be resumed in `precision` (its config.yaml says another), or None:
-    a run trained in one arithmetic and continued in another would be neither."""
+def uses_cuda(device: str) -> bool:
+    """Whether a run on `device` ("auto", "cpu", "cuda") trains on a CUDA GPU."""
+    import torch
+
+    return torch.cuda.is_available() if device == "auto" else device == "cuda"
+
+
+def recorded_precision(run_dir: Path) -> str | None:
+    """The arithmetic `run_dir` trained in, as its config.yaml records it (None: no config)."""
     path = run_dir / "config.yaml"
     if not path.is_file():
         return None
     config = yaml.safe_load(path.read_text()) or {}
-    before = (config.get("learner") or {}).get("precision", "fp32")
-    if before == precision:
+    return str((config.get("learner") or {}).get("precision", "fp32"))
+
+
+def precision_mismatch(run_dir: Path, precision: str) -> str | None:
+    """Why `run_dir` cannot be resumed in `precision` (its config.yaml says another), or None:
+    a run trained in one arithmetic and continued in another would be neither."""
+    before = recorded_precision(run_dir)
+    if before is None or before == precision:
         return None
     return (f"{run_dir}: trained in {before} (its config.yaml's learner.precision), asked to "
             f"continue in {precision}; give --precision {before}, or another --name")
@@ -140,7 +152,8 @@ def write_config(run: PeerRun, args: Any, commit: str, precision: str = "") -> N
     old = yaml.safe_load(path.read_text()) if path.is_file() else None
     started = ((old or {}).get("peer") or {}).get("started_commit") or git_commit_here()
     precision = precision or resolved_precision("auto", bool(args.cuda))
-    emulated = precision == "tf32" and not args.cuda
+    arithmetic = {("tf32", False): ["TF32 products emulated (hercs/learner/tf32.py)"],
+                  ("fp32", True): ["TF32 off (torch.backends' allow_tf32 False)"]}
     config = {
         "run": {"method": "her-cs", "seed": run.seed, "name": run.run_dir.name,
                 "run_dir": str(run.run_dir.parent)},
@@ -156,8 +169,7 @@ def write_config(run: PeerRun, args: Any, commit: str, precision: str = "") -> N
                  "adapted": ["gym 0.17 API over gymnasium-robotics", "one-rank MPI",
                              f"device {'cuda' if args.cuda else 'cpu'}",
                              f"KMeans n_init={KMEANS_N_INIT}", f"torch threads {run.threads}",
-                             *(["TF32 products emulated (hercs/learner/tf32.py)"]
-                               if emulated else [])],
+                             *arithmetic.get((precision, bool(args.cuda)), [])],
                  "args": {k: (v if isinstance(v, (int, float, str, bool)) else str(v))
                           for k, v in sorted(vars(args).items())}},
     }
@@ -292,7 +304,7 @@ def run_peer(run: PeerRun) -> int:
     from sklearn.cluster import KMeans
 
     torch.set_num_threads(run.threads)
-    cuda = torch.cuda.is_available() if run.device == "auto" else run.device == "cuda"
+    cuda = uses_cuda(run.device)
     precision = resolved_precision(run.precision, cuda)
     mismatch = precision_mismatch(run.run_dir, precision)
     if mismatch is not None:  # refused before anything in the run folder changes

@@ -132,7 +132,8 @@ CLAIMS: tuple[Claim, ...] = (
           _pick("her-cs", env="v1", schedule="lockstep", precision="tf32"),
           _pick("her-cs", env="v1", schedule="authors", lag=""), epoch=ABLATION_EPOCH),
     # the arm grown to 100 (by the issue's rule): there the only fp32 side with 100 epochs is
-    # the asynchronous default, which arm a matched at 60 (lockstep .38 against async .38)
+    # the asynchronous default, which arm a matched at 60 (lockstep .38 against async .38);
+    # schedule and arithmetic both differ, so this claim alone does not isolate TF32
     Claim("PickAndPlace: tf32 lockstep against the authors', HER-CS, v1, at epoch 100",
           _pick("her-cs", env="v1", schedule="lockstep", precision="tf32"),
           _pick("her-cs", env="v1", schedule="authors", lag=""), epoch=PICK_EPOCH),

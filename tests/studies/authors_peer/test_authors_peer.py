@@ -300,37 +300,52 @@ def test_fig2_draws_the_peer_as_the_authors_code_not_as_ours(tmp_path: Path) -> 
 @pytest.mark.skipif(not CHECKOUT, reason="HERCS_AUTHORS_CHECKOUT names no checkout of "
                     "ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-Experience-Replay "
                     "(it is never copied into this repository)")
-def test_their_code_in_tf32_trains_in_tf32_and_keeps_to_it(tmp_path: Path) -> None:
-    """The same seed in fp32 and in emulated TF32 (one quick epoch, 80 updates) trains two
-    different policies, each run folder recording its arithmetic; the fp32 folder is refused
-    a TF32 continuation and left as it was. (That one seed in one arithmetic trains the same
-    policy twice, the stop-and-resume test shows.)"""
+def test_their_code_in_emulated_tf32_trains_its_own_policy_resumes_and_keeps_to_it(
+        tmp_path: Path) -> None:
+    """On the CPU, the same seed in fp32 and in emulated TF32 (two quick epochs, 80 updates
+    each) trains two different policies, each folder recording its arithmetic; a TF32 run
+    stopped after epoch 1 and resumed (its snapshot loaded inside the emulation) trains the
+    uninterrupted TF32 run's policy; and the fp32 folder is refused a TF32 continuation and
+    left as it was."""
     from tests.support import skip_without_mujoco_py
 
     skip_without_mujoco_py()
-    runs = tmp_path / "runs"
-    for precision in ("auto", "tf32"):
-        got = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "1", "--run-dir", str(runs),
-                   "--precision", precision)
+
+    def peer(root: str, epochs: int, precision: str,
+             *more: str) -> subprocess.CompletedProcess[str]:
+        return _cli("--checkout", CHECKOUT, "--quick", "--epochs", str(epochs), "--device", "cpu",
+                    "--run-dir", str(tmp_path / root), "--precision", precision, *more)
+
+    fp32, tf32 = "pick-v1-authors-code-s121", "pick-v1-authors-code-tf32-s121"
+    for got in (peer("straight", 2, "fp32"), peer("straight", 2, "tf32"),
+                peer("resumed", 1, "tf32")):
         assert got.returncode == 0, got.stderr[-2000:]
+    (tmp_path / "resumed" / tf32 / "bench_done.json").unlink()  # as if stopped after epoch 1
+    second = peer("resumed", 2, "tf32")
+    assert second.returncode == 0 and "resumed after epoch 1" in second.stdout, second.stderr
     import torch
 
-    def actor(name: str) -> dict[str, torch.Tensor]:
-        nets = torch.load(runs / name / "peer_state" / "nets.pt", weights_only=True)
+    def actor(root: str, name: str) -> dict[str, torch.Tensor]:
+        nets = torch.load(tmp_path / root / name / "peer_state" / "nets.pt", weights_only=True)
         return nets["actor_network"]
 
-    fp32, tf32 = actor("pick-v1-authors-code-s121"), actor("pick-v1-authors-code-tf32-s121")
-    assert all(torch.isfinite(w).all() for w in tf32.values())
-    assert any(not torch.equal(fp32[k], tf32[k]) for k in fp32), "TF32 changed no weight"
-    for name, precision in (("pick-v1-authors-code-s121", "fp32"),
-                            ("pick-v1-authors-code-tf32-s121", "tf32")):
-        config = yaml.safe_load((runs / name / "config.yaml").read_text())
-        assert config["learner"]["precision"] == precision
-        assert json.loads((runs / name / "bench_done.json").read_text())["precision"] == precision
-    metrics = (runs / "pick-v1-authors-code-s121" / "metrics.csv").read_text()
-    (runs / "pick-v1-authors-code-s121" / "bench_done.json").unlink()  # as if unfinished
-    refused = _cli("--checkout", CHECKOUT, "--quick", "--epochs", "2", "--run-dir", str(runs),
-                   "--precision", "tf32", "--name", "pick-v1-authors-code-s121")
-    assert refused.returncode == 2
-    assert "trained in fp32" in refused.stderr and "--precision fp32" in refused.stderr
-    assert (runs / "pick-v1-authors-code-s121" / "metrics.csv").read_text() == metrics
+    straight, resumed = actor("straight", tf32), actor("resumed", tf32)
+    assert all(torch.isfinite(w).all() for w in straight.values())
+    assert all(torch.equal(straight[k], resumed[k]) for k in straight), \
+        "the resumed TF32 run trained the uninterrupted one's policy"
+    in_fp32 = actor("straight", fp32)
+    assert any(not torch.equal(in_fp32[k], straight[k]) for k in in_fp32), "TF32 changed nothing"
+    for name, precision in ((fp32, "fp32"), (tf32, "tf32")):
+        folder = tmp_path / "straight" / name
+        assert yaml.safe_load((folder / "config.yaml").read_text())["learner"]["precision"] \
+            == precision
+        done = json.loads((folder / "bench_done.json").read_text())
+        assert (done["precision"], done["tf32_emulated"]) == (precision, precision == "tf32")
+    folder = tmp_path / "straight" / fp32
+    before = {f: (folder / f).read_bytes() for f in
+              ("config.yaml", "metrics.csv", "bench_done.json", "peer_state/meta.json")}
+    for epochs in (2, 3):  # finished, and asked for more
+        refused = peer("straight", epochs, "tf32", "--name", fp32)
+        assert refused.returncode == 2, refused.stdout
+        assert "trained in fp32" in refused.stderr and "--precision fp32" in refused.stderr
+    assert {f: (folder / f).read_bytes() for f in before} == before
