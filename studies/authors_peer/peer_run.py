@@ -234,11 +234,28 @@ def save_snapshot(agent: Any, folder: Path, *, epoch: int, wall_s: float) -> Non
     old = folder.with_name(folder.name + ".old")
     if folder.exists():
         os.replace(folder, old)
-    os.replace(tmp, folder)
-    if old.exists():
-        for f in old.iterdir():
+    os.replace(tmp, folder)  # a stop between the two renames: recover_snapshot takes the old one
+    _remove_folder(old)
+
+
+def _remove_folder(folder: Path) -> None:
+    if folder.is_dir():
+        for f in folder.iterdir():
             f.unlink()
-        old.rmdir()
+        folder.rmdir()
+
+
+def recover_snapshot(folder: Path) -> None:
+    """Put `folder` back in order after a stop inside `save_snapshot`: a half-written `.tmp`
+    is dropped; the `.old` snapshot is dropped where the new one is in place, and becomes the
+    snapshot again where the stop came between the two renames (without this the run would
+    start over from epoch 0, and the next save would fail on the leftover `.old`)."""
+    _remove_folder(folder.with_name(folder.name + ".tmp"))
+    old = folder.with_name(folder.name + ".old")
+    if folder.exists():
+        _remove_folder(old)
+    elif old.is_dir():
+        os.replace(old, folder)
 
 
 def snapshot_epoch(folder: Path) -> int:
@@ -320,6 +337,7 @@ def run_peer(run: PeerRun) -> int:
     (scratch / "figures").mkdir(parents=True, exist_ok=True)
     state_dir = run.run_dir / STATE_DIR
     metrics_path = run.run_dir / "metrics.csv"
+    recover_snapshot(state_dir)
     done_epochs = snapshot_epoch(state_dir)
     if done_epochs >= run.epochs:
         print(f"{run.run_dir.name}: already at epoch {done_epochs} of {run.epochs}")

@@ -24,8 +24,10 @@ from studies.authors_peer.peer_run import (
     PEER_SCHEDULE,
     PeerRun,
     precision_mismatch,
+    recover_snapshot,
     resolved_precision,
     restore_cluster_centres,
+    snapshot_epoch,
     write_config,
 )
 from studies.authors_peer.single_mpi import SUM, mpi4py_module
@@ -117,6 +119,39 @@ def test_restored_centres_keep_their_labels_and_later_refits_start_as_theirs() -
         np.random.seed(2)
         model.fit(after)
     np.testing.assert_allclose(resumed.cluster_centers_, straight.cluster_centers_, atol=1e-12)
+
+
+def _snapshot(folder: Path, epoch: int) -> None:
+    folder.mkdir(parents=True)
+    (folder / "meta.json").write_text(json.dumps({"epoch": epoch}))
+    (folder / "arrays.npz").write_bytes(b"arrays")
+
+
+@pytest.mark.parametrize("stopped", ["writing the new one", "between the renames",
+                                     "before dropping the old one"])
+def test_a_stop_inside_a_snapshot_save_keeps_the_last_whole_snapshot(tmp_path: Path,
+                                                                     stopped: str) -> None:
+    """save_snapshot writes `.tmp`, renames the snapshot to `.old`, `.tmp` to the snapshot,
+    then drops `.old`; wherever a stop comes, recovery leaves one whole snapshot (the newest
+    whole one) and no leftovers, so the run resumes from it and its next save succeeds."""
+    state = tmp_path / "peer_state"
+    tmp, old = tmp_path / "peer_state.tmp", tmp_path / "peer_state.old"
+    if stopped == "writing the new one":
+        _snapshot(state, 7)
+        _snapshot(tmp, 8)
+        (tmp / "meta.json").unlink()  # half written
+        expected = 7
+    elif stopped == "between the renames":
+        _snapshot(old, 7)
+        _snapshot(tmp, 8)
+        expected = 7  # .tmp may be whole, but nothing says so: its epoch is run again
+    else:
+        _snapshot(old, 7)
+        _snapshot(state, 8)
+        expected = 8
+    recover_snapshot(state)
+    assert snapshot_epoch(state) == expected
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["peer_state"]
 
 
 def test_our_share_plan_by_hand_when_the_top_cluster_is_empty() -> None:
