@@ -143,15 +143,14 @@ def git_commit_here() -> str:
 
 # --------------------------------------------------------------------------- the run files
 
-def write_config(run: PeerRun, args: Any, commit: str, precision: str = "") -> None:
-    """config.yaml: what the claims group by (task, env, method, seed, schedule, precision:
-    `precision`, default the device's as `resolved_precision` gives it), their
+def write_config(run: PeerRun, args: Any, commit: str, precision: str) -> None:
+    """config.yaml: what the claims group by (task, env, method, seed, schedule, and
+    `precision`, "fp32" or "tf32"), their
     arguments as train.py resolved them, and the hercs commit the run started from (kept
     through resumes; bench_done.json gets the finishing one)."""
     path = run.run_dir / "config.yaml"
     old = yaml.safe_load(path.read_text()) if path.is_file() else None
     started = ((old or {}).get("peer") or {}).get("started_commit") or git_commit_here()
-    precision = precision or resolved_precision("auto", bool(args.cuda))
     arithmetic = {("tf32", False): ["TF32 products emulated (hercs/learner/tf32.py)"],
                   ("fp32", True): ["TF32 off (torch.backends' allow_tf32 False)"]}
     config = {
@@ -314,7 +313,9 @@ def load_snapshot(agent: Any, folder: Path) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------- run
 
 def run_peer(run: PeerRun) -> int:
-    """Train (or resume) `run`; returns the exit code. One metrics row per finished epoch."""
+    """Train (or resume) `run`; returns the exit code. One metrics row per finished epoch.
+    The caller has refused a run folder trained in another precision (`precision_mismatch`,
+    before it reads the folder's finished record)."""
     os.environ["OMP_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = str(run.threads)
     os.environ["IN_MPI"] = "1"  # what their __main__ sets
     import torch
@@ -323,10 +324,6 @@ def run_peer(run: PeerRun) -> int:
     torch.set_num_threads(run.threads)
     cuda = uses_cuda(run.device)
     precision = resolved_precision(run.precision, cuda)
-    mismatch = precision_mismatch(run.run_dir, precision)
-    if mismatch is not None:  # refused before anything in the run folder changes
-        print(f"python -m studies.authors_peer: {mismatch}", file=sys.stderr)
-        return 2
     install_stand_ins(run.checkout)
     train = importlib.import_module("train")
     replay_buffer = importlib.import_module("rl_modules.replay_buffer")

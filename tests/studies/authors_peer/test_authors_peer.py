@@ -83,7 +83,7 @@ def test_old_gym_calls_over_a_real_fetch_env() -> None:
     env.close()
 
 
-def _peer_folder(root: Path, seed: int, success: list[float], precision: str = "") -> Path:
+def _peer_folder(root: Path, seed: int, success: list[float], precision: str = "fp32") -> Path:
     marked = "-tf32" if precision == "tf32" else ""
     run = PeerRun(checkout=root / "their-checkout", task="pick", seed=seed,
                   run_dir=root / f"pick-v1-authors-code{marked}-s{seed}", epochs=len(success))
@@ -240,7 +240,7 @@ def test_precision_auto_is_their_torch_default_and_a_run_keeps_its_own(tmp_path:
     with pytest.raises(ValueError, match="'bf16': must be one of auto, fp32, tf32"):
         resolved_precision("bf16", cuda=False)
     assert precision_mismatch(tmp_path / "none-yet", "tf32") is None
-    fp32 = _peer_folder(tmp_path, 121, [0.1], precision="")  # a CPU run's config, as before
+    fp32 = _peer_folder(tmp_path, 121, [0.1])
     tf32 = _peer_folder(tmp_path, 121, [0.1], precision="tf32")
     assert yaml.safe_load((fp32 / "config.yaml").read_text())["learner"]["precision"] == "fp32"
     config = yaml.safe_load((tf32 / "config.yaml").read_text())
