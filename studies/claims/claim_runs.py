@@ -47,6 +47,9 @@ the run's folder (docs/results/runs/<run>/notes.md: a heading, then the note); t
 report lists it with the run."""
 MIN_SEEDS = 2
 LEGACY = "legacy"
+POOLED = "pooled"
+"""The schedule of a side pooled from the runs of several groups (studies/claims/claims.py's
+POOLS); its `setting` names what was pooled."""
 LEGACY_LAG_CYCLES = 7  # docs/results/runs/README.md: the median policy lag of the legacy runs
 LAG_KEYS: tuple[tuple[str, str], ...] = (
     ("learner", "prefetch_depth"), ("training", "max_policy_lag"), ("actor", "insert_queue"))
@@ -75,6 +78,8 @@ class Group:
         name = method_label(self.method)
         if self.schedule == "authors":
             return f"{name}, authors' ({self.env})"
+        if self.schedule == POOLED:
+            return f"{name}, {self.env}: {self.setting}"
         if self.schedule == PEER_SCHEDULE:  # their code's arithmetic: fp32 on our CPUs
             marked = f", {self.precision}" if self.precision != "fp32" else ""
             return f"{name}, authors' code on our {self.env}{marked}"

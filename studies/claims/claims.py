@@ -12,7 +12,16 @@ from hercs.apps.plots.curves import (
     method_label,
 )
 from studies.authors_peer import PEER_SCHEDULE
-from studies.claims.claim_runs import EPOCH, LEGACY, MIN_SEEDS, Group, Run, new_default_lag, score
+from studies.claims.claim_runs import (
+    EPOCH,
+    LEGACY,
+    MIN_SEEDS,
+    POOLED,
+    Group,
+    Run,
+    new_default_lag,
+    score,
+)
 from studies.claims.claim_statistics import (
     REPS,
     RNG_SEED,
@@ -58,6 +67,28 @@ from HER (P .96); at the report's EPOCH they do not yet."""
 ABLATION_EPOCH = 60
 """The PickAndPlace ablations are read at epoch 60 first, where the gap to the authors'
 HER-CS is already open (theirs .52, ours .40); an arm that closes it is run on to 100."""
+
+EVERY_FP32_RUN_ON_OUR_V1 = _pick("her-cs", env="v1", schedule=POOLED, lag="",
+                                 setting="ours (async) and the authors' code, fp32")
+POOLS: dict[Group, tuple[Group, ...]] = {
+    # post hoc (2026-11-29, after both were seen): their code here and ours are not
+    # distinguishable (P .47), so together they say how runs on our v1 land
+    EVERY_FP32_RUN_ON_OUR_V1: (_pick("her-cs", env="v1", lag=""),  # lag: new_default_lag()
+                               _pick("her-cs", env="v1", schedule=PEER_SCHEDULE, lag="")),
+}
+"""Sides made of the runs of several groups, each run once (`with_pools`)."""
+
+
+def with_pools(groups: dict[Group, list[Run]]) -> dict[Group, list[Run]]:
+    """`groups` and each of POOLS with the runs of its parts (an asynchronous part's lag
+    setting is the new default's)."""
+    def part(g: Group) -> Group:
+        return replace(g, lag=new_default_lag()) if g.schedule == "async" else g
+
+    pooled = {pool: list({run.name: run for g in parts for run in groups.get(part(g), [])}
+                         .values()) for pool, parts in POOLS.items()}
+    return {**groups, **{pool: runs for pool, runs in pooled.items() if runs}}
+
 
 CLAIMS: tuple[Claim, ...] = (
     Claim("environment v1 against v4, HER-EBP-CS", _push("her-ebp-cs", env="v1"),
@@ -112,6 +143,10 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("PickAndPlace: the authors' code on our v1 against their published curves, HER-CS, "
           "at epoch 100", _pick("her-cs", env="v1", schedule=PEER_SCHEDULE, lag=""),
           _pick("her-cs", env="v1", schedule="authors", lag=""), epoch=PICK_EPOCH),
+    Claim("PickAndPlace: every fp32 run on our v1 (ours and the authors' code, pooled after "
+          "seeing them) against their published curves, HER-CS, at epoch 100",
+          EVERY_FP32_RUN_ON_OUR_V1, _pick("her-cs", env="v1", schedule="authors", lag=""),
+          epoch=PICK_EPOCH),
     Claim("PickAndPlace: ours against the authors' code on our v1, HER-CS, at epoch 100",
           _pick("her-cs", env="v1"), _pick("her-cs", env="v1", schedule=PEER_SCHEDULE, lag=""),
           epoch=PICK_EPOCH),
@@ -219,6 +254,7 @@ def _highs(side: Side) -> list[int]:
 
 def evaluate(claims: Sequence[Claim], groups: dict[Group, list[Run]], epoch: int = EPOCH,
              reps: int = REPS, seed: int = RNG_SEED) -> list[ClaimResult]:
+    groups = with_pools(groups)
     cache: dict[tuple[Score, ...], SideStats] = {}
 
     def stats_of(side: Side) -> SideStats | None:

@@ -413,3 +413,30 @@ def test_each_sides_commits_days_machines_and_assumed_settings_are_listed(
             "training.schedule=async (1 run) |") in text
     assert "*Settings assumed*: cs-1, cs-2, her-1 predate" in text
     assert "with 2 seeds a side the bootstrap" in text
+
+
+def test_a_pooled_side_holds_each_run_of_its_parts_once(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    from studies.authors_peer import PEER_SCHEDULE
+
+    _run(tmp_path, "ours-1", "her-cs", 1, _ramp(20), **NEW_LAG)
+    _run(tmp_path, "ours-2", "her-cs", 2, _ramp(22), **NEW_LAG)
+    _run(tmp_path, "legacy-3", "her-cs", 3, _ramp(24))  # another lag setting: not a part
+    _run(tmp_path, "peer-121", "her-cs", 121, _ramp(26),
+         training={"schedule": PEER_SCHEDULE})
+    pool = claims._push("her-cs", schedule=claim_runs.POOLED, lag="", setting="ours and theirs")
+    # an asynchronous part takes the new default's lag setting, as the claims' sides do
+    monkeypatch.setattr(claims, "POOLS", {pool: (
+        claims._push("her-cs", lag=""), claims._push("her-cs", schedule=PEER_SCHEDULE, lag=""))})
+    groups = claim_runs.load_groups(tmp_path)
+    published = claims._push("her-cs", env="v1", schedule="authors", lag="")
+    [r] = claims.evaluate([claims.Claim("pooled against the published", pool, published)],
+                          groups, reps=REPS)
+    assert sorted(s.run for s in r.x.scores) == ["ours-1", "ours-2", "peer-121"]
+    assert r.x_stats is not None and r.exact_p is not None
+    assert pool.label == "HER-CS, v4: ours and theirs"
+    assert pool not in groups  # the caller's groups are left as they were
+    # a pool none of whose parts has runs is no side at all
+    monkeypatch.setattr(claims, "POOLS", {pool: (claims._push("her-ebp", lag=""),)})
+    [empty] = claims.evaluate([claims.Claim("empty", pool, published)], groups, reps=REPS)
+    assert empty.x.n == 0 and empty.x_stats is None
