@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib
+import importlib.util
 import math
 import sys
 import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -61,11 +62,7 @@ class PublishedModel:
         import torch
 
         o_mean, o_std, g_mean, g_std, weights = load_pickled_model(path)
-        sys.path.insert(0, str(checkout))  # their `rl_modules.models.actor`, as they build it
-        try:
-            models = importlib.import_module("rl_modules.models")
-        finally:
-            sys.path.remove(str(checkout))
+        models = their_models_module(checkout)
         obs, goal = len(o_mean), len(g_mean)
         action = int(weights["action_out.weight"].shape[0])
         self.actor = models.actor({"obs": obs, "goal": goal, "action": action,
@@ -84,6 +81,18 @@ class PublishedModel:
         with self._torch.no_grad():
             x = self._torch.tensor(inputs, dtype=self._torch.float32).unsqueeze(0)
             return self.actor(x).numpy().squeeze()
+
+
+def their_models_module(checkout: Path) -> ModuleType:
+    """Their `rl_modules/models.py` (the `actor` they build), loaded from the file under a
+    name of its own: neither sys.path nor an `rl_modules` another study imported is touched."""
+    path = checkout / "rl_modules" / "models.py"
+    spec = importlib.util.spec_from_file_location("_authors_published_models", path)
+    if spec is None or spec.loader is None:
+        raise FileNotFoundError(f"{path}: their models module is not there")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def load_pickled_model(path: Path) -> list[Any]:

@@ -103,7 +103,9 @@ def test_their_protocol_on_our_v4_is_the_same_episodes_every_time(tmp_path: Path
     assert action.shape == (ACTION,) and np.all(np.abs(action) <= 1.0)
     first, second = (pm.success_rate(model, "v4", 3) for _ in range(2))
     assert first == second and first in (0.0, 1 / 3, 2 / 3, 1.0)
-    assert str(root) not in sys.path  # their folder is on the path only while importing
+    # nothing of theirs is left importable, or in the way of another study's `rl_modules`
+    assert str(root) not in sys.path
+    assert not any(str(root) in str(getattr(m, "__file__", "")) for m in sys.modules.values())
 
 
 def test_the_wilson_interval_holds_its_share_and_stays_in_zero_one() -> None:
