@@ -5,28 +5,30 @@ on their simulator succeed on ours as often as it did on theirs?
 
 Their repository ships one actor per seed for PickAndPlace (`saved_models/FetchPickAndPlace-
 v1/model<seed>.pt`: the input normaliser's means and deviations and the actor's weights,
-saved after every epoch by their `ddpg_agent.py`, so the last one, epoch 200; which of their
-four methods made them is not stated). Each is run with their test protocol (`_eval_agent`:
-the deterministic actor on normalised inputs, 50 steps, success read at the last step) on
-our v1 (gymnasium-robotics' mujoco-py FetchPickAndPlace-v1) and v4, the same reset seeds
-for every model. Beside it, what their curves say each seed reached at its last epochs on
-their own simulator. Writes docs/results/authors_models.{json,md} (or --out).
+overwritten after every epoch by their `ddpg_agent.py`, so presumably their runs' last,
+epoch 200; which of their four methods made them is not stated). Each is run with their
+test protocol (`_eval_agent`: the deterministic actor on normalised inputs, 50 steps,
+success read at the last step) on our v1 (gymnasium-robotics' mujoco-py
+FetchPickAndPlace-v1) and v4, the same reset seeds for every model. Beside it, what their
+curves say each seed reached over its last epochs on their own simulator. Writes
+docs/results/authors_models.{json,md} (or --out).
 
 The files are pickles: they are read with `torch.load(weights_only=True)` and only the numpy
-types a normaliser needs allowed, so a file that would run code is refused, not run."""
+types a normaliser needs allowed, so a file that would run code is refused, not run. Nothing
+of their checkout is imported: the actor (three ReLU layers, tanh) is built here and their
+weights loaded into it strictly.
+"""
 
 from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import math
 import sys
 import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -48,27 +50,56 @@ VERSIONS = ("v1", "v4")
 EVAL_SEED = 990_000
 """Reset seeds of the test episodes (EVAL_SEED + i): the same goals for every model and
 simulator."""
+ACTION_MAX = 1.0
+"""Fetch's action bound (their `env_params['action_max']`)."""
 CLIP_RANGE = 5.0
 """Their normaliser's clip (`--clip-range`, default 5): inputs are clipped to ±5 std."""
 PUBLISHED = REPO / "docs" / "reference" / "authors_success_rates.csv"
 LAST_EPOCHS = 10
-"""Their curves' last epochs averaged for 'on their simulator' (10 test episodes each)."""
+"""Their curves' last epochs averaged for 'on their simulator' (20 test episodes each, their
+`--n-test-rollouts`)."""
+
+
+ACTOR_LAYERS = ("fc1", "fc2", "fc3", "action_out")
+"""Their actor (`rl_modules/models.py`): three 256-unit ReLU layers, then tanh × max_action."""
+
+
+def their_actor(weights: dict[str, Any]) -> Any:
+    """Their actor's architecture, built here from the layer shapes in `weights` (nothing of
+    their checkout is imported or run), the weights loaded strictly: a file whose layers are
+    not theirs raises."""
+    import torch
+    from torch import nn
+
+    names = {key.rsplit(".", 1)[0] for key in weights}
+    if names != set(ACTOR_LAYERS):
+        raise ValueError(f"not their actor's layers {ACTOR_LAYERS}: {sorted(names)}")
+
+    class Actor(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            for name in ACTOR_LAYERS:
+                out_size, in_size = weights[f"{name}.weight"].shape
+                setattr(self, name, nn.Linear(int(in_size), int(out_size)))
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            for name in ACTOR_LAYERS[:-1]:
+                x = torch.relu(getattr(self, name)(x))
+            return ACTION_MAX * torch.tanh(self.action_out(x))
+
+    actor = Actor()
+    actor.load_state_dict(weights)  # strict: every weight of theirs, nothing else
+    return actor.eval()
 
 
 class PublishedModel:
     """One of their saved actors with its input normaliser, ready to act."""
 
-    def __init__(self, path: Path, checkout: Path) -> None:
+    def __init__(self, path: Path) -> None:
         import torch
 
         o_mean, o_std, g_mean, g_std, weights = load_pickled_model(path)
-        models = their_models_module(checkout)
-        obs, goal = len(o_mean), len(g_mean)
-        action = int(weights["action_out.weight"].shape[0])
-        self.actor = models.actor({"obs": obs, "goal": goal, "action": action,
-                                   "action_max": 1.0})
-        self.actor.load_state_dict(weights)
-        self.actor.eval()
+        self.actor = their_actor(weights)
         self.norm = (np.asarray(o_mean), np.asarray(o_std), np.asarray(g_mean),
                      np.asarray(g_std))
         self._torch = torch
@@ -81,18 +112,6 @@ class PublishedModel:
         with self._torch.no_grad():
             x = self._torch.tensor(inputs, dtype=self._torch.float32).unsqueeze(0)
             return self.actor(x).numpy().squeeze()
-
-
-def their_models_module(checkout: Path) -> ModuleType:
-    """Their `rl_modules/models.py` (the `actor` they build), loaded from the file under a
-    name of its own: neither sys.path nor an `rl_modules` another study imported is touched."""
-    path = checkout / "rl_modules" / "models.py"
-    spec = importlib.util.spec_from_file_location("_authors_published_models", path)
-    if spec is None or spec.loader is None:
-        raise FileNotFoundError(f"{path}: their models module is not there")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def load_pickled_model(path: Path) -> list[Any]:
@@ -140,31 +159,34 @@ def wilson(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def published_last_epochs(path: Path = PUBLISHED) -> dict[str, dict[int, float]]:
-    """Per method and seed, their PickAndPlace curve's mean over its last LAST_EPOCHS."""
+def published_last_epochs(path: Path = PUBLISHED) -> tuple[dict[str, dict[int, float]], int]:
+    """Per method and seed, their PickAndPlace curve's mean over its last LAST_EPOCHS; and
+    the curves' last epoch."""
     curves: dict[str, dict[int, list[tuple[int, float]]]] = {}
     with path.open() as f:
         for row in csv.DictReader(f):
             if row["task"] == "FetchPickAndPlace":
                 curves.setdefault(row["method"], {}).setdefault(int(row["seed"]), []).append(
                     (int(row["epoch"]), float(row["success_rate"])))
-    return {m: {s: float(np.mean([v for _, v in sorted(c)[-LAST_EPOCHS:]]))
-                for s, c in by_seed.items()} for m, by_seed in curves.items()}
+    means = {m: {s: float(np.mean([v for _, v in sorted(c)[-LAST_EPOCHS:]]))
+                 for s, c in by_seed.items()} for m, by_seed in curves.items()}
+    return means, max(e for by_seed in curves.values() for c in by_seed.values() for e, _ in c)
 
 
 def report(summary: dict[str, Any]) -> str:
-    n = summary["episodes"]
+    n, last = summary["episodes"], summary["published_last_epoch"]
     methods = list(summary["published"])
     lines = ["# The authors' published PickAndPlace policies on our simulators", "",
              f"`python -m studies.authors_peer.published_models"
              f"{' --quick' if summary['quick'] else ''}` — "
              f"{summary['date']}, commit {summary['commit']}, their checkout "
              f"{summary['checkout_commit']}. Each of their five saved actors "
-             f"(`{MODELS}/model<seed>.pt`, their last epoch, 200) run on {n} test episodes "
-             "per simulator by their test protocol, the same reset seeds for all; 95 % "
-             "Wilson intervals. 'Their simulator': their curves' mean over the last "
-             f"{LAST_EPOCHS} epochs (191–200, 10 test episodes each) for that seed, per "
-             "method, since which method saved the files is not stated.", "",
+             f"(`{MODELS}/model<seed>.pt`, presumably their last epoch, {last}) run on {n} "
+             "test episodes per simulator by their test protocol, the same reset seeds for "
+             "all; 95 % Wilson intervals. 'Their simulator': their curves' mean over the last "
+             f"{LAST_EPOCHS} epochs ({last - LAST_EPOCHS + 1}–{last}, 20 test episodes each) "
+             "for that seed, per method, since which method saved the files is not stated.",
+             "",
              "| seed | our v1 | our v4 | "
              + " | ".join(f"their simulator, {m}" for m in methods) + " |",
              "|---|---|---|" + "---|" * len(methods)]
@@ -172,13 +194,17 @@ def report(summary: dict[str, Any]) -> str:
         cells = []
         for version in summary["versions"]:
             r = summary["results"][str(seed)][version]
-            cells.append(f"{r['success']:.2f} [{r['low']:.2f}, {r['high']:.2f}]")
-        theirs = [f"{summary['published'][m][str(seed)]:.2f}" for m in methods]
+            cells.append(f"{r['success']:.3f} [{r['low']:.3f}, {r['high']:.3f}]")
+        theirs = [f"{summary['published'][m][str(seed)]:.3f}" for m in methods]
         lines.append(f"| {seed} | " + " | ".join(cells + theirs) + " |")
     pooled = summary["pooled"]
     lines += ["", "All five pooled: " + "; ".join(
         f"our {v} {pooled[v]['success']:.3f} [{pooled[v]['low']:.3f}, {pooled[v]['high']:.3f}]"
-        for v in summary["versions"]) + f" ({len(summary['seeds']) * n} episodes each)."]
+        for v in summary["versions"]) + f" ({len(summary['seeds']) * n} episodes each; the "
+        "interval is descriptive: the five models meet the same reset seeds). Their curves over "
+        "the same epochs, the five seeds pooled: " + "; ".join(
+            f"{m} {np.mean(list(summary['published'][m].values())):.3f}" for m in methods)
+        + "."]
     return "\n".join(lines) + "\n"
 
 
@@ -205,7 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     results: dict[str, dict[str, dict[str, float]]] = {}
     wins = dict.fromkeys(args.versions, 0.0)
     for seed in seeds:
-        model = PublishedModel(folder / f"model{seed}.pt", args.checkout)
+        model = PublishedModel(folder / f"model{seed}.pt")
         results[str(seed)] = {}
         for version in args.versions:
             rate = success_rate(model, version, episodes)
@@ -217,13 +243,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     pooled = {v: dict(zip(("success", "low", "high"),
                           (wins[v] / total, *wilson(wins[v], total)), strict=True))
               for v in args.versions}
-    published = {m: {str(s): v for s, v in by_seed.items()}
-                 for m, by_seed in published_last_epochs().items()}
+    means, last_epoch = published_last_epochs()
+    published = {m: {str(s): v for s, v in by_seed.items()} for m, by_seed in means.items()}
     summary = {"date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                "commit": git_commit(), "checkout_commit": checkout_commit(args.checkout),
                "quick": args.quick, "episodes": episodes, "seeds": list(seeds),
                "versions": args.versions, "eval_seed": EVAL_SEED, "results": results,
-               "pooled": pooled, "published": published,
+               "pooled": pooled, "published": published, "published_last_epoch": last_epoch,
                "seconds": round(time.monotonic() - start, 1)}
     out = report_folder(args.out, args.quick, REPO)
     text = report(summary)

@@ -80,14 +80,18 @@ POOLS: dict[Group, tuple[Group, ...]] = {
 
 
 def with_pools(groups: dict[Group, list[Run]]) -> dict[Group, list[Run]]:
-    """`groups` and each of POOLS with the runs of its parts (an asynchronous part's lag
-    setting is the new default's)."""
+    """`groups` and each of POOLS with the runs of its parts, each run once (an asynchronous
+    part's lag setting is the new default's). A pool some part of which has no runs is left
+    out: its label would name runs it does not hold."""
     def part(g: Group) -> Group:
         return replace(g, lag=new_default_lag()) if g.schedule == "async" else g
 
-    pooled = {pool: list({run.name: run for g in parts for run in groups.get(part(g), [])}
-                         .values()) for pool, parts in POOLS.items()}
-    return {**groups, **{pool: runs for pool, runs in pooled.items() if runs}}
+    pooled = {}
+    for pool, parts in POOLS.items():
+        runs = [groups.get(part(g), []) for g in parts]
+        if all(runs):  # by identity: runs of different groups may share a name
+            pooled[pool] = list({id(run): run for found in runs for run in found}.values())
+    return {**groups, **pooled}
 
 
 CLAIMS: tuple[Claim, ...] = (

@@ -22,33 +22,8 @@ REPO = Path(__file__).resolve().parents[3]
 CHECKOUT = os.environ.get("HERCS_AUTHORS_CHECKOUT", "")
 OBS, GOAL, ACTION = 25, 3, 4
 
-# A stand-in for their `rl_modules/models.py` (the layer names their files' weights carry),
-# for the tests that run without their checkout.
-STAND_IN_MODELS = '''
-import torch
-from torch import nn
-
-
-class actor(nn.Module):
-    def __init__(self, p):
-        super().__init__()
-        self.max_action = p["action_max"]
-        self.fc1 = nn.Linear(p["obs"] + p["goal"], 256)
-        self.fc2 = nn.Linear(256, 256)
-        self.fc3 = nn.Linear(256, 256)
-        self.action_out = nn.Linear(256, p["action"])
-
-    def forward(self, x):
-        x = torch.relu(self.fc3(torch.relu(self.fc2(torch.relu(self.fc1(x))))))
-        return self.max_action * torch.tanh(self.action_out(x))
-'''
-
-
 def _checkout_with_a_model(root: Path, seed: int = 121) -> Path:
     """A folder laid out as theirs, with a model file saved the way their ddpg_agent saves."""
-    (root / "rl_modules").mkdir(parents=True)
-    (root / "rl_modules" / "models.py").write_text(STAND_IN_MODELS)
-    (root / "rl_modules" / "__init__.py").write_text("")
     torch.manual_seed(seed)
     layers = {"fc1": (256, OBS + GOAL), "fc2": (256, 256), "fc3": (256, 256),
               "action_out": (ACTION, 256)}
@@ -98,14 +73,28 @@ def test_their_format_is_read_with_its_normaliser_and_weights(tmp_path: Path) ->
 
 def test_their_protocol_on_our_v4_is_the_same_episodes_every_time(tmp_path: Path) -> None:
     root = _checkout_with_a_model(tmp_path)
-    model = pm.PublishedModel(root / pm.MODELS / "model121.pt", root)
+    model = pm.PublishedModel(root / pm.MODELS / "model121.pt")
     action = model.act(np.zeros(OBS), np.zeros(GOAL))
     assert action.shape == (ACTION,) and np.all(np.abs(action) <= 1.0)
     first, second = (pm.success_rate(model, "v4", 3) for _ in range(2))
-    assert first == second and first in (0.0, 1 / 3, 2 / 3, 1.0)
-    # nothing of theirs is left importable, or in the way of another study's `rl_modules`
-    assert str(root) not in sys.path
-    assert not any(str(root) in str(getattr(m, "__file__", "")) for m in sys.modules.values())
+    assert first == second  # the same reset seeds: the same episodes
+
+
+def test_their_actor_is_built_here_and_takes_only_their_layers(tmp_path: Path) -> None:
+    root = _checkout_with_a_model(tmp_path)
+    *_, weights = pm.load_pickled_model(root / pm.MODELS / "model121.pt")
+    actor = pm.their_actor(weights)
+    x = torch.randn(5, OBS + GOAL)
+    w = {k: v.float() for k, v in weights.items()}
+    hidden = x
+    for name in ("fc1", "fc2", "fc3"):  # their forward: three ReLU layers, then tanh
+        hidden = torch.relu(hidden @ w[f"{name}.weight"].T + w[f"{name}.bias"])
+    expected = torch.tanh(hidden @ w["action_out.weight"].T + w["action_out.bias"])
+    torch.testing.assert_close(actor(x).detach(), expected)
+    with pytest.raises(ValueError, match="not their actor's layers"):
+        pm.their_actor({**weights, "fc4.weight": weights["fc3.weight"]})
+    with pytest.raises(RuntimeError, match="size mismatch"):
+        pm.their_actor({**weights, "fc2.bias": torch.zeros(7)})
 
 
 def test_the_wilson_interval_holds_its_share_and_stays_in_zero_one() -> None:
@@ -121,8 +110,9 @@ def test_their_last_epochs_are_the_mean_of_each_curves_last_ten() -> None:
             if r["task"] == "FetchPickAndPlace" and r["method"] == "her-cs" and r["seed"] == "133"]
     last = sorted(rows, key=lambda r: int(r["epoch"]))[-pm.LAST_EPOCHS:]
     assert [int(r["epoch"]) for r in last] == list(range(191, 201))
-    assert pm.published_last_epochs()["her-cs"][133] == pytest.approx(
-        np.mean([float(r["success_rate"]) for r in last]))
+    means, last_epoch = pm.published_last_epochs()
+    assert last_epoch == 200
+    assert means["her-cs"][133] == pytest.approx(np.mean([float(r["success_rate"]) for r in last]))
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:

@@ -436,7 +436,13 @@ def test_a_pooled_side_holds_each_run_of_its_parts_once(tmp_path: Path,
     assert r.x_stats is not None and r.exact_p is not None
     assert pool.label == "HER-CS, v4: ours and theirs"
     assert pool not in groups  # the caller's groups are left as they were
-    # a pool none of whose parts has runs is no side at all
-    monkeypatch.setattr(claims, "POOLS", {pool: (claims._push("her-ebp", lag=""),)})
-    [empty] = claims.evaluate([claims.Claim("empty", pool, published)], groups, reps=REPS)
-    assert empty.x.n == 0 and empty.x_stats is None
+    # a part named twice, and the published curves, whose runs share names across methods
+    both_published = claims._push("her", env="v1", schedule="authors", lag="")
+    monkeypatch.setattr(claims, "POOLS", {pool: (published, published, both_published)})
+    [twice] = claims.evaluate([claims.Claim("twice", pool, published)], groups, reps=REPS)
+    assert twice.x.n == 10  # five HER-CS and five HER seeds, each once
+    # a pool a part of which has no runs is no side at all, not the other parts alone
+    monkeypatch.setattr(claims, "POOLS", {pool: (claims._push("her-cs", lag=""),
+                                                 claims._push("her-ebp", lag=""))})
+    [partial] = claims.evaluate([claims.Claim("partial", pool, published)], groups, reps=REPS)
+    assert partial.x.n == 0 and partial.x_stats is None
