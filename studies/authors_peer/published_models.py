@@ -22,7 +22,6 @@ weights loaded into it strictly.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 import time
@@ -33,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from hercs.apps.plots.curves import load_reference
 from studies.authors_peer.peer_run import checkout_commit, make_gymnasium_env
 from studies.study_output import (
     FINDINGS_HEADING,
@@ -162,15 +162,11 @@ def wilson(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
 def published_last_epochs(path: Path = PUBLISHED) -> tuple[dict[str, dict[int, float]], int]:
     """Per method and seed, their PickAndPlace curve's mean over its last LAST_EPOCHS; and
     the curves' last epoch."""
-    curves: dict[str, dict[int, list[tuple[int, float]]]] = {}
-    with path.open() as f:
-        for row in csv.DictReader(f):
-            if row["task"] == "FetchPickAndPlace":
-                curves.setdefault(row["method"], {}).setdefault(int(row["seed"]), []).append(
-                    (int(row["epoch"]), float(row["success_rate"])))
-    means = {m: {s: float(np.mean([v for _, v in sorted(c)[-LAST_EPOCHS:]]))
-                 for s, c in by_seed.items()} for m, by_seed in curves.items()}
-    return means, max(e for by_seed in curves.values() for c in by_seed.values() for e, _ in c)
+    curves = [c for c in load_reference(path) if c.task == "FetchPickAndPlace"]
+    means: dict[str, dict[int, float]] = {}
+    for c in curves:  # load_reference gives each curve's epochs in order
+        means.setdefault(c.method, {})[c.seed] = float(np.mean(c.success[-LAST_EPOCHS:]))
+    return means, max(int(c.epochs[-1]) for c in curves)
 
 
 def report(summary: dict[str, Any]) -> str:
