@@ -119,6 +119,16 @@ def test_design_rule_details_pinned() -> None:
     assert plots.aggregate(ref["FetchPush"]["her-cs"]).epochs[-1] == 125
 
 
+def test_the_authors_runs_are_one_workers_twenty_test_episodes() -> None:
+    """Their train.py averages the test success over MPI workers, each testing 20 episodes
+    (`--n-test-rollouts 20`), so with k workers a value is a multiple of 1/(20k), and with
+    k >= 2 about half of them fall between multiples of 1/20. Every published value is on the
+    1/20 grid: their runs had one worker, as the peer baseline does (docs/reference/README.md)."""
+    values = np.concatenate([c.success for c in plots.load_reference(plots.REFERENCE_CSV)])
+    assert values.size > 10_000
+    assert np.all(np.abs(values * 20 - np.round(values * 20)) < 1e-9)
+
+
 def test_figure_is_a_non_blank_png_of_the_expected_size(run_dirs: list[Path],
                                                         tmp_path: Path) -> None:
     import matplotlib.image as mpimg
