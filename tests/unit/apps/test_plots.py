@@ -122,7 +122,7 @@ def test_design_rule_details_pinned() -> None:
 def test_the_authors_runs_are_one_workers_twenty_test_episodes() -> None:
     """Their train.py averages the test success over MPI workers, each testing 20 episodes
     (`--n-test-rollouts 20`), so with k workers a value is a multiple of 1/(20k), and with
-    k >= 2 about half of them fall between multiples of 1/20. Every published value is on the
+    k >= 2 half of them or more fall between multiples of 1/20. Every published value is on the
     1/20 grid: their runs had one worker, as the peer baseline does (docs/reference/README.md)."""
     values = np.concatenate([c.success for c in plots.load_reference(plots.REFERENCE_CSV)])
     assert values.size > 10_000
