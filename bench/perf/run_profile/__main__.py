@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -54,34 +55,100 @@ def py_spy() -> str:
     return found
 
 
-def profile_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
-    """Run `hercs up` under `py-spy record --subprocesses --native`, /proc sampled beside it."""
-    command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task, "--method",
-               args.method, "--epochs", str(args.epochs), "--actors", "1", "--run-dir",
-               str(work / "runs"), "--listen", "tcp/127.0.0.1:0",
-               *(item for kv in args.set for item in ("--set", kv))]
-    raw = work / "stacks.txt"
-    spy = [py_spy(), "record", "--subprocesses", "--native", "--format", "raw", "--rate",
-           str(args.rate), "--output", str(raw), "--", *command]
-    log = (work / "up.log").open("w")
+# A profiler that dies of one of these crashed by itself: py-spy can segfault while it attaches
+# to a process the run has just started (benfred/py-spy#724, #638, open at 0.4.2). A
+# profiler stopped by SIGINT or SIGTERM was stopped on purpose and is not tried again.
+CRASH_SIGNALS = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL})
+PROFILER_TRIES = 3
+
+
+def profiler_crashed(code: int) -> bool:
+    """Whether a profiler exit code is a crash of its own (a death by a crash signal)."""
+    return code < 0 and -code in CRASH_SIGNALS
+
+
+def stop_group(child: subprocess.Popen[bytes], grace_s: float = 30.0) -> None:
+    """Stop every process left in the profiler's session: when py-spy dies, the run it launched
+    is orphaned and would train on beside whatever runs next. SIGTERM first, so `hercs up`
+    stops its services in order; SIGKILL to whatever is left after `grace_s`."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(child.pid, sig)
+        except ProcessLookupError:
+            return
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline and group_alive(child.pid):
+            time.sleep(0.2)
+        if not group_alive(child.pid):
+            return
+
+
+def group_alive(pgid: int) -> bool:
+    """Whether a live process is left in the group: a zombie is not (an orphan's zombie waits
+    for a PID 1 that, in a container, may never reap it)."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            return True
+    return False
+
+
+def run_under_profiler(spy: list[str], log: Path) -> tuple[int, ProcSampler, float]:
+    """Run the profiler (which launches the run) in a session of its own, /proc sampled
+    beside it; whatever is left in the session when it exits, however it exits, is stopped."""
     began = time.monotonic()
-    child = subprocess.Popen(spy, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-    sampler = ProcSampler(root=child.pid)
-    sampler.start()
-    code = child.wait()
-    sampler.stop()
-    wall = time.monotonic() - began
-    log.close()
-    runs = sorted((work / "runs").glob("*/"))
-    if code != 0 or not runs or not raw.exists():
-        tail = (work / "up.log").read_text()[-3000:]
-        sys.exit(f"bench.perf.run_profile: the profiled run failed (exit {code}):\n{tail}")
+    with log.open("w") as out:
+        child = subprocess.Popen(spy, cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
+                                 start_new_session=True)
+        sampler = ProcSampler(root=child.pid)
+        sampler.start()
+        try:
+            code = child.wait()
+        finally:
+            sampler.stop()
+            stop_group(child)
+    return code, sampler, time.monotonic() - began
+
+
+def profile_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
+    """Run `hercs up` under `py-spy record --subprocesses --native`, /proc sampled beside it;
+    a run whose profiler crashes is stopped and profiled afresh, up to PROFILER_TRIES times."""
+    command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task, "--method",
+               args.method, "--epochs", str(args.epochs), "--actors", "1", "--run-dir", "RUNS",
+               "--listen", "tcp/127.0.0.1:0",
+               *(item for kv in args.set for item in ("--set", kv))]
+    crashes: list[str] = []
+    for attempt in range(1, PROFILER_TRIES + 1):
+        here = work / f"try-{attempt}"
+        here.mkdir()
+        raw = here / "stacks.txt"
+        runs_dir = here / "runs"
+        this_command = [str(runs_dir) if part == "RUNS" else part for part in command]
+        spy = [py_spy(), "record", "--subprocesses", "--native", "--format", "raw", "--rate",
+               str(args.rate), "--output", str(raw), "--", *this_command]
+        code, sampler, wall = run_under_profiler(spy, here / "up.log")
+        runs = sorted(runs_dir.glob("*/"))
+        if code == 0 and runs and raw.exists():
+            break
+        tail = (here / "up.log").read_text()[-3000:]
+        if not profiler_crashed(code) or attempt == PROFILER_TRIES:
+            sys.exit(f"bench.perf.run_profile: the profiled run failed (exit {code}, try "
+                     f"{attempt} of {PROFILER_TRIES}):\n{tail}")
+        crashes.append(signal.Signals(-code).name)
+        print(f"bench.perf.run_profile: py-spy died of {crashes[-1]} on try {attempt} (a crash "
+              "of py-spy's own, benfred/py-spy#724); its run is stopped and profiled afresh",
+              file=sys.stderr)
     rows = read_rows(RunDir(runs[0]).metrics)
     processes = parse_raw(raw.read_text().splitlines())
-    return {"command": " ".join(command[1:]), "wall_s": wall, "epochs": len(rows),
+    return {"command": " ".join(this_command[1:]), "wall_s": wall, "epochs": len(rows),
             "run_wall_s": float(rows[-1]["wall_s"]) if rows else float("nan"),
             "cores": sampler.cores, "cpu": sampler.process_cpu, "commands": sampler.commands,
-            "samples": processes}
+            "samples": processes, "profiler_crashes": crashes}
 
 
 def summarise(measured: dict[str, Any]) -> dict[str, Any]:
@@ -121,6 +188,7 @@ def summarise(measured: dict[str, Any]) -> dict[str, Any]:
         "core_busy_mean": {name: sum(s.get(name, 0.0) for _, s in cores) / max(len(cores), 1)
                            for name in (cores[0][1] if cores else {})},
         "top_frames": frames,
+        "profiler_crashes": measured["profiler_crashes"],
     }
 
 

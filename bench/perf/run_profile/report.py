@@ -30,7 +30,10 @@ def render(summary: dict[str, Any]) -> str:
         "",
         f"Run: `{summary['command']}`: {epochs} epoch(s) in {wall:.1f} s under the profiler "
         f"({per_epoch:.1f} s per epoch, start-up included; the run's own clock: "
-        f"{summary['run_wall_s']:.1f} s).",
+        f"{summary['run_wall_s']:.1f} s)."
+        + (f" py-spy crashed by itself {len(crashes)} time(s) ({', '.join(crashes)}): each "
+           "such run was stopped and the profile taken afresh; this one is whole."
+           if (crashes := summary.get("profiler_crashes")) else ""),
         "",
         "## CPU seconds per epoch, by process",
         "",

@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -74,3 +75,85 @@ def test_quick_mode_splits_every_process_of_a_real_run(tmp_path: Path) -> None:
                         if k.endswith("_busy"))
     text = (tmp_path / "run_profile.md").read_text()
     assert "| learner |" in text and "| GEMMs |" in text
+
+
+# A stand-in for py-spy, run as a real process: FAKE_PLAN says what each try does. "segv"
+# leaves a process behind and dies of SIGSEGV, as py-spy does when it crashes attaching to a new
+# process (its run is orphaned); "fail" exits 1; "ok" writes a run folder and a raw stack.
+FAKE_PROFILER = '''#!{python}
+import os, pathlib, signal, subprocess, sys
+argv = sys.argv[1:]
+output = pathlib.Path(argv[argv.index("--output") + 1])
+command = argv[argv.index("--") + 1:]
+runs = pathlib.Path(command[command.index("--run-dir") + 1])
+tries = pathlib.Path(os.environ["FAKE_TRIES"])
+n = int(tries.read_text()) + 1 if tries.exists() else 1
+tries.write_text(str(n))
+plan = os.environ["FAKE_PLAN"].split(",")[n - 1]
+if plan == "segv":
+    left = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
+    with open(os.environ["FAKE_LEFT"], "a") as f:
+        f.write(f"{{left.pid}}\\n")
+    os.kill(os.getpid(), signal.SIGSEGV)
+if plan == "fail":
+    sys.exit(1)
+(runs / "reach-x").mkdir(parents=True)
+(runs / "reach-x" / "metrics.csv").write_text("epoch,wall_s\\n1,2.5\\n")
+output.write_text('process 10:"python -m hercs.apps.cli up --task reach" 1\\n')
+'''
+
+
+def _profile_with(plan: str, tmp_path: Path,
+                  monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    import argparse
+
+    from bench.perf.run_profile import __main__ as run_profile
+
+    fake = tmp_path / "fake-py-spy"
+    fake.write_text(FAKE_PROFILER.format(python=sys.executable))
+    fake.chmod(0o755)
+    monkeypatch.setattr(run_profile, "py_spy", lambda: str(fake))
+    monkeypatch.setenv("FAKE_PLAN", plan)
+    monkeypatch.setenv("FAKE_TRIES", str(tmp_path / "tries"))
+    monkeypatch.setenv("FAKE_LEFT", str(tmp_path / "left"))
+    (tmp_path / "work").mkdir()
+    args = argparse.Namespace(task="reach", method="her-cs", epochs=1, rate=50, set=[])
+    return run_profile.profile_run(args, tmp_path / "work")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _left_behind(tmp_path: Path) -> list[int]:
+    return [int(line) for line in (tmp_path / "left").read_text().split()]
+
+
+def test_a_profiler_that_crashes_is_tried_again_and_its_orphaned_run_stopped(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    measured = _profile_with("segv,ok", tmp_path, monkeypatch)
+    assert measured["profiler_crashes"] == ["SIGSEGV"] and measured["epochs"] == 1
+    assert (tmp_path / "tries").read_text() == "2"
+    left = _left_behind(tmp_path)
+    assert len(left) == 1 and not any(_alive(pid) for pid in left)
+
+
+def test_a_profiler_that_keeps_crashing_stops_after_its_tries_and_leaves_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bench.perf.run_profile.__main__ import PROFILER_TRIES
+
+    with pytest.raises(SystemExit, match=rf"exit -11, try {PROFILER_TRIES} of {PROFILER_TRIES}"):
+        _profile_with(",".join(["segv"] * PROFILER_TRIES), tmp_path, monkeypatch)
+    left = _left_behind(tmp_path)
+    assert len(left) == PROFILER_TRIES and not any(_alive(pid) for pid in left)
+
+
+def test_a_run_that_fails_on_its_own_is_not_tried_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(SystemExit, match=r"exit 1, try 1 of "):
+        _profile_with("fail,ok", tmp_path, monkeypatch)
+    assert (tmp_path / "tries").read_text() == "1"
