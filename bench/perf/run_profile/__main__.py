@@ -118,21 +118,19 @@ def run_under_profiler(spy: list[str], log: Path) -> tuple[int, ProcSampler, flo
 def profile_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
     """Run `hercs up` under `py-spy record --subprocesses --native`, /proc sampled beside it;
     a run whose profiler crashes is stopped and profiled afresh, up to PROFILER_TRIES times."""
-    command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task, "--method",
-               args.method, "--epochs", str(args.epochs), "--actors", "1", "--run-dir", "RUNS",
-               "--listen", "tcp/127.0.0.1:0",
-               *(item for kv in args.set for item in ("--set", kv))]
     crashes: list[str] = []
     for attempt in range(1, PROFILER_TRIES + 1):
         here = work / f"try-{attempt}"
         here.mkdir()
         raw = here / "stacks.txt"
-        runs_dir = here / "runs"
-        this_command = [str(runs_dir) if part == "RUNS" else part for part in command]
+        command = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", args.task,
+                   "--method", args.method, "--epochs", str(args.epochs), "--actors", "1",
+                   "--run-dir", str(here / "runs"), "--listen", "tcp/127.0.0.1:0",
+                   *(item for kv in args.set for item in ("--set", kv))]
         spy = [py_spy(), "record", "--subprocesses", "--native", "--format", "raw", "--rate",
-               str(args.rate), "--output", str(raw), "--", *this_command]
+               str(args.rate), "--output", str(raw), "--", *command]
         code, sampler, wall = run_under_profiler(spy, here / "up.log")
-        runs = sorted(runs_dir.glob("*/"))
+        runs = sorted((here / "runs").glob("*/"))
         if code == 0 and runs and raw.exists():
             break
         tail = (here / "up.log").read_text()[-3000:]
@@ -145,7 +143,7 @@ def profile_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
               file=sys.stderr)
     rows = read_rows(RunDir(runs[0]).metrics)
     processes = parse_raw(raw.read_text().splitlines())
-    return {"command": " ".join(this_command[1:]), "wall_s": wall, "epochs": len(rows),
+    return {"command": " ".join(command[1:]), "wall_s": wall, "epochs": len(rows),
             "run_wall_s": float(rows[-1]["wall_s"]) if rows else float("nan"),
             "cores": sampler.cores, "cpu": sampler.process_cpu, "commands": sampler.commands,
             "samples": processes, "profiler_crashes": crashes}
