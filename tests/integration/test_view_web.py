@@ -8,6 +8,7 @@ from __future__ import annotations
 import ipaddress
 import signal
 import socket
+import subprocess
 import sys
 import urllib.request
 from pathlib import Path
@@ -56,7 +57,12 @@ def stop(view: Launcher, sig: int = signal.SIGINT) -> list[psutil.Process]:
     they are gone."""
     children = psutil.Process(view.proc.pid).children(recursive=True)
     view.proc.send_signal(sig)
-    view.proc.wait(STOP_TIMEOUT_S)
+    try:
+        view.proc.wait(STOP_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        for proc in [view.proc, *children]:  # a failed stop must not leave it serving
+            proc.kill()
+        raise
     return children
 
 
