@@ -26,6 +26,7 @@ from bench.common import (
 from bench.perf.run_profile.proc_sampler import ProcSampler
 from bench.perf.run_profile.report import render
 from bench.perf.run_profile.stacks import GROUPS, group_shares, parse_raw, role_of, top_frames
+from hercs.apps.launch.child_process import signal_group
 from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
 
@@ -72,10 +73,7 @@ def stop_group(child: subprocess.Popen[bytes], grace_s: float = 30.0) -> None:
     is orphaned and would train on beside whatever runs next. SIGTERM first, so `hercs up`
     stops its services in order; SIGKILL to whatever is left after `grace_s`."""
     for sig in (signal.SIGTERM, signal.SIGKILL):
-        try:
-            os.killpg(child.pid, sig)
-        except ProcessLookupError:
-            return
+        signal_group(child, sig)
         deadline = time.monotonic() + grace_s
         while time.monotonic() < deadline and group_alive(child.pid):
             time.sleep(0.2)

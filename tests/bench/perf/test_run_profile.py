@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 
 from bench.perf.run_profile.stacks import group_of, group_shares, parse_raw, role_of
+from tests.integration.launcher_standins import process_alive
 
 REPO = Path(__file__).resolve().parents[3]
 UP = 'process 10:"python -m hercs.apps.cli up --task push"'
@@ -121,14 +122,6 @@ def _profile_with(plan: str, tmp_path: Path,
     return run_profile.profile_run(args, tmp_path / "work")
 
 
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 def _left_behind(tmp_path: Path) -> list[int]:
     return [int(line) for line in (tmp_path / "left").read_text().split()]
 
@@ -139,7 +132,7 @@ def test_a_profiler_that_crashes_is_tried_again_and_its_orphaned_run_stopped(
     assert measured["profiler_crashes"] == ["SIGSEGV"] and measured["epochs"] == 1
     assert (tmp_path / "tries").read_text() == "2"
     left = _left_behind(tmp_path)
-    assert len(left) == 1 and not any(_alive(pid) for pid in left)
+    assert len(left) == 1 and not any(process_alive(pid) for pid in left)
 
 
 def test_a_profiler_that_keeps_crashing_stops_after_its_tries_and_leaves_nothing(
@@ -149,7 +142,7 @@ def test_a_profiler_that_keeps_crashing_stops_after_its_tries_and_leaves_nothing
     with pytest.raises(SystemExit, match=rf"exit -11, try {PROFILER_TRIES} of {PROFILER_TRIES}"):
         _profile_with(",".join(["segv"] * PROFILER_TRIES), tmp_path, monkeypatch)
     left = _left_behind(tmp_path)
-    assert len(left) == PROFILER_TRIES and not any(_alive(pid) for pid in left)
+    assert len(left) == PROFILER_TRIES and not any(process_alive(pid) for pid in left)
 
 
 def test_a_run_that_fails_on_its_own_is_not_tried_again(
