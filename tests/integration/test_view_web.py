@@ -5,6 +5,7 @@ others takes `--web-bind`; the server never outlives the command."""
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import signal
 import socket
@@ -60,8 +61,10 @@ def stop(view: Launcher, sig: int = signal.SIGINT) -> list[psutil.Process]:
     try:
         view.proc.wait(STOP_TIMEOUT_S)
     except subprocess.TimeoutExpired:
-        for proc in [view.proc, *children]:  # a failed stop must not leave it serving
-            proc.kill()
+        view.proc.kill()  # a failed stop must not leave it serving
+        for child in children:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                child.kill()
         raise
     return children
 
