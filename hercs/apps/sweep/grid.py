@@ -54,7 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"tasks: Fetch presets {sorted(TASKS)} or any task.name, e.g. "
                         "HandReach-v3 (default: push; reach with --quick)")
     p.add_argument("--methods", nargs="+", choices=list(METHODS), default=["her", "her-cs"])
-    p.add_argument("--seeds", type=int, default=3, help="seeds 1..N (default 3)")
+    p.add_argument("--seeds", type=int, default=3,
+                   help="how many seeds: S..S+N-1 for --first-seed S (default 3)")
+    p.add_argument("--first-seed", type=int, default=1, metavar="S",
+                   help="the first seed (default 1): more seeds for a grid whose first ones "
+                        "are finished, e.g. --first-seed 7 --seeds 6 for seeds 7..12")
     p.add_argument("--schedule", choices=SCHEDULES, default="async",
                    help="training.schedule of every run (default async; lockstep runs are "
                         "named T-M-lockstep-sS)")
@@ -136,6 +140,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(str(exc))
     if args.seeds < 1:
         return _fail("--seeds must be at least 1")
+    if args.first_seed < 1:
+        return _fail(f"--first-seed {args.first_seed}: seeds start at 1")
     if args.jobs is not None and args.jobs < 1:
         return _fail("--jobs must be at least 1")
     tasks = args.tasks or (["reach"] if args.quick else ["push"])
@@ -175,9 +181,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                      "and a value > 0")
     if args.energy_epsilon is not None and not args.energy_epsilon > 0:
         return _fail(f"--energy-epsilon {args.energy_epsilon:g} must be > 0")
-    cells = plan_grid(tasks, methods, list(range(1, args.seeds + 1)), args.schedule,
-                      args.precision, args.env_version, args.weld_torquescale,
-                      args.energy_epsilon, arms)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    cells = plan_grid(tasks, methods, seeds, args.schedule, args.precision, args.env_version,
+                      args.weld_torquescale, args.energy_epsilon, arms)
     problem = owned_override(args.overrides) or (
         None if args.energy_epsilon is not None else epsilon_changed(cells, run_root)) or (
         None if args.report_only else cannot_grow(cells, run_root, committed, epochs))
@@ -204,8 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("nothing was started (--dry-run)")
         return 0
     print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(methods)} × "
-          f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × {args.seeds} seeds), {epochs} "
-          f"epochs each, {jobs} at a time, in {run_root}", flush=True)
+          f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × seeds {seeds[0]}..{seeds[-1]}), "
+          f"{epochs} epochs each, {jobs} at a time, in {run_root}", flush=True)
     if args.cell_index is not None:
         if not 0 <= args.cell_index < len(cells):
             return _fail(f"--cell-index {args.cell_index}: the sweep has cells "

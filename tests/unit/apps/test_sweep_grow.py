@@ -81,6 +81,22 @@ def test_a_cell_finished_elsewhere_with_fewer_epochs_is_refused_not_passed_over(
     assert dry.returncode == 0 and "[skip] push-her-s1: finished" in dry.stdout, dry.stdout
 
 
+def test_first_seed_adds_seeds_beside_ones_finished_elsewhere_with_fewer_epochs(
+        tmp_path: Path) -> None:
+    """A grid's longer second batch: seeds 2..3 start fresh beside a committed seed 1 that
+    finished fewer epochs (which --seeds alone would refuse to grow)."""
+    runs, committed = tmp_path / "runs", tmp_path / "committed"
+    finished_run(committed, sc.GridRun("push", "her", 1), [0.1] * 3)
+    dry = _hercs("sweep", "--tasks", "push", "--methods", "her", "--seeds", "2",
+                 "--first-seed", "2", "--epochs", "5", "--run-dir", str(runs),
+                 "--committed", str(committed), "--dry-run")
+    assert dry.returncode == 0, dry.stdout + dry.stderr
+    assert "push-her-s1" not in dry.stdout, dry.stdout
+    assert "push-her-s2" in dry.stdout and "push-her-s3" in dry.stdout, dry.stdout
+    bad = _hercs("sweep", "--tasks", "push", "--first-seed", "0", "--dry-run")
+    assert bad.returncode == 2 and "--first-seed 0" in bad.stderr, bad.stderr
+
+
 def test_a_dry_run_says_which_cells_would_grow(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     cell = sc.GridRun("push", "her", 1)

@@ -157,12 +157,14 @@ def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
 
     from hercs.apps.sweep.slurm_array import cell_command
 
-    args = argparse.Namespace(methods=["her"], seeds=1, schedule="async", precision="fp32",
+    args = argparse.Namespace(methods=["her"], seeds=1, first_seed=3, schedule="async",
+                              precision="fp32",
                               env_version="v4", weld_torquescale=1.0, energy_epsilon=1e-6,
                               actors=1, variants=[], no_plain=False)
     cmd = cell_command(args, ["reach", "push"], run_root=Path("/r"), committed=None, epochs=1,
                        overrides=[])
     assert cmd[cmd.index("--tasks") + 1:cmd.index("--tasks") + 3] == ["reach", "push"]
+    assert cmd[cmd.index("--first-seed") + 1] == "3"  # the task plans the submitter's seeds
 
 
 @pytest.mark.integration
