@@ -111,16 +111,25 @@ class TrainedPolicy:
 
 
 def load_policy(run_dir: str | os.PathLike[str], checkpoint: str = "best", *,
-                seed: int | None = None) -> TrainedPolicy:
+                seed: int | None = None, task: str | None = None,
+                trust_task: bool = False) -> TrainedPolicy:
     """The trained policy of a run directory.
+
+    A run of a user's own environment (`package.module:factory`) loads only with `task` set
+    to that name, or `trust_task=True`: hercs imports no code because a file names it
+    (hercs.rl.code_names; a `ConfigError` says so).
 
     `checkpoint`: 'best' (checkpoints/best.pt, the best-evaluated epoch), 'latest'
     (learner.pt, the last epoch end), 'epoch-N' (epoch-NNNN.pt) or a .pt file's path.
     `seed` seeds the generator of `act(..., explore=True)`. Raises `RunDirError` for a folder
     that is not a run or a checkpoint it does not hold (naming those it does),
     `CheckpointError` for a file that does not load."""
+    from hercs.rl import code_names
     from hercs.run.policy_files import read_policy
 
+    for name in (task, code_names.ANY if trust_task else None):
+        if name:
+            code_names.trust_task(name)
     return TrainedPolicy(read_policy(run_dir, checkpoint), seed=seed)
 
 

@@ -88,8 +88,10 @@ def _task_spec(name: str, env_version: str, weld_torquescale: float) -> TaskSpec
         raise ConfigError(f"task.name: got {name!r}; expected one of {sorted(TASKS)}, a "
                           "gymnasium id of a goal environment (e.g. PointMaze_UMaze-v3) or "
                           "package.module:factory")
+    from hercs.rl.code_names import check_may_import
     from hercs.rl.goal_env import inspect_goal_env
 
+    check_may_import(name)  # before anything is imported for it
     return inspect_goal_env(name)
 
 

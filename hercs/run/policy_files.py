@@ -66,6 +66,8 @@ def read_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = "best"
                               "learner checkpoint (learner.pt) of this version of hercs")
     try:
         config, epoch, weights = _contents(state, run_dir, path)
+    except ConfigError as exc:  # a config that does not hold, or names code (code_names)
+        raise ConfigError(f"{path}: {exc}") from None
     except (KeyError, TypeError, AttributeError, ValueError) as exc:  # well-formed data only
         raise CheckpointError(f"{path}: does not hold what a checkpoint of this version of "
                               f"hercs holds ({type(exc).__name__}: {exc})") from None

@@ -12,6 +12,7 @@ import yaml
 
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
+from hercs.rl.code_names import ANY, trust_task
 from hercs.rl.methods import METHODS
 from hercs.rl.task_registry import TASKS
 from hercs.run.rundir import RunDir
@@ -60,6 +61,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
     group.add_argument("--set", dest="overrides", action="append", default=[],
                        metavar="SECTION.FIELD=VALUE",
                        help="override any config field, e.g. --set ddpg.lr_actor=5e-4")
+    add_trust_argument(group)
     helps = {
         "task": dict(metavar="TASK",
                      help=f"task: a Fetch preset {sorted(TASKS)} (Fetch*-v4; --set "
@@ -88,6 +90,39 @@ def add_config_arguments(parser: argparse.ArgumentParser, command: str) -> None:
                            help="Zenoh endpoint for the router to listen on (repeatable)")
     if "security" in flags:
         add_security_arguments(parser)
+
+
+def add_trust_argument(group: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    group.add_argument("--trust-task", action="store_true",
+                       help="import the environment code (package.module:factory) that a run "
+                            "folder's config or checkpoint names; without it hercs imports "
+                            "only code you name yourself (docs/SECURITY.md)")
+
+
+def trust_named_tasks(args: argparse.Namespace) -> None:
+    """Trust the task names the user gave on this command line (`--task`, `--set
+    task.name=`, a `--config` file's) and, with --trust-task, any: `hercs.rl.code_names`."""
+    if getattr(args, "trust_task", False):
+        trust_task(ANY)
+    named = [getattr(args, "task", None), _file_task(getattr(args, "config", None))]
+    named += [item.partition("=")[2].strip() for item in getattr(args, "overrides", [])
+              if item.partition("=")[0].strip() == "task.name"]
+    for name in named:
+        if name:
+            trust_task(name)
+
+
+def _file_task(path: str | None) -> str | None:
+    """task.name of the YAML file `path` as written (load_yaml reports a bad file)."""
+    if not path:
+        return None
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return None
+    task = data.get("task") if isinstance(data, dict) else None
+    name = task.get("name") if isinstance(task, dict) else None
+    return name if isinstance(name, str) else None
 
 
 def add_security_arguments(parser: argparse.ArgumentParser) -> None:
@@ -162,6 +197,7 @@ def resume_config(args: argparse.Namespace) -> HercsConfig:
 
 
 def resolve_config(args: argparse.Namespace) -> HercsConfig:
+    trust_named_tasks(args)  # before any config is built: building one resolves its task
     if getattr(args, "restart", False) and not getattr(args, "resume", None):
         raise ConfigError("--restart starts a run over in its folder: give it with --resume "
                           "RUN_DIR (hercs up --resume runs/RUN --restart)")

@@ -16,8 +16,10 @@ from hercs.apps.cli.config_flags import (
     JOINERS,
     add_config_arguments,
     add_rerun_arguments,
+    add_trust_argument,
     join_endpoints,
     resolve_config,
+    trust_named_tasks,
 )
 from hercs.apps.cli.services import Command, service_command
 from hercs.apps.output_paths import OutputPathError, check_outputs
@@ -274,6 +276,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    "the run's evaluator used for that epoch)")
     p.add_argument("--video", metavar="OUT.mp4", help="record the episodes (25 fps)")
     p.add_argument("--rerun-save", metavar="OUT.rrd", help="record the camera images in Rerun")
+    p.add_argument("--task", metavar="TASK", help="the run's package.module:factory, where it "
+                   "has one: hercs imports environment code only where you name it "
+                   "(docs/SECURITY.md)")
+    add_trust_argument(p)
 
     p = sub.add_parser("certs", help="make a CA and the certificates of a secured run",
                        description="Writes DIR/ca.pem (+ ca.key), DIR/router.pem (+ .key) and "
@@ -293,6 +299,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
 def _cmd_eval(args: argparse.Namespace) -> int:
     from hercs.apps.evaluation.policy_eval import run_eval
 
+    trust_named_tasks(args)
     return run_eval(args.run_dir, checkpoint=args.checkpoint, episodes=args.episodes,
                     seed=args.seed, video=args.video, rerun_save=args.rerun_save)
 

@@ -19,7 +19,8 @@ def cell_command(args: argparse.Namespace, tasks: Sequence[str], *, run_root: Pa
     cmd = [sys.executable, "-m", "hercs.apps.cli", "sweep",
            "--tasks", *tasks,  # in the order given: the cell indices follow it
            "--methods", *args.methods,
-           "--seeds", str(args.seeds), "--first-seed", str(args.first_seed), "--schedule", args.schedule,
+           "--seeds", str(args.seeds), "--first-seed", str(args.first_seed),
+           "--schedule", args.schedule,
            "--precision", args.precision, "--env-version", args.env_version,
            "--weld-torquescale", f"{args.weld_torquescale:g}",
            "--epochs", str(epochs),
