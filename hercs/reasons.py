@@ -46,6 +46,11 @@ class Reason(StrEnum):
     # well formed, not wanted (hercs.replay_service.lockstep, hercs.replay_service.lag_bound)
     STALE_POLICY = "stale_policy", Disposition.SUPERSEDED
     """Acted with weights older than the lockstep cycle or the lag bound allows."""
+    FUTURE_POLICY = "future_policy", Disposition.SUPERSEDED
+    """Acted with a weights version newer than any the learner can have published (its
+    newest request's version + 1 + `learner.prefetch_depth`): forged or corrupt, or, after
+    a replay restart, one whose learner has not asked yet; an honest actor loses one episode
+    and acts again with the weights it gets next (hercs.replay_service.policy_lag)."""
     CYCLE_FULL = "cycle_full", Disposition.SUPERSEDED
     """Lockstep: its cycle already has its `episodes_per_cycle` episodes."""
     # not now (hercs.replay_service.table, hercs.net.transport)

@@ -34,8 +34,15 @@ class PolicyLagLedger:
     than that (E > ρ·N_min) or `--free-run` lets the learner run ahead of lockstep, which then
     reads as a negative lag: fresher than the lockstep schedule, not staler."""
 
-    def __init__(self, episodes_per_cycle: int) -> None:
+    def __init__(self, episodes_per_cycle: int, *, prefetch_depth: int = 0) -> None:
         self.episodes_per_cycle = episodes_per_cycle
+        self.versions_ahead = 1 + prefetch_depth
+        """How far past the newest announced version the learner can have published: it
+        publishes v + 1 after a request of version v is served, and each batch prefetched
+        ahead (`learner.prefetch_depth`) lets it publish one more before it asks again."""
+        self.highest_announced: int | None = None
+        """The highest weights version a sample request has carried (on arrival, before the
+        limiter parks it) or a recovered episode was acted with; None before either."""
         self._learner_version = 0
         self._recent_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
         self._recent_schedule_lags: deque[int] = deque(maxlen=POLICY_LAG_WINDOW)
@@ -51,9 +58,28 @@ class PolicyLagLedger:
         """A restarted replay recovered episodes acted with weights up to `newest_version`
         (None: no episode): those weights existed, so the learner's are at least as new
         until its first sample call says which version it is at."""
+        if newest_version is not None:
+            self.announced(int(newest_version))
         if newest_version is not None and self.newest_request_version is None:
             self.newest_request_version = int(newest_version)
             self._learner_version = max(self._learner_version, int(newest_version))
+
+    def announced(self, weights_version: int) -> None:
+        """A sample request of the learner at `weights_version` arrived (served or not)."""
+        if self.highest_announced is None or weights_version > self.highest_announced:
+            self.highest_announced = weights_version
+
+    def future_refusal(self, policy_version: int) -> tuple[Reason, str] | None:
+        """Why an episode acted with `policy_version` cannot be from this run's learner: no
+        learner can have published it yet (a lag below zero), or None."""
+        newest = 0 if self.highest_announced is None else self.highest_announced
+        if policy_version <= newest + self.versions_ahead:
+            return None
+        return (Reason.FUTURE_POLICY,
+                f"episode acted with weights version {policy_version}, but the learner has "
+                f"published at most version {newest + self.versions_ahead} (its newest "
+                f"request: version {newest}); an episode from a policy that does not exist "
+                "yet would record a negative lag")
 
     def cycle_of(self, episode_id: int) -> int:
         """The lockstep-schedule cycle that policy lag measures episode `episode_id` against."""

@@ -59,7 +59,8 @@ class ReplayTable:
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
         self._parked = ParkedCalls(
             waiting_inserts_per_actor=config.replay.waiting_inserts_per_actor)
-        self.lags = PolicyLagLedger(config.training.episodes_per_cycle)
+        self.lags = PolicyLagLedger(config.training.episodes_per_cycle,
+                                    prefetch_depth=config.learner.prefetch_depth)
         self.log_failures = 0
         """Inserts refused because their log append failed."""
         self._learner: str | None = None
@@ -102,7 +103,8 @@ class ReplayTable:
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
-            refusal = self._parked.inserts.refusal(episode.actor_id)
+            refusal = self._parked.inserts.refusal(episode.actor_id) or \
+                self.lags.future_refusal(episode.policy_version)
             if refusal is None and self.gate is not None:
                 refusal = self.gate.refuse_insert(episode.policy_version)
             if refusal is not None:
@@ -236,6 +238,7 @@ class ReplayTable:
                 f"admits at most {self.limiter.max_admissible_sample():g} minibatches per "
                 "request (replay.rate_tolerance_updates sets its window); ask for fewer")
         with self._lock:
+            self.lags.announced(call.weights_version)
             self._learner = follow_learner(call, self._learner, self.limiter,
                                            self._parked.samples)
             self._parked.park_sample(ParkedSample([waiter], self._deadline(timeout_s),

@@ -79,6 +79,8 @@ def open_table(cfg: HercsConfig, run_dir: Path, seed: int = 0
     state = recovered.replay_state
     table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                   state=None if state is None else msg_to_replay_state(state))
+    # the episodes carry a learner's weights versions (one a cycle), and no learner asks here
+    table.lags.announced(1 << 30)
     return table, log
 
 
@@ -282,6 +284,7 @@ def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
         state = recovered.replay_state
         table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                       state=None if state is None else msg_to_replay_state(state))
+        table.lags.announced(1 << 30)  # as in open_table: no learner asks here
         return table, log, state
 
     first, log, state = opened(0)

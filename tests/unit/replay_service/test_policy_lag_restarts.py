@@ -79,7 +79,10 @@ class Actor:
             self.waiting = (waiter, episode)
         waiter, episode = self.waiting
         if waiter.failures:
-            assert waiter.failures[0][0] == Reason.STALE_POLICY, waiter.failures
+            # stale, or after a restart acted with the dead learner's weights that the
+            # restarted replay has not seen announced: both superseded, acted again
+            assert waiter.failures[0][0] in (Reason.STALE_POLICY, Reason.FUTURE_POLICY), \
+                waiter.failures
             self.least = max(self.least, self.seen[-1])
             self.waiting, self.seq = None, self.seq + 1  # acts a new episode with newer weights
             return True
