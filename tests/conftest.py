@@ -6,6 +6,8 @@ started."""
 import os
 import signal
 
+import pytest
+
 os.environ["HERCS_STRICT_REASONS"] = "1"
 
 # A shell without job control starts a background command (`make test &`, `nohup … &`) with
@@ -15,3 +17,12 @@ os.environ["HERCS_STRICT_REASONS"] = "1"
 # Python's own restores SIGINT for this process and all it starts.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.fixture
+def trusted_test_envs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tests that resolve tests/goal_envs.py's factories in-process name them as a user's
+    `--task` does (hercs.rl.code_names)."""
+    from hercs.rl.code_names import ANY, TRUST_ENV
+
+    monkeypatch.setenv(TRUST_ENV, ANY)

@@ -20,6 +20,7 @@ from hercs.config import load_yaml
 from hercs.learner.checkpoint import load_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.divergence import nonfinite_tensors, state_tensors
+from hercs.rl.code_names import TRUST_ENV
 from hercs.run.rundir import RunDir
 from tests.goal_envs import REWARD_SCALE_FILE
 from tests.integration.launcher_standins import REPO, Launcher, process_alive
@@ -60,6 +61,9 @@ DIVERGED = re.compile(
     r"continues from it")
 
 
+TASK = "tests.goal_envs:reach_with_a_reward_scale_file"
+
+
 def test_a_learner_that_diverges_mid_run_stops_the_run_and_keeps_its_last_checkpoint(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     scale = tmp_path / "reward-scale"
@@ -67,7 +71,7 @@ def test_a_learner_that_diverges_mid_run_stops_the_run_and_keeps_its_last_checkp
     run_dir = tmp_path / "runs" / "wild"
     launcher = Launcher(
         [sys.executable, "-m", "hercs.apps.cli", "up",
-         "--task", "tests.goal_envs:reach_with_a_reward_scale_file", "--method", "her",
+         "--task", TASK, "--method", "her",
          "--epochs", "20", "--actors", "1", "--run", "wild",
          "--run-dir", str(tmp_path / "runs"), "--listen", free_endpoint(),
          "--set", "training.cycles_per_epoch=3", "--set", "training.eval_episodes=2",
@@ -97,6 +101,7 @@ def test_a_learner_that_diverges_mid_run_stops_the_run_and_keeps_its_last_checkp
     state = load_checkpoint(RunDir(run_dir).checkpoints)
     assert state is not None and int(state["loop"]["epoch"]) == kept
     assert nonfinite_tensors(state_tensors(state["learner"], "learner")) == []
+    monkeypatch.setenv(TRUST_ENV, TASK)  # named here as the launcher's --task named it
     config = load_yaml(RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
     learner.load_state_dict(state["learner"])

@@ -13,6 +13,8 @@ from hercs.rl.envs import make_env
 from hercs.rl.task_registry import task_spec
 from tests.support import reset_and_check_spec
 
+pytestmark = pytest.mark.usefixtures("trusted_test_envs")
+
 BUILT_IN_IDS = ["PointMaze_UMaze-v3", "PointMaze_Medium-v3", "HandReach-v3",
                 "HandManipulateBlock-v1", "HandManipulateEgg-v1", "HandManipulatePen-v1"]
 

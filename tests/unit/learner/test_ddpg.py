@@ -239,7 +239,7 @@ def test_update_rejects_malformed_batches(key: str, value: np.ndarray, match: st
     assert learner.updates == 0
 
 
-def test_the_return_clip_follows_the_tasks_rewards() -> None:
+def test_the_return_clip_follows_the_tasks_rewards(trusted_test_envs: None) -> None:
     """Fetch's −1/0 rewards bound returns to [−1/(1−γ), 0] (the reference's clip);
     PointMaze's 0/1 rewards to [0, 1/(1−γ)]: a Fetch clip there would zero every target."""
     assert return_bounds(task_spec("push"), 0.98) == pytest.approx((-50.0, 0.0))
