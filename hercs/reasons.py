@@ -40,6 +40,9 @@ class Reason(StrEnum):
     BAD_LENGTH = "bad_length", Disposition.DROP
     NON_FINITE = "non_finite", Disposition.DROP
     BAD_VALUE = "bad_value", Disposition.DROP
+    IMPLAUSIBLE = "implausible", Disposition.DROP
+    """Finite and well formed, but a value lies more than 1,000 std from the running
+    statistics (hercs.rl.plausibility): an episode that would poison the normalisers."""
     UNKNOWN_EPISODE = "unknown_episode", Disposition.DROP
     """An `EpisodeRequest` for an id the replay does not hold (never inserted, or overwritten
     by the ring): a miss, not bad input, so it is not counted in `ReplayStatus.rejects`."""

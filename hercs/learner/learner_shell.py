@@ -26,6 +26,7 @@ from hercs.learner.tensorboard import TensorBoardScalars
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
+from hercs.reasons import Disposition, Reason
 from hercs.run.metrics import MetricsCsv
 from hercs.run.rundir import LATEST, RunDir, run_dir_of
 from hercs.run.warn_once import WarnOncePerMinute
@@ -184,6 +185,7 @@ class LearnerService:
             self.tensorboard.write(row)
         values = {k: v for k, v in row.items() if isinstance(v, int | float)}
         values["epochs"] = self.config.training.epochs
+        values["bad_episodes"] = bad_episodes(str(row.get("rejects", "")))
         self.runtime.publish_metrics(values, step=epoch)
         self.publish_progress()
         log.info("epoch %d: success %.2f, env steps %d, %.0f updates/s", epoch,
@@ -256,3 +258,18 @@ def _work(runtime: ServiceRuntime) -> int:
     finally:
         runtime.stop.set()
         service.close()
+
+
+def bad_episodes(rejects: str) -> int:
+    """Of a metrics row's `rejects` ("reason:count;…"), the inserts refused as bad input
+    (a `Disposition.DROP` reason: malformed or implausible), not the stale ones an
+    asynchronous run refuses all the time: what `hercs up`'s epoch line shows."""
+    total = 0
+    for item in filter(None, rejects.split(";")):
+        reason, _, count = item.partition(":")
+        if reason in BAD_INPUT and count.isdigit():
+            total += int(count)
+    return total
+
+
+BAD_INPUT = frozenset(r.value for r in Reason if r.disposition is Disposition.DROP)

@@ -24,6 +24,7 @@ from hercs.replay_service.samplers import make_sampler
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.normalizer import Normalizer, NormalizerState
+from hercs.rl.plausibility import implausible, winsorised
 from hercs.rl.seeding import int_seed
 from hercs.run.runlog.format import EpisodeLogError
 from hercs.wire.episode import EpisodeData
@@ -198,10 +199,21 @@ class ReplayCore:
     def _update_normalizers(self, episode: EpisodeData) -> None:
         obs, g = normalizer_sample(episode, future_p=self.config.her.future_p, rng=self.rng)
         clip = self.config.ddpg.clip_obs
-        self.o_norm.update(np.clip(obs, -clip, clip))
-        self.g_norm.update(np.clip(g, -clip, clip))
+        self.o_norm.update(winsorised(self.o_norm, np.clip(obs, -clip, clip)))
+        self.g_norm.update(winsorised(self.g_norm, np.clip(g, -clip, clip)))
         self.o_norm.recompute_stats()
         self.g_norm.recompute_stats()
+
+    def implausible(self, episode: EpisodeData) -> tuple[Reason, str] | None:
+        """Why `episode`'s values lie beyond what the running statistics make plausible
+        (hercs.rl.plausibility), or None to admit it."""
+        for norm, values, what in ((self.o_norm, episode.obs, "obs"),
+                                   (self.g_norm, episode.ag, "achieved_goal"),
+                                   (self.g_norm, episode.g, "desired_goal")):
+            detail = implausible(norm, values, what=what)
+            if detail is not None:
+                return Reason.IMPLAUSIBLE, f"episode refused: {detail}"
+        return None
 
     def count_reject(self, reason: Reason) -> None:
         self.rejects[reason] += 1

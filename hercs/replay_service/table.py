@@ -103,8 +103,9 @@ class ReplayTable:
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
-            refusal = self._parked.inserts.refusal(episode.actor_id) or \
-                self.lags.future_refusal(episode.policy_version)
+            refusal = (self._parked.inserts.refusal(episode.actor_id)
+                       or self.lags.future_refusal(episode.policy_version)
+                       or self.core.implausible(episode))
             if refusal is None and self.gate is not None:
                 refusal = self.gate.refuse_insert(episode.policy_version)
             if refusal is not None:

@@ -119,6 +119,26 @@ def test_a_cluster_run_that_never_fitted_a_model_says_why_at_its_end(success: fl
         "hercs up: run r finished; run directory: runs/r; its episodes: hercs view runs/r"]
 
 
+def test_the_epoch_line_counts_the_episodes_refused_as_bad_input() -> None:
+    """The learner's `bad_episodes` (malformed or implausible inserts, not stale ones) shows
+    on the epoch line and on the running lines after it, and nothing shows while it is 0."""
+    from hercs.learner.learner_shell import bad_episodes
+
+    assert bad_episodes("implausible:1;stale_policy:40;bad_shape:2") == 3
+    assert bad_episodes("stale_policy:40;cycle_full:3") == 0
+    clock = Clock(1000.0)
+    progress = Progress(total_epochs=5, clock=clock)
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1,
+                                                       "bad_episodes": 0})
+    assert "refused" not in line
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 2, "success_rate": 0.2,
+                                                       "bad_episodes": 1})
+    assert line.endswith("  refused 1 bad episode"), line
+    clock.now += 3600
+    interim = progress.interim()
+    assert interim is not None and interim.endswith("  refused 1 bad episode"), interim
+
+
 def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
     clock = Clock(1000.0)
     progress = Progress(total_epochs=200, clock=clock)

@@ -66,6 +66,8 @@ class Progress:
         self._replay_size: float | None = None
         self.restarts = 0
         """Children restarted so far (shown on the line when not 0)."""
+        self.bad_episodes = 0
+        """Inserts the replay refused as bad input so far (the learner's `bad_episodes`)."""
         self.actors: int | None = None
         """Actors whose liveliness token the router sees (local and remote)."""
         self._episodes_by_actor: Counter[str] = Counter()
@@ -95,7 +97,14 @@ class Progress:
         return (f"epoch {epoch}/{self.total_epochs} running  {_duration(now - self.started)} "
                 f"since start  replay {_fmt(self._replay_size, '.0f')} episodes"
                 + (f"  actors {self.actors}" if self.actors is not None else "")
-                + (f"  restarts {self.restarts}" if self.restarts else ""))
+                + (f"  restarts {self.restarts}" if self.restarts else "")
+                + self._bad_text())
+
+    def _bad_text(self) -> str:
+        """The episodes the replay has refused as bad input so far (malformed, implausible:
+        hercs.rl.plausibility), where there are any."""
+        bad = self.bad_episodes
+        return f"  refused {bad} bad episode{'s' if bad != 1 else ''}" if bad else ""
 
     def on_metrics(self, service: str, values: Mapping[str, float]) -> list[str]:
         if service.startswith("clusterer/"):
@@ -205,6 +214,7 @@ class Progress:
         if success is not None:
             self._success[epoch] = success
         replay = values.get("replay_size", self._replay_size)
+        self.bad_episodes = int(values.get("bad_episodes", self.bad_episodes) or 0)
         if self._first_epoch is None:
             self._first_epoch = epoch
         done_here = epoch - self._first_epoch + 1  # epochs this launcher watched end
@@ -216,4 +226,5 @@ class Progress:
                 f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
                 + self._actors_text() + self._clusters_text()
                 + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
-                + (f"  restarts {self.restarts}" if self.restarts else ""))
+                + (f"  restarts {self.restarts}" if self.restarts else "")
+                + self._bad_text())
