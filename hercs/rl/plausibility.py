@@ -11,14 +11,15 @@ at its eps):
   table moves its z by ~0.4 m against a floored std of 0.01, 40 std; a tipped object's Euler
   angle by π, 314 std), not three orders of magnitude past it.
 - **Winsorised**: what the sums take of an admitted episode is clipped to mean ±
-  `WINSOR_SIGMAS` · std, past the largest honest excursion above (45 std: a PickAndPlace lift
-  of 0.45 m against the floored 0.01), so that honest data is taken as the reference takes it
-  and the paper's learning dynamics stay as they are. One episode of T values at that edge
-  adds at most WINSOR_SIGMAS² · std² · T / n to a dimension's variance, against n samples so
-  far: with the defaults (200 episodes of T = 50 an epoch) 10 std² after epoch 5 (n = 50 000)
-  and 1 std² after epoch 50, where the 3e38 episode, clipped to ±200 only, multiplies a std of
-  0.1 by ~60 at epoch 5 (200² · 50 / 50 000 = 40 added to a variance of 0.01). A stream of crafted episodes each just inside the bounds can still move the
-  statistics; what stops one is TLS and the actor certificate (docs/SECURITY.md).
+  `WINSOR_SIGMAS` · std. That is past a PickAndPlace lift (0.45 m against the floored 0.01,
+  45 std), so positions are taken as the reference takes them; a first tipped object's angle
+  (314 std) counts at the edge in the sums, and only there (it is stored as it came). One
+  episode of T values at the edge adds at most WINSOR_SIGMAS² · std² · T / n to a dimension's
+  variance after n samples: with the defaults (200 episodes of T = 50 an epoch) 10 std² after
+  epoch 5 (n = 50 000) and 1 std² after epoch 50, where the 3e38 episode, clipped to ±200
+  only, adds 200² · 50 / 50 000 = 40 to a variance of 0.01 at epoch 5 (its std × 60). A
+  stream of crafted episodes each just inside the bounds can still move the statistics; what
+  keeps such a sender out is TLS and the actor certificate (docs/SECURITY.md).
 - Both apply once the statistics rest on `WARMUP_SAMPLES` samples (20 episodes of 50 steps);
   before that the only bound is the reference's ±`ddpg.clip_obs` (200), so a run's first
   episodes are trusted as the reference trusts them (docs/FAULTS.md).

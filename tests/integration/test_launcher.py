@@ -139,6 +139,27 @@ def test_the_epoch_line_counts_the_episodes_refused_as_bad_input() -> None:
     assert interim is not None and interim.endswith("  refused 1 bad episode"), interim
 
 
+def test_an_epoch_evaluated_after_a_later_one_is_still_printed_once() -> None:
+    """An evaluator killed mid-epoch answers epochs 1 and 2 after epoch 3 (issue 57): their
+    lines come late and say so, each once; an epoch printed with `success -` gets its late
+    success the same way."""
+    clock = Clock(1000.0)
+    progress = Progress(total_epochs=4, clock=clock)
+    [line] = progress.on_metrics("learner/learner-0", {"epoch": 3, "success_rate": 0.3})
+    assert line.startswith("epoch 3/4  success 0.30")
+    assert progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1}) == [
+        "epoch 1/4  success 0.10  (evaluated late, after epoch 3)"]
+    assert progress.on_metrics("learner/learner-0", {"epoch": 1, "success_rate": 0.1}) == []
+    assert progress.on_metrics("learner/learner-0", {"epoch": 2, "success_rate": 0.2}) == [
+        "epoch 2/4  success 0.20  (evaluated late, after epoch 3)"]
+    assert progress.on_metrics("learner/learner-0", {"epoch": 4}) == []  # waits for its eval
+    [dash] = progress.flush()
+    assert dash.startswith("epoch 4/4  success -")
+    assert progress.on_eval(4, 0.4) == ["epoch 4/4  success 0.40  (evaluated late, after "
+                                        "epoch 4)"]
+    assert progress.on_eval(4, 0.4) == []
+
+
 def test_progress_says_the_run_is_alive_before_the_first_epoch_ends() -> None:
     clock = Clock(1000.0)
     progress = Progress(total_epochs=200, clock=clock)

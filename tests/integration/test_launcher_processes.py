@@ -124,6 +124,27 @@ def test_stop_signal_stops_every_child_in_order(up, tmp_path: Path, signum: int)
     assert not [ident for ident, pid in pids.items() if process_alive(pid)]
 
 
+def test_a_second_ctrl_c_says_it_cut_the_wait_short_not_that_a_timeout_ran_out(
+        up, tmp_path: Path) -> None:
+    """Two Ctrl-Cs: the children still running are killed at once, and the message says so;
+    "did not stop within 30 s" would be untrue 0.1 s after the second signal (issue 57)."""
+    launcher = up({"clusterer-0": "stubborn"}, "--run", "twice", "--actors", "1",
+                  stop_timeout_s=30.0)
+    launcher.wait_for_line(r"run twice is running")
+    wait_for(lambda: {i for e, i in read_events(up.events) if e == "start"}
+             == set(launcher.child_pids), WAIT_S, "every child to start")
+    launcher.proc.send_signal(signal.SIGINT)
+    wait_for(lambda: any(e == "ignore" for e, _ in read_events(up.events)), WAIT_S,
+             "the stubborn clusterer to get its SIGTERM")
+    launcher.proc.send_signal(signal.SIGINT)
+    launcher.finish()
+    report = "\n".join(launcher.err)
+    assert "did not stop within" not in report, report
+    assert "stopping clusterer clusterer-0 at once (a second stop signal)" in "\n".join(
+        launcher.out + launcher.err), report
+    assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
+
+
 @pytest.mark.parametrize(
     ("ident", "behaviour", "why"),
     [("actor-1", "crash", "exit code 3"), ("clusterer-0", "exit0", "exit code 0")],

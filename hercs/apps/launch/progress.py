@@ -67,6 +67,8 @@ class Progress:
         self.restarts = 0
         """Children restarted so far (shown on the line when not 0)."""
         self.bad_episodes = 0
+        self._printed: dict[int, float | None] = {}
+        """Epochs whose line was printed, with the success it said (None: `success -`)."""
         """Inserts the replay refused as bad input so far (the learner's `bad_episodes`)."""
         self.actors: int | None = None
         """Actors whose liveliness token the router sees (local and remote)."""
@@ -113,12 +115,25 @@ class Progress:
         if not service.startswith("learner/") or "epoch" not in values:
             return []
         epoch = int(values["epoch"])
-        if epoch <= self.last_printed:
-            return []
+        if epoch < self.last_printed or epoch in self._printed:
+            return self._late(epoch, values)
         self._pending[epoch] = dict(values)
         return self._release(final=False)
 
+    def _late(self, epoch: int, values: Mapping[str, float]) -> list[str]:
+        """An epoch whose evaluation came after a later epoch's line (an evaluator restarted
+        mid-epoch): its success said once, not dropped; nothing for a repeat."""
+        success = values.get("success_rate")
+        if success is None or self._printed.get(epoch) is not None:
+            return []
+        self._printed[epoch] = float(success)
+        self._success[epoch] = float(success)
+        return [f"epoch {epoch}/{int(values.get('epochs', self.total_epochs))}  success "
+                f"{_fmt(success, '.2f')}  (evaluated late, after epoch {self.last_printed})"]
+
     def on_eval(self, epoch: int, success_rate: float) -> list[str]:
+        if epoch in self._printed:
+            return self._late(epoch, {"success_rate": success_rate})
         self._success[epoch] = success_rate
         return self._release(final=False)
 
@@ -204,6 +219,7 @@ class Progress:
                 break
             del self._pending[epoch]
             lines.append(self._line(epoch, values))
+            self._printed[epoch] = self._success.get(epoch)
             self.last_printed = epoch
         return lines
 

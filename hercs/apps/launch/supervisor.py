@@ -352,10 +352,13 @@ class Supervisor:
                         break
                     with contextlib.suppress(subprocess.TimeoutExpired):
                         child.proc.wait(min(remaining, 0.5))
+            hurried = len(self.signals.received) > signals_before
             for child in live:
                 if child.proc.poll() is None:
-                    self.say(f"hercs up: {child.spec} did not stop within "
-                             f"{self.stop_timeout_s:g} s; killing it", error=True)
+                    # say why it is killed: a second Ctrl-C cut its wait short, or its time ran out
+                    self.say(f"hercs up: stopping {child.spec} at once (a second stop signal)"
+                             if hurried else f"hercs up: {child.spec} did not stop within "
+                             f"{self.stop_timeout_s:g} s; killing it", error=not hurried)
                     child.signal(signal.SIGKILL)
                     child.proc.wait()
             for child in stage:  # anything the child forked into its group
