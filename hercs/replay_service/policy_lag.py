@@ -20,7 +20,7 @@ POLICY_LAG_WINDOW = 64
 POLICY_LAGS_KEPT = 65536
 """At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
 the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
-INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+INT64_MAX = (1 << 63) - 1
 
 
 class PolicyLagLedger:
@@ -30,9 +30,12 @@ class PolicyLagLedger:
     limiter follows through every restart (`learner_follow`). Its lower bound
     d = ρ·I − S ≥ ρ·N_min − E is 0 with the defaults (ρ = 10, N_min = 4, E = 40), so
     version v was published only once I ≥ v·episodes_per_cycle episodes were stored, and an
-    episode acted with it is stored with an id ≥ that: its cycle is ≥ v. Only a window wider
-    than that (E > ρ·N_min) or `--free-run` lets the learner run ahead of lockstep, which then
-    reads as a negative lag: fresher than the lockstep schedule, not staler."""
+    episode acted with it is stored with an id ≥ that: its cycle is ≥ v. Three things break
+    that premise, and each reads as 0, never below: a window wider than that (E > ρ·N_min)
+    or `--free-run` (the learner runs ahead of lockstep: fresher than the schedule, not
+    staler), and an episode log cut short (a torn tail: the ids restart below the learner's
+    count, so the episodes it lost count as stored when the lag is taken). An episode acted
+    with a version no learner can have published is refused instead (`future_refusal`)."""
 
     def __init__(self, episodes_per_cycle: int, *, prefetch_depth: int = 0) -> None:
         self.episodes_per_cycle = episodes_per_cycle
@@ -87,9 +90,11 @@ class PolicyLagLedger:
 
     def stored(self, episode_id: int, policy_version: int) -> None:
         """An episode acted with `policy_version` was stored under `episode_id`."""
-        self._recent_lags.append(self._learner_version - policy_version)
-        # an int64 version far below -1 (valid on the wire) must not overflow the Batch
-        lag = min(max(self.cycle_of(episode_id) - policy_version, INT64_MIN), INT64_MAX)
+        # acted with weights newer than the learner's last request: as fresh as can be, 0
+        self._recent_lags.append(max(0, self._learner_version - policy_version))
+        # an int64 version far below -1 (valid on the wire) must not overflow the Batch; one
+        # ahead of the schedule (class docstring) reads 0
+        lag = min(max(self.cycle_of(episode_id) - policy_version, 0), INT64_MAX)
         self._recent_schedule_lags.append(lag)
         self._since_sample.append(lag)
 

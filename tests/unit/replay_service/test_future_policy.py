@@ -42,3 +42,17 @@ def test_a_recovered_log_counts_as_announced() -> None:
     h.table.lags.recovered(40)
     assert not insert_acted(h, 1, 41).failures
     assert insert_acted(h, 2, 42).failures[0][0] == Reason.FUTURE_POLICY
+
+
+def test_after_a_torn_tail_the_lag_is_taken_from_what_was_stored_and_is_never_negative() -> None:
+    """A log cut short restarts the ids below the learner's count: an episode acted with
+    the learner's newest weights, stored at an id whose schedule cycle is behind them, reads
+    lag 0 (it is the freshest there is), where it read -1.1 and -3.2 (issue 57)."""
+    h = make()
+    h.table.lags.recovered(5)  # the learner is at version 5; the torn log kept too few
+    for seq in range(4):
+        assert not insert_acted(h, seq, 5).failures
+    served = h.sample(8, version=5, learner="L@2")
+    [batch] = served.results
+    assert len(batch.policy_lags) == 4 and (batch.policy_lags == 0).all(), batch.policy_lags
+    assert h.table.lags.mean_schedule_lag == 0.0 and h.table.lags.mean_request_lag == 0.0
