@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from hercs.reasons import Reason
 from hercs.replay_service.table import LOCKSTEP_CLUSTER_WAIT_S
