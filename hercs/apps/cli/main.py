@@ -344,13 +344,46 @@ that the task's env can be made here (the v1 envs need `make mujoco-py`). A remo
 learns its task from the run, meets a missing mujoco-py when it makes its envs instead."""
 
 
+def _unknown_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                       unknown: list[str]) -> int:
+    """An unknown flag, told by the command it was given to (its usage, not the top-level
+    one), with the closest flags that command takes; exit 2 as argparse's own errors."""
+    import difflib
+
+    command = getattr(args, "command", None)
+    sub = _subparser(parser, command) if command else None
+    target = sub or parser
+    known = sorted({flag for action in target._actions for flag in action.option_strings})
+    hints = []
+    for word in unknown:
+        if word.startswith("-"):
+            close = difflib.get_close_matches(word.partition("=")[0], known, n=1, cutoff=0.7)
+            if close:
+                hints.append(f"{word}: did you mean {close[0]}?")
+    target.print_usage(sys.stderr)
+    print(f"{target.prog}: error: unrecognized arguments: {' '.join(unknown)}"
+          + "".join(f"\n  {hint}" for hint in hints), file=sys.stderr)
+    return 2
+
+
+def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            found = action.choices.get(name)
+            if isinstance(found, argparse.ArgumentParser):
+                return found
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser, commands = build_parser()
     words = sys.argv[1:] if argv is None else argv
     if words[:1] == ["sweep"]:  # its own parser (and `sweep report`'s): options pass through
         return NO_CONFIG_COMMANDS["sweep"](argparse.Namespace(command="sweep",
                                                               sweep_args=list(words[1:])))
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        return _unknown_arguments(parser, args, unknown)
     if args.command is None:
         parser.print_help()
         return 2

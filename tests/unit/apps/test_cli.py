@@ -260,3 +260,14 @@ def test_a_joiner_gives_up_after_transport_wait_s_without_a_router(tmp_path: Pat
 def test_run_dir_without_run_names_the_flag(capsys) -> None:
     assert main(["live", "--run-dir", "runs"]) == 2
     assert "--run-dir: give --run RUN too" in capsys.readouterr().err
+
+
+def test_a_mistyped_flag_is_told_by_its_command_with_the_flag_meant() -> None:
+    """`hercs up --epocs 3` (issue 58): the usage of `hercs up`, not the top-level one, and
+    the flag it most likely meant; exit 2 as every other refused flag."""
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "up", "--epocs", "3"],
+                          cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.startswith("usage: hercs up "), done.stderr
+    assert "hercs up: error: unrecognized arguments: --epocs 3" in done.stderr
+    assert done.stderr.rstrip().endswith("--epocs: did you mean --epochs?"), done.stderr
