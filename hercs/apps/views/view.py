@@ -82,6 +82,16 @@ def resolve_log_path(path: str | os.PathLike[str]) -> Path:
         raise ViewError(f"{p}: no such file or directory; give an episodes.mcap file or a run "
                         "directory (e.g. runs/<run>/)")
     if p.is_dir() and not segment_paths(p):
+        files = RunDir(p)
+        if files.metrics.is_file() or files.config.is_file():  # a run, its log not kept
+            raise ViewError(
+                f"{p} is a run folder without its episode log ({LIVE_NAME} or "
+                "episodes.NNN.mcap): a committed or copied run keeps only its small files "
+                f"(config, metrics{', best policy' if files.checkpoint('best').is_file() else ''}"
+                f"). Plot its curve with `hercs plot {p} -o curve.png`"
+                + (f", or evaluate its policy with `hercs eval {p}`"
+                   if files.checkpoint("best").is_file() else "")
+                + "; the episodes of a run of your own are in its runs/RUN folder")
         raise ViewError(f"{p} holds no episode log ({LIVE_NAME} or episodes.NNN.mcap); is it "
                         "a run directory?")
     return p

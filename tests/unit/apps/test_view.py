@@ -69,6 +69,17 @@ def test_missing_path_exits_2(tmp_path: Path, capsys) -> None:
     assert "holds no episode log" in capsys.readouterr().err
 
 
+def test_a_committed_run_without_its_log_says_what_it_keeps_and_what_to_run(
+        tmp_path: Path, capsys) -> None:
+    """A committed run keeps config, metrics and perhaps best.pt (issue 58): say so, and name
+    `hercs plot` and `hercs eval`, rather than ask whether it is a run directory."""
+    shipped = Path(__file__).resolve().parents[3] / "docs" / "results" / "runs" / "push-her-s1"
+    assert main(["view", str(shipped), "--save", str(tmp_path / "o.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert "is a run folder without its episode log" in err and "is it a run" not in err
+    assert f"hercs plot {shipped} -o curve.png" in err and f"hercs eval {shipped}" in err
+
+
 def test_bad_selection_exits_2(tmp_path: Path, capsys) -> None:
     _write_run(tmp_path, n=3)
     assert main(["view", str(tmp_path), "--episodes", "100:200",
