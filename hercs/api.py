@@ -13,7 +13,7 @@ from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -152,10 +152,23 @@ class Metrics:
     def __iter__(self) -> Iterator[dict[str, MetricValue]]:
         return iter(self.rows)
 
-    def __getitem__(self, name: str) -> np.ndarray | list[MetricValue]:
+    @overload
+    def __getitem__(self, name: str) -> np.ndarray | list[MetricValue]: ...
+    @overload
+    def __getitem__(self, name: int) -> dict[str, MetricValue]: ...
+    @overload
+    def __getitem__(self, name: slice) -> tuple[dict[str, MetricValue], ...]: ...
+
+    def __getitem__(self, name: str | int | slice) -> Any:
         """Column `name`, one value per row: a numpy array where every cell is a number
         (int64 where all are integers and none is empty, else float64 with nan where a row
-        has none), else a list of the parsed cells (cluster_sizes' tuples, rejects' dicts)."""
+        has none), else a list of the parsed cells (cluster_sizes' tuples, rejects' dicts).
+        An int or a slice takes rows instead: `metrics[-1]` is the last epoch's row."""
+        if not isinstance(name, str):
+            if isinstance(name, int | slice) and not isinstance(name, bool):
+                return self.rows[name]
+            raise TypeError(f"metrics[{name!r}]: give a column name (str), e.g. "
+                            "metrics['success_rate'], or a row number, metrics[-1]")
         self._check_column(name)
         values = [row.get(name) for row in self.rows]
         if all(isinstance(v, int) for v in values):
@@ -167,7 +180,7 @@ class Metrics:
     def _check_column(self, name: str) -> None:
         if not isinstance(name, str):
             raise TypeError(f"metrics[{name!r}]: give a column name (str), e.g. "
-                            "metrics['success_rate']; rows are `for row in metrics`")
+                            "metrics['success_rate'], or a row number, metrics[-1]")
         if name not in self.columns:
             raise KeyError(f"{self.path}: no column {name!r}; columns: {list(self.columns)}")
 

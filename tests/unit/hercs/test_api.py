@@ -204,8 +204,10 @@ def test_a_metrics_column_by_name_and_the_table_in_pandas(run_dir: Path) -> None
     assert metrics["rejects"] == [None, {"duplicate": 2, "stale": 1}]
     with pytest.raises(KeyError, match="no column 'succes'; columns: \\['epoch'"):
         metrics["succes"]
+    assert metrics[0] == metrics.rows[0] and metrics[-1]["epoch"] == 2  # rows by number
+    assert metrics[:1] == metrics.rows[:1]
     with pytest.raises(TypeError, match="give a column name"):
-        metrics[0]  # type: ignore[index]
+        metrics[1.5]  # type: ignore[call-overload]
     frame = metrics.to_pandas()
     assert list(frame.columns) == list(METRICS_COLUMNS) and len(frame) == 2
     assert frame["success_rate"].tolist() == [0.25, 0.5]
