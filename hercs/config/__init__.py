@@ -24,6 +24,7 @@ from hercs.config.algorithm import (
     HERConfig,
     default_energy_epsilon,
 )
+from hercs.config.bounds import check_bounds, check_machine
 from hercs.config.building import RETIRED_KEYS, StrictBoolLoader, _build, _did_you_mean
 from hercs.config.checks import _check, _finite_numbers
 from hercs.config.deploy import (
@@ -40,6 +41,7 @@ from hercs.config.deploy import (
     endpoint_problem,
 )
 from hercs.config.replay import EVICTIONS, ReplayConfig
+from hercs.config.sizes import episode_message_bytes, size_text
 from hercs.config.task import TaskConfig
 from hercs.errors import ConfigError
 from hercs.rl.methods import METHODS, Method
@@ -196,6 +198,12 @@ class HercsConfig:
                "replay.rate_tolerance_updates", self.replay.rate_tolerance_updates,
                f"be at least (training.minibatches_per_cycle + updates per episode)/2 = "
                f"{least:g}, or inserts and samples could both wait forever")
+        check_bounds(self)  # the upper bound of every numeric field (hercs.config.bounds)
+        episode = episode_message_bytes(spec)
+        _check(episode <= self.replay.max_message_bytes, "replay.max_message_bytes",
+               self.replay.max_message_bytes,
+               f"hold one episode of {spec.name} ({spec.episode_steps} steps: a "
+               f"{size_text(episode)} Episode message), or the replay refuses every insert")
 
     @property
     def capacity_episodes(self) -> int:
@@ -225,7 +233,11 @@ class HercsConfig:
 def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
     """Return a new config with `section.field=value` overrides applied and validated.
 
-    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work).
+    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work). This is how every
+    `hercs` command builds the config it runs here, so the result is also held to what this
+    machine can hold (`hercs.config.bounds.check_machine`: its memory and CPUs); a config
+    built otherwise (`HercsConfig(...)`, `from_dict`, `load_yaml`) may describe a run held
+    elsewhere and is held only to the bounds of any machine.
     """
     data = config.to_dict()
     for item in overrides:
@@ -254,7 +266,9 @@ def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
         data[section][name] = value
-    return HercsConfig.from_dict(data)
+    result = HercsConfig.from_dict(data)
+    check_machine(result)
+    return result
 
 
 def workers_overrides(config: HercsConfig, workers: int) -> list[str]:

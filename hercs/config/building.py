@@ -16,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from hercs.config.limits import EXACT_COUNT
 from hercs.errors import ConfigError
 
 log = logging.getLogger("hercs.config")
@@ -68,6 +69,11 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
         if isinstance(value, str):
             value = _parse_number(value, where)
         if isinstance(value, float) and value.is_integer():
+            if abs(value) > EXACT_COUNT:  # a float there is not one integer
+                raise ConfigError(
+                    f"{where}: got {value!r}, must be an integer: a float past 2**53 stands "
+                    "for many integers, not one (write the integer's digits; the field's "
+                    "upper bound is checked next)")
             return int(value)
         if isinstance(value, int):
             return value

@@ -9,6 +9,7 @@ import re
 from dataclasses import dataclass, field
 
 from hercs.config.checks import _check, _positive
+from hercs.config.limits import MAX_ENVS_PER_PROCESS
 from hercs.errors import ConfigError
 
 ENDPOINT = re.compile(r"(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
@@ -56,8 +57,8 @@ class ActorConfig:
     def __post_init__(self) -> None:
         _check(self.insert_queue >= 0, "actor.insert_queue", self.insert_queue, "be >= 0")
         _check(self.num_actors >= 0, "actor.num_actors", self.num_actors, "be >= 0")
-        _check(1 <= self.envs_per_process <= 256, "actor.envs_per_process",
-               self.envs_per_process, "be between 1 and 256")
+        _check(1 <= self.envs_per_process <= MAX_ENVS_PER_PROCESS, "actor.envs_per_process",
+               self.envs_per_process, f"be between 1 and {MAX_ENVS_PER_PROCESS}")
         _positive("actor.insert_timeout_s", self.insert_timeout_s)
 
 

@@ -4,6 +4,11 @@ and the replies and announcements it makes. `replay_shell` calls them; tests dri
 
 from __future__ import annotations
 
+from hercs.config.limits import (  # the config refuses a run that asks for more
+    MAX_BATCH_SIZE,
+    MAX_MINIBATCHES_PER_REQUEST,
+    MAX_ROWS_PER_REQUEST,
+)
 from hercs.errors import InvalidMessage
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
@@ -14,12 +19,6 @@ from hercs.rl.cluster_model import ClusterModel
 from hercs.run.runlog import MAX_SEQUENCE
 from hercs.wire.codec import array_to_msg, msg_to_cluster_model
 from hercs.wire.validation import validate_centroids, validate_eval_result, validate_sample_request
-
-MAX_MINIBATCHES_PER_REQUEST = 400
-MAX_BATCH_SIZE = 8192
-MAX_ROWS_PER_REQUEST = 1 << 18
-"""Transitions in one Batch reply: 262,144 rows, ~61 MB for the object tasks (the learner asks
-for 40 × 256 = 10,240). Without it one valid request could make the replay build GBs."""
 
 
 def sample_call(request: pb.SampleRequest, *, run: str) -> SampleCall:

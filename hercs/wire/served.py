@@ -15,16 +15,13 @@ import numpy as np
 
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
-from hercs.proto.schema import SCHEMA_VERSION
+from hercs.proto.schema import MAX_BATCH_BYTES, SCHEMA_VERSION
 from hercs.reasons import Reason
 from hercs.rl.normalizer import NormalizerState, checked_state
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.batch import TransitionBatch
 from hercs.wire.codec import batch_to_bytes, msg_to_stats, stats_to_msg
 from hercs.wire.validation import MAX_INT64, decode_minibatch, parse_message
-
-MAX_BATCH_BYTES = 1 << 30
-"""A Batch reply larger than this is refused unread (40 × 256 FetchPush transitions: ~2.4 MB)."""
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,11 @@
 """When a run has stopped moving: the stall bound of `hercs up` (hercs/apps/launch/supervisor.py).
 
 A run that ends no epoch for `launch.stall_factor` times its slowest epoch so far (before the
-first, times `expected_first_epoch_s`) has stalled, whatever the cause; nothing else would
-end it, since each service waits, correctly, for another. Pure bookkeeping with an injected
-clock; the supervisor feeds it and asks `stalled()`.
+first, times `expected_first_epoch_s`), or for a day (`MAX_STALL_S`) whichever is shorter,
+has stalled, whatever the cause; nothing else would end it, since each service waits,
+correctly, for another. The reference machine's speeds it predicts the first epoch from, and
+the cap, are hercs.config.limits' (the config's bounds use them too). Pure bookkeeping with
+an injected clock; the supervisor feeds it and asks `stalled()`.
 """
 
 from __future__ import annotations
@@ -12,20 +14,7 @@ import time
 from collections.abc import Callable
 
 from hercs.config import HercsConfig
-
-STARTUP_S = 60.0
-"""Starting the services before the first episode: importing torch and MuJoCo, making the
-envs and joining the router took 10-25 s per `hercs up` on this project's 2-core development
-machine under its usual load; 60 leaves a slower machine room [DESIGN]."""
-UPDATE_S = 0.017
-"""CPU seconds of one DDPG update at the paper's sizes (minibatch 256, 3 hidden layers of
-256) on one core of the development machine (docs/PERFORMANCE.md: 16.8 ms); it scales with
-the minibatch and the layers' size. A GPU learner is faster: this only makes the bound
-longer there."""
-ENV_STEP_S = 0.001
-"""Seconds of one env step with its policy call: the development machine's raw FetchPush-v4
-steps at 1,339/s (docs/PERFORMANCE.md §3); heavier simulators (the hand tasks) run a few
-times slower, which the factor covers."""
+from hercs.config.limits import ENV_STEP_S, MAX_STALL_S, STARTUP_S, UPDATE_S
 
 
 def expected_first_epoch_s(config: HercsConfig) -> float:
@@ -89,9 +78,13 @@ class StallWatch:
 
     @property
     def bound_s(self) -> float:
-        """Seconds without an epoch's end after which the run has stalled."""
-        pace = self.slowest_s if self.slowest_s is not None else self.first_epoch_s
-        return self.factor * pace
+        """Seconds without an epoch's end after which the run has stalled: the factor times
+        the pace, at most `MAX_STALL_S` (the first-epoch estimate grows with the config)."""
+        return min(self.factor * self._pace_s, MAX_STALL_S)
+
+    @property
+    def _pace_s(self) -> float:
+        return self.slowest_s if self.slowest_s is not None else self.first_epoch_s
 
     def quiet_s(self) -> float:
         """Seconds since the clock began or the last epoch ended (0 before `begin()`)."""
@@ -115,5 +108,7 @@ class StallWatch:
             ago = self._clock() - self.last_episode_at
             episodes = (f"the last episode was stored {ago:.0f} s ago" if ago >= 1
                         else "episodes are still being stored")
+        capped = (f", capped at {MAX_STALL_S:.0f} s (a day)"
+                  if self.factor * self._pace_s > MAX_STALL_S else "")
         return (f"no epoch has ended for {self.quiet_s():.0f} s ({since}); the bound is "
-                f"launch.stall_factor {self.factor:g} x {pace}; {episodes}")
+                f"launch.stall_factor {self.factor:g} x {pace}{capped}; {episodes}")

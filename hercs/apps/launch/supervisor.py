@@ -23,6 +23,7 @@ from hercs.apps.launch.progress import Progress
 from hercs.apps.launch.run_plan import ChildSpec, CommandFactory, plan_children
 from hercs.apps.launch.stall import StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig
+from hercs.config.limits import MAX_BACKOFF_S
 from hercs.errors import InvalidMessage
 from hercs.net.backoff import nth_delay
 from hercs.net.service_shell import EXIT_CONFIG, EXIT_DIVERGED
@@ -39,8 +40,6 @@ STOP_STAGES = tuple(tuple(r.name for r in SERVICE_ROLES.values() if r.stop_stage
 last."""
 OPTIONAL_ROLES = frozenset(r.name for r in SERVICE_ROLES.values() if r.optional)
 """Roles whose exit does not end the run: watching training must never stop it."""
-MAX_BACKOFF_S = 30.0
-"""Restart delays double from `launch.restart_backoff_s` up to this."""
 HEALTHY_S = 300.0
 """A child that ran this long before dying has its restart count reset (it was not
 crash-looping)."""

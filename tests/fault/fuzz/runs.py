@@ -51,7 +51,8 @@ made)."""
 def replay_config(endpoint: str, run_dir: Path) -> HercsConfig:
     return apply_overrides(HercsConfig(), [
         f"run.name={RUN_R}", f"run.run_dir={run_dir}", "run.method=her-cs", "task.name=reach",
-        f"cluster.k={K}", "cluster.fgb_size=2000", "cluster.kmeans_n_init=1",
+        # the paper's 256 units make weights over MAX_BYTES, which the config refuses
+        "ddpg.hidden_size=32", f"cluster.k={K}", "cluster.fgb_size=2000", "cluster.kmeans_n_init=1",
         "replay.free_run=true", "replay.min_episodes_to_sample=4",
         # the probes' episodes carry any weights version: the lag bound (not input
         # validation) would refuse some of the valid ones

@@ -7,6 +7,7 @@ import pytest
 
 from hercs.apps.launch.stall import STARTUP_S, StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig, apply_overrides
+from hercs.config.limits import MAX_STALL_S
 from tests.support import Clock
 
 
@@ -67,6 +68,24 @@ def test_a_run_without_actors_is_held_not_stalled_and_starts_afresh_when_they_re
     assert not watch.stalled(), "the bound counts from the actors' return"
     clock.now += 1
     assert watch.stalled() and watch.bound_s == 30
+
+
+@pytest.mark.parametrize("slowest_s", [None, 3 * 3600.0], ids=["first-epoch", "slowest-epoch"])
+def test_the_bound_is_at_most_a_day_whatever_the_pace(slowest_s: float | None) -> None:
+    """The first epoch's estimate grows with the config (a batch of 10^9 rows made it 922
+    days) and a slow epoch times the factor can be long: the bound stops at MAX_STALL_S."""
+    clock = Clock()
+    watch = StallWatch(factor=10, first_epoch_s=1e9, clock=clock)
+    watch.begin()
+    if slowest_s is not None:
+        clock.now += slowest_s
+        watch.epoch_ended(1)
+    assert watch.bound_s == MAX_STALL_S == 24 * 3600
+    clock.now += MAX_STALL_S - 1
+    assert not watch.stalled()
+    clock.now += 1
+    assert watch.stalled()
+    assert ", capped at 86400 s (a day); " in watch.describe()
 
 
 def test_factor_0_never_stalls() -> None:
