@@ -209,8 +209,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(line)
         print("nothing was started (--dry-run)")
         return 0
+    seeds_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}..{seeds[-1]}"
     print(f"sweep: {len(cells)} runs ({', '.join(tasks)} × {', '.join(methods)} × "
-          f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × seeds {seeds[0]}..{seeds[-1]}), "
+          f"{len(arms)} arm{'s' if len(arms) != 1 else ''} × {seeds_text}), "
           f"{epochs} epochs each, {jobs} at a time, in {run_root}", flush=True)
     if args.cell_index is not None:
         if not 0 <= args.cell_index < len(cells):

@@ -122,7 +122,7 @@ def test_repeated_tasks_and_methods_are_one_arm_each(capsys: pytest.CaptureFixtu
                                                      tmp_path: Path) -> None:
     assert se.main(["--report-only", "--tasks", "push", "push", "--methods", "her", "her",
                     "--seeds", "1", "--run-dir", str(tmp_path / "r")]) == 0
-    assert "sweep: 1 runs (push × her × 1 arm × 1 seeds)" in capsys.readouterr().out
+    assert "sweep: 1 runs (push × her × 1 arm × seed 1)" in capsys.readouterr().out
 
 
 def test_manifest_writers_at_once_never_fail_or_leave_half_a_file(tmp_path: Path) -> None:

@@ -9,8 +9,8 @@ from hercs.reasons import Disposition, Reason, UnknownReason, disposition
 EXPECTED = {
     Disposition.DROP: {"undecodable", "oversized", "schema_version", "unknown_run",
                        "wrong_task", "missing_field", "bad_array", "bad_dtype", "bad_shape",
-                       "bad_length", "non_finite", "bad_value", "unknown_episode"},
-    Disposition.SUPERSEDED: {"stale_policy", "cycle_full"},
+                       "bad_length", "non_finite", "bad_value", "implausible", "unknown_episode"},
+    Disposition.SUPERSEDED: {"stale_policy", "future_policy", "cycle_full"},
     Disposition.RETRY: {"expired", "log_failed", "unavailable", "internal", "transport",
                         "actor_queue_full"},
 }
