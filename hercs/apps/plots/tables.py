@@ -3,7 +3,6 @@ hercs/apps/plots/curves.py's rule."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -18,14 +17,8 @@ from hercs.apps.plots.curves import (
     method_rank,
     milestones,
 )
+from hercs.apps.plots.numbers import rate
 from hercs.apps.plots.series import DEFAULT_CHOICE, DEFAULT_LAG, SeriesChoice, series_list, whose
-
-
-def _fmt_rate(v: float | None) -> str:
-    if v is None or math.isnan(v):
-        return "–"
-    text = f"{v:.2f}"
-    return text[1:] if text.startswith("0") else text
 
 
 def markdown_table(task: str, rows: Sequence[tuple[str, Milestones]]) -> str:
@@ -41,7 +34,7 @@ def markdown_table(task: str, rows: Sequence[tuple[str, Milestones]]) -> str:
     for label, m in rows:
         cells = [label, str(m.n_seeds), str(m.n_epochs)]
         cells += ["–" if m.crossing[t] is None else str(m.crossing[t]) for t in th]
-        cells += [_fmt_rate(m.at[e]) for e in at] + [_fmt_rate(m.final)]
+        cells += [rate(m.at[e]) for e in at] + [rate(m.final)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
