@@ -3,7 +3,8 @@ order, tolerant of a writer that was killed.
 
 A torn tail (a record cut short, a chunk failing its CRC or not decompressing) ends the scan
 quietly; a bad chunk followed by an intact one raises `EpisodeLogError` rather than drop
-acked data. Chunks holding only topics not asked for are not decompressed.
+acked data. Chunks holding only topics not asked for, or that the caller's `read_chunk`
+declines, are neither read nor decompressed (their message indexes say what they hold).
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import io
 import logging
 import os
 import struct
-from collections.abc import Collection, Iterable, Iterator
+from collections import Counter
+from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, TypeVar
@@ -123,19 +125,27 @@ class SegmentReader:
     noticed, one that holds a topic asked for always is."""
 
     def __init__(self, path: Path, *, metadata_only: bool = False,
-                 topics: Collection[str] | None = None) -> None:
+                 topics: Collection[str] | None = None,
+                 read_chunk: Callable[[int, int], bool] | None = None) -> None:
         """`topics`: yield only their messages (None: every message), and skip the chunks
-        that hold none (module docstring); `scan` and `parts` then cover the chunks read."""
+        that hold none (module docstring); `scan` and `parts` then cover the chunks read.
+        `read_chunk(offset, length)`, given `topics`: False skips a chunk that holds some of
+        them as well, on the same conditions (its messages are counted in `skipped`)."""
         self.scan = SegmentScan(path=path)
         self.parts = IndexParts()
         self._metadata_only = metadata_only
         self._topics = None if topics is None else frozenset(topics)
         self._skip_chunks = topics is not None
+        self._read_chunk = read_chunk
         self.reached_data = False
         """A chunk was found (a metadata-only read stops there)."""
         self.chunks_skipped = 0
-        """Chunks not decompressed: their indexes named no channel of `topics`."""
+        """Chunks neither read nor decompressed: their indexes named no channel of `topics`,
+        or `read_chunk` declined them."""
+        self.skipped: Counter[str] = Counter()
+        """Messages of `topics`, by topic, in the chunks `read_chunk` declined."""
         self._chunk_channels: set[int] = set()  # channels with messages in the last chunk
+        self._index_open = False  # the last chunk's message indexes may still follow
 
     def read_through(self) -> SegmentScan:
         """Read every record, every chunk decompressed and its CRC checked, counting the
@@ -170,8 +180,11 @@ class SegmentReader:
             opcode, length = RECORD_HEADER.unpack(header)
             if opcode not in OPCODES or length > scan.size - pos - RECORD_HEADER.size:
                 return  # torn record (body past the end of the file) or bytes that are no record
-            body = f.read(length)
             end = pos + RECORD_HEADER.size + length
+            unread = (self._skippable_channels(f, pos, length)  # the file stays where it is
+                      if opcode == Opcode.CHUNK and self._skip_chunks and bad_chunk_at is None
+                      and not (self._metadata_only or data_ended) else None)
+            body = b"" if unread is not None else f.read(length)
             if opcode == Opcode.FOOTER:
                 scan.finished = bad_chunk_at is None and f.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC
                 return
@@ -186,11 +199,19 @@ class SegmentReader:
                 self.reached_data = True
                 if self._metadata_only:
                     return
-                indexed = (self._unwanted_channels(f, scan.size)
-                           if self._skip_chunks and bad_chunk_at is None else None)
                 try:
-                    chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
-                    records = [] if indexed is not None else _chunk_records(chunk)
+                    if unread is not None:
+                        index = _unread_chunk_index(f, pos, length)
+                    else:
+                        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+                        records = _chunk_records(chunk)
+                        index = ChunkIndex(
+                            message_start_time=chunk.message_start_time,
+                            message_end_time=chunk.message_end_time, chunk_start_offset=pos,
+                            chunk_length=end - pos, message_index_offsets={},
+                            message_index_length=0, compression=chunk.compression,
+                            compressed_size=len(chunk.data),
+                            uncompressed_size=chunk.uncompressed_size)
                 except UNREADABLE_CHUNK as exc:
                     if bad_chunk_at is None:
                         log.warning("%s: chunk at offset %d is unreadable (%s); treating it as "
@@ -203,15 +224,10 @@ class SegmentReader:
                             f"an intact chunk follows at {pos}: the file is damaged in the "
                             "middle, not torn at the end; nothing is recovered from it. Keep "
                             "the file for inspection and restore it from a copy")
-                    self.parts.chunk_indexes.append(ChunkIndex(
-                        message_start_time=chunk.message_start_time,
-                        message_end_time=chunk.message_end_time, chunk_start_offset=pos,
-                        chunk_length=end - pos, message_index_offsets={},
-                        message_index_length=0, compression=chunk.compression,
-                        compressed_size=len(chunk.data),
-                        uncompressed_size=chunk.uncompressed_size))
-                    if indexed is not None:  # skipped: its indexes name its channels
-                        self._chunk_channels = indexed
+                    self.parts.chunk_indexes.append(index)
+                    self._index_open = True
+                    if unread is not None:  # skipped: its indexes name its channels
+                        self._chunk_channels = unread
                         self.chunks_skipped += 1
             elif opcode == Opcode.MESSAGE_INDEX:
                 self._add_message_index(body, pos, end)
@@ -237,14 +253,17 @@ class SegmentReader:
                 elif isinstance(record, Channel):
                     self.parts.channels[record.id] = record
 
-    def _unwanted_channels(self, f: IO[bytes], size: int) -> set[int] | None:
-        """The channels of the chunk just read if its message indexes (the records after it,
-        read ahead and then read again by the scan) are complete and name only defined
-        channels of topics not asked for; else None (the chunk must be read)."""
+    def _skippable_channels(self, f: IO[bytes], offset: int, length: int) -> set[int] | None:
+        """The channels of the chunk at `offset`, whose `length` bytes the file is at the
+        start of, if its message indexes (the records after it, read ahead and then read
+        again by the scan) are complete and name only defined channels, of topics not asked
+        for or in a chunk `read_chunk` declines; else None (the chunk must be read)."""
         assert self._topics is not None
         start = f.tell()
-        channels: set[int] = set()
+        size = self.scan.size
+        counts: dict[int, int] = {}
         try:
+            f.seek(length, os.SEEK_CUR)
             while True:
                 header = f.read(RECORD_HEADER.size)
                 if len(header) < RECORD_HEADER.size:
@@ -252,18 +271,21 @@ class SegmentReader:
                 opcode, length = RECORD_HEADER.unpack(header)
                 if opcode != Opcode.MESSAGE_INDEX:
                     break  # another record: the writer wrote every index of the chunk before it
-                if length < 2 or length > size - f.tell():
+                if length < INDEX_HEAD.size or length > size - f.tell():
                     return None
-                (channel_id,) = struct.unpack("<H", f.read(2))
-                channels.add(channel_id)
-                f.seek(length - 2, os.SEEK_CUR)
+                channel_id, pairs = INDEX_HEAD.unpack(f.read(INDEX_HEAD.size))
+                counts[channel_id] = pairs // INDEX_PAIR_BYTES
+                f.seek(length - INDEX_HEAD.size, os.SEEK_CUR)
         finally:
             f.seek(start)
         known = self.parts.channels
-        if opcode not in OPCODES or not channels or not all(
-                c in known and known[c].topic not in self._topics for c in channels):
+        if opcode not in OPCODES or not counts or not all(c in known for c in counts):
             return None
-        return channels
+        wanted = {known[c].topic: n for c, n in counts.items() if known[c].topic in self._topics}
+        if wanted and (self._read_chunk is None or self._read_chunk(offset, length)):
+            return None
+        self.skipped.update(wanted)
+        return set(counts)
 
     def _add_message_index(self, body: bytes, pos: int, end: int) -> None:
         """Message indexes follow their chunk; kept only if they cover all its channels."""
@@ -275,11 +297,13 @@ class SegmentReader:
         index.message_index_length += end - pos
 
     def _close_chunk_index(self) -> None:
-        """A chunk's message indexes are usable only if all were written before a kill."""
-        if self.parts.chunk_indexes:
+        """A chunk's message indexes are usable only if all were written before a kill;
+        checked once, at the first record after them (or the file's end)."""
+        if self._index_open:
             index = self.parts.chunk_indexes[-1]
             if set(index.message_index_offsets) != self._chunk_channels:
                 index.message_index_offsets, index.message_index_length = {}, 0
+        self._index_open = False
         self._chunk_channels = set()
 
     def _message(self, channel_id: int, sequence: int, log_time: int, publish_time: int,
@@ -304,6 +328,31 @@ class SegmentReader:
         return LoggedMessage(topic=channel.topic, schema_name=schema.name if schema else "",
                              sequence=sequence, log_time_ns=log_time,
                              publish_time_ns=publish_time, data=data[start:end])
+
+
+INDEX_HEAD = struct.Struct("<HI")
+"""A message index's channel id and the byte length of its (log time, offset) pairs."""
+INDEX_PAIR_BYTES = 16
+CHUNK_HEAD = struct.Struct("<QQQII")
+"""A chunk's message start and end times, uncompressed size and CRC, and the length of the
+name of its compression (which follows; then the data's u64 length, then the data)."""
+
+
+def _unread_chunk_index(f: IO[bytes], offset: int, length: int) -> ChunkIndex:
+    """The summary's entry for the chunk at `offset` (the file at its body, `length` bytes,
+    left at its end), its data not read. Raises struct.error for a head cut short."""
+    start = f.tell()
+    try:
+        began, ended, uncompressed, _, name_length = CHUNK_HEAD.unpack(f.read(CHUNK_HEAD.size))
+        compression = f.read(name_length).decode()
+        (compressed,) = struct.unpack("<Q", f.read(8))
+    finally:
+        f.seek(start + length)
+    return ChunkIndex(message_start_time=began, message_end_time=ended,
+                      chunk_start_offset=offset, chunk_length=RECORD_HEADER.size + length,
+                      message_index_offsets={}, message_index_length=0,
+                      compression=compression, compressed_size=compressed,
+                      uncompressed_size=uncompressed)
 
 
 MessageFields = tuple[int, int, int, int, bytes, int, int]

@@ -134,3 +134,20 @@ def test_a_damaged_episode_chunk_is_refused_and_a_damaged_skipped_one_is_not_rea
     with pytest.raises(EpisodeLogError, match="damaged in the middle"):
         by_topic(scene, TOPIC_EPISODES)
     assert filtered(scene, TOPIC_EPISODES) == filtered(path, TOPIC_EPISODES)
+
+
+@pytest.mark.parametrize("close", [True, False], ids=["closed", "killed"])
+def test_every_chunk_keeps_its_message_indexes_and_a_declined_one_is_counted_unread(
+        tmp_path: Path, close: bool) -> None:
+    """The last chunk of a closed file too (its indexes checked once, at the DataEnd after
+    them); `read_chunk` declining every episode chunk leaves only the one a read cannot skip
+    (it defines the channel) and counts the others as skipped."""
+    path = RunDir(tmp_path).episode_log
+    write_log(path, 6, close=close)
+    reader = SegmentReader(path)
+    reader.read_through()
+    assert all(c.message_index_offsets for c in reader.parts.chunk_indexes)
+    declining = SegmentReader(path, topics=[TOPIC_EPISODES], read_chunk=lambda *_: False)
+    read = [m.sequence for m in declining.messages()]
+    assert read == [0], read
+    assert declining.skipped[TOPIC_EPISODES] == 6 - len(read)
