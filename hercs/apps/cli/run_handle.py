@@ -198,7 +198,7 @@ def resume(run_dir: str | os.PathLike[str], epochs: int | None = None) -> Run:
     require_run_dir(folder, needs=(CONFIG,))
     argv = ["--resume", str(folder), *(["--epochs", str(epochs)] if epochs is not None else [])]
     resolved = _resolve(argv)
-    plan_resume(folder, epochs=resolved.training.epochs)
+    plan_resume(folder, epochs=resolved.training.epochs, config=resolved)
     return Run._start(["up", *argv], folder, folder.name)
 
 

@@ -93,10 +93,12 @@ def run_up(
                   + (f"; what it held is kept in {aside}" if aside else ""), file=out,
                   flush=True)
         elif resume:
-            plan = plan_resume(run_dir, epochs=config.training.epochs)
+            plan = plan_resume(run_dir, epochs=config.training.epochs, config=config)
             if plan.finished:
                 print(f"hercs up: {plan.describe(config.run.name)}", file=out, flush=True)
                 return 0
+            for note in plan.notes:  # e.g. a torn tail: said here, not only in replay-0.log
+                print(f"hercs up: {note}", file=out, flush=True)
         return _run(config, run_dir, command=command, stop_timeout_s=stop_timeout_s,
                     ready_timeout_s=ready_timeout_s, out=out, err=err, resume=resume)
     except CannotResume as exc:

@@ -3,11 +3,15 @@ continue, nothing to do, or refuse, so that a resume never trains over results.
 
 `learner.pt` (epoch C, epochs P awaiting evaluation) and `metrics.csv` (rows R) agree when R
 holds exactly the epochs 1..C not in P; anything else is refused, saying what would work.
-`--restart` starts over: `set_aside_for_restart` moves the old files to `previous/<time>/`.
+Past that, every file a service will read is read as it will read it, against the config the
+run resumes with (hercs/apps/launch/resume_files.py): a file that would fail the run after it
+started is refused here, before anything changes. `--restart` starts over:
+`set_aside_for_restart` moves the old files to `previous/<time>/`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +19,13 @@ from typing import Any
 
 import yaml
 
-from hercs.errors import HercsError
+from hercs.apps.launch.resume_files import (
+    check_best_policy,
+    check_episode_log,
+    check_learner_state,
+)
+from hercs.config import HercsConfig, apply_overrides, load_yaml
+from hercs.errors import ConfigError, HercsError
 from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import MetricsFileError, checked_epochs, epoch_spans
 from hercs.run.rundir import (
@@ -30,7 +40,7 @@ from hercs.run.rundir import (
     RunDir,
     aside_folder,
 )
-from hercs.run.runlog import EpisodeLog, EpisodeLogError
+from hercs.run.runlog import BadEpisode, EpisodeLogError
 
 KEPT_ON_RESTART = frozenset({CONFIG, LOGS, SLURM, LOCK, PREVIOUS, ROUTER})
 """What `--restart` leaves in place (config.yaml is also copied aside; logs/ goes on)."""
@@ -50,6 +60,9 @@ class ResumePlan:
     recorded: int
     """Epochs metrics.csv records."""
     finished: bool
+    notes: tuple[str, ...] = ()
+    """What the files' read found that the user is told before the run starts (a torn tail of
+    the episode log, what the read left unread)."""
 
     def describe(self, name: str) -> str:
         if self.finished:
@@ -70,9 +83,11 @@ def _remedy(run_dir: Path) -> str:
             f"config: hercs up --config {RunDir(run_dir).config} --run NEW_NAME")
 
 
-def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
-    """Whether and from where `run_dir` can be resumed to `epochs` epochs; raises
-    `CannotResume` when its files disagree (module docstring)."""
+def plan_resume(run_dir: Path, *, epochs: int, config: HercsConfig | None = None
+                ) -> ResumePlan:
+    """Whether and from where `run_dir` can be resumed to `epochs` epochs with `config`
+    (default: its config.yaml's, as `hercs up --resume` reads it); raises `CannotResume` when
+    its files disagree or one would fail the run (module docstring)."""
     from hercs.learner.checkpoint import load_checkpoint
 
     files = RunDir(run_dir)
@@ -86,14 +101,28 @@ def plan_resume(run_dir: Path, *, epochs: int) -> ResumePlan:
         raise CannotResume(f"{exc}. The run cannot continue without it{best}. "
                            f"{_remedy(run_dir)}") from None
     plan = _plan_from(run_dir, state, checkpoint, pending, epochs=epochs)
-    if not plan.finished:  # checked last: the checkpoint and metrics say more about the run
-        _check_run_name(run_dir)
-        try:
-            EpisodeLog.check(run_dir)  # what the replay reloads: parsed as MCAP, not unpickled
-        except EpisodeLogError as exc:
-            raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
-                               f"{_remedy(run_dir)}") from None
-    return plan
+    if plan.finished:
+        return plan
+    _check_run_name(run_dir)  # after the checkpoint and metrics: they say more about the run
+    config = config or _saved_config(run_dir)
+    try:
+        if state is not None:
+            check_learner_state(state, config, latest)
+        check_best_policy(run_dir, config)
+        survey = check_episode_log(run_dir, config)  # parsed as MCAP, never unpickled
+    except (CheckpointError, ConfigError, BadEpisode) as exc:  # each says what it would do
+        raise CannotResume(f"{exc}. {_remedy(run_dir)}") from None
+    except EpisodeLogError as exc:
+        raise CannotResume(f"{exc}. The replay could not reload its episodes from it. "
+                           f"{_remedy(run_dir)}") from None
+    return dataclasses.replace(plan, notes=tuple(survey.notes()))
+
+
+def _saved_config(run_dir: Path) -> HercsConfig:
+    """The config `hercs up --resume` reads: config.yaml's, named after the folder."""
+    return apply_overrides(load_yaml(RunDir(run_dir).config),
+                           [f"run.name={run_dir.resolve().name}",
+                            f"run.run_dir={run_dir.resolve().parent}"])
 
 
 def _check_run_name(run_dir: Path) -> None:
