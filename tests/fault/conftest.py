@@ -41,10 +41,8 @@ def negative_lags(root: Path) -> list[str]:
 
 
 @pytest.fixture(autouse=True)
-def no_negative_lag(request: pytest.FixtureRequest) -> Iterator[None]:
+def no_negative_lag(tmp_path: Path) -> Iterator[None]:
+    """Checked after the test, before its tmp_path goes (this fixture depends on it)."""
     yield
-    if "tmp_path" not in request.fixturenames:
-        return
-    root = request.getfixturevalue("tmp_path")
-    found = negative_lags(root)
+    found = negative_lags(tmp_path)
     assert not found, "a run recorded a negative policy lag:\n" + "\n".join(found)
