@@ -141,7 +141,7 @@ class Run:
     seed: int
     epochs: int  # the last epoch it reached
     curve: Curve
-    commit: str = ""  # bench_done.json's, "" where not recorded
+    commit: str = ""  # `provenance`'s: "started→finished" where they differ, "" where not recorded
     finished: str = ""  # its UTC date, YYYY-MM-DD
     machine: str = ""  # "AMD EPYC (avx2), boot 5011c83b"; "" where not recorded
     assumed: tuple[str, ...] = ()
@@ -149,9 +149,16 @@ class Run:
     note: str = ""  # its NOTES_FILE's text, on one line; "" where it has none
 
 
-def provenance(run_dir: Path) -> dict[str, str]:
-    """commit ("started→finished" where they differ), finished and machine from the run's
-    bench_done.json ("" where absent)."""
+UNKNOWN = "unknown"
+"""The start commit of a resumed run made before it was recorded."""
+
+
+def provenance(run_dir: Path, config: dict) -> dict[str, str]:
+    """commit, finished and machine from the run's bench_done.json ("" where absent). The
+    commit is "started→finished" where a run started on another commit than it ended on: the
+    start from bench_done.json's `started_commit` (`hercs sweep`) or config.yaml's
+    `peer.started_commit` (studies/authors_peer), UNKNOWN for a run bench_done.json marks
+    `resumed` that records neither."""
     path = run_dir / DONE_FILE
     try:
         done = json.loads(path.read_text()) if path.is_file() else {}
@@ -167,10 +174,15 @@ def provenance(run_dir: Path) -> dict[str, str]:
         label = f"{name}{f' ({vector})' if vector else ''}"
         if machine.get("boot_id"):
             label += f", boot {machine['boot_id']}"
-    def short(key: str) -> str:
-        return str(done.get(key) or "").replace(" (with uncommitted changes)", "+")
 
-    commit, started = short("commit"), short("started_commit")
+    def short(value: object) -> str:
+        return str(value or "").replace(" (with uncommitted changes)", "+")
+
+    commit = short(done.get("commit"))
+    started = short(done.get("started_commit")
+                    or (config.get("peer") or {}).get("started_commit"))
+    if commit and not started and done.get("resumed"):
+        started = UNKNOWN
     if started and started != commit:  # a resumed run that finished with other code
         commit = f"{started}→{commit}"
     return {"commit": commit, "finished": str(done.get("finished") or "")[:10],
@@ -200,7 +212,7 @@ def load_groups(runs_dir: Path, reference_csv: Path | None = None) -> Groups:
         source = Path(curve.source)
         config = yaml.safe_load(RunDir(source).config.read_text()) or {}
         found.append((group_of(config), Run(source.name, curve.seed, int(curve.epochs.max()),
-                                            curve, **provenance(source),
+                                            curve, **provenance(source, config),
                                             assumed=assumed_settings(config),
                                             note=run_note(source))))
     reference = load_reference() if reference_csv is None else load_reference(reference_csv)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+from hercs.apps.plots import numbers
 from studies.claims.claim_runs import (
     ASSUMED_KEYS,
     EPOCH,
@@ -22,28 +23,22 @@ from studies.claims.claim_statistics import (
     RNG_SEED,
     Estimate,
 )
-from studies.claims.claims import PICK_EPOCH, ClaimResult, Side
+from studies.claims.claims import (
+    POST_HOC_EPOCHS,
+    VERDICT_SEEDS,
+    ClaimResult,
+    Side,
+    verdict,
+)
 
 # ---------------------------------------------------------------------------------- report
 
-def _rate(v: float) -> str:
-    text = f"{v:.2f}"
-    return text[1:] if text.startswith("0") else text.replace("-0.", "-.")
-
 OUTPUT = "claims.md"
-
-
-def _epoch(v: float) -> str:
-    return f"{v:.1f}"
-
 
 _EXACT_P_OF = {"success": 0, "epoch": 1, "high": 2}
 """Which of ClaimResult.exact_p each table reports."""
 
-
-def _p(v: float) -> str:
-    """A p-value to 3 places (.036, 1.00 at the top)."""
-    return "1.00" if v >= 0.9995 else f"{v:.3f}"[1:]
+POST_HOC_LABEL = "(epoch chosen after seeing the data)"
 
 
 def _est(e: Estimate, fmt: Callable[[float], str]) -> str:
@@ -63,31 +58,31 @@ def _not_enough(r: ClaimResult) -> str:
 def _rows(results: Sequence[ClaimResult], which: str) -> list[str]:
     lines = []
     for r in results:
-        head = f"| {r.claim.title} | {r.x.group.label} | {r.y.group.label} | {r.x.n} / {r.y.n} |"
+        title = f"{r.claim.title} {POST_HOC_LABEL}" if r.claim.post_hoc else r.claim.title
+        head = f"| {title} | {r.x.group.label} | {r.y.group.label} | {r.x.n} / {r.y.n} |"
         if which in ("epoch", "high"):
             cx, cy = (sum(s.censored_high if which == "high" else s.censored
                           for s in side.scores) for side in (r.x, r.y))
             head += f" {cx} / {cy} |"
         if (r.x_stats is None or r.y_stats is None or r.improvement is None or r.high is None
                 or r.exact_p is None):
-            lines.append(head + f" {_not_enough(r)} | – | – | – | – | – |")
+            lines.append(head + f" {_not_enough(r)} | – | – | – | – | – | – |")
             continue
-        exact = f" {_p(r.exact_p[_EXACT_P_OF[which]])} |"
+        exact = f" {numbers.p_value(r.exact_p[_EXACT_P_OF[which]])} |"
         if which == "high":
             h = r.high
-            cells = [_est(e, _epoch) for e in (h.x_iqm, h.y_iqm, h.x_mean, h.y_mean)]
-            lines.append(head + " " + " | ".join(cells) + f" | {_est(h.earlier, _rate)} |"
-                         + exact)
-            continue
-        if which == "success":
-            cells = [_est(st.success_iqm, _rate) for st in (r.x_stats, r.y_stats)]
-            cells += [_est(st.success_mean, _rate) for st in (r.x_stats, r.y_stats)]
+            cells = [_est(e, numbers.epoch) for e in (h.x_iqm, h.y_iqm, h.x_mean, h.y_mean)]
+            poi = h.earlier
+        elif which == "success":
+            cells = [_est(st.success_iqm, numbers.rate) for st in (r.x_stats, r.y_stats)]
+            cells += [_est(st.success_mean, numbers.rate) for st in (r.x_stats, r.y_stats)]
             poi = r.improvement[0]
         else:
-            cells = [_est(st.epoch_iqm, _epoch) for st in (r.x_stats, r.y_stats)]
-            cells += [_est(st.epoch_mean, _epoch) for st in (r.x_stats, r.y_stats)]
+            cells = [_est(st.epoch_iqm, numbers.epoch) for st in (r.x_stats, r.y_stats)]
+            cells += [_est(st.epoch_mean, numbers.epoch) for st in (r.x_stats, r.y_stats)]
             poi = r.improvement[1]
-        lines.append(head + " " + " | ".join(cells) + f" | {_est(poi, _rate)} |" + exact)
+        lines.append(head + " " + " | ".join(cells) + f" | {_est(poi, numbers.rate)} |" + exact
+                     + f" {verdict(r.x.n, r.y.n, poi)} |")
     return lines
 
 
@@ -111,7 +106,7 @@ def _groups_section(results: Sequence[ClaimResult], groups: dict[Group, list[Run
                 at = f"never ({side.epoch}, censored)" if s.censored else str(s.at_half)
                 high = (f"never ({side.epoch}, censored)" if s.censored_high
                         else str(s.at_high))
-                lines.append(f"| {label} | {s.run} | {_rate(s.success)} | {at} | {high} |")
+                lines.append(f"| {label} | {s.run} | {numbers.rate(s.success)} | {at} | {high} |")
             for name in side.short:
                 lines.append(f"| {label} | {name} | stopped before epoch {side.epoch}: "
                              "left out | – | – |")
@@ -152,7 +147,10 @@ def _provenance_section(results: Sequence[ClaimResult], groups: dict[Group, list
     by_name = {run.name: run for runs in groups.values() for run in runs}
     lines = ["## Where each side's runs were made", "",
              "From each run's bench_done.json (`hercs sweep` writes it as a run "
-             "ends): the hercs commit (+: with uncommitted changes), the day it finished "
+             "ends): the hercs commit (+: with uncommitted changes; *started→finished* where "
+             "a resumed run ended on another commit than it started on, the start from "
+             "bench_done.json or, for the authors' code, config.yaml; *unknown→finished* where "
+             "a resumed run was made before its start commit was recorded), the day it finished "
              "(UTC) and the machine (CPU and vector extensions, boot id; where bench_done.json "
              "has none, docs/results/runs/README.md's table describes it in words). A side's "
              "runs are "
@@ -203,6 +201,12 @@ def _at(side: Side) -> str:
     return f" (at epoch {side.epoch})" if side.epoch != EPOCH else ""
 
 
+def _epochs(epochs: dict[int, str]) -> str:
+    """"100 and 60"."""
+    names = [str(e) for e in sorted(epochs, reverse=True)]
+    return ", ".join(names[:-1]) + f" and {names[-1]}" if len(names) > 1 else names[0]
+
+
 def _seed_range(results: Sequence[ClaimResult]) -> str:
     ns = sorted({side.n for side in _sides(results) if side.n >= MIN_SEEDS})
     if not ns:
@@ -217,7 +221,8 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         f"Drawn by `{command}` from the committed runs (docs/results/runs/) and the authors' "
         "per-seed curves (docs/reference/authors_success_rates.csv); also `make figures`, and "
         "a test checks this file against them. All on FetchPush, but for the PickAndPlace "
-        f"lines, which are read at epoch {PICK_EPOCH}.", "",
+        f"lines, which are read at epochs {_epochs(POST_HOC_EPOCHS)}, each chosen after "
+        "seeing the data (below).", "",
         "**Per run** (hercs/apps/plots/curves.py's rule, the Fig. 2 tables'): *success after epoch "
         f"{epoch}*, the 10-epoch trailing mean of the test success there; *epoch at "
         f"{THRESHOLD:g}*, the first epoch whose 10-epoch trailing mean exceeds {THRESHOLD:g}, "
@@ -257,30 +262,45 @@ def report(results: Sequence[ClaimResult], groups: dict[Group, list[Run]], comma
         f"every asynchronous side has {MIN_SEEDS} seeds of it, else the legacy ones; each "
         "side says which.", "",
         f"**How far to trust them**: with {_seed_range(results)} seeds a side the bootstrap "
-        "can only resample the "
-        "seeds there are, so an interval describes these seeds and is narrower than the "
-        "uncertainty about the next one (a percentile bootstrap undercovers at such n): an "
-        "interval of P(X > Y) that excludes .5 is a lead, not a verdict. The runs also come "
-        "from different machines and commits (the last section says which, per side), and "
-        "one seed gives other numbers on another CPU (docs/DESIGN.md §10).", "",
+        "can only resample the seeds there are, so an interval describes these seeds and is "
+        "narrower than the uncertainty about the next one (a percentile bootstrap undercovers "
+        "at such n). The **verdict** column applies one rule (studies/claims/claims.py "
+        f"`verdict`): a line is a *lead* where a side has fewer than {VERDICT_SEEDS} runs or "
+        "the interval of P holds .5; with "
+        f"{VERDICT_SEEDS} runs or more a side and an interval that excludes .5, one side is "
+        "*ahead in these seeds*, the most this file says of any line (the exact p says how "
+        "far out the split lies). A lead is quoted with its P and interval; it rules no cause "
+        "out and makes no two sides level. The runs also come from different machines and "
+        "commits (the last "
+        "section says which, per side), and one seed gives other numbers on another CPU "
+        "(docs/DESIGN.md §10).", "",
+        f"**Epochs chosen after seeing the data**, marked {POST_HOC_LABEL} on every line "
+        "that reads one: "
+        + "; ".join(POST_HOC_EPOCHS[e] for e in sorted(POST_HOC_EPOCHS, reverse=True))
+        + ". A line at such an epoch is not a test planned before its runs.", "",
+        "**Numbers** print by one rule, here and in fig2.md, asynchrony.md and `hercs plot`'s "
+        "tables (hercs/apps/plots/numbers.py): the float each computes, correctly rounded, "
+        "from one computation of each run's numbers (hercs/apps/plots/curves.py), so that "
+        "pick-v1-her-cs-s4's 10-epoch mean at epoch 100, .685 in decimal and just below it "
+        "as computed, prints .68 wherever it appears.", "",
         f"## Success after epoch {epoch}", "",
         "| claim | X | Y | seeds X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] | exact p |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X > Y) [95 % CI] | exact p | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "success"), "",
         f"## Epoch at which the 10-epoch mean first exceeds {THRESHOLD:g}", "",
         f"Censored: runs that never did by epoch {epoch}, counted as {epoch}. "
         "P(X earlier): the probability that a run of X gets there before a run of Y.", "",
         "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "epoch"), "",
         f"## Epoch at which the 10-epoch mean first exceeds {HIGH:g}", "",
         f"As above, for {HIGH:g}: close to solved. Censored: runs that never did by their "
         "claim's epoch, counted as that epoch.", "",
         "| claim | X | Y | seeds X / Y | censored X / Y | X: IQM [95 % CI] | Y: IQM [95 % CI] | "
-        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "X: mean [95 % CI] | Y: mean [95 % CI] | P(X earlier) [95 % CI] | exact p | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *_rows(results, "high"), "",
         *_groups_section(results, groups, epoch),
         *_provenance_section(results, groups),

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from hercs.apps.plots.numbers import rate
 from studies.claims import claim_runs, claims
 from studies.claims.claim_statistics import Score
 from studies.study_output import REPO, write_report
@@ -157,7 +158,7 @@ def render(summary: dict[str, Any]) -> str:
             if cell is None:
                 values_ = ["–"] * len(seeds)
             else:
-                values_ = [f"{cell['power'][str(n)]:.2f} ({cell['false_gain'][str(n)]:.2f})"
+                values_ = [f"{rate(cell['power'][str(n)])} ({rate(cell['false_gain'][str(n)])})"
                            for n in seeds]
             lines.append(f"| {row['claim']} | {row['seeds'][0]} / {row['seeds'][1]} | "
                          f"{metric} | " + " | ".join(values_) + " |")

@@ -446,3 +446,70 @@ def test_a_pooled_side_holds_each_run_of_its_parts_once(tmp_path: Path,
                                                  claims._push("her-ebp", lag=""))})
     [partial] = claims.evaluate([claims.Claim("partial", pool, published)], groups, reps=REPS)
     assert partial.x.n == 0 and partial.x_stats is None
+
+
+# ------------------------------------------------- verdicts, epochs chosen late, start commits
+
+def _p(value: float, low: float, high: float) -> claim_statistics.Estimate:
+    return claim_statistics.Estimate(value, low, high)
+
+
+@pytest.mark.parametrize(("nx", "ny", "p", "word"), [
+    (3, 5, _p(0.47, 0.0, 1.0), "lead (fewer than 5 runs a side)"),  # ours against their code
+    (2, 5, _p(0.0, 0.0, 0.0), "lead (fewer than 5 runs a side)"),  # TF32: every run below
+    (8, 4, _p(0.1, 0.0, 0.3), "lead (fewer than 5 runs a side)"),
+    (5, 5, _p(0.64, 0.24, 1.0), "lead (interval holds .5)"),
+    (5, 5, _p(0.7, 0.5, 0.9), "lead (interval holds .5)"),  # an end at .5 holds it
+    (5, 5, _p(0.12, 0.0, 0.4), "Y ahead in these seeds"),  # ours against the published
+    (6, 5, _p(0.96, 0.76, 1.0), "X ahead in these seeds"),
+], ids=["3-against-5", "2-against-5-separated", "4-on-one-side", "holds-half",
+        "ends-at-half", "y-ahead", "x-ahead"])
+def test_a_verdict_is_a_lead_below_5_runs_a_side_or_where_the_interval_holds_half(
+        nx: int, ny: int, p: claim_statistics.Estimate, word: str) -> None:
+    assert claims.verdict(nx, ny, p) == word
+
+
+def test_every_table_row_carries_its_verdict(tmp_path: Path) -> None:
+    groups = _grid(tmp_path, 2, 2)
+    text = claims_report.report(claims.evaluate([CS_VS_HER], groups, reps=REPS), groups, "cmd",
+                                reps=REPS)
+    rows = [line for line in text.splitlines() if line.startswith("| HER-CS against HER |")]
+    assert len(rows) == 3  # success, epoch at 0.5, epoch at 0.9
+    assert all(row.endswith("| lead (fewer than 5 runs a side) |") for row in rows)
+
+
+def test_an_epoch_chosen_after_seeing_the_data_is_labelled_on_every_line_that_reads_it(
+        tmp_path: Path) -> None:
+    groups = _grid(tmp_path, 2, 2)
+    late = replace(CS_VS_HER, title="HER-CS against HER, at epoch 50", post_hoc=True)
+    text = claims_report.report(claims.evaluate([late, CS_VS_HER], groups, reps=REPS), groups,
+                                "cmd", reps=REPS)
+    label = claims_report.POST_HOC_LABEL
+    assert text.count(f"| HER-CS against HER, at epoch 50 {label} |") == 3
+    assert text.count(f"| HER-CS against HER {label}") == 0
+    # every claim of the committed file read at an epoch chosen late says so, and why
+    late_claims = [c for c in claims.CLAIMS if c.post_hoc]
+    assert {c.epoch for c in late_claims} == set(claims.POST_HOC_EPOCHS)
+    assert all(c.epoch not in claims.POST_HOC_EPOCHS for c in claims.CLAIMS if not c.post_hoc)
+    assert all(why in text for why in claims.POST_HOC_EPOCHS.values())
+
+
+@pytest.mark.parametrize(("done", "peer", "commit"), [
+    ({"commit": "aaa1111"}, None, "aaa1111"),
+    ({"commit": "aaa1111", "resumed": False}, None, "aaa1111"),
+    ({"commit": "aaa1111", "resumed": True}, None, "unknown→aaa1111"),
+    ({"commit": "aaa1111", "resumed": True, "started_commit": ""}, None, "unknown→aaa1111"),
+    ({"commit": "aaa1111", "resumed": True, "started_commit": "bbb2222"}, None,
+     "bbb2222→aaa1111"),
+    ({"commit": "aaa1111", "resumed": True, "started_commit": "aaa1111"}, None, "aaa1111"),
+    ({"commit": "9f420bc"}, "cba30a9", "cba30a9→9f420bc"),  # the authors' code's seed 123
+    ({"commit": "84889b4"}, "84889b4", "84889b4"),
+    (None, None, ""),
+], ids=["fresh", "not-resumed", "resumed-unrecorded", "resumed-blank", "resumed-recorded",
+        "resumed-same-commit", "peer-config", "peer-same", "no-record"])
+def test_the_start_commit_comes_from_bench_done_or_the_peer_config_and_is_never_invented(
+        tmp_path: Path, done: dict | None, peer: str | None, commit: str) -> None:
+    if done is not None:
+        (tmp_path / claim_runs.DONE_FILE).write_text(json.dumps(done))
+    config = {"peer": {"commit": "9c1bfa0", "started_commit": peer}} if peer else {}
+    assert claim_runs.provenance(tmp_path, config)["commit"] == commit
