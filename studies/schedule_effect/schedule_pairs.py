@@ -26,7 +26,9 @@ from hercs.apps.plots.curves import (
     method_label,
     milestones,
 )
+from hercs.apps.plots.numbers import fixed, rate, signed_rate
 from hercs.apps.sweep.cells import DONE_FILE
+from studies.claims.claims import VERDICT_SEEDS
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
 from studies.study_output import REPO, show_and_write
 
@@ -104,12 +106,12 @@ def difference(lockstep: Sequence[float], asynchronous: Sequence[float]) -> Diff
         se = math.sqrt(va + vb)
         df = ((va + vb) ** 2 / (va ** 2 / (na - 1) + vb ** 2 / (nb - 1))
               if va + vb > 0 else float(na + nb - 2))
-        rule = f"Welch, {df:.1f} degrees of freedom"
+        rule = f"Welch, {fixed(df, 1)} degrees of freedom"
     elif na + nb >= 3:
         wide = a if na >= 2 else b
         se = math.sqrt(wide.var(ddof=1) * (1 / na + 1 / nb))
         df = float(len(wide) - 1)
-        rule = f"one seed on one side: the other side's spread, {df:.0f} degrees of freedom"
+        rule = f"one seed on one side: the other side's spread, {int(df)} degrees of freedom"
     else:
         return Difference(value, None, None, None, "one seed on each side: no spread to use")
     half = float(stats.t.ppf(0.975, df)) * se
@@ -141,12 +143,16 @@ def compare_all(curves: Sequence[Curve], max_epoch: int) -> list[Comparison]:
     return out
 
 
-def _num(v: float) -> str:
-    return f"{v:+.2f}".replace("0.", ".") if v < 0 or v > 0 else ".00"
-
-
-def _rate(v: float) -> str:
-    return f"{v:.2f}".lstrip("0") if v < 1.0 else "1.00"
+def _verdict(d: Difference, n: int) -> str:
+    """claims.md's rule (studies/claims/claims.py `verdict`) for an interval of a difference,
+    over `n` runs on the smaller side."""
+    if not d.resolved:
+        return "**a lead**: the interval includes 0"
+    if n < VERDICT_SEEDS:
+        return (f"**a lead**: the interval excludes 0, but from fewer than {VERDICT_SEEDS} runs "
+                "a side")
+    return (f"**a difference in these seeds**: the interval excludes 0, with {VERDICT_SEEDS} "
+            "or more runs a side")
 
 
 def report(comparisons: Sequence[Comparison], command: str, max_epoch: int = 50) -> str:
@@ -156,8 +162,10 @@ def report(comparisons: Sequence[Comparison], command: str, max_epoch: int = 50)
         "figures`). Per run: the epoch its 10-epoch trailing mean of the test success first "
         "exceeds 0.5 (counted from 0, as in the Fig. 2 tables) and that mean after epoch E, "
         f"the last epoch every run of the comparison reached (at most {max_epoch}). The difference "
-        "lockstep − asynchronous has a 95 % interval from Student's t; it is resolved when "
-        "the interval excludes 0. Seeds are draws, not pairs: the runs come from different "
+        "lockstep − asynchronous has a 95 % interval from Student's t. By claims.md's rule it "
+        "is a *lead* where the interval includes 0 or a side has fewer than "
+        f"{VERDICT_SEEDS} runs, and a *difference in these seeds* otherwise. Seeds are draws, "
+        "not pairs: the runs come from different "
         "machines and commits (the table says which), and one seed gives other numbers on "
         "another CPU (docs/DESIGN.md §10).", ""]
     if not comparisons:
@@ -171,22 +179,21 @@ def report(comparisons: Sequence[Comparison], command: str, max_epoch: int = 50)
             for s in seeds:
                 at = "–" if s.at_half is None else str(s.at_half)
                 lines.append(f"| {s.run} | {SCHEDULE_LABELS[schedule]} | {s.seed} | {s.commit} "
-                             f"| {s.finished} | {at} | {_rate(s.success)} |")
+                             f"| {s.finished} | {at} | {rate(s.success)} |")
         lines += ["", f"| schedule | seeds | success at {c.epoch}, mean ± s.d. |",
                   "|---|---|---|"]
         for schedule, seeds in (("lockstep", c.lockstep), ("async", c.asynchronous)):
             values = np.array([s.success for s in seeds])
-            sd = f"{values.std(ddof=1):.2f}".lstrip("0") if len(values) > 1 else "–"
+            sd = rate(values.std(ddof=1)) if len(values) > 1 else "–"
             lines.append(f"| {SCHEDULE_LABELS[schedule]} | {len(seeds)} | "
-                         f"{_rate(float(values.mean()))} ± {sd} |")
+                         f"{rate(float(values.mean()))} ± {sd} |")
         d = c.difference
         if d.stderr is None or d.low is None or d.high is None:
-            verdict = f"{_num(d.value)}; {d.rule}."
+            verdict = f"{signed_rate(d.value)}; {d.rule}."
         else:
-            word = ("**resolved**: the interval excludes 0" if d.resolved else
-                    "**not resolved**: the interval includes 0")
-            verdict = (f"{_num(d.value)}, standard error {_rate(d.stderr)} ({d.rule}), 95 % "
-                       f"interval [{_num(d.low)}, {_num(d.high)}]: {word}.")
+            word = _verdict(d, min(len(c.lockstep), len(c.asynchronous)))
+            verdict = (f"{signed_rate(d.value)}, standard error {rate(d.stderr)} ({d.rule}), 95 % "
+                       f"interval [{signed_rate(d.low)}, {signed_rate(d.high)}]: {word}.")
         lines += ["", f"Lockstep − asynchronous after epoch {c.epoch}: {verdict}", ""]
     return "\n".join(lines)
 
