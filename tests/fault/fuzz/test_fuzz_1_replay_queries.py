@@ -37,6 +37,20 @@ from tests.fault.fuzz.world import World, asked_valid, checked_verdicts, sent
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
 
 
+def refused_for_the_replays_state(msg: pb.Episode, reason: str) -> bool:
+    """A well-formed episode the wire admits and the replay may still refuse for what it
+    has seen (issue 57), which the oracle, a pure decoder, cannot know: acted with a weights
+    version past any the learner can have published (`future_policy`: the fuzz's sample
+    requests announce versions; never one of 1 or below), or holding a value a thousand std
+    past the statistics once they are warm (`implausible`: the extreme probes' ±3.4e38)."""
+    if reason == "future_policy":
+        return msg.policy_version > 1
+    if reason == "implausible":
+        arrays = (msg_to_array(a) for a in (msg.obs, msg.ag, msg.g))
+        return any(bool(np.any(np.abs(a.astype(np.float64)) >= 1e30)) for a in arrays)
+    return False
+
+
 def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: World) -> None:
     w = world
     bases = [m.SerializeToString() for m in BASE_EPISODES]
@@ -46,8 +60,11 @@ def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: Wo
         known = dict(w.ledger.keys)
         new: dict[tuple[str, int], list[tuple[pb.InsertAck, pb.Episode]]] = {}
         for probe, reply, reason, detail in asked_valid(w, KR.insert, probes, verdicts):
-            assert reply is not None, (probe, reason, detail)
             msg = pb.Episode.FromString(probe.payload)
+            if reply is None and refused_for_the_replays_state(msg, reason):
+                w.ledger.replay_rejects[reason] += 1  # counted by the replay as well
+                continue
+            assert reply is not None, (probe, reason, detail)
             ack = pb.InsertAck.FromString(reply)
             assert (ack.actor_id, ack.seq) == (msg.actor_id, msg.seq), probe
             key = (msg.actor_id, msg.seq)
