@@ -43,20 +43,23 @@ from hercs.config.deploy import (
 from hercs.config.replay import EVICTIONS, ReplayConfig
 from hercs.config.sizes import episode_message_bytes, size_text
 from hercs.config.task import TaskConfig
+from hercs.config.tracking import TRACKERS, TrackingConfig
 from hercs.errors import ConfigError
 from hercs.rl.methods import METHODS, Method
 
 __all__ = [
-    "EVICTIONS", "LEARNER_DEVICES", "PRECISIONS", "RETIRED_KEYS", "SCHEDULES", "VIEWER_SCHEMES",
-    "ActorConfig", "ClusterConfig", "DDPGConfig", "EnergyConfig", "HERConfig", "HercsConfig",
-    "LaunchConfig", "LearnerConfig", "ReplayConfig", "RunConfig", "SecurityConfig",
-    "TaskConfig", "TrainingConfig", "TransportConfig", "ViewConfig", "apply_overrides",
-    "endpoint_parts", "endpoint_problem", "load_yaml", "save_yaml", "workers_overrides",
+    "EVICTIONS", "LEARNER_DEVICES", "PRECISIONS", "RETIRED_KEYS", "SCHEDULES", "TRACKERS",
+    "VIEWER_SCHEMES", "ActorConfig", "ClusterConfig", "DDPGConfig", "EnergyConfig", "HERConfig",
+    "HercsConfig", "LaunchConfig", "LearnerConfig", "ReplayConfig", "RunConfig",
+    "SecurityConfig", "TaskConfig", "TrackingConfig", "TrainingConfig", "TransportConfig",
+    "ViewConfig", "apply_overrides", "endpoint_parts", "endpoint_problem", "load_yaml",
+    "save_yaml", "workers_overrides",
 ]
-"""The sections of the tree live in five modules (this one: the run and training;
+"""The sections of the tree live in six modules (this one: the run and training;
 hercs.config.task: the task; hercs.config.algorithm: DDPG, HER, clusters, energy;
 hercs.config.replay: the replay and its episode log; hercs.config.deploy: the processes and
-how they connect); import them all from here."""
+how they connect; hercs.config.tracking: the experiment trackers); import them all from
+here."""
 
 
 RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
@@ -71,9 +74,6 @@ class RunConfig:
     """Run name (key prefix hercs/<name>/ and folder runs/<name>); empty = derived at start."""
     run_dir: str = "runs"
     """Parent folder of run directories."""
-    tensorboard: bool = False
-    """The learner also writes TensorBoard event files to runs/<name>/tensorboard/: the
-    scalars of metrics.csv per epoch (`hercs up --tensorboard`)."""
 
     def __post_init__(self) -> None:
         _check(self.method in METHODS, "run.method", self.method, f"be one of {list(METHODS)}")
@@ -177,6 +177,7 @@ class HercsConfig:
     transport: TransportConfig = field(default_factory=TransportConfig)
     security: SecurityConfig = field(default_factory=SecurityConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
     def __post_init__(self) -> None:
         _finite_numbers(self)  # first: the checks below compare values

@@ -525,7 +525,8 @@ for _field, _what in (("training.eval_resend_s", "resend period"),
                       ("actor.insert_timeout_s", "timeout"),
                       ("transport.wait_s", "wait"),
                       ("transport.rediscover_s", "wait"),
-                      ("transport.cut_off_s", "wait")):
+                      ("transport.cut_off_s", "wait"),
+                      ("tracking.finish_wait_s", "wait")):
     bound(_field)(_wait(_what))
 
 

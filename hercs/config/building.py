@@ -24,6 +24,8 @@ log = logging.getLogger("hercs.config")
 RETIRED_KEYS: dict[str, str] = {
     "cluster.failure_threshold": "an episode fails when it does not succeed by the task's own "
                                  "rule (TaskSpec.is_success)",
+    "run.tensorboard": "TensorBoard is a tracker now: tracking.backends=[tensorboard] "
+                       "(hercs up --track tensorboard)",
 }
 """Keys that configs saved by earlier versions hold and this version ignores (with a log line),
 so that old runs stay readable; any other unknown key is refused."""

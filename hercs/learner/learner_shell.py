@@ -22,7 +22,6 @@ from hercs.learner.evaluations import EvalRequests, PolicyKeeper
 from hercs.learner.loop import LearnerLoop
 from hercs.learner.prefetch import Prefetcher
 from hercs.learner.resume import resume_learner_state, save_learner_state
-from hercs.learner.tensorboard import TensorBoardScalars
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
@@ -76,9 +75,6 @@ class LearnerService:
                                    best_success=None if best is None
                                    else float(best["success_rate"]))
         self.metrics = MetricsCsv(self.files.metrics)
-        self.tensorboard = (TensorBoardScalars(self.files.tensorboard,
-                                               after_epoch=self.loop.epoch)
-                            if config.run.tensorboard else None)
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
         self.warn = WarnOncePerMinute(log)
         keys, transport = runtime.keys, runtime.transport
@@ -181,8 +177,6 @@ class LearnerService:
         row["batch_wait_s"] = round(self.batch_wait_s.pop(epoch, 0.0), 3)
         row["bad_batches"] = sum(self.prefetcher_bad.values())
         self.metrics.write(row)
-        if self.tensorboard is not None:
-            self.tensorboard.write(row)
         values = {k: v for k, v in row.items() if isinstance(v, int | float)}
         values["epochs"] = self.config.training.epochs
         values["bad_episodes"] = bad_episodes(str(row.get("rejects", "")))
@@ -239,8 +233,6 @@ class LearnerService:
 
     def close(self) -> None:
         self.metrics.close()
-        if self.tensorboard is not None:
-            self.tensorboard.close()
 
 
 def run(config: HercsConfig, *, ident: str | None = None) -> int:

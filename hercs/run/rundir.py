@@ -23,6 +23,8 @@ METRICS = "metrics.csv"
 CHECKPOINTS = "checkpoints"
 LOGS = "logs"
 TENSORBOARD = "tensorboard"
+TRACKING = "tracking.json"
+"""Which tracker runs (W&B, MLflow) this run continues, and the epochs each was sent."""
 LATEST = "learner.pt"
 BEST = "best.pt"
 EPOCH_FILE = re.compile(r"^epoch-(\d+)\.pt$")
@@ -113,6 +115,10 @@ class RunDir:
     @property
     def tensorboard(self) -> Path:
         return self.path / TENSORBOARD
+
+    @property
+    def tracking(self) -> Path:
+        return self.path / TRACKING
 
     @property
     def router(self) -> Path:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import yaml
 
+from hercs.apps.tracking.flags import backends_override
 from hercs.config import HercsConfig, apply_overrides, load_yaml, workers_overrides
 from hercs.errors import ConfigError
 from hercs.rl.code_names import ANY, trust_task
@@ -213,8 +214,7 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         overrides = workers_overrides(config, workers)
         if getattr(args, "actors", None) is not None:  # an explicit --actors wins
             overrides.append(f"actor.num_actors={args.actors}")
-    if getattr(args, "tensorboard", False):
-        overrides.append("run.tensorboard=true")
+    tracks = track_overrides(config, args)
     tls_dir = getattr(args, "tls_dir", None)
     if tls_dir is not None:
         base = Path(tls_dir).absolute()
@@ -230,7 +230,16 @@ def resolve_config(args: argparse.Namespace) -> HercsConfig:
         if endpoints:
             listed = yaml.safe_dump(endpoints, default_flow_style=True).strip()
             overrides.append(f"transport.{flag}={listed}")
-    return apply_overrides(config, overrides + rerun_overrides(args) + list(args.overrides))
+    return apply_overrides(config, overrides + tracks + rerun_overrides(args)
+                           + list(args.overrides))
+
+
+def track_overrides(config: HercsConfig, args: argparse.Namespace) -> list[str]:
+    """`tracking.backends` with the trackers `--track` names (and `--tensorboard`, its older
+    spelling) added to those the config already has; none when neither is given."""
+    named = [*(getattr(args, "track", None) or []),
+             *(["tensorboard"] if getattr(args, "tensorboard", False) else [])]
+    return backends_override(config.tracking.backends, named)
 
 
 def join_endpoints(args: argparse.Namespace, config: HercsConfig) -> HercsConfig | None:

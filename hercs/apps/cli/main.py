@@ -24,6 +24,7 @@ from hercs.apps.cli.config_flags import (
 from hercs.apps.cli.services import Command, service_command
 from hercs.apps.output_paths import OutputPathError, check_outputs
 from hercs.apps.plots.curves import BANDS, DEFAULT_BAND
+from hercs.apps.tracking.flags import add_track_argument
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, HercsError
 from hercs.roles import SERVICE_ROLES
@@ -145,9 +146,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     )
     add_config_arguments(p, "up")
     add_rerun_arguments(p)
+    add_track_argument(p)
     p.add_argument("--tensorboard", action="store_true",
-                   help="also write TensorBoard event files to RUN/tensorboard/ (the scalars "
-                        "of metrics.csv; view with `tensorboard --logdir runs/`)")
+                   help="the same as --track tensorboard: event files in RUN/tensorboard/ "
+                        "(view with `tensorboard --logdir runs/`)")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue the run in RUN_DIR (e.g. runs/push-her-cs-s1-…) where it "
                         "stopped: the replay reloads its log, the learner its checkpoint, the "

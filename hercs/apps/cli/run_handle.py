@@ -103,8 +103,11 @@ _SPAWNER = _Spawner()
 def _flags(task: str | None, method: str | None, epochs: int | None, seed: int | None,
            actors: int | None, name: str | None, run_dir: str | os.PathLike[str] | None,
            config: str | os.PathLike[str] | None,
-           overrides: Mapping[str, Any] | Sequence[str], listen: str | None) -> list[str]:
+           overrides: Mapping[str, Any] | Sequence[str], listen: str | None,
+           track: str | Sequence[str] = ()) -> list[str]:
     argv: list[str] = []
+    for tracker in [track] if isinstance(track, str) else track:
+        argv += ["--track", str(tracker)]
     for flag, value in (("--task", task), ("--method", method), ("--epochs", epochs),
                         ("--seed", seed), ("--actors", actors), ("--run", name),
                         ("--run-dir", run_dir), ("--config", config), ("--listen", listen)):
@@ -144,6 +147,9 @@ def _resolve(argv: list[str]) -> HercsConfig:
         why = (said.getvalue().strip().splitlines() or ["?"])[-1].partition("error: ")[2]
         raise ConfigError(f"hercs.up: arguments refused ({why}): {' '.join(argv)}") from exc
     config = resolve_config(args)
+    from hercs.apps.tracking.session import check_installed
+
+    check_installed(config.tracking)  # as the command would refuse it, before it starts
     if not config.run.name:
         from hercs.config import apply_overrides
 
@@ -155,7 +161,8 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
        seed: int | None = None, actors: int | None = None, name: str | None = None,
        run_dir: str | os.PathLike[str] | None = None,
        config: str | os.PathLike[str] | None = None,
-       overrides: Mapping[str, Any] | Sequence[str] = (), listen: str | None = None) -> Run:
+       overrides: Mapping[str, Any] | Sequence[str] = (), listen: str | None = None,
+       track: str | Sequence[str] = ()) -> Run:
     """Start a run as `hercs up` would and return its handle.
 
     `task`, `method`, `epochs`, `seed`, `actors`, `name` (the run's name, else
@@ -163,11 +170,13 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
     command's flags; `config` a YAML file; `overrides` what `--set` takes, as a list of
     "field=value" strings or a dict ({"ddpg.lr_actor": 5e-4}); `listen` the embedded router's
     endpoint: by default any free port on loopback, as the command's (tcp/127.0.0.1:0), so
-    that several runs can go at once (other hosts join a TLS one: docs/python_api.md).
+    that several runs can go at once (other hosts join a TLS one: docs/python_api.md);
+    `track` the trackers `--track` names ("wandb", or ["wandb", "mlflow"]).
     Raises `ConfigError` (nothing started) for a bad value, as the command exits 2."""
     if listen is None:
         listen = DEFAULT_LISTEN
-    argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen)
+    argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen,
+                  track)
     resolved = _resolve(argv)
     run_dir = Path(resolved.run.run_dir) / resolved.run.name
     from hercs.run.rundir import holds_a_run

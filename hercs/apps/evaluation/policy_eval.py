@@ -15,15 +15,19 @@ import sys
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hercs.apps.evaluation.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
+from hercs.apps.tracking.session import open_tracking
+from hercs.config import HercsConfig
 from hercs.errors import HercsError
 from hercs.rl.seeding import int_seed
 from hercs.rl.task_registry import TaskSpec, goal_distance
 from hercs.run.policy_files import LoadedPolicy, read_policy
+from hercs.run.rundir import RunDir
 
 log = logging.getLogger(__name__)
 
@@ -192,9 +196,29 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         print(f"hercs eval: video {video}: {written} frames at {FPS} fps "
               f"({written / FPS:.1f} s): each episode after a {TITLE_S:g} s title, its "
               "frames marked with the step, and its outcome and final distance")
+        video_to_trackers(run_dir, policy.config, Path(video))
     if rerun_save:
         print(f"hercs eval: Rerun recording {rerun_save} (camera images on the `step` timeline)")
     return 0
+
+
+def video_to_trackers(run_dir: str, config: HercsConfig, video: Path) -> list[str]:
+    """Add the video to the tracker runs (W&B, MLflow) of the run in `run_dir`, where it was
+    tracked (its tracking.json); the trackers that hold it. No run makes a video while it
+    trains, so this is where one reaches them."""
+    folder = Path(run_dir)
+    if not RunDir(folder).tracking.is_file():
+        return []
+    tracking = open_tracking(config, folder, attach=True, say=lambda line: print(
+        f"hercs eval: warning: {line}", file=sys.stderr, flush=True))
+    if tracking is None:
+        return []
+    tracking.video(video)
+    holding = tracking.close(complete=True)
+    if holding:
+        print(f"hercs eval: video {video} added to the run's {' and '.join(holding)} "
+              f"run{'s' if len(holding) > 1 else ''}")
+    return holding
 
 
 class _RerunSink:

@@ -26,6 +26,7 @@ from hercs.apps.launch.run_plan import (
     service_command,
 )
 from hercs.apps.launch.supervisor import Supervisor
+from hercs.apps.tracking.session import check_installed, open_tracking
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import ConfigError
 from hercs.net.signals import StopSignals
@@ -68,6 +69,11 @@ def run_up(
         raise RuntimeError("run_up must run on the main thread (signal handlers, and "
                            "PR_SET_PDEATHSIG fires when the forking thread exits)")
     config = resolve_run(config)
+    try:
+        check_installed(config.tracking)
+    except ConfigError as exc:
+        print(f"hercs up: {exc}", file=err, flush=True)
+        return 2
     run_dir = Path(config.run.run_dir) / config.run.name
     if resume and not RunDir(run_dir).config.is_file():
         print(f"hercs up: --resume {run_dir}: no run there (no config.yaml)", file=err,
@@ -135,11 +141,17 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
                                  command=command, stop_timeout_s=stop_timeout_s,
                                  ready_timeout_s=ready_timeout_s, out=out, err=err)
             status = 1
+            tracking = None
             try:
                 save_yaml(config, files.config)
                 write_router(run_dir, RouterRecord.for_listen(listening))
                 launcher.say(f"hercs up: {'resuming ' if resume else ''}run "
                              f"{config.run.name}, directory {run_dir}, router on {listening}")
+                tracking = open_tracking(config, run_dir, say=lambda line: launcher.say(
+                    f"hercs up: warning: {line}", error=True))
+                if tracking is not None:  # its own threads: no tracker call can hold the run
+                    launcher.say(f"hercs up: tracking to {', '.join(tracking.names)}")
+                    tracking.follow()
                 router.subscribe(launcher.keys.all_metrics, launcher.on_metrics)
                 router.subscribe(launcher.keys.eval_result, launcher.on_eval)
                 router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
@@ -153,6 +165,8 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
                     launcher._say_all(launcher.progress.flush())
                 router.close()
                 remove_router(run_dir)
+                if tracking is not None:  # after the learner's last row
+                    tracking.close(complete=status == 0)
             if status == 0:
                 launcher._say_all(launcher.progress.finished_lines(config.run.name, run_dir))
             else:

@@ -32,6 +32,8 @@ from hercs.apps.sweep.cells import (
 from hercs.apps.sweep.report import main_report, write_reports
 from hercs.apps.sweep.runner import run_grid
 from hercs.apps.sweep.slurm_array import run_one_cell, submit_slurm
+from hercs.apps.tracking.flags import add_track_argument, backends_override
+from hercs.apps.tracking.session import check_installed
 from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
 from hercs.config.algorithm import EPSILON_MUJOCO3, EPSILON_V1
 from hercs.errors import ConfigError
@@ -94,6 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="SECTION.FIELD=VALUE", help="config override for every run")
     p.add_argument("--run-dir", default=None,
                    help="where runs go (default runs/sweep; a temp dir with --quick)")
+    add_track_argument(p)
     p.add_argument("--out", default=None,
                    help="report folder (default RUN_DIR/report)")
     p.add_argument("--committed", default=None, metavar="DIR",
@@ -119,6 +122,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_sbatch_arguments(slurm, prefix="slurm-", scope="each task")
     slurm.add_argument("--cell-index", type=int, default=None, help=argparse.SUPPRESS)
     return p
+
+
+def tracking_overrides(track: Sequence[str], given: Sequence[str], run_root: Path) -> list[str]:
+    """What `--track` adds to every cell: the trackers, and the sweep's folder name as their
+    group (W&B's group, the MLflow experiment), unless `--set tracking.group=` names one."""
+    if not track:
+        return []
+    grouped = any(item.partition("=")[0].strip() == "tracking.group" for item in given)
+    return [*backends_override([], track),
+            *([] if grouped else [f"tracking.group={run_root.name}"])]
 
 
 def _fail(message: str) -> int:
@@ -172,6 +185,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     default_root = (Path(tempfile.gettempdir()) / "hercs-sweep-NEW" if args.quick
                     else Path("runs") / "sweep")
     run_root = Path(args.run_dir or tmp or default_root).resolve()
+    overrides = tracking_overrides(args.track or [], args.overrides, run_root) + overrides
+    try:
+        check_installed(apply_overrides(HercsConfig(), overrides).tracking)
+    except ConfigError as exc:
+        return _fail(str(exc))
     out_dir = Path(args.out) if args.out else run_root / "report"
     jobs = args.jobs or max(1, os.cpu_count() or 1)
     committed = Path(args.committed).resolve() if args.committed else None

@@ -101,8 +101,8 @@ def test_a_run_directory_names_every_file_it_keeps(tmp_path: Path) -> None:
     run = RunDir(tmp_path / "push-her-cs-s1")
     names = {"config": "config.yaml", "metrics": "metrics.csv", "checkpoints": "checkpoints",
              "logs": "logs", "router_log": "logs/router.log", "tensorboard": "tensorboard",
-             "router": "router.json", "lock": "owner.lock", "previous": "previous",
-             "slurm": "slurm", "episode_log": "episodes.mcap"}
+             "tracking": "tracking.json", "router": "router.json", "lock": "owner.lock",
+             "previous": "previous", "slurm": "slurm", "episode_log": "episodes.mcap"}
     assert {attr: getattr(run, attr).relative_to(run.path).as_posix() for attr in names} == names
     assert run.log("replay-0") == run.path / "logs" / "replay-0.log"
     assert run.checkpoint("best") == run.path / "checkpoints" / "best.pt"
