@@ -1,12 +1,15 @@
 """The clusterer's pure core: classify episodes, keep the failed goals, refit k-means.
 
-An episode failed if it did not succeed by `TaskSpec.is_success`; its desired goal then goes
+An episode failed if it did not succeed (by `is_success`, or as its caller says); its desired
+goal then goes
 into the failed-goal buffer. When the buffer has been entirely replaced since the last fit,
 k-means is refitted (refit `v` seeded with `int_seed(seed, "clusterer", "kmeans", str(v))`) and
 a new `ClusterModel` returned.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -15,17 +18,23 @@ from hercs.clusterer.kmeans import fit_cluster_model
 from hercs.config import ClusterConfig
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.seeding import int_seed
-from hercs.rl.task_registry import TaskSpec
+
+GoalSuccess = Callable[[np.ndarray, np.ndarray], object]
+"""(final achieved goal, desired goal) → truthy when the episode succeeded (a task's
+`TaskSpec.is_success`)."""
 
 
 class Clusterer:
     """Turns a stream of (final achieved goal, desired goal) pairs into cluster models."""
 
-    def __init__(self, *, config: ClusterConfig, seed: int, spec: TaskSpec) -> None:
+    def __init__(self, *, config: ClusterConfig, seed: int, goal_dim: int,
+                 is_success: GoalSuccess | None) -> None:
+        """`is_success` judges each observed episode; None when every caller of `observe`
+        says whether its episode succeeded (an env whose info carries the flag)."""
         self.config = config
         self.seed = int(seed)
-        self.spec = spec
-        self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=spec.goal_dim)
+        self.is_success = is_success
+        self.fgb = FailedGoalBuffer(config.fgb_size, goal_dim=goal_dim)
         self.episodes_seen = 0
         """Episodes observed (successes and failures)."""
         self.failures_seen = 0
@@ -50,10 +59,12 @@ class Clusterer:
         self.episodes_seen = int(episodes_seen)
         self.last_version = int(model_version)
 
-    def observe(self, *, final_ag: np.ndarray, desired_goal: np.ndarray) -> ClusterModel | None:
+    def observe(self, *, final_ag: np.ndarray, desired_goal: np.ndarray,
+                succeeded: bool | None = None) -> ClusterModel | None:
         """Account for one stored episode; return a new model if this episode triggered a refit.
 
-        final_ag is ag_T (the achieved goal after the last step), desired_goal is g.
+        final_ag is ag_T (the achieved goal after the last step), desired_goal is g;
+        `succeeded` overrides `is_success` where the caller knows the outcome.
         """
         final_ag = np.asarray(final_ag, dtype=np.float64)
         desired_goal = np.asarray(desired_goal, dtype=np.float64)
@@ -62,8 +73,13 @@ class Clusterer:
                              f"{desired_goal.shape} must have the same shape")
         if not (np.all(np.isfinite(final_ag)) and np.all(np.isfinite(desired_goal))):
             raise ValueError("Clusterer.observe: final_ag or desired_goal holds NaN or Inf")
+        if succeeded is None:
+            if self.is_success is None:
+                raise ValueError("Clusterer.observe: no is_success to judge the episode by; "
+                                 "pass succeeded=")
+            succeeded = bool(self.is_success(final_ag, desired_goal))
         self.episodes_seen += 1
-        if self.spec.is_success(final_ag, desired_goal):
+        if succeeded:
             return None
         self.failures_seen += 1
         self.fgb.add(desired_goal)

@@ -56,8 +56,9 @@ class ClustererService:
         self.config = config
         self.goal_dim = config.task.spec.goal_dim
         self.fits = config.run.uses_clusters
+        spec = config.task.spec
         self.core = Clusterer(config=config.cluster, seed=config.run.seed,
-                              spec=config.task.spec)
+                              goal_dim=spec.goal_dim, is_success=spec.is_success)
         self.episodes_seen = 0
         self.failures_seen = 0
         self.refits = 0

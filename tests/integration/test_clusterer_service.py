@@ -79,7 +79,9 @@ def test_clusterer_fits_after_fgb_size_failures_and_serves_late_joiners(
     assert inserted.wait_for_subscribers(WAIT_S), "the clusterer never subscribed"
 
     rng = np.random.default_rng(0)
-    expected = Clusterer(config=config.cluster, seed=config.run.seed, spec=config.task.spec)
+    expected = Clusterer(config=config.cluster, seed=config.run.seed,
+                         goal_dim=config.task.spec.goal_dim,
+                         is_success=config.task.spec.is_success)
     expected_model = None
 
     def publish(ag: np.ndarray, g: np.ndarray, seq: int) -> None:
@@ -154,7 +156,9 @@ def test_a_restarted_clusterer_continues_the_runs_buffer_counts_and_versions(
     for episode_id in range(50, 60):  # already in the snapshot: not counted again
         g = rng.uniform(-1, 1, 3)
         inserted.put(header(g + 1.0, g, seq=episode_id))
-    expected = Clusterer(config=config.cluster, seed=config.run.seed, spec=config.task.spec)
+    expected = Clusterer(config=config.cluster, seed=config.run.seed,
+                         goal_dim=config.task.spec.goal_dim,
+                         is_success=config.task.spec.is_success)
     expected.resume(failed_goals=old_goals, failures_seen=40, episodes_seen=60, model_version=7)
     model = None
     for episode_id in range(60, 76):

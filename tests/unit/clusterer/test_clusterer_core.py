@@ -26,7 +26,8 @@ def _episodes(n: int, seed: int, p_fail: float) -> list[tuple[np.ndarray, np.nda
 
 
 def test_models_exactly_every_fgb_size_failures_never_counting_successes() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=1, spec=PUSH)
+    clusterer = Clusterer(config=ClusterConfig(), seed=1, goal_dim=PUSH.goal_dim,
+                          is_success=PUSH.is_success)
     fails = 0
     models = []
     for ag, g, failed in _episodes(1200, seed=0, p_fail=0.5):
@@ -48,14 +49,16 @@ def test_models_exactly_every_fgb_size_failures_never_counting_successes() -> No
                          ids=["inside", "on-threshold", "outside"])
 def test_failure_is_not_success_by_the_tasks_rule(distance: float, fails: bool) -> None:
     """The env's `is_success` is d < 0.05: an episode ending exactly on the radius failed."""
-    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, goal_dim=PUSH.goal_dim,
+                          is_success=PUSH.is_success)
     g = np.zeros(3)  # so that ‖ag − g‖ is exactly `distance`
     clusterer.observe(final_ag=np.array([0.0, distance, 0.0]), desired_goal=g)
     assert len(clusterer.fgb) == int(fails)
 
 
 def test_failed_goal_stored_is_the_desired_goal_not_the_achieved_one() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, goal_dim=PUSH.goal_dim,
+                          is_success=PUSH.is_success)
     g = np.array([1.3, 0.7, 0.42])
     clusterer.observe(final_ag=g + 0.3, desired_goal=g)
     np.testing.assert_allclose(clusterer.fgb.goals()[0], g, rtol=1e-6)
@@ -64,7 +67,8 @@ def test_failed_goal_stored_is_the_desired_goal_not_the_achieved_one() -> None:
 def test_same_seed_same_models() -> None:
     config = ClusterConfig(k=4, fgb_size=40)
     episodes = _episodes(300, seed=5, p_fail=0.6)
-    a, b = Clusterer(config=config, seed=3, spec=PUSH), Clusterer(config=config, seed=3, spec=PUSH)
+    a, b = (Clusterer(config=config, seed=3, goal_dim=PUSH.goal_dim, is_success=PUSH.is_success)
+            for _ in range(2))
     half = len(episodes) // 2
     for ag, g, _ in episodes[:half]:
         ma, mb = a.observe(final_ag=ag, desired_goal=g), b.observe(final_ag=ag, desired_goal=g)
@@ -74,7 +78,8 @@ def test_same_seed_same_models() -> None:
 
 
 def test_rejects_non_finite_input() -> None:
-    clusterer = Clusterer(config=ClusterConfig(), seed=0, spec=PUSH)
+    clusterer = Clusterer(config=ClusterConfig(), seed=0, goal_dim=PUSH.goal_dim,
+                          is_success=PUSH.is_success)
     with pytest.raises(ValueError, match="NaN"):
         clusterer.observe(final_ag=np.array([np.nan, 0, 0]), desired_goal=np.zeros(3))
     assert clusterer.episodes_seen == 0

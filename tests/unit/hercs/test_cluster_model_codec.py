@@ -72,7 +72,8 @@ def test_unusable_model_is_an_invalid_message(version: int, centroids: np.ndarra
 def test_clusterer_sets_the_failure_count_it_fitted_at() -> None:
     """`failures_seen` is the failure count (the lockstep gate's fit point), not the episodes
     observed: successes in between do not move it."""
-    core = Clusterer(config=ClusterConfig(k=2, fgb_size=4, kmeans_n_init=1), seed=0, spec=SPEC)
+    core = Clusterer(config=ClusterConfig(k=2, fgb_size=4, kmeans_n_init=1), seed=0,
+                     goal_dim=SPEC.goal_dim, is_success=SPEC.is_success)
     goal, far = np.zeros(3), np.full(3, 1.0)
     models = []
     for i in range(8):

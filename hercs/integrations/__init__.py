@@ -1,0 +1,2 @@
+"""hercs' methods inside other libraries' training loops (`hercs.integrations.sb3`): each a thin
+shim over `clustered_episodes`, which drives the replay's own samplers and the clusterer's core."""
