@@ -124,10 +124,14 @@ class LearnerService:
         self.weights_pub.put(raw)
 
     def publish_progress(self, *, finished: bool = False) -> None:
+        """Where the run stands: epochs recorded, and the cycles and updates done (what
+        `hercs up`'s live line shows within an epoch)."""
         recorded = self.loop.epoch - len(self.loop.pending)
         self.progress_pub.put(pb.RunProgress(
             schema_version=SCHEMA_VERSION, epoch=max(recorded, 0),
-            epochs=self.config.training.epochs, finished=finished).SerializeToString())
+            epochs=self.config.training.epochs, finished=finished, cycle=self.loop.cycle,
+            cycles_per_epoch=self.config.training.cycles_per_epoch,
+            updates=self.learner.updates).SerializeToString())
 
     def _ask_again(self) -> None:
         """Ask once more for the evaluations overdue by `training.eval_resend_s`."""
@@ -220,6 +224,7 @@ class LearnerService:
                 self.batch_wait_s[result.epoch_ended] = prefetcher.waiting_s - waited_before
                 waited_before = prefetcher.waiting_s
                 self.checkpoint()
+            self.publish_progress()
             self.record_evals(block=False)
         if stop.is_set():
             return 0

@@ -44,6 +44,8 @@ def test_two_runs_without_listen_take_free_ports_and_record_them(up, tmp_path: P
         config = load_yaml(RunDir(tmp_path / "runs" / name).config)
         assert config.transport.listen == ["tcp/127.0.0.1:0"]  # as asked: a resume picks anew
         assert config.transport.connect == [endpoint]  # what the children use
+        waiting = launcher.wait_for_line("waiting for remote actors")  # --actors 0 says how
+        assert waiting.endswith(f"hercs actor --connect {endpoint} --run {name}"), waiting
     assert records["first"].local != records["second"].local
     for name, record in records.items():
         alive: queue.Queue[str] = queue.Queue()

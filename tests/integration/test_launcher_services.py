@@ -55,6 +55,9 @@ def test_up_end_to_end_with_the_real_services(tmp_path: Path) -> None:
     epochs = [line for line in launcher.out
               if line.startswith("epoch") and " running " not in line]
     assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
+    # not a terminal: no live line (test_up_live_line.py has one), one line per epoch
+    assert not [line for line in launcher.out if "cycle " in line or "\x1b" in line
+                or "\r" in line], launcher.out
     # HER-CS on Reach for 8 cycles: far fewer failed goals than the 150 a model needs
     assert all(re.fullmatch(r"epoch \d/2  success \d\.\d\d  env \d+ steps/s  upd \d+/s  "
                             r"replay \d+  lag [-\d.]+  actors \d+( \([\d/]+ %\))?  "

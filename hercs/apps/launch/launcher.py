@@ -87,6 +87,7 @@ def run_up(
     except (RunBusy, OSError) as exc:
         print(f"hercs up: {exc}", file=err, flush=True)
         return 2
+    first_epoch = 1
     try:
         if not resume and holds_a_run(run_dir):
             print(f"hercs up: {run_dir} already exists and is not empty; pick another --run "
@@ -105,8 +106,10 @@ def run_up(
                 return 0
             for note in plan.notes:  # e.g. a torn tail: said here, not only in replay-0.log
                 print(f"hercs up: {note}", file=out, flush=True)
+            first_epoch = plan.checkpoint_epoch + 1
         return _run(config, run_dir, command=command, stop_timeout_s=stop_timeout_s,
-                    ready_timeout_s=ready_timeout_s, out=out, err=err, resume=resume)
+                    ready_timeout_s=ready_timeout_s, out=out, err=err, resume=resume,
+                    first_epoch=first_epoch)
     except CannotResume as exc:
         print(f"hercs up: {exc}", file=err, flush=True)
         return 2
@@ -120,7 +123,7 @@ def run_up(
 
 def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
          stop_timeout_s: float, ready_timeout_s: float, out: IO[str], err: IO[str],
-         resume: bool) -> int:
+         resume: bool, first_epoch: int) -> int:
     """`run_up` once the run directory is this process's: router, children, progress."""
     signals = StopSignals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP),
                           wake_on=(signal.SIGCHLD,))
@@ -139,7 +142,8 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
         with native_output_to(files.router_log, out, err) as (out, err):
             launcher = Supervisor(config=config, run_dir=run_dir, signals=signals,
                                  command=command, stop_timeout_s=stop_timeout_s,
-                                 ready_timeout_s=ready_timeout_s, out=out, err=err)
+                                 ready_timeout_s=ready_timeout_s, out=out, err=err,
+                                 first_epoch=first_epoch)
             status = 1
             tracking = None
             try:
@@ -156,6 +160,8 @@ def _run(config: HercsConfig, run_dir: Path, *, command: CommandFactory,
                 router.subscribe(launcher.keys.eval_result, launcher.on_eval)
                 router.subscribe(launcher.keys.status, launcher.on_status, drop_oldest=True)
                 router.subscribe(launcher.keys.inserted, launcher.on_inserted,
+                                 drop_oldest=True)
+                router.subscribe(launcher.keys.progress, launcher.on_run_progress,
                                  drop_oldest=True)
                 router.watch_alive(launcher.keys.all_alive, launcher.on_alive)
                 status = launcher.run()

@@ -14,22 +14,13 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from hercs.apps.launch.epoch_progress import CycleCounter, LiveStatus, duration
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 
 
 def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
-
-
-def _duration(seconds: float) -> str:
-    """1h02m, 3m20s or 45s."""
-    seconds = max(round(seconds), 0)
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    if hours:
-        return f"{hours}h{minutes:02d}m"
-    return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
 
 
 FIRST_LINE_S = 5.0
@@ -50,11 +41,21 @@ class Progress:
     """
 
     def __init__(self, total_epochs: int, *, fit_size: int | None = None,
+                 first_epoch: int = 1, remote_actors_only: bool = False,
                  clock: Callable[[], float] = time.monotonic) -> None:
         """`fit_size`: the failed goals the first cluster model needs (`cluster.fgb_size`);
-        None for a method without clusters, whose lines say nothing of them."""
+        None for a method without clusters, whose lines say nothing of them. `first_epoch`:
+        the epoch this launcher sees run first (a resumed run's, after its checkpoint).
+        `remote_actors_only`: the run starts no actor (`--actors 0`), so it waits for remote
+        ones while none is seen."""
         self.total_epochs = total_epochs
         self.fit_size = fit_size
+        self.first_epoch = first_epoch
+        self.remote_actors_only = remote_actors_only
+        self.cycles = CycleCounter(clock=clock)
+        """The learner's cycles and updates within the epoch (its `RunProgress`)."""
+        self._env_steps: int | None = None
+        """The replay's env steps so far (its `ReplayStatus`)."""
         self._cluster_version = 0
         self._cluster_sizes: list[int] = []
         self._status_seen = False
@@ -80,10 +81,41 @@ class Progress:
         self._first_epoch: int | None = None  # the first epoch this launcher saw (resume)
 
     @classmethod
-    def for_run(cls, config: HercsConfig) -> Progress:
-        """The progress of the run `config` describes."""
+    def for_run(cls, config: HercsConfig, *, first_epoch: int = 1) -> Progress:
+        """The progress of the run `config` describes, from `first_epoch` on."""
         return cls(config.training.epochs,
-                   fit_size=config.cluster.fgb_size if config.run.uses_clusters else None)
+                   fit_size=config.cluster.fgb_size if config.run.uses_clusters else None,
+                   first_epoch=first_epoch, remote_actors_only=config.actor.num_actors == 0)
+
+    @property
+    def running_epoch(self) -> int:
+        """The epoch training is in now: the learner's cycle count says it once it has spoken;
+        before, the one after the last printed (or the resumed run's first)."""
+        told = self.cycles.running_epoch
+        return min(max(self.last_printed + 1, self.first_epoch, told or 0), self.total_epochs)
+
+    @property
+    def waiting_for_actors(self) -> bool:
+        """A run of remote actors only, none of which the router sees now."""
+        return self.remote_actors_only and not self.actors
+
+    def on_run_progress(self, progress: pb.RunProgress) -> None:
+        """The learner's `RunProgress`: its cycles and updates so far."""
+        self.cycles.on_run_progress(progress)
+
+    def live_status(self) -> LiveStatus:
+        """What the live line shows now: the running epoch's cycles, the env steps and
+        updates so far, the actors, and the time left in the epoch and the run."""
+        epoch = self.running_epoch
+        counter = self.cycles
+        return LiveStatus(
+            epoch=epoch, epochs=self.total_epochs, cycle=counter.cycle_in_epoch(epoch),
+            cycles_per_epoch=counter.cycles_per_epoch, env_steps=self._env_steps,
+            updates=counter.updates, actors=self.actors,
+            waiting_for_actors=self.waiting_for_actors,
+            epoch_eta_s=counter.eta_s(epoch * counter.cycles_per_epoch),
+            run_eta_s=counter.eta_s(self.total_epochs * counter.cycles_per_epoch),
+            since_start_s=self._clock() - self.started)
 
     def interim(self) -> str | None:
         """A line for an epoch still running: the first `FIRST_LINE_S` after start (so a
@@ -95,10 +127,11 @@ class Progress:
         if now - quiet_since < INTERIM_EVERY_S:
             return None
         self.last_line_at = now
-        epoch = self.last_printed + 1
-        return (f"epoch {epoch}/{self.total_epochs} running  {_duration(now - self.started)} "
+        epoch = self.running_epoch
+        return (f"epoch {epoch}/{self.total_epochs} running  {duration(now - self.started)} "
                 f"since start  replay {_fmt(self._replay_size, '.0f')} episodes"
                 + (f"  actors {self.actors}" if self.actors is not None else "")
+                + ("  waiting for remote actors" if self.waiting_for_actors else "")
                 + (f"  restarts {self.restarts}" if self.restarts else "")
                 + self._bad_text())
 
@@ -141,6 +174,7 @@ class Progress:
         """The replay's latest status: its size, and its cluster model with the episodes it
         holds per cluster."""
         self._replay_size = status.size_episodes
+        self._env_steps = int(status.env_steps)
         self._cluster_version = int(status.cluster_model_version)
         self._cluster_sizes = [int(n) for n in status.cluster_sizes]
         self._status_seen = True
@@ -241,6 +275,6 @@ class Progress:
                 f"upd {_fmt(values.get('updates_per_s'), '.0f')}/s  "
                 f"replay {_fmt(replay, '.0f')}  lag {_fmt(values.get('policy_lag'), '.1f')}"
                 + self._actors_text() + self._clusters_text()
-                + (f"  eta {_duration(eta)}" if eta is not None and epoch < total else "")
+                + (f"  eta {duration(eta)}" if eta is not None and epoch < total else "")
                 + (f"  restarts {self.restarts}" if self.restarts else "")
                 + self._bad_text())

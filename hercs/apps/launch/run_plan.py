@@ -75,3 +75,31 @@ def resolve_run(config: HercsConfig, now: datetime | None = None,
     data["run"]["name"] = config.run.name or default_run_name(config, now)
     data["transport"]["connect"] = loopback_endpoints(listening or config.transport.listen)
     return HercsConfig.from_dict(data)
+
+
+LOOPBACK_HOSTS = ("127.0.0.1", "[::1]", "localhost")
+
+
+def remote_actor_command(config: HercsConfig) -> tuple[str, bool]:
+    """The `hercs actor` command that joins the run `config` describes (its children's config:
+    `transport.connect` holds the router's concrete ports), and whether another host can use
+    it: False where the router listens on loopback only. A wildcard listen address reads HOST,
+    the name other hosts know this one by."""
+    endpoints = []
+    reachable = False
+    for asked, concrete in zip(config.transport.listen, config.transport.connect, strict=False):
+        proto, _, rest = concrete.partition("/")
+        host, _, port = rest.rpartition(":")
+        wildcard = asked.partition("/")[2].rpartition(":")[0] in ("0.0.0.0", "[::]")
+        reachable = reachable or wildcard or host not in LOOPBACK_HOSTS
+        endpoints.append(f"{proto}/{'HOST' if wildcard else host}:{port}")
+    words = ["hercs actor"]
+    for endpoint in endpoints or ["ENDPOINT"]:
+        words += ["--connect", endpoint]
+    words += ["--run", config.run.name]
+    security = config.security
+    for flag, path in (("--tls-ca", security.tls_ca), ("--tls-cert", security.tls_cert),
+                       ("--tls-key", security.tls_key), ("--credentials", security.credentials)):
+        if path:
+            words += [flag, Path(path.replace("{role}", "actor")).name]
+    return " ".join(words), reachable

@@ -19,8 +19,14 @@ from pathlib import Path
 from typing import IO
 
 from hercs.apps.launch.child_process import describe_exit, log_tail, signal_group, start_child
+from hercs.apps.launch.live_line import LiveLine, is_terminal
 from hercs.apps.launch.progress import Progress
-from hercs.apps.launch.run_plan import ChildSpec, CommandFactory, plan_children
+from hercs.apps.launch.run_plan import (
+    ChildSpec,
+    CommandFactory,
+    plan_children,
+    remote_actor_command,
+)
 from hercs.apps.launch.stall import StallWatch, expected_first_epoch_s
 from hercs.config import HercsConfig
 from hercs.config.limits import MAX_BACKOFF_S
@@ -50,6 +56,8 @@ EXIT_STALLED = 5
 LIVE_READY_TIMEOUT_S = 30.0
 FINAL_PROGRESS_TIMEOUT_S = 5.0
 LOG_TAIL_LINES = 20
+LIVE_REDRAW_S = 0.1
+"""The live line is redrawn at most this often as the learner's cycles arrive."""
 _POLL_S = 1.0
 
 
@@ -83,10 +91,15 @@ class Supervisor:
     restarts_total: int = 0
     scheduled: list[tuple[float, ChildSpec, int]] = field(default_factory=list)
     """Restarts waiting for their back-off: (when, spec, restarts so far)."""
+    first_epoch: int = 1
+    """The epoch the run trains first (a resumed run's, after its checkpoint)."""
 
     def __post_init__(self) -> None:
         self.keys = RunKeys(self.config.run.name)
-        self.progress = Progress.for_run(self.config)
+        self.progress = Progress.for_run(self.config, first_epoch=self.first_epoch)
+        self.live = LiveLine(self.out, self.err) if is_terminal(self.out) else None
+        """The live line of a terminal (none in a log: its lines stay one per epoch)."""
+        self._live_drawn = -LIVE_REDRAW_S
         self.stall = StallWatch(factor=self.config.launch.stall_factor,
                                 first_epoch_s=expected_first_epoch_s(self.config))
         self._print_lock = threading.RLock()
@@ -97,7 +110,10 @@ class Supervisor:
     def say(self, line: str, *, error: bool = False) -> None:
         # A terminal gone (SIGHUP) must not break the shutdown that follows.
         with self._print_lock, contextlib.suppress(OSError, ValueError):
-            print(line, file=self.err if error else self.out, flush=True)
+            if self.live is not None:
+                self.live.say(line, error=error)
+            else:
+                print(line, file=self.err if error else self.out, flush=True)
 
     def _say_all(self, lines: list[str]) -> None:
         for line in lines:
@@ -139,6 +155,25 @@ class Supervisor:
         if isinstance(msg, pb.ReplayStatus):
             with self._print_lock:
                 self.progress.on_replay_status(msg)
+
+    def on_run_progress(self, key: str, raw: bytes) -> None:
+        msg = self._decode(raw, pb.RunProgress, "RunProgress")
+        if isinstance(msg, pb.RunProgress):
+            with self._print_lock:
+                self.progress.on_run_progress(msg)
+                # each epoch's first and last cycle always, others at most LIVE_REDRAW_S apart
+                status = self.progress.live_status()
+                self._draw_live(force=status.cycle in (1, status.cycles_per_epoch))
+
+    def _draw_live(self, *, force: bool) -> None:
+        """Redraw the live line (a terminal's), unless it was drawn under `LIVE_REDRAW_S` ago
+        and not `force`. Under the print lock."""
+        now = time.monotonic()
+        if self.live is None or (not force and now - self._live_drawn < LIVE_REDRAW_S):
+            return
+        self._live_drawn = now
+        with contextlib.suppress(OSError, ValueError):
+            self.live.show(self.progress.live_status())
 
     def on_inserted(self, key: str, raw: bytes) -> None:
         msg = self._decode(raw, pb.EpisodeHeader, "EpisodeHeader")
@@ -305,6 +340,8 @@ class Supervisor:
             self.start(spec)
         self.say(f"hercs up: run {self.config.run.name} is running "
                  f"({self.config.training.epochs} epochs); Ctrl-C to stop")
+        if self.config.actor.num_actors == 0:
+            self.say(waiting_for_actors_line(self.config))
         while True:
             if self.signals.stop_requested:
                 return self._interrupted()
@@ -327,14 +364,21 @@ class Supervisor:
                     self.say(self._stall_report(), error=True)
                     return EXIT_STALLED
             with self._print_lock:
-                line = self.progress.interim()
-                if line is not None:
-                    self.say(line)
+                if self.live is not None:  # the live line says what the interim line would
+                    self._draw_live(force=True)
+                else:
+                    line = self.progress.interim()
+                    if line is not None:
+                        self.say(line)
             self.signals.wait(_POLL_S)
 
     def stop_all(self) -> None:
         """Stop every child, stage by stage; returns only when all have exited. A stop signal
         received meanwhile skips the remaining graceful waits."""
+        with self._print_lock:
+            if self.live is not None:
+                self.live.close()
+                self.live = None  # the stop's lines and the last ones print plainly
         signals_before = len(self.signals.received)
         for roles in STOP_STAGES:
             stage = [c for c in self.children if c.spec.role in roles]
@@ -362,3 +406,16 @@ class Supervisor:
                     child.proc.wait()
             for child in stage:  # anything the child forked into its group
                 child.signal(signal.SIGKILL)
+
+
+def waiting_for_actors_line(config: HercsConfig) -> str:
+    """What a run of remote actors only (`--actors 0`) says at its start: that it waits, and
+    the command that starts an actor (where only this host can reach the router, how to let
+    others in)."""
+    command, reachable = remote_actor_command(config)
+    where = ("on any host that reaches this one (HOST: this host's name or address)"
+             if "HOST" in command else "on any host that reaches this router") if reachable \
+        else ("on this host (the router listens on loopback only; for other hosts start the "
+              "run with --listen tls/0.0.0.0:7447, docs/SECURITY.md)")
+    return (f"hercs up: waiting for remote actors (--actors 0 starts none here): training "
+            f"begins when one joins; start one {where}: {command}")
