@@ -27,6 +27,7 @@ from hercs.apps.sweep.cells import (
     up_command,
     write_manifest,
 )
+from hercs.apps.sweep.tally import SweepTally
 
 LOG_DIR = "_logs"
 
@@ -103,6 +104,12 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     results: list[tuple[GridRun, int]] = []
     running: list[_Running] = []
     state: dict[GridRun, str] = {}
+    tally = SweepTally(total=len(cells), jobs=jobs, done=len(cells) - len(todo))
+
+    def say_tally() -> None:
+        now = time.monotonic()
+        print(tally.line(left=len(todo), running_s=[now - r.started for r in running]),
+              flush=True)
 
     def manifest() -> None:  # of the whole sweep (`sweep`), not only the cells run here
         try:
@@ -135,6 +142,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 state[cell] = "running"
                 manifest()
                 print(f"[start] {cell.name}: {' '.join(cmd[1:])}", flush=True)
+                say_tally()
             # Wait for any one child; polling at 1 s costs nothing next to runs of minutes.
             finished = [r for r in running if r.proc.poll() is not None]
             if not finished:
@@ -168,6 +176,7 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                               "machine": machine}
                     (run_root / r.cell.name / DONE_FILE).write_text(json.dumps(record, indent=2))
                     print(f"[done] {r.cell.name}: {wall / 60:.1f} min", flush=True)
+                    tally.finished(wall, resumed=r.cell in resumed)
                     if committed is not None:
                         copied = copy_small_files(run_root / r.cell.name, committed)
                         print(f"[done] {r.cell.name}: small files in {copied} (commit them)",
@@ -176,7 +185,10 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                     state[r.cell] = f"failed (exit {code}; resumed by the next call)"
                     print(f"[fail] {r.cell.name}: exit {code} after {wall:.0f} s; log "
                           f"{run_root / LOG_DIR / (r.cell.name + '.log')}", flush=True)
+                    tally.failed += 1
                 manifest()
+                if not todo:  # else the next [start] says it
+                    say_tally()
     except KeyboardInterrupt:
         print("interrupted: stopping the running runs (they will be resumed next time)",
               flush=True)

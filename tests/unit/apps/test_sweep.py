@@ -139,6 +139,8 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
            "--out", str(tmp_path / "results"), "--committed", str(tmp_path / "committed")]
     first = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert first.returncode == 0, first.stdout + first.stderr
+    tallies = [line for line in first.stdout.splitlines() if line.startswith("[sweep] ")]
+    assert tallies[-1] == "[sweep] 2 of 2 done, 0 running, 0 left", first.stdout
     for name in ("reach-her-s1", "reach-her-cs-s1"):
         done = json.loads((tmp_path / "runs" / name / sc.DONE_FILE).read_text())
         assert (done["task"], done["epochs"], done["env_id"]) == ("reach", 1, "FetchReach-v4")
@@ -175,6 +177,9 @@ def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:
     assert "[skip] reach-her-s1: finished and committed" in second.stdout
     assert "| HER | 1 | 1 | – |" in (tmp_path / "results" / "reach.md").read_text()
     assert "[resume] reach-her-cs-s1" in second.stdout
+    assert [line for line in second.stdout.splitlines() if line.startswith("[sweep] ")] == [
+        "[sweep] 1 of 2 done, 1 running, 0 left; eta once the first run ends",
+        "[sweep] 2 of 2 done, 0 running, 0 left"], second.stdout
     assert "[start] reach-her-s1" not in second.stdout
     done = json.loads((tmp_path / "runs" / "reach-her-cs-s1" / sc.DONE_FILE).read_text())
     assert done["resumed"] is True and "--resume" in done["command"]
