@@ -21,7 +21,9 @@ def test_a_run_of_the_old_default_has_the_legacy_lag_in_its_key() -> None:
 
 
 def test_the_studies_label_it_lag_7_where_hercs_plot_names_its_settings() -> None:
-    assert method_label(f"her-cs/{LEGACY_LAG}", LEGACY_NOTES) == "HER-CS (lag 7)"
+    assert method_label(f"her-cs/{LEGACY_LAG}", LEGACY_NOTES) == "HER-CS, lag 7"
     assert method_label(f"her-ebp-cs/lockstep/bf16/{LEGACY_LAG}",
-                        LEGACY_NOTES) == "HER-EBP-CS lockstep bf16 (lag 7)"
-    assert method_label(f"her-cs/{LEGACY_LAG}") == "HER-CS (lag 80/3/2/∞)"
+                        LEGACY_NOTES) == (
+        "HER-EBP-CS, lockstep (as the authors' code), bf16 learner, lag 7")
+    assert method_label(f"her-cs/{LEGACY_LAG}") == (
+        "HER-CS, no lag bound, prefetch 3, actor queue 2, rate tolerance 80")

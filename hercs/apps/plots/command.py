@@ -17,11 +17,10 @@ from hercs.apps.plots.curves import (
     group,
     load_reference,
     load_run,
-    method_label,
     method_rank,
 )
 from hercs.apps.plots.figures import check_band, plot_fig2, plot_figure
-from hercs.apps.plots.series import DEFAULT_CHOICE, SeriesChoice, series_list
+from hercs.apps.plots.series import DEFAULT_CHOICE, SeriesChoice, series_label, series_list
 from hercs.apps.plots.tables import FIG2_EPOCHS, fig2_panels, fig2_text, tables
 
 
@@ -71,7 +70,7 @@ def _check_patterns(ours: dict[str, dict[str, list[Curve]]], choice: SeriesChoic
                  if not any(SeriesChoice(patterns=(p,)).matches(k) for k in keys)]
     if unmatched:
         raise PlotError(f"--series {' '.join(unmatched)}: matches no series; the runs given "
-                        f"have {', '.join(f'{k} ({method_label(k)})' for k in keys)}")
+                        f"have {', '.join(f'{k} ({series_label(k)})' for k in keys)}")
 
 
 def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,

@@ -22,11 +22,12 @@ from hercs.apps.plots.series import METHOD_LABELS as METHOD_LABELS
 from hercs.apps.plots.series import METHOD_ORDER as METHOD_ORDER
 from hercs.apps.plots.series import VariantOf as VariantOf
 from hercs.apps.plots.series import energy_epsilon as energy_epsilon
-from hercs.apps.plots.series import is_env_version, series_key
 from hercs.apps.plots.series import marks_epsilon as marks_epsilon
 from hercs.apps.plots.series import method_key as method_key
 from hercs.apps.plots.series import method_label as method_label
 from hercs.apps.plots.series import method_rank as method_rank
+from hercs.apps.plots.series import series_key
+from hercs.apps.plots.style import METHOD_COLORS as METHOD_COLORS
 from hercs.errors import HercsError
 from hercs.run.rundir import RunDir
 
@@ -36,18 +37,6 @@ TASK_TITLES: dict[str, str] = {
     "reach": "FetchReach", "push": "FetchPush", "pick": "FetchPickAndPlace",
     "slide": "FetchSlide",
 }
-METHOD_COLORS: dict[str, str] = {
-    "her": "#0072B2", "her-cs": "#D55E00", "her-ebp": "#009E73", "her-ebp-cs": "#E69F00",
-}
-"""The four methods' own colours, the same in every figure (Okabe & Ito's colour-blind-safe
-blue, vermillion, bluish green and orange)."""
-VARIANT_PALETTE: tuple[str, ...] = (
-    "#56B4E9", "#CC79A7", "#332288", "#44AA99", "#882255", "#999933", "#AA4499", "#117733",
-    "#CC6677", "#000000", "#88CCEE", "#DDCC77",
-)
-"""Colours for the other groups of a figure (a variant, another environment), taken in the
-methods' order: Okabe & Ito's remaining sky blue and reddish purple, Paul Tol's muted scheme,
-black: 12 groups besides the four methods before a colour is reused."""
 WINDOW = 10
 THRESHOLDS: tuple[float, ...] = (0.5, 0.9)
 AT_EPOCHS: tuple[int, ...] = (50, 100, 200)
@@ -104,34 +93,6 @@ class Milestones:
 
 def task_title(name: str) -> str:
     return TASK_TITLES.get(name, name)
-
-
-def assign_colors(keys: Iterable[str]) -> dict[str, str]:
-    """A colour per group key of one figure: the four methods their own (METHOD_COLORS),
-    and so does a method's run on another environment when it is that method's only group
-    here; every other key the next unused colour of VARIANT_PALETTE in `method_rank` order,
-    so that no two groups share one until the palette runs out (then it starts over)."""
-    ordered = sorted(set(keys), key=method_rank)
-    colors = {k: METHOD_COLORS[k] for k in ordered if k in METHOD_COLORS}
-    for key in ordered:  # `her/v1` without `her` drawn: HER's colour, beside the authors' HER
-        method, *variants = key.split("/")
-        if (len(variants) == 1 and is_env_version(variants[0]) and method in METHOD_COLORS
-                and method not in ordered
-                and not any(k.split("/")[0] == method for k in colors if k != method)):
-            colors[key] = METHOD_COLORS[method]
-    others = [k for k in ordered if k not in colors]
-    for i, key in enumerate(others):
-        colors[key] = VARIANT_PALETTE[i % len(VARIANT_PALETTE)]
-    return colors
-
-
-def method_linestyle(key: str) -> str | tuple[int, tuple[int, ...]]:
-    """Our curves: solid, a lockstep variant dash-dotted, a bf16 one dotted (the authors'
-    are dashed), so that variants read apart where their colours are close."""
-    variants = key.split("/")[1:]
-    if "lockstep" in variants:
-        return (0, (5, 1, 1, 1, 1, 1)) if "bf16" in variants else "-."
-    return ":" if "bf16" in variants else "-"
 
 
 def _curve(task: str, method: str, seed: int, points: dict[int, float], source: str) -> Curve:

@@ -3,6 +3,7 @@ Fig. 2 (plot_command.py chooses what they draw and writes them with their tables
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,6 @@ from hercs.apps.plots.curves import (
     DEFAULT_BAND,
     DPI,
     LEGEND_W,
-    METHOD_COLORS,
     PANEL_H,
     PANEL_W,
     WINDOW,
@@ -23,14 +23,13 @@ from hercs.apps.plots.curves import (
     Curve,
     PlotError,
     aggregate,
-    assign_colors,
     method_label,
-    method_linestyle,
     method_rank,
     moving_average,
     seed_bands,
 )
-from hercs.apps.plots.series import whose
+from hercs.apps.plots.series import series_label, whose
+from hercs.apps.plots.style import Line, LineStyle, assign_styles, legend_key, mark_every
 from hercs.apps.plots.tables import (
     FIG2_EPOCHS,
     FIG2_ROWS,
@@ -38,6 +37,9 @@ from hercs.apps.plots.tables import (
     Panel,
     fig2_panels,
 )
+
+LEGEND_WRAP = 40  # characters a legend line beside a panel holds at its font size
+FIG2_WRAP = 44  # and one inside a Fig. 2 panel
 
 
 def _pyplot() -> Any:
@@ -93,60 +95,68 @@ def _band_words(band: str) -> str:
                     "min–max over seeds (lighter)"}[band]
 
 
-def _legend_title(keys: set[str], reference: bool, band: str) -> str:
-    """What the line styles and bands mean, for the styles drawn."""
-    lines = ["solid: ours" + ("; dashed: the authors'" if reference else "")]
-    variants = {v for key in keys for v in key.split("/")[1:]}
-    styles = [f"{style}: {v}" for v, style in (("lockstep", "dash-dot"), ("bf16", "dotted"))
-              if v in variants]
-    if styles:
-        lines.append("; ".join(styles))
-    if "v1" in variants:
-        lines.append("(v1): on the authors' Fetch*-v1")
-    return "\n".join([*lines, _band_words(band)])
-
-
 def _seeds(n: int) -> str:
     return f"{n} seed{'s' if n != 1 else ''}"
+
+
+def _draw(ax: Any, epochs: np.ndarray, values: np.ndarray, style: LineStyle, label: str, *,
+          span: int, slots: int, wrap: int) -> None:
+    """One series in its style (style.py): the authors' thinner with hollow markers, ours
+    above them; each line a little above the one before, and its markers staggered against
+    the panel's `slots` lines (`mark_every`), so that a line that coincides with another
+    still shows."""
+    slot = len(ax.lines)  # the lines drawn here before this one
+    ax.plot(epochs, values, color=style.color, linestyle=style.dash.pattern,
+            linewidth=1.4 if style.hollow else 2.0, alpha=0.9, marker=style.marker.symbol,
+            markevery=mark_every(len(epochs), span, slot, slots),
+            markersize=4.0 if style.hollow else 4.5, markeredgewidth=1.0,
+            markerfacecolor="white" if style.hollow else style.color,
+            markeredgecolor=style.color, zorder=(2.5 if style.hollow else 3.0) + 0.01 * slot,
+            label=textwrap.fill(label, wrap, break_on_hyphens=False))
 
 
 def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
                 reference: dict[str, dict[str, list[Curve]]] | None = None,
                 xmax: int | None = None, band: str = DEFAULT_BAND) -> Path:
     """One panel per task, its legend beside it: per series of `ours` the 10-epoch moving
-    average of the seed mean with its bands (`seed_bands`; ours solid, the authors' dashed
-    and smoothed alike, for the methods of `reference` given: `run_plot` passes those of
-    the series drawn). The x axis spans our epochs unless `xmax` is given."""
+    average of the seed mean with its bands (`seed_bands`), and the authors' smoothed alike,
+    for the methods of `reference` given (`run_plot` passes those of the series drawn),
+    each in its style (`assign_styles`, one for the whole figure). The x axis spans our
+    epochs unless `xmax` is given."""
     from matplotlib.ticker import MaxNLocator
 
     check_band(band)
     plt = _pyplot()
     tasks = list(ours)
-    colors = _colors(ours)
+    styles = assign_styles([*(Line(k) for methods in ours.values() for k in methods),
+                            *(Line(k, published=True) for methods in (reference or {}).values()
+                              for k in methods)])
     fig, axes = plt.subplots(1, len(tasks), figsize=((PANEL_W + LEGEND_W) * len(tasks), PANEL_H),
                              dpi=DPI, squeeze=False, layout="constrained")
     for ax, task in zip(axes[0], tasks, strict=True):
         ref = (reference or {}).get(task, {})
         right = xmax or max(int(c.epochs.max()) for cs in ours[task].values() for c in cs)
+        drawn = []
+        slots = len(ours[task]) + len(ref)
         for method in sorted(set(ours[task]) | set(ref), key=method_rank):
-            color = colors.get(method) or METHOD_COLORS.get(method)
-            label = method_label(method)
             if method in ours[task]:
+                style = styles[Line(method)]
                 a = aggregate(ours[task][method], every_seed=False)
-                if whose(method) != "ours":  # another program's runs say whose
-                    label = f"{label}, {whose(method)}"
-                _fill_bands(ax, seed_bands(ours[task][method], _band_rng()), color, band)
-                ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
-                        linestyle=method_linestyle(method), linewidth=2.0, zorder=3,
-                        label=f"{label}, {_seeds(a.n_seeds)}")
+                _fill_bands(ax, seed_bands(ours[task][method], _band_rng()), style.color, band)
+                _draw(ax, a.epochs, moving_average(a.epochs, a.mean), style,
+                      f"{series_label(method)}, {_seeds(a.n_seeds)}", span=right,
+                      slots=slots, wrap=LEGEND_WRAP)
+                drawn.append(style)
             if method in ref:
+                style = styles[Line(method, published=True)]
                 a = aggregate(ref[method])
                 keep = a.epochs <= right
                 _fill_bands(ax, seed_bands(ref[method], _band_rng(), every_seed=True),
-                            color, band, strength=0.6, right=right)
-                ax.plot(a.epochs[keep], moving_average(a.epochs, a.mean)[keep], "--",
-                        color=color, linewidth=1.4, alpha=0.9,
-                        label=f"{label}, authors' ({_seeds(a.n_seeds)})")
+                            style.color, band, strength=0.6, right=right)
+                _draw(ax, a.epochs[keep], moving_average(a.epochs, a.mean)[keep], style,
+                      f"{method_label(method)}, authors' published ({_seeds(a.n_seeds)})",
+                      span=right, slots=slots, wrap=LEGEND_WRAP)
+                drawn.append(style)
         ax.set_title(task)
         ax.set_xlabel("epoch")
         ax.set_ylabel(f"success rate ({WINDOW}-epoch mean)")
@@ -156,16 +166,10 @@ def plot_figure(ours: dict[str, dict[str, list[Curve]]], output: str | Path,
         ax.set_yticks(np.linspace(0.0, 1.0, 6))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8,
-                  frameon=False, title=_legend_title(set(ours[task]), bool(ref), band),
+                  frameon=False, title=f"{legend_key(drawn)}\n{_band_words(band)}",
                   title_fontsize=7, alignment="left")
     _fit_legends(fig, [ax.get_legend() for ax in axes[0]])
     return _save_figure(plt, fig, output)
-
-
-def _colors(ours: dict[str, dict[str, list[Curve]]]) -> dict[str, str]:
-    """Our groups' colours (`assign_colors`); the authors' curves, always of the four plain
-    methods, take the method's own (METHOD_COLORS), dashed."""
-    return assign_colors({key for methods in ours.values() for key in methods})
 
 
 def _fit_legends(fig: Any, legends: list[Any], margin_px: float = 4.0) -> None:
@@ -183,36 +187,37 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
               xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND,
               panels: list[Panel] | None = None) -> Path:
-    """The paper's Fig. 2 layout (2 × 3 panels, `fig2_panels`; rule in `fig2_text`)."""
+    """The paper's Fig. 2 layout (2 × 3 panels, `fig2_panels`; rule in `fig2_text`), every
+    line in its style (`assign_styles`, one for the whole figure)."""
     check_band(band)
     panels = panels if panels is not None else fig2_panels(ours, reference)
     plt = _pyplot()
     fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
                              figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
                              dpi=DPI, squeeze=False)
+    styles = assign_styles([*(Line(k) for p in panels for k in p.drawn),
+                            *(Line(k, published=True) for p in panels for k in p.authors)])
     for i, panel in enumerate(panels):
         r, c = divmod(i, len(FIG2_TASKS))
-        # colours per row, so that no two series of a panel share one; a series keeps its
-        # colour across the row's tasks
-        colors = assign_colors({k for p in panels[r * len(FIG2_TASKS):(r + 1) * len(FIG2_TASKS)]
-                                for k in p.drawn})
         ax = axes[r][c]
         mine, ref = ours.get(panel.task, {}), reference.get(panel.task, {})
+        slots = len(panel.drawn) + len(panel.authors)
         for key in sorted({*panel.drawn, *panel.authors}, key=method_rank):
-            color = colors.get(key) or METHOD_COLORS.get(key)
-            label = method_label(key)
             if key in panel.authors:
+                style = styles[Line(key, published=True)]
                 a = aggregate(ref[key])
-                _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), color,
+                _fill_bands(ax, seed_bands(ref[key], _band_rng(), every_seed=True), style.color,
                             band, strength=0.4)
-                ax.plot(a.epochs, moving_average(a.epochs, a.mean), "--", color=color,
-                        linewidth=1.3, label=f"{label} (authors, {_seeds(a.n_seeds)})")
+                _draw(ax, a.epochs, moving_average(a.epochs, a.mean), style,
+                      f"{method_label(key)} (authors' published, {_seeds(a.n_seeds)})",
+                      span=xmax, slots=slots, wrap=FIG2_WRAP)
             if key in panel.drawn:
+                style = styles[Line(key)]
                 a = aggregate(mine[key], every_seed=False)
-                _fill_bands(ax, seed_bands(mine[key], _band_rng()), color, band)
-                ax.plot(a.epochs, moving_average(a.epochs, a.mean), color=color,
-                        linestyle=method_linestyle(key), linewidth=2.0,
-                        label=f"{label} ({whose(key)}, {_seeds(a.n_seeds)})")
+                _fill_bands(ax, seed_bands(mine[key], _band_rng()), style.color, band)
+                _draw(ax, a.epochs, moving_average(a.epochs, a.mean), style,
+                      f"{method_label(key, ours=True)} ({whose(key)}, {_seeds(a.n_seeds)})",
+                      span=xmax, slots=slots, wrap=FIG2_WRAP)
         if not panel.drawn and not panel.left:
             ax.text(0.03, 0.95, "no runs of ours yet", transform=ax.transAxes,
                     ha="left", va="top", fontsize=10, color="0.4")
@@ -222,5 +227,5 @@ def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
         ax.set_xlabel("epoch")
         ax.set_ylabel("success rate")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+        ax.legend(loc="lower right", fontsize=6.5, framealpha=0.9)
     return _save_figure(plt, fig, output)

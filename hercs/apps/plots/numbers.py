@@ -52,3 +52,18 @@ def _no_leading_zero(text: str) -> str:
     """"0.68" → ".68", "-0.10" → "-.10"; "1.00" as it is."""
     sign, digits = ("-", text[1:]) if text.startswith("-") else ("", text)
     return sign + (digits[1:] if digits.startswith("0.") else digits)
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def power_of_ten(value: float) -> str:
+    """A small or large setting as a reader writes it: 1e-3 → "10⁻³", 2.5e-4 → "2.5 × 10⁻⁴";
+    a value of magnitude 0.1 to 100, zero or not finite as Python's `g` (0.5, 40, 0)."""
+    if value == 0 or not math.isfinite(value) or 0.1 <= abs(value) < 100:
+        return f"{value:g}"
+    mantissa, exponent = f"{value:e}".split("e")
+    power = "10" + str(int(exponent)).translate(_SUPERSCRIPT)
+    digits = f"{float(mantissa):g}"
+    return power if digits == "1" else ("−" + power if digits == "-1"
+                                        else f"{digits} × {power}")

@@ -2,7 +2,7 @@
 
 A series key is the method followed by every setting a run's config.yaml changes that makes it
 another experiment (schedule, precision, a caller's variant, the policy-lag settings, EBP's ε,
-the cluster share rule, the environment), "/"-joined; `method_label` says it compactly and
+the cluster share rule, the environment), "/"-joined; `method_label` says it in words and
 `choose` picks the few series a panel draws (docs/DESIGN.md §6, "Figures").
 """
 
@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from hercs.apps.plots.numbers import power_of_ten
 from hercs.config import TrainingConfig
 from hercs.config.algorithm import EPSILON_V1, ClusterConfig, default_energy_epsilon
 from hercs.config.deploy import ActorConfig, LearnerConfig
@@ -135,29 +136,88 @@ def is_env_version(part: str) -> bool:
     return part in ("v1", ENV_VERSION_DEFAULT) or part.startswith("ts")
 
 
-def _lag_words(part: str) -> str:
-    """`lag=80,3,2,-1` → "lag 80/3/2/∞" (tolerance / prefetch / queue / bound)."""
-    values = part.removeprefix("lag=").split(",")
-    return "lag " + "/".join("∞" if v == "-1" else v for v in values)
+SCHEDULE_WORDS: dict[str, str] = {"lockstep": "lockstep (as the authors' code)"}
+"""A schedule other than the asynchronous default, in words (docs/results/README.md's
+glossary); another program's schedule is said by `whose` instead."""
+PRECISION_WORDS: dict[str, str] = {"bf16": "bf16 learner", "tf32": "TF32 learner"}
 
 
-def method_label(key: str, variant_notes: Mapping[str, str] | None = None) -> str:
-    """`her-cs` → "HER-CS", `her-cs/lockstep` → "HER-CS lockstep", `her-ebp/eps0.001` →
-    "HER-EBP ε 0.001", `her-cs/v1` → "HER-CS (v1)", `her-cs/lag=80,3,2,-1` → "HER-CS (lag
-    80/3/2/∞)"; another program's schedule is left out (`whose` says it); a variant named in
-    `variant_notes` is a note after the others: {"old": "before"} → "HER-CS (before)"."""
+def lag_words(lag: PolicyLag) -> list[str]:
+    """What an asynchronous run's policy-lag settings change from hercs' defaults, in words:
+    `lag=80,3,2,-1` → ["no lag bound", "prefetch 3", "actor queue 2", "rate tolerance 80"]."""
+    words = []
+    if lag.bound != DEFAULT_LAG.bound:
+        words.append("no lag bound" if lag.bound < 0 else f"lag bound {lag.bound}")
+    if lag.prefetch != DEFAULT_LAG.prefetch:
+        words.append(f"prefetch {lag.prefetch}")
+    if lag.queue != DEFAULT_LAG.queue:
+        words.append(f"actor queue {lag.queue}")
+    if lag.tolerance != DEFAULT_LAG.tolerance:
+        words.append(f"rate tolerance {lag.tolerance:g}")
+    return words
+
+
+def _lag_of(part: str) -> PolicyLag:
+    tolerance, prefetch, queue, bound = part.removeprefix("lag=").split(",")
+    return PolicyLag(float(tolerance), int(prefetch), int(queue), int(bound))
+
+
+def _epsilon_words(value: float) -> str:
+    return f"ε = {power_of_ten(value)}"
+
+
+def unsaid_epsilon(key: str) -> float | None:
+    """The ε of an energy-prioritised series whose key leaves it unsaid (EPSILON_UNMARKED) on
+    a simulator whose default today is another (v4: 1e-3): a label says it, since the runs'
+    name does not. None where the key says ε, or it is its simulator's default."""
+    method, *parts = key.split("/")
+    spec = METHODS.get(method)
+    if spec is None or not spec.energy_prioritised or any(v.startswith("eps") for v in parts):
+        return None
+    env = "v1" if "v1" in parts else ENV_VERSION_DEFAULT
+    return EPSILON_UNMARKED if default_energy_epsilon(env) != EPSILON_UNMARKED else None
+
+
+def part_words(part: str) -> str:
+    """One part of a series key in words ("" for another program's schedule: `whose`)."""
+    if part in OTHER_CODE:
+        return ""
+    if part in SCHEDULE_WORDS:
+        return SCHEDULE_WORDS[part]
+    if part in PRECISION_WORDS:
+        return PRECISION_WORDS[part]
+    if part.startswith("lag="):
+        return ", ".join(lag_words(_lag_of(part)))
+    if part.startswith("eps"):
+        return _epsilon_words(float(part[3:]))
+    if part.startswith("share="):
+        return f"{part[6:]} share rule"
+    if part == "v1":
+        return "authors' simulator (v1)"
+    if part.startswith("ts"):
+        return f"weld torquescale {part[2:]}"
+    return part  # a caller's variant: its own name
+
+
+def method_label(key: str, variant_notes: Mapping[str, str] | None = None, *,
+                 ours: bool = False) -> str:
+    """The method, then what the series changes from hercs' defaults in words, each after a
+    comma: `her-cs` → "HER-CS", `her-cs/lockstep/v1` → "HER-CS, lockstep (as the authors'
+    code), authors' simulator (v1)", `her-ebp/eps0.001` → "HER-EBP, ε = 10⁻³",
+    `her-cs/lag=80,3,2,-1` → "HER-CS, no lag bound, prefetch 3, actor queue 2, rate
+    tolerance 80". With `ours` (runs of ours, not a method's name) an ε the key leaves unsaid
+    is said too (`unsaid_epsilon`): a v4 `her-ebp` → "HER-EBP, ε = 10⁻⁶". A part named in
+    `variant_notes` is said by its note instead: {"old": "before"} → "HER-CS, before"."""
     notes_of = variant_notes or {}
     method, *parts = key.split("/")
-    inline = (f"ε {v[3:]}" if v.startswith("eps") else
-              f"share {v[6:]}" if v.startswith("share=") else v
-              for v in parts if not is_env_version(v) and v not in notes_of
-              and v not in OTHER_CODE and not v.startswith("lag="))
-    label = " ".join((METHOD_LABELS.get(method, method), *inline))
-    notes = [f"torquescale {v[2:]}" if v.startswith("ts") else v
-             for v in parts if is_env_version(v)]
-    notes += [_lag_words(v) for v in parts if v.startswith("lag=") and v not in notes_of]
-    notes += [notes_of[v] for v in parts if notes_of.get(v)]  # "": no note
-    return "".join((label, *(f" ({v})" for v in notes)))
+    env = [v for v in parts if is_env_version(v)]
+    words = [notes_of[v] if v in notes_of else part_words(v)
+             for v in parts if not is_env_version(v)]
+    unsaid = unsaid_epsilon(key) if ours else None
+    if unsaid is not None:
+        words.append(_epsilon_words(unsaid))
+    words += [notes_of[v] if v in notes_of else part_words(v) for v in env]
+    return ", ".join((METHOD_LABELS.get(method, method), *(w for w in words if w)))
 
 
 def whose(key: str) -> str:
@@ -171,10 +231,10 @@ def method_rank(key: str) -> tuple[int, str]:
     return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), key)
 
 
-def setting(key: str) -> tuple[int, int, tuple[str, ...]]:
-    """What a key changes from today's defaults, for the default choice: (how many settings,
-    how many environment parts, which). A v4 EBP run's ε 1e-3 is today's default and its
-    unmarked 1e-6 a change, so that `her-ebp/eps0.001` and `her-cs` rank alike."""
+def changes(key: str) -> tuple[list[str], list[str]]:
+    """What a key changes from today's defaults: (its settings' parts, its environment's).
+    A v4 EBP run's ε 1e-3 is today's default and its unmarked 1e-6 a change (`eps1e-06`),
+    so that `her-ebp/eps0.001` and `her-cs` change alike: nothing."""
     method, *parts = key.split("/")
     env = [v for v in parts if is_env_version(v)]
     changed = [v for v in parts if not is_env_version(v)]
@@ -183,6 +243,13 @@ def setting(key: str) -> tuple[int, int, tuple[str, ...]]:
         today = f"eps{default_energy_epsilon(ENV_VERSION_DEFAULT):g}"
         changed = ([v for v in changed if v != today]
                    + ([] if today in parts else [f"eps{EPSILON_UNMARKED:g}"]))
+    return changed, env
+
+
+def setting(key: str) -> tuple[int, int, tuple[str, ...]]:
+    """What a key changes from today's defaults, for the default choice (`changes`): (how
+    many settings, how many environment parts, which)."""
+    changed, env = changes(key)
     return (len(changed), len(env), tuple(sorted(changed + env)))
 
 
@@ -227,9 +294,11 @@ DEFAULT_CHOICE = SeriesChoice()
 
 
 def series_label(key: str) -> str:
-    """The label, and whose the runs are where another program made them."""
-    return method_label(key) + (f" ({whose(key)})" if whose(key) != "ours" else "")
+    """The label of a series of runs (`method_label(ours=True)`), and whose the runs are
+    where another program made them ("…, authors' code")."""
+    return method_label(key, ours=True) + (f", {whose(key)}" if whose(key) != "ours" else "")
 
 
 def series_list(keys: Sequence[str]) -> str:
-    return ", ".join(series_label(k) for k in keys)
+    """Labels in a sentence: ";" between them, since a label has commas of its own."""
+    return "; ".join(series_label(k) for k in keys)

@@ -17,8 +17,9 @@ from hercs.apps.plots.curves import (
     method_rank,
     milestones,
 )
-from hercs.apps.plots.numbers import rate
+from hercs.apps.plots.numbers import power_of_ten, rate
 from hercs.apps.plots.series import DEFAULT_CHOICE, DEFAULT_LAG, SeriesChoice, series_list, whose
+from hercs.config.algorithm import default_energy_epsilon
 
 
 def markdown_table(task: str, rows: Sequence[tuple[str, Milestones]]) -> str:
@@ -57,7 +58,8 @@ def tables(ours: dict[str, dict[str, list[Curve]]],
         for method in sorted(set(methods) | set(ref), key=method_rank):
             label = method_label(method)
             if method in methods:
-                rows.append((label + (" (ours)" if reference is not None else ""),
+                rows.append((method_label(method, ours=True)
+                             + (" (ours)" if reference is not None else ""),
                              milestones(aggregate(methods[method]))))
             if method in ref:
                 rows.append((label + " (authors)", milestones(aggregate(ref[method]))))
@@ -125,13 +127,15 @@ def fig2_panels(ours: dict[str, dict[str, list[Curve]]],
 
 def _caption_notes(keys: set[str]) -> str:
     """What the labels of `keys` need said, each only where such a series is drawn."""
-    notes = ["ε: an EBP run's energy floor `energy.epsilon` where it is not 1e-6"]
+    eps_v4, eps_v1 = (power_of_ten(default_energy_epsilon(v)) for v in ("v4", "v1"))
+    notes = [f"ε: EBP's energy floor `energy.epsilon` (the default {eps_v4} on v4, {eps_v1} "
+             "on v1), said for an energy-prioritised series but where it is v1's default"]
     if any("lag=" in k for k in keys):
-        default = DEFAULT_LAG.component().removeprefix("lag=").replace(",", "/")
-        notes.append("(lag T/P/Q/B): an asynchronous run's policy-lag settings where they are "
-                     f"not the default {default}, `replay.rate_tolerance_updates` / "
-                     "`learner.prefetch_depth` / `actor.insert_queue` / "
-                     "`training.max_policy_lag` (∞: no bound; docs/PERFORMANCE.md §2)")
+        notes.append("lag bound, prefetch, actor queue, rate tolerance: an asynchronous run's "
+                     "policy-lag settings `training.max_policy_lag`, `learner.prefetch_depth`, "
+                     "`actor.insert_queue`, `replay.rate_tolerance_updates`, said where they "
+                     f"are not the defaults ({DEFAULT_LAG.bound}, {DEFAULT_LAG.prefetch}, "
+                     f"{DEFAULT_LAG.queue}, {DEFAULT_LAG.tolerance:g}; docs/PERFORMANCE.md §2)")
     notes += [f"({whose(k)}): runs made by the {whose(k)}, not by hercs"
               for k in sorted(keys) if whose(k) != "ours"]
     return "".join(f"; {n}" for n in dict.fromkeys(notes))
@@ -149,12 +153,16 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         "# Fig. 2: ours beside the authors'", "",
         "Drawn by `hercs plot --figure 2` from the run folders given. Rows "
         "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
-        "FetchPickAndPlace, FetchSlide. Ours solid (lockstep dash-dotted), the authors' "
-        f"dashed; both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
+        "FetchPickAndPlace, FetchSlide. A method has one colour; the authors' curves are "
+        "dashed, with hollow squares; ours are solid where a series has hercs' defaults, in "
+        "another line style where its label names a changed setting, with circles on our "
+        "default simulator and squares on the authors' (docs/results/README.md, Glossary). "
+        f"Both curves are the {WINDOW}-epoch trailing mean of the seed mean (the paper "
         "smooths over 21 epochs and pads short runs; we do neither), and the bands, over the "
         f"seeds' own {WINDOW}-epoch trailing means, are {BAND_CAPTIONS[band]}. Ours: "
-        "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled (v1) the authors' "
-        "environment, gym Fetch*-v1 on mujoco-py, which the authors' curves are on "
+        "gymnasium-robotics Fetch*-v4 on MuJoCo 3, and where labelled \"authors' simulator "
+        "(v1)\" the authors' environment, gym Fetch*-v1 on mujoco-py, which the authors' "
+        "curves are on "
         f"(docs/DESIGN.md §9.6){_caption_notes(keys)}. A panel draws at most "
         f"{choice.limit} series, the authors' two and ours with the fewest settings changed "
         "from hercs' defaults (those on v1 next); each table lists every series, and under "
@@ -167,7 +175,8 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
         for key in sorted({*panel.drawn, *panel.left, *panel.authors}, key=method_rank):
             label = method_label(key)
             if key in mine:
-                rows.append((f"{label} ({whose(key)})", milestones(aggregate(mine[key]))))
+                rows.append((f"{method_label(key, ours=True)} ({whose(key)})",
+                             milestones(aggregate(mine[key]))))
             if key in panel.authors:
                 rows.append((label + " (authors)", milestones(aggregate(ref[key]))))
         parts.append(markdown_table(panel.title, rows))

@@ -27,11 +27,11 @@ from hercs.apps.plots.curves import (
     load_reference,
     load_run,
     method_key,
-    method_label,
     method_rank,
     milestones,
 )
 from hercs.apps.plots.figures import plot_figure
+from hercs.apps.plots.series import series_label
 from hercs.apps.plots.tables import tables
 from hercs.apps.provenance import cpu_info
 from hercs.apps.sweep import stats as sweep_stats
@@ -94,7 +94,7 @@ def arm_rows(curves: dict[str, list[Curve]], baseline: str | None,
               for c in cs]
         final[key] = [float(v) for v in at if v is not None]  # a run missing it is left out
     lines = [f"| arm | seeds | success after epoch {epoch}: IQM [95 % CI] | mean | "
-             f"P(arm > {method_label(baseline) if baseline else '–'}) [95 % CI] |",
+             f"P(arm > {series_label(baseline) if baseline else '–'}) [95 % CI] |",
              "|---|---|---|---|---|"]
     for key in sorted(final, key=method_rank):
         v = final[key]
@@ -104,8 +104,8 @@ def arm_rows(curves: dict[str, list[Curve]], baseline: str | None,
             versus = "–"
         else:
             versus = sweep_stats.improvement(v, final[baseline], reps=reps).format()
-        lines.append(f"| {method_label(key)} | {len(v)} | {iqm} | {mean} | {versus} |")
-    by_label = {method_label(k): k for k in final} | {k: k for k in final}
+        lines.append(f"| {series_label(key)} | {len(v)} | {iqm} | {mean} | {versus} |")
+    by_label = {series_label(k): k for k in final} | {k: k for k in final}
     extra = []
     for x, y in compare:
         if x in by_label and y in by_label:
@@ -169,7 +169,7 @@ def write_reports(cells: Sequence[GridRun], run_root: Path, out_dir: Path, *, co
             "## Arms over seeds", "",
             f"Per run, the 10-epoch trailing mean of the test success after epoch {epoch} (the "
             "last every run reached); per arm its IQM and mean with 95 % percentile bootstrap "
-            f"intervals over runs ({reps:,} resamples), and P(arm > {method_label(baseline)}), "
+            f"intervals over runs ({reps:,} resamples), and P(arm > {series_label(baseline)}), "
             "that a run of the arm beats one of it (ties half), with an interval from resampling "
             "each arm on its own (hercs/apps/sweep/stats.py). With few seeds an interval "
             "describes these seeds: an interval of P that excludes .5 is a lead, not a "
@@ -219,7 +219,7 @@ def build_report_parser() -> argparse.ArgumentParser:
                         "folder is not in RUN_DIR)")
     p.add_argument("--compare", nargs=2, action="append", default=[], metavar=("X", "Y"),
                    help="also P(X > Y) between two arms, named as the table names them "
-                        "(\"HER-CS lr5e-4\") or by key (her-cs/lr5e-4); repeatable")
+                        "(\"HER-CS, lr5e-4\") or by key (her-cs/lr5e-4); repeatable")
     p.add_argument("--reps", type=int, default=sweep_stats.REPS,
                    help=f"bootstrap resamples (default {sweep_stats.REPS:,})")
     return p
@@ -241,9 +241,9 @@ def main_report(argv: Sequence[str]) -> int:
         return _fail(str(exc))
     keys = sorted({arm_key(c) for c in cells}, key=method_rank)
     for arm in (a for pair in args.compare for a in pair):
-        if arm not in keys and arm not in map(method_label, keys):
+        if arm not in keys and arm not in map(series_label, keys):
             return _fail(f"--compare {arm}: no such arm in the sweep in {run_root}; its arms "
-                         f"are {', '.join(map(method_label, keys))} (by key: "
+                         f"are {', '.join(map(series_label, keys))} (by key: "
                          f"{', '.join(keys)})")
     committed = Path(args.committed).resolve() if args.committed else None
     out_dir = Path(args.out) if args.out else run_root / "report"

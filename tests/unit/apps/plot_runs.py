@@ -4,6 +4,7 @@ writes CURVES)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -43,3 +44,12 @@ def _write_variant_run(root: Path, method: str, seed: int, success: list[float],
 
 def _write_lockstep_run(root: Path, method: str, seed: int, success: list[float]) -> Path:
     return _write_variant_run(root, method, seed, success, schedule="lockstep")
+
+
+def line_look(line: Any) -> tuple[str, tuple[Any, ...], str]:
+    """A drawn matplotlib line's (colour, dash pattern, marker): what tells it from the others.
+    matplotlib keeps the pattern of a custom dash only as `_unscaled_dash_pattern` (offset,
+    on-off sequence; None for solid); a named style reads as its name."""
+    pattern = getattr(line, "_unscaled_dash_pattern", None)
+    dashes = (pattern[0], tuple(pattern[1])) if pattern and pattern[1] else (line.get_linestyle(),)
+    return (str(line.get_color()), dashes, str(line.get_marker()))

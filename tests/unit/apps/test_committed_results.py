@@ -39,7 +39,8 @@ def test_the_committed_fig2_is_what_hercs_plot_figure_2_writes(tmp_path: Path) -
         "docs/results/fig2.md is not what `hercs plot --figure 2` writes: run `make figures`")
     assert figure.stat().st_size > 10_000 and (RESULTS / "fig2.png").stat().st_size > 10_000
     assert "FetchPush: HER vs HER-CS: 3 more series not drawn" in done.stderr
-    assert "HER-CS (lag 80/3/2/∞)" in done.stderr and "--all-series" in done.stderr
+    assert ("HER-CS, no lag bound, prefetch 3, actor queue 2, rate tolerance 80" in done.stderr
+            and "--all-series" in done.stderr)
 
 
 @pytest.mark.docs_check

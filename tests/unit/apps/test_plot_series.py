@@ -49,7 +49,8 @@ def test_every_setting_is_in_the_key_and_the_label() -> None:
               "cluster": {"share_rule": "reference"}, **OLD_LAG}
     key = series_key(config)
     assert key == "her-ebp-cs/bf16/lag=80,3,2,-1/eps0.001/share=reference"
-    assert method_label(key) == "HER-EBP-CS bf16 ε 0.001 share reference (lag 80/3/2/∞)"
+    assert method_label(key) == ("HER-EBP-CS, bf16 learner, no lag bound, prefetch 3, actor "
+                                 "queue 2, rate tolerance 80, ε = 10⁻³, reference share rule")
     peer = {**base, "training": {"schedule": "authors-code"}, "task": {"name": "push",
                                                                       "env_version": "v1"}}
     assert series_key(peer) == "her-ebp-cs/authors-code/v1"
@@ -61,10 +62,13 @@ def test_a_panel_draws_six_series_and_stderr_names_the_rest(tmp_path: Path) -> N
     runs = [str(r) for r in _runs(tmp_path)]
     done = _plot(*runs, "-o", str(tmp_path / "f.png"), "--table", str(tmp_path / "t.md"))
     assert done.returncode == 0, done.stderr
-    assert ("FetchPush: 2 more series not drawn (at most 6 a panel by default): HER "
-            "lockstep, HER-CS lockstep; `--all-series` draws every one") in done.stderr
+    assert ("FetchPush: 2 more series not drawn (at most 6 a panel by default): HER, "
+            "lockstep (as the authors' code); HER-CS, lockstep (as the authors' code); "
+            "`--all-series` draws every one") in done.stderr
     table = (tmp_path / "t.md").read_text()  # the table has every series
-    for label in ("HER", "HER-CS lockstep", "HER-CS (v1)", "HER-CS (lag 80/3/2/∞)"):
+    for label in ("HER", "HER-CS, lockstep (as the authors' code)",
+                  "HER-CS, authors' simulator (v1)",
+                  "HER-CS, no lag bound, prefetch 3, actor queue 2, rate tolerance 80"):
         assert f"| {label} | 1 |" in table
     chosen = _plot(*runs, "-o", str(tmp_path / "g.png"), "--series", "*lag*")
     assert chosen.returncode == 0 and "not drawn" not in chosen.stderr
@@ -92,12 +96,16 @@ def test_the_default_choice_and_the_flags_pick_what_is_drawn(
         return _legend(monkeypatch, lambda: plot_command.run_plot(runs, out, **kwargs))
 
     default = drawn(reference=True)  # two methods' authors' curves count among the six
-    assert len(default) == MAX_SERIES and sum("authors'" in x for x in default) == 2
-    assert "HER-CS (v1), 1 seed" in default  # plain, then v1: the authors' environment
+    assert len(default) == MAX_SERIES and sum("authors' published" in x for x in default) == 2
+    # plain, then v1: the authors' environment
+    assert "HER-CS, authors' simulator (v1), 1 seed" in [x.replace("\n", " ") for x in default]
     assert not any("lag" in x or "lockstep" in x for x in default)
     assert len(drawn(choice=SeriesChoice(every=True))) == 8
-    assert drawn(choice=SeriesChoice(("*lockstep*", "her-cs/v1"))) == [
-        "HER lockstep, 1 seed", "HER-CS lockstep, 1 seed", "HER-CS (v1), 1 seed"]
+    assert [x.replace("\n", " ") for x in drawn(choice=SeriesChoice(("*lockstep*",
+                                                                  "her-cs/v1")))] == [
+        "HER, lockstep (as the authors' code), 1 seed",
+        "HER-CS, lockstep (as the authors' code), 1 seed",
+        "HER-CS, authors' simulator (v1), 1 seed"]
     capsys.readouterr()
 
 
@@ -106,7 +114,7 @@ def test_reference_draws_the_authors_curves_of_the_methods_drawn_only(
     runs = [str(r) for r in _runs(tmp_path, ("her-cs",))]
     out = str(tmp_path / "f.png")
     legend = _legend(monkeypatch, lambda: plot_command.run_plot(runs, out, reference=True))
-    assert [x for x in legend if "authors'" in x] == ["HER-CS, authors' (5 seeds)"]
+    assert [x for x in legend if "published" in x] == ["HER-CS, authors' published (5 seeds)"]
     done = _plot(*runs, "-o", out, "--reference")
     assert done.returncode == 0 and "| HER-CS (authors) |" in done.stdout
     assert "| HER (authors) |" not in done.stdout and "HER-EBP" not in done.stdout

@@ -98,7 +98,10 @@ def test_authors_csv_reproduces_design_section_5() -> None:
         assert got == (e5, e9, s50, s100, s200), (task, method)
         assert m.n_seeds == 5
     # The table cells as printed (ties like .985 -> ".98" as DESIGN has them).
-    text = plot_tables.tables(ref)
+    # the methods' names, not labelled as runs of ours
+    text = "".join(plot_tables.markdown_table(task, [
+        (plots.method_label(m), plots.milestones(plots.aggregate(cs)))
+        for m, cs in methods.items()]) for task, methods in ref.items())
     assert "| HER | 5 | 200 | 55 | 95 | .41 | .90 | .99 |" in text
     assert "| HER-CS | 5 | 125 | 43 | 61 | .70 | .98 | – |" in text  # one seed stops at 125
     assert "| HER-EBP | 5 | 100 | 23 | 34 | .97 | 1.00 | – |" in text
@@ -164,8 +167,9 @@ def test_the_legend_sits_beside_the_axes_not_over_them(run_dirs: list[Path],
     assert legend_box.x0 > axes_box.x1
     assert legend_box.x1 <= fig.bbox.x1 and legend_box.y0 >= fig.bbox.y0
     title = ax.get_legend().get_title().get_text()
-    assert title.startswith("solid: ours; dashed: the authors'")
-    assert "lockstep" not in title  # no lockstep run drawn, no style to explain
+    assert title.startswith("colour: the method; solid: ours, hercs' defaults\n"
+                            "dashed: the authors' published")
+    assert "other lines" not in title  # no changed setting drawn, no style to explain
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert labels[:2] == ["HER, 2 seeds", "HER, authors' (5 seeds)"]
+    assert labels[:2] == ["HER, 2 seeds", "HER, authors' published (5 seeds)"]
     plt.close(fig)

@@ -1,5 +1,5 @@
-"""`hercs plot`: seed bands, line styles and colours per group, variants as methods of their
-own, Figure 2, the CLI and legends that fit."""
+"""`hercs plot`: seed bands, looks that tell series apart (the contract: test_plot_style.py),
+variants as methods of their own, Figure 2, the CLI and legends that fit."""
 
 from __future__ import annotations
 
@@ -18,7 +18,13 @@ from hercs.apps.plots import curves as plots
 from hercs.apps.plots import tables as plot_tables
 from hercs.apps.plots.series import MAX_SERIES, SeriesChoice
 from hercs.run.rundir import RunDir
-from tests.unit.apps.plot_runs import CURVES, _write_lockstep_run, _write_run, _write_variant_run
+from tests.unit.apps.plot_runs import (
+    CURVES,
+    _write_lockstep_run,
+    _write_run,
+    _write_variant_run,
+    line_look,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -56,36 +62,6 @@ def test_seed_bands_are_over_the_seeds_own_moving_averages_to_each_runs_end() ->
     assert b.mean[:5].tolist() == [0.0] * 5
     with pytest.raises(ValueError):
         plots.seed_bands([], np.random.default_rng(0))
-
-
-def test_variants_have_their_own_line_style() -> None:
-    assert [plots.method_linestyle(k) for k in ("her-cs", "her-cs/lockstep", "her-cs/bf16")
-            ] == ["-", "-.", ":"]
-    assert plots.method_linestyle("her-cs/lockstep/bf16") not in ("-", "-.", ":", "--")
-
-
-
-def test_no_two_groups_of_a_figure_share_a_colour_until_the_palette_runs_out() -> None:
-    variants = [m + v for m in plots.METHOD_ORDER
-                for v in ("/lockstep", "/bf16", "/v1", "/lag7", "/lockstep/bf16")]
-    keys = [*plots.METHOD_ORDER, *variants]  # 4 methods and 20 variants of them
-    colors = plots.assign_colors(keys[:16])  # the methods and 12 variants: all apart
-    assert len(set(colors.values())) == 16
-    assert {colors[m] for m in ("her", "her-cs")} == {plots.METHOD_COLORS["her"],
-                                                       plots.METHOD_COLORS["her-cs"]}
-    everything = plots.assign_colors(keys)  # 24 groups: the palette starts over
-    assert len(everything) == 24 and len(set(everything.values())) == 16
-    # the same groups, the same colours, whatever order they come in
-    assert plots.assign_colors(reversed(keys[:16])) == colors
-
-
-def test_a_methods_only_run_on_another_environment_takes_the_methods_colour() -> None:
-    """Our v1 HER beside the authors' (v1) HER: one colour, solid against dashed."""
-    alone = plots.assign_colors(["her/v1", "her-cs/v1"])
-    assert alone == {"her/v1": plots.METHOD_COLORS["her"],
-                     "her-cs/v1": plots.METHOD_COLORS["her-cs"]}
-    both = plots.assign_colors(["her", "her/v1"])  # with v4's HER drawn, v1 needs its own
-    assert both["her/v1"] != both["her"] == plots.METHOD_COLORS["her"]
 
 
 def test_run_dir_without_metrics_names_it(tmp_path: Path, capsys) -> None:
@@ -142,7 +118,8 @@ def test_a_lockstep_run_is_its_own_method_next_to_the_asynchronous_one(tmp_path:
     assert list(groups["FetchPush"]) == ["her-cs", "her-cs/lockstep"]
     text = plot_tables.tables(groups)
     assert "| HER-CS | 1 | 3 | – | – |" in text  # ma 0.1, 0.2, 0.367: none past 0.5
-    assert "| HER-CS lockstep | 1 | 3 | 2 | – |" in text  # ma 0.2, 0.4, 0.567 → epoch 3 − 1
+    # ma 0.2, 0.4, 0.567 → epoch 3 − 1
+    assert "| HER-CS, lockstep (as the authors' code) | 1 | 3 | 2 | – |" in text
 
 
 def test_a_bf16_run_is_its_own_method_and_combines_with_lockstep(tmp_path: Path) -> None:
@@ -154,8 +131,9 @@ def test_a_bf16_run_is_its_own_method_and_combines_with_lockstep(tmp_path: Path)
     assert sorted(groups["FetchPush"]) == [
         "her-ebp-cs", "her-ebp-cs/bf16", "her-ebp-cs/lockstep/bf16"]
     text = plot_tables.tables(groups)
-    assert "| HER-EBP-CS bf16 | 1 | 3 | 2 | – |" in text
-    assert "| HER-EBP-CS lockstep bf16 | 1 | 3 | – | – |" in text
+    assert "| HER-EBP-CS, bf16 learner, ε = 10⁻⁶ | 1 | 3 | 2 | – |" in text
+    assert ("| HER-EBP-CS, lockstep (as the authors' code), bf16 learner, ε = 10⁻⁶ | 1 | 3 | – "
+            "| – |") in text
 
 
 def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> None:
@@ -173,19 +151,21 @@ def test_a_v1_run_is_its_own_method_never_averaged_with_v4(tmp_path: Path) -> No
     assert list(groups["FetchPush"]) == ["her-ebp-cs", "her-ebp-cs/lockstep/v1", "her-ebp-cs/v1"]
     assert [len(c) for c in groups["FetchPush"].values()] == [1, 1, 1]
     text = plot_tables.tables(groups)
-    assert "| HER-EBP-CS | 1 | 3 | – | – |" in text
-    assert "| HER-EBP-CS (v1) | 1 | 3 | 2 | – |" in text
-    assert "| HER-EBP-CS lockstep (v1) | 1 | 3 | 2 | – |" in text  # ma 0, .4, .6
+    assert "| HER-EBP-CS, ε = 10⁻⁶ | 1 | 3 | – | – |" in text  # v4's default today: 10⁻³
+    assert "| HER-EBP-CS, authors' simulator (v1) | 1 | 3 | 2 | – |" in text
+    assert ("| HER-EBP-CS, lockstep (as the authors' code), authors' simulator (v1) | 1 | 3 | 2 "
+            "| – |") in text  # ma 0, .4, .6
     assert plots.method_key("her-cs", "lockstep", "bf16", "v1") == "her-cs/lockstep/bf16/v1"
-    assert plots.method_label("her-cs/lockstep/bf16/v1") == "HER-CS lockstep bf16 (v1)"
+    assert plots.method_label("her-cs/lockstep/bf16/v1") == (
+        "HER-CS, lockstep (as the authors' code), bf16 learner, authors' simulator (v1)")
     assert plots.method_key("her-cs", env_version="v4") == "her-cs"
     eps = plots.method_key("her-ebp-cs", energy_epsilon=1e-3, torquescale=4.0)
     assert eps == "her-ebp-cs/eps0.001/ts4"
-    assert plots.method_label(eps) == "HER-EBP-CS ε 0.001 (torquescale 4)"
+    assert plots.method_label(eps) == "HER-EBP-CS, ε = 10⁻³, weld torquescale 4"
     assert plots.energy_epsilon({"energy": {"epsilon": 0.001}}) == 0.001
     assert plots.energy_epsilon({}) == plots.EPSILON_UNMARKED == 1e-6
     with_reference = plot_tables.tables(groups, plots.group(plots.load_reference()))
-    assert "| HER-EBP-CS (v1) (ours) | 1 | 3 |" in with_reference
+    assert "| HER-EBP-CS, authors' simulator (v1) (ours) | 1 | 3 |" in with_reference
     assert "| HER-EBP-CS (authors) | 5 | 100 | 22 | 31 |" in with_reference
 
 
@@ -208,7 +188,7 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
                       for task in plot_tables.FIG2_TASKS]
     push_her = text.split("### FetchPush: HER vs HER-CS")[1].split("###")[0]
     # trailing means (e − 3)/e pass .5 at epoch 7, .9 at epoch 13 (counted from 0: 6, 12)
-    assert "| HER-CS lockstep (ours) | 1 | 15 | 6 | 12 |" in push_her
+    assert "| HER-CS, lockstep (as the authors' code) (ours) | 1 | 15 | 6 | 12 |" in push_her
     assert "| HER (authors) | 5 | 200 | 55 | 95 |" in push_her
     assert "bf16" not in text
     assert text.count("No runs of ours yet.") == 4  # Pick and Slide, both rows
@@ -267,17 +247,17 @@ def _drawn(monkeypatch: pytest.MonkeyPatch, draw: Callable[[], object]) -> Any:
     return fig
 
 
-def _legends_inside_and_colours(fig: Any) -> tuple[bool, list[tuple[str, str]]]:
-    """Whether every legend lies inside the figure, and (label, colour) of each of our
-    groups' lines (the authors' dashed ones take their method's colour)."""
+def _legends_inside_and_looks(fig: Any) -> tuple[bool, list[tuple[str, tuple[Any, ...]]]]:
+    """Whether every legend lies inside the figure, and (label, look) of each of our series'
+    lines, its look (colour, dash pattern, marker) (`line_look`)."""
     renderer = fig.canvas.get_renderer()
     inside = all(fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1 and
                  fig.bbox.y0 <= box.y0 and box.y1 <= fig.bbox.y1
                  for ax in fig.axes if ax.get_legend() is not None
                  for box in [ax.get_legend().get_window_extent(renderer)])
-    solid = [(line.get_label(), line.get_color()) for ax in fig.axes for line in ax.lines
-             if "authors'" not in line.get_label()]
-    return inside, solid
+    ours = [(line.get_label(), line_look(line)) for ax in fig.axes for line in ax.lines
+            if "authors' published" not in line.get_label()]
+    return inside, ours
 
 
 def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
@@ -298,11 +278,12 @@ def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
     fig = _drawn(monkeypatch, lambda: plot_command.run_plot(
         [str(d) for d in dirs], str(tmp_path / "many.png"), reference=True,
         choice=SeriesChoice(every=True)))
-    inside, solid = _legends_inside_and_colours(fig)
-    assert len(solid) == 20 and inside
+    inside, ours = _legends_inside_and_looks(fig)
+    assert len(ours) == 20 and inside
     assert fig.get_figheight() > plots.PANEL_H  # grown, not clipped
-    # the methods' 4 and the palette's 12 colours, then the palette starts over
-    assert len({color for _, color in solid}) == 16
+    # a colour per method, and the five settings of each apart by their line style
+    assert len({look[0] for _, look in ours}) == 4
+    assert len({look[:2] for _, look in ours}) == 20
     assert "not drawn" not in capsys.readouterr().err  # --all-series: nothing left out
 
 
@@ -322,10 +303,10 @@ def test_the_readmes_plot_examples_are_readable(monkeypatch: pytest.MonkeyPatch,
         fig = _drawn(monkeypatch, lambda folders=folders, reference=reference:
                      plot_command.run_plot(folders, str(tmp_path / "readme.png"),
                                            reference=reference))
-        inside, solid = _legends_inside_and_colours(fig)
+        inside, ours = _legends_inside_and_looks(fig)
         assert inside, f"{' '.join(words)}: a legend runs off the image"
-        colours = [c for _, c in solid]
-        assert len(set(colours)) == len(colours) <= MAX_SERIES, solid
+        looks = [look[:2] for _, look in ours]  # (colour, line style)
+        assert len(set(looks)) == len(looks) <= MAX_SERIES, ours
 
 
 def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_path: Path) -> None:
@@ -345,5 +326,5 @@ def test_a_callers_variant_groups_runs_apart_and_is_labelled_as_its_note(tmp_pat
     assert plots.method_key("her-cs", "lockstep", variant="old", env_version="v1") == (
         "her-cs/lockstep/old/v1")
     assert plots.method_label("her-cs/lockstep/old/v1", {"old": "before"}) == (
-        "HER-CS lockstep (v1) (before)")
-    assert plots.method_label("her-cs/old") == "HER-CS old"  # no note given: inline, as is
+        "HER-CS, lockstep (as the authors' code), before, authors' simulator (v1)")
+    assert plots.method_label("her-cs/old") == "HER-CS, old"  # no note given: as it is

@@ -64,7 +64,8 @@ def test_v1_and_v4_grids_report_apart(tmp_path: Path) -> None:
     assert v4_md.startswith("# FetchPush: hercs sweep report\n")
     assert v1_md.startswith("# FetchPush-v1: hercs sweep report\n")
     assert "| HER-CS (ours) | 1 | 3 |" in v4_md and "(v1)" not in v4_md
-    assert "| HER-CS (v1) (ours) | 1 | 3 |" in v1_md and "- runs: her-cs/v1 s1 " in v1_md
+    assert "| HER-CS, authors' simulator (v1) (ours) | 1 | 3 |" in v1_md
+    assert "- runs: her-cs/v1 s1 " in v1_md
 
 
 def test_up_command_names_the_run_after_its_cell_and_passes_overrides(tmp_path: Path) -> None:
