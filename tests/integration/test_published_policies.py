@@ -83,3 +83,21 @@ def test_eval_and_load_policy_write_nothing_into_the_run_directory(tmp_path: Pat
         policy.act({"observation": np.zeros(spec.obs_dim), "desired_goal": np.zeros(
             spec.goal_dim)})
     assert {folder: _snapshot(folder) for folder in (run, trained)} == before
+
+
+def test_hercs_eval_of_a_zoo_name_reproduces_its_recorded_epoch_and_says_so() -> None:
+    """`hercs eval zoo:NAME` evaluates the shipped policy on the goals its evaluator drew for
+    best.pt's epoch and says what metrics.csv recorded there, with its interval, and that
+    these episodes give the same numbers (to their last digits on another CPU)."""
+    done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "eval",
+                           "zoo:push-her-ebp-cs-s1"], cwd=REPO, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    first, said = done.stdout.splitlines()[:2]
+    assert "policy of epoch 44 from best.pt: success 1.00 (20/20)" in first, first
+    assert said.startswith("hercs eval: metrics.csv recorded 1.00 (20/20, 95 % interval "
+                           "0.84-1.00) at epoch 44, the best of its 50 evaluated epochs"), said
+    assert re.search(r"the first 20 episodes here are (the evaluator's of that epoch and give "
+                     r"the same success and final distance|on the goals its evaluator drew "
+                     r"for that epoch and give the same success, the mean final distance)",
+                     said), said

@@ -270,7 +270,8 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                                    "episodes and reports success and final distance; --video "
                                    "records them (MuJoCo offscreen: EGL, else OSMesa). Example: "
                                    "hercs eval runs/RUN --video policy.mp4")
-    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder (runs/RUN)")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder (runs/RUN), or zoo:NAME "
+                   "for a shipped policy (`hercs zoo` lists them)")
     p.add_argument("--checkpoint", metavar="NAME", help="best (default when kept), latest, "
                    "epoch-N, or a file")
     p.add_argument("--episodes", type=int, default=20, help="episodes to run (default 20)")
@@ -282,6 +283,19 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
                    "has one: hercs imports environment code only where you name it "
                    "(docs/SECURITY.md)")
     add_trust_argument(p)
+
+    p = sub.add_parser("zoo", help="list the shipped policies (hercs eval zoo:NAME evaluates "
+                                   "one)",
+                       description="Every committed run that keeps its best policy "
+                                   "(docs/results/runs/*/checkpoints/best.pt): its task, method, "
+                                   "simulator, epoch, the success its run recorded there, and "
+                                   "the commit and machine it came from.")
+    p.add_argument("--markdown", action="store_true",
+                   help="print the README's block (a table linking each model card) instead")
+    p.add_argument("--cards", metavar="DIR", help="also write each policy's model card, "
+                   "DIR/NAME.md (the committed ones: docs/results/zoo)")
+    p.add_argument("--runs", metavar="DIR", help="the run folders to list (default: this "
+                   "checkout's docs/results/runs)")
 
     p = sub.add_parser("certs", help="make a CA and the certificates of a secured run",
                        description="Writes DIR/ca.pem (+ ca.key), DIR/router.pem (+ .key) and "
@@ -304,6 +318,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     trust_named_tasks(args)
     return run_eval(args.run_dir, checkpoint=args.checkpoint, episodes=args.episodes,
                     seed=args.seed, video=args.video, rerun_save=args.rerun_save)
+
+
+def _cmd_zoo(args: argparse.Namespace) -> int:
+    from hercs.apps.evaluation.zoo import run_zoo
+
+    return run_zoo(runs=args.runs, as_markdown=args.markdown, cards=args.cards)
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
@@ -337,7 +357,7 @@ def _needs_extras(command: Callable[[argparse.Namespace], int]
 # Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "plot": _needs_extras(_cmd_plot), "view": _needs_extras(_cmd_view), "certs": _cmd_certs,
-    "eval": _needs_extras(_cmd_eval), "sweep": _needs_extras(_cmd_sweep)}
+    "eval": _needs_extras(_cmd_eval), "sweep": _needs_extras(_cmd_sweep), "zoo": _cmd_zoo}
 
 
 ENV_COMMANDS = frozenset({"up", "actor", "evaluator"})

@@ -20,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from hercs.apps.evaluation.recorded import comparison, made_on, recorded_success
 from hercs.apps.evaluation.video_frames import TITLE_S, AnnotatedEpisodes, outcome_text
+from hercs.apps.evaluation.zoo import ZOO_PREFIX, zoo_folder
 from hercs.apps.tracking.session import open_tracking
 from hercs.config import HercsConfig
 from hercs.errors import HercsError
@@ -169,10 +171,13 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         render = video is not None or rerun_save is not None
         if render:
             os.environ["MUJOCO_GL"] = choose_gl()
+        run_dir = str(zoo_folder(run_dir)) if run_dir.startswith(ZOO_PREFIX) else run_dir
         policy = load_policy(run_dir, checkpoint)
         sinks, closers = _sinks(video, rerun_save, episodes)
+        outcomes: list[tuple[bool, float]] = []
 
         def episode_end(n: int, success: bool, distance: float) -> None:
+            outcomes.append((success, distance))
             for sink in sinks:
                 sink.episode_end(n, success, distance)
 
@@ -191,6 +196,12 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
           f"policy of epoch {policy.epoch} from {policy.source.name}: success "
           f"{summary.success_rate:.2f} ({summary.successes}/{summary.episodes}), mean final "
           f"distance {summary.mean_final_distance:.3f} m")
+    recorded = recorded_success(Path(run_dir), policy.epoch,
+                                policy.config.training.eval_episodes)
+    if recorded is not None:  # the run's own number beside this one, and if these episodes are its
+        print("hercs eval: " + comparison(recorded, outcomes, seed=seed,
+                                          from_best=policy.source.name == "best.pt",
+                                          run_cpu=made_on(Path(run_dir))))
     if video:
         written = sinks[0].frames
         print(f"hercs eval: video {video}: {written} frames at {FPS} fps "

@@ -25,11 +25,11 @@ from hercs.config.algorithm import default_energy_epsilon
 from hercs.config.building import StrictBoolLoader
 from hercs.errors import ConfigError
 from hercs.rl.task_registry import task_spec
-from hercs.run.rundir import CONFIG, METRICS, RunDir
+from hercs.run.rundir import CONFIG, DONE_RECORD, METRICS, RunDir
 
 PROG = "hercs sweep"
 MANIFEST = "sweep.json"
-DONE_FILE = "bench_done.json"
+DONE_FILE = DONE_RECORD
 UNFINISHED_DIR = "_unfinished"
 
 
