@@ -19,7 +19,7 @@ from hercs.run.metrics import read_rows
 from hercs.run.rundir import CONFIG, RunDir
 
 IGNORED = ("run.name", "run.seed", "run.run_dir", "run.tensorboard", "training.epochs",
-           "transport.", "security.", "launch.", "view.")
+           "transport.", "security.", "launch.", "view.", "tracking.")
 """Config fields that do not change what is learnt (names, seeds, where it listens, how it
 is secured and supervised, how long it runs): two runs differing only there are of one
 configuration."""
