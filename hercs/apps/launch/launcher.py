@@ -17,7 +17,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from hercs.apps.launch.resume_check import CannotResume, plan_resume, set_aside_for_restart
+from hercs.apps.launch.resume_check import (
+    CannotResume,
+    plan_resume,
+    set_aside_for_restart,
+    settings_not_applied,
+)
 from hercs.apps.launch.router import RouterListenError, open_router_anywhere
 from hercs.apps.launch.run_lock import RunBusy, RunLock
 from hercs.apps.launch.run_plan import (
@@ -103,6 +108,10 @@ def run_up(
             plan = plan_resume(run_dir, epochs=config.training.epochs, config=config)
             if plan.finished:
                 print(f"hercs up: {plan.describe(config.run.name)}", file=out, flush=True)
+                ignored = settings_not_applied(run_dir, config)
+                if ignored:
+                    print(f"hercs up: not applied, since nothing runs (its config.yaml is "
+                          f"kept): {'; '.join(ignored)}", file=out, flush=True)
                 return 0
             for note in plan.notes:  # e.g. a torn tail: said here, not only in replay-0.log
                 print(f"hercs up: {note}", file=out, flush=True)

@@ -24,6 +24,8 @@ from hercs.apps.launch.resume_files import (
     check_episode_log,
     check_learner_state,
 )
+from hercs.apps.launch.run_plan import resolve_run
+from hercs.apps.tracking.rows import flat_hyperparameters
 from hercs.config import HercsConfig, apply_overrides, load_yaml
 from hercs.errors import ConfigError, HercsError
 from hercs.run.checkpoint_file import CheckpointError
@@ -217,3 +219,20 @@ def set_aside_for_restart(run_dir: Path) -> Path | None:
     for path in moving:
         path.rename(aside / path.name)
     return aside
+
+
+UNCOMPARED = ("run.name", "run.run_dir", "transport.connect", "training.epochs")
+"""What a resume sets itself (the folder's name and parent, the router's ports) or `describe`
+already speaks of (the epochs), left out of `settings_not_applied`."""
+
+
+def settings_not_applied(run_dir: Path, config: HercsConfig) -> list[str]:
+    """The settings `config` (what `hercs up --resume` was given: its --set, --actors,
+    --listen, …) changes in `run_dir`'s saved config, as `field: saved -> given`: a finished
+    run starts nothing, so none of them is applied."""
+    saved = resolve_run(_saved_config(run_dir))
+    given = resolve_run(config)
+    before = flat_hyperparameters(saved.to_dict())
+    after = flat_hyperparameters(given.to_dict())
+    return [f"{key}: {before.get(key)} -> {value}" for key, value in after.items()
+            if value != before.get(key) and key not in UNCOMPARED]

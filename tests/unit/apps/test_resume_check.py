@@ -111,6 +111,24 @@ def test_a_finished_run_says_so_and_starts_nothing(tmp_path: Path, capsys) -> No
     assert not plan_resume(run, epochs=5).finished
 
 
+def test_a_finished_run_resumed_with_settings_says_they_are_not_applied(
+        tmp_path: Path, capsys) -> None:
+    """`--set` (and --actors) given to the resume of a finished run: it says that nothing of
+    them is applied, naming each, and still starts nothing."""
+    run = tmp_path / "runs" / "done"
+    make_run(run, epochs=3, trained=3, checkpoint=3)
+    before = snapshot(run)
+    assert main(["up", "--resume", str(run), "--set", "ddpg.lr_actor=0.0005",
+                 "--actors", "4"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("hercs up: run done already finished (3 epochs)")
+    assert out[1].startswith("hercs up: not applied, since nothing runs (its config.yaml is "
+                             "kept): ")
+    assert sorted(out[1].split(": ", 2)[2].split("; ")) == [
+        "actor.num_actors: 1 -> 4", "ddpg.lr_actor: 0.001 -> 0.0005"], out
+    assert len(out) == 2 and snapshot(run) == before
+
+
 def test_a_copy_of_a_finished_run_without_checkpoints_is_finished_not_retrained(
         tmp_path: Path, capsys) -> None:
     """What docs/results/runs/<run>/ holds: config.yaml and all of metrics.csv, no
