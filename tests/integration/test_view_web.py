@@ -122,3 +122,37 @@ def test_a_bad_web_bind_is_refused_before_the_log_is_read(
     assert main(["view", str(tmp_path / "no-such-run"), *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"hercs view: {message}"), err  # not the missing run: checked first
+
+
+def test_ctrl_c_at_the_terminal_stops_it_quietly(tmp_path: Path) -> None:
+    """A Ctrl-C reaches the terminal's whole foreground process group: `hercs view` closes
+    its stream before it stops the server, which has a session of its own, so nothing but its
+    own lines is said (the severed connection gave two red Rerun ERROR lines)."""
+    import os
+    import time
+
+    run = tmp_path / "run"
+    run.mkdir()
+    _write_run(run)
+    view = subprocess.Popen(
+        [sys.executable, "-m", "hercs.apps.cli", "view", str(run), "--web", "--no-browser",
+         "--web-port", str(free_tcp_port()), "--grpc-port", str(free_tcp_port())],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)  # its own process group, as a terminal's foreground job
+    try:
+        deadline = time.monotonic() + SERVE_TIMEOUT_S
+        assert view.stdout is not None
+        while "serving the web viewer" not in view.stdout.readline():
+            assert view.poll() is None and time.monotonic() < deadline, view.stderr
+        children = psutil.Process(view.pid).children(recursive=True)
+        assert children, "no server process"
+        os.killpg(view.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        _, err = view.communicate(timeout=STOP_TIMEOUT_S)
+    finally:
+        if view.poll() is None:
+            os.killpg(view.pid, signal.SIGKILL)
+            view.wait()
+    assert view.returncode == 0, err
+    assert "ERROR" not in err and "\x1b[31m" not in err, err
+    assert err.strip().startswith("hercs view:"), err
+    assert_gone(children, "`hercs view` stopped with Ctrl-C")

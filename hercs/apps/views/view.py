@@ -339,5 +339,8 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
         except KeyboardInterrupt:
             pass
         finally:
+            # the stream closed before its server goes: else the SDK logs the severed
+            # connection as two ERROR lines on the way out
+            rec.disconnect()
             viewer.stop()
     return 0

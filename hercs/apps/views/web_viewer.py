@@ -107,8 +107,10 @@ def start_web_viewer(*, bind: str = DEFAULT_BIND, web_port: int | None = None,
     argv = [rerun_binary(), "--serve-web", "--bind", bind, "--port", str(grpc_port),
             "--web-viewer-port", str(web_port)]
     with tempfile.TemporaryFile() as said:
+        # its own session: a Ctrl-C at the terminal reaches `hercs view` alone, which closes
+        # its stream to the server before it stops the server
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=said,
-                                stderr=subprocess.STDOUT,
+                                stderr=subprocess.STDOUT, start_new_session=True,
                                 preexec_fn=pdeathsig_preexec(signal.SIGTERM))
         viewer = WebViewer(proc=proc, bind=bind, web_port=web_port, grpc_port=grpc_port)
         try:
