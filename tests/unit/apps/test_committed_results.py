@@ -63,3 +63,25 @@ def test_claims_equal_what_claims_py_computes_from_the_committed_runs() -> None:
                                     "python -m studies.claims")
     assert (RESULTS / claims_report.OUTPUT).read_text() == expected, (
         "docs/results/claims.md is not what the committed runs give: run `make figures`")
+
+
+@pytest.mark.docs_check
+def test_the_readmes_results_tables_are_what_the_claims_give() -> None:
+    """README.md's Results tables are claims.py's numbers for its claims (the same code and
+    bootstrap seed as claims.md), between readme_table's markers: `make figures` rewrites
+    them."""
+    claim_runs = load_module("studies.claims.claim_runs")
+    claims = load_module("studies.claims.claims")
+    readme_table = load_module("studies.claims.readme_table")
+    groups = claim_runs.load_groups(RESULTS / "runs")
+    results = claims.evaluate(readme_table.selected(claims.CLAIMS), groups)
+    readme = (REPO / "README.md").read_text()
+    assert readme_table.block(results) in readme, (
+        "README.md's Results tables are not what the committed runs give: run `make figures`")
+    assert readme_table.replace_block(readme, results) == readme
+    # every row of the first table is a claims.md line: the same P with its interval
+    claims_md = (RESULTS / "claims.md").read_text()
+    for r in results:
+        if r.improvement is not None:
+            p = r.improvement[0]
+            assert readme_table.interval(p) in claims_md
