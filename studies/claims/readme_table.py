@@ -87,8 +87,8 @@ def _reading(r: ClaimResult, x: str, y: str) -> str:
 
 def tables(results: Sequence[ClaimResult]) -> str:
     """The two tables (markdown), numbers printed as claims.md prints them."""
-    lines = ["| task, read after | our simulator | method | ours: IQM [95 % CI] | the authors': IQM "
-             "[95 % CI] | P(ours > the authors') [95 % CI] | runs ours / theirs | reading |",
+    lines = ["| task, read after | our simulator | method | ours: IQM [95 % CI] | the authors': "
+             "IQM [95 % CI] | P(ours > the authors') [95 % CI] | runs ours / theirs | reading |",
              "|---|---|---|---|---|---|---|---|"]
     ours = set(ours_against_authors([r.claim for r in results]))
     for r in sorted((r for r in results if r.claim in ours), key=_order):
