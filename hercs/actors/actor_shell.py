@@ -2,7 +2,12 @@
 
 It joins a run by asking the replay for its resolved config, takes the newest `Weights`, and
 hands one exploring episode per env to the `Inserter` as `(actor_id=<ident>@<incarnation>, seq)`;
-the incarnation is the start time, so a restarted actor never reuses a stored pair.
+the incarnation is the start time, so a restarted actor never reuses a stored pair. Each
+episode waits for the weights the schedule asks for (hercs.actors.weights_schedule), and
+backpressure reaches the env through the blocking `Inserter.submit`. A stop flushes the queue
+for at most `STOP_FLUSH_S`; once `RunProgress` says the run is finished the queue is given up
+at once, since no learner will sample those episodes and retrying them would keep the actor
+alive past its run (a scheduler would record the job as cancelled).
 """
 
 from __future__ import annotations

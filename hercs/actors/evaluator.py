@@ -1,8 +1,11 @@
 """The evaluator process (`hercs evaluator`): deterministic test episodes of epoch-end policies.
 
-Every `Weights` with `evaluate=True` is queued (FIFO) and evaluated once, without noise, in the
-evaluator's own seeded env; its `EvalResult` must arrive, so the publisher blocks rather than
-drops. A stop abandons an evaluation between episodes; no partial result is sent.
+Every `Weights` with `evaluate=True` is queued (FIFO, so newer weights never push an epoch's
+policy out) and evaluated once, without noise, in the evaluator's own env, seeded once: every
+method of one seed is tested on the same goals (docs/DESIGN.md §9.7). Its `EvalResult` must
+arrive, so the publisher blocks rather than drops, and each put first waits up to
+`SUBSCRIBER_WAIT_S` for the learner to match: a put with no matched subscriber is lost. A stop
+abandons an evaluation between episodes; no partial result is sent.
 """
 
 from __future__ import annotations

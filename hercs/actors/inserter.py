@@ -1,8 +1,12 @@
 """At-least-once delivery of an actor's episodes to the replay, on its own sender thread.
 
 An episode stays with the `Inserter` until an `InsertAck` names its `(actor_id, seq)`; an error
-reply is handled by its reason's disposition (`hercs.reasons`). `submit` blocks while
-`capacity` episodes wait (backpressure); `close(timeout_s)` gives up what is left after it.
+reply is handled by its reason's disposition (`hercs.reasons`); a retry resends the same
+bytes, which the replay's deduplication makes safe. Episodes go one at a time, in `seq` order.
+`submit` blocks while `capacity` episodes wait, so a replay holding inserts stops the env
+instead of a queue growing (the default 2 keeps the env stepping through one ack's round
+trip); `close(timeout_s)` gives up what is left after it: an episode never acked may be
+lost, an acked one never is.
 """
 
 from __future__ import annotations

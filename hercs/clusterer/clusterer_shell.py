@@ -1,9 +1,12 @@
 """The clusterer process (`hercs clusterer`): a thin Zenoh shell around its core.
 
 The subscription thread only checks `EpisodeHeader`s and queues (ag_T, g); `Clusterer.observe`
-and the k-means refits run on the main loop, so Zenoh's receive path is never held up. Models
-go out on `keys.cluster_model` with `latest=True`; on start it continues from the replay's
-`replay/clusterer_state`.
+and the k-means refits (tens of ms or more) run on the main loop, so Zenoh's receive path is
+never held up. A bad header is counted by reason, logged once per minute and skipped. Models
+go out on `keys.cluster_model` with `latest=True`, so a replay that starts later gets one at
+once. For `her` and `her-ebp` the process runs all the same (the topology is uniform) but only
+counts: no one would use a model. On start it continues from the replay's
+`replay/clusterer_state` (buffer, counts, model numbering), skipping headers already in it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """The learner's checkpoints: written atomically, the last good one kept.
 
 `runs/<run>/checkpoints/learner.pt` holds what a resumed learner needs to continue exactly at
-the end of its epoch. A write goes to `learner.pt.tmp`, is fsynced, then renamed over
+the end of its epoch: the DDPG state, the loop's counters, torch's RNG state, and the `Weights`
+of each epoch still awaiting its evaluation (to ask again). A write goes to `learner.pt.tmp`,
+is fsynced, then renamed over
 `learner.pt` (and the folder fsynced), so a crash or a full disk leaves the previous one whole.
 """
 

@@ -1,8 +1,9 @@
 """The whole DDPG update as one captured CUDA graph (`learner.cuda_graph`, on a GPU).
 
-One graph launch per minibatch instead of ~170 kernel launches; the host only normalises the
-minibatch and copies it into the graph's fixed inputs. The graph reads parameters, targets and
-optimiser state by address, so in-place changes are seen; `DDPGLearner.load_state_dict`
+One graph launch per minibatch instead of ~170 kernel launches with Python between them (at the
+paper's minibatch an eager update leaves the GPU waiting on the host); the host only normalises
+the minibatch and copies it into the graph's fixed inputs. The graph reads parameters, targets
+and optimiser state by address, so in-place changes are seen; `DDPGLearner.load_state_dict`
 recaptures, since it replaces the optimisers' state.
 """
 

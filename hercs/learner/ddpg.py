@@ -2,8 +2,11 @@
 
 `DDPGLearner.update(batch)` (or `train`, the loop's) is one reference `_update_network` call;
 `update_targets()` is the once-per-cycle Polyak average (docs/DESIGN.md §4.6). Networks are
-built on the CPU and checkpoints hold host tensors, so neither depends on the device. Torch's
-thread count is the service's to set, never this module's (docs/DESIGN.md §10).
+built on the CPU and checkpoints hold host tensors, so neither depends on the device. The
+normalisers are the replay's; the learner adopts their statistics. A served batch is checked
+once, on arrival (`decode_minibatch` returns a `CheckedBatch` that `update` takes as it is);
+a batch handed to `update` directly is checked there. Torch's thread count is the service's to
+set, never this module's (docs/DESIGN.md §10).
 """
 
 from __future__ import annotations

@@ -2,8 +2,11 @@
 
 A NaN or inf in a loss or weight is never undone, so the learner looks: after every CPU update,
 once per cycle everywhere (the epoch's loss sums and one flag per parameter tensor, before
-weights are published), and over its whole state before a checkpoint. `DDPGLearner` raises
-`hercs.errors.Diverged` with what these name.
+weights are published), and over its whole state before a checkpoint; an actor refuses
+weights that hold one, so a run training on after it keeps nothing moving. Looking is cheap:
+after a CPU update the loss row is already on the host, and the epoch's loss sums stay
+non-finite once any loss in them was. `DDPGLearner` raises `hercs.errors.Diverged` with what
+these name.
 """
 
 from __future__ import annotations

@@ -1,9 +1,12 @@
 """A learner's state across restarts: what its checkpoint holds and how a restarted learner
 continues from it, with the run's metrics.csv made to agree.
 
-With `checkpoints/learner.pt` the learner continues from the end of its epoch; rows of later
-epochs are set aside (the old file to `previous/<time>/metrics.csv`), never deleted. Without
-one it starts at epoch 0, setting rows aside the same way.
+With `checkpoints/learner.pt` the learner continues from the end of its epoch, and a pending
+epoch that already has its row is not evaluated again; rows of later epochs (only after a
+failed checkpoint write, or a file put back by hand) are set aside (the old file to
+`previous/<time>/metrics.csv`), never deleted, and trained again. Without one it starts at
+epoch 0, setting rows aside the same way. `hercs up --resume` refuses such a folder before
+anything starts; this is the learner's own guard, for services started without `hercs up`.
 """
 
 from __future__ import annotations

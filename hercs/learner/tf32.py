@@ -1,9 +1,11 @@
 """TF32 arithmetic of matrix products, emulated on any device (`learner.precision=tf32`).
 
-Inside `TF32Products` every matrix product torch dispatches (forward and backward) rounds its
-float32 operands to TF32's 10 mantissa bits (`round_to_tf32`, matching cuBLAS) and multiplies
+Inside `TF32Products` every matrix product torch dispatches (forward and backward: the mode
+sits below autograd) rounds its float32 operands to TF32's 10 mantissa bits (`round_to_tf32`,
+a rule chosen to match cuBLAS's own TF32 products, docs/results/learner_cuda.md) and multiplies
 in fp32, as the authors' torch 1.10.1 did by default on an Ampere-or-newer GPU (which GPU they
-trained on is not published: on an older one their products were fp32).
+trained on is not published: on an older one their products were fp32). Element-wise ops,
+Adam and the losses stay fp32.
 """
 
 from __future__ import annotations

@@ -1,9 +1,17 @@
 """When a client's session has gone blind or been cut off: the rules behind `Transport`'s
 reopen (a new session, so a new Zenoh id, with every declaration made afresh).
 
-`Rediscovery`: reopen when a key answered before finds no queryable for `after_s` while the
-session had a router (a streak's reopens back off). `CutOff`: reopen a session that has had no
-router for `after_s`. Why each is needed: docs/DESIGN.md §11.
+`Rediscovery`: after a cut a session can be connected yet never relearn the router's
+declarations (reported Zenoh bugs: eclipse-zenoh/zenoh#2767, ros2/rmw_zenoh#1029), so reopen
+when a key answered before finds no queryable for `after_s` while the session had a router. A
+queryable really gone (a replay restarting) looks the same, so a streak's reopens back off; a
+key never answered (an actor started before its run) never counts.
+
+`CutOff`: after a two-way cut longer than Zenoh's lease the router attaches the session's own
+reconnect (same Zenoh id) to its old transport of that id, whose queries can go unanswered
+until the dead connection under it is reset, up to a minute after the heal (TCP's back-off;
+docs/results/net_faults.md). So a session without a router for `after_s` is reopened, and the
+new id is taken as soon as the link is back.
 """
 
 from __future__ import annotations

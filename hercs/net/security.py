@@ -1,8 +1,11 @@
 """Who may join a run and what each role may do: Zenoh TLS, user/password and access control.
 Each process authenticates as its role (`hercs.roles`) by a certificate named for the role, a
 `user:password` line, or both; the router denies by default and grants each role only its own
-keys (`ROLE_GRANTS`). A router listening beyond loopback without TLS is refused
-(`listen_problem`) unless `security.allow_insecure`. Threat model: docs/SECURITY.md."""
+keys (`ROLE_GRANTS`: an actor can insert episodes and read weights, but cannot publish
+weights, models or results nor serve a replay key). A router listening beyond loopback without
+TLS is refused (`listen_problem`) unless `security.allow_insecure`. Threat model:
+docs/SECURITY.md; the Zenoh settings and ACL semantics this rests on (eclipse-zenoh 1.10.2) are
+noted at `zenoh_settings` and `access_control`."""
 
 from __future__ import annotations
 

@@ -2,7 +2,10 @@
 
 Each transition's gain in potential plus kinetic energy of the achieved goal, clipped to
 [0, clip_energy], summed over t = 1..T (docs/DESIGN.md §4.5); computed once per episode on
-insert, in float64. `points` and `hand` (`TaskSpec.energy`) extend it beyond Fetch.
+insert, in float64. `points` and `hand` (`TaskSpec.energy`) extend it beyond Fetch: `points`
+sums the terms over an achieved goal's 3-d points (ours: EBP has no energy for such tasks);
+`hand` adds the EBP reference's rotational term over Euler-angle rates. As there, the angles
+are not unwrapped: a crossing of ±π counts as a fast turn, and the clip bounds what it adds.
 """
 
 from __future__ import annotations

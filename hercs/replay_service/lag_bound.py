@@ -1,9 +1,14 @@
 """The bound on policy lag in the asynchronous schedule (`training.max_policy_lag`).
 
-An episode's lag is its lockstep cycle minus its weights version. With a bound L an insert is
-refused `stale_policy` when admitted if its lag would pass L and its weights are older than
-the learner's newest; one acted with the newest weights is always admitted, so the bound never
-holds every actor back. Pure bookkeeping under the table's lock.
+An episode's lag is its lockstep cycle minus its weights version; asynchronously it grows with
+whatever lets episodes be stored before their weights exist (the limiter's surplus, prefetched
+batches, the actor's queue). With a bound L an insert is checked when the limiter admits it,
+when its cycle is known, and refused `stale_policy` if its lag would pass L and its weights
+are older than the learner's newest; one acted with the newest weights is always admitted, so
+the bound never holds every actor back, nor after a learner restart. A refused episode was
+never stored or acked; acks carry the oldest version the next episode may use, so actors wait
+for weights instead of acting episodes that would be refused. Pure bookkeeping under the
+table's lock.
 """
 
 from __future__ import annotations

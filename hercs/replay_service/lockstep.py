@@ -3,7 +3,10 @@
 It replaces the rate limiter's window (docs/DESIGN.md §9.1 states the rules): an insert is
 admitted at once or refused (`stale_policy`, `cycle_full`), and cycle c is served once its
 episodes are stored and, for the clustered methods, no refit is due (waited for at most
-`cluster_wait_s`). Pure bookkeeping under the table's lock; it never blocks.
+`cluster_wait_s`: the clusterer is another process and may be restarting; such a cycle is
+counted in `late_cluster_models` and no later cycle waits for that refit again). After a
+replay restart the per-version counts are rebuilt from the recovered episodes. Pure
+bookkeeping under the table's lock; it never blocks.
 """
 
 from __future__ import annotations

@@ -1,6 +1,8 @@
 """The calls the replay table holds: inserts waiting for the rate limiter, admitted inserts
 waiting for the log's group commit, and samples waiting for the limiter, with each insert's
-(actor_id, seq) parked at most once. Not thread-safe: the table's lock guards it."""
+(actor_id, seq) parked at most once and never while stored (`check_unstored` checks each
+group before the log is written). The table decides what moves between these queues; this
+object only holds them. Not thread-safe: the table's lock guards it."""
 
 from __future__ import annotations
 

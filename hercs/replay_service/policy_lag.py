@@ -2,7 +2,9 @@
 
 Two lags per stored episode (docs/DESIGN.md §9.1): against the learner's newest weights at
 storage (`policy_lag_request`) and against its lockstep cycle (`policy_lag`, what the lag bound
-limits). Pure bookkeeping, driven by `ReplayTable` under its lock.
+limits). Recent lags are averaged into the counters; every schedule lag since the last sample
+call travels with the next served batch. The lag's derivation is `PolicyLagLedger`'s
+docstring. Pure bookkeeping, driven by `ReplayTable` under its lock.
 """
 
 from __future__ import annotations

@@ -3,7 +3,11 @@
 With I episodes inserted, S minibatches sampled and ρ = updates_per_episode, the surplus
 d = ρ·I − S stays within E of ρ·N_min: an insert is admitted while the window has room (else the
 actor waits), a request for n minibatches once I ≥ N_min and the window allows it (else the
-learner waits). Pure bookkeeping, it never blocks; the constructor refuses 2E < n_max + ρ.
+learner waits). So updates per episode stay at ρ up to a bounded error (docs/DESIGN.md §4.7).
+A window narrower than one request plus one insert could hold both sides at once, so the
+constructor refuses 2E < n_max + ρ. With `free_run` everything is admitted and the counts are
+still kept. Pure bookkeeping, it never blocks: the service parks what is not admitted and
+retries it after every insert or sample.
 """
 
 from __future__ import annotations

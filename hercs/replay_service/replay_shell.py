@@ -2,8 +2,11 @@
 
 It decodes and validates each query and hands it to the table with a waiter that answers it,
 now or later; every decision is the table's. Queries are served on our own worker threads,
-never inside Zenoh callbacks. On start the episode log is replayed into the table, so nothing
-acked is lost across a restart (docs/DESIGN.md §6, §8).
+never inside Zenoh callbacks; `replay/status` is put about once a second, and parked calls
+past their caller's timeout are answered `expired` at that pace. On start the episode log is
+replayed into the table (from its newest saved state, for a bounded log), so nothing acked is
+lost across a restart; the limiter restarts balanced at the recovered size and the log's
+newest cluster model is adopted again (docs/DESIGN.md §6, §8).
 """
 
 from __future__ import annotations

@@ -3,6 +3,9 @@
 `SamplingIndex` keeps per-cluster member lists and counts (O(1) swap-remove), so HER-CS's draws
 cost O(k + B), and cumulative sums of energy + ε per row (row 0 every slot, row c+1 cluster c),
 recomputed once after a write, so an energy-weighted draw is a binary search, O(B log N).
+A request's 40 minibatches are served in one go and the paper's schedule inserts one episode
+per 10 minibatches, so the O(N) recomputation is paid at most once per request; sum trees
+would avoid it but cost more per draw at the paper's buffer sizes (docs/PERFORMANCE.md §5).
 Not thread-safe; the store owning it is called by one thread at a time.
 """
 

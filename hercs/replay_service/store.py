@@ -2,8 +2,11 @@
 reference's random overwrite once full (`replay.eviction`, docs/DESIGN.md §9.2).
 
 Episode ids are global and monotonic; an id's slot is a pure function of it (`slot_for`), so
-replaying the log in id order rebuilds the same buffer. Valid slots are `[0, size)`; arrays of
-the wrong shape are refused before anything is written. Not thread-safe.
+replaying the log in id order rebuilds the same buffer (ids below capacity go to slot id,
+later ones to id % capacity for `fifo` or a slot hashed from (eviction seed, id) for `random`).
+Valid slots are `[0, size)`; arrays of the wrong shape are refused before anything is written.
+Storage is `np.zeros` (calloc), so a 10^6-transition buffer commits memory only as slots are
+written. Not thread-safe.
 """
 
 from __future__ import annotations

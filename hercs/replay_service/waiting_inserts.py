@@ -2,7 +2,9 @@
 
 A FIFO per actor id and a ring of the waiting actors: with m actors waiting each gets one
 admission in m (docs/DESIGN.md §3, "Fair sharing between actors"). At most `per_actor` inserts
-of one id wait; one more is refused `actor_queue_full` (a retry). `per_actor = 0` is one
+of one id wait; one more is refused `actor_queue_full` (a retry), so a flooder is slowed by its
+own backoff and the waiting inserts' memory stays bounded. A retry of a waiting (actor_id, seq)
+joins that call (hercs.replay_service.table) and is never refused here. `per_actor = 0` is one
 unbounded FIFO, kept to measure the difference (bench/perf/fair_share.py).
 """
 

@@ -2,8 +2,10 @@
 the env checker.
 
 `Fetch*-v4` runs on MuJoCo 3; the authors' `Fetch*-v1` on mujoco-py and MuJoCo 2.1 (`make
-mujoco-py`). `prepare_mujoco_py` sets what mujoco-py reads at import, in every process that
-makes an env; `check_env` says at a run's start when that installation is missing.
+mujoco-py`: MuJoCo 2.1's binaries in `<venv>/mujoco210`, and mujoco-py's Cython extension
+compiled with that folder's `bin/` as its RUNPATH, so no process needs LD_LIBRARY_PATH at its
+start). `prepare_mujoco_py` sets what mujoco-py reads at import, in every process that makes an
+env; `check_env` says at a run's start when that installation is missing.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """Actor and critic of DDPG+HER, and the input preprocessing shared by actors and learner.
 
 As the reference PyTorch HER code (`rl_modules/models.py`): actor μ(x) = max_action ·
-tanh(MLP(x)), critic Q(x, a) = MLP([x, a / max_action]), x = [o_norm, g_norm]. Seeded
+tanh(MLP(x)), critic Q(x, a) = MLP([x, a / max_action]), x = [o_norm, g_norm], with
+`hidden_layers` ReLU layers of `hidden_size` (3 × 256) and PyTorch's default `nn.Linear`
+initialisation. Seeded
 construction (`seed=`) runs inside `torch.random.fork_rng`: the weights depend only on the
 seed and the caller's global RNG is untouched.
 """

@@ -1,8 +1,11 @@
 """Running mean/std normaliser for observations and goals, as in the reference DDPG+HER.
 
 mean = Σv / n, std = sqrt(max(eps², Σv²/n − mean²)), normalize(v) = clip((v − mean) / std).
-`update` only accumulates float64 sums; `mean`/`std` change only in `recompute_stats`. Before
-any data mean = 0 and std = 1. `state_dict()` holds exactly sum, sumsq, count, mean and std.
+`update` only accumulates float64 sums; `mean`/`std` change only in `recompute_stats`, so a
+policy uses one fixed set of statistics between recomputations, as the reference's within a
+cycle. The count starts at 0 (the reference's sums are float32 and its count n+1:
+docs/DESIGN.md §9.5). Before any data mean = 0 and std = 1. `state_dict()` holds exactly sum,
+sumsq, count, mean and std: what the replay sends the learner and the learner the actors.
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 A message may be written as its constant part's bytes (serialised once by protobuf) followed by
 the fields that change; the replay's sample replies and the episode log's scene messages do
-so. Field numbers come from the descriptors, so a schema change cannot silently shift them.
+so, where building one protobuf object per message cost more than the rest of the path.
+Field numbers come from the descriptors, so a schema change cannot silently shift them; tests
+parse what these functions build.
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
 """`hercs certs DIR`: a CA and the certificates of a secured run (docs/SECURITY.md).
 
-Writes into DIR, never overwriting a file: `ca.pem`/`ca.key`, `router.pem`/`router.key` (SANs:
-the --host names plus localhost), one `<role>.pem`/`.key` per role (common name = the role) and,
-with --credentials, `credentials.txt`. Keys are ECDSA P-256, as rustls requires; mode 0600.
+Writes into DIR, never overwriting a file: `ca.pem`/`ca.key`, `router.pem`/`router.key`
+(serverAuth; SANs: the --host names plus localhost and 127.0.0.1), one `<role>.pem`/`.key` per
+role (clientAuth; common name = the role, which access control matches) and, with
+--credentials, `credentials.txt` (a random password per role). Keys are ECDSA P-256, as rustls
+(Zenoh's TLS) requires; mode 0600. Keep `ca.key` off the hosts.
 """
 
 from __future__ import annotations

@@ -2,8 +2,11 @@
 
 Writes the job script into the run directory (`runs/<run>/slurm/job.sbatch`, to read, edit or
 submit by hand) and calls `sbatch`: component 0 runs `hercs up --actors 0`, component 1 one
-`hercs actor` per node. Near the time limit the run stops in order and the job is requeued;
-its next attempt continues with `hercs up --resume`.
+`hercs actor` per node, which finds the router through `router.json`. Each attempt makes its
+own certificates, and an actor step that ends while the run goes on is started again within
+it. Near the time limit the run stops in order and the job is requeued; its next attempt
+continues with `hercs up --resume`, so a run may outlast any one job. The run itself is
+`hercs up` and `hercs actor` as on any machine: this module only writes text and calls sbatch.
 """
 
 from __future__ import annotations

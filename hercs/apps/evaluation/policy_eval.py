@@ -2,8 +2,9 @@
 
 `--checkpoint` is `best` (default when present), `latest` (`learner.pt`), an epoch N
 (`epoch-NNNN.pt`) or a file. By default the episodes are the ones the run's evaluator used for
-that epoch, so the first `training.eval_episodes` reproduce `metrics.csv`'s success; `--seed S`
-draws other goals. Actions are μ without noise.
+that epoch (its env, seeded from the run seed and advanced by the earlier epochs' episodes),
+so for a run evaluated in order the first `training.eval_episodes` reproduce `metrics.csv`'s
+success; `--seed S` draws other goals. Actions are μ without noise.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """Service child processes, as `hercs up` and the benchmarks start them.
 
 A child is `python -m hercs.apps.cli <role> ...` with its output in a log file, leading its own
-process group, with `PR_SET_PDEATHSIG` = SIGKILL so it dies with its parent. That signal fires
+process group (Ctrl-C at a terminal reaches only the parent, which stops the children in order;
+a signal to the group also reaches what the child forked), with `PR_SET_PDEATHSIG` = SIGKILL set
+between fork and exec so the kernel kills it if the parent dies. That signal fires
 when the forking *thread* exits: start children from the main thread only.
 `stop_process` ends any child: a signal, a grace period, then SIGKILL.
 """

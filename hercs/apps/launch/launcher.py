@@ -2,7 +2,8 @@
 
 `run_up` takes the run directory, opens the Zenoh router in this process, writes `config.yaml`
 and `router.json` and hands the services to the `Supervisor`. Exit status: 0 done, 1 a service
-failed, 2 the run directory cannot be used, 4 diverged, 5 stalled, 128 + n after signal n.
+failed or the router could not listen, 2 the run directory cannot be used, 4 diverged, 5
+stalled, 128 + n after signal n.
 Main thread only (the children's parent-death signal, hercs/apps/launch/child_process.py).
 """
 

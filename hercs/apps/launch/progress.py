@@ -3,7 +3,8 @@ those that end a finished run, from what the learner, evaluator, replay and clus
 
 Pure bookkeeping with an injected clock. For a cluster method each epoch line carries the
 cluster model and its episodes per cluster, or, before the first model, the failed goals
-counted towards it.
+counted towards it; a run that ends without a model says why (a policy that rarely fails, as
+on FetchReach, gives too few failed goals).
 """
 
 from __future__ import annotations

@@ -2,7 +2,10 @@
 continue, nothing to do, or refuse, so that a resume never trains over results.
 
 `learner.pt` (epoch C, epochs P awaiting evaluation) and `metrics.csv` (rows R) agree when R
-holds exactly the epochs 1..C not in P; anything else is refused, saying what would work.
+holds exactly the epochs 1..C not in P (perhaps with rows of P written after the checkpoint);
+R covering 1..`training.epochs` with C at the end, or with no checkpoint, is a finished run and
+nothing starts. Anything else is refused, saying what would work: rows without a checkpoint
+would be trained over, rows past it or missing would be trained again or lost.
 Past that, every file a service will read is read as it will read it, against the config the
 run resumes with (hercs/apps/launch/resume_files.py): a file that would fail the run after it
 started is refused here, before anything changes. `--restart` starts over:

@@ -2,8 +2,9 @@
 
 The lock is `flock(LOCK_EX)`, taken without waiting and held for the launcher's life; the
 kernel drops it however the process dies, so a requeued `hercs up --resume` takes it at once.
-The file names the owner for the refusal message. On a file system without a shared flock
-`take` goes on without the lock and says so.
+The file names the owner for the refusal message, trusted only while the lock is held.
+Children never inherit it (not inheritable, PEP 446). On a file system without a shared flock
+(some Lustre mounts) `take` goes on without the lock and says so.
 """
 
 from __future__ import annotations

@@ -3,9 +3,14 @@
 A run that ends no epoch for `launch.stall_factor` times its slowest epoch so far (before the
 first, times `expected_first_epoch_s`), or for a day (`MAX_STALL_S`) whichever is shorter,
 has stalled, whatever the cause; nothing else would end it, since each service waits,
-correctly, for another. The reference machine's speeds it predicts the first epoch from, and
-the cap, are hercs.config.limits' (the config's bounds use them too). Pure bookkeeping with
-an injected clock; the supervisor feeds it and asks `stalled()`.
+correctly, for another (a service stopped but alive, a learner whose weights every actor
+refuses, a replay that holds every request). The bound follows the run's own pace, so a slow
+machine or a heavy task is judged by itself; the slowest epoch includes the first, which
+includes starting every service, so a restart mid-run costs less than the bound. The cap: the
+first-epoch estimate grows with the config (a batch of 10^9 rows made it 922 days); a run whose
+epochs take longer sets `launch.stall_factor=0`. The reference machine's speeds it predicts
+the first epoch from, and the cap, are hercs.config.limits' (the config's bounds use them
+too). Pure bookkeeping with an injected clock; the supervisor feeds it and asks `stalled()`.
 """
 
 from __future__ import annotations

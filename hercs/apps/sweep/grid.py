@@ -3,7 +3,11 @@ and `hercs sweep report`, its learning curves and its claims table (docs/GUIDE.m
 runs").
 
 Resumable: a finished run (`bench_done.json`) is skipped, an unfinished or shorter one is
-continued from its checkpoint; runs go `--jobs` at a time, seed-major (`<run-dir>/sweep.json`).
+continued from its checkpoint (a sweep grows). Runs go `--jobs` at a time, one per core by
+default (each is bound by its learner's one torch thread), seed-major so every arm has as many
+finished seeds as early as possible (`<run-dir>/sweep.json`). `--committed DIR` keeps each
+finished run's small files to commit, which the report reads when a run is not local;
+`--slurm` submits a job array (hercs.apps.sweep.slurm_array).
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 
 The shell: sinks, subscriptions, episode queries and the loop (`LiveViewService`);
 `LiveRecorder` (views/live_recorder.py) draws, with views/rerun_draw.py as `hercs view`
-does. It never holds up or fails training: subscriptions only queue bytes, and a lost viewer,
-a bad message or a failed query is logged and skipped.
+does; the recording id is the run name, so a restarted live view continues the same
+recording. It never holds up or fails training (`hercs up` treats it as optional):
+subscriptions only queue bytes; a lost viewer is reported once (again only after it came back)
+while any .rrd keeps being written; a bad message or a failed query is logged and skipped.
 """
 
 from __future__ import annotations

@@ -1,8 +1,12 @@
 """HER-CS's episode draw: every cluster of final achieved goals gets an equal share of the batch.
 
-The authors' `clustering_her_random` (docs/DESIGN.md §4.3): ⌊B/k⌋ per cluster drawn among its
+The authors' `clustering_her_random` (ngng9957/Clustering-based-Failed-Goal-Aware-Hindsight-
+Experience-Replay, her_modules/her.py; docs/DESIGN.md §4.3): ⌊B/k⌋ per cluster drawn among its
 members (a small cluster's each about `repeat` times); what a share cannot use, plus the
-remainder, drawn from the whole buffer. Before any cluster model the draw is HER's uniform one.
+remainder, drawn from the whole buffer. Before any cluster model the draw is HER's uniform one;
+episodes still unlabelled once a model exists are reachable only through the fills. The output
+lists the shares, then the fills: order within a minibatch does not matter, since each entry's
+timestep is drawn independently. O(k + B) per call, from the store's `SamplingIndex`.
 Departures: docs/DESIGN.md §9.4 (`cluster.share_rule=reference` draws as the authors do).
 """
 

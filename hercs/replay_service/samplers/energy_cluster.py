@@ -2,7 +2,10 @@
 
 Our definition (docs/DESIGN.md §4.3), with w = trajectory energy + ε: each cluster's draws are
 HER-CS's plan; inside cluster c member i is drawn with p = w_i / Σ_{j∈c} w_j; whole-buffer fills
-with p ∝ w; before any cluster model it is plain HER-EBP. Stateless; O(k + B log N) per batch.
+with p ∝ w; before any cluster model it is plain HER-EBP. So a small cluster's repeated draws
+favour its energetic members, and episode i of cluster c is drawn member_draws_c · w_i / W_c +
+fill · w_i / W times per batch in expectation (W_c, W: the cluster's and the buffer's mass).
+Stateless; O(k + B log N) per batch.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """HER-EBP's episode draw: p(slot) ∝ trajectory energy + ε, with replacement.
 
 ε (config.energy.epsilon) keeps every episode drawable and makes an all-zero buffer uniform;
-the reference's exponent 1/(temperature + 0.01) is 1 here (docs/DESIGN.md §4).
+the reference's (ruizhaogit/EnergyBasedPrioritization, her.py) exponent 1/(temperature + 0.01),
+0.990 at its default temperature 1, is 1 here, and its lack of ε divides an all-zero buffer
+by zero (docs/DESIGN.md §4, §9.3).
 """
 
 from __future__ import annotations

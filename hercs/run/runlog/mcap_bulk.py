@@ -1,9 +1,11 @@
 """Many MCAP messages into a writer's open chunk at once: the scene's 102 per episode.
 
-`add_message_rows` writes the bytes `Writer.add_message` would (a test compares whole files),
-with headers packed by numpy and records joined once. It reaches into mcap 1.6's private chunk
-builder; where a later mcap moved it, it falls back to `add_message` (`has_bulk_internals`).
-`reuse_zstd_contexts` gives the writer one zstd compressor per thread.
+`Writer.add_message` builds a record object and packs its header fields one by one, per
+message: ~0.4 ms of the replay's CPU for a FetchPush episode's scene, as much as drawing it.
+`add_message_rows` writes the same bytes (a test compares whole files) with headers packed by
+numpy and records joined once. It reaches into mcap 1.6's private chunk builder; where a later
+mcap moved it, it falls back to `add_message` (`has_bulk_internals`). `reuse_zstd_contexts`
+gives the writer one zstd compressor per thread instead of a new one per chunk (~0.15 ms each).
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 
 `segments_to_delete` (pure): a segment may be deleted iff it comes before the newest segment
 that starts with a state and every episode it holds has an id below that state's
-first_held_id; only the oldest go, so the log stays one contiguous run of ids
-(docs/DESIGN.md §6, "A bounded log").
+first_held_id; only the oldest go, so the log stays one contiguous run of ids, which readers
+and recovery rely on, even after a crash part way (docs/DESIGN.md §6, "A bounded log"). Ids
+increase along the log, so reading each segment's head (up to its first episode) is enough:
+no segment is read whole.
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
 """Reading the run log back: messages of one segment or of a whole run directory, in file
 order, tolerant of a writer that was killed.
 
-A torn tail (a record cut short, a chunk failing its CRC or not decompressing) ends the scan
-quietly; a bad chunk followed by an intact one raises `EpisodeLogError` rather than drop
+mcap's own readers refuse a file with no summary or footer, which a killed writer leaves, so the
+top-level records are walked here (with `struct`: a restarted replay reads its whole buffer
+back). A torn tail (a record cut short, a chunk failing its CRC or not decompressing) ends the
+scan quietly; a bad chunk followed by an intact one raises `EpisodeLogError` rather than drop
 acked data. Chunks holding only topics not asked for, or that the caller's `read_chunk`
 declines, are neither read nor decompressed (their message indexes say what they hold).
 """

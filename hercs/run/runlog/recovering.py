@@ -1,9 +1,14 @@
 """A run-log writer that outlives a full disk: `RecoveringLogWriter`.
 
-After a failed append it cuts the torn segment back to the last append that returned and
-continues in a new segment (tried at most once per `retry_s`); until then every append raises
-`EpisodeLogError`, the replay refuses the insert and the actor retries. Nothing is acked that
-is not on disk. It also starts a bounded log's new segments (`start_segment`).
+An `EpisodeLogWriter` whose append failed part way may end in a torn record and refuses every
+later append; the replay must neither stay unable to log (and so to ack) once space returns,
+nor crash when it stops or restarts on a full disk. So after a failed append this writer cuts
+the torn segment back to the last append that returned (the failed one was never acked; its id
+goes to the next episode) and continues in a new segment (tried at most once per `retry_s`);
+until then every append raises `EpisodeLogError`, the replay refuses the insert and the actor
+retries. Nothing is acked that is not on disk. It also starts a bounded log's new segments
+(`start_segment`); closing the old writer and pruning run on a background thread, off the ack
+path.
 """
 
 from __future__ import annotations

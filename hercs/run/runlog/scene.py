@@ -2,8 +2,13 @@
 
 Pure functions from an `Episode`'s arrays to the positions in `foxglove.SceneUpdate` (`/scene`)
 and `foxglove.PointCloud` (`/scene/points`) messages, so `episodes.mcap` shows the episode in
-3D without our code (docs/DESIGN.md §6). Positions are in the MuJoCo world frame (metres,
-z up); the bytes come from `hercs.run.runlog.scene_wire`.
+3D without our code (docs/DESIGN.md §6): Foxglove draws the SceneUpdate (gripper sphere, 5 cm
+object cube, a goal sphere twice the success threshold across, green while the achieved goal
+is inside), which Rerun keeps raw; Rerun converts the PointCloud to `Points3D`. Positions are
+in the MuJoCo world frame (metres, z up); beyond Fetch the moving body is the achieved goal's
+first point, and a goal with no position part gets no scene. Times are offsets on the
+synthetic timeline (the writer adds the run's start); the bytes come from
+`hercs.run.runlog.scene_wire`.
 """
 
 from __future__ import annotations

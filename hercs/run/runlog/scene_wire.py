@@ -1,7 +1,8 @@
 """A whole episode's scene messages at once: the parts that change by step prepared together.
 
 Each entity's fixed-width tail is one numpy row per step and the timestamps are encoded
-together, so a message is one `bytes.join` of ~10 pieces; the bytes equal the step-by-step
+together, so a message is one `bytes.join` of ~10 pieces instead of ~40 bytes operations (this
+runs on the replay's core); the bytes equal the step-by-step
 construction's (tests/unit/hercs/test_scene.py). A field's pieces parse in wire order, so the
 step comes after the labels in `metadata`.
 """

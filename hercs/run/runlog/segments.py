@@ -1,9 +1,13 @@
 """The run directory's segments across restarts: sealing a killed writer's file and opening
 the log of a run again (`EpisodeLog.open`).
 
+MCAP cannot be appended to after a torn tail or a footer, so each writer gets a fresh file.
 The live segment is always `episodes.mcap`; `EpisodeLog.open` seals an unfinished one
-(`seal_segment`), renames it `episodes.<n>.mcap` (000, 001, … in order) and opens a new one.
-Readers read the numbered segments in order, then `episodes.mcap`; ids continue across them.
+(`seal_segment`: torn tail cut, summary rebuilt from the scan, footer, so Rerun and Foxglove
+open it without a recovery mode), renames it `episodes.<n>.mcap` (000, 001, … in order) and
+opens a new one. Readers read the numbered segments in order, then `episodes.mcap`; ids
+continue across them. A bounded log deletes old segments, so its numbers start above 000 and
+its ids above 0.
 """
 
 from __future__ import annotations

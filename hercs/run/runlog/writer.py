@@ -1,8 +1,9 @@
 """Appending to the run log: `EpisodeLogWriter`, one MCAP segment whose every append is on disk
 when it returns (docs/DESIGN.md §3, "durable before ack"; §6, the MCAP log).
 
-Each append is one zstd chunk, then fsync; `append_many` is the group commit. Scenes are built
-and written on a background thread without fsync: a crash can lose the last scenes, never an
+Each append is one zstd chunk, then fsync; `append_many` is the group commit. Scenes, derived
+data and about two thirds of an append's CPU, are built and written on a background thread
+without fsync: a crash can lose the last scenes, never an
 episode; past `SCENE_BACKLOG` waiting episodes new ones get no scene.
 """
 
