@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 
-.PHONY: run test studies-check lint proto install clean compose-test compose-clean figures mujoco-py slurm \
+.PHONY: run test test-full studies-check lint proto install clean compose-test compose-clean figures mujoco-py slurm \
 	slurm-test netfault-tools browser-tools
 
 $(PY):
@@ -63,9 +63,25 @@ slurm-test: $(STAMP) slurm
 run: $(STAMP)
 	$(VENV)/bin/hercs up --task push --method her-cs --epochs 4 --actors 2
 
-# --durations: the 25 slowest tests, so that the suite's time has names (CI's aim: < 25 min).
+# `make test`: every test but the long scenarios (marked `full`) and the committed documents
+# (`docs_check`). TEST_WORKERS=N spreads it over N pytest-xdist workers, a file (or a package,
+# tests/conftest.py) whole on each; on 2 busy cores its tests compute more than they wait and
+# workers made it slower (README, "Development": what each command checks, how long it takes).
+# --durations: the 25 slowest tests, so that the suite's time has names.
+TEST_WORKERS ?= 0
+# `make test-full` pairs its scenarios: one waiting on cuts or Slurm beside one computing.
+FULL_WORKERS ?= 2
 test: lint
-	$(PY) -m pytest -q --durations=25 -m "not docs_check" tests
+	$(PY) -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadfile \
+		-m "not full and not docs_check" tests
+
+# What `make test` leaves out, and only that: the Slurm cluster, network faults between
+# namespaced hosts, the chaos soak, the runs that must learn (FetchReach, a goal env, a
+# poisoned run, SB3), and the committed reports (`make studies-check`'s tests). .ci/run runs
+# both, so that together they are the whole suite, each test once.
+test-full: $(STAMP)
+	$(PY) -m pytest -q --durations=25 -n $(FULL_WORKERS) --dist loadfile \
+		-m "full or docs_check" tests
 
 # The committed reports and figures against the committed runs (the tests marked docs_check: a
 # finding or a figure is checked where it is made, not as a contract of the code). Run it after

@@ -5,6 +5,8 @@ started."""
 
 import os
 import signal
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -26,3 +28,27 @@ def trusted_test_envs(monkeypatch: pytest.MonkeyPatch) -> None:
     from hercs.rl.code_names import ANY, TRUST_ENV
 
     monkeypatch.setenv(TRUST_ENV, ANY)
+
+
+def _work_unit(nodeid: str) -> str:
+    """What one worker runs whole, in its order: the test's package (a folder with __init__.py,
+    as tests/fault/fuzz/, whose modules share one package fixture and run in their numbered
+    order), else its file (whose module fixtures, often a whole run, are then made once)."""
+    path = nodeid.split("::", 1)[0]
+    folder = Path(path).parent
+    return str(folder) if (Path(__file__).parents[1] / folder / "__init__.py").exists() else path
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """`make test`'s workers (pytest-xdist, `--dist loadfile`) take whole work units
+    (`_work_unit`): xdist's own loadfile would split a package over workers."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling  # type: ignore[import-untyped]
+
+    class FileOrPackageScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return _work_unit(nodeid)
+
+    return FileOrPackageScheduling(config, log)

@@ -17,7 +17,7 @@ from bench.faults.chaos_plan import QUICK_PLAN
 from bench.faults.chaos_state import QUICK_SHAPE
 from bench.faults.netns import make_host, problem
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
+pytestmark = [pytest.mark.integration, pytest.mark.full, pytest.mark.timeout(420)]
 
 
 def test_a_run_rides_out_a_killed_actor_and_a_cut_and_loses_nothing(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
 from tests.support import free_tcp_port
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(420)]
+pytestmark = [pytest.mark.integration, pytest.mark.full, pytest.mark.timeout(420)]
 
 CUT_S = 60.0
 """The cut after which a healed actor waited 47 s for its first insert while its session's

@@ -27,7 +27,8 @@ from hercs.wire.episode import random_episode
 from tests.integration.launcher_standins import Launcher
 from tests.support import free_tcp_port
 
-pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.timeout(1500)]
+pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full,
+              pytest.mark.timeout(1500)]
 
 EPOCHS = 6
 RUN_S = 1200.0

@@ -16,7 +16,7 @@ from bench.faults import rejoin
 from bench.faults.netns import hosts, problem
 from hercs.apps.deploy.certs import make_certs
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.integration, pytest.mark.full, pytest.mark.timeout(400)]
 
 CUTS_S = (2.0, 12.0, 30.0, 5.0)
 

@@ -81,6 +81,8 @@ def test_tqc_with_two_envs_draws_the_share_plan_and_fits_on_its_failures() -> No
         assert (index.last_draw.cluster_counts >= plan.member_draws).all()
 
 
+@pytest.mark.learning
+@pytest.mark.full
 def test_sac_learns_fetchreach_with_the_her_cs_buffer() -> None:
     """A bound on learning, not "it ran": with rl-zoo's FetchReach settings (64×64, γ .95,
     lr 1e-3, normalised observations) SB3's own HER buffer and this one, seed 0 each, both

@@ -26,7 +26,7 @@ from hercs.run.rundir import RunDir
 from hercs.run.runlog.reader import read_episodes
 from tests.integration import minislurm
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.full]
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = ("--set", "training.eval_episodes=2", "--set", "ddpg.hidden_size=64")

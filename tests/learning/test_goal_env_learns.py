@@ -19,7 +19,7 @@ from hercs.run.runlog import read_cluster_models, read_episodes
 from hercs.wire.codec import msg_to_array
 from tests.support import free_endpoint
 
-pytestmark = [pytest.mark.integration, pytest.mark.learning]
+pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full]
 
 TASK = "tests.goal_envs:reach_on_a_plane"
 EPOCHS = 6

@@ -21,7 +21,7 @@ from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_cluster_models, read_episodes
 from tests.support import free_endpoint
 
-pytestmark = [pytest.mark.integration, pytest.mark.learning]
+pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full]
 
 EPOCHS = 6
 CYCLES = 10
