@@ -16,7 +16,6 @@ import threading
 import time
 from dataclasses import dataclass
 
-import gymnasium as gym
 import numpy as np
 
 from hercs.actors.rollout import RolloutWorker
@@ -30,7 +29,7 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.rl.envs import make_env
 from hercs.rl.policy import Policy, PolicyWeights
 from hercs.rl.seeding import int_seed
-from hercs.rl.task_registry import TaskSpec, goal_distance
+from hercs.rl.task_registry import goal_distance
 from hercs.run.warn_once import WarnOncePerMinute
 
 log = logging.getLogger(__name__)
@@ -93,35 +92,6 @@ class EvalQueue:
             return len(self._items)
 
 
-class EpochGoals:
-    """The evaluator's episodes, as a function of the epoch alone: epoch e's `per_epoch`
-    episodes are episodes (e - 1) * per_epoch onwards of the env's stream from `seed`, however
-    many evaluations this process made before (a resumed run's evaluator starts at its first
-    epoch after the checkpoint, a restarted one anywhere, a repeated request goes back). So
-    `hercs eval` (hercs/apps/evaluation/policy_eval.py) finds any epoch's goals by skipping to
-    them, as `position` does here."""
-
-    def __init__(self, *, spec: TaskSpec, env: gym.Env, seed: int, per_epoch: int) -> None:
-        self.spec, self.env, self.seed, self.per_epoch = spec, env, seed, per_epoch
-        self.worker = RolloutWorker(spec=spec, env=env, seed=seed)
-        self._at = 0
-        """Episodes of the stream begun so far (reset, run or skipped)."""
-
-    def position(self, epoch: int) -> RolloutWorker:
-        """The worker whose next episode is epoch `epoch`'s first."""
-        start = max(epoch - 1, 0) * self.per_epoch
-        if start < self._at:  # back to an earlier epoch: the stream again from its seed
-            self.worker = RolloutWorker(spec=self.spec, env=self.env, seed=self.seed)
-            self._at = 0
-        self.worker.skip(start - self._at)
-        self._at = start
-        return self.worker
-
-    def ran(self, episodes: int) -> None:
-        """`episodes` more of the stream were run."""
-        self._at += episodes
-
-
 class EvaluatorService:
     """The evaluator's loop; `run()` returns when `runtime.stop` is set."""
 
@@ -132,9 +102,8 @@ class EvaluatorService:
         seed = config.run.seed
         self.policy = Policy(spec=self.spec, config=config.ddpg,
                              seed=int_seed(seed, "evaluator", "policy"))
-        self.goals = EpochGoals(spec=self.spec, env=make_env(self.spec),
-                                seed=int_seed(seed, "evaluator"),
-                                per_epoch=config.training.eval_episodes)
+        self.worker = RolloutWorker(spec=self.spec, env=make_env(self.spec),
+                                    seed=int_seed(seed, "evaluator"))
         self.requests = EvalQueue()
         self.evaluations = 0
         self.weights_rejected = 0
@@ -172,13 +141,11 @@ class EvaluatorService:
         """Run the test episodes of one request; None if stopped before the last one."""
         self.policy.load(request.weights)
         n = self.config.training.eval_episodes
-        worker = self.goals.position(request.epoch)
         successes, distances = 0, []
         for _ in range(n):
             if self.runtime.stop.is_set():
                 return None
-            episode = worker.run_episode(self._act)
-            self.goals.ran(1)
+            episode = self.worker.run_episode(self._act)
             successes += int(episode.success)
             distances.append(float(goal_distance(episode.final_ag, episode.desired_goal)))
         return pb.EvalResult(
@@ -263,4 +230,4 @@ def _work(runtime: ServiceRuntime) -> int:
     try:
         return service.run()
     finally:
-        service.goals.worker.close()
+        service.worker.close()

@@ -124,8 +124,9 @@ def comparison(recorded: RecordedSuccess, outcomes: Sequence[tuple[bool, float]]
     return (f"{said}; the first {len(first)} episodes here, on the goals its evaluator drew "
             f"for that epoch, give {successes / len(first):.2f} and final distance "
             f"{distance:.4f} m against {recorded.success_rate:.2f} and {recorded_distance} m: "
-            "not the recorded outcome. Either its evaluator drew other goals (a run resumed, "
-            "or whose evaluator restarted, before the evaluator took each epoch's goals by "
-            "its number) or this machine computes the episodes otherwise, which in a contact "
+            "not the recorded outcome. Either its evaluator drew other goals (in a run resumed, "
+            "or whose evaluator restarted, the evaluator goes on along its stream of goals, "
+            "where hercs eval skips to an unbroken run's) or this machine computes the "
+            "episodes otherwise, which in a contact "
             "task can turn an episode's outcome" + (machine or " (another CPU, MuJoCo or "
                                                     "mujoco-py build: docs/DESIGN.md §10)"))
