@@ -328,7 +328,7 @@ def test_fig2_draws_the_peer_as_the_authors_code_not_as_ours(tmp_path: Path) -> 
     assert fig2(["--runs", str(runs), "-o", str(tmp_path / "fig2.png"),
                  "--table", str(tmp_path / "fig2.md")]) == 0
     table = (tmp_path / "fig2.md").read_text()
-    assert "| HER-CS (v1) (authors' code) | 2 |" in table
+    assert "| HER-CS, authors' simulator (v1) (authors' code) | 2 |" in table
     assert "authors-code" not in table and "(authors' code) (ours)" not in table
 
 

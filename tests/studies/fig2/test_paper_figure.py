@@ -39,8 +39,9 @@ def test_the_figure_and_its_tables_keep_the_legacy_runs_apart(tmp_path: Path) ->
     assert main(["--runs", str(runs), "-o", str(figure), "--table", str(table)]) == 0
     text = table.read_text()
     assert figure.stat().st_size > 10_000
-    assert "Drawn by `hercs plot --figure 2`" in text and "(lag T/P/Q/B): an asynch" in text
-    assert "| HER-CS (lag 80/3/2/∞) (ours) | 1 |" in text and "| HER-CS (ours) | 1 |" in text
+    assert "Drawn by `hercs plot --figure 2`" in text and "lag bound, prefetch, actor queue" in text
+    assert ("| HER-CS, no lag bound, prefetch 3, actor queue 2, rate tolerance 80 (ours) | 1 |"
+            in text and "| HER-CS (ours) | 1 |" in text)
 
 
 def test_a_missing_runs_folder_is_refused(tmp_path: Path) -> None:
