@@ -344,13 +344,17 @@ def test_iqm_equals_rliables(n: int) -> None:
 def test_command_writes_claims_md(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     _grid(runs, 2, 2)
+    readme = tmp_path / "README.md"  # a copy: the command rewrites its Results tables
+    readme.write_text((REPO / "README.md").read_text())
     done = subprocess.run([sys.executable, "-m", "studies.claims", "--runs",
-                           str(runs), "--out", str(tmp_path / "out"), "--reps", "200"],
+                           str(runs), "--out", str(tmp_path / "out"), "--reps", "200",
+                           "--readme", str(readme)],
                           capture_output=True, text=True, timeout=300, cwd=REPO)
     assert done.returncode == 0, done.stderr
+    assert readme.read_text() != (REPO / "README.md").read_text()  # rewritten from these runs
     text = (tmp_path / "out" / "claims.md").read_text()
     assert text.startswith("# The claims, with intervals over seeds")
-    assert f"--runs {runs} --out {tmp_path / 'out'} --reps 200`" in text
+    assert f"--runs {runs} --out {tmp_path / 'out'} --reps 200 --readme {readme}`" in text
     assert "200 reps" in text
     assert "| HER-CS against HER, v4 | HER-CS, v4, async (legacy), fp32 |" in text
     bad = subprocess.run([sys.executable, "-m", "studies.claims", "--runs",
