@@ -16,11 +16,10 @@ import argparse
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 from sb3_contrib import TQC
 from stable_baselines3.common.env_util import make_vec_env
 
-from hercs.integrations.sb3 import ClusterHerReplayBuffer
+from hercs.integrations.sb3 import ClusterHerReplayBuffer, success_rate
 from hercs.rl.methods import METHODS
 
 ZOO_FETCHPUSH = dict(
@@ -30,17 +29,6 @@ ZOO_FETCHPUSH = dict(
 
 QUICK = dict(buffer_size=10_000, batch_size=64, gamma=0.95, learning_rate=1e-3, tau=0.05,
              learning_starts=100, policy_kwargs=dict(net_arch=[32], n_critics=1))
-
-
-def success_rate(model: TQC, env_id: str, episodes: int, seed: int) -> float:
-    env = make_vec_env(env_id, n_envs=1, seed=seed)
-    obs, outcomes = env.reset(), []
-    while len(outcomes) < episodes:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, done, infos = env.step(action)
-        if done[0]:
-            outcomes.append(float(infos[0]["is_success"]))
-    return float(np.mean(outcomes))
 
 
 def main(argv: list[str] | None = None) -> int:

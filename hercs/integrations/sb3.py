@@ -23,6 +23,8 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import HerReplayBuffer
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
@@ -32,7 +34,7 @@ from hercs.errors import ConfigError
 from hercs.integrations.clustered_episodes import ClusteredEpisodeIndex
 from hercs.rl.envs import register_envs
 
-__all__ = ["ClusterHerReplayBuffer"]
+__all__ = ["ClusterHerReplayBuffer", "success_rate"]
 
 register_envs()
 
@@ -120,3 +122,21 @@ class ClusterHerReplayBuffer(HerReplayBuffer):
                                for key in virtual.next_observations},
             dones=th.cat((real.dones, virtual.dones)),
             rewards=th.cat((real.rewards, virtual.rewards)))
+
+
+def success_rate(model: BaseAlgorithm, env_id: str, episodes: int, seed: int) -> float:
+    """The share of `episodes` deterministic episodes of a fresh `env_id` (seeded `seed`) whose
+    last info says `is_success`; observations normalised as the model trained on them where
+    its env is a `VecNormalize`."""
+    env: VecEnv = make_vec_env(env_id, n_envs=1, seed=seed)
+    trained = model.get_env()
+    if isinstance(trained, VecNormalize):
+        env = VecNormalize(env, training=False, norm_reward=False)
+        env.obs_rms = trained.obs_rms
+    obs, outcomes = env.reset(), list[float]()
+    while len(outcomes) < episodes:
+        action, _ = model.predict(obs, deterministic=True)  # type: ignore[arg-type]
+        obs, _, done, infos = env.step(action)
+        if done[0]:
+            outcomes.append(float(infos[0]["is_success"]))
+    return float(np.mean(outcomes))

@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from hercs.config import ClusterConfig
 from hercs.integrations.clustered_episodes import _EpisodeTable
-from hercs.integrations.sb3 import ClusterHerReplayBuffer
+from hercs.integrations.sb3 import ClusterHerReplayBuffer, success_rate
 from hercs.replay_service.samplers.cluster_balanced import plan_shares
 
 SMALL_FGB = ClusterConfig(k=4, fgb_size=12, kmeans_n_init=1)
@@ -43,21 +43,6 @@ def _model(algo, n_envs: int, seed: int, normalize: bool = False,  # type: ignor
     return algo("MultiInputPolicy", env, replay_buffer_class=ClusterHerReplayBuffer,
                 replay_buffer_kwargs=dict(cluster=SMALL_FGB), buffer_size=100_000,
                 gamma=0.95, learning_rate=1e-3, seed=seed, verbose=0, **kwargs)
-
-
-def _success_rate(model, episodes: int, seed: int) -> float:  # type: ignore[no-untyped-def]
-    env = make_vec_env("FetchReach-v4", n_envs=1, seed=seed)
-    trained = model.get_env()
-    if isinstance(trained, VecNormalize):  # the policy sees observations as it trained on them
-        env = VecNormalize(env, training=False, norm_reward=False)
-        env.obs_rms = trained.obs_rms
-    obs, outcomes = env.reset(), []
-    while len(outcomes) < episodes:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, done, infos = env.step(action)
-        if done[0]:
-            outcomes.append(float(infos[0]["is_success"]))
-    return float(np.mean(outcomes))
 
 
 def test_tqc_with_two_envs_draws_the_share_plan_and_fits_on_its_failures() -> None:
@@ -93,7 +78,7 @@ def test_sac_learns_fetchreach_with_the_her_cs_buffer() -> None:
     model.learn(3000)
     index = model.replay_buffer.episodes
     assert index.model is not None and index.model.version >= 2  # clusters shaped the draw
-    assert _success_rate(model, episodes=20, seed=100) >= 0.8
+    assert success_rate(model, "FetchReach-v4", episodes=20, seed=100) >= 0.8
 
 
 def test_the_buffer_saves_and_loads_with_its_clusters(tmp_path: Path) -> None:
