@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -91,9 +92,12 @@ def wandb_offline(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[P
 
 def wandb_records(folder: Path, run_id: str) -> list[dict]:
     """Every record of run `run_id`'s .wandb files under `folder`, oldest file first, as W&B's
-    own inspector prints them."""
+    own inspector prints them. A run continued in the second it stopped (a fast resume, or
+    `hercs eval --video` just after training) has W&B name its folder with a suffix:
+    offline-run-<second>-<id>-1 beside offline-run-<second>-<id>."""
+    named = re.compile(rf"offline-run-\d{{8}}_\d{{6}}-{re.escape(run_id)}(-\d+)?")
     records = []
-    for run in sorted(folder.rglob(f"offline-run-*-{run_id}")):
+    for run in sorted(p for p in folder.rglob("offline-run-*") if named.fullmatch(p.name)):
         done = subprocess.run([str(Path(sys.executable).with_name("wandb")), "leet", "inspect",
                                "--json", str(run)], capture_output=True, text=True, timeout=120,
                               check=True)
@@ -218,8 +222,15 @@ def _sent(tracking: RunTracking, name: str, epoch: int) -> None:
 
 
 def test_a_resumed_run_continues_its_tracker_runs_with_the_epochs_after_the_last_sent(
-        tmp_path: Path, wandb_offline: Path, mlflow_uri: str) -> None:
+        tmp_path: Path, wandb_offline: Path, mlflow_uri: str,
+        monkeypatch: pytest.MonkeyPatch) -> None:
     from mlflow.tracking import MlflowClient
+    from wandb.sdk import wandb_settings
+
+    # Both W&B sessions start "in the same second", as they did on a fast CI machine: W&B then
+    # names the second offline folder <...>-<id>-1, which the history must still include.
+    monkeypatch.setattr(wandb_settings.Settings, "_start_datetime",
+                        property(lambda self: "20261202_042239"))
 
     folder = tmp_path / "resumed"
     folder.mkdir()
