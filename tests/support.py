@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from hercs.apps.launch.child_process import stop_process
+from hercs.apps.launch.router import free_port
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.rl.task_registry import TaskSpec
 from hercs.run.rundir import RunDir
@@ -66,15 +67,9 @@ def sigterm_after_line(proc: subprocess.Popen[str], marker: str, timeout_s: floa
     return found
 
 
-def free_tcp_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def free_endpoint() -> str:
     """A Zenoh endpoint on loopback that nothing listens on right now."""
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 def wait_for_port(port: int, timeout_s: float = 20.0) -> None:

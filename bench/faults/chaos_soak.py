@@ -20,8 +20,9 @@ from bench.faults.chaos_actors import Incarnation, RemoteActors
 from bench.faults.chaos_plan import Event
 from bench.faults.chaos_state import Shape, SoakState
 from bench.faults.netns import Host
-from bench.faults.remote_actor import ACTOR_EXIT_S, free_port
+from bench.faults.remote_actor import ACTOR_EXIT_S
 from bench.faults.service_kills import EPOCH, Up
+from hercs.apps.launch.router import free_port
 from hercs.run.rundir import RunDir
 
 NEVER = re.compile(r"(?!)")
@@ -51,7 +52,7 @@ class Soak:
         self.run_dir = self.run_root / state.name
         self.run_root.mkdir(parents=True, exist_ok=True)
         self.state_path = work / f"{state.name}.state.json"
-        self.port = free_port()
+        self.port = free_port("0.0.0.0")  # every address: the router listens on each link
         self.offset, self.started = state.elapsed_s, time.monotonic()
         self.events = [Event(**e) for e in state.events]
         self.history = [Incarnation(**a) for a in state.actors]

@@ -28,12 +28,12 @@ from bench.faults.netns import Host, hosts, problem
 from bench.faults.remote_actor import (
     ACTOR_EXIT_S,
     Actor,
-    free_port,
     sigterm_as_exit,
     start_actor,
 )
 from bench.faults.service_kills import EPOCH, Up
 from hercs.apps.deploy.certs import make_certs
+from hercs.apps.launch.router import free_port
 from hercs.run.rundir import RunDir
 
 CUTS = ("", "both", "to-actors")
@@ -139,7 +139,7 @@ def run_setting(setting: Setting, *, links: list[Host], certs: Path, root: Path,
     run = f"net-{setting.name.replace('+', '-')}"
     run_dir = root / run
     root.mkdir(parents=True, exist_ok=True)
-    port = free_port()
+    port = free_port("0.0.0.0")  # every address: the router listens on each link
     load_before = os.getloadavg()[0]
     started = time.monotonic()
     relays: list[DelayRelay] = []

@@ -22,10 +22,9 @@ from pathlib import Path
 
 from bench.common import script_parser
 from bench.faults.netns import Host, hosts, problem
-from bench.faults.remote_actor import free_port
 from hercs.apps.deploy.certs import make_certs
 from hercs.apps.launch.child_process import stop_process
-from hercs.apps.launch.router import open_router
+from hercs.apps.launch.router import free_port, open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import zenoh_settings
 from hercs.net.transport import Transport, TransportError
@@ -123,7 +122,7 @@ def probe(cuts: Sequence[float], *, host: Host, certs: Path,
           bound_s: float = REJOIN_BOUND_S) -> list[Cut]:
     """Cut `host`'s link for each length in `cuts` (after the client has been answered),
     heal it, and wait up to `bound_s` for the next answer."""
-    port = free_port()
+    port = free_port("0.0.0.0")  # every address: the router listens on each link
     endpoint = f"tls/{host.host_ip}:{port}"
     local = f"tls/127.0.0.1:{port}"
     security = _security(certs)

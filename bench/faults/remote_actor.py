@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -23,13 +22,6 @@ from hercs.apps.launch.child_process import pdeathsig_preexec, stop_process
 ACTOR_EXIT_S = 60.0
 """How long an actor may take to stop by itself once `hercs up` has exited (it stops when
 the learner says the run is finished); then it gets SIGTERM."""
-
-
-def free_port() -> int:
-    """A port free on every address of this namespace (the router listens on each link)."""
-    with socket.socket() as sock:
-        sock.bind(("0.0.0.0", 0))
-        return int(sock.getsockname()[1])
 
 
 @dataclass

@@ -25,7 +25,7 @@ from typing import Any
 
 from bench.common import REPO, git_commit, machine_identity, script_parser, write_report
 from bench.faults.killed_replay_log import RUN, KilledRun, T, episode_msg, write_killed_run
-from bench.faults.remote_actor import free_port
+from hercs.apps.launch.router import free_port
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys

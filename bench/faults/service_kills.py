@@ -16,7 +16,6 @@ import platform
 import queue
 import re
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from pathlib import Path
 
 from bench.common import REPO, git_commit, table_with_notes
 from hercs.apps.launch.child_process import pdeathsig_preexec
+from hercs.apps.launch.router import free_port
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import read_episodes
@@ -127,12 +127,6 @@ class Up:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
         self.proc.wait()
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def distinct_episodes(run_dir: Path) -> set[tuple[str, int]]:

@@ -17,7 +17,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
-from bench.faults.remote_actor import free_port
+from hercs.apps.launch.router import free_port
 from hercs.net.transport import Transport, TransportTimeout
 
 KEY = "strand/sample"

@@ -20,7 +20,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from bench.common import REPO, git_commit, machine_identity
-from hercs.apps.sweep.runner import free_port
+from hercs.apps.launch.router import free_port
 from hercs.run.metrics import read_rows
 from hercs.run.rundir import RunDir
 

@@ -19,12 +19,11 @@ from bench.faults import net_faults
 from bench.faults.delay_relay import DelayRelay
 from bench.faults.netns import hosts, problem
 from hercs.apps.deploy.certs import make_certs
-from hercs.apps.launch.router import open_router
+from hercs.apps.launch.router import free_port, open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import zenoh_settings
 from hercs.net.transport import Transport
 from hercs.proto.keys import RunKeys
-from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.full, pytest.mark.timeout(420)]
 
@@ -78,7 +77,7 @@ def test_a_tls_client_joins_across_200_ms_of_one_way_delay(tmp_path: Path) -> No
     make_certs(certs)
     security = SecurityConfig(tls_ca=str(certs / "ca.pem"), tls_cert=str(certs / "{role}.pem"),
                               tls_key=str(certs / "{role}.key"))
-    port = free_tcp_port()
+    port = free_port()
     router = open_router([f"tls/127.0.0.1:{port}"], security)
     keys = RunKeys("slow")
     try:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from hercs.apps.deploy.certs import make_certs
+from hercs.apps.launch.router import free_port
 from hercs.config import SecurityConfig, load_yaml
 from hercs.net.security import zenoh_settings
 from hercs.net.transport import Transport
@@ -25,7 +26,6 @@ from hercs.run.rundir import RunDir
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import random_episode
 from tests.integration.launcher_standins import Launcher
-from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full,
               pytest.mark.timeout(1500)]
@@ -39,7 +39,7 @@ def test_a_3e38_episode_from_an_actor_certificate_is_refused_and_reach_still_lea
         tmp_path: Path) -> None:
     certs = tmp_path / "certs"
     make_certs(certs, credentials=True)
-    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    endpoint = f"tls/127.0.0.1:{free_port()}"
     run_dir = tmp_path / "runs" / "poisoned"
     launcher = Launcher(
         [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her",

@@ -14,13 +14,12 @@ from pathlib import Path
 import pytest
 
 from hercs.apps.deploy.certs import make_certs
-from hercs.apps.launch.router import open_router
+from hercs.apps.launch.router import free_port, open_router
 from hercs.config import SecurityConfig
 from hercs.net.security import listen_problem, zenoh_settings
 from hercs.net.transport import RouterUnreachable, Transport, TransportError
 from hercs.proto.keys import RunKeys
 from hercs.run.rundir import RunDir
-from tests.support import free_tcp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 
@@ -52,7 +51,7 @@ def _security(certs: Path, *, credentials: bool = True) -> SecurityConfig:
 @pytest.fixture
 def secured(certs: Path) -> Iterator[str]:
     """A router with mutual TLS, passwords and access control; yields its endpoint."""
-    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    endpoint = f"tls/127.0.0.1:{free_port()}"
     router = open_router([endpoint], _security(certs))
     yield endpoint
     router.close()
@@ -191,11 +190,11 @@ def test_a_late_joiner_gets_the_latest_value_through_access_control(
 
 
 def test_a_router_reachable_from_other_hosts_needs_tls(certs: Path) -> None:
-    exposed = [f"tcp/0.0.0.0:{free_tcp_port()}"]
+    exposed = [f"tcp/0.0.0.0:{free_port()}"]
     assert "no authentication" in (listen_problem(SecurityConfig(), exposed) or "")
     assert listen_problem(SecurityConfig(allow_insecure=True), exposed) is None
     assert listen_problem(SecurityConfig(), ["tcp/127.0.0.1:7447", "tcp/[::1]:7447"]) is None
-    assert listen_problem(_security(certs), [f"tls/0.0.0.0:{free_tcp_port()}"]) is None
+    assert listen_problem(_security(certs), [f"tls/0.0.0.0:{free_port()}"]) is None
     done = subprocess.run([sys.executable, "-m", "hercs.apps.cli", "router", "--listen",
                            exposed[0]], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, done.stderr
@@ -207,7 +206,7 @@ def test_hercs_up_with_tls_passwords_and_access_control(certs: Path, tmp_path: P
     on its own certificate and password: it trains its epoch and finishes."""
     cmd = [sys.executable, "-m", "hercs.apps.cli", "up", "--task", "reach", "--method", "her-cs",
            "--epochs", "1", "--run", "secure", "--run-dir", str(tmp_path),
-           "--listen", f"tls/127.0.0.1:{free_tcp_port()}", "--tls-dir", str(certs),
+           "--listen", f"tls/127.0.0.1:{free_port()}", "--tls-dir", str(certs),
            "--credentials", str(certs / "credentials.txt"),
            "--set", "training.cycles_per_epoch=2", "--set", "training.eval_episodes=2",
            "--set", "training.episodes_per_cycle=2", "--set", "training.minibatches_per_cycle=2",

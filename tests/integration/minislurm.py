@@ -12,12 +12,13 @@ import os
 import pwd
 import shutil
 import signal
-import socket
 import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from hercs.apps.launch.router import free_port
 
 BINARIES = ("munged", "mariadbd", "mariadb-install-db", "mariadb", "slurmdbd", "slurmctld",
             "slurmd", "sbatch", "sacct", "sacctmgr", "scontrol", "scancel", "sinfo", "srun",
@@ -39,12 +40,6 @@ def problem() -> str | None:
                       text=True).stdout.strip():
         return f"{NET}.0/24 is already in use on this host; not touching it"
     return None
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _run(*argv: str, **kw: object) -> subprocess.CompletedProcess[str]:
@@ -137,7 +132,7 @@ class MiniSlurm:
         data = self.root / "mysql"
         _run("mariadb-install-db", "--no-defaults", f"--datadir={data}", "--user=root",
              "--auth-root-authentication-method=socket", "--skip-test-db")
-        self.db_port = _free_port()
+        self.db_port = free_port()
         self.db_socket = self.root / "mysql.sock"
         proc = self._spawn("mariadbd", [
             "mariadbd", "--no-defaults", f"--datadir={data}", "--user=root",
@@ -150,8 +145,8 @@ class MiniSlurm:
              "GRANT ALL ON slurm_acct_db.* TO 'slurm'@'127.0.0.1';")
 
     def _write_conf(self) -> None:
-        self.dbd_port = _free_port()
-        self.ctld_port = _free_port()
+        self.dbd_port = free_port()
+        self.ctld_port = free_port()
         (self.root / "state").mkdir()
         dbd = self.root / "slurmdbd.conf"
         dbd.write_text("\n".join([

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hercs.apps.launch.router import free_port
 from hercs.apps.views.rerun_draw import FAILURE_RGBA, SUCCESS_RGBA
 from tests.integration.browser import WINDOW, chromium, loaded, screenshot_until, stop
 from tests.integration.launcher_standins import Launcher
-from tests.support import free_tcp_port, rerun_binary, wait_for_port
+from tests.support import rerun_binary, wait_for_port
 
 pytestmark = pytest.mark.integration
 
@@ -63,7 +64,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory
     the "live" view showed what the proxy had kept); it is stopped in order at the end."""
     chromium()
     tmp = tmp_path_factory.mktemp("browser")
-    grpc, web = free_tcp_port(), free_tcp_port()
+    grpc, web = free_port(), free_port()
     proxy = subprocess.Popen([rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--port",
                               str(grpc), "--web-viewer-port", str(web)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -101,7 +102,7 @@ def test_the_live_web_view_of_a_running_run_draws_its_episodes(
 def test_the_offline_web_view_of_a_run_draws_its_episodes(
         live_run: tuple[Path, str, Launcher], tmp_path: Path) -> None:
     run_dir, _, _ = live_run
-    web, grpc = free_tcp_port(), free_tcp_port()
+    web, grpc = free_port(), free_port()
     view = Launcher([sys.executable, "-m", "hercs.apps.cli", "view", str(run_dir),
                      "--episodes", "all", "--web", "--web-port", str(web),
                      "--grpc-port", str(grpc), "--no-browser"], cwd=tmp_path)

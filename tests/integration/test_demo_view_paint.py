@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hercs.apps.launch.router import free_port
 from hercs.apps.views.rerun_draw import APP_ID, PALETTE, UNCLUSTERED
 from hercs.apps.views.rerun_layout import blueprint
 from hercs.rl.task_registry import task_spec
 from tests.integration.browser import chromium, screenshot_until, stop
 from tests.integration.launcher_standins import Launcher
-from tests.support import free_tcp_port, rerun_binary, wait_for_port
+from tests.support import rerun_binary, wait_for_port
 
 pytestmark = pytest.mark.integration
 
@@ -81,7 +82,7 @@ def one_curve_paint_s(tmp_path: Path) -> float:
     cost of loading its wasm viewer, connecting and drawing a first recording."""
     import rerun as rr
 
-    grpc, web = free_tcp_port(), free_tcp_port()
+    grpc, web = free_port(), free_port()
     proxy = subprocess.Popen([rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--port",
                               str(grpc), "--web-viewer-port", str(web)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -111,7 +112,7 @@ def one_curve_paint_s(tmp_path: Path) -> float:
 def test_the_demo_log_paints_its_curves_and_clusters_at_once(tmp_path: Path) -> None:
     chromium()
     floor_s = one_curve_paint_s(tmp_path)
-    web, grpc = free_tcp_port(), free_tcp_port()
+    web, grpc = free_port(), free_port()
     view = Launcher([sys.executable, "-m", "hercs.apps.cli", "view", str(DEMO), "--web",
                      "--web-port", str(web), "--grpc-port", str(grpc), "--no-browser"],
                     cwd=tmp_path)

@@ -17,12 +17,13 @@ import pytest
 
 from hercs.apps.cli.main import build_parser, main, resolve_config
 from hercs.apps.launch.progress import Progress
+from hercs.apps.launch.router import free_port
 from hercs.apps.launch.run_plan import plan_children, resolve_run, service_command
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import REPO, WAIT_S
-from tests.support import Clock, free_tcp_port
+from tests.support import Clock
 
 pytestmark = pytest.mark.integration
 
@@ -221,7 +222,7 @@ def test_up_refuses_a_run_directory_that_holds_files(tmp_path: Path, capsys) -> 
 
 
 def test_up_fails_clearly_when_the_router_port_is_taken(tmp_path: Path) -> None:
-    port = free_tcp_port()
+    port = free_port()
     with socket.socket() as holder:
         holder.bind(("127.0.0.1", port))
         holder.listen()

@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import textwrap
@@ -21,7 +20,7 @@ import pytest
 import yaml
 
 from bench.faults.netns import Host, hosts, problem
-from hercs.apps.launch.router import open_router
+from hercs.apps.launch.router import free_port, open_router
 from hercs.config import HercsConfig, SecurityConfig, apply_overrides
 from hercs.net.transport import PendingReply, Transport
 from hercs.proto import SCHEMA_VERSION
@@ -52,10 +51,7 @@ def netns() -> Iterator[Host]:
 @pytest.fixture
 def router(netns: Host) -> Iterator[tuple[Transport, str]]:
     """A router listening only on the host end of the veth pair."""
-    with socket.socket() as sock:
-        sock.bind((netns.host_ip, 0))
-        port = sock.getsockname()[1]
-    endpoint = f"tcp/{netns.host_ip}:{port}"
+    endpoint = f"tcp/{netns.host_ip}:{free_port(netns.host_ip)}"
     # a private veth pair nobody else reaches: plain TCP on purpose (the secured set-up is
     # tests/fault/test_security.py); a non-loopback listen address needs the explicit opt-in
     transport = open_router([endpoint], SecurityConfig(allow_insecure=True))

@@ -22,13 +22,14 @@ from pathlib import Path
 import pytest
 
 from hercs.apps.evaluation.policy_eval import video_to_trackers
+from hercs.apps.launch.router import free_port
 from hercs.apps.tracking.rows import epoch_scalars, flat_hyperparameters
 from hercs.apps.tracking.session import RunTracking, open_tracking
 from hercs.config import HercsConfig, RunConfig, TrackingConfig, load_yaml
 from hercs.run.metrics import MetricsCsv, read_rows
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import Launcher
-from tests.support import REPO, free_endpoint, free_tcp_port
+from tests.support import REPO, free_endpoint
 
 pytestmark = pytest.mark.integration
 
@@ -54,7 +55,7 @@ def _answers(url: str) -> bool:
 def mlflow_uri(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """`mlflow server` on a free loopback port with a sqlite store, one worker."""
     folder = tmp_path_factory.mktemp("mlflow")
-    port = free_tcp_port()
+    port = free_port()
     log = (folder / "server.log").open("w")
     server = subprocess.Popen(
         [str(Path(sys.executable).with_name("mlflow")), "server", "--backend-store-uri",
@@ -263,7 +264,7 @@ def test_a_resumed_run_continues_its_tracker_runs_with_the_epochs_after_the_last
 
 def test_an_unreachable_tracker_at_start_is_one_warning_and_the_others_get_every_epoch(
         tmp_path: Path) -> None:
-    closed = free_tcp_port()  # nothing listens there
+    closed = free_port()  # nothing listens there
     settings = TrackingConfig(backends=["tensorboard", "mlflow"],
                               mlflow_uri=f"http://127.0.0.1:{closed}")
     MetricsCsv(RunDir(tmp_path).metrics).write(_row(1))

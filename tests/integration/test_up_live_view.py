@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
+from hercs.apps.launch.router import free_port
 from hercs.apps.views.view import read_run_log
 from hercs.run.rundir import RunDir
 from tests.integration.launcher_standins import Launcher, process_alive
-from tests.support import free_endpoint, free_tcp_port, rerun_viewer
+from tests.support import free_endpoint, rerun_viewer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -30,7 +31,7 @@ def _entities(listing: str) -> set[str]:
 
 
 def test_up_streams_the_run_live_to_a_viewer_and_an_rrd(tmp_path: Path) -> None:
-    port = free_tcp_port()
+    port = free_port()
     saved = tmp_path / "live.rrd"
     with rerun_viewer(port, tmp_path / "received.rrd"):  # ends its file on exit
         launcher = Launcher(

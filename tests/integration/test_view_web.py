@@ -18,8 +18,8 @@ import psutil
 import pytest
 
 from hercs.apps.cli.main import main
+from hercs.apps.launch.router import free_port
 from tests.integration.launcher_standins import Launcher
-from tests.support import free_tcp_port
 from tests.unit.apps.test_view import _write_run
 
 pytestmark = pytest.mark.integration
@@ -45,7 +45,7 @@ def serve(tmp_path: Path, *extra: str) -> tuple[Launcher, str, int, int]:
     run = tmp_path / "run"
     run.mkdir()
     _write_run(run)
-    web, grpc = free_tcp_port(), free_tcp_port()
+    web, grpc = free_port(), free_port()
     view = Launcher([sys.executable, "-m", "hercs.apps.cli", "view", str(run), "--web",
                      "--no-browser", "--web-port", str(web), "--grpc-port", str(grpc),
                      *extra], cwd=tmp_path)
@@ -136,7 +136,7 @@ def test_ctrl_c_at_the_terminal_stops_it_quietly(tmp_path: Path) -> None:
     _write_run(run)
     view = subprocess.Popen(
         [sys.executable, "-m", "hercs.apps.cli", "view", str(run), "--web", "--no-browser",
-         "--web-port", str(free_tcp_port()), "--grpc-port", str(free_tcp_port())],
+         "--web-port", str(free_port()), "--grpc-port", str(free_port())],
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         start_new_session=True)  # its own process group, as a terminal's foreground job
     try:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -32,7 +31,7 @@ from bench.perf.throughput.rates import Alternation
 from bench.perf.throughput.synthetic import SyntheticFleet, episode_pool
 from bench.perf.throughput.throughput_report import Figure, parse_proc_status_kib
 from hercs.apps.launch.child_process import log_tail, service_argv, signal_group, start_child
-from hercs.apps.launch.router import open_router
+from hercs.apps.launch.router import free_port, open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
@@ -43,12 +42,10 @@ from hercs.wire.validation import parse_message
 
 def free_endpoint() -> str:
     """A loopback TCP endpoint nothing listens on; never 7447 (other runs use it)."""
-    while True:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-            sock.bind(("127.0.0.1", 0))
-            port = int(sock.getsockname()[1])
-        if port != 7447:
-            return f"tcp/127.0.0.1:{port}"
+    port = free_port()
+    while port == 7447:
+        port = free_port()
+    return f"tcp/127.0.0.1:{port}"
 
 
 class Child:

@@ -32,24 +32,32 @@ FREE_PORT_TRIES = 5
 """How often `open_router_anywhere` picks new ports when a picked one was taken meanwhile."""
 
 
+def free_port(host: str = "127.0.0.1", *, datagram: bool = False) -> int:
+    """A port free on `host` now ("0.0.0.0": on every address; "::1" or "[::1]": IPv6): the
+    kernel's choice for a socket bound to port 0, which is then closed, so another process
+    may take it before the caller binds it. `datagram`: a UDP port (Zenoh's udp and quic).
+    Raises OSError where `host` is not one of this host's addresses."""
+    address = host.strip("[]")
+    family = socket.AF_INET6 if ":" in address else socket.AF_INET
+    with socket.socket(family, socket.SOCK_DGRAM if datagram else socket.SOCK_STREAM) as probe:
+        probe.bind((address, 0))
+        return int(probe.getsockname()[1])
+
+
 def pick_free_ports(listen: Sequence[str]) -> list[str]:
-    """`listen` with every port 0 replaced by a port that is free on that address now (the
-    kernel's choice for a socket bound to port 0, which is then closed)."""
+    """`listen` with every port 0 replaced by a port that is free on that address now
+    (`free_port`)."""
     out = []
     for endpoint in listen:
         proto, host, port = endpoint_parts(endpoint)
         if port != 0:
             out.append(endpoint)
             continue
-        family = socket.AF_INET6 if host.startswith("[") else socket.AF_INET
-        kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
-        with socket.socket(family, kind) as probe:
-            try:
-                probe.bind((host.strip("[]"), 0))
-            except OSError as exc:
-                raise RouterListenError(f"cannot listen on {endpoint}: {exc.strerror} (is "
-                                        f"{host} one of this host's addresses?)") from None
-            out.append(f"{proto}/{host}:{probe.getsockname()[1]}")
+        try:
+            out.append(f"{proto}/{host}:{free_port(host, datagram=proto in ('udp', 'quic'))}")
+        except OSError as exc:
+            raise RouterListenError(f"cannot listen on {endpoint}: {exc.strerror} (is "
+                                    f"{host} one of this host's addresses?)") from None
     return out
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import socket
 import subprocess
 import time
 from collections.abc import Sequence
@@ -30,12 +29,6 @@ from hercs.apps.sweep.cells import (
 from hercs.apps.sweep.tally import SweepTally
 
 LOG_DIR = "_logs"
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass

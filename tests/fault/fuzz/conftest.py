@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from hercs.apps.launch.router import free_port
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
@@ -29,7 +30,6 @@ from tests.fault.fuzz.runs import (
 from tests.fault.fuzz.standins import ActorRunReplay, LearnerRunReplay
 from tests.fault.fuzz.world import Ledger, World
 from tests.integration.services import ServiceProcess
-from tests.support import free_tcp_port
 
 
 def _subscribe_queue(transport: Transport, key: str, parse: Callable[[bytes], Any], **kw: Any
@@ -46,7 +46,7 @@ def _metrics_values(raw: bytes) -> dict[str, float]:
 @pytest.fixture(scope="package")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
     tmp = tmp_path_factory.mktemp("fuzz")
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     run_dir = tmp / "runs"
     configs = {"replay": replay_config(endpoint, run_dir),
                "actor": actor_config(endpoint, run_dir),

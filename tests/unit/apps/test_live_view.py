@@ -19,6 +19,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from hercs.apps.cli.main import main
+from hercs.apps.launch.router import free_port
 from hercs.apps.views.live_recorder import LiveRecorder, header_outcome
 from hercs.apps.views.live_sinks import ViewerHealth
 from hercs.errors import ConfigError, InvalidMessage
@@ -30,7 +31,7 @@ from hercs.run.rundir import RunDir
 from hercs.run.runlog import EpisodeLogWriter
 from hercs.wire.codec import array_to_msg, episode_to_msg
 from hercs.wire.episode import EpisodeData, random_episode
-from tests.support import free_tcp_port, rerun_viewer
+from tests.support import rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"
 SPEC = task_spec("push")
@@ -260,7 +261,7 @@ def test_episode_every_zero_draws_no_trajectory(tmp_path: Path) -> None:
 
 def test_a_viewer_that_goes_away_is_reported_once_and_the_file_keeps_growing(
         tmp_path: Path, caplog) -> None:
-    port = free_tcp_port()
+    port = free_port()
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     with rerun_viewer(port, tmp_path / "received.rrd") as viewer:
         saved = tmp_path / "live.rrd"
