@@ -40,7 +40,7 @@ from hercs.config.deploy import (
     endpoint_parts,
     endpoint_problem,
 )
-from hercs.config.replay import EVICTIONS, ReplayConfig
+from hercs.config.replay import EVICTIONS, ReplayConfig, least_rate_tolerance
 from hercs.config.sizes import episode_message_bytes, size_text
 from hercs.config.task import TaskConfig
 from hercs.config.tracking import TRACKERS, TrackingConfig
@@ -193,7 +193,8 @@ class HercsConfig:
         # The replay's rate limiter needs a window wider than one request plus one insert, or
         # inserts and samples could both wait forever; checked here too so that `hercs up`
         # refuses the run before it starts any service.
-        least = (self.training.minibatches_per_cycle + self.training.updates_per_episode) / 2
+        least = least_rate_tolerance(max_request=self.training.minibatches_per_cycle,
+                                     samples_per_insert=self.training.updates_per_episode)
         _check(self.training.schedule == "lockstep" or self.replay.free_run
                or self.replay.rate_tolerance_updates >= least,
                "replay.rate_tolerance_updates", self.replay.rate_tolerance_updates,

@@ -10,6 +10,13 @@ from hercs.config.checks import _check, _positive
 EVICTIONS = ("fifo", "random")
 
 
+def least_rate_tolerance(*, max_request: float, samples_per_insert: float) -> float:
+    """The narrowest rate limiter window (`replay.rate_tolerance_updates`, E) that can never
+    hold inserts and samples both: the surplus must have room for one request of
+    `max_request` minibatches plus one insert's `samples_per_insert`, so 2E ≥ n_max + ρ."""
+    return (max_request + samples_per_insert) / 2
+
+
 @dataclass
 class ReplayConfig:
     buffer_transitions: int = 1_000_000

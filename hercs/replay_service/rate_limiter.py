@@ -5,15 +5,17 @@ d = ρ·I − S stays within E of ρ·N_min: an insert is admitted while the win
 actor waits), a request for n minibatches once I ≥ N_min and the window allows it (else the
 learner waits). So updates per episode stay at ρ up to a bounded error (docs/DESIGN.md §4.7).
 A window narrower than one request plus one insert could hold both sides at once, so the
-constructor refuses 2E < n_max + ρ. With `free_run` everything is admitted and the counts are
-still kept. Pure bookkeeping, it never blocks: the service parks what is not admitted and
-retries it after every insert or sample.
+constructor refuses 2E < n_max + ρ (`hercs.config.replay.least_rate_tolerance`, the rule the
+config checks too). With `free_run` everything is admitted and the counts are still kept. Pure
+bookkeeping, it never blocks: the service parks what is not admitted and retries it after every
+insert or sample.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hercs.config import least_rate_tolerance
 from hercs.errors import ConfigError
 
 
@@ -40,11 +42,13 @@ class SampleToInsertRatio:
             raise ConfigError(f"samples_per_insert: got {samples_per_insert}, must be > 0")
         if min_size_to_sample < 1:
             raise ConfigError(f"min_size_to_sample: got {min_size_to_sample}, must be >= 1")
-        if not free_run and 2 * error_buffer < max_request + samples_per_insert:
+        least = least_rate_tolerance(max_request=max_request,
+                                     samples_per_insert=samples_per_insert)
+        if not free_run and error_buffer < least:
             raise ConfigError(
                 f"replay.rate_tolerance_updates: got {error_buffer}, must be at least "
-                f"(max_request + samples_per_insert)/2 = {(max_request + samples_per_insert) / 2}"
-                " or inserts and samples could both wait forever"
+                f"(max_request + samples_per_insert)/2 = {least} or inserts and samples "
+                "could both wait forever"
             )
         self.samples_per_insert = float(samples_per_insert)
         self.min_size_to_sample = int(min_size_to_sample)
