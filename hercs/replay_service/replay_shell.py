@@ -26,7 +26,6 @@ from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.net.transport import PendingReply
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.replay_config import saved_epsilon
 from hercs.replay_service.replay_messages import (
     check_eval_result,
     cluster_model,
@@ -37,6 +36,7 @@ from hercs.replay_service.replay_messages import (
     unknown_episode,
 )
 from hercs.replay_service.replay_recovery import open_table
+from hercs.replay_service.saved_epsilon import saved_epsilon
 from hercs.replay_service.table import SampleRefused, Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.run.rundir import RunDir, run_dir_of

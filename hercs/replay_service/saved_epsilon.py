@@ -1,4 +1,5 @@
-"""The config a replay serves: a run's own ε kept across a resume and a changed default."""
+"""`saved_epsilon`: the config a replay serves, with a run's own ε kept across a resume and a
+changed default."""
 
 from __future__ import annotations
 
