@@ -19,9 +19,9 @@ import numpy as np
 from bench.common import REPO, git_commit
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.her import relabel
-from hercs.replay_service.samplers import make_sampler
-from hercs.replay_service.samplers.base import make_info
 from hercs.replay_service.store import EpisodeStore
+from hercs.rl.methods import make_sampler
+from hercs.rl.samplers.base import make_info
 from hercs.wire.episode import random_episode
 
 METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
@@ -86,7 +86,7 @@ def measure(store: EpisodeStore, config: HercsConfig, *, rounds: int, per_round:
             "with inserts": []}
         for m in METHODS}
     episode = random_episode(config.task.spec, np.random.default_rng(2))
-    samplers = {m: make_sampler(m, apply_overrides(config, [f"run.method={m}"]))
+    samplers = {m: make_sampler(m, apply_overrides(config, [f"run.method={m}"]).sampler_settings)
                 for m in METHODS}
     rng = np.random.default_rng(1)
     spec, future_p = config.task.spec, config.her.future_p

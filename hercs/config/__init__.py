@@ -46,6 +46,7 @@ from hercs.config.task import TaskConfig
 from hercs.config.tracking import TRACKERS, TrackingConfig
 from hercs.errors import ConfigError
 from hercs.rl.methods import METHODS, Method
+from hercs.rl.samplers import SamplerSettings
 
 __all__ = [
     "EVICTIONS", "LEARNER_DEVICES", "PRECISIONS", "RETIRED_KEYS", "SCHEDULES", "TRACKERS",
@@ -93,7 +94,8 @@ class RunConfig:
 
     @property
     def uses_clusters(self) -> bool:
-        return self.spec.cluster_balanced
+        """Its sampler reads cluster labels: the run's clusterer fits models."""
+        return self.spec.needs.clusters
 
 
 SCHEDULES = ("async", "lockstep")
@@ -182,9 +184,11 @@ class HercsConfig:
     def __post_init__(self) -> None:
         _finite_numbers(self)  # first: the checks below compare values
         spec = self.task.spec
-        _check(spec.energy != "none" or not self.run.spec.energy_prioritised, "run.method",
-               self.run.method, f"be her or her-cs on {spec.name}: it has no trajectory energy "
-               "for EBP (hercs.rl.task_registry.ENERGIES; the Fetch and hand tasks have one)")
+        energyless = [m for m, row in METHODS.items() if not row.needs.energy]
+        _check(spec.energy != "none" or not self.run.spec.needs.energy, "run.method",
+               self.run.method, f"be one of {energyless} on {spec.name}: it has no trajectory "
+               "energy for the sampler to read (hercs.rl.task_registry.ENERGIES; the Fetch and "
+               "hand tasks have one)")
         _check(self.replay.buffer_transitions >= spec.episode_steps, "replay.buffer_transitions",
                self.replay.buffer_transitions, f"hold at least one episode ({spec.episode_steps})")
         _check(not (self.training.schedule == "lockstep" and self.replay.free_run),
@@ -216,6 +220,14 @@ class HercsConfig:
         """energy.epsilon, or task.env_version's default where it is unset."""
         epsilon = self.energy.epsilon
         return default_energy_epsilon(self.task.env_version) if epsilon is None else epsilon
+
+    @property
+    def sampler_settings(self) -> SamplerSettings:
+        """What the run's episode sampler is built from (hercs.rl.methods.make_sampler)."""
+        return SamplerSettings(
+            k=self.cluster.k, small_cluster_repeat=self.cluster.small_cluster_repeat,
+            share_rule=self.cluster.share_rule, epsilon=self.energy_epsilon,
+            exponent=self.energy.exponent, cluster_fill=self.energy.cluster_fill)
 
     def resolved(self) -> HercsConfig:
         """This config with the defaults that depend on another field written out

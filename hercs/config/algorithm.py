@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hercs.config.checks import _check, _positive, _unit_interval
-from hercs.rl.share_rules import SHARE_RULES
+from hercs.rl.samplers.share_rules import SHARE_RULES
 
 
 @dataclass
@@ -83,7 +83,7 @@ class ClusterConfig:
     kmeans_n_init: int = 10
     """k-means restarts per refit (scikit-learn; seeded)."""
     share_rule: str = "every-cluster"
-    """Which clusters share a batch (a row of hercs.rl.share_rules.SHARE_RULES):
+    """Which clusters share a batch (a row of hercs.rl.samplers.share_rules.SHARE_RULES):
     `every-cluster` (each of the k gets ⌊B/k⌋) or `reference` (the reference code's: the
     clusters up to the highest label in the buffer, so empty top clusters give their shares
     to the others) [HER-CS]."""

@@ -5,7 +5,7 @@ positions per env. Its shim tells `ClusteredEpisodeIndex` which position it is a
 overwrite and which episodes have ended; the index keeps each live episode's final achieved
 goal, cluster label and trajectory energy, feeds the clusterer's failed-goal buffer and k-means
 refits (`hercs.clusterer.Clusterer`), and draws training positions with the method's replay
-sampler (`hercs.replay_service.samplers.make_sampler`): an episode by the method's rule (HER-CS's
+sampler (`hercs.rl.methods.make_sampler`): an episode by the method's rule (HER-CS's
 equal cluster shares, EBP's energies), then a step of it uniformly, as the paper's replay does.
 No code of the replay's draw is restated here; the library's own HER relabelling is kept.
 """
@@ -21,10 +21,10 @@ from hercs.clusterer.clusterer_core import GoalSuccess
 from hercs.config import ClusterConfig, EnergyConfig, HercsConfig
 from hercs.errors import ConfigError
 from hercs.replay_service.energy import trajectory_energy
-from hercs.replay_service.samplers import SampleInfo, make_sampler
-from hercs.replay_service.sampling_index import SamplingIndex
 from hercs.rl.cluster_model import ClusterModel
-from hercs.rl.methods import METHODS
+from hercs.rl.methods import METHODS, make_sampler
+from hercs.rl.samplers import SampleInfo
+from hercs.rl.samplers.sampling_index import SamplingIndex
 
 
 class ClusteredEpisodeIndex:
@@ -49,11 +49,11 @@ class ClusteredEpisodeIndex:
         self.method = METHODS[method]
         self.capacity, self.n_envs, self.goal_dim = int(capacity), int(n_envs), int(goal_dim)
         self.energy_config, self.energy_kind = config.energy, energy_kind
-        self.sampler = make_sampler(method, config)
+        self.sampler = make_sampler(method, config.sampler_settings)
         self.rng = np.random.default_rng(seed)
         self.clusterer = (Clusterer(config=config.cluster, seed=seed, goal_dim=self.goal_dim,
                                     is_success=is_success)
-                          if self.method.cluster_balanced else None)
+                          if self.method.needs.clusters else None)
         self.model: ClusterModel | None = None
         """The newest k-means fit of the failed goals (None before the first)."""
         shape = (self.capacity, self.n_envs)
@@ -107,7 +107,7 @@ class ClusteredEpisodeIndex:
         self._live[start, env] = True
         self._length[start, env] = length
         self._final_ag[start, env] = ag[-1]
-        if self.method.energy_prioritised:
+        if self.method.needs.energy:
             self._energy[start, env] = float(
                 trajectory_energy(ag, self.energy_config, self.energy_kind))
         self._label[start, env] = -1 if self.model is None else self.model.assign(ag[-1:])[0]
@@ -144,7 +144,7 @@ class ClusteredEpisodeIndex:
 
 
 class _EpisodeTable:
-    """The live episodes in a fixed order, as `hercs.replay_service.samplers` read a store."""
+    """The live episodes in a fixed order, as `hercs.rl.samplers` read a store."""
 
     def __init__(self, starts: np.ndarray, envs: np.ndarray, labels: np.ndarray,
                  energy: np.ndarray) -> None:

@@ -9,7 +9,6 @@ from hercs.config import HercsConfig
 from hercs.replay_service.lag_bound import PolicyLagBound
 from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepGate
 from hercs.replay_service.rate_limiter import SampleToInsertRatio
-from hercs.rl.methods import METHODS
 
 
 def admission_for(config: HercsConfig
@@ -18,8 +17,7 @@ def admission_for(config: HercsConfig
     lockstep = config.training.schedule == "lockstep"
     gate = LockstepGate(
         episodes_per_cycle=config.training.episodes_per_cycle,
-        fgb_size=(config.cluster.fgb_size if METHODS[config.run.method].cluster_balanced
-                  else None),
+        fgb_size=config.cluster.fgb_size if config.run.uses_clusters else None,
         cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S) if lockstep else None
     lag_bound = (PolicyLagBound(max_lag=config.training.max_policy_lag)
                  if not lockstep and config.training.max_policy_lag >= 1 else None)

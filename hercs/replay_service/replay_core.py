@@ -20,9 +20,9 @@ from hercs.errors import ConfigError
 from hercs.reasons import Reason
 from hercs.replay_service.energy import trajectory_energy
 from hercs.replay_service.her import normalizer_sample, relabel
-from hercs.replay_service.samplers import make_sampler
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.methods import make_sampler
 from hercs.rl.normalizer import Normalizer, NormalizerState
 from hercs.rl.plausibility import implausible, winsorised
 from hercs.rl.seeding import int_seed
@@ -48,7 +48,7 @@ class ReplayCore:
         self.store = EpisodeStore(capacity_episodes=config.capacity_episodes, spec=self.spec,
                                   eviction=config.replay.eviction,
                                   eviction_seed=int_seed(config.run.seed, "replay", "eviction"))
-        self.sampler = make_sampler(config.run.method, config)
+        self.sampler = make_sampler(config.run.method, config.sampler_settings)
         d = config.ddpg
         self.o_norm = Normalizer(self.spec.obs_dim, eps=d.norm_eps, clip_range=d.norm_clip)
         self.g_norm = Normalizer(self.spec.goal_dim, eps=d.norm_eps, clip_range=d.norm_clip)

@@ -17,7 +17,7 @@ import numpy as np
 
 from hercs.config import EVICTIONS
 from hercs.errors import ConfigError
-from hercs.replay_service.sampling_index import SamplingIndex
+from hercs.rl.samplers.sampling_index import SamplingIndex
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.episode import EpisodeData, expected_shapes
 

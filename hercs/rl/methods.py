@@ -1,11 +1,22 @@
-"""The four sampling methods, defined once: each is HER with or without cluster-balanced
-episode shares (HER-CS) and with or without energy-based prioritisation (HER-EBP). The
-replay's sampler (the row `sampler` names in hercs.replay_service.samplers.SAMPLERS), the
-clusterer's role, the CLI's choices and the plots' labels all derive from this table."""
+"""The sampling methods, one row each: its name, its label and its sampler. What a method
+needs (cluster models, trajectory energy) is its sampler's `needs`, which the clusterer, the
+lockstep gate, the config's checks and the plots read; a new method is a sampler module
+(hercs.rl.samplers) plus one row here."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from hercs.errors import ConfigError
+from hercs.rl.samplers import (
+    ClusterBalancedSampler,
+    EnergyClusterSampler,
+    EnergySampler,
+    EpisodeSampler,
+    Needs,
+    SamplerSettings,
+    UniformSampler,
+)
 
 
 @dataclass(frozen=True)
@@ -14,25 +25,32 @@ class Method:
     """As typed on the command line and stored in `run.method`."""
     label: str
     """As the paper writes it (plots, tables)."""
-    cluster_balanced: bool
-    """Episodes are drawn in equal shares from the clusters of their final achieved goal
-    (k-means fitted on failed goals by the clusterer)."""
-    energy_prioritised: bool
-    """Episodes are drawn in proportion to their trajectory energy (within a cluster when
-    also cluster-balanced)."""
-    sampler: str
-    """The replay's sampler: a row of hercs.replay_service.samplers.SAMPLERS (its class and
-    the config values it is built from)."""
+    sampler: type[EpisodeSampler]
+    """The replay's episode sampler: its class, built by `from_settings`."""
+
+    @property
+    def needs(self) -> Needs:
+        return self.sampler.needs
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (
-    Method("her", "HER", cluster_balanced=False, energy_prioritised=False,
-           sampler="uniform"),
-    Method("her-cs", "HER-CS", cluster_balanced=True, energy_prioritised=False,
-           sampler="cluster-balanced"),
-    Method("her-ebp", "HER-EBP", cluster_balanced=False, energy_prioritised=True,
-           sampler="energy"),
-    Method("her-ebp-cs", "HER-EBP-CS", cluster_balanced=True, energy_prioritised=True,
-           sampler="energy-cluster"),
+    Method("her", "HER", UniformSampler),
+    Method("her-cs", "HER-CS", ClusterBalancedSampler),
+    Method("her-ebp", "HER-EBP", EnergySampler),
+    Method("her-ebp-cs", "HER-EBP-CS", EnergyClusterSampler),
 )}
-"""In the paper's order."""
+"""In the paper's order: HER, then with cluster-balanced shares (HER-CS), with energy-based
+prioritisation (HER-EBP), and with both."""
+
+
+def method(name: str) -> Method:
+    """The row of `name`; ConfigError naming the choices if there is none."""
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise ConfigError(f"run.method: got {name!r}, must be one of {list(METHODS)}") from None
+
+
+def make_sampler(name: str, settings: SamplerSettings) -> EpisodeSampler:
+    """The episode sampler of method `name`, built from the run's settings."""
+    return method(name).sampler.from_settings(settings)

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from hercs.replay_service.samplers.cluster_balanced import ClusterBalancedSampler, plan_shares
-from hercs.replay_service.sampling_index import SamplingIndex
 from hercs.rl.cluster_model import assign_clusters
-from hercs.rl.share_rules import SHARE_RULES
+from hercs.rl.samplers.cluster_balanced import ClusterBalancedSampler, plan_shares
+from hercs.rl.samplers.sampling_index import SamplingIndex
+from hercs.rl.samplers.share_rules import SHARE_RULES
 from studies.authors_peer.peer_run import checkout_commit
 from studies.study_output import (
     FINDINGS_HEADING,

@@ -17,7 +17,7 @@ import numpy as np
 from hercs.config import apply_overrides, load_yaml
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.replay_core import ReplayCore
-from hercs.replay_service.samplers import make_sampler
+from hercs.rl.methods import make_sampler
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import (
     TOPIC_CLUSTER_MODEL,
@@ -46,7 +46,7 @@ def effective_share(slots: np.ndarray, size: int) -> float:
 
 
 def draw(core: ReplayCore, method: str, *, minibatches: int, seed: int) -> np.ndarray:
-    sampler = make_sampler(method, core.config)
+    sampler = make_sampler(method, core.config.sampler_settings)
     rng = np.random.default_rng(seed)
     return np.concatenate([sampler.sample(core.store, BATCH, rng)[0]
                            for _ in range(minibatches)])

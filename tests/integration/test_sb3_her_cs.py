@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from hercs.config import ClusterConfig
 from hercs.integrations.clustered_episodes import _EpisodeTable
 from hercs.integrations.sb3 import ClusterHerReplayBuffer, success_rate
-from hercs.replay_service.samplers.cluster_balanced import plan_shares
+from hercs.rl.samplers.cluster_balanced import plan_shares
 
 SMALL_FGB = ClusterConfig(k=4, fgb_size=12, kmeans_n_init=1)
 """A refit every 12 failed episodes, so that clusters shape the draw within a short test."""

@@ -14,7 +14,7 @@ from torchrl.data import HERReplayBuffer, LazyTensorStorage, TensorDictReplayBuf
 from hercs.config import ClusterConfig
 from hercs.integrations.clustered_episodes import _EpisodeTable
 from hercs.integrations.torchrl import ClusterEpisodeSampler
-from hercs.replay_service.samplers.cluster_balanced import plan_shares
+from hercs.rl.samplers.cluster_balanced import plan_shares
 
 T = 10
 CENTRES = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

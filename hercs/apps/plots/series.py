@@ -80,7 +80,7 @@ def marks_epsilon(method: str, energy_epsilon: float) -> bool:
     """Whether a run's name and key say its ε: an EBP method's, other than
     EPSILON_UNMARKED (an unknown method's too: it is not taken for a plain run)."""
     spec = METHODS.get(method)
-    return (spec is None or spec.energy_prioritised) and energy_epsilon != EPSILON_UNMARKED
+    return (spec is None or spec.needs.energy) and energy_epsilon != EPSILON_UNMARKED
 
 
 def energy_epsilon(config: dict[str, Any]) -> float:
@@ -172,7 +172,7 @@ def unsaid_epsilon(key: str) -> float | None:
     name does not. None where the key says ε, or it is its simulator's default."""
     method, *parts = key.split("/")
     spec = METHODS.get(method)
-    if spec is None or not spec.energy_prioritised or any(v.startswith("eps") for v in parts):
+    if spec is None or not spec.needs.energy or any(v.startswith("eps") for v in parts):
         return None
     env = "v1" if "v1" in parts else ENV_VERSION_DEFAULT
     return EPSILON_UNMARKED if default_energy_epsilon(env) != EPSILON_UNMARKED else None
@@ -239,7 +239,7 @@ def changes(key: str) -> tuple[list[str], list[str]]:
     env = [v for v in parts if is_env_version(v)]
     changed = [v for v in parts if not is_env_version(v)]
     spec = METHODS.get(method)
-    if spec is not None and spec.energy_prioritised and "v1" not in env:
+    if spec is not None and spec.needs.energy and "v1" not in env:
         today = f"eps{default_energy_epsilon(ENV_VERSION_DEFAULT):g}"
         changed = ([v for v in changed if v != today]
                    + ([] if today in parts else [f"eps{EPSILON_UNMARKED:g}"]))

@@ -33,7 +33,8 @@ def test_reference_draw_has_the_samplers_law() -> None:
     of the HER-CS sampler agree on average (the plan is deterministic, fills are uniform)."""
     bench = load_module("bench.perf.sampling")
     store, config = bench.fill_store(600)
-    sampler = bench.make_sampler("her-cs", bench.apply_overrides(config, ["run.method=her-cs"]))
+    sampler = bench.make_sampler("her-cs", bench.apply_overrides(
+        config, ["run.method=her-cs"]).sampler_settings)
     rng = np.random.default_rng(0)
     ours = np.zeros(bench.K)
     ref = np.zeros(bench.K)

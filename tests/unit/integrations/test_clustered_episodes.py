@@ -9,7 +9,7 @@ import pytest
 from hercs.config import ClusterConfig
 from hercs.errors import ConfigError
 from hercs.integrations.clustered_episodes import ClusteredEpisodeIndex
-from hercs.replay_service.samplers.cluster_balanced import plan_shares
+from hercs.rl.samplers.cluster_balanced import plan_shares
 
 T = 5
 CENTRES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

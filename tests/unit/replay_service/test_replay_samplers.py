@@ -15,16 +15,15 @@ import pytest
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, SamplingError
-from hercs.replay_service.samplers import (
+from hercs.replay_service.store import EpisodeStore
+from hercs.rl.methods import METHODS, make_sampler
+from hercs.rl.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
     EnergySampler,
     UniformSampler,
-    make_sampler,
 )
-from hercs.replay_service.samplers.cluster_balanced import plan_shares
-from hercs.replay_service.store import EpisodeStore
-from hercs.rl.methods import METHODS
+from hercs.rl.samplers.cluster_balanced import plan_shares
 from hercs.rl.task_registry import task_spec
 from hercs.wire.episode import random_episode
 
@@ -362,7 +361,7 @@ def test_make_sampler_maps_methods_with_config_values(method: str, cls: type) ->
         cluster=dataclasses.replace(config.cluster, k=5, small_cluster_repeat=3),
         energy=dataclasses.replace(config.energy, epsilon=1e-3),
     )
-    sampler = make_sampler(method, config)
+    sampler = make_sampler(method, config.sampler_settings)
     assert type(sampler) is cls
     assert getattr(sampler, "k", 5) == 5
     assert getattr(sampler, "small_cluster_repeat", 3) == 3
@@ -373,8 +372,8 @@ def test_every_method_has_a_sampler_of_its_kind() -> None:
     kinds = {(True, True): EnergyClusterSampler, (True, False): ClusterBalancedSampler,
              (False, True): EnergySampler, (False, False): UniformSampler}
     for name, method in METHODS.items():
-        sampler = make_sampler(name, HercsConfig())
-        assert type(sampler) is kinds[method.cluster_balanced, method.energy_prioritised], name
+        sampler = make_sampler(name, HercsConfig().sampler_settings)
+        assert type(sampler) is kinds[method.needs.clusters, method.needs.energy], name
 
 
 @pytest.mark.parametrize("method", ["her-ebp", "her-ebp-cs"])
@@ -382,11 +381,11 @@ def test_an_ebp_sampler_takes_its_simulators_epsilon_where_the_config_sets_none(
         method: str) -> None:
     """energy.epsilon unset: 1e-3 on v4, 1e-6 on the authors' v1 (docs/DESIGN.md §9.3)."""
     assert HercsConfig().energy.epsilon is None
-    assert make_sampler(method, HercsConfig()).epsilon == 1e-3
+    assert make_sampler(method, HercsConfig().sampler_settings).epsilon == 1e-3
     v1 = HercsConfig(task=dataclasses.replace(HercsConfig().task, env_version="v1"))
-    assert make_sampler(method, v1).epsilon == 1e-6
+    assert make_sampler(method, v1.sampler_settings).epsilon == 1e-6
 
 
 def test_make_sampler_refuses_unknown_method() -> None:
     with pytest.raises(ConfigError, match="'her-per'"):
-        make_sampler("her-per", HercsConfig())
+        make_sampler("her-per", HercsConfig().sampler_settings)

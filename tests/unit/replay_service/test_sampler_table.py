@@ -1,35 +1,50 @@
-"""The extension points of the replay's draw: a method names its sampler's row of
-`SAMPLERS`, and `cluster.share_rule` its row of `SHARE_RULES`; a new strategy is its module
-plus one row, found by the config check, the replay's `make_sampler` and the samplers."""
+"""The extension points of the replay's draw: a method's row names its sampler class, which
+says what it needs and how it is built, and `cluster.share_rule` names a row of
+`SHARE_RULES`; a new strategy is its module plus one row, found by the config check, the
+replay's `make_sampler` and the samplers."""
 
 from __future__ import annotations
+
+from typing import Self
 
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.errors import ConfigError, SamplingError
-from hercs.replay_service.samplers import SAMPLERS, SamplerRow, UniformSampler, make_sampler
-from hercs.replay_service.samplers.cluster_balanced import plan_shares
-from hercs.rl import share_rules
-from hercs.rl.methods import METHODS, Method
+from hercs.rl.methods import METHODS, Method, make_sampler
+from hercs.rl.samplers import (
+    ClusterBalancedSampler,
+    EnergyClusterSampler,
+    EnergySampler,
+    Needs,
+    SamplerSettings,
+    UniformSampler,
+    share_rules,
+)
+from hercs.rl.samplers.cluster_balanced import plan_shares
 from tests.unit.replay_service.test_replay_samplers import PAPER_LIKE, _labels, _store
 
 
-def test_every_method_names_a_row_and_every_row_serves_a_method() -> None:
-    assert {m.sampler for m in METHODS.values()} == set(SAMPLERS)
+def test_each_method_is_its_sampler_and_needs_what_the_sampler_reads() -> None:
+    assert {name: (m.sampler, m.needs) for name, m in METHODS.items()} == {
+        "her": (UniformSampler, Needs()),
+        "her-cs": (ClusterBalancedSampler, Needs(clusters=True)),
+        "her-ebp": (EnergySampler, Needs(energy=True)),
+        "her-ebp-cs": (EnergyClusterSampler, Needs(clusters=True, energy=True)),
+    }
 
 
-def test_a_new_sampler_is_one_row_and_its_methods_row(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_new_sampler_is_one_class_and_its_methods_row(monkeypatch: pytest.MonkeyPatch) -> None:
     class EveryOtherSampler(UniformSampler):
-        """A made-up strategy: HER's draw, built from its own config value."""
+        """A made-up strategy: HER's draw, built from its own reading of the settings."""
 
-    monkeypatch.setitem(SAMPLERS, "every-other", SamplerRow(
-        EveryOtherSampler, lambda c: dict(num_clusters=c.cluster.k + 1)))
-    monkeypatch.setitem(METHODS, "her-eo", Method("her-eo", "HER-EO", cluster_balanced=False,
-                                                  energy_prioritised=False,
-                                                  sampler="every-other"))
+        @classmethod
+        def from_settings(cls, settings: SamplerSettings) -> Self:
+            return cls(num_clusters=settings.k + 1)
+
+    monkeypatch.setitem(METHODS, "her-eo", Method("her-eo", "HER-EO", EveryOtherSampler))
     config = apply_overrides(HercsConfig(), ["run.method=her-eo"])
-    sampler = make_sampler(config.run.method, config)
+    sampler = make_sampler(config.run.method, config.sampler_settings)
     assert type(sampler) is EveryOtherSampler and sampler.num_clusters == config.cluster.k + 1
 
 
@@ -47,7 +62,7 @@ def test_the_reference_share_rule_is_a_row(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setitem(share_rules.SHARE_RULES, "half-shares", lambda max_label, k: 2 * k)
     config = apply_overrides(HercsConfig(),
                              ["run.method=her-cs", "cluster.share_rule=half-shares"])
-    assert make_sampler("her-cs", config).share_rule == "half-shares"
+    assert make_sampler("her-cs", config.sampler_settings).share_rule == "half-shares"
     plan = plan_shares(index, k=8, repeat=4, batch_size=256, share_rule="half-shares")
     assert plan is not None and plan.member_draws[0] == 16 and plan.fill >= 128
 

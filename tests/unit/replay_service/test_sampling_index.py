@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hercs.errors import ConfigError, SamplingError
-from hercs.replay_service.sampling_index import WHOLE_BUFFER, SamplingIndex
+from hercs.rl.samplers.sampling_index import WHOLE_BUFFER, SamplingIndex
 
 
 def _reference(energy: np.ndarray, labels: np.ndarray) -> SamplingIndex:

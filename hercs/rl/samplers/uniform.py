@@ -2,16 +2,31 @@
 
 from __future__ import annotations
 
+from typing import ClassVar, Self
+
 import numpy as np
 
-from hercs.replay_service.samplers.base import SampleInfo, SampleSource, check_request, make_info
+from hercs.rl.samplers.base import (
+    Needs,
+    SampleInfo,
+    SamplerSettings,
+    SampleSource,
+    check_request,
+    make_info,
+)
 
 
 class UniformSampler:
     """p(slot) = 1/size. Stateless. `num_clusters` only sizes `SampleInfo.cluster_counts`."""
 
+    needs: ClassVar[Needs] = Needs()
+
     def __init__(self, *, num_clusters: int = 0) -> None:
         self.num_clusters = num_clusters
+
+    @classmethod
+    def from_settings(cls, settings: SamplerSettings) -> Self:
+        return cls(num_clusters=settings.k)
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator

@@ -1,19 +1,53 @@
-"""The episode-sampler protocol, what a draw reports, and shared vectorised draw primitives.
+"""The episode-sampler protocol, what a sampler needs and is built from, what a draw reports,
+and shared vectorised draw primitives.
 
 A sampler chooses which *episodes* (store slots) go into a minibatch and returns slot indices
 plus a `SampleInfo`, never data. Samplers hold no state between calls: they read the store's
 `SamplingIndex` (O(k + B log N) per draw) and take randomness from the injected generator.
+Each declares what its draw reads beyond the slots (`Needs`): the clusterer fits cluster
+models only for a sampler that needs them, and the config refuses an energy-reading one on a
+task without trajectory energy.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol, Self
 
 import numpy as np
 
 from hercs.errors import ConfigError, SamplingError
-from hercs.replay_service.sampling_index import SamplingIndex
+from hercs.rl.samplers.sampling_index import SamplingIndex
+
+
+@dataclass(frozen=True)
+class Needs:
+    """What a sampler's draw reads of the stored episodes besides their number."""
+
+    clusters: bool = False
+    """Their cluster labels: the run's clusterer fits k-means models on failed goals, and the
+    lockstep gate waits for a model after each refit."""
+    energy: bool = False
+    """Their trajectory energies: the task must define one (hercs.rl.task_registry)."""
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Every value a sampler may be built from, as the run's config gives them
+    (`HercsConfig.sampler_settings`); each sampler takes the ones it uses."""
+
+    k: int
+    """cluster.k: the clusters of a model, and the length of `SampleInfo.cluster_counts`."""
+    small_cluster_repeat: int
+    """cluster.small_cluster_repeat."""
+    share_rule: str
+    """cluster.share_rule: a row of hercs.rl.samplers.share_rules.SHARE_RULES."""
+    epsilon: float
+    """energy.epsilon as the run resolved it (`HercsConfig.energy_epsilon`)."""
+    exponent: float
+    """energy.exponent."""
+    cluster_fill: str
+    """energy.cluster_fill."""
 
 
 class SampleSource(Protocol):
@@ -46,6 +80,14 @@ class SampleInfo:
 
 
 class EpisodeSampler(Protocol):
+    needs: ClassVar[Needs]
+    """What its draw reads of the stored episodes."""
+
+    @classmethod
+    def from_settings(cls, settings: SamplerSettings) -> Self:
+        """The sampler a run's settings make."""
+        ...
+
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
     ) -> tuple[np.ndarray, SampleInfo]:

@@ -8,26 +8,36 @@ by zero (docs/DESIGN.md §4, §9.3).
 
 from __future__ import annotations
 
+from typing import ClassVar, Self
+
 import numpy as np
 
-from hercs.replay_service.samplers.base import (
+from hercs.rl.samplers.base import (
+    Needs,
     SampleInfo,
+    SamplerSettings,
     SampleSource,
     check_epsilon,
     check_request,
     make_info,
 )
-from hercs.replay_service.sampling_index import WHOLE_BUFFER
+from hercs.rl.samplers.sampling_index import WHOLE_BUFFER
 
 
 class EnergySampler:
     """p(slot) = (e_slot + ε) / Σ (e + ε). Stateless."""
+
+    needs: ClassVar[Needs] = Needs(energy=True)
 
     def __init__(self, *, epsilon: float, num_clusters: int = 0, exponent: float = 1.0) -> None:
         check_epsilon(epsilon)
         self.epsilon = epsilon
         self.exponent = exponent
         self.num_clusters = num_clusters
+
+    @classmethod
+    def from_settings(cls, settings: SamplerSettings) -> Self:
+        return cls(epsilon=settings.epsilon, num_clusters=settings.k, exponent=settings.exponent)
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator

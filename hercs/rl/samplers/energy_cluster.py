@@ -10,26 +10,32 @@ Stateless; O(k + B log N) per batch.
 
 from __future__ import annotations
 
+from typing import ClassVar, Self
+
 import numpy as np
 
 from hercs.errors import ConfigError
-from hercs.replay_service.samplers.base import (
+from hercs.rl.samplers.base import (
+    Needs,
     SampleInfo,
+    SamplerSettings,
     SampleSource,
     check_epsilon,
     check_request,
     make_info,
 )
-from hercs.replay_service.samplers.cluster_balanced import (
+from hercs.rl.samplers.cluster_balanced import (
     check_cluster_args,
     plan_shares,
     share_rows,
 )
-from hercs.replay_service.sampling_index import WHOLE_BUFFER
+from hercs.rl.samplers.sampling_index import WHOLE_BUFFER
 
 
 class EnergyClusterSampler:
     """HER-EBP-CS as defined in the module docstring."""
+
+    needs: ClassVar[Needs] = Needs(clusters=True, energy=True)
 
     def __init__(self, k: int, *, epsilon: float, small_cluster_repeat: int = 4,
                  exponent: float = 1.0, cluster_fill: str = "energy",
@@ -45,6 +51,13 @@ class EnergyClusterSampler:
         self.cluster_fill = cluster_fill
         self.small_cluster_repeat = small_cluster_repeat
         self.share_rule = share_rule
+
+    @classmethod
+    def from_settings(cls, settings: SamplerSettings) -> Self:
+        return cls(settings.k, epsilon=settings.epsilon, exponent=settings.exponent,
+                   cluster_fill=settings.cluster_fill,
+                   small_cluster_repeat=settings.small_cluster_repeat,
+                   share_rule=settings.share_rule)
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator

@@ -13,13 +13,21 @@ Departures: docs/DESIGN.md §9.4 (`cluster.share_rule=reference` draws as the au
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar, Self
 
 import numpy as np
 
 from hercs.errors import ConfigError, SamplingError
-from hercs.replay_service.samplers.base import SampleInfo, SampleSource, check_request, make_info
-from hercs.replay_service.sampling_index import SamplingIndex
-from hercs.rl.share_rules import SHARE_RULES
+from hercs.rl.samplers.base import (
+    Needs,
+    SampleInfo,
+    SamplerSettings,
+    SampleSource,
+    check_request,
+    make_info,
+)
+from hercs.rl.samplers.sampling_index import SamplingIndex
+from hercs.rl.samplers.share_rules import SHARE_RULES
 
 
 @dataclass(frozen=True)
@@ -85,12 +93,19 @@ class ClusterBalancedSampler:
     Stateless: the plan is made from the store's current cluster sizes on every call.
     """
 
+    needs: ClassVar[Needs] = Needs(clusters=True)
+
     def __init__(self, k: int, *, small_cluster_repeat: int = 4,
                  share_rule: str = "every-cluster") -> None:
         check_cluster_args(k, small_cluster_repeat, share_rule)
         self.k = k
         self.small_cluster_repeat = small_cluster_repeat
         self.share_rule = share_rule
+
+    @classmethod
+    def from_settings(cls, settings: SamplerSettings) -> Self:
+        return cls(settings.k, small_cluster_repeat=settings.small_cluster_repeat,
+                   share_rule=settings.share_rule)
 
     def sample(
         self, store: SampleSource, batch_size: int, rng: np.random.Generator
