@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
-from hercs.learner.loop import LearnerLoop
 from hercs.learner.resume import save_learner_state
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.run.metrics import MetricsCsv
@@ -39,7 +39,7 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     run_dir.mkdir(parents=True)
     save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
-    loop = LearnerLoop(config=config, learner=learner)
+    loop = LearnerBuilder(config).loop(learner)
     core = ReplayCore(config=config, rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
@@ -54,7 +54,8 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
                                   size_transitions=core.store.num_transitions)))
         if epoch == checkpoint:
             save_learner_state(RunDir(run_dir).checkpoints, learner=learner, loop=loop,
-                               eval_requests=EvalRequests(resend_s=60.0), config=config)
+                               eval_requests=EvalRequests(resend_s=60.0),
+                               config_record=config.to_dict())
         if epoch not in skip and metrics is not None:
             metrics.write(loop.record_eval(epoch=epoch, success_rate=epoch / 10,
                                            mean_final_distance=0.1) or {})

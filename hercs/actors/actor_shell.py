@@ -20,18 +20,13 @@ import numpy as np
 
 from hercs.actors.actor_identity import LatestWeights, incarnation
 from hercs.actors.actor_metrics import actor_metrics, unacked
-from hercs.actors.inserter import Inserter
-from hercs.actors.rollout import VectorRollout
-from hercs.actors.weights import WeightsDecoder
-from hercs.actors.weights_schedule import Need, WeightsSchedule
+from hercs.actors.builder import ActorBuilder
+from hercs.actors.weights_schedule import Need
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, join_run, service_main
 from hercs.net.transport import TransportError
 from hercs.proto import hercs_pb2 as pb
-from hercs.rl.envs import make_env
-from hercs.rl.policy import Policy
-from hercs.rl.seeding import generator, int_seed
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.codec import episode_to_msg
 from hercs.wire.episode import EpisodeData, EpisodeIdentity
@@ -54,35 +49,26 @@ class ActorService:
     the transport and calls `close()`.
     """
 
-    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig) -> None:
+    def __init__(self, *, runtime: ServiceRuntime, parts: ActorBuilder) -> None:
         self.runtime = runtime
-        self.config = config
+        self.settings = parts.shell
         self.ident = runtime.ident
         self.actor_id = f"{self.ident}@{incarnation()}"
         """Identity on the wire: this process's incarnation after the id, so that a restart
         with the same `--id` starts new (actor_id, seq) pairs the replay has never seen."""
-        self.spec = config.task.spec
-        seed = config.run.seed
-        self.policy = Policy(spec=self.spec, config=config.ddpg,
-                             seed=int_seed(seed, "actor", self.ident))
-        self.rng = generator(seed, "actor", self.ident)
-        n = config.actor.envs_per_process
-        self.worker = VectorRollout(
-            spec=self.spec, envs=[make_env(self.spec) for _ in range(n)],
-            seeds=[int_seed(seed, "actor", self.ident, "env", *([str(i)] if i else []))
-                   for i in range(n)])
+        self.spec = self.settings.spec
+        self.policy = parts.actor_policy(self.ident)
+        self.rng = parts.exploration_rng(self.ident)
+        self.worker = parts.actor_envs(self.ident)
         self.weights_rejected = 0
         self._warn = WarnOncePerMinute(log)
         self._weights = LatestWeights()
-        self._decoder = WeightsDecoder(spec=self.spec, config=config)
+        self._decoder = parts.decoder()
         transport, keys = runtime.transport, runtime.keys
-        timeout_s = config.actor.insert_timeout_s
-        self.inserter = Inserter(
-            send=lambda payload: transport.request(keys.insert, payload, timeout_s=timeout_s),
-            actor_id=self.actor_id,
-            capacity=config.actor.insert_queue * config.actor.envs_per_process,
-            on_crash=runtime.crashed,
-        )
+        self.inserter = parts.inserter(
+            request=lambda payload, timeout_s: transport.request(keys.insert, payload,
+                                                                 timeout_s=timeout_s),
+            actor_id=self.actor_id, on_crash=runtime.crashed)
         # Only the newest weights matter: a small ring that drops the oldest never stalls Zenoh.
         transport.subscribe(keys.weights, self._on_weights, latest=True, capacity=4,
                             drop_oldest=True)
@@ -90,8 +76,7 @@ class ActorService:
                             drop_oldest=True)
         self.run_finished = threading.Event()
         self.episodes = 0
-        self.schedule = WeightsSchedule(schedule=config.training.schedule,
-                                        max_policy_lag=config.training.max_policy_lag)
+        self.schedule = parts.schedule()
         """What the next episode's weights must be (lockstep, the lag bound)."""
 
     def _on_weights(self, key: str, raw: bytes) -> None:
@@ -110,13 +95,13 @@ class ActorService:
         """The learner's `RunProgress`: once the run is finished this actor has no more use."""
         try:
             progress = parse_message(raw, pb.RunProgress,
-                                     max_bytes=self.config.replay.max_message_bytes)
+                                     max_bytes=self.settings.max_message_bytes)
         except InvalidMessage as exc:
             self._warn.warn(f"progress:{exc.reason}", f"ignored a RunProgress on {key}: {exc}")
             return
         if progress.finished and not self.run_finished.is_set():
             log.info("actor %s: run %r finished (%d epochs); stopping", self.ident,
-                     self.config.run.name, progress.epochs)
+                     self.settings.run, progress.epochs)
             self.run_finished.set()
             self.inserter.abort()  # now, not after the episode at hand: nothing is retried
             self.runtime.stop.set()
@@ -125,13 +110,13 @@ class ActorService:
         return self.policy.act(o, g, explore=True, rng=self.rng)
 
     def run(self) -> int:
-        config, stop = self.config, self.runtime.stop
+        settings, stop = self.settings, self.runtime.stop
         log.info("actor %s (wire id %s): run %r, task %s, method %s", self.ident,
-                 self.actor_id, config.run.name, self.spec.name, config.run.method)
-        if self.schedule.lockstep and self.worker.num_envs > config.training.episodes_per_cycle:
+                 self.actor_id, settings.run, self.spec.name, settings.method)
+        if self.schedule.lockstep and self.worker.num_envs > settings.episodes_per_cycle:
             log.warning("lockstep with %d envs per process and %d episodes per cycle: the "
                         "replay refuses the surplus of every cycle (cycle_full)",
-                        self.worker.num_envs, config.training.episodes_per_cycle)
+                        self.worker.num_envs, settings.episodes_per_cycle)
         window = (time.monotonic(), self.worker.env_steps)
         self.publish_metrics(steps_per_s=0.0)
         try:
@@ -166,7 +151,7 @@ class ActorService:
     def _submit(self, episodes: list[EpisodeData]) -> bool:
         """Hand each episode to the inserter; False if stopped while it was full."""
         for episode in episodes:
-            msg = episode_to_msg(episode, run=self.config.run.name, task=self.spec.name)
+            msg = episode_to_msg(episode, run=self.settings.run, task=self.spec.name)
             if not self.inserter.submit(episode.seq, msg.SerializeToString(),
                                         stop=self.runtime.stop):
                 return False
@@ -241,7 +226,7 @@ def _work(runtime: ServiceRuntime) -> int:
     joined = join_run(runtime, runtime.config)  # the run's config, served by its replay
     if joined is None:  # stopped first
         return 0
-    service = ActorService(runtime=runtime, config=joined)
+    service = ActorService(runtime=runtime, parts=ActorBuilder(joined))
     try:
         return service.run()
     finally:

@@ -18,17 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hercs.actors.rollout import RolloutWorker
-from hercs.actors.weights import WeightsDecoder
+from hercs.actors.builder import ActorBuilder
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.net.transport import Publisher, TransportError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.rl.envs import make_env
-from hercs.rl.policy import Policy, PolicyWeights
-from hercs.rl.seeding import int_seed
+from hercs.rl.policy import PolicyWeights
 from hercs.rl.task_registry import goal_distance
 from hercs.run.warn_once import WarnOncePerMinute
 
@@ -95,21 +92,18 @@ class EvalQueue:
 class EvaluatorService:
     """The evaluator's loop; `run()` returns when `runtime.stop` is set."""
 
-    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig) -> None:
+    def __init__(self, *, runtime: ServiceRuntime, parts: ActorBuilder) -> None:
         self.runtime = runtime
-        self.config = config
-        self.spec = config.task.spec
-        seed = config.run.seed
-        self.policy = Policy(spec=self.spec, config=config.ddpg,
-                             seed=int_seed(seed, "evaluator", "policy"))
-        self.worker = RolloutWorker(spec=self.spec, env=make_env(self.spec),
-                                    seed=int_seed(seed, "evaluator"))
+        self.settings = parts.shell
+        self.spec = self.settings.spec
+        self.policy = parts.evaluator_policy()
+        self.worker = parts.evaluator_env()
         self.requests = EvalQueue()
         self.evaluations = 0
         self.weights_rejected = 0
         self.last_success_rate: float | None = None
         self._warn = WarnOncePerMinute(log)
-        self._decoder = WeightsDecoder(spec=self.spec, config=config)
+        self._decoder = parts.decoder()
         keys = runtime.keys
         self._results: Publisher = runtime.transport.publisher(keys.eval_result, block=True)
         self.published: collections.OrderedDict[tuple[int, int], pb.EvalResult] = (
@@ -140,7 +134,7 @@ class EvaluatorService:
     def evaluate(self, request: EvalRequest) -> pb.EvalResult | None:
         """Run the test episodes of one request; None if stopped before the last one."""
         self.policy.load(request.weights)
-        n = self.config.training.eval_episodes
+        n = self.settings.eval_episodes
         successes, distances = 0, []
         for _ in range(n):
             if self.runtime.stop.is_set():
@@ -172,8 +166,8 @@ class EvaluatorService:
     def run(self) -> int:
         stop = self.runtime.stop
         log.info("evaluator %s: run %r, task %s (%s), %d episodes per evaluation",
-                 self.runtime.ident, self.config.run.name, self.spec.name, self.spec.env_id,
-                 self.config.training.eval_episodes)
+                 self.runtime.ident, self.settings.run, self.spec.name, self.spec.env_id,
+                 self.settings.eval_episodes)
         self.publish_metrics(eval_s=0.0)
         while not stop.is_set():
             request = self.requests.get(_POLL_S)
@@ -226,7 +220,7 @@ def run(config: HercsConfig, *, ident: str | None = None) -> int:
 
 
 def _work(runtime: ServiceRuntime) -> int:
-    service = EvaluatorService(runtime=runtime, config=runtime.config)
+    service = EvaluatorService(runtime=runtime, parts=ActorBuilder(runtime.config))
     try:
         return service.run()
     finally:

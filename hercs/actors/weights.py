@@ -3,12 +3,10 @@ load into a policy of the run's task before anything adopts them."""
 
 from __future__ import annotations
 
-from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.rl.policy import Policy, PolicyWeights
-from hercs.rl.task_registry import TaskSpec
 from hercs.wire.codec import msg_to_weight_arrays
 from hercs.wire.validation import MAX_INT64, parse_message
 
@@ -22,9 +20,11 @@ class WeightsDecoder:
     returns always loads. Use from one thread.
     """
 
-    def __init__(self, *, spec: TaskSpec, config: HercsConfig) -> None:
-        self._scratch = Policy(spec=spec, config=config.ddpg, seed=0)
-        self._max_bytes = config.replay.max_message_bytes
+    def __init__(self, *, scratch: Policy, max_bytes: int) -> None:
+        """`scratch`: a policy of the run's task and sizes, used only to check; `max_bytes`:
+        the largest message parsed."""
+        self._scratch = scratch
+        self._max_bytes = max_bytes
 
     def parse(self, raw: bytes) -> pb.Weights:
         """Schema only (size, protobuf, schema_version): enough to read `evaluate`/`epoch`."""

@@ -148,13 +148,6 @@ class DDPGLearner:
         o_norm, g_norm = self.o_norm.with_state(o_state), self.g_norm.with_state(g_state)
         self.o_norm, self.g_norm = o_norm, g_norm
 
-    def update(self, batch: TransitionBatch) -> dict[str, float]:
-        """One DDPG step on a minibatch; returns losses and means (read back to the host: the
-        training loop uses `train`, which does not)."""
-        stats = self.precise(self._eager_step, batch)
-        self.updates += 1
-        return {name: value.item() for name, value in zip(LOSS_NAMES, stats, strict=True)}
-
     def train(self, batch: TransitionBatch) -> None:
         """One DDPG step whose losses are added to running sums on the learner's device
         (`loss_means` reads them): no host synchronisation per update. On a GPU with

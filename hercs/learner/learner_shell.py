@@ -16,11 +16,8 @@ from pathlib import Path
 
 from hercs.config import HercsConfig
 from hercs.errors import Diverged, InvalidMessage
+from hercs.learner.builder import LearnerBuilder
 from hercs.learner.checkpoint import load_policy_file, save_policy
-from hercs.learner.ddpg import DDPGLearner
-from hercs.learner.evaluations import EvalRequests, PolicyKeeper
-from hercs.learner.loop import LearnerLoop
-from hercs.learner.prefetch import Prefetcher
 from hercs.learner.resume import resume_learner_state, save_learner_state
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.proto import SCHEMA_VERSION
@@ -48,22 +45,20 @@ class LearnerService:
     event.
     """
 
-    def __init__(self, *, config: HercsConfig, runtime: ServiceRuntime, run_dir: Path) -> None:
-        self.config = config
+    def __init__(self, *, parts: LearnerBuilder, runtime: ServiceRuntime,
+                 run_dir: Path) -> None:
+        self.parts = parts
+        self.settings = parts.shell
         self.runtime = runtime
         self.run_dir = run_dir
         self.files = RunDir(run_dir)
         self.checkpoints = self.files.checkpoints
-        self.learner = DDPGLearner(spec=config.task.spec, config=config.ddpg,
-                                   seed=config.run.seed, device=config.learner.device,
-                                   precision=config.learner.precision,
-                                   parallel_halves=config.learner.parallel_halves,
-                                   cuda_graph=config.learner.cuda_graph)
+        self.learner = parts.learner()
         log.info("learner on %s (learner.device=%s), %s", self.learner.device,
-                 config.learner.device, config.learner.precision)
-        self.loop = LearnerLoop(config=config, learner=self.learner)
+                 self.settings.device_request, self.learner.precision)
+        self.loop = parts.loop(self.learner)
         self.batch_wait_s: dict[int, float] = {}  # epoch -> seconds the updates waited
-        self.eval_requests = EvalRequests(resend_s=config.training.eval_resend_s)
+        self.eval_requests = parts.eval_requests()
         self.prefetcher_bad: Counter[str] = Counter()
         self.resumed_from = resume_learner_state(
             self.checkpoints, self.files.metrics, learner=self.learner, loop=self.loop,
@@ -71,8 +66,7 @@ class LearnerService:
         self.checkpointed_epoch: int | None = self.resumed_from
         """The epoch of the newest checkpoint on disk (None: none yet)."""
         best = load_policy_file(self.files.checkpoint("best"))
-        self.keeper = PolicyKeeper(every=config.training.checkpoint_every,
-                                   best_success=None if best is None
+        self.keeper = parts.keeper(best_success=None if best is None
                                    else float(best["success_rate"]))
         self.metrics = MetricsCsv(self.files.metrics)
         self.evals: queue.Queue[pb.EvalResult] = queue.Queue()
@@ -86,7 +80,8 @@ class LearnerService:
     def checkpoint(self) -> None:
         try:
             saved = save_learner_state(self.checkpoints, learner=self.learner, loop=self.loop,
-                                       eval_requests=self.eval_requests, config=self.config)
+                                       eval_requests=self.eval_requests,
+                                       config_record=self.settings.config_record)
         except Diverged as exc:
             raise Diverged(f"training diverged by the end of epoch {self.loop.epoch}: {exc}; "
                            f"{self._kept_checkpoint()}") from None
@@ -129,8 +124,8 @@ class LearnerService:
         recorded = self.loop.epoch - len(self.loop.pending)
         self.progress_pub.put(pb.RunProgress(
             schema_version=SCHEMA_VERSION, epoch=max(recorded, 0),
-            epochs=self.config.training.epochs, finished=finished, cycle=self.loop.cycle,
-            cycles_per_epoch=self.config.training.cycles_per_epoch,
+            epochs=self.settings.epochs, finished=finished, cycle=self.loop.cycle,
+            cycles_per_epoch=self.settings.cycles_per_epoch,
             updates=self.learner.updates).SerializeToString())
 
     def _ask_again(self) -> None:
@@ -145,7 +140,7 @@ class LearnerService:
         again for overdue evaluations) until every pending epoch is recorded or
         `training.eval_wait_s` has passed."""
         stop = self.runtime.stop
-        wait_s = self.config.training.eval_wait_s
+        wait_s = self.settings.eval_wait_s
         deadline = time.monotonic() + wait_s
         while self.loop.pending and not stop.is_set():
             self._ask_again()
@@ -182,7 +177,7 @@ class LearnerService:
         row["bad_batches"] = sum(self.prefetcher_bad.values())
         self.metrics.write(row)
         values = {k: v for k, v in row.items() if isinstance(v, int | float)}
-        values["epochs"] = self.config.training.epochs
+        values["epochs"] = self.settings.epochs
         values["bad_episodes"] = bad_episodes(str(row.get("rejects", "")))
         self.runtime.publish_metrics(values, step=epoch)
         self.publish_progress()
@@ -192,21 +187,21 @@ class LearnerService:
     def _keep_policy(self, epoch: int, weights: bytes, success_rate: float) -> None:
         for name in self.keeper.files_for(epoch, success_rate):
             if save_policy(self.checkpoints, name, weights=weights, epoch=epoch,
-                           success_rate=success_rate, config=self.config.to_dict()):
+                           success_rate=success_rate,
+                           config=self.settings.config_record):
                 self.keeper.saved(name, success_rate)
 
     # -- the loop ----------------------------------------------------------------------------
     def run(self) -> int:
         stop = self.runtime.stop
         if self.loop.done and not self.loop.pending:
-            log.info("this run's %d epochs are already done", self.config.training.epochs)
+            log.info("this run's %d epochs are already done", self.settings.epochs)
             self.publish_progress(finished=True)
             return 0
         self.publish_weights(evaluate=False, epoch=self.loop.epoch)
         self.publish_progress()
-        prefetcher = Prefetcher(runtime=self.runtime, config=self.config,
-                                version=lambda: self.loop.version,
-                                samples_kept=self.learner.updates)
+        prefetcher = self.parts.prefetcher(self.runtime, version=lambda: self.loop.version,
+                                           samples_kept=self.learner.updates)
         self.prefetcher_bad = prefetcher.bad_batches
         waited_before = 0.0
         while not self.loop.done and not stop.is_set():
@@ -249,7 +244,7 @@ def _work(runtime: ServiceRuntime) -> int:
     config = runtime.config
     run_dir = run_dir_of(config.run)
     run_dir.mkdir(parents=True, exist_ok=True)
-    service = LearnerService(config=config, runtime=runtime, run_dir=run_dir)
+    service = LearnerService(parts=LearnerBuilder(config), runtime=runtime, run_dir=run_dir)
     try:
         return service.run()
     finally:

@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from hercs.config import HercsConfig
 from hercs.errors import Diverged
 from hercs.learner.ddpg import DDPGLearner
 from hercs.wire.served import ServedBatch
@@ -58,9 +57,12 @@ class EpochSnapshot:
 
 
 class LearnerLoop:
-    def __init__(self, *, config: HercsConfig, learner: DDPGLearner,
-                 clock=time.monotonic) -> None:
-        self.config = config
+    def __init__(self, *, learner: DDPGLearner, epochs: int, cycles_per_epoch: int,
+                 clusters: int, clock=time.monotonic) -> None:
+        """`epochs` to train, `cycles_per_epoch` batches to an epoch, `clusters` the k whose
+        draws each epoch's row reports (hercs.learner.builder unpacks them from the config)."""
+        self.epochs = epochs
+        self.cycles_per_epoch = cycles_per_epoch
         self.learner = learner
         self.clock = clock
         self.cycle = 0
@@ -71,7 +73,7 @@ class LearnerLoop:
         self._epoch_start = self._start
         self._epoch_start_steps = 0
         self._epoch_start_updates = 0
-        self._epoch_draws = np.zeros(config.cluster.k, np.int64)
+        self._epoch_draws = np.zeros(clusters, np.int64)
         self._epoch_lags: list[np.ndarray] = []
         self._epoch_moved = np.zeros(2, np.int64)  # sampled moved, sampled transitions
         self._epoch_buffer_share: list[float] = []
@@ -80,7 +82,7 @@ class LearnerLoop:
 
     @property
     def done(self) -> bool:
-        return self.epoch >= self.config.training.epochs
+        return self.epoch >= self.epochs
 
     def state_dict(self) -> dict[str, Any]:
         """Where the loop stands, taken at an epoch end (what a resumed learner continues
@@ -118,7 +120,7 @@ class LearnerLoop:
             # before the targets average the weights in and before anyone publishes them
             self.learner.check_finite(first_update=first_update)
         except Diverged as exc:
-            cycles = self.config.training.cycles_per_epoch
+            cycles = self.cycles_per_epoch
             raise Diverged(f"training diverged in epoch {self.epoch + 1}, cycle "
                            f"{self.cycle % cycles + 1} of {cycles} (the run's cycle "
                            f"{self.cycle + 1}), {exc}") from None
@@ -133,7 +135,7 @@ class LearnerLoop:
             self._epoch_buffer_share.append(batch.status.buffer_moved_share)
         self._last = batch
         ended = None
-        if self.cycle % self.config.training.cycles_per_epoch == 0:
+        if self.cycle % self.cycles_per_epoch == 0:
             self.epoch += 1
             ended = self.epoch
             self.pending[self.epoch] = self._snapshot()

@@ -9,13 +9,14 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 
-from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.service_shell import ServiceRuntime
 from hercs.net.transport import RemoteError, TransportError, TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
+from hercs.rl.task_registry import TaskSpec
 from hercs.run.warn_once import WarnOncePerMinute
 from hercs.wire.served import ServedBatch, decode_served_batch
 
@@ -35,6 +36,18 @@ learner's earlier parked call `expired` (one request at a time) and recounts its
 `samples_kept`, and lockstep's grace for a late cluster model runs from the cycle's first ask."""
 
 
+@dataclass(frozen=True)
+class BatchShape:
+    """What each sample request asks for, and so what each reply must be to be trained on."""
+
+    run: str
+    spec: TaskSpec
+    clusters: int
+    """k: the length of a batch's per-cluster draw counts."""
+    minibatches: int
+    batch_size: int
+
+
 class Prefetcher:
     """Requests batches ahead of the update loop on its own thread.
 
@@ -48,17 +61,20 @@ class Prefetcher:
     is sent once the loop has reached version c (`cycle_done` wakes it), and the replay holds
     it until cycle c's episodes are stored."""
 
-    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig,
-                 version: Callable[[], int], samples_kept: int) -> None:
-        """`samples_kept`: the updates this run's learner has done and kept (its checkpoint's
+    def __init__(self, *, runtime: ServiceRuntime, shape: BatchShape, lockstep: bool,
+                 depth: int, sample_timeout_s: float, version: Callable[[], int],
+                 samples_kept: int) -> None:
+        """`depth`: `learner.prefetch_depth`; `sample_timeout_s`: `replay.sample_timeout_s`;
+        `samples_kept`: the updates this run's learner has done and kept (its checkpoint's
         count after a restart; 0 for a new run)."""
         self.runtime = runtime
-        self.config = config
+        self.shape = shape
+        self.sample_timeout_s = sample_timeout_s
         self.version = version
-        self.lockstep = config.training.schedule == "lockstep"
+        self.lockstep = lockstep
         self._advanced = threading.Condition()
         self.batches: queue.Queue[ServedBatch] = queue.Queue()  # bounded by the credits
-        self._credits = threading.Semaphore(config.learner.prefetch_depth)
+        self._credits = threading.Semaphore(depth)
         self.warn = WarnOncePerMinute(log)
         self._request_id = 0
         self.asked_again = 0
@@ -113,7 +129,7 @@ class Prefetcher:
                 if stop.is_set():
                     return False
                 waited = time.monotonic() - started
-                if exc.no_queryable or waited >= self.config.replay.sample_timeout_s:
+                if exc.no_queryable or waited >= self.sample_timeout_s:
                     self.warn.warn(type(exc).__name__,
                                    f"sample request failed ({exc}); retrying")
                     stop.wait(0.5)
@@ -125,21 +141,20 @@ class Prefetcher:
         """`_fetch`'s one request; raises `TransportTimeout` when its reply is overdue."""
         stop = self.runtime.stop
         self._request_id += 1
+        shape = self.shape
         request = pb.SampleRequest(
-            schema_version=SCHEMA_VERSION, run=self.config.run.name,
+            schema_version=SCHEMA_VERSION, run=shape.run,
             learner_id=self.runtime.ident, request_id=self._request_id,
-            num_minibatches=self.config.training.minibatches_per_cycle,
-            batch_size=self.config.ddpg.batch_size,
+            num_minibatches=shape.minibatches, batch_size=shape.batch_size,
             weights_version=wanted if self.lockstep else self.version(),
             samples_kept=self.samples_kept, learner_incarnation=self.incarnation)
         try:
             raw = self.runtime.transport.request(
                 self.runtime.keys.sample, request.SerializeToString(),
-                timeout_s=min(self.config.replay.sample_timeout_s, ASK_AGAIN_S))
-            batch = decode_served_batch(
-                raw, spec=self.config.task.spec, k=self.config.cluster.k,
-                batch_size=self.config.ddpg.batch_size,
-                num_minibatches=self.config.training.minibatches_per_cycle)
+                timeout_s=min(self.sample_timeout_s, ASK_AGAIN_S))
+            batch = decode_served_batch(raw, spec=shape.spec, k=shape.clusters,
+                                        batch_size=shape.batch_size,
+                                        num_minibatches=shape.minibatches)
         except InvalidMessage as exc:  # a reply no update may see: counted, skipped
             self.bad_batches[exc.reason] += 1
             self.warn.warn(f"bad:{exc.reason}", f"skipped a bad Batch ({exc}); asking again")

@@ -17,7 +17,6 @@ from typing import Any
 
 import torch
 
-from hercs.config import HercsConfig
 from hercs.errors import Diverged
 from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
@@ -31,8 +30,9 @@ log = logging.getLogger("hercs.learner")
 
 
 def save_learner_state(checkpoints: Path, *, learner: DDPGLearner, loop: LearnerLoop,
-                       eval_requests: EvalRequests, config: HercsConfig) -> bool:
-    """Write `checkpoints/learner.pt`; False if the write failed (logged, the previous file
+                       eval_requests: EvalRequests, config_record: dict[str, Any]) -> bool:
+    """Write `checkpoints/learner.pt` (with `config_record`, the run's resolved config as a
+    dict); False if the write failed (logged, the previous file
     kept). A learner state holding a NaN or an inf anywhere (weights, targets, Adam's moments,
     normalisers) raises `Diverged` instead and leaves the previous checkpoint as it was: a
     resumed run must never start from numbers it cannot train on. (Adam's second moment can
@@ -40,7 +40,7 @@ def save_learner_state(checkpoints: Path, *, learner: DDPGLearner, loop: Learner
     state: dict[str, Any] = {
         "learner": learner.state_dict(), "loop": loop.state_dict(),
         "torch_rng": torch.get_rng_state(), "eval_requests": eval_requests.state_dict(),
-        "config": config.to_dict()}
+        "config": config_record}
     bad = nonfinite_tensors(state_tensors(state["learner"], "learner"))
     if bad:
         raise Diverged(f"{checkpoints / LATEST} not written, the one there is kept: "

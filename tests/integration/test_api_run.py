@@ -113,14 +113,14 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
         run_dir: Path, observations: dict[str, np.ndarray], user) -> None:
     import torch
 
-    from hercs.actors.weights import WeightsDecoder
+    from hercs.actors.builder import ActorBuilder
     from hercs.apps.evaluation.policy_eval import load_policy as eval_loads
     from hercs.config import HercsConfig
     from hercs.rl.policy import Policy
 
     state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])
-    decoder = WeightsDecoder(spec=config.task.spec, config=config)
+    decoder = ActorBuilder(config).decoder()
     evaluator = Policy(spec=config.task.spec, config=config.ddpg, seed=0)
     evaluator.load(decoder.decode(decoder.parse(state["policy"])))
     hercs_eval = eval_loads(run_dir).policy()

@@ -15,8 +15,8 @@ from bench.perf.throughput.harness import Child, Harness
 from bench.perf.throughput.plan import EPISODE_POOL, SEED
 from bench.perf.throughput.synthetic import fill_core
 from bench.perf.throughput.throughput_report import Figure, Target
+from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
-from hercs.learner.loop import LearnerLoop
 from hercs.replay_service.replay_core import ReplayCore
 from hercs.rl.seeding import generator
 from hercs.wire.served import ServedBatch
@@ -27,8 +27,8 @@ def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
     """A `LearnerLoop` in this process; returns run(seconds) -> (updates, seconds, CPU
     seconds), whole cycles only. One untimed cycle first."""
     config = bench.configs["her"][0]
-    loop = LearnerLoop(config=config, learner=DDPGLearner(
-        spec=bench.spec, config=config.ddpg, seed=config.run.seed))
+    loop = LearnerBuilder(config).loop(DDPGLearner(spec=bench.spec, config=config.ddpg,
+                                                   seed=config.run.seed))
     loop.step(batches[0])
     turn = 0
 

@@ -32,14 +32,14 @@ def check_learner_state(state: dict[str, Any], config: HercsConfig, path: Path) 
     numbers, and was written by this run; else `CheckpointError` naming `path`."""
     import torch
 
+    from hercs.learner.builder import LearnerBuilder
     from hercs.learner.ddpg import DDPGLearner
     from hercs.learner.divergence import nonfinite_tensors, state_tensors
-    from hercs.learner.evaluations import EvalRequests
-    from hercs.learner.loop import LearnerLoop
 
     _same_run(state.get("config"), config, path)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=config.run.seed)
-    loop = LearnerLoop(config=config, learner=learner)
+    parts = LearnerBuilder(config)
+    loop = parts.loop(learner)
     try:
         learner.load_state_dict(state["learner"])
         _optimiser_shapes(learner)
@@ -47,7 +47,7 @@ def check_learner_state(state: dict[str, Any], config: HercsConfig, path: Path) 
         requests = state["eval_requests"]
         if not all(isinstance(raw, bytes) for raw in requests.values()):
             raise TypeError("eval_requests holds weights that are not bytes")
-        EvalRequests(resend_s=config.training.eval_resend_s).load_state_dict(
+        parts.eval_requests().load_state_dict(
             requests, pending=loop.pending)
         rng = state["torch_rng"]
         if not (isinstance(rng, torch.Tensor) and rng.dtype == torch.uint8

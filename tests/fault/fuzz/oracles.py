@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from hercs.actors.weights import WeightsDecoder
+from hercs.actors.builder import ActorBuilder
 from hercs.clusterer.clusterer_shell import decode_header
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
@@ -121,7 +121,7 @@ class ModelOracle:
         return "adopted"
 
 
-WEIGHTS_DECODER = WeightsDecoder(spec=SPEC, config=ACTOR_CONFIG)
+WEIGHTS_DECODER = ActorBuilder(ACTOR_CONFIG).decoder()
 
 
 def weights_verdict(raw: bytes) -> tuple[str, pb.Weights | None]:

@@ -213,16 +213,16 @@ def test_the_learner_sets_rows_past_its_checkpoint_aside(tmp_path: Path) -> None
     """Defence in depth, when services run without `hercs up`: a learner that finds rows past
     its checkpoint keeps the old file whole in previous/<time>/ and trains those epochs
     again; without a checkpoint it sets every row aside the same way."""
+    from hercs.learner.builder import LearnerBuilder
     from hercs.learner.ddpg import DDPGLearner
     from hercs.learner.evaluations import EvalRequests
-    from hercs.learner.loop import LearnerLoop
     from hercs.learner.resume import resume_learner_state
 
     for checkpoint, kept in ((2, [1, 2]), (None, [])):
         run = tmp_path / f"r{checkpoint}"
         config = make_run(run, epochs=4, trained=3, checkpoint=checkpoint)
         learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
-        loop = LearnerLoop(config=config, learner=learner)
+        loop = LearnerBuilder(config).loop(learner)
         resumed = resume_learner_state(RunDir(run).checkpoints, RunDir(run).metrics,
                                        learner=learner, loop=loop,
                                        eval_requests=EvalRequests(resend_s=60.0))

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import hercs
-from hercs.actors.weights import WeightsDecoder
+from hercs.actors.builder import ActorBuilder
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.learner.checkpoint import save_policy
 from hercs.rl.policy import Policy
@@ -100,7 +100,7 @@ def test_the_loaded_policy_acts_as_the_evaluator_acts_on_the_same_weights(run_di
     policy = hercs.load_policy(run_dir)
     state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])
-    decoder = WeightsDecoder(spec=config.task.spec, config=config)
+    decoder = ActorBuilder(config).decoder()
     evaluator = Policy(spec=config.task.spec, config=config.ddpg, seed=0)
     evaluator.load(decoder.decode(decoder.parse(state["policy"])))
 

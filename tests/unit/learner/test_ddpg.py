@@ -17,6 +17,7 @@ from hercs.rl.normalizer import Normalizer
 from hercs.rl.policy import Policy
 from hercs.rl.task_registry import task_spec
 from tests.support import random_transition_batch as _batch
+from tests.support import update_losses
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=32)  # fast nets where the width does not matter
@@ -62,7 +63,7 @@ def test_critic_target_is_clipped_to_minus_one_over_one_minus_gamma_and_zero(
     assert not y.requires_grad
 
     # the update regresses Q onto the same (clipped) target
-    metrics = learner.update(_batch(SPEC, b, seed=1))
+    metrics = update_losses(learner, _batch(SPEC, b, seed=1))
     batch_r = _batch(SPEC, b, seed=1).r
     want_mean = {"zero": 0.0, "floor": -1.0 / (1.0 - config.gamma),
                  "unclipped": float(np.mean(batch_r + config.gamma * bias))}[expected]
@@ -74,7 +75,7 @@ def test_reward_of_shape_b_is_not_broadcast_to_b_by_b() -> None:
     twin = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     batch = _batch(SPEC, 8, seed=2)
     column = batch._replace(r=batch.r.reshape(8, 1))
-    assert learner.update(batch) == twin.update(column)
+    assert update_losses(learner, batch) == update_losses(twin, column)
 
 
 @pytest.mark.parametrize("polyak", [0.95, 0.5, 0.0, 1.0], ids=["0.95", "0.5", "copy", "frozen"])
@@ -82,7 +83,7 @@ def test_polyak_update_arithmetic(polyak: float) -> None:
     config = dataclasses.replace(SMALL, polyak=polyak)
     learner = DDPGLearner(spec=SPEC, config=config, seed=0)
     for i in range(3):
-        learner.update(_batch(SPEC, 32, seed=10 + i))
+        update_losses(learner, _batch(SPEC, 32, seed=10 + i))
     pairs = [(learner.actor, learner.actor_target), (learner.critic, learner.critic_target)]
     before = [(_params(net), _params(targ)) for net, targ in pairs]
     assert any(not torch.equal(p, t) for p, t in zip(*before[0], strict=True))
@@ -101,7 +102,7 @@ def test_targets_are_copies_at_init_and_do_not_move_with_updates() -> None:
         for p, t in zip(net.parameters(), targ.parameters(), strict=True):
             assert torch.equal(p, t) and p.data_ptr() != t.data_ptr()
     targ_before = _params(learner.critic_target)
-    learner.update(_batch(SPEC, 32, seed=3))
+    update_losses(learner, _batch(SPEC, 32, seed=3))
     for t_old, t in zip(targ_before, learner.critic_target.parameters(), strict=True):
         assert torch.equal(t_old, t)
 
@@ -132,7 +133,7 @@ def test_critic_scales_the_action_by_max_action() -> None:
 def test_critic_loss_decreases_on_a_fixed_batch() -> None:
     learner = DDPGLearner(spec=SPEC, config=DDPGConfig(), seed=0)
     batch = _batch(SPEC, 256, seed=5)
-    losses = [learner.update(batch)["critic_loss"] for _ in range(50)]
+    losses = [update_losses(learner, batch)["critic_loss"] for _ in range(50)]
     assert losses[-1] < 0.2 * losses[0], losses[::10]
     assert learner.updates == 50
 
@@ -142,7 +143,7 @@ def test_actor_loss_decreases_on_a_fixed_batch() -> None:
     config = dataclasses.replace(SMALL, lr_critic=1e-12)
     learner = DDPGLearner(spec=SPEC, config=config, seed=0)
     batch = _batch(SPEC, 64, seed=6)
-    losses = [learner.update(batch)["actor_loss"] for _ in range(30)]
+    losses = [update_losses(learner, batch)["actor_loss"] for _ in range(30)]
     assert losses[-1] < losses[0]
 
 
@@ -156,7 +157,7 @@ def test_update_uses_the_adopted_normalizer_state() -> None:
     o_norm.recompute_stats()
     g_norm.recompute_stats()
     b.set_normalizer_state(o_norm.state_dict(), g_norm.state_dict())
-    assert a.update(batch)["critic_loss"] != b.update(batch)["critic_loss"]
+    assert update_losses(a, batch)["critic_loss"] != update_losses(b, batch)["critic_loss"]
     o_state, _ = b.normalizer_state()
     np.testing.assert_array_equal(o_state["mean"], o_norm.mean)
 
@@ -168,7 +169,7 @@ def test_state_dict_round_trip_reproduces_training() -> None:
     o_norm.recompute_stats()
     src.set_normalizer_state(o_norm.state_dict(), Normalizer(SPEC.goal_dim).state_dict())
     for i in range(3):
-        src.update(_batch(SPEC, 32, seed=20 + i))
+        update_losses(src, _batch(SPEC, 32, seed=20 + i))
     src.update_targets()
     state = src.state_dict()
 
@@ -177,7 +178,7 @@ def test_state_dict_round_trip_reproduces_training() -> None:
     # training both further gives identical losses and weights (Adam moments restored too)
     for i in range(3):
         batch = _batch(SPEC, 32, seed=30 + i)
-        assert src.update(batch) == dst.update(batch)
+        assert update_losses(src, batch) == update_losses(dst, batch)
     src.update_targets()
     dst.update_targets()
     for name in ("actor", "critic", "actor_target", "critic_target"):
@@ -212,7 +213,7 @@ def test_policy_weights_broadcast_reproduces_the_learners_actor() -> None:
     o_norm.update(batch.o * 2)
     o_norm.recompute_stats()
     learner.set_normalizer_state(o_norm.state_dict(), g_norm.state_dict())
-    learner.update(batch)
+    update_losses(learner, batch)
     w = learner.policy_weights(version=3)
     policy = Policy(spec=SPEC, config=SMALL, seed=99)
     policy.load(w)
@@ -235,7 +236,7 @@ def test_update_rejects_malformed_batches(key: str, value: np.ndarray, match: st
     learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     batch = _batch(SPEC, 32, seed=0)._replace(**{key: value})
     with pytest.raises(ValueError, match=match):
-        learner.update(batch)
+        update_losses(learner, batch)
     assert learner.updates == 0
 
 
@@ -262,8 +263,8 @@ def test_a_batch_checked_on_arrival_is_taken_as_it_is_and_gives_the_same_update(
     learner = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
     assert learner._check_batch(checked) is checked
     twin = DDPGLearner(spec=SPEC, config=SMALL, seed=0)
-    assert learner.update(checked) == twin.update(batch)
+    assert update_losses(learner, checked) == update_losses(twin, batch)
     with pytest.raises(ValueError, match="'u' has shape"):
-        learner.update(batch._replace(u=batch.u[:, :2]))
+        update_losses(learner, batch._replace(u=batch.u[:, :2]))
     with pytest.raises(InvalidMessage, match=r"Minibatch\.u"):
         decode_minibatch(minibatch_to_msg(batch._replace(u=batch.u[:, :2])), SPEC, batch_size=8)

@@ -12,6 +12,7 @@ import torch
 
 from hercs.config import HercsConfig, apply_overrides
 from hercs.errors import Diverged
+from hercs.learner.builder import LearnerBuilder
 from hercs.learner.cuda_graph import loss_row
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
@@ -50,7 +51,7 @@ def served(cfg: HercsConfig, seed: int, *, reward: float | None = None) -> Serve
 def learner_and_loop(cfg: HercsConfig, device: str = "cpu", **kwargs: bool
                      ) -> tuple[DDPGLearner, LearnerLoop]:
     learner = DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg, seed=0, device=device, **kwargs)
-    return learner, LearnerLoop(config=cfg, learner=learner)
+    return learner, LearnerBuilder(cfg).loop(learner)
 
 
 def target_weights(learner: DDPGLearner) -> list[torch.Tensor]:
@@ -137,7 +138,8 @@ def test_a_checkpoint_is_never_overwritten_with_numbers_that_are_not_finite(
 
     def save() -> bool:
         return save_learner_state(folder, learner=learner, loop=loop,
-                                  eval_requests=EvalRequests(resend_s=60.0), config=cfg)
+                                  eval_requests=EvalRequests(resend_s=60.0),
+                                  config_record=cfg.to_dict())
 
     assert save()
     sound = (folder / "learner.pt").read_bytes()

@@ -12,7 +12,7 @@ from hercs.errors import ConfigError
 from hercs.learner.ddpg import DDPGLearner, resolve_device
 from hercs.rl.task_registry import task_spec
 from hercs.wire.batch import TransitionBatch
-from tests.support import random_transition_batch
+from tests.support import random_transition_batch, update_losses
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=32)
@@ -51,7 +51,7 @@ def test_device_path_on_the_cpu_matches_the_default_and_checkpoints_are_host_ten
     default = DDPGLearner(spec=SPEC, config=SMALL, seed=3)
     explicit = DDPGLearner(spec=SPEC, config=SMALL, seed=3, device=torch.device("cpu"))
     for i in range(5):
-        assert default.update(_batch(i)) == explicit.update(_batch(i))
+        assert update_losses(default, _batch(i)) == update_losses(explicit, _batch(i))
     state = explicit.state_dict()
     tensors = [t for part in ("actor", "critic", "actor_target") for t in state[part].values()]
     tensors += [v for s in state["actor_optim"]["state"].values() for v in s.values()
@@ -59,7 +59,7 @@ def test_device_path_on_the_cpu_matches_the_default_and_checkpoints_are_host_ten
     assert tensors and all(t.device.type == "cpu" for t in tensors)
     restored = DDPGLearner(spec=SPEC, config=SMALL, seed=99)
     restored.load_state_dict(state)
-    assert restored.update(_batch(7)) == explicit.update(_batch(7))
+    assert update_losses(restored, _batch(7)) == update_losses(explicit, _batch(7))
 
 
 @pytest.mark.skipif(not HAS_CUDA, reason=NO_CUDA)
@@ -67,7 +67,7 @@ def test_the_same_updates_on_cuda_as_on_the_cpu() -> None:
     cpu = DDPGLearner(spec=SPEC, config=SMALL, seed=5, device="cpu")
     gpu = DDPGLearner(spec=SPEC, config=SMALL, seed=5, device="cuda")
     for i in range(20):
-        a, b = cpu.update(_batch(i)), gpu.update(_batch(i))
+        a, b = update_losses(cpu, _batch(i)), update_losses(gpu, _batch(i))
         assert a.keys() == b.keys()
         for key in a:
             assert abs(a[key] - b[key]) <= 1e-3 * max(1.0, abs(a[key])), key
@@ -75,7 +75,7 @@ def test_the_same_updates_on_cuda_as_on_the_cpu() -> None:
         np.testing.assert_allclose(gpu.actor_weights()[name], array, atol=1e-3)
     moved = DDPGLearner(spec=SPEC, config=SMALL, seed=0, device="cpu")
     moved.load_state_dict(gpu.state_dict())  # a GPU run's checkpoint resumes on a CPU
-    assert moved.update(_batch(30)).keys() == a.keys()
+    assert update_losses(moved, _batch(30)).keys() == a.keys()
 
 
 def test_fused_adam_and_frozen_critic_match_the_plain_update() -> None:
@@ -88,7 +88,7 @@ def test_fused_adam_and_frozen_critic_match_the_plain_update() -> None:
     plain.critic_optim = torch.optim.Adam(plain.critic.parameters(), lr=SMALL.lr_critic)
     plain._critic_params = []  # no freezing: the critic's grads from L_mu are computed
     for i in range(10):
-        a, b = fast.update(_batch(i)), plain.update(_batch(i))
+        a, b = update_losses(fast, _batch(i)), update_losses(plain, _batch(i))
         for key in a:
             assert abs(a[key] - b[key]) <= 1e-4 * max(1.0, abs(b[key])), key
     for net in ("actor", "critic"):

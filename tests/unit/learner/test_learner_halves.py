@@ -14,7 +14,7 @@ from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner, critic_target, return_bounds
 from hercs.rl.networks import preprocess
 from hercs.rl.task_registry import task_spec
-from tests.support import random_transition_batch
+from tests.support import random_transition_batch, update_losses
 
 SPEC = task_spec("push")
 CONFIG = DDPGConfig(batch_size=64)  # the reference widths: 3 × 256
@@ -101,7 +101,7 @@ def test_the_critic_half_runs_on_its_own_single_threaded_thread() -> None:
     before = torch.get_num_threads()
     torch.set_num_threads(1)  # what every service sets (hercs/net/threads.py)
     try:
-        learner.update(random_transition_batch(SPEC, CONFIG.batch_size, seed=0))
+        update_losses(learner, random_transition_batch(SPEC, CONFIG.batch_size, seed=0))
     finally:
         torch.set_num_threads(before)
     assert len(seen) == 1 and seen[0][0].startswith("critic-half")
@@ -111,10 +111,10 @@ def test_the_critic_half_runs_on_its_own_single_threaded_thread() -> None:
 def test_an_error_in_the_critic_half_reaches_the_caller() -> None:
     learner = DDPGLearner(spec=SPEC, config=CONFIG, seed=0, parallel_halves=True)
     batch = random_transition_batch(SPEC, CONFIG.batch_size, seed=0)
-    learner.update(batch)
+    update_losses(learner, batch)
     learner.critic_target.net[0].weight.data = torch.zeros(3, 3)  # a broken target network
     with pytest.raises(RuntimeError):
-        learner.update(batch)
+        update_losses(learner, batch)
 
 
 def test_train_sums_on_the_device_what_update_returns() -> None:
@@ -126,7 +126,7 @@ def test_train_sums_on_the_device_what_update_returns() -> None:
     for i in range(UPDATES):
         batch = random_transition_batch(SPEC, CONFIG.batch_size, seed=i)
         summed.train(batch)
-        rows.append(returned.update(batch))
+        rows.append(update_losses(returned, batch))
     # the sums hold numbers, not the updates' autograd graphs (a chain of them leaked memory)
     assert not summed.loss_sums.requires_grad and summed.loss_sums.grad_fn is None
     means = summed.loss_means()
@@ -156,5 +156,5 @@ def test_an_error_in_the_actor_half_waits_for_the_critic_half() -> None:
     learner._critic_half = slow_critic_half  # type: ignore[method-assign]
     learner._actor_half = failing_actor_half  # type: ignore[method-assign]
     with pytest.raises(RuntimeError, match="actor half failed"):
-        learner.update(random_transition_batch(SPEC, CONFIG.batch_size, seed=0))
+        update_losses(learner, random_transition_batch(SPEC, CONFIG.batch_size, seed=0))
     assert finished.is_set()

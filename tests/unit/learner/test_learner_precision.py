@@ -14,7 +14,7 @@ from hercs.learner.ddpg import DDPGLearner
 from hercs.rl.networks import to_arrays
 from hercs.rl.task_registry import task_spec
 from hercs.wire.batch import TransitionBatch
-from tests.support import random_transition_batch
+from tests.support import random_transition_batch, update_losses
 
 SPEC = task_spec("push")
 SMALL = DDPGConfig(hidden_size=64, batch_size=64)
@@ -36,8 +36,8 @@ def test_bf16_follows_the_fp32_trajectory_with_fp32_master_weights_and_losses() 
     losses: dict[str, list[float]] = {"fp32": [], "bf16": []}
     for step in range(30):
         batch = _batch(step % 5)
-        losses["fp32"].append(fp32.update(batch)["critic_loss"])
-        losses["bf16"].append(bf16.update(batch)["critic_loss"])
+        losses["fp32"].append(update_losses(fp32, batch)["critic_loss"])
+        losses["bf16"].append(update_losses(bf16, batch)["critic_loss"])
         if step % 10 == 9:
             fp32.update_targets()
             bf16.update_targets()

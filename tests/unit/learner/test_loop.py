@@ -2,6 +2,8 @@
 from a real ReplayCore (no transport)."""
 
 import dataclasses
+import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -44,11 +46,17 @@ def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
     return out
 
 
+def loop_of(cfg: HercsConfig, clock: Callable[[], float] = time.monotonic) -> LearnerLoop:
+    """A fresh loop (and learner) of `cfg`, its arguments unpacked as the builder does."""
+    return LearnerLoop(learner=DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg, seed=0),
+                       epochs=cfg.training.epochs, cycles_per_epoch=cfg.training.cycles_per_epoch,
+                       clusters=cfg.cluster.k, clock=clock)
+
+
 def test_epochs_versions_and_rows(tmp_path) -> None:
     cfg = config()
     ticks = iter(range(100))
-    loop = LearnerLoop(config=cfg, learner=DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg,
-                                                       seed=0), clock=lambda: float(next(ticks)))
+    loop = loop_of(cfg, clock=lambda: float(next(ticks)))
     ended = [loop.step(b).epoch_ended for b in batches(cfg, 6)]
     assert ended == [None, None, 1, None, None, 2]
     assert loop.version == 6 and loop.learner.updates == 12 and loop.learner.target_updates == 6
@@ -79,8 +87,7 @@ def test_a_resumed_loop_continues_exactly_where_the_checkpoint_was_taken(tmp_pat
     data = batches(cfg, 6)
 
     def fresh() -> LearnerLoop:
-        return LearnerLoop(config=cfg, learner=DDPGLearner(spec=cfg.task.spec,
-                                                           config=cfg.ddpg, seed=0))
+        return loop_of(cfg)
 
     straight = fresh()
     for b in data:
@@ -158,8 +165,7 @@ def test_metrics_of_an_older_run_keep_its_columns(tmp_path) -> None:
 
 def test_the_epoch_row_reports_the_lag_distribution_and_moved_shares() -> None:
     cfg = config()
-    loop = LearnerLoop(config=cfg, learner=DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg,
-                                                       seed=0))
+    loop = loop_of(cfg)
     lags = [[3, 4], [], [4, 4, 5, 12]]           # the episodes stored before each batch
     moved = [(10, 32, 0.25), (0, 32, 0.25), (22, 32, 0.5)]
     for batch, lag, (m, n, share) in zip(batches(cfg, 3), lags, moved, strict=True):

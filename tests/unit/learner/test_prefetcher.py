@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from hercs.config import HercsConfig, apply_overrides
+from hercs.learner.builder import LearnerBuilder
 from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
 from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
@@ -70,7 +71,7 @@ def start(depth: int, kept: int = 0, answering: type[AnsweringTransport] = Answe
 
     runtime = SimpleNamespace(stop=stop, transport=transport, ident="learner-test",
                               keys=SimpleNamespace(sample="sample"), start_thread=start_thread)
-    return (Prefetcher(runtime=runtime, config=config, version=lambda: 0, samples_kept=kept),
+    return (LearnerBuilder(config).prefetcher(runtime, version=lambda: 0, samples_kept=kept),
             transport, stop)
 
 
@@ -99,7 +100,7 @@ def test_each_request_tells_the_replay_what_the_learner_has_kept() -> None:
         for taken in range(1, 4):
             assert prefetcher.get() is not None
             assert transport.wait_for(taken + 1)
-        n = prefetcher.config.training.minibatches_per_cycle
+        n = prefetcher.shape.minibatches
         incarnations = {name for name, _ in transport.kept}
         assert len(incarnations) == 1 and next(iter(incarnations)).startswith("learner-test@")
         assert [kept for _, kept in transport.kept[:4]] == [80 + i * n for i in range(4)]
@@ -135,12 +136,11 @@ def test_a_request_whose_reply_is_lost_is_asked_again_within_a_bound_and_quietly
     count) with no warning, since a replay may park a request that long on purpose."""
     prefetcher, transport, stop = start(1, kept=40, answering=LosingTransport)
     assert isinstance(transport, LosingTransport)
-    config = prefetcher.config
     try:
         with caplog.at_level(logging.WARNING, logger="hercs.learner"):
             assert prefetcher.get() is not None
         assert transport.timeouts[:2] == [ASK_AGAIN_S, ASK_AGAIN_S]
-        assert config.replay.sample_timeout_s > ASK_AGAIN_S
+        assert prefetcher.sample_timeout_s > ASK_AGAIN_S
         first, again = transport.requested[:2]
         assert (again.weights_version, again.samples_kept, again.learner_incarnation) == (
             first.weights_version, first.samples_kept, first.learner_incarnation)
