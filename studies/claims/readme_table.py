@@ -8,8 +8,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from hercs.apps.plots import numbers
-from hercs.apps.plots.series import METHOD_LABELS, marks_epsilon
+from hercs.apps.plots.series import marks_epsilon
 from hercs.config.algorithm import default_energy_epsilon
+from hercs.rl.methods import METHODS
 from studies.claims.claim_runs import EPOCH, Group
 from studies.claims.claim_statistics import Estimate
 from studies.claims.claims import PICK_EPOCH, Claim, ClaimResult, verdict
@@ -56,7 +57,7 @@ def _order(r: ClaimResult) -> tuple[int, str, int]:
     """Task, then the authors' simulator before ours, then the paper's method order."""
     g = r.claim.x
     return (TASK_ORDER.index(g.task) if g.task in TASK_ORDER else len(TASK_ORDER), g.env,
-            list(METHOD_LABELS).index(g.method))
+            list(METHODS).index(g.method))
 
 
 def selected(claims: Sequence[Claim]) -> list[Claim]:
@@ -76,7 +77,7 @@ def _task(r: ClaimResult) -> str:
 
 def _method(g: Group) -> str:
     eps = g.setting.removeprefix("ε ") if g.setting.startswith("ε ") else ""
-    return METHOD_LABELS[g.method] + (f", ε = {numbers.power_of_ten(float(eps))}" if eps else "")
+    return METHODS[g.method].label + (f", ε = {numbers.power_of_ten(float(eps))}" if eps else "")
 
 
 def _reading(r: ClaimResult, x: str, y: str) -> str:

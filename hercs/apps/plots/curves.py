@@ -18,8 +18,6 @@ import yaml
 # the series' vocabulary, importable from here as before it had its own module
 from hercs.apps.plots.series import ENV_VERSION_DEFAULT as ENV_VERSION_DEFAULT
 from hercs.apps.plots.series import EPSILON_UNMARKED as EPSILON_UNMARKED
-from hercs.apps.plots.series import METHOD_LABELS as METHOD_LABELS
-from hercs.apps.plots.series import METHOD_ORDER as METHOD_ORDER
 from hercs.apps.plots.series import VariantOf as VariantOf
 from hercs.apps.plots.series import energy_epsilon as energy_epsilon
 from hercs.apps.plots.series import marks_epsilon as marks_epsilon

@@ -21,8 +21,6 @@ from hercs.config.deploy import ActorConfig, LearnerConfig
 from hercs.config.replay import ReplayConfig
 from hercs.rl.methods import METHODS
 
-METHOD_ORDER: tuple[str, ...] = tuple(METHODS)
-METHOD_LABELS: dict[str, str] = {name: method.label for name, method in METHODS.items()}
 ENV_VERSION_DEFAULT = "v4"
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 EPSILON_UNMARKED = EPSILON_V1
@@ -217,7 +215,8 @@ def method_label(key: str, variant_notes: Mapping[str, str] | None = None, *,
     if unsaid is not None:
         words.append(_epsilon_words(unsaid))
     words += [notes_of[v] if v in notes_of else part_words(v) for v in env]
-    return ", ".join((METHOD_LABELS.get(method, method), *(w for w in words if w)))
+    label = METHODS[method].label if method in METHODS else method
+    return ", ".join((label, *(w for w in words if w)))
 
 
 def whose(key: str) -> str:
@@ -226,9 +225,10 @@ def whose(key: str) -> str:
 
 
 def method_rank(key: str) -> tuple[int, str]:
-    """The paper's order; a variant right after its method."""
+    """The methods table's order (the paper's); a variant right after its method."""
+    order = list(METHODS)
     method = key.partition("/")[0]
-    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), key)
+    return (order.index(method) if method in order else len(order), key)
 
 
 def changes(key: str) -> tuple[list[str], list[str]]:

@@ -13,15 +13,18 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hercs.apps.plots.series import changes, is_env_version, method_rank
+from hercs.rl.methods import METHODS
 
-METHOD_COLORS: dict[str, str] = {
-    "her": "#0072B2", "her-cs": "#D55E00", "her-ebp": "#009E73", "her-ebp-cs": "#E69F00",
-}
-"""The four methods' own colours, the same in every figure (Okabe & Ito's colour-blind-safe
-blue, vermillion, bluish green and orange)."""
-OTHER_COLORS: tuple[str, ...] = ("#56B4E9", "#CC79A7", "#000000", "#F0E442")
-"""Methods not of the four (a user's), in the order they rank: Okabe & Ito's remaining sky
-blue, reddish purple, black and yellow, then again."""
+PALETTE: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#E69F00",
+                            "#56B4E9", "#CC79A7", "#000000", "#F0E442")
+"""Okabe & Ito's colour-blind-safe colours: blue, vermillion, bluish green, orange, sky blue,
+reddish purple, black and yellow."""
+METHOD_COLORS: dict[str, str] = dict(zip(METHODS, PALETTE, strict=False))
+"""Each method of hercs.rl.methods its own colour, the same in every figure: the palette's,
+in the table's order."""
+OTHER_COLORS: tuple[str, ...] = PALETTE[len(METHOD_COLORS):] or PALETTE
+"""Methods not in the table (a user's), in the order they rank: the colours the table's leave,
+then again."""
 
 
 @dataclass(frozen=True)

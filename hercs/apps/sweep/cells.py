@@ -24,6 +24,7 @@ from hercs.apps.plots.curves import marks_epsilon
 from hercs.config.algorithm import default_energy_epsilon
 from hercs.config.building import StrictBoolLoader
 from hercs.errors import ConfigError
+from hercs.rl.methods import METHODS
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import CONFIG, DONE_RECORD, METRICS, RunDir
 
@@ -108,9 +109,17 @@ def plan_grid(tasks: Sequence[str], methods: Sequence[str], seeds: Sequence[int]
 
 
 VARIANT_NAME = re.compile(r"[a-z0-9][a-z0-9_.-]*")
-RESERVED_VARIANTS = frozenset({"lockstep", "async", "bf16", "tf32", "fp32", "lag7", "cs",
-                               "ebp", "ebp-cs", "her", "her-cs", "her-ebp", "her-ebp-cs"})
-"""Names the runs' own naming and the plots' grouping already use."""
+RESERVED_VARIANTS = frozenset({"lockstep", "async", "bf16", "tf32", "fp32", "lag7"})
+"""Names the runs' own naming and the plots' grouping already use, besides the methods'
+(`reserved_variant`)."""
+
+
+def reserved_variant(name: str) -> bool:
+    """Whether a variant called `name` could be taken for a setting or a method: one of
+    RESERVED_VARIANTS, a method's name, or the end of one after a '-' ("cs" would make
+    `her` + "-cs" read as `her-cs`)."""
+    tails = {m.split("-", cut)[-1] for m in METHODS for cut in range(1, m.count("-") + 1)}
+    return name in RESERVED_VARIANTS or name in METHODS or name in tails
 
 
 def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
@@ -121,7 +130,7 @@ def parse_variant(text: str) -> tuple[str, tuple[str, ...]]:
     if not sep or not items or not all("=" in item for item in items):
         raise ConfigError(f"--variant {text!r}: give NAME:FIELD=VALUE[,FIELD=VALUE...], e.g. "
                           "lr5e-4:ddpg.lr_actor=5e-4,ddpg.lr_critic=5e-4")
-    if name in RESERVED_VARIANTS or re.fullmatch(r"(v|ts|eps)[0-9].*|s[0-9]+", name):
+    if reserved_variant(name) or re.fullmatch(r"(v|ts|eps)[0-9].*|s[0-9]+", name):
         raise ConfigError(f"--variant {text!r}: its name {name!r} is one hercs gives runs "
                           "itself (an environment version, a schedule, a precision, a weld, "
                           "an energy floor or a seed): choose another")

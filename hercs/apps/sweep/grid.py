@@ -38,7 +38,7 @@ from hercs.apps.sweep.runner import run_grid
 from hercs.apps.sweep.slurm_array import run_one_cell, submit_slurm
 from hercs.apps.tracking.flags import add_track_argument, backends_override
 from hercs.apps.tracking.session import check_installed
-from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, apply_overrides
+from hercs.config import PRECISIONS, SCHEDULES, HercsConfig, RunConfig, apply_overrides
 from hercs.config.algorithm import EPSILON_MUJOCO3, EPSILON_V1
 from hercs.errors import ConfigError
 from hercs.rl.envs import check_env
@@ -48,6 +48,9 @@ from hercs.rl.task_registry import ENV_VERSIONS, TASKS, task_spec
 QUICK_OVERRIDES = ("training.cycles_per_epoch=2", "training.episodes_per_cycle=2",
                    "training.minibatches_per_cycle=2", "training.eval_episodes=2")
 """A run that exercises every part (rollouts, inserts, sampling, updates, eval) in seconds."""
+DEFAULT_METHODS = (next(iter(METHODS)), RunConfig.method)
+"""A sweep's arms unless --methods says: the methods table's first (plain HER, the baseline)
+and the config's default method."""
 
 
 
@@ -59,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
                    help=f"tasks: Fetch presets {sorted(TASKS)} or any task.name, e.g. "
                         "HandReach-v3 (default: push; reach with --quick)")
-    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=["her", "her-cs"])
+    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(DEFAULT_METHODS),
+                   help="the arms (default: the methods table's first, the baseline, and "
+                        f"run.method's default: {' '.join(DEFAULT_METHODS)})")
     p.add_argument("--seeds", type=int, default=3,
                    help="how many seeds: S..S+N-1 for --first-seed S (default 3)")
     p.add_argument("--first-seed", type=int, default=1, metavar="S",

@@ -17,6 +17,7 @@ from hercs.apps.plots import command as plot_command
 from hercs.apps.plots import curves as plots
 from hercs.apps.plots import tables as plot_tables
 from hercs.apps.plots.series import MAX_SERIES, SeriesChoice
+from hercs.rl.methods import METHODS
 from hercs.run.rundir import RunDir
 from tests.unit.apps.plot_runs import (
     CURVES,
@@ -268,7 +269,7 @@ def test_a_legend_of_many_groups_grows_the_figure_instead_of_being_cut(
                 {"training": {"schedule": "lockstep"}, "learner": {"precision": "bf16"}}]
     dirs = []
     for i in range(20):  # 4 methods × 5 settings: 20 groups
-        method = plots.METHOD_ORDER[i % 4]
+        method = list(METHODS)[i % 4]
         (tmp_path / f"r{i}").mkdir()
         run = _write_run(tmp_path / f"r{i}", method, 1, [0.07 * (i % 13)] * 12)
         config = yaml.safe_load(RunDir(run).config.read_text())
