@@ -7,6 +7,7 @@ each returning a `Run` handle (`hercs.apps.cli.run_handle`); `load_policy`, `rea
 
 from __future__ import annotations
 
+from importlib import metadata as _metadata
 from typing import TYPE_CHECKING, Any
 
 from hercs.api import (
@@ -25,7 +26,10 @@ from hercs.errors import ConfigError, HercsError
 if TYPE_CHECKING:
     from hercs.apps.cli.run_handle import Run, resume, up
 
-__version__ = "0.1.0"
+try:
+    __version__ = _metadata.version("hercs")  # pyproject.toml's, as installed
+except _metadata.PackageNotFoundError:  # a bare checkout on PYTHONPATH
+    __version__ = "(not installed)"
 
 __all__ = [
     "ConfigError", "HercsError", "LoggedEpisode", "Metrics", "MissingPackage", "ObservationError",
@@ -36,7 +40,9 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     """`up`, `resume` and `Run` on first use: the launcher's imports stay out of every
-    service's `import hercs`."""
+    service's `import hercs`. This module is the top of hercs' layers, above hercs.apps: no
+    module of the package imports it (the import-linter contract "root-on-top" in
+    pyproject.toml), so reaching down to the launcher here closes no cycle."""
     if name in ("up", "resume", "Run"):
         from hercs.apps.cli import run_handle
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -247,39 +248,63 @@ class HercsConfig:
 def apply_overrides(config: HercsConfig, overrides: list[str]) -> HercsConfig:
     """Return a new config with `section.field=value` overrides applied and validated.
 
-    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work). This is how every
-    `hercs` command builds the config it runs here, so the result is also held to what this
-    machine can hold (`hercs.config.bounds.check_machine`: its memory and CPUs); a config
-    built otherwise (`HercsConfig(...)`, `from_dict`, `load_yaml`) may describe a run held
-    elsewhere and is held only to the bounds of any machine.
+    Values are parsed as YAML scalars (so `true`, `1e-3`, `[a, b]` work); a string field takes
+    the text as it is. Then as `with_values`, which holds the result to this machine.
     """
-    data = config.to_dict()
+    values: dict[str, Any] = {}
+    shown: dict[str, str] = {}
     for item in overrides:
         key, sep, raw = item.partition("=")
         if not sep or "." not in key:
             raise ConfigError(
                 f"override {item!r}: must look like section.field=value, e.g. ddpg.lr_actor=1e-3"
             )
-        section, _, name = key.strip().partition(".")
-        if section not in data or not isinstance(data[section], dict):
-            raise ConfigError(f"override {item!r}: unknown section {section!r};"
-                              f"{_did_you_mean(section, data)} known: {sorted(data)}")
-        if name not in data[section]:
-            raise ConfigError(f"override {item!r}: unknown field {key.strip()!r};"
-                              f"{_did_you_mean(name, data[section], section + '.')} known in "
-                              f"{section}: {sorted(data[section])} (`hercs config` prints "
-                              "every field with its value)")
-        if isinstance(getattr(getattr(config, section), name), str):
+        key = key.strip()
+        shown[key] = f"override {item!r}"
+        section, _, name = key.partition(".")
+        current = getattr(getattr(config, section, None), name, None)
+        if isinstance(current, str):
             # A string field takes the text as it is, so a run named "007" stays a string.
             # (The field's type, not the value an earlier override left: "1e-5" is a string
             # to YAML, and a later override of the same number field is still a number.)
-            data[section][name] = raw
+            values[key] = raw
             continue
         try:
-            value = yaml.load(raw, Loader=StrictBoolLoader) if raw.strip() else ""
+            values[key] = yaml.load(raw, Loader=StrictBoolLoader) if raw.strip() else ""
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {item!r}: value is not valid YAML ({exc})") from None
-        data[section][name] = value
+    return with_values(config, values, shown=shown)
+
+
+def with_values(config: HercsConfig, values: Mapping[str, Any], *,
+                shown: Mapping[str, str] | None = None) -> HercsConfig:
+    """Return a new config with each `"section.field": value` set (typed Python values, as
+    `hercs.up(overrides={...})` gives them), validated as a whole.
+
+    This is how every `hercs` command and `hercs.up()` builds the config it runs here, so the
+    result is also held to what this machine can hold (`hercs.config.bounds.check_machine`:
+    its memory and CPUs); a config built otherwise (`HercsConfig(...)`, `from_dict`,
+    `load_yaml`) may describe a run held elsewhere and is held only to the bounds of any
+    machine. An unknown section or field is refused by name, with the nearest known one
+    (`shown`: how an error names a key's item, e.g. "override 'ddpg.lr=1'").
+    """
+    data = config.to_dict()
+    for key, value in values.items():
+        key = str(key).strip()
+        section, dot, name = key.partition(".")
+        item = (shown or {}).get(key) or f"{key!r} (= {value!r})"
+        if not dot:
+            raise ConfigError(f"{item}: the key must look like section.field, e.g. "
+                              "ddpg.lr_actor")
+        if section not in data or not isinstance(data[section], dict):
+            raise ConfigError(f"{item}: unknown section {section!r};"
+                              f"{_did_you_mean(section, data)} known: {sorted(data)}")
+        if name not in data[section]:
+            raise ConfigError(f"{item}: unknown field {key!r};"
+                              f"{_did_you_mean(name, data[section], section + '.')} known in "
+                              f"{section}: {sorted(data[section])} (`hercs config` prints "
+                              "every field with its value)")
+        data[section][name] = list(value) if isinstance(value, tuple) else value
     result = HercsConfig.from_dict(data)
     check_machine(result)
     return result

@@ -90,7 +90,8 @@ def _contents(state: dict[str, Any], run_dir: Path, path: Path
         if not isinstance(raw, bytes):  # bytes(n) of a number would allocate n bytes
             raise TypeError(f"'policy' is of type {type(raw).__name__}, not the Weights "
                             "message's bytes")
-        return config, int(state["epoch"]), _decode_weights(raw, config, path)
+        return config, int(state["epoch"]), _decode_weights(
+            raw, max_bytes=config.replay.max_message_bytes, path=path)
     learner, loop = state["learner"], state["loop"]
     weights = PolicyWeights(version=int(loop.get("version", 0)),
                             actor={k: v.detach().cpu().numpy().astype(np.float32)
@@ -99,14 +100,15 @@ def _contents(state: dict[str, Any], run_dir: Path, path: Path
     return config, int(loop["epoch"]), weights
 
 
-def _decode_weights(raw: bytes, config: HercsConfig, path: Path) -> PolicyWeights:
-    """A policy file's `Weights` bytes as the evaluator decodes them."""
+def _decode_weights(raw: bytes, *, max_bytes: int, path: Path) -> PolicyWeights:
+    """A policy file's `Weights` bytes as the evaluator decodes them (a message of at most
+    `max_bytes`, the run's `replay.max_message_bytes`)."""
     from hercs.proto import hercs_pb2 as pb
     from hercs.wire.codec import msg_to_weight_arrays
     from hercs.wire.validation import parse_message
 
     try:
-        msg = parse_message(raw, pb.Weights, max_bytes=config.replay.max_message_bytes)
+        msg = parse_message(raw, pb.Weights, max_bytes=max_bytes)
         actor, o_stats, g_stats = msg_to_weight_arrays(msg)
     except InvalidMessage as exc:
         raise CheckpointError(f"{path}: the policy in it does not load ({exc})") from None

@@ -201,7 +201,7 @@ def test_a_bad_value_raises_before_anything_starts(tmp_path: Path) -> None:
                  overrides={"ddpg.lr_actor": "fast"})
     with pytest.raises(ConfigError, match=r"task\.name: got 'no-such-task'"):
         hercs.up(task="no-such-task", run_dir=str(tmp_path / "runs"))
-    refused = r"arguments refused \(argument --actors: invalid int value: 'two'\)"
+    refused = r"actor\.num_actors: got 'two', must be a number"
     with pytest.raises(ConfigError, match=refused):
         hercs.up(task="reach", actors="two",  # type: ignore[arg-type]
                  run_dir=str(tmp_path / "runs"))

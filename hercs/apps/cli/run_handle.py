@@ -1,9 +1,11 @@
 """`hercs.up(...)`: start a whole run from Python and hold it by a handle.
 
 The run is `hercs up` in a child process, so training never shares the caller's interpreter,
-GIL or signals; arguments resolve as on the command line (a bad one raises `ConfigError` before
-anything starts). `rows()` yields metrics rows, `wait()` the exit status, `policy("best")` the
-policy; `stop()` is Ctrl-C's orderly stop, also done when the caller exits.
+GIL or signals. Its config is built here as a tree, to what the command line builds from the
+same choices, and handed to the child whole as a resolved YAML file (a bad value raises
+`ConfigError` before anything starts). `rows()` yields metrics rows, `wait()` the exit
+status, `policy("best")` the policy; `stop()` is Ctrl-C's orderly stop, also done when the
+caller exits.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import weakref
 from collections import deque
@@ -100,43 +103,65 @@ class _Spawner:
 _SPAWNER = _Spawner()
 
 
-def _flags(task: str | None, method: str | None, epochs: int | None, seed: int | None,
+def _built(task: str | None, method: str | None, epochs: int | None, seed: int | None,
            actors: int | None, name: str | None, run_dir: str | os.PathLike[str] | None,
            config: str | os.PathLike[str] | None,
-           overrides: Mapping[str, Any] | Sequence[str], listen: str | None,
-           track: str | Sequence[str] = ()) -> list[str]:
-    argv: list[str] = []
-    for tracker in [track] if isinstance(track, str) else track:
-        argv += ["--track", str(tracker)]
-    for flag, value in (("--task", task), ("--method", method), ("--epochs", epochs),
-                        ("--seed", seed), ("--actors", actors), ("--run", name),
-                        ("--run-dir", run_dir), ("--config", config), ("--listen", listen)):
-        if value is not None:
-            argv += [flag, str(value)]
-    if isinstance(overrides, Mapping):
-        items = [f"{key}={_yaml_value(value)}" for key, value in overrides.items()]
-    elif isinstance(overrides, str):
+           overrides: Mapping[str, Any] | Sequence[str], listen: str,
+           track: str | Sequence[str] = ()) -> HercsConfig:
+    """`up()`'s config, built as a tree in Python, in the command's order: the defaults, the
+    YAML file, the named arguments, the trackers, then `overrides` (typed values from a dict,
+    or "field=value" strings as `--set` takes them). Task names given here are trusted, as
+    the command trusts those on its command line (hercs.rl.code_names)."""
+    from hercs.apps.tracking.flags import backends_override
+    from hercs.config import HercsConfig, apply_overrides, load_yaml, with_values
+    from hercs.rl.code_names import trust_task
+
+    if isinstance(overrides, str):
         raise ConfigError(f"overrides: give a list of 'field=value' strings or a dict, not "
                           f"the string {overrides!r}")
-    else:
-        items = list(overrides)
-    for item in items:
-        argv += ["--set", item]
-    return argv
+    typed: Mapping[str, Any] | None = overrides if isinstance(overrides, Mapping) else None
+    strings: list[str] = [] if typed is not None else list(overrides)
+    named_tasks = [task, *(value for key, value in (typed or {}).items()
+                           if str(key).strip() == "task.name"),
+                   *(item.partition("=")[2].strip() for item in strings
+                     if item.partition("=")[0].strip() == "task.name")]
+    given = {"task.name": task, "run.method": method, "training.epochs": epochs,
+             "run.seed": seed, "actor.num_actors": actors, "run.name": name,
+             "run.run_dir": None if run_dir is None else str(run_dir),
+             "transport.listen": [listen]}
+    try:
+        base = load_yaml(Path(config)) if config else HercsConfig()
+        for named in [*named_tasks, base.task.name if config else None]:
+            if isinstance(named, str) and named:
+                trust_task(named)
+        built = with_values(base, {k: v for k, v in given.items() if v is not None})
+        trackers = [track] if isinstance(track, str) else list(track)
+        built = apply_overrides(built, backends_override(built.tracking.backends,
+                                                         [str(t) for t in trackers]))
+        if typed is not None:
+            return with_values(built, typed)
+        return apply_overrides(built, strings)
+    except ConfigError as exc:
+        raise ConfigError(f"hercs.up: {exc}") from None
 
 
-def _yaml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
-    return str(value)
+def _checked(config: HercsConfig) -> HercsConfig:
+    """`config` as the command would start it: its trackers installed, its run named."""
+    from hercs.apps.launch.run_plan import default_run_name
+    from hercs.apps.tracking.session import check_installed
+
+    check_installed(config.tracking)  # as the command would refuse it, before it starts
+    if not config.run.name:
+        from hercs.config import with_values
+
+        config = with_values(config, {"run.name": default_run_name(config)})
+    return config
 
 
 def _resolve(argv: list[str]) -> HercsConfig:
-    """`hercs up ARGV`'s config, with its run name fixed: what the child will run."""
+    """`hercs up ARGV`'s config, with its run name fixed: what the child will run (`resume`'s
+    flags, which name a folder rather than a config)."""
     from hercs.apps.cli.main import build_parser, resolve_config
-    from hercs.apps.launch.run_plan import default_run_name
 
     parser = build_parser()[0]
     said = io.StringIO()
@@ -146,15 +171,7 @@ def _resolve(argv: list[str]) -> HercsConfig:
     except SystemExit as exc:  # argparse's own message, without its usage lines
         why = (said.getvalue().strip().splitlines() or ["?"])[-1].partition("error: ")[2]
         raise ConfigError(f"hercs.up: arguments refused ({why}): {' '.join(argv)}") from exc
-    config = resolve_config(args)
-    from hercs.apps.tracking.session import check_installed
-
-    check_installed(config.tracking)  # as the command would refuse it, before it starts
-    if not config.run.name:
-        from hercs.config import apply_overrides
-
-        config = apply_overrides(config, [f"run.name={default_run_name(config)}"])
-    return config
+    return _checked(resolve_config(args))
 
 
 def up(task: str | None = None, method: str | None = None, *, epochs: int | None = None,
@@ -168,24 +185,26 @@ def up(task: str | None = None, method: str | None = None, *, epochs: int | None
     `task`, `method`, `epochs`, `seed`, `actors`, `name` (the run's name, else
     task-method-sSEED-time) and `run_dir` (the folder of runs, default `runs`) are the
     command's flags; `config` a YAML file; `overrides` what `--set` takes, as a list of
-    "field=value" strings or a dict ({"ddpg.lr_actor": 5e-4}); `listen` the embedded router's
-    endpoint: by default any free port on loopback, as the command's (tcp/127.0.0.1:0), so
-    that several runs can go at once (other hosts join a TLS one: docs/python_api.md);
-    `track` the trackers `--track` names ("wandb", or ["wandb", "mlflow"]).
+    "field=value" strings or a dict of typed values ({"ddpg.lr_actor": 5e-4}); `listen` the
+    embedded router's endpoint: by default any free port on loopback, as the command's
+    (tcp/127.0.0.1:0), so that several runs can go at once (other hosts join a TLS one:
+    docs/python_api.md); `track` the trackers `--track` names ("wandb", or ["wandb",
+    "mlflow"]). The config is built here as a tree (`hercs.config.with_values`) and handed
+    to `hercs up` whole, as a resolved YAML file.
     Raises `ConfigError` (nothing started) for a bad value, as the command exits 2."""
-    if listen is None:
-        listen = DEFAULT_LISTEN
-    argv = _flags(task, method, epochs, seed, actors, name, run_dir, config, overrides, listen,
-                  track)
-    resolved = _resolve(argv)
-    run_dir = Path(resolved.run.run_dir) / resolved.run.name
+    from hercs.config import save_yaml
     from hercs.run.rundir import holds_a_run
 
-    if holds_a_run(run_dir):
-        raise ConfigError(f"hercs.up: {run_dir} already holds a run: give another name=, or "
-                          f"continue that one with hercs.resume({str(run_dir)!r})")
-    argv = [*argv, "--run", resolved.run.name]
-    return Run._start(["up", *argv], run_dir, resolved.run.name)
+    resolved = _checked(_built(task, method, epochs, seed, actors, name, run_dir, config,
+                               overrides, DEFAULT_LISTEN if listen is None else listen, track))
+    folder = Path(resolved.run.run_dir) / resolved.run.name
+    if holds_a_run(folder):
+        raise ConfigError(f"hercs.up: {folder} already holds a run: give another name=, or "
+                          f"continue that one with hercs.resume({str(folder)!r})")
+    handed = tempfile.TemporaryDirectory(prefix="hercs-up-")
+    path = Path(handed.name) / "config.yaml"
+    save_yaml(resolved, path)
+    return Run._start(["up", "--config", str(path)], folder, resolved.run.name, handed)
 
 
 def resume(run_dir: str | os.PathLike[str], epochs: int | None = None) -> Run:
@@ -215,8 +234,10 @@ class Run:
     """One `hercs up` started by `up()` (or `resume()`): its folder, its rows as they come,
     and the orderly stop. Methods are safe to call from several threads."""
 
-    def __init__(self, proc: subprocess.Popen[str], run_dir: Path, name: str) -> None:
+    def __init__(self, proc: subprocess.Popen[str], run_dir: Path, name: str,
+                 handed: tempfile.TemporaryDirectory[str] | None = None) -> None:
         self._proc = proc
+        self._handed = handed  # the config file `up()` gave the command: gone once it ends
         self.dir = run_dir.absolute()
         """The run's folder (config.yaml, metrics.csv, checkpoints/, logs/)."""
         self.name = name
@@ -232,9 +253,10 @@ class Run:
         _RUNNING.add(self)
 
     @classmethod
-    def _start(cls, argv: list[str], run_dir: Path, name: str) -> Run:
+    def _start(cls, argv: list[str], run_dir: Path, name: str,
+               handed: tempfile.TemporaryDirectory[str] | None = None) -> Run:
         return cls(_SPAWNER.popen([sys.executable, "-m", "hercs.apps.cli", *argv]), run_dir,
-                   name)
+                   name, handed)
 
     @property
     def output(self) -> list[str]:
@@ -255,6 +277,8 @@ class Run:
                 self._owns = self._owns or bool(_OWNS_LINE.match(line))
                 self._changed.notify_all()
         self._proc.wait()
+        if self._handed is not None:
+            self._handed.cleanup()
         with self._changed:
             self._ended = True
             self._changed.notify_all()

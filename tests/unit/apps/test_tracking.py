@@ -10,11 +10,11 @@ import pytest
 
 from hercs.apps.cli.config_flags import resolve_config
 from hercs.apps.cli.main import build_parser
-from hercs.apps.cli.run_handle import _flags
+from hercs.apps.cli.run_handle import _built
 from hercs.apps.sweep.grid import tracking_overrides
 from hercs.apps.tracking.rows import complete_rows, epoch_scalars, flat_hyperparameters
 from hercs.apps.tracking.session import check_installed
-from hercs.config import HercsConfig, TrackingConfig, load_yaml
+from hercs.config import HercsConfig, TrackingConfig, load_yaml, save_yaml
 from hercs.errors import ConfigError
 
 ROW = {"epoch": "3", "success_rate": "0.45", "critic_loss": "0.125", "env_steps": "3000",
@@ -82,13 +82,14 @@ def test_a_saved_run_tensorboard_field_still_loads(tmp_path: Path) -> None:
     assert load_yaml(tmp_path / "c.yaml").tracking.backends == []
 
 
-def test_python_track_is_the_flag() -> None:
-    none = dict.fromkeys(["method", "epochs", "seed", "actors", "name", "run_dir", "config",
-                          "listen"])
-    argv = _flags(task="reach", overrides=(), track="wandb", **none)  # type: ignore[arg-type]
-    assert argv == ["--track", "wandb", "--task", "reach"]
-    two = _flags(task=None, overrides=(), track=["wandb", "mlflow"], **none)  # type: ignore
-    assert two == ["--track", "wandb", "--track", "mlflow"]
+def test_python_track_is_the_flag(tmp_path: Path) -> None:
+    none = dict.fromkeys(["method", "epochs", "seed", "actors", "name", "run_dir", "config"])
+    one = _built(task="reach", overrides=(), listen="tcp/127.0.0.1:0", track="wandb", **none)
+    assert one.tracking.backends == _up("--task", "reach", "--track", "wandb").tracking.backends
+    save_yaml(HercsConfig(tracking=TrackingConfig(backends=["wandb"])), tmp_path / "c.yaml")
+    two = _built(task=None, overrides=(), listen="tcp/127.0.0.1:0", track=["mlflow"],
+                 **{**none, "config": tmp_path / "c.yaml"})
+    assert two.tracking.backends == ["wandb", "mlflow"]
 
 
 def test_a_sweep_groups_its_cells_by_its_folder_unless_told_a_group() -> None:
