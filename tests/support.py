@@ -1,6 +1,6 @@
 """Helpers shared by tests of different folders: free ports and endpoints, a real Rerun viewer
 stand-in, loading the benchmark scripts (which are files, not a package), random learner
-minibatches."""
+minibatches and one update's losses."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ import numpy as np
 from hercs.apps.launch.child_process import stop_process
 from hercs.apps.launch.router import free_port
 from hercs.config import HercsConfig, apply_overrides, save_yaml
+from hercs.learner.ddpg import DDPGLearner
 from hercs.rl.task_registry import TaskSpec
 from hercs.run.rundir import RunDir
 from hercs.wire.batch import TransitionBatch
@@ -132,6 +133,13 @@ def random_transition_batch(spec: TaskSpec, b: int, seed: int) -> TransitionBatc
         r=-(rng.random(b) < 0.7).astype(np.float32),
         o2=rng.normal(size=(b, spec.obs_dim)).astype(np.float32),
     )
+
+
+def update_losses(learner: DDPGLearner, batch: TransitionBatch) -> dict[str, float]:
+    """One DDPG update as the training loop makes it (`train`) and its losses read back
+    (`loss_means`, over that one update)."""
+    learner.train(batch)
+    return learner.loss_means()
 
 
 def skip_without_mujoco_py() -> None:

@@ -45,7 +45,7 @@ def update_flops(learner: DDPGLearner, batch: TransitionBatch) -> int:
     from torch.utils.flop_counter import FlopCounterMode
 
     with FlopCounterMode(display=False) as counter:
-        learner.update(batch)
+        learner.train(batch)
     return int(counter.get_total_flops())
 
 
@@ -80,7 +80,7 @@ def update_gemms(learner: DDPGLearner, batch: TransitionBatch) -> list[GemmCall]
             return func(*args, **(kwargs or {}))
 
     with Recorder():
-        learner.update(batch)
+        learner.train(batch)
     return calls
 
 
@@ -118,7 +118,7 @@ def update_rate(learner: DDPGLearner, batches: list[TransitionBatch]) -> float:
     it = iter(range(10**9))
 
     def one() -> None:
-        learner.update(batches[next(it) % len(batches)])
+        learner.train(batches[next(it) % len(batches)])
 
     return 1.0 / cpu_seconds(one, len(batches))
 
@@ -136,7 +136,7 @@ def workers_scaling(spec, config: DDPGConfig, workers: tuple[int, ...], *,  # ty
         for n in workers:
             it = iter(range(10**9))
             times[n].append(1e3 * cpu_seconds(
-                lambda n=n, it=it: learners[n].update(batches[n][next(it) % 4]), updates))
+                lambda n=n, it=it: learners[n].train(batches[n][next(it) % 4]), updates))
     return {n: float(np.median(t)) for n, t in times.items()}
 
 

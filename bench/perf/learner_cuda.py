@@ -45,9 +45,10 @@ def gpu_tf32(enabled: bool) -> Iterator[None]:
 
 
 READS, GRAPH, HALVES = "+reads", "+graph", "+halves"
-"""Variants of a precision: `update()` with its five loss reads per update (the old loop's
-path), the captured CUDA graph (`learner.cuda_graph`), the CPU's two halves on two threads
-(`learner.parallel_halves`). Without a suffix: `train()`, the loop's path, eager."""
+"""Variants of a precision: `train()` with the losses read back after every update
+(`loss_means()`, a host read per update, as the old loop's path made), the captured CUDA
+graph (`learner.cuda_graph`), the CPU's two halves on two threads (`learner.parallel_halves`).
+Without a suffix: `train()`, the loop's path, eager."""
 
 
 def learner(device: str, precision: str, spec, config: DDPGConfig) -> DDPGLearner:  # type: ignore[no-untyped-def]
@@ -84,10 +85,9 @@ def speed(device: str, precisions: list[str], workers: list[int], updates: int,
             def step(net: DDPGLearner = net, batches: list[TransitionBatch] = batches,
                      it: Iterator[int] = it, reads: bool = precision.endswith(READS)) -> None:
                 batch = batches[next(it) % len(batches)]
+                net.train(batch)
                 if reads:
-                    net.update(batch)
-                else:
-                    net.train(batch)
+                    net.loss_means()
 
             with gpu_tf32(precision == GPU_TF32):
                 out[precision][n] = updates_per_s(step, device, updates)
@@ -117,7 +117,7 @@ def emulation(device: str, updates: int, spec, config: DDPGConfig) -> dict[str, 
         snapshots[precision] = {}
         with gpu_tf32(precision == GPU_TF32):
             for i in range(1, stops[-1] + 1):
-                net.update(batches[i % len(batches)])
+                net.train(batches[i % len(batches)])
                 if i % 40 == 0:
                     net.update_targets()
                 if i in stops:

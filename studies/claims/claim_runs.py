@@ -17,7 +17,6 @@ from hercs.apps.plots.curves import (
     aggregate,
     energy_epsilon,
     load_reference,
-    load_runs,
     marks_epsilon,
     method_label,
     milestones,
@@ -29,6 +28,7 @@ from studies.authors_peer import PEER_SCHEDULE
 from studies.claims.claim_statistics import (
     Score,
 )
+from studies.run_curves import load_runs
 
 EPOCH = 50
 THRESHOLD = 0.5

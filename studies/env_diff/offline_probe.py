@@ -71,20 +71,20 @@ def train(version: str, episodes: Sequence[EpisodeData], *, seed: int,
           cycles: int) -> PolicyWeights:
     """A DDPG learner trained offline on `episodes` for `cycles` cycles; its PolicyWeights."""
     from hercs.learner.ddpg import DDPGLearner
-    from hercs.replay_service.replay_core import ReplayCore
+    from hercs.replay_service.table import ReplayTable
     from hercs.rl.seeding import int_seed
 
     config = probe_config(version, seed)
-    core = ReplayCore(config=config, rng=np.random.default_rng(int_seed(seed, "probe")))
+    table = ReplayTable(config=config, rng=np.random.default_rng(int_seed(seed, "probe")))
     for ep in episodes:
-        core.insert(ep)
+        table.store_episode(ep)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=seed, device="cpu")
     per_cycle = config.training.minibatches_per_cycle
     for _ in range(cycles):
-        batch = core.sample(per_cycle, config.ddpg.batch_size)
+        batch = table.draw(per_cycle, config.ddpg.batch_size)
         learner.set_normalizer_state(batch.o_stats, batch.g_stats)
         for minibatch in batch.minibatches:
-            learner.update(minibatch)
+            learner.train(minibatch)
         learner.update_targets()
     return learner.policy_weights(cycles)
 

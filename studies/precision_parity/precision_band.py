@@ -21,7 +21,6 @@ from hercs.apps.plots.curves import (
     PlotError,
     aggregate,
     group,
-    load_runs,
     method_key,
     method_label,
     milestones,
@@ -30,6 +29,7 @@ from hercs.apps.plots.curves import (
 )
 from hercs.apps.plots.figures import plot_figure
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
+from studies.run_curves import load_runs
 from studies.study_output import REPO, git_commit
 
 

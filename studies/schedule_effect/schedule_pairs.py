@@ -22,7 +22,6 @@ from hercs.apps.plots.curves import (
     Curve,
     aggregate,
     group,
-    load_runs,
     method_label,
     milestones,
 )
@@ -30,6 +29,7 @@ from hercs.apps.plots.numbers import fixed, rate, signed_rate
 from hercs.apps.sweep.cells import DONE_FILE
 from studies.claims.claims import VERDICT_SEEDS
 from studies.legacy_runs import LEGACY_LAG, LEGACY_NOTES
+from studies.run_curves import load_runs
 from studies.study_output import REPO, show_and_write
 
 SCHEDULE_LABELS = {"lockstep": "lockstep", "async": "asynchronous"}

@@ -134,18 +134,6 @@ def load_run(run_dir: str | Path, variant_of: VariantOf | None = None) -> Curve:
     return _curve(task_title(task), method, seed, points, str(run_dir))
 
 
-def load_runs(folder: str | Path, variant_of: VariantOf | None = None) -> list[Curve]:
-    """Every run directly under `folder`, by name (`load_run`); folders that are not runs, or
-    have no metrics yet, are passed over (a grid's run-dir holds logs and unfinished runs)."""
-    curves = []
-    for run_dir in sorted(p for p in Path(folder).iterdir() if p.is_dir()):
-        try:
-            curves.append(load_run(run_dir, variant_of))
-        except PlotError:
-            continue
-    return curves
-
-
 def load_reference(path: str | Path = REFERENCE_CSV) -> list[Curve]:
     """The authors' curves: columns task, method, seed, epoch, success_rate."""
     path = Path(path)

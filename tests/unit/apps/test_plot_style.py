@@ -23,6 +23,7 @@ from hercs.apps.plots.style import (
 )
 from hercs.apps.sweep import cells as sc
 from hercs.apps.sweep import report as sr
+from studies.run_curves import load_runs
 from tests.support import REPO
 from tests.unit.apps.plot_runs import line_look
 from tests.unit.apps.sweep_runs import finished_run
@@ -33,7 +34,7 @@ INTERNAL = re.compile(r"eps\d|lag=|share=|∞|/|\bts\d|authors-code|\d+e-\d+|\(l
 
 
 def _committed_keys() -> set[str]:
-    return {k for methods in plots.group(plots.load_runs(RUNS)).values() for k in methods}
+    return {k for methods in plots.group(load_runs(RUNS)).values() for k in methods}
 
 
 def test_every_committed_series_and_the_authors_curves_have_distinct_colour_and_line_style(

@@ -61,7 +61,7 @@ def _run(learner: DDPGLearner, update=None) -> list[dict[str, float]]:  # type: 
     rows = []
     for i in range(UPDATES):
         batch = random_transition_batch(SPEC, CONFIG.batch_size, seed=i)
-        rows.append((update or DDPGLearner.update)(learner, batch))
+        rows.append((update or update_losses)(learner, batch))
         if i % 4 == 3:
             learner.update_targets()
     return rows
@@ -117,9 +117,10 @@ def test_an_error_in_the_critic_half_reaches_the_caller() -> None:
         update_losses(learner, batch)
 
 
-def test_train_sums_on_the_device_what_update_returns() -> None:
-    """The loop's `train` + `loss_means` (no host read per update) against the mean of the
-    floats `update` returns, summed in float64 as the loop did: the same numbers."""
+def test_train_sums_on_the_device_what_each_update_reads() -> None:
+    """The loop's `train` + one `loss_means` over an epoch's updates (no host read per update)
+    against the mean of each update's own losses (read after every update), summed in
+    float64: the same numbers."""
     summed = DDPGLearner(spec=SPEC, config=CONFIG, seed=4, parallel_halves=True)
     returned = DDPGLearner(spec=SPEC, config=CONFIG, seed=4)
     rows = []
