@@ -17,18 +17,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from hercs.replay_service.replay_core import ReplayCore
 
 from bench.common import REPO
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.seeding import generator
 from hercs.run.rundir import RunDir, run_dir_of
 from hercs.run.runlog import LIVE_NAME, RecoveringLogWriter, segment_paths
 from hercs.wire.codec import cluster_model_to_msg, episode_to_msg, msg_to_episode
-from hercs.wire.episode import random_episode
 
 RUN = "recovery"
 T = 50

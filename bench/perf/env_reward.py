@@ -17,13 +17,13 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 import numpy as np
+from hercs.replay_service.replay_core import ReplayCore
 
 import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
 from bench.common import add_out_option, git_commit, show_report
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.rl.task_registry import TaskSpec, task_spec
-from hercs.wire.episode import random_episode
 
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from bench.common import REPO, git_commit, machine_identity
 from bench.perf.throughput.harness import Child, Latest, free_endpoint
+from bench.synthetic_episodes import random_episode
 from hercs.actors.inserter import Inserter
 from hercs.apps.launch.router import open_router
 from hercs.config import HercsConfig, apply_overrides, save_yaml
@@ -33,7 +34,6 @@ from hercs.proto.keys import RunKeys
 from hercs.rl.seeding import generator
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 
 RUN = "fair-share"
 TASK = "reach"

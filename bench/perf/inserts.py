@@ -23,19 +23,19 @@ import numpy as np
 import zstandard
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from hercs.replay_service.replay_core import ReplayCore
 
 from bench.common import REPO, git_commit
 from bench.perf.scene_reference import reference_point_clouds, reference_scene_updates
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
 from hercs.run.runlog import RecoveringLogWriter
 from hercs.run.runlog.format import TOPIC_SCENE, TOPIC_SCENE_POINTS
 from hercs.run.runlog.mcap_bulk import reuse_zstd_contexts
 from hercs.run.runlog.writer import EpisodeLogWriter, _PreparedEpisode
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 
 BOUNDED_SEGMENT = 100
 """Episodes per segment of the bounded-log variant (the default's 5,000 would start none)."""

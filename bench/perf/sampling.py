@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import REPO, git_commit
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.her import relabel
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.methods import make_sampler
 from hercs.rl.samplers.base import make_info
-from hercs.wire.episode import random_episode
 
 METHODS = ("her", "her-cs", "her-ebp", "her-ebp-cs")
 BATCH = 256

@@ -55,18 +55,3 @@ def expected_shapes(spec: TaskSpec) -> dict[str, tuple[int, ...]]:
         "g": (T, spec.goal_dim),
         "actions": (T, spec.action_dim),
     }
-
-
-def random_episode(spec: TaskSpec, rng: np.random.Generator, *, actor_id: str = "test",
-                   seq: int = 0) -> EpisodeData:
-    """A synthetic episode with valid shapes (tests and benchmarks)."""
-    shapes = expected_shapes(spec)
-    g = np.repeat(rng.uniform(-1, 1, size=(1, spec.goal_dim)), spec.episode_steps, axis=0)
-    return EpisodeData(
-        obs=rng.standard_normal(shapes["obs"]).astype(np.float32),
-        ag=rng.uniform(-1, 1, size=shapes["ag"]).astype(np.float32),
-        g=g.astype(np.float32),
-        actions=rng.uniform(-1, 1, size=shapes["actions"]).astype(np.float32),
-        actor_id=actor_id,
-        seq=seq,
-    )

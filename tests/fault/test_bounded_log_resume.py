@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.net.transport import RemoteError, Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.run.runlog import read_episodes, segment_paths
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
 from tests.support import free_endpoint
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import RunDir
@@ -29,7 +30,6 @@ from hercs.run.runlog import (
     segment_paths,
 )
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.support import Clock
 
 RUN, TASK = "disk-test", "push"

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.apps.deploy.certs import make_certs
 from hercs.apps.launch.router import free_port
 from hercs.config import SecurityConfig, load_yaml
@@ -24,7 +25,6 @@ from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.run.rundir import RunDir
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.integration.launcher_standins import Launcher
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full,

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.learner.checkpoint import save_checkpoint, save_policy
 from hercs.learner.ddpg import DDPGLearner
@@ -28,7 +29,6 @@ from hercs.run.checkpoint_file import read_checkpoint_file
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import BadEpisode, EpisodeLogWriter, survey_log
 from hercs.wire.codec import array_to_msg, episode_to_msg, replay_state_to_msg, weights_to_msg
-from hercs.wire.episode import random_episode
 from hercs.wire.replay_state import ReplayState
 from tests.integration.launcher_standins import Launcher
 from tests.run_dirs import make_run

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
+from bench.synthetic_episodes import random_episode
 from hercs.net.transport import RemoteError, Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
 from hercs.wire.codec import array_to_msg, episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
 
 pytestmark = pytest.mark.integration

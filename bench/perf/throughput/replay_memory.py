@@ -6,10 +6,10 @@ from __future__ import annotations
 from bench.perf.throughput.harness import Harness
 from bench.perf.throughput.plan import SEED
 from bench.perf.throughput.throughput_report import Figure, Target
+from bench.synthetic_episodes import random_episode
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.seeding import generator
 from hercs.rl.task_registry import TaskSpec
-from hercs.wire.episode import random_episode
 
 STORE_COLUMNS = ("obs", "ag", "g", "actions", "episode_id", "actor_id", "seq", "success",
                  "final_ag", "energy", "cluster", "policy_version")

@@ -11,18 +11,19 @@ import time
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+from hercs.replay_service.replay_core import ReplayCore
 
 from bench.common import all_started
 from bench.perf.throughput import BenchError
 from bench.perf.throughput.plan import K_CLUSTERS, REQUEST_TIMEOUT_S, RUN, SEED
+from bench.synthetic_episodes import random_episode
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.rl.seeding import generator
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 from hercs.wire.validation import parse_message
 
 

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from bench.perf.log_size import measure, project
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.schema import SCHEMA_VERSION
 from hercs.run.runlog import EpisodeLogWriter, segment_paths
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.support import REPO, saved_run_config
 
 

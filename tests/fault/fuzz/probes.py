@@ -12,6 +12,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
@@ -26,7 +27,6 @@ from hercs.wire.codec import (
     stats_to_msg,
     weights_to_msg,
 )
-from hercs.wire.episode import random_episode
 from tests.fault.fuzz.runs import (
     ACTOR_CONFIG,
     HYPOTHESIS,

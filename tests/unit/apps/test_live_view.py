@@ -18,6 +18,7 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from bench.synthetic_episodes import random_episode
 from hercs.apps.cli.main import main
 from hercs.apps.launch.router import free_port
 from hercs.apps.views.live_recorder import LiveRecorder, header_outcome
@@ -30,7 +31,7 @@ from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import EpisodeLogWriter
 from hercs.wire.codec import array_to_msg, episode_to_msg
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 from tests.support import rerun_viewer
 
 RERUN = Path(sys.executable).parent / "rerun"

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.apps.cli.main import main
 from hercs.apps.views.episode_selection import parse_selection, select_episodes
 from hercs.apps.views.view import headless_problem, read_run_log, run_view
@@ -19,7 +20,6 @@ from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import EpisodeLogWriter
 from hercs.wire.codec import array_to_msg, episode_to_msg
-from hercs.wire.episode import random_episode
 from tests.support import saved_run_config
 
 RERUN = Path(sys.executable).parent / "rerun"

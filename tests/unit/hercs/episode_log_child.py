@@ -13,10 +13,10 @@ import sys
 
 import numpy as np
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.rl.task_registry import task_spec
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 
 RUN = "log-test"
 SEED = 20240917

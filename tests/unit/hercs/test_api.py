@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import hercs
+from bench.synthetic_episodes import random_episode
 from hercs.actors.builder import ActorBuilder
 from hercs.config import HercsConfig, apply_overrides, save_yaml
 from hercs.learner.checkpoint import save_policy
@@ -23,7 +24,6 @@ from hercs.run.metrics import METRICS_COLUMNS
 from hercs.run.rundir import RunDir, RunDirError
 from hercs.run.runlog import EpisodeLog, segment_paths
 from hercs.wire.codec import episode_to_msg, weights_to_msg
-from hercs.wire.episode import random_episode
 
 REPO = Path(__file__).resolve().parents[3]
 RUN = "api-test"

@@ -11,6 +11,7 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
+from bench.synthetic_episodes import random_episode
 from hercs.apps.views.view import read_run_log
 from hercs.clusterer.clusterer_core import Clusterer
 from hercs.config import ClusterConfig
@@ -27,7 +28,6 @@ from hercs.wire.codec import (
     episode_to_msg,
     msg_to_cluster_model,
 )
-from hercs.wire.episode import random_episode
 
 SPEC = task_spec("push")
 CENTROIDS = np.random.default_rng(3).uniform(-1, 1, (8, 3)).astype(np.float32)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.errors import InvalidMessage
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
@@ -20,7 +21,6 @@ from hercs.wire.codec import (
     named_to_arrays,
     stats_to_msg,
 )
-from hercs.wire.episode import random_episode
 from hercs.wire.validation import decode_minibatch
 
 PUSH = task_spec("push")  # obs 25, goal 3, action 4: the minibatches below

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import RunDir
@@ -21,7 +22,6 @@ from hercs.run.runlog import (
     segments_to_delete,
 )
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 
 MB = 1_000_000
 

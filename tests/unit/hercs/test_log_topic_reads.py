@@ -12,6 +12,7 @@ import pytest
 from mcap.opcode import Opcode
 from mcap.records import ChunkIndex
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.rl.task_registry import task_spec
 from hercs.run.rundir import RunDir
@@ -28,7 +29,6 @@ from hercs.run.runlog import (
 from hercs.run.runlog.format import RECORD_HEADER
 from hercs.run.runlog.reader import SegmentReader
 from hercs.wire.codec import episode_to_msg
-from hercs.wire.episode import random_episode
 
 RUN = "t"
 

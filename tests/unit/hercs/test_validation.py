@@ -5,12 +5,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.rl.task_registry import task_spec
 from hercs.wire.codec import array_to_msg, episode_to_msg
-from hercs.wire.episode import random_episode
 from hercs.wire.validation import (
     decode_episode,
     parse_message,

@@ -10,16 +10,16 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hercs.replay_service.replay_core import ReplayCore
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.learner.builder import LearnerBuilder
 from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
 from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.wire.codec import batch_to_bytes, stats_to_msg
-from hercs.wire.episode import random_episode
 
 WAIT_S = 10.0
 

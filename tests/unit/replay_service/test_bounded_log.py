@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.replay_core import ReplayCore
+
+from bench.synthetic_episodes import random_episode
+from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.table import ReplayTable, SampleCall, Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.run.runlog import (
@@ -31,7 +32,7 @@ from hercs.wire.codec import (
     msg_to_episode,
     msg_to_replay_state,
 )
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 from hercs.wire.served import ServedBatch
 
 RUN, TASK = "t", "reach"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.errors import InvalidMessage
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
@@ -22,7 +23,6 @@ from hercs.replay_service.table import Stored
 from hercs.rl.task_registry import task_spec
 from hercs.run.runlog import MAX_SEQUENCE
 from hercs.wire.codec import array_to_msg, msg_to_array
-from hercs.wire.episode import random_episode
 
 SPEC = task_spec("push")
 

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, SamplingError
 from hercs.replay_service.store import EpisodeStore
@@ -25,7 +26,6 @@ from hercs.rl.samplers import (
 )
 from hercs.rl.samplers.cluster_balanced import plan_shares
 from hercs.rl.task_registry import task_spec
-from hercs.wire.episode import random_episode
 
 SPEC = task_spec("push")
 K = 8

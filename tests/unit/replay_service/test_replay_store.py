@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.errors import ConfigError
 from hercs.replay_service.store import EpisodeStore
 from hercs.rl.task_registry import task_spec
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 
 SPEC = task_spec("push")
 T = SPEC.episode_steps
