@@ -114,16 +114,16 @@ def test_a_fresh_process_chooses_the_evaluators_actions(
     import torch
 
     from hercs.actors.builder import ActorBuilder
-    from hercs.apps.evaluation.policy_eval import load_policy as eval_loads
     from hercs.config import HercsConfig
     from hercs.rl.policy import Policy
+    from hercs.run.policy_files import read_policy
 
     state = torch.load(RunDir(run_dir).checkpoint("best"), weights_only=False)
     config = HercsConfig.from_dict(state["config"])
     decoder = ActorBuilder(config).decoder()
     evaluator = Policy(spec=config.task.spec, config=config.ddpg, seed=0)
     evaluator.load(decoder.decode(decoder.parse(state["policy"])))
-    hercs_eval = eval_loads(run_dir).policy()
+    hercs_eval = read_policy(run_dir).policy()
 
     _, actions = user
     o, g = observations["observation"], observations["desired_goal"]

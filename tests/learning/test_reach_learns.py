@@ -129,9 +129,10 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
 def test_eval_reproduces_what_the_evaluator_measured(run_dir: Path, checkpoint: str) -> None:
     """The kept policy, on the goals the run's evaluator used for its epoch, scores exactly
     the success and final distance in metrics.csv."""
-    from hercs.apps.evaluation.policy_eval import evaluate, load_policy
+    from hercs.apps.evaluation.policy_eval import evaluate
+    from hercs.run.policy_files import read_policy
 
-    policy = load_policy(run_dir, checkpoint)
+    policy = read_policy(run_dir, checkpoint)
     recorded = {int(r["epoch"]): r for r in rows(run_dir)}
     expected_epoch = {"latest": EPOCHS, "epoch-3": 3,
                       "best": max(recorded, key=lambda e: (float(recorded[e]["success_rate"]),

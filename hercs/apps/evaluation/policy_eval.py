@@ -68,13 +68,6 @@ class EvalSummary:
         return self.successes / self.episodes
 
 
-def load_policy(run_dir: str | os.PathLike[str], checkpoint: str | None = None) -> LoadedPolicy:
-    """The policy of a run folder's checkpoint (see the module docstring for the names; None:
-    best if present, else latest): `hercs.run.policy_files.read_policy`, which `hercs.load_policy`
-    uses too. Its errors (`RunDirError`, `CheckpointError`) are `HercsError`s."""
-    return read_policy(run_dir, checkpoint)
-
-
 def choose_gl() -> str:
     """The MuJoCo offscreen backend: MUJOCO_GL if set, else the first of EGL, OSMesa that can
     make a context here (each tried in a child process: MuJoCo fixes it at import)."""
@@ -173,7 +166,7 @@ def run_eval(run_dir: str, *, checkpoint: str | None, episodes: int, seed: int |
         if render:
             os.environ["MUJOCO_GL"] = choose_gl()
         run_dir = str(zoo_folder(run_dir)) if run_dir.startswith(ZOO_PREFIX) else run_dir
-        policy = load_policy(run_dir, checkpoint)
+        policy = read_policy(run_dir, checkpoint)
         sinks, closers = _sinks(video, rerun_save, episodes)
         outcomes: list[tuple[bool, float]] = []
 
