@@ -31,7 +31,7 @@ from hercs.apps.launch.child_process import pdeathsig_preexec
 from hercs.apps.launch.router import free_port
 from hercs.run.metrics import recorded_epochs
 from hercs.run.rundir import RunDir
-from hercs.run.runlog import read_episodes
+from hercs.run.runlog import read_episode_messages
 
 FAULTS = ("replay", "learner", "clusterer", "evaluator", "actor", "everything")
 CHILD = {"replay": "replay-0", "learner": "learner-0", "clusterer": "clusterer-0",
@@ -130,7 +130,7 @@ class Up:
 
 
 def distinct_episodes(run_dir: Path) -> set[tuple[str, int]]:
-    return {(msg.actor_id, int(msg.seq)) for _, msg in read_episodes(run_dir)}
+    return {(msg.actor_id, int(msg.seq)) for _, msg in read_episode_messages(run_dir)}
 
 
 def epochs_recorded(run_dir: Path) -> list[int]:

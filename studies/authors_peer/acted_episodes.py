@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hercs.run.runlog.reader import read_episodes
+from hercs.run.runlog.reader import read_episode_messages
 from hercs.wire.codec import msg_to_episode
 from studies.authors_peer.sampler_check import (
     LIFTED_M,
@@ -62,7 +62,7 @@ def load_source(path: Path) -> tuple[str, int, np.ndarray, np.ndarray]:
         with np.load(path / "arrays.npz", allow_pickle=False) as z:
             return run.name, per_epoch, z["buffer.ag"][:last], z["buffer.g"][:last, -1]
     ags, goals = [], []
-    for episode_id, message in read_episodes(path):
+    for episode_id, message in read_episode_messages(path):
         if episode_id < last:
             episode = msg_to_episode(message)
             ags.append(episode.ag)

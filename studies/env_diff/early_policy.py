@@ -23,7 +23,7 @@ from hercs.apps.plots.curves import EPSILON_UNMARKED, energy_epsilon, marks_epsi
 from hercs.config import EnergyConfig
 from hercs.replay_service.energy import trajectory_energy
 from hercs.run.rundir import RunDir
-from hercs.run.runlog import read_episodes
+from hercs.run.runlog import read_episode_messages
 from hercs.wire.codec import msg_to_episode
 from studies.study_output import FINDINGS_HEADING, REPO, git_commit, kept_findings
 
@@ -137,7 +137,7 @@ def episode_blocks(run: Path, blocks: int = BLOCKS, actions_of: range = range(0)
     out: dict[int, list[EpisodeFacts]] = {}
     energies: dict[int, list[float]] = {}
     actions: list[np.ndarray] = []
-    for episode_id, msg in read_episodes(run):
+    for episode_id, msg in read_episode_messages(run):
         block = episode_id // per_epoch
         if block >= blocks and episode_id >= actions_of.stop:
             break

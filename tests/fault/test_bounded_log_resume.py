@@ -18,7 +18,7 @@ from hercs.net.transport import RemoteError, Transport
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.run.runlog import read_episodes, segment_paths
+from hercs.run.runlog import read_episode_messages, segment_paths
 from hercs.wire.codec import episode_to_msg
 from tests.integration.services import ServiceProcess, make_test_config, next_replay_status
 from tests.support import free_endpoint
@@ -117,6 +117,6 @@ def test_a_killed_replay_resumes_the_same_buffer_from_a_bounded_log(
     # segment and the new live one both wait for the first new state: one more segment
     assert max(sizes) <= MAX_BYTES + 2 * slack, (max(sizes), slack)
     assert sizes[-1] <= MAX_BYTES + slack, (sizes[-1], slack)
-    ids = [i for i, _ in read_episodes(run_dir)]
+    ids = [i for i, _ in read_episode_messages(run_dir)]
     assert ids == list(range(ids[0], EPISODES)) and 0 < ids[0] <= EPISODES - CAPACITY, \
         "old segments went; every buffered episode stayed, ids contiguous"

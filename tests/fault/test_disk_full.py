@@ -25,7 +25,7 @@ from hercs.run.runlog import (
     EpisodeLogError,
     EpisodeLogWriter,
     RecoveringLogWriter,
-    read_episodes,
+    read_episode_messages,
     scan_segment,
     segment_paths,
 )
@@ -89,7 +89,7 @@ def append_until_refused(writer: RecoveringLogWriter, acked: list[int]) -> BaseE
 
 
 def logged_ids(run_dir: Path) -> list[int]:
-    return [i for i, _ in read_episodes(run_dir)]
+    return [i for i, _ in read_episode_messages(run_dir)]
 
 
 def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
@@ -137,7 +137,7 @@ def test_full_disk_refuses_then_recovers_by_itself(disk: Path) -> None:
     writer.close()
 
     assert logged_ids(run_dir) == acked
-    got = dict(read_episodes(run_dir))
+    got = dict(read_episode_messages(run_dir))
     for i in (0, acked[-1]):
         assert got[i] == episode(i)
     segments = segment_paths(run_dir)
@@ -217,5 +217,5 @@ def test_a_record_whose_fsync_failed_is_cut_before_the_log_goes_on(
     writer.close()
 
     assert logged_ids(run_dir) == [0, 1, 2, 3, 4]
-    assert dict(read_episodes(run_dir))[3] == episode(3)
+    assert dict(read_episode_messages(run_dir))[3] == episode(3)
     assert len(segment_paths(run_dir)) == 2, "the failed segment sealed, then a new one"

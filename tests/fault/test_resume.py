@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from hercs.run.rundir import RunDir
-from hercs.run.runlog.reader import read_episodes
+from hercs.run.runlog.reader import read_episode_messages
 from tests.integration.launcher_standins import Launcher, process_alive
 from tests.support import free_endpoint
 
@@ -115,7 +115,7 @@ def wait_for_episodes(run_dir: Path, count: int, *, timeout_s: float) -> bool:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
-            if sum(1 for _ in read_episodes(run_dir)) >= count:
+            if sum(1 for _ in read_episode_messages(run_dir)) >= count:
                 return True
         except Exception:  # a chunk still being written: the next read sees it
             pass
@@ -218,7 +218,7 @@ def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_sche
     finally:
         launcher.kill()
     assert epochs_recorded(run_dir) == [1, 2, 3, 4]
-    logged = list(read_episodes(run_dir))
+    logged = list(read_episode_messages(run_dir))
     assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
     versions = [int(msg.policy_version) for _, msg in logged]
     assert versions == [i // 4 for i in range(len(logged))], versions

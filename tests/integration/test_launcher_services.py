@@ -17,7 +17,7 @@ import pytest
 
 from hercs.config import load_yaml
 from hercs.run.rundir import RunDir
-from hercs.run.runlog.reader import read_cluster_models, read_episodes
+from hercs.run.runlog.reader import read_cluster_models, read_episode_messages
 from tests.integration.launcher_standins import Launcher, process_alive
 from tests.support import free_endpoint, skip_without_mujoco_py
 
@@ -97,7 +97,7 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     assert [int(r["epoch"]) for r in rows] == [1] and int(rows[0]["episodes"]) >= 8
     evaluator = RunDir(run_dir).log("evaluator-0").read_text()
     assert "task reach (FetchReach-v1)" in evaluator and "epoch 1 (weights version" in evaluator
-    assert len(list(read_episodes(run_dir))) >= 8, "the actor's v1 episodes were logged"
+    assert len(list(read_episode_messages(run_dir))) >= 8, "the actor's v1 episodes were logged"
 
 
 @pytest.mark.slow
@@ -113,7 +113,7 @@ def test_lockstep_run_acts_every_cycle_with_that_cycles_weights(tmp_path: Path) 
         "--set", "training.schedule=lockstep", "--set", "training.cycles_per_epoch=3",
         "--set", "training.eval_episodes=2", "--set", "cluster.k=2",
         "--set", "cluster.fgb_size=8"], timeout_s=120)
-    logged = list(read_episodes(run_dir))
+    logged = list(read_episode_messages(run_dir))
     assert [episode_id for episode_id, _ in logged] == list(range(len(logged)))
     assert len(logged) >= 2 * 3 * 4, "every one of the 6 cycles had its 4 episodes"
     versions = [int(msg.policy_version) for _, msg in logged]
@@ -169,7 +169,7 @@ def test_lockstep_runs_with_one_seed_compute_the_same_numbers(tmp_path: Path) ->
 
     def episodes(run_dir: Path) -> list[tuple[int, bytes, bytes, bytes, bytes, int]]:
         return [(i, m.obs.data, m.ag.data, m.g.data, m.actions.data, int(m.policy_version))
-                for i, m in read_episodes(run_dir)]
+                for i, m in read_episode_messages(run_dir)]
 
     first, second = (episodes(r) for r in runs)
     # the 24 episodes of the 6 trained cycles, and those of the next cycle that each run

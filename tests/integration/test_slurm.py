@@ -23,7 +23,7 @@ import pytest
 from hercs.config import load_yaml
 from hercs.run.router_record import read_router
 from hercs.run.rundir import RunDir
-from hercs.run.runlog.reader import read_episodes
+from hercs.run.runlog.reader import read_episode_messages
 from tests.integration import minislurm
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.full]
@@ -135,7 +135,7 @@ def test_a_run_as_a_heterogeneous_job_puts_its_actor_on_the_second_host_over_tls
                       ("1", "step", "hercs-n2", "COMPLETED", "0:0")], text
     # every episode came from the actor on hercs-n2, which reached the router by its name
     # over mutual TLS with this attempt's certificates
-    actors = {e.actor_id.partition("@")[0] for _, e in read_episodes(run_dir)}
+    actors = {e.actor_id.partition("@")[0] for _, e in read_episode_messages(run_dir)}
     assert actors and all(a.startswith("hercs-n2-") for a in actors), actors
     assert re.search(r"remote actor hercs-n2-\S+ joined", text), text
     config = load_yaml(RunDir(run_dir).config)

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from hercs.run.rundir import RunDir
-from hercs.run.runlog import read_cluster_models, read_episodes
+from hercs.run.runlog import read_cluster_models, read_episode_messages
 from hercs.wire.codec import msg_to_array
 from tests.support import free_endpoint
 
@@ -53,7 +53,7 @@ def test_a_users_goal_env_reaches_90_percent_success(run_dir: Path) -> None:
 def test_the_run_records_the_task_and_logs_its_2d_goals(run_dir: Path) -> None:
     config = yaml.safe_load(RunDir(run_dir).config.read_text())
     assert config["task"]["name"] == TASK
-    _, episode = next(iter(read_episodes(run_dir)))
+    _, episode = next(iter(read_episode_messages(run_dir)))
     assert episode.task == TASK
     assert msg_to_array(episode.ag).shape == (11, 2)  # T + 1 achieved goals in the plane
     models = list(read_cluster_models(run_dir))

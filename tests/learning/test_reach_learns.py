@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from hercs.run.rundir import RunDir
-from hercs.run.runlog import read_cluster_models, read_episodes
+from hercs.run.runlog import read_cluster_models, read_episode_messages
 from tests.support import free_endpoint
 
 pytestmark = [pytest.mark.integration, pytest.mark.learning, pytest.mark.full]
@@ -105,7 +105,7 @@ def test_every_logged_episode_is_unique_and_weights_reached_actors(run_dir: Path
     seen = set()
     versions = []
     ids = []
-    for episode_id, msg in read_episodes(run_dir):
+    for episode_id, msg in read_episode_messages(run_dir):
         ids.append(episode_id)
         key = (msg.actor_id, msg.seq)
         assert key not in seen, f"episode {key} logged twice"

@@ -30,7 +30,7 @@ from hercs.run.runlog.reader import (
     LoggedMessage,
     SegmentScan,
     read_cluster_models,
-    read_episodes,
+    read_episode_messages,
     read_eval_results,
     read_messages,
     scan_segment,
@@ -46,7 +46,7 @@ __all__ = [
     "TOPIC_EVAL_RESULT", "TOPIC_REPLAY_STATE", "TOPIC_SCENE", "TOPIC_SCENE_POINTS", "BadEpisode",
     "EpisodeLog", "EpisodeLogError", "EpisodeLogWriter", "LogSurvey", "LoggedMessage",
     "RecoveredLog", "RecoveringLogWriter", "SegmentHead", "SegmentScan", "TornTail",
-    "latest_replay_state", "prune_log", "read_cluster_models", "read_episodes",
+    "latest_replay_state", "prune_log", "read_cluster_models", "read_episode_messages",
     "read_eval_results", "read_head", "read_messages", "run_start_ns", "scan_segment",
     "seal_segment", "segment_paths", "segments_to_delete", "survey_log",
 ]

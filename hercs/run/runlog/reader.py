@@ -417,7 +417,7 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
         yield from SegmentReader(segment, topics=wanted).messages()
 
 
-def read_episodes(path: str | os.PathLike[str]) -> Iterator[tuple[int, pb.Episode]]:
+def read_episode_messages(path: str | os.PathLike[str]) -> Iterator[tuple[int, pb.Episode]]:
     """(episode_id, Episode) in the order logged, from a segment or a run directory."""
     for message in read_messages(path, [TOPIC_EPISODES]):
         yield message.sequence, message.decode_as(pb.Episode)

@@ -39,7 +39,7 @@ from hercs.run.runlog.reader import (
     IndexParts,
     SegmentReader,
     SegmentScan,
-    read_episodes,
+    read_episode_messages,
     scan_segment,
     segment_paths,
 )
@@ -174,7 +174,7 @@ class EpisodeLog:
         return segment_paths(self.run_dir)
 
     def episodes(self) -> Iterator[tuple[int, pb.Episode]]:
-        return read_episodes(self.run_dir)
+        return read_episode_messages(self.run_dir)
 
     @classmethod
     def open(cls, run_dir: str | os.PathLike[str], *, run: str, task: str
@@ -255,7 +255,7 @@ class RecoveredLog(Iterator[tuple[int, pb.Episode]]):
     def __init__(self, segments: list[Path]) -> None:
         self.segments = list(segments)
         self.replay_state: pb.ReplayState | None = latest_replay_state(self.segments)
-        self._pairs = (pair for segment in self.segments for pair in read_episodes(segment))
+        self._pairs = (pair for segment in self.segments for pair in read_episode_messages(segment))
 
     def __iter__(self) -> RecoveredLog:
         return self

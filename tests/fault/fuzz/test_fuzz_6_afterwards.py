@@ -10,7 +10,7 @@ import pytest
 
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.run.runlog import read_cluster_models, read_episodes, read_eval_results
+from hercs.run.runlog import read_cluster_models, read_episode_messages, read_eval_results
 from hercs.wire.served import decode_served_batch
 from tests.fault.fuzz.probes import base_episode, make_weights
 from tests.fault.fuzz.runs import CYCLES_PER_EPOCH, KR, REQUEST_TIMEOUT_S, RUN_R, SPEC, WAIT_S, K
@@ -64,7 +64,7 @@ def test_after_the_barrage_every_service_serves_valid_input_and_stops_cleanly(
     w.assert_logs_clean()
     # what the replay logged: the stored episodes, the adopted models, the valid results
     run_dir = Path(w.configs["replay"].run.run_dir) / RUN_R
-    logged = dict(read_episodes(run_dir))
+    logged = dict(read_episode_messages(run_dir))
     assert sorted(logged) == sorted(w.ledger.stored)
     for episode_id, stored in w.ledger.stored.items():
         assert logged[episode_id] == stored, episode_id

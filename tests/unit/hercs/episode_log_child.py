@@ -1,7 +1,7 @@
 """Child process of the episode-log fault tests: appends episodes 0, 1, 2, … to a new log and
 prints each id once `append_episode` returned (when the replay would ack); the parent SIGKILLs it.
 
-    python episode_log_child.py LOG_PATH TASK [MAX_FILE_BYTES]  # the limit fails a write part way
+    python -m tests.unit.hercs.episode_log_child LOG_PATH TASK [MAX_FILE_BYTES]  # fails a write
 
 `make_episode` is shared with the test so that the parent can check recovered content."""
 

@@ -33,7 +33,7 @@ from hercs.run.runlog import (
     EpisodeLogError,
     EpisodeLogWriter,
     read_cluster_models,
-    read_episodes,
+    read_episode_messages,
     read_eval_results,
     read_messages,
     run_start_ns,
@@ -44,7 +44,7 @@ from hercs.run.runlog import (
 )
 from hercs.wire.codec import array_to_msg, msg_to_array
 
-CHILD = Path(__file__).with_name("episode_log_child.py")
+CHILD = "tests.unit.hercs.episode_log_child"  # run as a module from the checkout: it imports bench
 RERUN = Path(sys.executable).with_name("rerun")
 ARRAYS = ("obs", "ag", "g", "actions")
 
@@ -143,7 +143,7 @@ def test_closed_log_reads_back_with_plain_mcap_reader(tmp_path: Path, task: str)
     assert len(points) == (2 if task == "reach" else 3)
 
     # our tolerant reader agrees with mcap's indexed reader on a finished file
-    assert [i for i, _ in read_episodes(path)] == list(range(n))
+    assert [i for i, _ in read_episode_messages(path)] == list(range(n))
     assert [m.version for m in read_cluster_models(path)] == [3]
     assert [r.epoch for r in read_eval_results(path)] == [7]
 
@@ -170,7 +170,7 @@ def test_invalid_appends_write_nothing_and_leave_the_writer_usable(tmp_path: Pat
     writer.close()
     with pytest.raises(EpisodeLogError, match="after close"):
         writer.append_episode(make_episode(3, "push"), episode_id=7)
-    assert [i for i, _ in read_episodes(path)] == [5, 6]
+    assert [i for i, _ in read_episode_messages(path)] == [5, 6]
     with pytest.raises(EpisodeLogError, match="never overwritten"):
         EpisodeLogWriter(path, run=RUN, task="push")
 
@@ -181,7 +181,7 @@ def test_plain_mcap_reader_cannot_read_a_killed_writers_file(tmp_path: Path) -> 
     _, _ = write_log(path, range(3))
     with open(path, "rb") as f, pytest.raises((McapError, struct.error)):
         list(make_reader(f).iter_messages())
-    assert [i for i, _ in read_episodes(path)] == [0, 1, 2]
+    assert [i for i, _ in read_episode_messages(path)] == [0, 1, 2]
 
 
 def test_torn_tail_anywhere_yields_exactly_the_complete_chunks(tmp_path: Path) -> None:
@@ -205,7 +205,7 @@ def test_torn_tail_anywhere_yields_exactly_the_complete_chunks(tmp_path: Path) -
         cut_file.write_bytes(data[:cut])
         acked = [i for i, size in enumerate(sizes) if size <= cut]
         complete = [i for i, end in enumerate(chunk_ends) if end <= cut]
-        got = list(read_episodes(cut_file))
+        got = list(read_episode_messages(cut_file))
         assert [i for i, _ in got] == complete, f"cut at {cut}"
         assert set(acked) <= set(complete)
         for i, episode in got:
@@ -231,20 +231,20 @@ def test_garbage_and_corrupt_tails(tmp_path: Path) -> None:
     data = path.read_bytes()
     for tail in (bytes(4096), np.random.default_rng(3).bytes(4096)):
         path.write_bytes(data + tail)
-        assert [i for i, _ in read_episodes(path)] == [0, 1, 2]
+        assert [i for i, _ in read_episode_messages(path)] == [0, 1, 2]
     # a damaged last chunk (power loss before its fsync) is the torn tail
     last_chunk_body = sizes[1] + 200
     damaged = bytearray(data)
     damaged[last_chunk_body] ^= 0xFF
     path.write_bytes(bytes(damaged))
-    assert [i for i, _ in read_episodes(path)] == [0, 1]
+    assert [i for i, _ in read_episode_messages(path)] == [0, 1]
     assert scan_segment(path).valid_end == sizes[1]
     # a damaged chunk followed by an intact one is corruption: refuse, do not drop data
     damaged = bytearray(data)
     damaged[sizes[0] + 200] ^= 0xFF
     path.write_bytes(bytes(damaged))
     with pytest.raises(EpisodeLogError, match="damaged in the middle"):
-        list(read_episodes(path))
+        list(read_episode_messages(path))
 
 
 @pytest.mark.parametrize(("acks_before_kill", "delay_s"), [(1, 0.0), (6, 0.001), (25, 0.0025)],
@@ -255,7 +255,7 @@ def test_sigkill_mid_stream_loses_no_acked_episode(tmp_path: Path, acks_before_k
     """The child acks (prints) an id only after append_episode returned; the kill lands while
     it builds or writes the next one."""
     path = RunDir(tmp_path).episode_log
-    child = subprocess.Popen([sys.executable, str(CHILD), str(path), "push"],
+    child = subprocess.Popen([sys.executable, "-m", CHILD, str(path), "push"],
                              stdout=subprocess.PIPE, text=True, cwd=Path(__file__).parents[3])
     acked: list[int] = []
     try:
@@ -271,7 +271,7 @@ def test_sigkill_mid_stream_loses_no_acked_episode(tmp_path: Path, acks_before_k
     assert child.returncode == -signal.SIGKILL
     assert acked == list(range(acks_before_kill))
 
-    recovered = list(read_episodes(path))
+    recovered = list(read_episode_messages(path))
     ids = [i for i, _ in recovered]
     assert len(ids) >= acks_before_kill
     assert ids == list(range(len(ids)))  # every acked id in order, and any appended before the kill
@@ -294,7 +294,7 @@ def test_a_write_failing_part_way_loses_no_acked_episode(tmp_path: Path,
     nothing after it is accepted, and recovery yields every acked episode, plus the failed
     one if its chunk was complete before the failing write (its message index was not)."""
     path = RunDir(tmp_path).episode_log
-    out = subprocess.run([sys.executable, str(CHILD), str(path), "push",
+    out = subprocess.run([sys.executable, "-m", CHILD, str(path), "push",
                           str(max_file_bytes)],
                          capture_output=True, text=True, timeout=60, check=True,
                          cwd=Path(__file__).parents[3]).stdout.splitlines()
@@ -303,7 +303,7 @@ def test_a_write_failing_part_way_loses_no_acked_episode(tmp_path: Path,
     assert acked == list(range(len(acked))) and len(acked) >= 5
     scan = scan_segment(path)
     assert scan.size == max_file_bytes and scan.dropped_bytes > 0  # a torn chunk at the tail
-    recovered = list(read_episodes(path))
+    recovered = list(read_episode_messages(path))
     ids = [i for i, _ in recovered]
     assert ids in (acked, [*acked, len(acked)])
     for i, episode in recovered:

@@ -23,7 +23,7 @@ from hercs.run.runlog import (
     RecoveringLogWriter,
     latest_replay_state,
     read_cluster_models,
-    read_episodes,
+    read_episode_messages,
     segment_paths,
 )
 from hercs.wire.codec import (
@@ -146,7 +146,7 @@ def test_the_log_stays_under_its_bound_plus_one_segment(runs) -> None:
     assert len(segments) == EPISODES // 5, "a segment every 5 episodes"
     assert max(sizes) <= cfg.replay.log_max_bytes + slack, (max(sizes), slack)
     assert kept_sizes[-1] > 3 * cfg.replay.log_max_bytes, "the bound did matter"
-    first_kept = next(read_episodes(bounded_dir))[0]
+    first_kept = next(read_episode_messages(bounded_dir))[0]
     assert first_kept > 0, "old segments were deleted"
     assert first_kept <= EPISODES - CAPACITY, "every episode of the buffer is kept"
     # the model logged after episode 7 went with its segment; the newest state carries it
@@ -209,7 +209,7 @@ def test_resume_is_exact_with_random_eviction_and_in_lockstep(tmp_path: Path,
     bounded, kept = config(0, *extra), config(UNBOUNDED, *extra)
     run(bounded, tmp_path / "bounded", episodes(bounded, 200))
     run(kept, tmp_path / "kept", episodes(kept, 200))
-    assert next(read_episodes(tmp_path / "bounded"))[0] > 0, "old segments were deleted"
+    assert next(read_episode_messages(tmp_path / "bounded"))[0] > 0, "old segments were deleted"
     a, log_a = open_table(bounded, tmp_path / "bounded")
     b, log_b = open_table(kept, tmp_path / "kept")
     try:
@@ -242,7 +242,7 @@ def test_restarts_do_not_put_off_the_next_state(tmp_path: Path) -> None:
                 log.close()
     saved = latest_replay_state(segment_paths(tmp_path / "bounded"))
     assert saved is not None and saved.next_episode_id >= 60 - 5
-    assert next(read_episodes(tmp_path / "bounded"))[0] >= 60 - CAPACITY - 2 * 5
+    assert next(read_episode_messages(tmp_path / "bounded"))[0] >= 60 - CAPACITY - 2 * 5
     a, log_a = open_table(bounded, tmp_path / "bounded")
     b, log_b = open_table(kept, tmp_path / "kept")
     try:
