@@ -9,7 +9,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides, save_yaml
@@ -40,18 +40,18 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
     loop = LearnerBuilder(config).loop(learner)
-    core = ReplayCore(config=config, rng=np.random.default_rng(0))
+    table = ReplayTable(config=config, rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
     skip = set(unevaluated)
     for epoch in range(1, trained + 1):
-        core.insert(random_episode(core.spec, rng, seq=epoch))
-        served = core.sample(1, config.ddpg.batch_size)
+        table.store_episode(random_episode(table.spec, rng, seq=epoch))
+        served = table.draw(1, config.ddpg.batch_size)
         loop.step(ServedBatch(
             minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
             cluster_draws=served.cluster_draws,
-            status=ReplayCounters(inserts=core.inserts, env_steps=core.env_steps,
-                                  size_transitions=core.store.num_transitions)))
+            status=ReplayCounters(inserts=table.inserts, env_steps=table.env_steps,
+                                  size_transitions=table.store.num_transitions)))
         if epoch == checkpoint:
             save_learner_state(RunDir(run_dir).checkpoints, learner=learner, loop=loop,
                                eval_requests=EvalRequests(resend_s=60.0),

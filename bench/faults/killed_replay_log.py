@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from hercs.replay_service.replay_core import ReplayCore
 
 from bench.common import REPO
 from bench.synthetic_episodes import random_episode
@@ -76,8 +75,7 @@ def write_main(config_path: Path, episodes: int) -> int:
         run_dir, run=RUN, task=spec.name, scene=config.replay.log_scene,
         segment_episodes=config.replay.log_segment_episodes(config.capacity_episodes),
         max_bytes=config.replay.log_max_bytes, spec=spec)
-    table = ReplayTable(config=config, core=ReplayCore(
-        config=config, rng=generator(config.run.seed, "replay")), log=log)
+    table = ReplayTable(config=config, rng=generator(config.run.seed, "replay"), log=log)
     rng = np.random.default_rng(1)
     every = config.cluster.fgb_size
     for seq in range(episodes):

@@ -194,7 +194,7 @@ def time_in_process(run: KilledRun) -> dict[str, Any]:
     finally:
         for name, value in saved.items():
             setattr(module, name, value)
-    store = service.table.core.store
+    store = service.table.store
     result = {"total_s": total, **{f"{name}_s": clock.spent[name] for name in PHASES},
               "inserted": store.num_inserted, "stored": store.size,
               "cluster_model_version": service.table.clusterer_state().model_version}

@@ -2,7 +2,7 @@
 
     python -m bench.perf.env_reward           # ~1 min
 
-Per minibatch of B = 256 and 1,024, beside a whole `ReplayCore.sample` minibatch. Writes
+Per minibatch of B = 256 and 1,024, beside a whole `ReplayTable.draw` minibatch. Writes
 docs/results/env_reward.{json,md} (or --out), which states the method."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 import numpy as np
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 
 import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
 from bench.common import add_out_option, git_commit, show_report
@@ -50,14 +50,14 @@ def goal_pairs(spec: TaskSpec, n: int, rng: np.random.Generator) -> tuple[np.nda
 
 
 def sample_seconds(name: str, batch: int, repeats: int) -> float:
-    """One `ReplayCore.sample` of `batch` transitions from 200 stored random episodes."""
+    """One `ReplayTable.draw` of `batch` transitions from 200 stored random episodes."""
     config = apply_overrides(HercsConfig(), [f"task.name={name}", "run.method=her",
                                              f"ddpg.batch_size={batch}"])
-    core = ReplayCore(config=config, rng=np.random.default_rng(0))
+    table = ReplayTable(config=config, rng=np.random.default_rng(0))
     rng = np.random.default_rng(0)
     for i in range(200):
-        core.insert(random_episode(config.task.spec, rng, actor_id="bench", seq=i))
-    return seconds_per_call(lambda: core.sample(1, batch), repeats)
+        table.store_episode(random_episode(config.task.spec, rng, actor_id="bench", seq=i))
+    return seconds_per_call(lambda: table.draw(1, batch), repeats)
 
 
 def measure(quick: bool) -> dict[str, dict[str, float]]:
@@ -88,7 +88,7 @@ def report(summary: dict) -> str:  # type: ignore[type-arg]
              f"`python -m bench.perf.env_reward{' --quick' if summary['quick'] else ''}` — "
              f"{summary['date']}, commit {summary['commit']}, {summary['machine']}. CPU time "
              "of one `compute_reward` over a minibatch of goal pairs (median of 5 rounds), "
-             "beside one whole `ReplayCore.sample` of that minibatch (HER, relabelling "
+             "beside one whole `ReplayTable.draw` of that minibatch (HER, relabelling "
              "included) with the built-in rule.", "",
              "| task | B | built-in (µs) | env's compute_reward (µs) | × built-in | "
              "whole sample (µs) | env's extra, share of a sample |",

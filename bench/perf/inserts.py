@@ -23,7 +23,6 @@ import numpy as np
 import zstandard
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
-from hercs.replay_service.replay_core import ReplayCore
 
 from bench.common import REPO, git_commit
 from bench.perf.scene_reference import reference_point_clouds, reference_scene_updates
@@ -140,9 +139,7 @@ def _measure(name: str, *, window_s: float, pool: list, workdir: Path) -> dict[s
                                       segment_episodes=segment_episodes,
                                       max_bytes=0 if segment_episodes else -1)
     sink = _SceneOnAckPath(log) if scene_on_path else log
-    table = ReplayTable(config=config, core=ReplayCore(config=config,
-                                                       rng=np.random.default_rng(0)),
-                        log=sink)
+    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=sink)
     acked = [0]
     stop = threading.Event()
 

@@ -1,4 +1,4 @@
-"""The lockstep gate: the replay's admission rules when `training.schedule` is `lockstep`.
+"""The lockstep admission: the replay's rules when `training.schedule` is `lockstep`.
 
 It replaces the rate limiter's window (docs/DESIGN.md §9.1 states the rules): an insert is
 admitted at once or refused (`stale_policy`, `cycle_full`), and cycle c is served once its
@@ -6,15 +6,17 @@ episodes are stored and, for the clustered methods, no refit is due (waited for 
 `cluster_wait_s`: the clusterer is another process and may be restarting; such a cycle is
 counted in `late_cluster_models` and no later cycle waits for that refit again). After a
 replay restart the per-version counts are rebuilt from the recovered episodes. Pure
-bookkeeping under the table's lock; it never blocks.
+bookkeeping under the table's lock (which calls it through hercs.replay_service.admission's
+`Admission`); it never blocks.
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 
 from hercs.reasons import Reason
+from hercs.replay_service.table_calls import ParkedSample
 
 
 def schedule_cycle(episode_id: int, episodes_per_cycle: int) -> int:
@@ -30,7 +32,7 @@ LOCKSTEP_CLUSTER_WAIT_S = 30.0
 at hand (the clusterer may be restarting)."""
 
 
-class LockstepGate:
+class LockstepAdmission:
     def __init__(self, *, episodes_per_cycle: int, fgb_size: int | None,
                  cluster_wait_s: float) -> None:
         """`fgb_size` None: the method has no clusters, no model is ever due."""
@@ -50,7 +52,7 @@ class LockstepGate:
         """When each cycle not yet served was first asked for (the grace is per cycle, not per
         retried request)."""
         self._waived_fit: int | None = None
-        """The refit (by failure count) the gate stopped waiting for."""
+        """The refit (by failure count) this admission stopped waiting for."""
 
     def refuse_insert(self, policy_version: int) -> tuple[Reason, str] | None:
         """Why an episode acted with `policy_version` is refused, or None to admit it."""
@@ -65,6 +67,11 @@ class LockstepGate:
                     "episodes (lockstep): wait for the next weights")
         return None
 
+    def refuse_admitted(self, policy_version: int, next_episode_id: int
+                        ) -> tuple[Reason, str] | None:
+        """None: an insert is refused only on arrival (`refuse_insert`)."""
+        return None
+
     def admit(self, policy_version: int) -> None:
         self.admitted[policy_version] += 1
 
@@ -75,9 +82,10 @@ class LockstepGate:
     def store(self, policy_version: int) -> None:
         self.stored[policy_version] += 1
 
-    def next_policy_version(self, policy_version: int) -> int:
+    def next_policy_version(self, policy_version: int, next_episode_id: int = 0) -> int:
         """After storing an episode of `policy_version`: the oldest version the actor's next
-        episode may be acted with (the next cycle's once this one is full)."""
+        episode may be acted with (the next cycle's once this one is full; the episode id
+        does not matter here)."""
         if self.admitted[policy_version] >= self.episodes_per_cycle:
             return policy_version + 1
         return max(policy_version, self.requested)
@@ -105,20 +113,44 @@ class LockstepGate:
             return True
         return now - first >= self.cluster_wait_s
 
-    def served(self, weights_version: int, *, failures: int, fitted_at: int | None) -> bool:
-        """Cycle `weights_version` was served; True if with a refit overdue (then counted, and
-        no later cycle waits for that refit again)."""
+    def take_servable(self, samples: deque[ParkedSample], *, failures: int,
+                      fitted_at: int | None, now: float) -> list[ParkedSample]:
+        """Every parked call whose cycle may be served, in any order: each names its own
+        cycle, and one that can no longer be served (a dead learner's, for a cycle no actor
+        got the weights of) must not hold a restarted learner's behind it."""
+        ready: list[ParkedSample] = []
+        waiting: list[ParkedSample] = []
+        for item in samples:
+            (ready if self.can_sample(item.call.weights_version, failures=failures,
+                                      fitted_at=fitted_at, now=now) else waiting).append(item)
+        samples.clear()
+        samples.extend(waiting)
+        return ready
+
+    def served(self, weights_version: int, *, failures: int, fitted_at: int | None,
+               model_version: int) -> str | None:
+        """Cycle `weights_version` was served; with a refit overdue (then counted, and no
+        later cycle waits for that refit again) the warning to log, else None."""
         self._first_asked.pop(weights_version, None)
         if not self.refit_due(failures=failures, fitted_at=fitted_at):
-            return False
+            return None
         self.late_cluster_models += 1
-        self._waived_fit = self.next_fit(fitted_at)
-        return True
+        due = self.next_fit(fitted_at)
+        self._waived_fit = due
+        return (f"lockstep: cycle {weights_version} served with cluster model "
+                f"v{model_version}: the refit due at {due} failed goals did not arrive within "
+                f"{self.cluster_wait_s:.0f} s (is the clusterer running?)")
 
-    def recover(self, policy_versions: Iterable[int]) -> None:
+    def recovered(self, policy_versions: Iterable[int]) -> None:
         """Count the episodes a restarted replay recovered from its log (once, all of them)."""
         for version in policy_versions:
             self.admitted[int(version)] += 1
             self.stored[int(version)] += 1
         if self.stored:
             self.requested = max(self.requested, max(self.stored))
+
+    def stored_per_version(self) -> dict[int, int]:
+        return dict(+self.stored)
+
+    def describe(self, *, inserts_waiting: int, samples_waiting: int) -> str:
+        return "lockstep"

@@ -7,9 +7,9 @@ object only holds them. Not thread-safe: the table's lock guards it."""
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping
 from typing import Any
 
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table_calls import (
     EpisodeIdConflict,
     Parked,
@@ -72,16 +72,16 @@ class ParkedCalls:
         return len(self.inserts), len(self.samples)
 
 
-def check_unstored(core: ReplayCore, group: list[ParkedInsert]) -> None:
-    """`EpisodeIdConflict` if an episode of `group` is stored already or twice in it: the
-    store would then answer it with its earlier id instead of the next one, and the log
-    would record it under an id the store never gives. An insert is parked only while it is
-    neither stored nor parked, so this is a broken invariant, refused before anything is
-    logged."""
+def check_unstored(stored: Mapping[InsertKey, int], group: list[ParkedInsert]) -> None:
+    """`EpisodeIdConflict` if an episode of `group` is stored already (in `stored`, the
+    table's episode ids by (actor_id, seq)) or twice in it: the store would then answer it
+    with its earlier id instead of the next one, and the log would record it under an id the
+    store never gives. An insert is parked only while it is neither stored nor parked, so
+    this is a broken invariant, refused before anything is logged."""
     seen: set[InsertKey] = set()
     for item in group:
         key = insert_key(item.episode)
-        known = core.lookup(*key)
+        known = stored.get(key)
         if known is not None or key in seen:
             where = f"stored as episode {known}" if known is not None else "twice in it"
             raise EpisodeIdConflict(

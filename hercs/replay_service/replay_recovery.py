@@ -9,7 +9,6 @@ from pathlib import Path
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.replay_messages import cluster_model
 from hercs.replay_service.table import ReplayTable
 from hercs.rl.seeding import generator
@@ -27,9 +26,8 @@ def open_table(config: HercsConfig, run_dir: Path) -> tuple[RecoveringLogWriter,
         segment_episodes=replay.log_segment_episodes(config.capacity_episodes),
         max_bytes=replay.log_max_bytes, spec=spec)
     saved = recovered.replay_state
-    table = ReplayTable(
-        config=config, core=ReplayCore(config=config, rng=generator(config.run.seed, "replay")),
-        log=episode_log)
+    table = ReplayTable(config=config, rng=generator(config.run.seed, "replay"),
+                        log=episode_log)
     count = 0
 
     def episodes():

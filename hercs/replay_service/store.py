@@ -188,7 +188,7 @@ class EpisodeStore:
     def restore(self, episodes: Iterable[tuple[int, EpisodeData, float]], *,
                 next_id: int) -> None:
         """Refill an empty store as it was once `next_id` episodes had been inserted: a
-        restarted replay whose log starts from a saved state (`ReplayCore.restore`).
+        restarted replay whose log starts from a saved state (`ReplayTable.recover`).
 
         `episodes`: (id, episode, energy) in increasing id order, every id from the oldest one
         the store held then up to `next_id` − 1 (the log's; a later id overwrites an earlier

@@ -1,32 +1,44 @@
-"""The replay table: everything the replay service decides, with no transport (Reverb's
-`Table` is the model). `ReplayTable` owns the `ReplayCore`, the rate limiter or lockstep gate,
+"""The replay table, the one object the replay service is (Reverb's `Table` is the model).
+
+`ReplayTable` owns the episode store, the sampler, the o/g normalisers, the cluster model and
+the counters, the rate limiter and its schedule's admission (hercs.replay_service.admission),
 the parked calls (hercs.replay_service.parked_calls), the log's group commit and the
-`PolicyLagLedger`. Every public method takes the table's lock and waiters are called under it,
-so they must only hand their answer over.
+`PolicyLagLedger`. Invariants: an (actor_id, seq) pair is stored at most once; every stored
+episode carries its cluster under the current model (-1 before one); normaliser statistics
+cover every stored episode. Every public method takes the table's lock and waiters are called
+under it, so they must only hand their answer over.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Iterable
+from collections import Counter, OrderedDict, deque
+from collections.abc import Callable, Iterable, Iterator
+
+import numpy as np
 
 from hercs.config import HercsConfig
+from hercs.errors import ConfigError
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
 from hercs.replay_service.admission import admission_for
+from hercs.replay_service.energy import trajectory_energy
+from hercs.replay_service.her import relabel
 from hercs.replay_service.learner_follow import follow_learner
 from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S
-from hercs.replay_service.parked_calls import ParkedCalls, check_unstored, insert_key
+from hercs.replay_service.normalizers import EpisodeNormalizers
+from hercs.replay_service.parked_calls import InsertKey, ParkedCalls, check_unstored, insert_key
 from hercs.replay_service.policy_lag import PolicyLagLedger
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.store import EpisodeStore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
     EpisodeIdConflict,
     EpisodeLogSink,
+    NoLog,
     ParkedInsert,
     ParkedSample,
     SampleCall,
@@ -36,6 +48,9 @@ from hercs.replay_service.table_calls import (
     start_segment,
 )
 from hercs.rl.cluster_model import ClusterModel
+from hercs.rl.methods import make_sampler
+from hercs.rl.seeding import int_seed
+from hercs.run.runlog.format import EpisodeLogError
 from hercs.wire.episode import EpisodeData
 from hercs.wire.replay_state import ReplayState
 from hercs.wire.served import ReplayCounters, ServedBatch
@@ -47,73 +62,220 @@ log = logging.getLogger("hercs.replay")
 
 
 class ReplayTable:
-    def __init__(self, *, config: HercsConfig, core: ReplayCore, log: EpisodeLogSink,
+    def __init__(self, *, config: HercsConfig, rng: np.random.Generator,
+                 log: EpisodeLogSink | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
+        """`log` None: an in-process table that logs nothing (a bench's, a study's)."""
         self.config = config
-        self.core = core
-        self.log = log
+        self.spec = config.task.spec
+        self.rng = rng
+        self.log: EpisodeLogSink = NoLog() if log is None else log
         self.clock = clock
-        self.limiter, self.gate, self.lag_bound = admission_for(config)
+        self.store = EpisodeStore(capacity_episodes=config.capacity_episodes, spec=self.spec,
+                                  eviction=config.replay.eviction,
+                                  eviction_seed=int_seed(config.run.seed, "replay", "eviction"))
+        self.sampler = make_sampler(config.run.method, config.sampler_settings)
+        d = config.ddpg
+        self.normalizers = EpisodeNormalizers(
+            obs_dim=self.spec.obs_dim, goal_dim=self.spec.goal_dim, eps=d.norm_eps,
+            clip_range=d.norm_clip, clip_obs=d.clip_obs, future_p=config.her.future_p)
+        self.cluster_model: ClusterModel | None = None
+        self.lags = PolicyLagLedger(config.training.episodes_per_cycle,
+                                    prefetch_depth=config.learner.prefetch_depth)
+        self.limiter, self.admission = admission_for(config, self.lags)
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
         self._parked = ParkedCalls(
             waiting_inserts_per_actor=config.replay.waiting_inserts_per_actor)
-        self.lags = PolicyLagLedger(config.training.episodes_per_cycle,
-                                    prefetch_depth=config.learner.prefetch_depth)
-        self.log_failures = 0
-        """Inserts refused because their log append failed."""
+        self._seen: OrderedDict[InsertKey, int] = OrderedDict()
+        """(actor_id, seq) -> episode id, for the episodes still in the ring."""
         self._learner: str | None = None
         """The learner process whose kept samples the limiter counts from (`follow_learner`)."""
+        self.inserts = 0
+        self.duplicates = 0
+        self.samples = 0
+        self.env_steps = 0
+        self.rejects: Counter[str] = Counter()
+        self.log_failures = 0
+        """Inserts refused because their log append failed."""
+        self.cluster_draws_total = np.zeros(config.cluster.k, np.int64)
+        self.newest_policy_version: int | None = None
+        """The newest weights version any stored episode was acted with (None before the
+        first): after a restart, a floor under the learner's newest weights (they existed)."""
+        self.failures = 0
+        """Stored episodes that failed (not `TaskSpec.is_success` at their last step)."""
+        self.recent_failed_goals: deque[np.ndarray] = deque(maxlen=config.cluster.fgb_size)
+        """Desired goals of the newest failed episodes, oldest first: what a restarted
+        clusterer refills its failed-goal buffer with."""
 
-    # -- start-up --------------------------------------------------------------------------
+    # -- start-up: the episode log ---------------------------------------------------------
     def recover(self, episodes: Iterable[tuple[int, EpisodeData]], *,
                 state: ReplayState | None = None) -> list[tuple[int, int]]:
-        """Store the log's episodes (not logged again; from its newest saved `state` on, if
-        any: `ReplayCore.recover`) and restart the limiter balanced. Returns the (logged id,
-        stored id) pairs that disagree (a log written by another buffer size): none normally."""
+        """Store a restarted replay's logged (id, episode) pairs (not logged again), or with the
+        log's newest `state`, restore that state (the episodes before its first_held_id are
+        skipped, those up to its next_episode_id restored) and store only the later ones; then
+        restart the limiter balanced. Returns the (logged id, stored id) pairs that disagree (a
+        log written by another buffer size): none normally."""
         with self._lock:
-            mismatched, versions = self.core.recover(episodes, state)
-            if self.gate is not None:
-                self.gate.recover(versions.elements())
-            count = self.core.store.num_inserted
+            versions: Counter[int] = Counter()
+            if state is not None:
+                held, episodes = split_at_state(episodes, state)
+                self._restore(state, held)
+                versions.update(state.stored_per_version)
+            else:
+                source = iter(episodes)
+                first = next(source, None)
+                if first is not None and first[0] != 0:
+                    raise EpisodeLogError(
+                        f"the episode log starts at episode {first[0]} and holds no replay "
+                        "state to start from: its first segments were removed by hand; put "
+                        "them back")
+                episodes = itertools.chain([first] if first is not None else [], source)
+            mismatched = []
+            for episode_id, episode in episodes:
+                stored = self._store_unadmitted(episode)
+                if stored.episode_id != episode_id:
+                    mismatched.append((episode_id, stored.episode_id))
+                versions[episode.policy_version] += 1
+            self.admission.recovered(versions.elements())
+            count = self.store.num_inserted
             if count:
                 self.limiter.restart_balanced(count)
-                self.lags.recovered(self.core.newest_policy_version)
+                self.lags.recovered(self.newest_policy_version)
         return mismatched
+
+    def _restore(self, state: ReplayState, held: Iterable[tuple[int, EpisodeData]]) -> None:
+        """Start an empty table from `state` and the logged episodes from its `first_held_id`
+        up to its `next_episode_id` − 1, in order: the same store, dedup keys, counts, failed
+        goals and normalisers as the table that saved `state` (its cluster model is adopted
+        afterwards, as after a replay of the whole log). Raises EpisodeLogError if `held` lacks
+        an episode the store held."""
+        if self.store.num_inserted:
+            raise ConfigError("ReplayTable.recover: this table has stored episodes already")
+        kept = state.next_episode_id - state.first_held_id
+        if kept < min(state.next_episode_id, self.store.capacity_episodes):
+            raise EpisodeLogError(
+                f"the episode log's newest replay state keeps the {kept} episodes from id "
+                f"{state.first_held_id} on, fewer than this replay's buffer of "
+                f"{self.store.capacity_episodes} holds: it was written with a smaller "
+                "replay.buffer_transitions; resume with the run's own, or start a new run")
+
+        def with_energy() -> Iterator[tuple[int, EpisodeData, float]]:
+            for episode_id, episode in held:
+                self._remember(insert_key(episode), episode_id)
+                self._saw_version(episode.policy_version)
+                yield episode_id, episode, self._energy(episode)
+
+        self.store.restore(with_energy(), next_id=state.next_episode_id)
+        self.normalizers.load(state.o_stats, state.g_stats)
+        self.failures = state.failures
+        self.recent_failed_goals.clear()
+        self.recent_failed_goals.extend(np.asarray(g, np.float32)
+                                        for g in state.recent_failed_goals)
+        self.inserts = state.next_episode_id
+        self.env_steps = state.next_episode_id * self.spec.episode_steps
+
+    def _state(self) -> ReplayState:
+        """What this table derived from every episode stored so far, beyond the episodes its
+        store holds (`hercs.wire.replay_state`): a bounded log's next segment starts with it."""
+        held = self.store.episode_id
+        o_stats, g_stats = self.normalizers.state()
+        return ReplayState(
+            next_episode_id=self.store.num_inserted,
+            first_held_id=int(held.min()) if held.size else 0, failures=self.failures,
+            recent_failed_goals=self._failed_goals(), o_stats=o_stats, g_stats=g_stats,
+            cluster_model=self.cluster_model,
+            stored_per_version=self.admission.stored_per_version())
+
+    def store_episode(self, episode: EpisodeData) -> Stored:
+        """Store `episode` now, without the limiter or the log: an in-process table's insert
+        (a bench's, a study's, a test's). A retry of a stored one is answered as a duplicate."""
+        with self._lock:
+            return self._store_unadmitted(episode)
+
+    def _store_unadmitted(self, episode: EpisodeData) -> Stored:
+        return self._retry_of_stored(episode) or self._add(episode)
+
+    # -- the stored episodes ---------------------------------------------------------------
+    def _retry_of_stored(self, episode: EpisodeData) -> Stored | None:
+        """The duplicate answer to a retry of a stored episode (counted), or None: the one
+        place an insert is deduplicated (each insert passes it once, on arrival)."""
+        known = self._seen.get(insert_key(episode))
+        if known is None:
+            return None
+        self.duplicates += 1
+        return Stored(episode, known, duplicate=True)
+
+    def _add(self, episode: EpisodeData) -> Stored:
+        """Store an episode that is not stored yet; it gets the next episode id."""
+        energy = self._energy(episode)
+        cluster = -1
+        if self.cluster_model is not None:
+            cluster = int(self.cluster_model.assign(episode.ag[-1:])[0])
+        episode_id = self.store.insert(episode, energy=energy, cluster=cluster)
+        self._remember(insert_key(episode), episode_id)
+        self._saw_version(episode.policy_version)
+        self.normalizers.update(episode, self.rng)
+        if not self.spec.is_success(episode.ag[-1], episode.g[-1]):
+            self.failures += 1
+            self.recent_failed_goals.append(np.array(episode.g[-1], np.float32))
+        self.inserts += 1
+        self.env_steps += self.spec.episode_steps
+        return Stored(episode, episode_id, duplicate=False, energy=energy, cluster=cluster)
+
+    def _energy(self, episode: EpisodeData) -> float:
+        """The episode's trajectory energy by its task's energy kind (0 where it has none),
+        the same at insert and at a restore."""
+        if self.spec.energy == "none":
+            return 0.0
+        return float(trajectory_energy(episode.ag, self.config.energy, self.spec.energy))
+
+    def _remember(self, key: InsertKey, episode_id: int) -> None:
+        self._seen[key] = episode_id
+        # Forget pairs whose episode left the ring: the oldest entries go first.
+        while len(self._seen) > self.store.capacity_episodes:
+            self._seen.popitem(last=False)
+
+    def _saw_version(self, policy_version: int) -> None:
+        newest = self.newest_policy_version
+        self.newest_policy_version = (int(policy_version) if newest is None
+                                      else max(newest, int(policy_version)))
+
+    def _failed_goals(self) -> np.ndarray:
+        """(n ≤ fgb_size, goal_dim) float32: `recent_failed_goals` as one array."""
+        if not self.recent_failed_goals:
+            return np.zeros((0, self.spec.goal_dim), np.float32)
+        return np.stack(list(self.recent_failed_goals))
 
     # -- inserts ---------------------------------------------------------------------------
     def insert(self, episode: EpisodeData, *, record: pb.Episode, waiter: Waiter[Stored],
                timeout_s: float | None = None) -> None:
-        """Store `episode` when the limiter admits it, then `waiter.done(Stored)`.
+        """Store `episode` when its admission allows, then `waiter.done(Stored)`.
 
         `record` is what goes into the log (the message as received). `timeout_s`: the
         caller's own timeout; a call still parked after it is answered `expired`.
         """
-        key = insert_key(episode)
         with self._lock:
-            known = self.core.lookup(*key)
-            if known is not None:
-                self.core.duplicates += 1
-                waiter.done(Stored(episode, known, duplicate=True,
-                                   next_policy_version=self._next_version(episode)))
+            retry = self._retry_of_stored(episode)
+            if retry is not None:
+                waiter.done(dataclasses.replace(
+                    retry, next_policy_version=self._next_version(episode)))
                 return
-            parked = self._parked.joined(key)
+            parked = self._parked.joined(insert_key(episode))
             if parked is not None:  # a retry of a call still waiting: answer both together
                 parked.waiters.append(waiter)
                 parked.deadline = self._deadline(timeout_s)
                 return
             refusal = (self._parked.inserts.refusal(episode.actor_id)
                        or self.lags.future_refusal(episode.policy_version)
-                       or self.core.implausible(episode))
-            if refusal is None and self.gate is not None:
-                refusal = self.gate.refuse_insert(episode.policy_version)
+                       or self.normalizers.implausible(episode)
+                       or self.admission.refuse_insert(episode.policy_version))
             if refusal is not None:
-                self.core.count_reject(refusal[0])
+                self.rejects[refusal[0]] += 1
                 waiter.fail(*refusal)
                 return
-            if self.gate is not None:
-                self.gate.admit(episode.policy_version)
+            self.admission.admit(episode.policy_version)
             item = ParkedInsert([waiter], self._deadline(timeout_s), episode=episode,
                                  record=record)
             self._parked.park_insert(item)
@@ -146,9 +308,9 @@ class ReplayTable:
                 group = self._parked.take_ready()
                 if not group:
                     return
-                first_id = self.core.store.num_inserted
+                first_id = self.store.num_inserted
                 try:
-                    check_unstored(self.core, group)
+                    check_unstored(self._seen, group)
                 except EpisodeIdConflict as exc:  # before anything is logged: no id disagrees
                     log.error("%s", exc)
                     self._refuse(group, Reason.INTERNAL, str(exc))
@@ -162,16 +324,15 @@ class ReplayTable:
                 failure = exc
             with self._lock:
                 if failure is None:
-                    for episode_id, item in zip(range(first_id, first_id + len(group)), group,
-                                                strict=True):
-                        self._store(item, episode_id)
+                    for item in group:
+                        self._store_admitted(item)
                 else:
                     self.log_failures += len(group)
                     self._refuse(group, Reason.LOG_FAILED,
                                  f"episode not logged, so not stored: {failure}")
                 self._drain()  # parked samples may wait for exactly these inserts
-                state = (self.core.state({} if self.gate is None else +self.gate.stored)
-                         if failure is None and self.log.rotation_due() else None)
+                state = (self._state() if failure is None and self.log.rotation_due()
+                         else None)
             if state is not None:  # a bounded log's next segment, while no group is in flight
                 start_segment(self.log, state)
 
@@ -180,49 +341,45 @@ class ReplayTable:
         self.limiter.cancel_inserts(len(group))
         for item in group:
             self._parked.forget(item)
-            if self.gate is not None:
-                self.gate.cancel(item.episode.policy_version)
+            self.admission.cancel(item.episode.policy_version)
             for waiter in item.waiters:
                 waiter.fail(reason, detail)
 
-    def _store(self, item: ParkedInsert, episode_id: int) -> None:
+    def _store_admitted(self, item: ParkedInsert) -> None:
+        """Store a logged insert (`check_unstored` made sure it is new, so it gets the id it
+        was logged under) and answer its call and the retries that joined it."""
         episode = item.episode
         self._parked.forget(item)
-        result = self.core.insert(episode)  # not stored before (`check_unstored`): gets episode_id
+        stored = self._add(episode)
         self.limiter.store_admitted()
-        self.lags.stored(episode_id, episode.policy_version)
-        if self.gate is not None:
-            self.gate.store(episode.policy_version)
-        next_version = self._next_version(episode)
-        item.waiters[0].done(Stored(episode, episode_id, duplicate=False, energy=result.energy,
-                                    cluster=result.cluster, next_policy_version=next_version))
+        self.lags.stored(stored.episode_id, episode.policy_version)
+        self.admission.store(episode.policy_version)
+        stored = dataclasses.replace(stored, next_policy_version=self._next_version(episode))
+        item.waiters[0].done(stored)
         for waiter in item.waiters[1:]:  # the retries that joined the first call
-            self.core.duplicates += 1
-            waiter.done(Stored(episode, episode_id, duplicate=True,
-                               next_policy_version=next_version))
+            self.duplicates += 1
+            waiter.done(Stored(episode, stored.episode_id, duplicate=True,
+                               next_policy_version=stored.next_policy_version))
 
     def _next_version(self, episode: EpisodeData) -> int:
-        """For an ack: the oldest weights version the actor's next episode may use (0
-        asynchronously without a lag bound)."""
-        if self.gate is not None:
-            return self.gate.next_policy_version(episode.policy_version)
-        return self.lags.bound_next_version(self.lag_bound, self._next_episode_id())
+        """For an ack: the oldest weights version the actor's next episode may use."""
+        return self.admission.next_policy_version(episode.policy_version,
+                                                  self._next_episode_id())
 
     def _next_episode_id(self) -> int:
         """The id the next admitted insert will be stored under (after those admitted and
         not yet stored)."""
-        return self.core.store.num_inserted + self.limiter.pending_inserts
+        return self.store.num_inserted + self.limiter.pending_inserts
 
-    def _refuse_stale(self, item: ParkedInsert) -> bool:
-        """The lag bound's check of an insert the limiter admits: True if it was refused
-        (answered `stale_policy`, counted, forgotten)."""
-        episode = item.episode
-        refusal = self.lags.bound_refusal(self.lag_bound, episode.policy_version,
-                                          self._next_episode_id())
+    def _refuse_late(self, item: ParkedInsert) -> bool:
+        """The admission's check of an insert the limiter admits (the lag bound's): True if
+        it was refused (answered, counted, forgotten)."""
+        refusal = self.admission.refuse_admitted(item.episode.policy_version,
+                                                 self._next_episode_id())
         if refusal is None:
             return False
         self._parked.forget(item)
-        self.core.count_reject(refusal[0])
+        self.rejects[refusal[0]] += 1
         for waiter in item.waiters:
             waiter.fail(*refusal)
         return True
@@ -230,7 +387,7 @@ class ReplayTable:
     # -- samples ---------------------------------------------------------------------------
     def sample(self, call: SampleCall, *, waiter: Waiter[ServedBatch],
                timeout_s: float | None = None) -> None:
-        """Draw `call.num_minibatches` minibatches when the limiter admits them, then
+        """Draw `call.num_minibatches` minibatches when the admission serves them, then
         `waiter.done(ServedBatch)`. Raises `SampleRefused` (nothing parked) for a call no state of
         the limiter could ever admit."""
         if not self.limiter.could_ever_sample(call.num_minibatches):
@@ -247,29 +404,49 @@ class ReplayTable:
             self._drain()
         self._commit()  # the samples served may have admitted parked inserts
 
+    def draw(self, num_minibatches: int, batch_size: int) -> ServedBatch:
+        """`num_minibatches` HER-relabelled minibatches of `batch_size` transitions now, with
+        the normaliser statistics to train them with, and no limiter: an in-process table's
+        sample (a bench's, a study's, a test's)."""
+        with self._lock:
+            return self._draw(num_minibatches, batch_size)
+
+    def _draw(self, num_minibatches: int, batch_size: int) -> ServedBatch:
+        draws = np.zeros(self.config.cluster.k, np.int64)
+        out = []
+        moved, sampled = 0, 0
+        for _ in range(num_minibatches):
+            slots, info = self.sampler.sample(self.store, batch_size, self.rng)
+            draws += info.cluster_counts
+            moved += int(self.store.moved[slots].sum())
+            sampled += len(slots)
+            out.append(relabel(self.store, slots, future_p=self.config.her.future_p,
+                               reward_fn=self.spec.compute_reward, rng=self.rng))
+        self.samples += num_minibatches
+        self.cluster_draws_total += draws
+        o_stats, g_stats = self.normalizers.state()
+        return ServedBatch(minibatches=out, o_stats=o_stats, g_stats=g_stats,
+                           cluster_draws=draws, sampled_moved=moved, sampled_transitions=sampled)
+
     def _serve(self, item: ParkedSample) -> None:
         call = item.call
         self.lags.serving(call.weights_version)
-        served = self.core.sample(call.num_minibatches, call.batch_size)
+        served = self._draw(call.num_minibatches, call.batch_size)
         self.limiter.record_sample(call.num_minibatches)
-        fitted_at = self._fitted_at()
-        if self.gate is not None and self.gate.served(
-                call.weights_version, failures=self.core.failures, fitted_at=fitted_at):
-            log.warning("lockstep: cycle %d served with cluster model v%d: the refit due at %s "
-                        "failed goals did not arrive within %.0f s (is the clusterer running?)",
-                        call.weights_version, self._model_version(),
-                        self.gate.next_fit(fitted_at), self.gate.cluster_wait_s)
+        warning = self.admission.served(call.weights_version, failures=self.failures,
+                                        fitted_at=self._fitted_at(),
+                                        model_version=self._model_version())
+        if warning is not None:
+            log.warning("%s", warning)
         served = dataclasses.replace(
             served, policy_lags=self.lags.take_since_sample(), status=self._counters())
         for waiter in item.waiters:
             waiter.done(served)
 
-    # -- the rate limiter's queues ---------------------------------------------------------
+    # -- the parked calls ------------------------------------------------------------------
     def _drain(self) -> None:
-        """Serve parked calls while the limiter admits them (docs/DESIGN.md §3, "drain"). In
-        lockstep every parked sample that its cycle admits is served, in any order: each
-        names its own cycle, and one that can no longer be served (a dead learner's, for a
-        cycle no actor got the weights of) must not hold a restarted learner's behind it."""
+        """Admit parked inserts and serve parked samples while the limiter and the admission
+        allow (docs/DESIGN.md §3, "drain"). Draining again with nothing changed does nothing."""
         progressed = True
         while progressed:
             progressed = False
@@ -277,37 +454,24 @@ class ReplayTable:
             while parked.inserts and self.limiter.can_insert():
                 item = parked.inserts.popleft()
                 progressed = True
-                if self._refuse_stale(item):
+                if self._refuse_late(item):
                     continue
                 parked.ready.append(item)
                 self.limiter.admit_insert()  # bounds inserts now, feeds samples once stored
-            if self.gate is not None:
-                ready: list[ParkedSample] = []
-                waiting: deque[ParkedSample] = deque()
-                for sample in parked.samples:
-                    (ready if self._can_serve(sample) else waiting).append(sample)
-                parked.samples = waiting
+            while ready := self.admission.take_servable(
+                    parked.samples, failures=self.failures, fitted_at=self._fitted_at(),
+                    now=self.clock()):
                 for sample in ready:
                     self._serve(sample)
-                progressed = progressed or bool(ready)
-                continue
-            while parked.samples and self._can_serve(parked.samples[0]):
-                self._serve(parked.samples.popleft())
                 progressed = True
 
-    def _can_serve(self, item: ParkedSample) -> bool:
-        if self.gate is None:
-            return self.limiter.can_sample(item.call.num_minibatches)
-        return self.gate.can_sample(item.call.weights_version, failures=self.core.failures,
-                                    fitted_at=self._fitted_at(), now=self.clock())
-
     def _model_version(self) -> int:
-        model = self.core.cluster_model
+        model = self.cluster_model
         return 0 if model is None else model.version
 
     def _fitted_at(self) -> int | None:
         """The failure count the current cluster model was fitted at (None: no model)."""
-        model = self.core.cluster_model
+        model = self.cluster_model
         return None if model is None else model.failures_seen
 
     def _deadline(self, timeout_s: float | None) -> float | None:
@@ -323,10 +487,9 @@ class ReplayTable:
                 for waiter in parked.waiters:
                     waiter.fail(Reason.EXPIRED, "the rate limiter held this call past its "
                                                 "caller's timeout; the caller retries")
-            if expired or self.gate is not None:
-                # A dropped head of a queue may have held admissible calls; in lockstep a
-                # sample may have waited long enough for a late cluster model.
-                self._drain()
+            # A dropped head of a queue may have held admissible calls; in lockstep a sample
+            # may have waited long enough for a late cluster model.
+            self._drain()
         self._commit()
         return len(expired)
 
@@ -336,21 +499,25 @@ class ReplayTable:
         in the log, e.g. recovered from it); False if not newer. Raises ValueError for a model
         of the wrong k (nothing changes)."""
         with self._lock:
-            if not self.core.set_cluster_model(model):
+            if self.cluster_model is not None and model.version <= self.cluster_model.version:
                 return False
+            if model.k != self.config.cluster.k:
+                raise ValueError(f"ClusterModel has k={model.k}, this replay is configured "
+                                 f"for cluster.k={self.config.cluster.k}; model ignored")
+            self.cluster_model = model
+            if self.store.size:
+                self.store.set_clusters(model.assign(self.store.final_ag))
             if record is not None:
                 self.log.append_cluster_model(record)
-            if self.gate is not None:
-                self._drain()  # a lockstep sample may wait for exactly this model
+            self._drain()  # a lockstep sample may wait for exactly this model
         self._commit()
         return True
 
     def clusterer_state(self) -> ClustererSnapshot:
         """What a (re)started clusterer continues from."""
         with self._lock:
-            return ClustererSnapshot(failed_goals=self.core.failed_goals(),
-                                     failures_seen=self.core.failures,
-                                     episodes_seen=self.core.inserts,
+            return ClustererSnapshot(failed_goals=self._failed_goals(),
+                                     failures_seen=self.failures, episodes_seen=self.inserts,
                                      model_version=self._model_version())
 
     def log_eval_result(self, record: pb.EvalResult) -> None:
@@ -360,17 +527,22 @@ class ReplayTable:
     def stored_episode(self, episode_id: int) -> tuple[EpisodeData | None, int, int]:
         """(the episode or None, first stored id, one past the last id)."""
         with self._lock:
-            store = self.core.store
+            store = self.store
             return (store.episode(episode_id), store.num_inserted - store.size,
                     store.num_inserted)
 
     def count_reject(self, reason: Reason) -> None:
         with self._lock:
-            self.core.count_reject(reason)
+            self.rejects[reason] += 1
 
     def cluster_sizes(self) -> list[int]:
         with self._lock:
-            return [int(c) for c in self.core.cluster_sizes()]
+            return self._cluster_sizes()
+
+    def _cluster_sizes(self) -> list[int]:
+        labels = self.store.cluster
+        return [int(c) for c in np.bincount(labels[labels >= 0],
+                                            minlength=self.config.cluster.k)]
 
     def status(self) -> ReplayCounters:
         """The counters as one consistent snapshot (`ReplayStatus`, and each served batch's)."""
@@ -378,20 +550,40 @@ class ReplayTable:
             return self._counters()
 
     def _counters(self) -> ReplayCounters:
-        core = self.core
+        store = self.store
         waiting_inserts, waiting_samples = self._parked.waiting()
         return ReplayCounters(
-            size_episodes=core.store.size, size_transitions=core.store.num_transitions,
-            inserts=core.inserts, duplicates=core.duplicates, samples=core.samples,
-            rate_limiter=("lockstep" if self.gate is not None else
-                          self.limiter.describe(inserts_waiting=waiting_inserts,
-                                                samples_waiting=waiting_samples)),
-            rejects=dict(core.rejects),
-            cluster_sizes=[int(c) for c in core.cluster_sizes()],
-            cluster_model_version=self._model_version(), env_steps=core.env_steps,
+            size_episodes=store.size, size_transitions=store.num_transitions,
+            inserts=self.inserts, duplicates=self.duplicates, samples=self.samples,
+            rate_limiter=self.admission.describe(inserts_waiting=waiting_inserts,
+                                                 samples_waiting=waiting_samples),
+            rejects=dict(self.rejects), cluster_sizes=self._cluster_sizes(),
+            cluster_model_version=self._model_version(), env_steps=self.env_steps,
             policy_lag=self.lags.mean_schedule_lag,
             policy_lag_request=self.lags.mean_request_lag,
-            buffer_moved_share=core.buffer_moved_share,
+            buffer_moved_share=store.moved_count / max(store.size, 1),
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )
 
+
+def split_at_state(episodes: Iterable[tuple[int, EpisodeData]], state: ReplayState
+                   ) -> tuple[Iterator[tuple[int, EpisodeData]], Iterator[tuple[int, EpisodeData]]]:
+    """A restarted replay's logged episodes, in id order, as (those `state` held: from its
+    first_held_id to its next_episode_id − 1; the ones after it). Ids before first_held_id
+    (in segments not deleted yet) are skipped. Consume the first before the second."""
+    source = iter(episodes)
+    after: list[tuple[int, EpisodeData]] = []
+
+    def held() -> Iterator[tuple[int, EpisodeData]]:
+        for pair in source:
+            if pair[0] >= state.next_episode_id:
+                after.append(pair)
+                return
+            if pair[0] >= state.first_held_id:
+                yield pair
+
+    def later() -> Iterator[tuple[int, EpisodeData]]:
+        yield from after
+        yield from source
+
+    return held(), later()

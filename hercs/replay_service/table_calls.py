@@ -53,6 +53,25 @@ class EpisodeLogSink(Protocol):
         ...
 
 
+class NoLog:
+    """The log of an in-process table (a bench's, a study's, a test's): nothing is written."""
+
+    def append_many(self, episodes: list[tuple[int, pb.Episode]]) -> None:
+        pass
+
+    def append_cluster_model(self, msg: pb.ClusterModel) -> None:
+        pass
+
+    def append_eval_result(self, msg: pb.EvalResult) -> None:
+        pass
+
+    def rotation_due(self) -> bool:
+        return False
+
+    def start_segment(self, state: pb.ReplayState) -> None:
+        pass
+
+
 def start_segment(sink: EpisodeLogSink, state: ReplayState) -> None:
     """Start a bounded log's next segment with `state`; a failure is logged, and leaves the
     log as after a failed append (the next one retries) or as it was."""

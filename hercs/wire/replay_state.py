@@ -22,7 +22,7 @@ class ReplayState:
     """The oldest episode the buffer held then (0 while empty): a restarted replay needs the
     logged episodes from it on, so the log keeps them; the ones before may be deleted."""
     failures: int
-    """Failed episodes among them (`ReplayCore.failures`)."""
+    """Failed episodes among them (`ReplayTable.failures`)."""
     recent_failed_goals: np.ndarray
     """(≤ cluster.fgb_size, goal_dim) float32: desired goals of the newest failed episodes,
     oldest first."""

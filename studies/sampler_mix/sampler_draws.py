@@ -2,7 +2,7 @@
 
     python -m studies.sampler_mix runs/push-her-cs-s1 [--every-epochs 10] [--minibatches 200]
 
-Replays a run's episode log into a `ReplayCore` and compares each sampler's draws with the
+Replays a run's episode log into a `ReplayTable` and compares each sampler's draws with the
 buffer, without training. Needs the whole log (docs/GUIDE.md on `replay.log_max_bytes`)."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 
 from hercs.config import apply_overrides, load_yaml
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 from hercs.rl.methods import make_sampler
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import (
@@ -29,11 +29,11 @@ from hercs.wire.codec import msg_to_cluster_model, msg_to_episode
 BATCH = 256
 
 
-def episode_mix(core: ReplayCore, slots: np.ndarray, *, moved_m: float) -> tuple[float, float]:
+def episode_mix(table: ReplayTable, slots: np.ndarray, *, moved_m: float) -> tuple[float, float]:
     """(share of `slots` whose object moved more than moved_m, share that succeeded)."""
-    ag = core.store.ag[slots]
+    ag = table.store.ag[slots]
     moved = np.linalg.norm(ag[:, -1] - ag[:, 0], axis=-1) > moved_m
-    return float(moved.mean()), float(core.store.success[slots].mean())
+    return float(moved.mean()), float(table.store.success[slots].mean())
 
 
 def effective_share(slots: np.ndarray, size: int) -> float:
@@ -45,10 +45,10 @@ def effective_share(slots: np.ndarray, size: int) -> float:
     return float(counts.sum() ** 2 / (counts**2).sum() / uniform)
 
 
-def draw(core: ReplayCore, method: str, *, minibatches: int, seed: int) -> np.ndarray:
-    sampler = make_sampler(method, core.config.sampler_settings)
+def draw(table: ReplayTable, method: str, *, minibatches: int, seed: int) -> np.ndarray:
+    sampler = make_sampler(method, table.config.sampler_settings)
     rng = np.random.default_rng(seed)
-    return np.concatenate([sampler.sample(core.store, BATCH, rng)[0]
+    return np.concatenate([sampler.sample(table.store, BATCH, rng)[0]
                            for _ in range(minibatches)])
 
 
@@ -58,33 +58,34 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
     config = load_yaml(RunDir(run_dir).config)
     config = apply_overrides(config, ["run.method=her-cs"])  # keep cluster labels up to date
     per_epoch = config.training.episodes_per_epoch
-    core = ReplayCore(config=config, rng=np.random.default_rng(seed))
+    table = ReplayTable(config=config, rng=np.random.default_rng(seed))
     rows = []
     next_mark = every_epochs * per_epoch
     for message in read_messages(run_dir, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
         if message.topic == TOPIC_CLUSTER_MODEL:
-            core.set_cluster_model(msg_to_cluster_model(message.decode_as(pb.ClusterModel)))
+            table.adopt_cluster_model(msg_to_cluster_model(message.decode_as(pb.ClusterModel)),
+                                      None)
             continue
-        if message.sequence != core.store.num_inserted:
+        if message.sequence != table.store.num_inserted:
             raise ValueError(
                 f"{run_dir}: the log holds episode {message.sequence} where episode "
-                f"{core.store.num_inserted} belongs: its older segments were deleted "
+                f"{table.store.num_inserted} belongs: its older segments were deleted "
                 "(replay.log_max_bytes), and this replays a whole log; keep one with "
                 "replay.log_max_bytes=-1")
-        core.insert(msg_to_episode(message.decode_as(pb.Episode)))
-        if core.store.num_inserted < next_mark:
+        table.store_episode(msg_to_episode(message.decode_as(pb.Episode)))
+        if table.store.num_inserted < next_mark:
             continue
         next_mark += every_epochs * per_epoch
-        everything = np.arange(core.store.size)
-        row = {"epoch": core.store.num_inserted / per_epoch, "episodes": core.store.size,
-               "model": core.cluster_model.version if core.cluster_model else 0}
-        row["buffer_moved"], row["buffer_success"] = episode_mix(core, everything,
+        everything = np.arange(table.store.size)
+        row = {"epoch": table.store.num_inserted / per_epoch, "episodes": table.store.size,
+               "model": table.cluster_model.version if table.cluster_model else 0}
+        row["buffer_moved"], row["buffer_success"] = episode_mix(table, everything,
                                                                  moved_m=moved_m)
         for method in ("her", "her-cs"):
-            slots = draw(core, method, minibatches=minibatches, seed=seed)
-            row[f"{method}_moved"], row[f"{method}_success"] = episode_mix(core, slots,
+            slots = draw(table, method, minibatches=minibatches, seed=seed)
+            row[f"{method}_moved"], row[f"{method}_success"] = episode_mix(table, slots,
                                                                            moved_m=moved_m)
-            row[f"{method}_spread"] = effective_share(slots, core.store.size)
+            row[f"{method}_spread"] = effective_share(slots, table.store.size)
         rows.append(row)
     return rows
 

@@ -13,11 +13,11 @@ from bench.perf.learner import gemm_rate, make_batch, update_flops, update_rate
 from bench.perf.throughput import say
 from bench.perf.throughput.harness import Child, Harness
 from bench.perf.throughput.plan import EPISODE_POOL, SEED
-from bench.perf.throughput.synthetic import fill_core
+from bench.perf.throughput.synthetic import fill_table
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 from hercs.rl.seeding import generator
 from hercs.wire.served import ServedBatch
 
@@ -46,11 +46,11 @@ def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
 
 
 def local_batches(bench: Harness, count: int) -> list[ServedBatch]:
-    """Batches as the learner gets them, sampled here from a local core (untimed)."""
+    """Batches as the learner gets them, sampled here from a local table (untimed)."""
     config = bench.configs["her"][0]
-    core = ReplayCore(config=config, rng=generator(SEED, "bench", "learner-core"))
-    fill_core(core, bench.pool, max(bench.plan.learner_min_episodes, EPISODE_POOL))
-    return [core.sample(bench.plan.minibatches_per_cycle, config.ddpg.batch_size)
+    table = ReplayTable(config=config, rng=generator(SEED, "bench", "learner-core"))
+    fill_table(table, bench.pool, max(bench.plan.learner_min_episodes, EPISODE_POOL))
+    return [table.draw(bench.plan.minibatches_per_cycle, config.ddpg.batch_size)
             for _ in range(count)]
 
 
@@ -81,7 +81,7 @@ def measure(bench: Harness, replay: Child) -> None:
                   "batches over Zenoh (prefetch depth 2), weights versions per second × "
                   f"{p.minibatches_per_cycle}",
         reference_what="`LearnerLoop.step` in one process, one torch thread, on batches "
-                       "sampled beforehand from a local ReplayCore, in "
+                       "sampled beforehand from a local ReplayTable, in "
                        f"{p.learner_slice_s:g} s slices alternating with the learner's "
                        "(paused meanwhile)",
         target=Target("ratio_at_least", 0.95)))

@@ -1,5 +1,5 @@
 """4. Sample latency of a SampleRequest over Zenoh on a full buffer, per sampler, against
-`ReplayCore.sample` of the same size in this process."""
+`ReplayTable.draw` of the same size in this process."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from bench.perf.throughput import BenchError, say
 from bench.perf.throughput.harness import Child, Harness
 from bench.perf.throughput.plan import MAX_REPLY_BYTES, REQUEST_TIMEOUT_S, RUN, SEED
 from bench.perf.throughput.rates import percentile
-from bench.perf.throughput.synthetic import cluster_centroids, fill_core
+from bench.perf.throughput.synthetic import cluster_centroids, fill_table
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.seeding import generator
 from hercs.wire.codec import cluster_model_to_msg
@@ -44,18 +44,18 @@ def sample_over_zenoh(bench: Harness, method: str) -> list[float]:
 
 
 def sample_in_process(bench: Harness, method: str, episodes: int) -> list[float]:
-    """Per-request seconds of `ReplayCore.sample` here, on a store of the same size."""
+    """Per-request seconds of `ReplayTable.draw` here, on a store of the same size."""
     p = bench.plan
     config = bench.configs[method][0]
-    core = ReplayCore(config=config, rng=generator(SEED, "bench", "sample-core"))
-    fill_core(core, bench.pool, episodes)
+    table = ReplayTable(config=config, rng=generator(SEED, "bench", "sample-core"))
+    fill_table(table, bench.pool, episodes)
     if config.run.uses_clusters:
-        core.set_cluster_model(ClusterModel(version=1, centroids=cluster_centroids(
-            bench.spec), n_goals=config.cluster.fgb_size, failures_seen=episodes))
+        table.adopt_cluster_model(ClusterModel(version=1, centroids=cluster_centroids(
+            bench.spec), n_goals=config.cluster.fgb_size, failures_seen=episodes), None)
     out = []
     for i in range(p.sample_warmup_requests + p.sample_requests):
         start = time.perf_counter()
-        core.sample(p.sample_minibatches, p.sample_batch_size)
+        table.draw(p.sample_minibatches, p.sample_batch_size)
         if i >= p.sample_warmup_requests:
             out.append(time.perf_counter() - start)
     return out
@@ -80,7 +80,7 @@ def measure(bench: Harness, method: str, episodes: int) -> None:
                           f"{episodes * bench.spec.episode_steps:,} transitions, request "
                           f"→ reply bytes at a client"
                           + (", ÷ 40" if per == "minibatch" else ""),
-                reference_what=f"`ReplayCore.sample` of {size} in one process on a store "
+                reference_what=f"`ReplayTable.draw` of {size} in one process on a store "
                                "of the same size" + (", ÷ 40" if per == "minibatch"
                                                      else ""),
                 target=Target("ours_at_most", 1.0) if (q, per) == (99, "minibatch")

@@ -1,6 +1,6 @@
 """Synthetic actors: pre-generated random Push episodes inserted over Zenoh one at a time,
 each awaited until acked (as `hercs.actors.inserter` delivers); and the same episodes put into a
-local `ReplayCore` for the in-process references."""
+local `ReplayTable` for the in-process references."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterator, Sequence
 
 import numpy as np
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 
 from bench.common import all_started
 from bench.perf.throughput import BenchError
@@ -129,9 +129,9 @@ def episode_pool(spec: TaskSpec, size: int) -> list[EpisodeData]:
     return [random_episode(spec, rng, actor_id="pool", seq=i) for i in range(size)]
 
 
-def fill_core(core: ReplayCore, pool: Sequence[EpisodeData], episodes: int) -> None:
+def fill_table(table: ReplayTable, pool: Sequence[EpisodeData], episodes: int) -> None:
     for i in range(episodes):
-        core.insert(dataclasses.replace(pool[i % len(pool)], actor_id="ref", seq=i))
+        table.store_episode(dataclasses.replace(pool[i % len(pool)], actor_id="ref", seq=i))
 
 
 def cluster_centroids(spec: TaskSpec) -> np.ndarray:

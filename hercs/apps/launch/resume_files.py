@@ -134,7 +134,7 @@ def check_episode_log(run_dir: Path, config: HercsConfig) -> LogSurvey:
 
 
 def _check_replay_state(msg: Any, config: HercsConfig, path: Path) -> None:
-    """The replay state a restarted replay starts from (`ReplayCore.restore`) decodes, has
+    """The replay state a restarted replay starts from (`ReplayTable.recover`) decodes, has
     normalisers and failed goals of the task's sizes, and keeps a buffer of this run's."""
     from hercs.rl.normalizer import checked_state
     from hercs.wire.codec import msg_to_replay_state

@@ -1,5 +1,5 @@
 """LearnerLoop: cycle and epoch arithmetic, versions, and the metrics row, driven with batches
-from a real ReplayCore (no transport)."""
+from a real ReplayTable (no transport)."""
 
 import dataclasses
 import time
@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 import torch
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
@@ -30,18 +30,18 @@ def config() -> HercsConfig:
 
 def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
     """Batches as the replay serves them, without the moved-goal figures."""
-    core = ReplayCore(config=cfg, rng=np.random.default_rng(0))
+    table = ReplayTable(config=cfg, rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     out = []
     for i in range(n):
-        core.insert(random_episode(core.spec, rng, seq=i))
-        served = core.sample(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
+        table.store_episode(random_episode(table.spec, rng, seq=i))
+        served = table.draw(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
         out.append(ServedBatch(
             minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
             cluster_draws=served.cluster_draws,
-            status=ReplayCounters(inserts=core.inserts, env_steps=core.env_steps,
+            status=ReplayCounters(inserts=table.inserts, env_steps=table.env_steps,
                                   policy_lag=1.5,
-                                  size_transitions=core.store.num_transitions,
+                                  size_transitions=table.store.num_transitions,
                                   rejects={"non_finite": 2})))
     return out
 

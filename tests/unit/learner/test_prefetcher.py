@@ -1,6 +1,6 @@
 """The learner's prefetcher keeps exactly `learner.prefetch_depth` batches sampled ahead of the
 update loop (each is one cycle of policy lag in the asynchronous schedule). Driven with a
-stand-in transport that answers from a real ReplayCore; no Zenoh."""
+stand-in transport that answers from a real ReplayTable; no Zenoh."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hercs.replay_service.replay_core import ReplayCore
+from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
@@ -29,9 +29,10 @@ class AnsweringTransport:
 
     def __init__(self, config: HercsConfig) -> None:
         self.config = config
-        self.core = ReplayCore(config=config, rng=np.random.default_rng(0))
+        self.table = ReplayTable(config=config, rng=np.random.default_rng(0))
         for seq in range(4):
-            self.core.insert(random_episode(self.core.spec, np.random.default_rng(seq), seq=seq))
+            self.table.store_episode(random_episode(self.table.spec, np.random.default_rng(seq),
+                                                    seq=seq))
         self.requests = 0
         self.asked = threading.Condition()
         self.kept: list[tuple[str, int]] = []
@@ -41,8 +42,8 @@ class AnsweringTransport:
         asked = pb.SampleRequest.FromString(payload)
         self.kept.append((asked.learner_incarnation, asked.samples_kept))
         t = self.config.training
-        result = self.core.sample(t.minibatches_per_cycle, self.config.ddpg.batch_size)
-        o_state, g_state = self.core.normalizer_state()
+        result = self.table.draw(t.minibatches_per_cycle, self.config.ddpg.batch_size)
+        o_state, g_state = self.table.normalizers.state()
         header = pb.Batch(schema_version=SCHEMA_VERSION, o_stats=stats_to_msg(o_state),
                           g_stats=stats_to_msg(g_state))
         with self.asked:

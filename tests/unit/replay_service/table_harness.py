@@ -7,13 +7,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from hercs.replay_service.replay_core import ReplayCore
 
-from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.table import ReplayTable, SampleCall
-from hercs.wire.episode import EpisodeData
+from hercs.wire.episode import EpisodeData, random_episode
 from tests.support import Clock
 
 # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 8: d = 2·I − S stays in [0, 16].
@@ -102,9 +100,8 @@ def make(*extra: str) -> Harness:
     config = apply_overrides(HercsConfig(), [*OVERRIDES, *extra])
     journal: list[str] = []
     log, clock = FakeLog(journal), Clock()
-    core = ReplayCore(config=config, rng=np.random.default_rng(0))
-    return Harness(ReplayTable(config=config, core=core, log=log, clock=clock), log, clock,
-                   journal, config)
+    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=log, clock=clock)
+    return Harness(table, log, clock, journal, config)
 
 def insert_acted(h: Harness, seq: int, version: int, actor: str = "a") -> Recorder:
     episode = h.episode(seq, actor)

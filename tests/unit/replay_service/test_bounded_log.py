@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hercs.replay_service.replay_core import ReplayCore
 
-from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
+from hercs.replay_service.lockstep import LockstepAdmission
 from hercs.replay_service.table import ReplayTable, SampleCall, Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.run.runlog import (
@@ -32,7 +31,7 @@ from hercs.wire.codec import (
     msg_to_episode,
     msg_to_replay_state,
 )
-from hercs.wire.episode import EpisodeData
+from hercs.wire.episode import EpisodeData, random_episode
 from hercs.wire.served import ServedBatch
 
 RUN, TASK = "t", "reach"
@@ -75,8 +74,7 @@ def open_table(cfg: HercsConfig, run_dir: Path, seed: int = 0
         run_dir, run=RUN, task=TASK, scene=True,
         segment_episodes=cfg.replay.log_segment_episodes(cfg.capacity_episodes),
         max_bytes=cfg.replay.log_max_bytes)
-    table = ReplayTable(config=cfg, core=ReplayCore(config=cfg,
-                                                    rng=np.random.default_rng(seed)), log=log)
+    table = ReplayTable(config=cfg, rng=np.random.default_rng(seed), log=log)
     state = recovered.replay_state
     table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                   state=None if state is None else msg_to_replay_state(state))
@@ -115,13 +113,13 @@ STORE_FIELDS = ("obs", "ag", "g", "actions", "episode_id", "actor_id", "seq", "s
                 "final_ag", "energy", "cluster", "policy_version", "moved")
 
 
-def assert_same_buffer(a: ReplayCore, b: ReplayCore) -> None:
+def assert_same_buffer(a: ReplayTable, b: ReplayTable) -> None:
     for name in STORE_FIELDS:
         assert np.array_equal(getattr(a.store, name), getattr(b.store, name)), name
     assert a.store.num_inserted == b.store.num_inserted
     assert list(a._seen.items()) == list(b._seen.items()), "the same retries are dedup'd"
     assert (a.inserts, a.env_steps, a.failures) == (b.inserts, b.env_steps, b.failures)
-    assert np.array_equal(a.failed_goals(), b.failed_goals())
+    assert np.array_equal(a.clusterer_state().failed_goals, b.clusterer_state().failed_goals)
 
 
 @pytest.fixture(scope="module")
@@ -159,15 +157,15 @@ def test_a_replay_resumed_from_a_bounded_log_is_the_one_resumed_from_the_whole_l
     a, log_a = open_table(cfg, bounded_dir, seed=7)
     b, log_b = open_table(cfg, kept_dir, seed=7)
     try:
-        assert_same_buffer(a.core, b.core)
-        assert a.core.store.size == CAPACITY
-        assert list(a.core.store.episode_id) == [EPISODES - CAPACITY + (i - EPISODES) % CAPACITY
+        assert_same_buffer(a, b)
+        assert a.store.size == CAPACITY
+        assert list(a.store.episode_id) == [EPISODES - CAPACITY + (i - EPISODES) % CAPACITY
                                                  for i in range(CAPACITY)]
         for name in ("sum", "sumsq", "count"):  # exactly the running replay's statistics
-            assert np.array_equal(a.core.o_norm.state_dict()[name],
-                                  b.core.o_norm.state_dict()[name])
-            assert np.array_equal(a.core.g_norm.state_dict()[name],
-                                  b.core.g_norm.state_dict()[name])
+            assert np.array_equal(a.normalizers.o_norm.state_dict()[name],
+                                  b.normalizers.o_norm.state_dict()[name])
+            assert np.array_equal(a.normalizers.g_norm.state_dict()[name],
+                                  b.normalizers.g_norm.state_dict()[name])
         assert (a.limiter.inserts, a.limiter.samples) == (b.limiter.inserts, b.limiter.samples)
         # the same buffer, index and generator state: the next batches are the same
         answers = [Answer(), Answer()]
@@ -192,8 +190,8 @@ def test_the_buffer_is_the_one_an_unsplit_log_resumes_to(runs) -> None:
     a, log_a = open_table(cfg, bounded_dir)
     b, log_b = open_table(cfg, unsplit_dir)
     try:
-        assert_same_buffer(a.core, b.core)
-        assert a.core.o_norm.count == b.core.o_norm.count
+        assert_same_buffer(a, b)
+        assert a.normalizers.o_norm.count == b.normalizers.o_norm.count
     finally:
         log_a.close()
         log_b.close()
@@ -213,10 +211,11 @@ def test_resume_is_exact_with_random_eviction_and_in_lockstep(tmp_path: Path,
     a, log_a = open_table(bounded, tmp_path / "bounded")
     b, log_b = open_table(kept, tmp_path / "kept")
     try:
-        assert_same_buffer(a.core, b.core)
-        if a.gate is not None and b.gate is not None:
-            assert +a.gate.stored == +b.gate.stored and len(+a.gate.stored) == 50
-            assert a.gate.requested == b.gate.requested == 49
+        assert_same_buffer(a, b)
+        if isinstance(a.admission, LockstepAdmission):
+            assert isinstance(b.admission, LockstepAdmission)
+            assert +a.admission.stored == +b.admission.stored and len(+a.admission.stored) == 50
+            assert a.admission.requested == b.admission.requested == 49
     finally:
         log_a.close()
         log_b.close()
@@ -246,7 +245,7 @@ def test_restarts_do_not_put_off_the_next_state(tmp_path: Path) -> None:
     a, log_a = open_table(bounded, tmp_path / "bounded")
     b, log_b = open_table(kept, tmp_path / "kept")
     try:
-        assert_same_buffer(a.core, b.core)
+        assert_same_buffer(a, b)
     finally:
         log_a.close()
         log_b.close()
@@ -279,9 +278,7 @@ def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
             tmp_path, run=RUN, task=task, scene=False,
             segment_episodes=cfg.replay.log_segment_episodes(cfg.capacity_episodes),
             max_bytes=cfg.replay.log_max_bytes)
-        table = ReplayTable(config=cfg, core=ReplayCore(config=cfg,
-                                                        rng=np.random.default_rng(seed)),
-                            log=log)
+        table = ReplayTable(config=cfg, rng=np.random.default_rng(seed), log=log)
         state = recovered.replay_state
         table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                       state=None if state is None else msg_to_replay_state(state))
@@ -297,15 +294,15 @@ def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
                          waiter=answer)
             assert isinstance(answer.result, Stored), answer.result
             log.flush_upkeep()
-        at_insert = first.core.store.energy.copy()
+        at_insert = first.store.energy.copy()
     finally:
         log.close()
     again, log, state = opened(1)
     try:
         assert state is not None, "the log saved a replay state to restore from"
-        np.testing.assert_array_equal(again.core.store.energy, at_insert)
-        assert_same_buffer(first.core, again.core)
-        if first.core.spec.energy != "none":
+        np.testing.assert_array_equal(again.store.energy, at_insert)
+        assert_same_buffer(first, again)
+        if first.spec.energy != "none":
             assert at_insert.any(), "random episodes move their goals: some energy"
     finally:
         log.close()

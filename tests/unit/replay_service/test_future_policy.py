@@ -14,8 +14,8 @@ def test_a_forged_version_is_refused_counted_and_not_stored() -> None:
     waiter = insert_acted(h, 1, 10**15)
     assert [reason for reason, _ in waiter.failures] == [Reason.FUTURE_POLICY]
     assert "version 1000000000000000" in waiter.failures[0][1]
-    assert h.table.core.rejects[Reason.FUTURE_POLICY] == 1
-    assert h.table.core.store.num_inserted == 0
+    assert h.table.rejects[Reason.FUTURE_POLICY] == 1
+    assert h.table.store.num_inserted == 0
     assert Reason.FUTURE_POLICY.disposition is Disposition.SUPERSEDED  # dropped, not retried
 
 

@@ -34,22 +34,23 @@ def make() -> Harness:
 def warmed(h: Harness, episodes: int = 30) -> None:
     for seq in range(episodes):
         assert not insert_acted(h, seq, 0).failures
-    assert h.table.core.o_norm.count >= WARMUP_SAMPLES
+    assert h.table.normalizers.o_norm.count >= WARMUP_SAMPLES
 
 
 def test_the_3e38_episode_is_refused_counted_and_leaves_the_statistics_as_they_were() -> None:
     h = make()
     warmed(h)
-    core = h.table.core
-    before = (core.o_norm.state_dict(), core.g_norm.state_dict(), core.store.num_inserted)
+    table = h.table
+    norms = table.normalizers
+    before = (norms.o_norm.state_dict(), norms.g_norm.state_dict(), table.store.num_inserted)
     poison = h.episode(1000)
     poison.obs[:] = np.float32(3e38)
     waiter = insert_episode(h, poison)
     assert [r for r, _ in waiter.failures] == [Reason.IMPLAUSIBLE], waiter.failures
     assert "obs[..., " in waiter.failures[0][1] and "= 3e+38 lies" in waiter.failures[0][1]
     assert Reason.IMPLAUSIBLE.disposition is Disposition.DROP
-    assert core.rejects[Reason.IMPLAUSIBLE] == 1
-    after = (core.o_norm.state_dict(), core.g_norm.state_dict(), core.store.num_inserted)
+    assert table.rejects[Reason.IMPLAUSIBLE] == 1
+    after = (norms.o_norm.state_dict(), norms.g_norm.state_dict(), table.store.num_inserted)
     for old, new in zip(before[:2], after[:2], strict=True):
         assert all(np.array_equal(old[k], new[k]) for k in old)
     assert before[2] == after[2]
@@ -107,4 +108,4 @@ def test_an_admitted_edge_value_moves_the_variance_by_at_most_the_derived_bound(
 def test_honest_episodes_are_all_admitted() -> None:
     h = make()
     warmed(h, episodes=200)
-    assert h.table.core.rejects[Reason.IMPLAUSIBLE] == 0
+    assert h.table.rejects[Reason.IMPLAUSIBLE] == 0

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.parked_calls import ParkedCalls, check_unstored, insert_key
 from hercs.replay_service.table_calls import (
@@ -16,6 +15,7 @@ from hercs.replay_service.table_calls import (
     SampleCall,
 )
 from hercs.rl.task_registry import task_spec
+from hercs.wire.episode import random_episode
 
 RNG = np.random.default_rng(0)
 
@@ -61,18 +61,10 @@ def test_expiry_takes_the_waiting_calls_past_their_deadline_and_frees_their_keys
     assert calls.joined(("c", 1)) is admitted and calls.ready == [admitted]
 
 
-class StoredKeys:
-    def __init__(self, stored: dict[tuple[str, int], int]) -> None:
-        self.stored = stored
-
-    def lookup(self, actor_id: str, seq: int) -> int | None:
-        return self.stored.get((actor_id, seq))
-
-
 def test_a_group_holding_a_stored_or_repeated_episode_is_refused_before_it_is_logged() -> None:
     one, two = parked_insert("a", 1, None), parked_insert("a", 2, None)
-    check_unstored(StoredKeys({}), [one, two])  # type: ignore[arg-type]
+    check_unstored({}, [one, two])
     with pytest.raises(EpisodeIdConflict, match=r"\(actor 'a', seq 2\) stored as episode 5"):
-        check_unstored(StoredKeys({("a", 2): 5}), [one, two])  # type: ignore[arg-type]
+        check_unstored({("a", 2): 5}, [one, two])
     with pytest.raises(EpisodeIdConflict, match=r"\(actor 'a', seq 1\) twice in it"):
-        check_unstored(StoredKeys({}), [one, parked_insert("a", 1, None)])  # type: ignore[arg-type]
+        check_unstored({}, [one, parked_insert("a", 1, None)])

@@ -102,14 +102,14 @@ def test_a_failed_log_append_answers_log_failed_and_stores_nothing() -> None:
 def test_an_admitted_insert_the_store_already_holds_is_refused_before_it_is_logged() -> None:
     """The log records each group under the ids the store gives next; an episode the store
     holds already would get its old id, so the log and the store would disagree. `insert`
-    never parks one, so the invariant is broken here by hand: the core stores a parked
-    episode behind the table's back. The whole group is answered, none of it logged, and
+    never parks one, so the invariant is broken here by hand: a parked episode is stored
+    past its admission (`store_episode`). The whole group is answered, none of it logged, and
     the table goes on with ids that agree."""
     h = make()
     first = [h.insert(seq) for seq in range(10)]  # d reaches 16 after 8: seqs 8, 9 parked
     parked = [*first[8:], h.insert(9, actor="b"), h.insert(8, actor="b")]
     assert not any(w.results or w.failures for w in parked)
-    h.table.core.insert(h.episode(8, actor="b"))  # stored as episode 8, never logged
+    h.table.store_episode(h.episode(8, actor="b"))  # stored as episode 8, never logged
     h.journal.clear()
     h.sample(8)  # d 16 → 8: room for the 4 parked inserts, admitted as one group
     assert [line for line in h.journal if line.startswith("log")] == []

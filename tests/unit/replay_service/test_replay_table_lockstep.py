@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hercs.reasons import Reason
+from hercs.replay_service.lockstep import LockstepAdmission
 from hercs.replay_service.table import LOCKSTEP_CLUSTER_WAIT_S
 from hercs.rl.cluster_model import ClusterModel
 from hercs.wire.served import ServedBatch
@@ -56,14 +57,15 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     request = h.sample(8, "cycle 0", version=0)
     for seq in range(4):
         insert_acted(h, seq, 0)
-    failures = h.table.core.failures
+    failures = h.table.failures
     assert failures == 4, "random Reach episodes fail: the test needs exactly one refit due"
     assert not request.results, "model v1 is due at the 4th failure"
     model = ClusterModel(version=1, centroids=np.zeros((2, 3), np.float32), n_goals=4,
                          failures_seen=4)
     assert h.table.adopt_cluster_model(model, None)
     assert request.results and request.results[0].status.cluster_model_version == 1
-    assert h.table.gate is not None and h.table.gate.late_cluster_models == 0
+    assert isinstance(h.table.admission, LockstepAdmission)
+    assert h.table.admission.late_cluster_models == 0
 
     first_ask = h.sample(8, "cycle 1", version=1, timeout_s=20)
     for seq in range(4, 8):
@@ -76,12 +78,12 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     h.clock.now += LOCKSTEP_CLUSTER_WAIT_S - 20
     h.table.expire()  # the service's once-a-second tick
     assert retry.results and retry.results[0].status.cluster_model_version == 1
-    assert h.table.gate.late_cluster_models == 1
+    assert h.table.admission.late_cluster_models == 1
     request2 = h.sample(8, "cycle 2", version=2)
     for seq in range(8, 12):
         insert_acted(h, seq, 2)
     assert request2.results, "the refit given up on is not waited for again"
-    assert h.table.gate.late_cluster_models == 1
+    assert h.table.admission.late_cluster_models == 1
 
 
 def test_lockstep_counts_survive_a_replay_restart() -> None:
@@ -110,11 +112,11 @@ def test_a_replay_restarted_from_its_log_rebuilds_a_randomly_evicted_buffer() ->
     h = make(*extra)
     for seq in range(15):
         h.insert(seq)
-    store = h.table.core.store
+    store = h.table.store
     assert store.size == 4 and sorted(store.episode_id.tolist()) != [11, 12, 13, 14]
     again = make(*extra)
     assert again.table.recover((i, h.episode(i)) for i in range(15)) == []
-    np.testing.assert_array_equal(again.table.core.store.episode_id, store.episode_id)
+    np.testing.assert_array_equal(again.table.store.episode_id, store.episode_id)
 
 
 def test_lockstep_serves_a_restarted_learners_request_past_a_dead_learners() -> None:

@@ -10,7 +10,6 @@ import numpy as np
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.replay_core import ReplayCore
 from hercs.replay_service.table import ReplayTable, Stored
 from tests.support import Clock
 from tests.unit.replay_service.table_harness import (
@@ -132,7 +131,7 @@ def test_clusterer_snapshot_holds_the_newest_failed_goals_and_the_counts() -> No
     # a restarted replay rebuilds the same snapshot from its log
     again = make("cluster.fgb_size=8", "cluster.k=2")
     again.table.recover([(i, ep) for i, ep in enumerate(
-        h.table.core.store.episode(i) for i in range(20))])
+        h.table.store.episode(i) for i in range(20))])
     np.testing.assert_array_equal(again.table.clusterer_state().failed_goals, snap.failed_goals)
 
 
@@ -162,9 +161,7 @@ def test_inserts_arriving_during_an_append_share_the_next_group_and_samples_go_o
     config = apply_overrides(HercsConfig(), [*OVERRIDES, "replay.free_run=true"])
     journal: list[str] = []
     log = HeldLog(journal)
-    table = ReplayTable(config=config, core=ReplayCore(config=config,
-                                                       rng=np.random.default_rng(0)),
-                        log=log, clock=Clock())
+    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=log, clock=Clock())
     h = Harness(table, log, Clock(), journal, config)
     for seq in range(4):
         h.insert(seq)
