@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.table import ReplayTable, SampleCall
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 from tests.support import Clock
 
 # ρ = 8/4 = 2 updates per episode, N_min = 4, E = 8: d = 2·I − S stays in [0, 16].

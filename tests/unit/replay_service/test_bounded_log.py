@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.lockstep import LockstepAdmission
 from hercs.replay_service.table import ReplayTable, SampleCall, Stored
@@ -31,7 +32,7 @@ from hercs.wire.codec import (
     msg_to_episode,
     msg_to_replay_state,
 )
-from hercs.wire.episode import EpisodeData, random_episode
+from hercs.wire.episode import EpisodeData
 from hercs.wire.served import ServedBatch
 
 RUN, TASK = "t", "reach"

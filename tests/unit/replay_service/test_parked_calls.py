@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.parked_calls import ParkedCalls, check_unstored, insert_key
 from hercs.replay_service.table_calls import (
@@ -15,7 +16,6 @@ from hercs.replay_service.table_calls import (
     SampleCall,
 )
 from hercs.rl.task_registry import task_spec
-from hercs.wire.episode import random_episode
 
 RNG = np.random.default_rng(0)
 

@@ -4,10 +4,10 @@ coverage, sampled batches."""
 import numpy as np
 import pytest
 
+from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.replay_service.table import ReplayTable, Stored
 from hercs.rl.cluster_model import ClusterModel, assign_clusters
-from hercs.wire.episode import random_episode
 
 
 def make_table(method: str = "her-cs", **extra: str) -> ReplayTable:
