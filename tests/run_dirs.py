@@ -9,7 +9,6 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides, save_yaml
@@ -17,6 +16,7 @@ from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.resume import save_learner_state
+from hercs.replay_service.table import ReplayTable
 from hercs.run.metrics import MetricsCsv
 from hercs.run.rundir import RunDir
 from hercs.wire.served import ReplayCounters, ServedBatch

@@ -17,12 +17,12 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 import numpy as np
-from hercs.replay_service.table import ReplayTable
 
 import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule="env" specs use)
 from bench.common import add_out_option, git_commit, show_report
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
+from hercs.replay_service.table import ReplayTable
 from hercs.rl.task_registry import TaskSpec, task_spec
 
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")

@@ -11,7 +11,6 @@ import time
 from collections.abc import Iterator, Sequence
 
 import numpy as np
-from hercs.replay_service.table import ReplayTable
 
 from bench.common import all_started
 from bench.perf.throughput import BenchError
@@ -20,6 +19,7 @@ from bench.synthetic_episodes import random_episode
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
+from hercs.replay_service.table import ReplayTable
 from hercs.rl.seeding import generator
 from hercs.rl.task_registry import TaskSpec
 from hercs.wire.codec import episode_to_msg

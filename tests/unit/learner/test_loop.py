@@ -8,13 +8,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 import torch
-from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
+from hercs.replay_service.table import ReplayTable
 from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
 from hercs.run.rundir import RunDir

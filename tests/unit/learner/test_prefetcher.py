@@ -10,7 +10,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hercs.replay_service.table import ReplayTable
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
@@ -19,6 +18,7 @@ from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
 from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.table import ReplayTable
 from hercs.wire.codec import batch_to_bytes, stats_to_msg
 
 WAIT_S = 10.0
