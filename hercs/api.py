@@ -7,7 +7,6 @@ Torch, the episode log and the config are imported inside the calls, so `import 
 
 from __future__ import annotations
 
-import csv
 import os
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -208,17 +207,16 @@ class Metrics:
 
 def read_metrics(run_dir: str | os.PathLike[str]) -> Metrics:
     """`run_dir/metrics.csv` (or a metrics.csv file given directly), numbers parsed."""
+    from hercs.run.metrics import read_table
     from hercs.run.rundir import METRICS, RunDir, require_run_dir
 
     path = Path(run_dir)
     if not (path.is_file() and path.suffix == ".csv"):
         path = RunDir(require_run_dir(path, needs=(METRICS,))).metrics
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        columns = tuple(reader.fieldnames or ())
-        rows = tuple({key: _cell(key, value) for key, value in row.items() if key is not None}
-                     for row in reader)
-    return Metrics(path=path, columns=columns, rows=rows)
+    header, table = read_table(path)
+    rows = tuple({key: _cell(key, value) for key, value in row.items() if key is not None}
+                 for row in table)
+    return Metrics(path=path, columns=tuple(header), rows=rows)
 
 
 def _cell(column: str, text: str | None) -> MetricValue:

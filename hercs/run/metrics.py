@@ -35,12 +35,27 @@ goal moved (the object, in the object tasks: hercs.replay_service.store.MOVED_TH
 epoch's batches — what HER-CS and EBP exist to raise the first above."""
 
 
+def parse_table(text: str) -> tuple[list[str], list[dict[str, str]]]:
+    """metrics.csv's text as its header and its rows, cells as strings by column (a row's
+    fields past the header under the key None, as csv.DictReader gives them). The one parse
+    of the file: every reader of metrics.csv (the Python API, hercs plot, the trackers, the
+    learner's resume) goes through it."""
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    rows = list(reader)
+    return list(reader.fieldnames or ()), rows
+
+
+def read_table(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """`parse_table` of the file at `path` ([], [] if there is none)."""
+    if not path.exists():
+        return [], []
+    with path.open(newline="") as f:
+        return parse_table(f.read())
+
+
 def read_rows(path: Path) -> list[dict[str, str]]:
     """The rows of a metrics.csv as strings by column (empty if no file)."""
-    if not path.exists():
-        return []
-    with path.open(newline="") as f:
-        return list(csv.DictReader(f))
+    return read_table(path)[1]
 
 
 def recorded_epochs(path: Path) -> list[int]:
@@ -110,10 +125,8 @@ def truncate_metrics(path: Path, *, through_epoch: int, aside: Path) -> list[int
     (made only then): rows are never lost. Returns the epochs dropped."""
     if not path.exists():
         return []
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        fields = reader.fieldnames or METRICS_COLUMNS
-        rows = list(reader)
+    header, rows = read_table(path)
+    fields = header or METRICS_COLUMNS
     keep = [r for r in rows if r.get("epoch") and int(r["epoch"]) <= through_epoch]
     dropped = [int(r["epoch"]) for r in rows if r not in keep and r.get("epoch")]
     if dropped or len(keep) != len(rows):
@@ -138,8 +151,7 @@ class MetricsCsv:
         new = not path.exists() or path.stat().st_size == 0
         fields = METRICS_COLUMNS
         if not new:  # a resumed run keeps its file's columns (older runs may have fewer)
-            with path.open(newline="") as f:
-                fields = next(csv.reader(f), []) or METRICS_COLUMNS
+            fields = read_table(path)[0] or METRICS_COLUMNS
         self._file = open(path, "a", newline="")  # noqa: SIM115 (closed in close())
         self._writer = csv.DictWriter(self._file, fieldnames=fields, extrasaction="ignore")
         if new:

@@ -27,6 +27,7 @@ from hercs.apps.plots.series import method_rank as method_rank
 from hercs.apps.plots.series import series_key
 from hercs.apps.plots.style import METHOD_COLORS as METHOD_COLORS
 from hercs.errors import HercsError
+from hercs.run.metrics import read_table
 from hercs.run.rundir import RunDir
 
 REFERENCE_CSV = Path(__file__).resolve().parent / "data" / "authors_success_rates.csv"
@@ -119,16 +120,15 @@ def load_run(run_dir: str | Path, variant_of: VariantOf | None = None) -> Curve:
         raise PlotError(f"{config_path}: needs task.name, run.method and run.seed ({exc!r})"
                         ) from exc
     points: dict[int, float] = {}
-    with metrics_path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        missing = {"epoch", "success_rate"} - set(reader.fieldnames or ())
-        if missing:
-            raise PlotError(f"{metrics_path}: missing column(s) {sorted(missing)}")
-        for line, row in enumerate(reader, start=2):
-            try:
-                points[int(row["epoch"])] = float(row["success_rate"])
-            except (TypeError, ValueError) as exc:
-                raise PlotError(f"{metrics_path}:{line}: bad epoch/success_rate") from exc
+    header, rows = read_table(metrics_path)
+    missing = {"epoch", "success_rate"} - set(header)
+    if missing:
+        raise PlotError(f"{metrics_path}: missing column(s) {sorted(missing)}")
+    for line, row in enumerate(rows, start=2):
+        try:
+            points[int(row["epoch"])] = float(row["success_rate"])
+        except (TypeError, ValueError) as exc:
+            raise PlotError(f"{metrics_path}:{line}: bad epoch/success_rate") from exc
     if not points:
         raise PlotError(f"{metrics_path}: no epochs yet")
     return _curve(task_title(task), method, seed, points, str(run_dir))

@@ -4,13 +4,13 @@ metrics.csv that are complete."""
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Mapping
 from typing import Any
 
 import yaml
+
+from hercs.run.metrics import parse_table
 
 PANELS = {
     "success_rate": "eval", "mean_final_distance": "eval",
@@ -59,7 +59,7 @@ def complete_rows(text: str) -> list[dict[str, str]]:
     """The rows of metrics.csv's text, without a last line still being written (no line end
     yet): it is read again once whole."""
     whole = text[:text.rfind("\n") + 1]
-    return [row for row in csv.DictReader(io.StringIO(whole, newline="")) if row.get("epoch")]
+    return [row for row in parse_table(whole)[1] if row.get("epoch")]
 
 
 def flat_hyperparameters(config: Mapping[str, Any]) -> dict[str, bool | int | float | str]:

@@ -146,7 +146,7 @@ def episodes_per_epoch(run_dir: Path) -> tuple[int, str]:
     return FALLBACK_EPISODES_PER_EPOCH, "no config.yaml beside the log"
 
 
-def read_metrics(path: Path) -> dict[str, list[str]]:
+def metric_columns(path: Path) -> dict[str, list[str]]:
     """metrics.csv as columns of strings ({} if absent)."""
     rows = read_rows(path)
     if not rows:
@@ -299,7 +299,7 @@ def run_view(path: str, *, save: str | None = None, episodes: str | None = None,
     except (ViewError, WebViewerError, ValueError, EpisodeLogError) as exc:
         print(f"hercs view: {exc}", file=sys.stderr)
         return 2
-    metrics = read_metrics(RunDir(run_dir).metrics)
+    metrics = metric_columns(RunDir(run_dir).metrics)
 
     import rerun as rr  # imported here: `hercs --help` stays fast
 
