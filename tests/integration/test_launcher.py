@@ -18,7 +18,7 @@ import pytest
 from hercs.apps.cli.main import build_parser, main, resolve_config
 from hercs.apps.launch.progress import Progress
 from hercs.apps.launch.router import free_port
-from hercs.apps.launch.run_plan import plan_children, resolve_run, service_command
+from hercs.apps.launch.run_plan import child_argv, plan_children, resolve_run
 from hercs.config import HercsConfig
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir
@@ -206,7 +206,7 @@ def test_children_are_planned_in_start_order_as_valid_hercs_commands(tmp_path: P
         ("actor", "actor-2")]
     parser, commands = build_parser()
     for spec in specs:
-        argv = service_command(spec, RunDir(tmp_path).config)
+        argv = child_argv(spec, RunDir(tmp_path).config)
         assert argv[:3] == [sys.executable, "-m", "hercs.apps.cli"]
         args = parser.parse_args(argv[3:])
         assert (args.command, args.ident, args.config) == (spec.role, spec.ident,

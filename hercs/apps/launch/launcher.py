@@ -28,8 +28,8 @@ from hercs.apps.launch.router import RouterListenError, open_router_anywhere
 from hercs.apps.launch.run_lock import RunBusy, RunLock
 from hercs.apps.launch.run_plan import (
     CommandFactory,
+    child_argv,
     resolve_run,
-    service_command,
 )
 from hercs.apps.launch.supervisor import Supervisor
 from hercs.apps.tracking.session import check_installed, open_tracking
@@ -54,7 +54,7 @@ READY_TIMEOUT_S = 120.0
 def run_up(
     config: HercsConfig,
     *,
-    command: CommandFactory = service_command,
+    command: CommandFactory = child_argv,
     stop_timeout_s: float = STOP_TIMEOUT_S,
     ready_timeout_s: float = READY_TIMEOUT_S,
     out: IO[str] | None = None,

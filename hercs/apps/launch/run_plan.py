@@ -33,7 +33,7 @@ CommandFactory = Callable[[ChildSpec, Path], list[str]]
 """Builds a child's argv from its spec and the run's config.yaml (injectable for tests)."""
 
 
-def service_command(spec: ChildSpec, config_path: Path) -> list[str]:
+def child_argv(spec: ChildSpec, config_path: Path) -> list[str]:
     """The real child: `python -m hercs.apps.cli <role> --config <config.yaml> --id <ident>`."""
     return service_argv(spec.role, spec.ident, config_path)
 
