@@ -47,7 +47,7 @@ def reference_draw(method: str, store: EpisodeStore, *, epsilon: float, repeat: 
     """The episode draw as the samplers made it before `SamplingIndex` (per-call O(N)),
     with the per-cluster counts every sampler reports (`make_info`)."""
     slots = _reference_slots(method, store, epsilon=epsilon, repeat=repeat, rng=rng)
-    make_info(store.cluster, slots, num_clusters=K, whole_buffer_draws=0, balanced=False)
+    make_info(store.cluster, slots, num_clusters=K)
     return slots
 
 

@@ -69,14 +69,7 @@ class SampleInfo:
 
     cluster_counts: np.ndarray
     """(num_clusters,) int64: drawn episodes per stored cluster label, whichever route drew
-    them (own-cluster share or whole-buffer fill)."""
-    unassigned: int
-    """Drawn episodes with no cluster label (-1)."""
-    whole_buffer_draws: int
-    """Draws taken from the whole buffer rather than from one cluster's members (all of them
-    for her / her-ebp; remainders, small- and empty-cluster fills for the -cs methods)."""
-    balanced: bool
-    """True when the cluster-balanced rule was applied (a cluster model exists)."""
+    them (own-cluster share or whole-buffer fill); unlabelled ones (-1) are not counted."""
 
 
 class EpisodeSampler(Protocol):
@@ -111,19 +104,7 @@ def check_epsilon(epsilon: float) -> None:
         raise ConfigError(f"energy.epsilon: got {epsilon!r}, must be > 0 (no episode may have p=0)")
 
 
-def make_info(
-    labels: np.ndarray,
-    idxs: np.ndarray,
-    *,
-    num_clusters: int,
-    whole_buffer_draws: int,
-    balanced: bool,
-) -> SampleInfo:
+def make_info(labels: np.ndarray, idxs: np.ndarray, *, num_clusters: int) -> SampleInfo:
     drawn = labels[idxs]
-    assigned = drawn[drawn >= 0]
     return SampleInfo(
-        cluster_counts=np.bincount(assigned, minlength=num_clusters).astype(np.int64),
-        unassigned=int(drawn.size - assigned.size),
-        whole_buffer_draws=int(whole_buffer_draws),
-        balanced=balanced,
-    )
+        cluster_counts=np.bincount(drawn[drawn >= 0], minlength=num_clusters).astype(np.int64))

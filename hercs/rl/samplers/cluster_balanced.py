@@ -115,14 +115,9 @@ class ClusterBalancedSampler:
                            batch_size=batch_size, share_rule=self.share_rule)
         if plan is None:
             idxs = rng.integers(0, store.size, batch_size)
-            fill, balanced = batch_size, False
         else:
             idxs = store.sampling_index.draw(share_rows(plan), rng)
-            fill, balanced = plan.fill, True
-        return idxs, make_info(
-            store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
-            balanced=balanced
-        )
+        return idxs, make_info(store.cluster, idxs, num_clusters=self.k)
 
 
 def share_rows(plan: SharePlan) -> np.ndarray:

@@ -66,13 +66,8 @@ class EnergyClusterSampler:
         index = store.sampling_index
         plan = plan_shares(index, k=self.k, repeat=self.small_cluster_repeat,
                            batch_size=batch_size, share_rule=self.share_rule)
-        if plan is None:
-            rows = np.full(batch_size, WHOLE_BUFFER)
-            fill, balanced = batch_size, False
-        else:
-            rows = share_rows(plan)
-            fill, balanced = plan.fill, True
-        if balanced and self.cluster_fill == "uniform":  # members uniform, fills by energy
+        rows = np.full(batch_size, WHOLE_BUFFER) if plan is None else share_rows(plan)
+        if plan is not None and self.cluster_fill == "uniform":  # members uniform, fills by energy
             members = rows != WHOLE_BUFFER
             idxs = np.empty(rows.size, np.int64)
             idxs[members] = index.draw(rows[members], rng)
@@ -80,7 +75,4 @@ class EnergyClusterSampler:
                                         exponent=self.exponent)
         else:
             idxs = index.draw(rows, rng, epsilon=self.epsilon, exponent=self.exponent)
-        return idxs, make_info(
-            store.cluster, idxs, num_clusters=self.k, whole_buffer_draws=fill,
-            balanced=balanced
-        )
+        return idxs, make_info(store.cluster, idxs, num_clusters=self.k)

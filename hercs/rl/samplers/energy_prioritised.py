@@ -45,7 +45,4 @@ class EnergySampler:
         check_request(store, batch_size)
         idxs = store.sampling_index.draw(np.full(batch_size, WHOLE_BUFFER), rng,
                                          epsilon=self.epsilon, exponent=self.exponent)
-        return idxs, make_info(
-            store.cluster, idxs, num_clusters=self.num_clusters,
-            whole_buffer_draws=batch_size, balanced=False,
-        )
+        return idxs, make_info(store.cluster, idxs, num_clusters=self.num_clusters)

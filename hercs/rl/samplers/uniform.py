@@ -33,7 +33,4 @@ class UniformSampler:
     ) -> tuple[np.ndarray, SampleInfo]:
         check_request(store, batch_size)
         idxs = rng.integers(0, store.size, batch_size)
-        return idxs, make_info(
-            store.cluster, idxs, num_clusters=self.num_clusters,
-            whole_buffer_draws=batch_size, balanced=False,
-        )
+        return idxs, make_info(store.cluster, idxs, num_clusters=self.num_clusters)

@@ -34,6 +34,4 @@ class ClusterUniformSampler:
             idxs = rng.integers(0, store.size, batch_size)
         else:  # row c + 1 of the index is cluster c's members
             idxs = index.draw(labelled[rng.integers(0, labelled.size, batch_size)] + 1, rng)
-        return idxs, make_info(store.cluster, idxs, num_clusters=self.k,
-                               whole_buffer_draws=0 if labelled.size else batch_size,
-                               balanced=bool(labelled.size))
+        return idxs, make_info(store.cluster, idxs, num_clusters=self.k)

@@ -70,6 +70,16 @@ def _draw_counts(sampler, store, batch_size: int, batches: int, seed: int):
     return counts, infos
 
 
+def _assert_reported(infos, labels: np.ndarray, counts: np.ndarray, k: int) -> None:
+    """What a draw's SampleInfo is for (`ServedBatch.cluster_draws`): its per-cluster counts,
+    summed over the draws, are the drawn episodes of each stored label; unlabelled ones (-1)
+    are not counted, whether drawn by a cluster's share or a whole-buffer fill."""
+    labelled = labels >= 0
+    np.testing.assert_array_equal(
+        np.sum([i.cluster_counts for i in infos], axis=0),
+        np.bincount(labels[labelled], weights=counts[labelled], minlength=k))
+
+
 def _expected_per_batch(
     labels: np.ndarray, weights: np.ndarray, batch_size: int
 ) -> tuple[np.ndarray, int]:
@@ -105,11 +115,12 @@ def _chi2_9999(df: int) -> float:
 
 
 def test_uniform_sampler_is_uniform() -> None:
-    store = _store(_labels([100, 100]))
+    labels = _labels([100, 100])
+    store = _store(labels)
     counts, infos = _draw_counts(UniformSampler(num_clusters=2), store, 256, 800, seed=0)
     expected = np.full(store.size, 256 * 800 / store.size)
     assert _chi2(counts, expected) < _chi2_9999(store.size - 1)
-    assert all(i.whole_buffer_draws == 256 and not i.balanced for i in infos)
+    _assert_reported(infos, labels, counts, 2)
 
 
 def test_energy_sampler_frequencies_are_proportional_to_energy() -> None:
@@ -149,7 +160,7 @@ def test_cluster_balanced_shares(sizes: list[int], batch_size: int) -> None:
     - each small-cluster member appears 4 + fill/N ± 0.15 times per batch (s.d. ≈ 0.04);
     - per slot, counts match the rule (empty/small shares and remainder uniform over the
       whole buffer, members uniform within their cluster): chi-square below its 99.99% point;
-    - SampleInfo reports the fill and the per-cluster counts of the drawn episodes."""
+    - SampleInfo reports the per-cluster counts of the drawn episodes, every draw labelled."""
     labels = _labels(sizes)
     store = _store(labels)
     batches = 2000
@@ -168,17 +179,15 @@ def test_cluster_balanced_shares(sizes: list[int], batch_size: int) -> None:
             assert np.all(np.abs(per_member - (REPEAT + fill / n_total)) < 0.15), (c, per_member)
     assert _chi2(counts, batches * expected) < _chi2_9999(n_total - 1)
 
-    assert all(i.balanced and i.whole_buffer_draws == fill for i in infos)
-    assert all(i.cluster_counts.sum() + i.unassigned == batch_size for i in infos)
-    info_totals = np.sum([i.cluster_counts for i in infos], axis=0)
-    np.testing.assert_array_equal(info_totals, np.bincount(labels, weights=counts, minlength=K))
+    assert all(i.cluster_counts.sum() == batch_size for i in infos)
+    _assert_reported(infos, labels, counts, K)
 
 
 def test_cluster_balanced_before_any_model_is_uniform() -> None:
     store = _store(np.full(300, -1, np.int32))
     counts, infos = _draw_counts(ClusterBalancedSampler(K), store, 256, 600, seed=5)
     assert _chi2(counts, np.full(300, counts.sum() / 300)) < _chi2_9999(299)
-    assert all(not i.balanced and i.unassigned == 256 for i in infos)
+    assert not any(i.cluster_counts.any() for i in infos), "no label to count yet"
 
 
 def test_unlabelled_episodes_are_reached_only_through_fills() -> None:
@@ -190,7 +199,7 @@ def test_unlabelled_episodes_are_reached_only_through_fills() -> None:
     fill = 256 - 2 * 32
     per_episode = counts[labels == -1] / 2000
     assert abs(per_episode.mean() - fill / len(labels)) < 0.02
-    assert all(i.whole_buffer_draws == fill for i in infos)
+    _assert_reported(infos, labels, counts, K)
 
 
 def _reference_plan(sizes: list[int], batch_size: int) -> tuple[list[int], int]:
@@ -235,7 +244,7 @@ def test_reference_share_rule_draws_its_plan() -> None:
         if n:
             per_batch = counts[labels == c].sum() / 2000 - fill * n / len(labels)
             assert abs(per_batch - own[c]) < 0.5, (c, per_batch, own[c])
-    assert all(i.whole_buffer_draws == fill for i in infos)
+    _assert_reported(infos, labels, counts, K)
 
 
 # ---------------------------------------------------------------------------- her-ebp-cs
@@ -262,7 +271,7 @@ def test_energy_cluster_balanced_shares_and_energy_within_clusters() -> None:
     # Not vacuous: uniform-within-cluster draws are far from this distribution.
     uniform_expected, _ = _expected_per_batch(labels, np.ones(len(labels)), 256)
     assert _chi2(counts, batches * uniform_expected) > 2 * _chi2_9999(len(labels) - 1)
-    assert all(i.balanced and i.whole_buffer_draws == fill for i in infos)
+    _assert_reported(infos, labels, counts, K)
 
 
 def test_energy_cluster_before_any_model_is_energy_prioritised() -> None:
@@ -271,7 +280,7 @@ def test_energy_cluster_before_any_model_is_energy_prioritised() -> None:
     counts, infos = _draw_counts(EnergyClusterSampler(K, epsilon=EPS), store, 256, 800, 11)
     p = (energy + EPS) / (energy + EPS).sum()
     assert _chi2(counts, counts.sum() * p) < _chi2_9999(199)
-    assert not any(i.balanced for i in infos)
+    assert not any(i.cluster_counts.any() for i in infos), "no label to count yet"
 
 
 def test_energy_temperature_raises_energies_to_the_reference_exponent() -> None:
@@ -302,7 +311,7 @@ def test_energy_cluster_with_uniform_fill_draws_members_uniformly() -> None:
     assert _chi2(counts, batches * expected) < _chi2_9999(len(labels) - 1)
     energy_within, _ = _expected_per_batch(labels, weights, 256)
     assert _chi2(counts, batches * energy_within) > 2 * _chi2_9999(len(labels) - 1)
-    assert all(i.balanced and i.whole_buffer_draws == fill for i in infos)
+    _assert_reported(infos, labels, counts, K)
     with pytest.raises(ConfigError, match=r"energy\.cluster_fill: got 'x'"):
         EnergyClusterSampler(K, epsilon=EPS, cluster_fill="x")
 
