@@ -21,7 +21,7 @@ from hercs.apps.plots.curves import (
 )
 from hercs.apps.plots.figures import check_band, plot_fig2, plot_figure
 from hercs.apps.plots.series import DEFAULT_CHOICE, SeriesChoice, series_label, series_list
-from hercs.apps.plots.tables import FIG2_EPOCHS, fig2_panels, fig2_text, tables
+from hercs.apps.plots.tables import fig2_panels, fig2_text, tables
 
 
 def distinct_run_dirs(run_dirs: Sequence[str | Path]) -> tuple[list[Path], int]:
@@ -96,7 +96,7 @@ def run_plot(run_dirs: Sequence[str], output: str, *, reference: bool = False,
                   if p.left and not choice.patterns]
         for note in notes:
             print(f"hercs plot: {note}", file=sys.stderr)
-        return _write_outputs(plot_fig2(ours, authors, output, xmax or FIG2_EPOCHS, band,
+        return _write_outputs(plot_fig2(ours, authors, output, xmax or None, band,
                                         panels), fig2_text(ours, authors, band, choice), table)
     drawn = choose_series(ours, reference, choice, notes)
     ref = None

@@ -31,10 +31,8 @@ from hercs.apps.plots.curves import (
 from hercs.apps.plots.series import series_label, whose
 from hercs.apps.plots.style import Line, LineStyle, assign_styles, legend_key, mark_every
 from hercs.apps.plots.tables import (
-    FIG2_EPOCHS,
-    FIG2_ROWS,
-    FIG2_TASKS,
     Panel,
+    fig2_layout,
     fig2_panels,
 )
 
@@ -185,20 +183,23 @@ def _fit_legends(fig: Any, legends: list[Any], margin_px: float = 4.0) -> None:
 
 def plot_fig2(ours: dict[str, dict[str, list[Curve]]],
               reference: dict[str, dict[str, list[Curve]]], output: str | Path,
-              xmax: int = FIG2_EPOCHS, band: str = DEFAULT_BAND,
+              xmax: int | None = None, band: str = DEFAULT_BAND,
               panels: list[Panel] | None = None) -> Path:
-    """The paper's Fig. 2 layout (2 × 3 panels, `fig2_panels`; rule in `fig2_text`), every
-    line in its style (`assign_styles`, one for the whole figure)."""
+    """The paper's Fig. 2 layout (`fig2_layout`'s rows × tasks panels, `fig2_panels`; rule in
+    `fig2_text`; the x axis to its epochs unless `xmax`), every line in its style
+    (`assign_styles`, one for the whole figure)."""
     check_band(band)
+    layout = fig2_layout()
+    xmax = layout.epochs if xmax is None else xmax
     panels = panels if panels is not None else fig2_panels(ours, reference)
     plt = _pyplot()
-    fig, axes = plt.subplots(len(FIG2_ROWS), len(FIG2_TASKS),
-                             figsize=(PANEL_W * len(FIG2_TASKS), PANEL_H * len(FIG2_ROWS)),
+    rows, columns = len(layout.rows), len(layout.tasks)
+    fig, axes = plt.subplots(rows, columns, figsize=(PANEL_W * columns, PANEL_H * rows),
                              dpi=DPI, squeeze=False)
     styles = assign_styles([*(Line(k) for p in panels for k in p.drawn),
                             *(Line(k, published=True) for p in panels for k in p.authors)])
     for i, panel in enumerate(panels):
-        r, c = divmod(i, len(FIG2_TASKS))
+        r, c = divmod(i, columns)
         ax = axes[r][c]
         mine, ref = ours.get(panel.task, {}), reference.get(panel.task, {})
         slots = len(panel.drawn) + len(panel.authors)

@@ -3,8 +3,12 @@ hercs/apps/plots/curves.py's rule."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
+
+import yaml
 
 from hercs.apps.plots.curves import (
     CI_LEVEL,
@@ -12,6 +16,7 @@ from hercs.apps.plots.curves import (
     WINDOW,
     Curve,
     Milestones,
+    PlotError,
     aggregate,
     method_label,
     method_rank,
@@ -76,9 +81,37 @@ BAND_CAPTIONS: dict[str, str] = {
 }
 
 
-FIG2_TASKS: tuple[str, ...] = ("FetchPush", "FetchPickAndPlace", "FetchSlide")
-FIG2_ROWS: tuple[tuple[str, str], ...] = (("her", "her-cs"), ("her-ebp", "her-ebp-cs"))
-FIG2_EPOCHS = 200
+FIG2_LAYOUT = Path(__file__).resolve().parent / "data" / "fig2.yaml"
+
+
+@dataclass(frozen=True)
+class FigureLayout:
+    """A paper figure's grid: a row of panels per pair of methods, a column per task, the x
+    axis to `epochs`."""
+
+    tasks: tuple[str, ...]
+    rows: tuple[tuple[str, str], ...]
+    epochs: int
+
+
+def read_layout(path: Path) -> FigureLayout:
+    """The layout a YAML file gives (`tasks`, `rows` of method pairs, `epochs`); PlotError
+    naming the file and what is wrong."""
+    try:
+        data = yaml.safe_load(path.read_text())
+        layout = FigureLayout(tuple(str(t) for t in data["tasks"]),
+                              tuple((str(a), str(b)) for a, b in data["rows"]),
+                              int(data["epochs"]))
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+        raise PlotError(f"{path}: not a figure layout (tasks, rows of method pairs, epochs): "
+                        f"{exc!r}") from exc
+    return layout
+
+
+@functools.cache
+def fig2_layout() -> FigureLayout:
+    """The paper's Fig. 2 (hercs/apps/plots/data/fig2.yaml)."""
+    return read_layout(FIG2_LAYOUT)
 
 
 def in_panel(key: str, pair: tuple[str, str]) -> bool:
@@ -112,8 +145,9 @@ def fig2_panels(ours: dict[str, dict[str, list[Curve]]],
     paper's figure), or with `--series` those of the methods drawn; by default our series
     fill what they leave of `choice.limit`."""
     panels = []
-    for pair in FIG2_ROWS:
-        for task in FIG2_TASKS:
+    layout = fig2_layout()
+    for pair in layout.rows:
+        for task in layout.tasks:
             mine, ref = ours.get(task, {}), reference.get(task, {})
             authors = [m for m in pair if m in ref]
             limit = replace(choice, limit=max(0, choice.limit - len(authors)))
@@ -149,11 +183,13 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
     the figure leaves out (`band`: what the figure's bands are, for its caption)."""
     panels = fig2_panels(ours, reference, choice)
     keys = {k for p in panels for k in (*p.drawn, *p.left)}
+    layout = fig2_layout()
+    rows = ", ".join(" vs ".join(method_label(m) for m in pair) for pair in layout.rows)
     parts = [
         "# Fig. 2: ours beside the authors'", "",
         "Drawn by `hercs plot --figure 2` from the run folders given. Rows "
-        "of panels: HER vs HER-CS, HER-EBP vs HER-EBP-CS; columns: FetchPush, "
-        "FetchPickAndPlace, FetchSlide. A method has one colour; the authors' curves are "
+        f"of panels: {rows}; columns: {', '.join(layout.tasks)}. "
+        "A method has one colour; the authors' curves are "
         "dashed, with hollow squares; ours are solid where a series has hercs' defaults, in "
         "another line style where its label names a changed setting, with circles on our "
         "default simulator and squares on the authors' (docs/results/README.md, Glossary). "

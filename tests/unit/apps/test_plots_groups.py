@@ -186,7 +186,7 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
     titles = [line for line in text.splitlines() if line.startswith("### ")]
     assert titles == [f"### {task}: {pair}"
                       for pair in ("HER vs HER-CS", "HER-EBP vs HER-EBP-CS")
-                      for task in plot_tables.FIG2_TASKS]
+                      for task in plot_tables.fig2_layout().tasks]
     push_her = text.split("### FetchPush: HER vs HER-CS")[1].split("###")[0]
     # trailing means (e − 3)/e pass .5 at epoch 7, .9 at epoch 13 (counted from 0: 6, 12)
     assert "| HER-CS, lockstep (as the authors' code) (ours) | 1 | 15 | 6 | 12 |" in push_her
@@ -194,6 +194,26 @@ def test_figure_2_has_six_panels_and_a_table_per_panel(tmp_path: Path, capsys) -
     assert "bf16" not in text
     assert text.count("No runs of ours yet.") == 4  # Pick and Slide, both rows
     assert text in capsys.readouterr().out
+
+
+def test_the_paper_figure_layout_is_data_the_authors_published_curves_cover() -> None:
+    """Fig. 2's rows and columns come from hercs/apps/plots/data/fig2.yaml: each pair's
+    methods are hercs methods, and the authors published curves of both on every task."""
+    layout = plot_tables.fig2_layout()
+    published = plots.group(plots.load_reference())
+    assert layout.epochs == 200 and len(layout.rows) * len(layout.tasks) == 6
+    for pair in layout.rows:
+        for task in layout.tasks:
+            assert all(m in METHODS and m in published[task] for m in pair), (task, pair)
+
+
+def test_a_layout_file_is_read_or_refused_by_name(tmp_path: Path) -> None:
+    good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
+    good.write_text("tasks: [A, B]\nrows: [[x, y]]\nepochs: 5\n")
+    bad.write_text("tasks: [A]\n")
+    assert plot_tables.read_layout(good) == plot_tables.FigureLayout(("A", "B"), (("x", "y"),), 5)
+    with pytest.raises(plots.PlotError, match=r"bad\.yaml: not a figure layout"):
+        plot_tables.read_layout(bad)
 
 
 def test_a_folder_named_twice_is_read_once_with_one_line_saying_so(tmp_path: Path,
