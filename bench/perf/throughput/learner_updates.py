@@ -17,7 +17,7 @@ from bench.perf.throughput.synthetic import fill_table
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.rl.seeding import generator
 from hercs.wire.served import ServedBatch
 
@@ -48,7 +48,7 @@ def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
 def local_batches(bench: Harness, count: int) -> list[ServedBatch]:
     """Batches as the learner gets them, sampled here from a local table (untimed)."""
     config = bench.configs["her"][0]
-    table = ReplayTable(config=config, rng=generator(SEED, "bench", "learner-core"))
+    table = ReplayBuilder(config).table(rng=generator(SEED, "bench", "learner-core"))
     fill_table(table, bench.pool, max(bench.plan.learner_min_episodes, EPISODE_POOL))
     return [table.draw(bench.plan.minibatches_per_cycle, config.ddpg.batch_size)
             for _ in range(count)]
@@ -114,7 +114,7 @@ def measure_roofline(bench: Harness) -> None:
             key=f"learner_roofline_{precision}",
             name=f"learner update vs its {precision} GEMM limit", unit="updates/CPU-s",
             ours=rate, reference=limit,
-            ours_what=f"`DDPGLearner.update` with learner.precision={precision}, "
+            ours_what=f"`DDPGLearner.train` with learner.precision={precision}, "
                       f"B = {config.batch_size}, one torch thread, in process",
             reference_what=f"this core's {config.batch_size}×{config.hidden_size}×"
                            f"{config.hidden_size} {precision} GEMM rate ÷ the update's "

@@ -225,7 +225,7 @@ NOTES = [
     "Learner updates/s are counted from its `weights` broadcasts, one per cycle of "
     "`minibatches_per_cycle` updates, after its first cycles (start-up, first batch).",
     "Learner against its GEMM limit: in this process after the learner phase (the learner "
-    "service stopped), one torch thread, per precision: `DDPGLearner.update` per CPU-second "
+    "service stopped), one torch thread, per precision: `DDPGLearner.train` per CPU-second "
     "against (this core's 256×256×256 GEMM rate in that precision) ÷ (the update's FLOPs, "
     "torch's FLOP counter); `bench/perf/learner.py` measures the same and also replays the "
     "update's own products alone, which shows where the gap is (docs/PERFORMANCE.md §4).",
