@@ -16,7 +16,7 @@ from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests
 from hercs.learner.resume import save_learner_state
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.run.metrics import MetricsCsv
 from hercs.run.rundir import RunDir
 from hercs.wire.served import ReplayCounters, ServedBatch
@@ -40,7 +40,7 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
     loop = LearnerBuilder(config).loop(learner)
-    table = ReplayTable(config=config, rng=np.random.default_rng(0))
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
     skip = set(unevaluated)

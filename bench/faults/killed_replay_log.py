@@ -22,7 +22,8 @@ from bench.common import REPO
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides, load_yaml, save_yaml
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.table import ReplayTable, Stored
+from hercs.replay_service.builder import ReplayBuilder
+from hercs.replay_service.table import Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.seeding import generator
 from hercs.run.rundir import RunDir, run_dir_of
@@ -75,7 +76,7 @@ def write_main(config_path: Path, episodes: int) -> int:
         run_dir, run=RUN, task=spec.name, scene=config.replay.log_scene,
         segment_episodes=config.replay.log_segment_episodes(config.capacity_episodes),
         max_bytes=config.replay.log_max_bytes, spec=spec)
-    table = ReplayTable(config=config, rng=generator(config.run.seed, "replay"), log=log)
+    table = ReplayBuilder(config).table(rng=generator(config.run.seed, "replay"), log=log)
     rng = np.random.default_rng(1)
     every = config.cluster.fgb_size
     for seq in range(episodes):

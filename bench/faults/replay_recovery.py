@@ -29,7 +29,7 @@ from hercs.apps.launch.router import free_port
 from hercs.net.transport import Transport
 from hercs.proto import hercs_pb2 as pb
 from hercs.proto.keys import RunKeys
-from hercs.replay_service import replay_recovery
+from hercs.replay_service import builder, replay_recovery
 from hercs.replay_service import replay_shell as replay_service
 from hercs.replay_service.table import ReplayTable
 from hercs.run.runlog import RecoveringLogWriter, latest_replay_state, segment_paths
@@ -146,11 +146,12 @@ class _Clock:
 
 def time_in_process(run: KilledRun) -> dict[str, Any]:
     """`ReplayService(...)` on the killed run, its recovery's parts timed (module docstring).
-    The recovery module's names are wrapped for the call and put back after it."""
+    The recovery's names (the table's in the builder that makes it) are wrapped for the call
+    and put back after it."""
     clock = _Clock()
-    module = replay_recovery
-    saved = {name: getattr(module, name) for name in
-             ("RecoveringLogWriter", "ReplayTable", "msg_to_episode", "_restore_cluster_model")}
+    named = {"RecoveringLogWriter": replay_recovery, "ReplayTable": builder,
+             "msg_to_episode": replay_recovery, "_restore_cluster_model": replay_recovery}
+    saved = {name: getattr(module, name) for name, module in named.items()}
 
     class TimedRecovered:
         def __init__(self, recovered: Any) -> None:
@@ -184,16 +185,16 @@ def time_in_process(run: KilledRun) -> dict[str, Any]:
                "msg_to_episode": clock.timed("decode", saved["msg_to_episode"]),
                "_restore_cluster_model": clock.timed("cluster", saved["_restore_cluster_model"])}
     for name, value in patches.items():
-        setattr(module, name, value)
+        setattr(named[name], name, value)
     try:
         start = time.perf_counter()
-        service = replay_service.ReplayService(config=run.config,
+        service = replay_service.ReplayService(parts=builder.ReplayBuilder(run.config),
                                runtime=_StubRuntime(RunKeys(RUN)),  # type: ignore[arg-type]
                                run_dir=run.run_dir)
         total = time.perf_counter() - start
     finally:
         for name, value in saved.items():
-            setattr(module, name, value)
+            setattr(named[name], name, value)
     store = service.table.store
     result = {"total_s": total, **{f"{name}_s": clock.spent[name] for name in PHASES},
               "inserted": store.num_inserted, "stored": store.size,

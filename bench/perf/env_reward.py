@@ -22,7 +22,7 @@ import hercs.rl.goal_env  # noqa: F401  (installs the env rule that reward_rule=
 from bench.common import add_out_option, git_commit, show_report
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.rl.task_registry import TaskSpec, task_spec
 
 TASKS = ("push", "HandReach-v3", "HandManipulateBlock-v1")
@@ -53,7 +53,7 @@ def sample_seconds(name: str, batch: int, repeats: int) -> float:
     """One `ReplayTable.draw` of `batch` transitions from 200 stored random episodes."""
     config = apply_overrides(HercsConfig(), [f"task.name={name}", "run.method=her",
                                              f"ddpg.batch_size={batch}"])
-    table = ReplayTable(config=config, rng=np.random.default_rng(0))
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(0))
     rng = np.random.default_rng(0)
     for i in range(200):
         table.store_episode(random_episode(config.task.spec, rng, actor_id="bench", seq=i))

@@ -29,7 +29,8 @@ from bench.perf.scene_reference import reference_point_clouds, reference_scene_u
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.table import ReplayTable, Stored
+from hercs.replay_service.builder import ReplayBuilder
+from hercs.replay_service.table import Stored
 from hercs.run.runlog import RecoveringLogWriter
 from hercs.run.runlog.format import TOPIC_SCENE, TOPIC_SCENE_POINTS
 from hercs.run.runlog.mcap_bulk import reuse_zstd_contexts
@@ -139,7 +140,7 @@ def _measure(name: str, *, window_s: float, pool: list, workdir: Path) -> dict[s
                                       segment_episodes=segment_episodes,
                                       max_bytes=0 if segment_episodes else -1)
     sink = _SceneOnAckPath(log) if scene_on_path else log
-    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=sink)
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(0), log=sink)
     acked = [0]
     stop = threading.Event()
 

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from hercs.clusterer.clusterer_core import Clusterer
+from hercs.clusterer.builder import ClustererBuilder
 from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.net.backoff import Backoff
@@ -54,14 +54,12 @@ def decode_header(raw: bytes, *, goal_dim: int = 3) -> tuple[int, np.ndarray, np
 class ClustererService:
     """The clusterer's loop; `run()` returns when `runtime.stop` is set."""
 
-    def __init__(self, *, runtime: ServiceRuntime, config: HercsConfig) -> None:
+    def __init__(self, *, parts: ClustererBuilder, runtime: ServiceRuntime) -> None:
         self.runtime = runtime
-        self.config = config
-        self.goal_dim = config.task.spec.goal_dim
-        self.fits = config.run.uses_clusters
-        spec = config.task.spec
-        self.core = Clusterer(config=config.cluster, seed=config.run.seed,
-                              goal_dim=spec.goal_dim, is_success=spec.is_success)
+        self.settings = settings = parts.shell
+        self.goal_dim = settings.spec.goal_dim
+        self.fits = settings.fits
+        self.core = parts.core()
         self.episodes_seen = 0
         self.failures_seen = 0
         self.refits = 0
@@ -93,8 +91,8 @@ class ClustererService:
         """One stored episode; the new model if it triggered a refit (cluster methods only)."""
         self.episodes_seen += 1
         if not self.fits:
-            self.failures_seen += int(not self.config.task.spec.is_success(final_ag,
-                                                                            desired_goal))
+            self.failures_seen += int(not self.settings.spec.is_success(final_ag,
+                                                                         desired_goal))
             return None
         model = self.core.observe(final_ag=final_ag, desired_goal=desired_goal)
         self.failures_seen = self.core.failures_seen
@@ -102,10 +100,10 @@ class ClustererService:
 
     def run(self) -> int:
         stop = self.runtime.stop
+        settings = self.settings
         log.info("clusterer %s: run %r, method %s (%s), fgb %d, k %d", self.runtime.ident,
-                 self.config.run.name, self.config.run.method,
-                 "fitting" if self.fits else "counting only", self.config.cluster.fgb_size,
-                 self.config.cluster.k)
+                 settings.run, settings.method, "fitting" if self.fits else "counting only",
+                 settings.fgb_size, settings.clusters)
         if not self.resume_from_replay():
             return 0  # stopped while the replay was away
         self.publish_metrics()
@@ -147,7 +145,7 @@ class ClustererService:
                 state = parse_message(raw, pb.ClustererState, max_bytes=1 << 20)
                 goals = msg_to_array(state.failed_goals, where="ClustererState.failed_goals")
                 if goals.ndim != 2 or goals.shape[1] != self.goal_dim or len(goals) > \
-                        self.config.cluster.fgb_size or not np.isfinite(goals).all():
+                        self.settings.fgb_size or not np.isfinite(goals).all():
                     raise InvalidMessage(Reason.BAD_SHAPE,
                                          f"ClustererState.failed_goals: shape {goals.shape} "
                                          "or values unusable")
@@ -163,7 +161,7 @@ class ClustererService:
                                                       int(state.failures_seen))
             if state.episodes_seen:
                 log.info("continuing run %r: %d failed goals of %d episodes, next model "
-                         "version %d", self.config.run.name, state.failures_seen,
+                         "version %d", self.settings.run, state.failures_seen,
                          state.episodes_seen, state.model_version + 1)
             return True
         return False
@@ -190,5 +188,5 @@ class ClustererService:
 def run(config: HercsConfig, *, ident: str | None = None) -> int:
     """`hercs clusterer`: cluster the run's failed goals until SIGTERM/SIGINT."""
     return service_main(role="clusterer", config=config, ident=ident,
-                        body=lambda runtime: ClustererService(runtime=runtime,
-                                                              config=runtime.config).run())
+                        body=lambda runtime: ClustererService(
+                            parts=ClustererBuilder(runtime.config), runtime=runtime).run())

@@ -2,7 +2,8 @@
 object behind the small `Admission` interface the table calls at each step, so the table has
 no branch on the schedule. `AsynchronousAdmission` is the rate limiter's window with the
 policy-lag bound (`training.max_policy_lag`); `LockstepAdmission` (hercs.replay_service.lockstep)
-admits by cycle, and the limiter only counts.
+admits by cycle, and the limiter only counts. The builder (hercs.replay_service.builder) picks
+the one of the run's schedule.
 """
 
 from __future__ import annotations
@@ -11,10 +12,8 @@ from collections import deque
 from collections.abc import Iterable
 from typing import Protocol
 
-from hercs.config import HercsConfig
 from hercs.reasons import Reason
 from hercs.replay_service.lag_bound import PolicyLagBound
-from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S, LockstepAdmission
 from hercs.replay_service.policy_lag import PolicyLagLedger
 from hercs.replay_service.rate_limiter import SampleToInsertRatio
 from hercs.replay_service.table_calls import ParkedSample
@@ -127,24 +126,3 @@ class AsynchronousAdmission:
         return self.limiter.describe(inserts_waiting=inserts_waiting,
                                      samples_waiting=samples_waiting)
 
-
-def admission_for(config: HercsConfig, lags: PolicyLagLedger
-                  ) -> tuple[SampleToInsertRatio, Admission]:
-    """(the sample-to-insert limiter, the schedule's admission) for `config`; in lockstep the
-    limiter runs free and only counts."""
-    lockstep = config.training.schedule == "lockstep"
-    limiter = SampleToInsertRatio(
-        samples_per_insert=config.training.updates_per_episode,
-        min_size_to_sample=config.replay.min_episodes_to_sample,
-        error_buffer=config.replay.rate_tolerance_updates,
-        max_request=config.training.minibatches_per_cycle,
-        free_run=config.replay.free_run or lockstep,
-    )
-    if lockstep:
-        return limiter, LockstepAdmission(
-            episodes_per_cycle=config.training.episodes_per_cycle,
-            fgb_size=config.cluster.fgb_size if config.run.uses_clusters else None,
-            cluster_wait_s=LOCKSTEP_CLUSTER_WAIT_S)
-    lag_bound = (PolicyLagBound(max_lag=config.training.max_policy_lag)
-                 if config.training.max_policy_lag >= 1 else None)
-    return limiter, AsynchronousAdmission(limiter=limiter, lags=lags, lag_bound=lag_bound)

@@ -4,30 +4,31 @@ acked is lost across a restart (docs/DESIGN.md §6, §8), and its newest cluster
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
-from hercs.config import HercsConfig
 from hercs.errors import InvalidMessage
 from hercs.proto import hercs_pb2 as pb
 from hercs.replay_service.replay_messages import cluster_model
 from hercs.replay_service.table import ReplayTable
-from hercs.rl.seeding import generator
+from hercs.rl.task_registry import TaskSpec
 from hercs.run.runlog import RecoveringLogWriter, read_cluster_models
 from hercs.wire.codec import msg_to_episode, msg_to_replay_state
 
 log = logging.getLogger("hercs.replay")
 
 
-def open_table(config: HercsConfig, run_dir: Path) -> tuple[RecoveringLogWriter, ReplayTable]:
-    """The run's episode log, open for appending, and a table holding what it logged."""
-    replay, spec = config.replay, config.task.spec
+def open_table(run_dir: Path, *, run: str, spec: TaskSpec, scene: bool, segment_episodes: int,
+               max_bytes: int, new_table: Callable[[RecoveringLogWriter], ReplayTable]
+               ) -> tuple[RecoveringLogWriter, ReplayTable]:
+    """The run's episode log, open for appending, and a table holding what it logged.
+    `new_table` makes the empty table that logs to it (`ReplayBuilder.open_table` passes its
+    own); the other arguments say how the log is written (`replay.log_*`)."""
     episode_log, recovered = RecoveringLogWriter.open(
-        run_dir, run=config.run.name, task=spec.name, scene=replay.log_scene,
-        segment_episodes=replay.log_segment_episodes(config.capacity_episodes),
-        max_bytes=replay.log_max_bytes, spec=spec)
+        run_dir, run=run, task=spec.name, scene=scene, segment_episodes=segment_episodes,
+        max_bytes=max_bytes, spec=spec)
     saved = recovered.replay_state
-    table = ReplayTable(config=config, rng=generator(config.run.seed, "replay"),
-                        log=episode_log)
+    table = new_table(episode_log)
     count = 0
 
     def episodes():
@@ -45,11 +46,11 @@ def open_table(config: HercsConfig, run_dir: Path) -> tuple[RecoveringLogWriter,
                  state.first_held_id)
     if count:
         log.info("recovered %d acked episodes from the episode log", count)
-        _restore_cluster_model(config, table, run_dir, saved)
+        _restore_cluster_model(table, run_dir, saved)
     return episode_log, table
 
 
-def _restore_cluster_model(config: HercsConfig, table: ReplayTable, run_dir: Path,
+def _restore_cluster_model(table: ReplayTable, run_dir: Path,
                            saved: pb.ReplayState | None) -> None:
     """The newest cluster model of the log (logged, or held by its saved replay state),
     so that a restarted replay samples by clusters at once even if no clusterer
@@ -61,7 +62,7 @@ def _restore_cluster_model(config: HercsConfig, table: ReplayTable, run_dir: Pat
         return
     last = max(models, key=lambda m: m.version)
     try:
-        model = cluster_model(last, k=config.cluster.k, goal_dim=config.task.spec.goal_dim)
+        model = cluster_model(last, k=table.clusters, goal_dim=table.spec.goal_dim)
     except InvalidMessage as exc:
         log.warning("the log's last cluster model is not usable (%s); waiting for one", exc)
         return

@@ -18,14 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Generic, TypeVar
 
-import yaml
-
 from hercs.config import HercsConfig, save_yaml
 from hercs.errors import InvalidMessage
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.net.transport import PendingReply
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
+from hercs.replay_service.builder import ReplayBuilder, saved_epsilon
 from hercs.replay_service.replay_messages import (
     check_eval_result,
     cluster_model,
@@ -35,8 +34,6 @@ from hercs.replay_service.replay_messages import (
     sample_call,
     unknown_episode,
 )
-from hercs.replay_service.replay_recovery import open_table
-from hercs.replay_service.saved_epsilon import saved_epsilon
 from hercs.replay_service.table import SampleRefused, Stored
 from hercs.rl.cluster_model import ClusterModel
 from hercs.run.rundir import RunDir, run_dir_of
@@ -76,25 +73,24 @@ class _QueryWaiter(Generic[R]):
 class ReplayService:
     """The replay's process side: decode, call the table, encode, reply."""
 
-    def __init__(self, *, config: HercsConfig, runtime: ServiceRuntime, run_dir: Path) -> None:
-        self.config = config
+    def __init__(self, *, parts: ReplayBuilder, runtime: ServiceRuntime, run_dir: Path) -> None:
+        self.settings = settings = parts.shell
         self.runtime = runtime
-        self.spec = config.task.spec
+        self.spec = settings.spec
         self.warn = WarnOncePerMinute(log)
-        self.log, self.table = open_table(config, run_dir)
-        self._config_yaml = yaml.safe_dump(config.to_dict(), sort_keys=False).encode()
+        self.log, self.table = parts.open_table(run_dir)
 
         keys, transport = runtime.keys, runtime.transport
         self.inserted_pub = transport.publisher(keys.inserted, block=True)
         self.status_pub = transport.publisher(keys.status)
-        transport.serve(keys.config, lambda _: self._config_yaml)
+        transport.serve(keys.config, lambda _: settings.config_yaml)
         transport.serve(keys.episode, self._on_episode_request,
                         on_error=self._on_episode_request_error)
         transport.serve(keys.clusterer_state, self._on_clusterer_state, on_error=self._on_reject)
         transport.subscribe(keys.cluster_model, self._on_cluster_model, latest=True)
         transport.subscribe(keys.eval_result, self._on_eval_result)
         transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject,
-                                 workers=config.replay.insert_workers)
+                                 workers=settings.insert_workers)
         transport.serve_deferred(keys.sample, self._on_sample, on_error=self._on_reject)
 
     # -- inserts ---------------------------------------------------------------------------
@@ -104,11 +100,11 @@ class ReplayService:
         self.warn.warn(f"reject:{reason}", f"rejected a message: {exc}")
 
     def _on_insert(self, pending: PendingReply) -> None:
-        msg, episode = decode_episode(pending.payload, self.spec, run=self.config.run.name,
-                                      max_bytes=self.config.replay.max_message_bytes)
+        msg, episode = decode_episode(pending.payload, self.spec, run=self.settings.run,
+                                      max_bytes=self.settings.max_message_bytes)
         self.table.insert(episode, record=msg,
                           waiter=_QueryWaiter(pending, self._acked),
-                          timeout_s=self.config.actor.insert_timeout_s)
+                          timeout_s=self.settings.insert_timeout_s)
 
     def _acked(self, stored: Stored) -> bytes:
         """The ack's bytes; a newly stored episode is also announced on `replay/inserted`."""
@@ -119,12 +115,12 @@ class ReplayService:
     # -- stored episodes (the live view) ---------------------------------------------------
     def _on_episode_request(self, payload: bytes) -> bytes:
         request = parse_message(payload, pb.EpisodeRequest,
-                                max_bytes=self.config.replay.max_message_bytes)
+                                max_bytes=self.settings.max_message_bytes)
         episode_id = int(request.episode_id)
         episode, first, end = self.table.stored_episode(episode_id)
         if episode is None:
             raise unknown_episode(episode_id, first, end)
-        return episode_to_msg(episode, run=self.config.run.name,
+        return episode_to_msg(episode, run=self.settings.run,
                               task=self.spec.name).SerializeToString()
 
     def _on_episode_request_error(self, exc: Exception) -> None:
@@ -136,12 +132,12 @@ class ReplayService:
     # -- samples ---------------------------------------------------------------------------
     def _on_sample(self, pending: PendingReply) -> None:
         request = parse_message(pending.payload, pb.SampleRequest,
-                                max_bytes=self.config.replay.max_message_bytes)
-        call = sample_call(request, run=self.config.run.name)
+                                max_bytes=self.settings.max_message_bytes)
+        call = sample_call(request, run=self.settings.run)
         try:
             self.table.sample(call, waiter=_QueryWaiter(pending, functools.partial(
                 served_batch_to_bytes, request_id=call.request_id)),
-                              timeout_s=self.config.replay.sample_timeout_s)
+                              timeout_s=self.settings.sample_timeout_s)
         except SampleRefused as exc:
             raise InvalidMessage(Reason.BAD_VALUE, str(exc)) from None
 
@@ -149,7 +145,7 @@ class ReplayService:
     def _on_cluster_model(self, key: str, payload: bytes) -> None:
         try:
             msg = parse_message(payload, pb.ClusterModel,
-                                max_bytes=self.config.replay.max_message_bytes)
+                                max_bytes=self.settings.max_message_bytes)
             model = self._cluster_model(msg)
             adopted = self.table.adopt_cluster_model(model, msg)
         except EpisodeLogError as exc:  # adopted, not logged: a restart re-adopts an older one
@@ -165,17 +161,17 @@ class ReplayService:
                      self.table.cluster_sizes())
 
     def _cluster_model(self, msg: pb.ClusterModel) -> ClusterModel:
-        return cluster_model(msg, k=self.config.cluster.k, goal_dim=self.spec.goal_dim)
+        return cluster_model(msg, k=self.settings.clusters, goal_dim=self.spec.goal_dim)
 
     def _on_clusterer_state(self, payload: bytes) -> bytes:
         parse_message(payload, pb.ClustererStateRequest,
-                      max_bytes=self.config.replay.max_message_bytes)
+                      max_bytes=self.settings.max_message_bytes)
         return clusterer_state(self.table.clusterer_state()).SerializeToString()
 
     def _on_eval_result(self, key: str, payload: bytes) -> None:
         try:
             msg = parse_message(payload, pb.EvalResult,
-                                max_bytes=self.config.replay.max_message_bytes)
+                                max_bytes=self.settings.max_message_bytes)
             check_eval_result(msg)
         except InvalidMessage as exc:
             self._on_reject(exc)
@@ -213,9 +209,10 @@ def _work(runtime: ServiceRuntime) -> int:
     config = saved_epsilon(runtime.config, RunDir(run_dir).config)
     if not RunDir(run_dir).config.exists():  # `hercs up` writes it; compose runs do not
         save_yaml(config, RunDir(run_dir).config)
-    service = ReplayService(config=config, runtime=runtime, run_dir=run_dir)
-    log.info("replay serving run %s (%s, %s), capacity %d episodes", config.run.name,
-             config.task.name, config.run.method, config.capacity_episodes)
+    service = ReplayService(parts=ReplayBuilder(config), runtime=runtime, run_dir=run_dir)
+    settings = service.settings
+    log.info("replay serving run %s (%s, %s), capacity %d episodes", settings.run,
+             settings.task, settings.method, service.table.store.capacity_episodes)
     try:
         while not runtime.stop.wait(STATUS_PERIOD_S):
             service.tick()

@@ -21,11 +21,11 @@ from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
-from hercs.config import HercsConfig
+from hercs.config import EnergyConfig
 from hercs.errors import ConfigError
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.admission import admission_for
+from hercs.replay_service.admission import Admission
 from hercs.replay_service.energy import trajectory_energy
 from hercs.replay_service.her import relabel
 from hercs.replay_service.learner_follow import follow_learner
@@ -33,6 +33,7 @@ from hercs.replay_service.lockstep import LOCKSTEP_CLUSTER_WAIT_S
 from hercs.replay_service.normalizers import EpisodeNormalizers
 from hercs.replay_service.parked_calls import InsertKey, ParkedCalls, check_unstored, insert_key
 from hercs.replay_service.policy_lag import PolicyLagLedger
+from hercs.replay_service.rate_limiter import SampleToInsertRatio
 from hercs.replay_service.store import EpisodeStore
 from hercs.replay_service.table_calls import (
     ClustererSnapshot,
@@ -48,8 +49,8 @@ from hercs.replay_service.table_calls import (
     start_segment,
 )
 from hercs.rl.cluster_model import ClusterModel
-from hercs.rl.methods import make_sampler
-from hercs.rl.seeding import int_seed
+from hercs.rl.samplers.base import EpisodeSampler
+from hercs.rl.task_registry import TaskSpec
 from hercs.run.runlog.format import EpisodeLogError
 from hercs.wire.episode import EpisodeData
 from hercs.wire.replay_state import ReplayState
@@ -62,32 +63,35 @@ log = logging.getLogger("hercs.replay")
 
 
 class ReplayTable:
-    def __init__(self, *, config: HercsConfig, rng: np.random.Generator,
+    def __init__(self, *, spec: TaskSpec, store: EpisodeStore, sampler: EpisodeSampler,
+                 normalizers: EpisodeNormalizers, lags: PolicyLagLedger,
+                 limiter: SampleToInsertRatio, admission: Admission, energy: EnergyConfig,
+                 clusters: int, future_p: float, failed_goals_kept: int,
+                 waiting_inserts_per_actor: int, rng: np.random.Generator,
                  log: EpisodeLogSink | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        """`log` None: an in-process table that logs nothing (a bench's, a study's)."""
-        self.config = config
-        self.spec = config.task.spec
+        """The parts as `hercs.replay_service.builder.ReplayBuilder` makes them from a run's
+        config (`lags` shared with `admission`, which owns the schedule's rules over
+        `limiter`); `clusters`: `cluster.k`; `future_p`: HER's relabel probability;
+        `failed_goals_kept`: `cluster.fgb_size`, the newest failed goals a restarted clusterer
+        gets back. `log` None: an in-process table that logs nothing (a bench's, a study's)."""
+        self.spec = spec
         self.rng = rng
         self.log: EpisodeLogSink = NoLog() if log is None else log
         self.clock = clock
-        self.store = EpisodeStore(capacity_episodes=config.capacity_episodes, spec=self.spec,
-                                  eviction=config.replay.eviction,
-                                  eviction_seed=int_seed(config.run.seed, "replay", "eviction"))
-        self.sampler = make_sampler(config.run.method, config.sampler_settings)
-        d = config.ddpg
-        self.normalizers = EpisodeNormalizers(
-            obs_dim=self.spec.obs_dim, goal_dim=self.spec.goal_dim, eps=d.norm_eps,
-            clip_range=d.norm_clip, clip_obs=d.clip_obs, future_p=config.her.future_p)
+        self.store = store
+        self.sampler = sampler
+        self.normalizers = normalizers
+        self.energy = energy
+        self.clusters = clusters
+        self.future_p = future_p
         self.cluster_model: ClusterModel | None = None
-        self.lags = PolicyLagLedger(config.training.episodes_per_cycle,
-                                    prefetch_depth=config.learner.prefetch_depth)
-        self.limiter, self.admission = admission_for(config, self.lags)
+        self.lags = lags
+        self.limiter, self.admission = limiter, admission
         self._lock = threading.Lock()
         self._commit_lock = threading.Lock()
         """Held by the one thread whose group is being logged (taken before `_lock`)."""
-        self._parked = ParkedCalls(
-            waiting_inserts_per_actor=config.replay.waiting_inserts_per_actor)
+        self._parked = ParkedCalls(waiting_inserts_per_actor=waiting_inserts_per_actor)
         self._seen: OrderedDict[InsertKey, int] = OrderedDict()
         """(actor_id, seq) -> episode id, for the episodes still in the ring."""
         self._learner: str | None = None
@@ -99,13 +103,13 @@ class ReplayTable:
         self.rejects: Counter[str] = Counter()
         self.log_failures = 0
         """Inserts refused because their log append failed."""
-        self.cluster_draws_total = np.zeros(config.cluster.k, np.int64)
+        self.cluster_draws_total = np.zeros(clusters, np.int64)
         self.newest_policy_version: int | None = None
         """The newest weights version any stored episode was acted with (None before the
         first): after a restart, a floor under the learner's newest weights (they existed)."""
         self.failures = 0
         """Stored episodes that failed (not `TaskSpec.is_success` at their last step)."""
-        self.recent_failed_goals: deque[np.ndarray] = deque(maxlen=config.cluster.fgb_size)
+        self.recent_failed_goals: deque[np.ndarray] = deque(maxlen=failed_goals_kept)
         """Desired goals of the newest failed episodes, oldest first: what a restarted
         clusterer refills its failed-goal buffer with."""
 
@@ -229,7 +233,7 @@ class ReplayTable:
         the same at insert and at a restore."""
         if self.spec.energy == "none":
             return 0.0
-        return float(trajectory_energy(episode.ag, self.config.energy, self.spec.energy))
+        return float(trajectory_energy(episode.ag, self.energy, self.spec.energy))
 
     def _remember(self, key: InsertKey, episode_id: int) -> None:
         self._seen[key] = episode_id
@@ -412,7 +416,7 @@ class ReplayTable:
             return self._draw(num_minibatches, batch_size)
 
     def _draw(self, num_minibatches: int, batch_size: int) -> ServedBatch:
-        draws = np.zeros(self.config.cluster.k, np.int64)
+        draws = np.zeros(self.clusters, np.int64)
         out = []
         moved, sampled = 0, 0
         for _ in range(num_minibatches):
@@ -420,7 +424,7 @@ class ReplayTable:
             draws += info.cluster_counts
             moved += int(self.store.moved[slots].sum())
             sampled += len(slots)
-            out.append(relabel(self.store, slots, future_p=self.config.her.future_p,
+            out.append(relabel(self.store, slots, future_p=self.future_p,
                                reward_fn=self.spec.compute_reward, rng=self.rng))
         self.samples += num_minibatches
         self.cluster_draws_total += draws
@@ -501,9 +505,9 @@ class ReplayTable:
         with self._lock:
             if self.cluster_model is not None and model.version <= self.cluster_model.version:
                 return False
-            if model.k != self.config.cluster.k:
+            if model.k != self.clusters:
                 raise ValueError(f"ClusterModel has k={model.k}, this replay is configured "
-                                 f"for cluster.k={self.config.cluster.k}; model ignored")
+                                 f"for cluster.k={self.clusters}; model ignored")
             self.cluster_model = model
             if self.store.size:
                 self.store.set_clusters(model.assign(self.store.final_ag))
@@ -542,7 +546,7 @@ class ReplayTable:
     def _cluster_sizes(self) -> list[int]:
         labels = self.store.cluster
         return [int(c) for c in np.bincount(labels[labels >= 0],
-                                            minlength=self.config.cluster.k)]
+                                            minlength=self.clusters)]
 
     def status(self) -> ReplayCounters:
         """The counters as one consistent snapshot (`ReplayStatus`, and each served batch's)."""

@@ -71,11 +71,11 @@ def train(version: str, episodes: Sequence[EpisodeData], *, seed: int,
           cycles: int) -> PolicyWeights:
     """A DDPG learner trained offline on `episodes` for `cycles` cycles; its PolicyWeights."""
     from hercs.learner.ddpg import DDPGLearner
-    from hercs.replay_service.table import ReplayTable
+    from hercs.replay_service.builder import ReplayBuilder
     from hercs.rl.seeding import int_seed
 
     config = probe_config(version, seed)
-    table = ReplayTable(config=config, rng=np.random.default_rng(int_seed(seed, "probe")))
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(int_seed(seed, "probe")))
     for ep in episodes:
         table.store_episode(ep)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=seed, device="cpu")

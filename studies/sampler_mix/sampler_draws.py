@@ -16,8 +16,10 @@ import numpy as np
 
 from hercs.config import apply_overrides, load_yaml
 from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.replay_service.table import ReplayTable
 from hercs.rl.methods import make_sampler
+from hercs.rl.samplers.base import SamplerSettings
 from hercs.run.rundir import RunDir
 from hercs.run.runlog import (
     TOPIC_CLUSTER_MODEL,
@@ -45,8 +47,9 @@ def effective_share(slots: np.ndarray, size: int) -> float:
     return float(counts.sum() ** 2 / (counts**2).sum() / uniform)
 
 
-def draw(table: ReplayTable, method: str, *, minibatches: int, seed: int) -> np.ndarray:
-    sampler = make_sampler(method, table.config.sampler_settings)
+def draw(table: ReplayTable, method: str, *, settings: SamplerSettings, minibatches: int,
+         seed: int) -> np.ndarray:
+    sampler = make_sampler(method, settings)
     rng = np.random.default_rng(seed)
     return np.concatenate([sampler.sample(table.store, BATCH, rng)[0]
                            for _ in range(minibatches)])
@@ -58,7 +61,7 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
     config = load_yaml(RunDir(run_dir).config)
     config = apply_overrides(config, ["run.method=her-cs"])  # keep cluster labels up to date
     per_epoch = config.training.episodes_per_epoch
-    table = ReplayTable(config=config, rng=np.random.default_rng(seed))
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(seed))
     rows = []
     next_mark = every_epochs * per_epoch
     for message in read_messages(run_dir, [TOPIC_EPISODES, TOPIC_CLUSTER_MODEL]):
@@ -82,7 +85,8 @@ def analyse(run_dir: Path, *, every_epochs: int, minibatches: int, moved_m: floa
         row["buffer_moved"], row["buffer_success"] = episode_mix(table, everything,
                                                                  moved_m=moved_m)
         for method in ("her", "her-cs"):
-            slots = draw(table, method, minibatches=minibatches, seed=seed)
+            slots = draw(table, method, settings=config.sampler_settings,
+                         minibatches=minibatches, seed=seed)
             row[f"{method}_moved"], row[f"{method}_success"] = episode_mix(table, slots,
                                                                            moved_m=moved_m)
             row[f"{method}_spread"] = effective_share(slots, table.store.size)

@@ -13,7 +13,7 @@ from bench.perf.throughput.synthetic import cluster_centroids, fill_table
 from bench.perf.throughput.throughput_report import Figure, Target
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.rl.cluster_model import ClusterModel
 from hercs.rl.seeding import generator
 from hercs.wire.codec import cluster_model_to_msg
@@ -47,7 +47,7 @@ def sample_in_process(bench: Harness, method: str, episodes: int) -> list[float]
     """Per-request seconds of `ReplayTable.draw` here, on a store of the same size."""
     p = bench.plan
     config = bench.configs[method][0]
-    table = ReplayTable(config=config, rng=generator(SEED, "bench", "sample-core"))
+    table = ReplayBuilder(config).table(rng=generator(SEED, "bench", "sample-core"))
     fill_table(table, bench.pool, episodes)
     if config.run.uses_clusters:
         table.adopt_cluster_model(ClusterModel(version=1, centroids=cluster_centroids(

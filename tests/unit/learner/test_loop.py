@@ -14,7 +14,7 @@ from hercs.config import HercsConfig, apply_overrides
 from hercs.learner.checkpoint import load_checkpoint, save_checkpoint
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.loop import LearnerLoop
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.run.checkpoint_file import CheckpointError
 from hercs.run.metrics import METRICS_COLUMNS, MetricsCsv, recorded_epochs, truncate_metrics
 from hercs.run.rundir import RunDir
@@ -30,7 +30,7 @@ def config() -> HercsConfig:
 
 def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
     """Batches as the replay serves them, without the moved-goal figures."""
-    table = ReplayTable(config=cfg, rng=np.random.default_rng(0))
+    table = ReplayBuilder(cfg).table(rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     out = []
     for i in range(n):

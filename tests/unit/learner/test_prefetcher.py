@@ -18,7 +18,7 @@ from hercs.learner.prefetch import ASK_AGAIN_S, Prefetcher
 from hercs.net.transport import TransportTimeout
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
-from hercs.replay_service.table import ReplayTable
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.wire.codec import batch_to_bytes, stats_to_msg
 
 WAIT_S = 10.0
@@ -29,7 +29,7 @@ class AnsweringTransport:
 
     def __init__(self, config: HercsConfig) -> None:
         self.config = config
-        self.table = ReplayTable(config=config, rng=np.random.default_rng(0))
+        self.table = ReplayBuilder(config).table(rng=np.random.default_rng(0))
         for seq in range(4):
             self.table.store_episode(random_episode(self.table.spec, np.random.default_rng(seq),
                                                     seq=seq))

@@ -11,6 +11,7 @@ import numpy as np
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.replay_service.table import ReplayTable, SampleCall
 from hercs.wire.episode import EpisodeData
 from tests.support import Clock
@@ -101,7 +102,7 @@ def make(*extra: str) -> Harness:
     config = apply_overrides(HercsConfig(), [*OVERRIDES, *extra])
     journal: list[str] = []
     log, clock = FakeLog(journal), Clock()
-    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=log, clock=clock)
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(0), log=log, clock=clock)
     return Harness(table, log, clock, journal, config)
 
 def insert_acted(h: Harness, seq: int, version: int, actor: str = "a") -> Recorder:

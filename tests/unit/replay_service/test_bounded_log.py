@@ -15,6 +15,7 @@ import pytest
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.replay_service.lockstep import LockstepAdmission
 from hercs.replay_service.table import ReplayTable, SampleCall, Stored
 from hercs.rl.cluster_model import ClusterModel
@@ -75,7 +76,7 @@ def open_table(cfg: HercsConfig, run_dir: Path, seed: int = 0
         run_dir, run=RUN, task=TASK, scene=True,
         segment_episodes=cfg.replay.log_segment_episodes(cfg.capacity_episodes),
         max_bytes=cfg.replay.log_max_bytes)
-    table = ReplayTable(config=cfg, rng=np.random.default_rng(seed), log=log)
+    table = ReplayBuilder(cfg).table(rng=np.random.default_rng(seed), log=log)
     state = recovered.replay_state
     table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                   state=None if state is None else msg_to_replay_state(state))
@@ -279,7 +280,7 @@ def test_a_replay_restores_from_its_saved_state_on_every_task(tmp_path: Path,
             tmp_path, run=RUN, task=task, scene=False,
             segment_episodes=cfg.replay.log_segment_episodes(cfg.capacity_episodes),
             max_bytes=cfg.replay.log_max_bytes)
-        table = ReplayTable(config=cfg, rng=np.random.default_rng(seed), log=log)
+        table = ReplayBuilder(cfg).table(rng=np.random.default_rng(seed), log=log)
         state = recovered.replay_state
         table.recover(((i, msg_to_episode(msg)) for i, msg in recovered),
                       state=None if state is None else msg_to_replay_state(state))

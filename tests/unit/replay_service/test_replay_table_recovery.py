@@ -10,7 +10,8 @@ import numpy as np
 from hercs.config import HercsConfig, apply_overrides
 from hercs.proto import hercs_pb2 as pb
 from hercs.reasons import Reason
-from hercs.replay_service.table import ReplayTable, Stored
+from hercs.replay_service.builder import ReplayBuilder
+from hercs.replay_service.table import Stored
 from tests.support import Clock
 from tests.unit.replay_service.table_harness import (
     OVERRIDES,
@@ -161,7 +162,7 @@ def test_inserts_arriving_during_an_append_share_the_next_group_and_samples_go_o
     config = apply_overrides(HercsConfig(), [*OVERRIDES, "replay.free_run=true"])
     journal: list[str] = []
     log = HeldLog(journal)
-    table = ReplayTable(config=config, rng=np.random.default_rng(0), log=log, clock=Clock())
+    table = ReplayBuilder(config).table(rng=np.random.default_rng(0), log=log, clock=Clock())
     h = Harness(table, log, Clock(), journal, config)
     for seq in range(4):
         h.insert(seq)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from hercs.config import HercsConfig, apply_overrides, save_yaml
-from hercs.replay_service.saved_epsilon import saved_epsilon
+from hercs.replay_service.builder import saved_epsilon
 
 
 def test_an_unset_epsilon_is_the_saved_runs_else_the_environments(tmp_path: Path) -> None:

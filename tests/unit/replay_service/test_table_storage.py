@@ -6,6 +6,7 @@ import pytest
 
 from bench.synthetic_episodes import random_episode
 from hercs.config import HercsConfig, apply_overrides
+from hercs.replay_service.builder import ReplayBuilder
 from hercs.replay_service.table import ReplayTable, Stored
 from hercs.rl.cluster_model import ClusterModel, assign_clusters
 
@@ -14,7 +15,7 @@ def make_table(method: str = "her-cs", **extra: str) -> ReplayTable:
     overrides = [f"run.method={method}", "replay.buffer_transitions=5000", "cluster.k=4",
                  "cluster.fgb_size=8"] + [f"{k}={v}" for k, v in extra.items()]
     config = apply_overrides(HercsConfig(), overrides)
-    return ReplayTable(config=config, rng=np.random.default_rng(0))
+    return ReplayBuilder(config).table(rng=np.random.default_rng(0))
 
 
 def fill(table: ReplayTable, n: int, *, actor: str = "a", start: int = 0) -> list[Stored]:
