@@ -45,6 +45,7 @@ from hercs.config.replay import EVICTIONS, ReplayConfig, least_rate_tolerance
 from hercs.config.sizes import episode_message_bytes, size_text
 from hercs.config.task import TaskConfig
 from hercs.config.tracking import TRACKERS, TrackingConfig
+from hercs.config.unsaved import UNSAVED
 from hercs.errors import ConfigError
 from hercs.rl.methods import METHODS, Method
 from hercs.rl.samplers import SamplerSettings
@@ -129,15 +130,16 @@ class TrainingConfig:
     stale). `lockstep`: the reference's single-process alternation, exactly: cycle c's
     episodes are acted with weights version c, then its updates see them (docs/DESIGN.md
     §9.1) [DESIGN]."""
-    max_policy_lag: int = 3
+    max_policy_lag: int = field(default=3, metadata={UNSAVED: -1})
     """Asynchronous schedule: the most cycles an episode may lag the lockstep schedule (its
     cycle there minus the weights version it was acted with; Sample Factory's
     `max_policy_lag`). The replay refuses an older episode as `stale_policy` before storing
     it (nothing acknowledged is ever dropped) unless it was acted with the learner's newest
-    weights, and its acks tell the actors which weights to wait for. -1: no bound. 3 is the
-    most the default limiter and prefetch give one actor (docs/PERFORMANCE.md §2), so it holds
-    back only actors slower than that (many actors, a remote host). Lockstep is lag 0 by
-    construction and ignores this (docs/DESIGN.md §9.1) [DESIGN]."""
+    weights, and its acks tell the actors which weights to wait for. -1: no bound (what a run
+    whose saved config has no such field ran with). 3 is the most the default limiter and
+    prefetch give one actor (docs/PERFORMANCE.md §2), so it holds back only actors slower than
+    that (many actors, a remote host). Lockstep is lag 0 by construction and ignores this
+    (docs/DESIGN.md §9.1) [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.max_policy_lag == -1 or self.max_policy_lag >= 1, "training.max_policy_lag",

@@ -4,9 +4,10 @@ the sources are named as in hercs.config."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from hercs.config.checks import _check, _positive, _unit_interval
+from hercs.config.unsaved import UNSAVED
 from hercs.rl.samplers.share_rules import SHARE_RULES
 
 
@@ -99,8 +100,8 @@ class ClusterConfig:
 
 
 EPSILON_V1 = 1e-6
-"""EBP's ε on the authors' simulator (Fetch*-v1, MuJoCo 2.1), and everywhere until 2026-11-28:
-the trembling of a resting object gives every episode ~1e-3 of energy there already."""
+"""EBP's ε on the authors' simulator (Fetch*-v1, MuJoCo 2.1): the trembling of a resting
+object gives every episode ~1e-3 of energy there already."""
 EPSILON_MUJOCO3 = 1e-3
 """EBP's ε on MuJoCo 3 (v4 and every gymnasium task), where a resting object has 4e-6–4e-5:
 the floor v1's simulator gives, which brings v4's HER-EBP and HER-EBP-CS to the authors'
@@ -131,11 +132,12 @@ class EnergyConfig:
     """Weight of the rotational energy (hand manipulation tasks only) [EBP]."""
     inertia: float = 1.0
     """Moment of inertia I in the rotational term ½·I·‖Δθ/Δt‖² (hand tasks only) [EBP]."""
-    epsilon: float | None = None
+    epsilon: float | None = field(default=None, metadata={UNSAVED: EPSILON_V1})
     """Added to every trajectory energy so no episode has p = 0. Unset (null), the simulator's
     own (`default_energy_epsilon`): 1e-3 on MuJoCo 3 (v4 and every gymnasium task), 1e-6 on
     the authors' v1, whose resting cube trembles with ~1e-3 of energy of its own; a run saves
-    the value it used (docs/DESIGN.md §9.3) [DESIGN]."""
+    the value it used (docs/DESIGN.md §9.3), and one whose saved config has no such field ran
+    with 1e-6, on every simulator [DESIGN]."""
     temperature: float = 0.99
     """p ∝ e^(1/(temperature + 0.01)) + ε, the reference's form: 0.99 makes the exponent 1
     (p ∝ e + ε, docs/DESIGN.md §4); the reference's default temperature 1 gives 0.990 [EBP]."""

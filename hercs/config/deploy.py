@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 from hercs.config.checks import _check, _positive
 from hercs.config.limits import MAX_ENVS_PER_PROCESS
+from hercs.config.unsaved import UNSAVED
 from hercs.errors import ConfigError
 
 ENDPOINT = re.compile(r"(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
@@ -48,11 +49,12 @@ class ActorConfig:
     """Envs one actor process steps side by side, with one batched policy call per step for
     all of them [DESIGN]; more envs per process amortise the per-step inference and the
     process's fixed costs (docs/PERFORMANCE.md)."""
-    insert_queue: int = 0
+    insert_queue: int = field(default=0, metadata={UNSAVED: 2})
     """Finished episodes per env that may wait behind the one whose insert is in flight
     before the rollout loop blocks (0: none, the next episode starts only once the last is
     acked). Each waiting episode was acted with weights that age while it waits; 0 cost no
-    epoch time against the old default of 2 (docs/PERFORMANCE.md §2) [DESIGN]."""
+    epoch time against the old default of 2 (docs/PERFORMANCE.md §2), which a run whose saved
+    config has no such field ran with [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.insert_queue >= 0, "actor.insert_queue", self.insert_queue, "be >= 0")
@@ -95,13 +97,14 @@ class LearnerConfig:
     eager GPU update to float tolerance. Where the capture fails, the learner says why and
     trains with the eager update. Ignored on a CPU."""
 
-    prefetch_depth: int = 0
+    prefetch_depth: int = field(default=0, metadata={UNSAVED: 3})
     """Batches sampled ahead of the one the update loop is training on, to hide sampling and
     transport. In the asynchronous schedule each one lets the rate limiter admit one cycle of
     episodes more before their weights exist: one cycle of policy lag per batch of depth.
     0 (ask when the loop wants a batch) cost no epoch time against the old default of 3 on
-    one box (docs/PERFORMANCE.md §2); a learner far from its replay may want 1. Lockstep asks
-    for nothing ahead whatever this says [DESIGN]."""
+    one box (docs/PERFORMANCE.md §2), which a run whose saved config has no such field ran
+    with; a learner far from its replay may want 1. Lockstep asks for nothing ahead whatever
+    this says [DESIGN]."""
 
     def __post_init__(self) -> None:
         _check(self.prefetch_depth >= 0, "learner.prefetch_depth", self.prefetch_depth,

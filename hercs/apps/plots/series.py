@@ -16,18 +16,19 @@ from typing import Any
 
 from hercs.apps.plots.numbers import power_of_ten
 from hercs.config import TrainingConfig
-from hercs.config.algorithm import EPSILON_V1, ClusterConfig, default_energy_epsilon
+from hercs.config.algorithm import EPSILON_V1, ClusterConfig, EnergyConfig, default_energy_epsilon
 from hercs.config.deploy import ActorConfig, LearnerConfig
 from hercs.config.replay import ReplayConfig
+from hercs.config.unsaved import unsaved_default
 from hercs.rl.methods import METHODS
 
 ENV_VERSION_DEFAULT = "v4"
 """`task.env_version` of a run whose config.yaml has none (written before v1 existed)."""
 EPSILON_UNMARKED = EPSILON_V1
-"""EBP's ε that run names and keys leave unsaid: every run's until 2026-11-28, and v1's
-default still. An EBP run with another (v4's default 1e-3 included) is marked `eps…`, so
-that the runs made before v4's default changed keep their names; ε does nothing to HER and
-HER-CS, whose runs are never marked."""
+"""EBP's ε that run names and keys leave unsaid on every simulator: v1's default, and that of
+a saved config without `energy.epsilon` (`unsaved_default`). An EBP run with another (v4's
+default 1e-3 included) is marked `eps…`; ε does nothing to HER and HER-CS, whose runs are
+never marked."""
 OTHER_CODE: dict[str, str] = {"authors-code": "authors' code"}
 """`training.schedule`s of runs another program made (studies.authors_peer runs the authors'
 published code on our stack): whose they are, said where a label would say "ours"."""
@@ -53,25 +54,23 @@ class PolicyLag:
 
 DEFAULT_LAG = PolicyLag(ReplayConfig().rate_tolerance_updates, LearnerConfig().prefetch_depth,
                         ActorConfig().insert_queue, TrainingConfig().max_policy_lag)
-UNSAVED_LAG = {"prefetch_depth": 3, "insert_queue": 2, "max_policy_lag": -1}
-"""What a resolved config.yaml saved before these settings existed (2026-11-25) ran with:
-3 batches prefetched, 2 episodes queued per actor, no bound (docs/PERFORMANCE.md §2)."""
 
 
 def policy_lag(config: dict[str, Any]) -> PolicyLag:
     """An asynchronous run's lag settings. A field that a saved config.yaml (one whose
     `replay` holds `rate_tolerance_updates`, as every run's does) lacks is the value it ran
-    with (UNSAVED_LAG); a config written by hand, without it, has the defaults."""
+    with (the field's `unsaved_default`); a config written by hand, without it, has the
+    defaults."""
     saved = "rate_tolerance_updates" in (config.get("replay") or {})
 
-    def read(section: str, key: str, default: float) -> float:
+    def read(section: str, kind: type, key: str, default: float) -> float:
         values = config.get(section) or {}
-        return float(values.get(key, UNSAVED_LAG.get(key, default) if saved else default))
+        return float(values.get(key, unsaved_default(kind, key) if saved else default))
 
-    return PolicyLag(read("replay", "rate_tolerance_updates", DEFAULT_LAG.tolerance),
-                     int(read("learner", "prefetch_depth", DEFAULT_LAG.prefetch)),
-                     int(read("actor", "insert_queue", DEFAULT_LAG.queue)),
-                     int(read("training", "max_policy_lag", DEFAULT_LAG.bound)))
+    return PolicyLag(read("replay", ReplayConfig, "rate_tolerance_updates", DEFAULT_LAG.tolerance),
+                     int(read("learner", LearnerConfig, "prefetch_depth", DEFAULT_LAG.prefetch)),
+                     int(read("actor", ActorConfig, "insert_queue", DEFAULT_LAG.queue)),
+                     int(read("training", TrainingConfig, "max_policy_lag", DEFAULT_LAG.bound)))
 
 
 def marks_epsilon(method: str, energy_epsilon: float) -> bool:
@@ -82,11 +81,11 @@ def marks_epsilon(method: str, energy_epsilon: float) -> bool:
 
 
 def energy_epsilon(config: dict[str, Any]) -> float:
-    """A config.yaml's `energy.epsilon`: absent (saved before it was), 1e-6, every run's then;
-    null (written by hand), the default of its `task.env_version`."""
+    """A config.yaml's `energy.epsilon`: absent (saved before it was), what such runs ran
+    with (`unsaved_default`); null (written by hand), the default of its `task.env_version`."""
     energy = config.get("energy") or {}
     if "epsilon" not in energy:
-        return EPSILON_V1
+        return float(unsaved_default(EnergyConfig, "epsilon"))
     if energy["epsilon"] is None:
         return default_energy_epsilon((config.get("task") or {}).get("env_version",
                                                                      ENV_VERSION_DEFAULT))

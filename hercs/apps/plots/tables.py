@@ -184,11 +184,11 @@ def fig2_text(ours: dict[str, dict[str, list[Curve]]],
     panels = fig2_panels(ours, reference, choice)
     keys = {k for p in panels for k in (*p.drawn, *p.left)}
     layout = fig2_layout()
-    rows = ", ".join(" vs ".join(method_label(m) for m in pair) for pair in layout.rows)
+    pairs = ", ".join(" vs ".join(method_label(m) for m in pair) for pair in layout.rows)
     parts = [
         "# Fig. 2: ours beside the authors'", "",
         "Drawn by `hercs plot --figure 2` from the run folders given. Rows "
-        f"of panels: {rows}; columns: {', '.join(layout.tasks)}. "
+        f"of panels: {pairs}; columns: {', '.join(layout.tasks)}. "
         "A method has one colour; the authors' curves are "
         "dashed, with hollow squares; ours are solid where a series has hercs' defaults, in "
         "another line style where its label names a changed setting, with circles on our "

@@ -79,7 +79,7 @@ class GridRun:
     def name(self) -> str:
         """`T-M-sS`, the variants before the seed (`-lockstep`, `-bf16`) and a v1 env's
         version (or a v4 env's weld torquescale, `-ts4`) and an EBP method's ε other than
-        1e-6 (`-eps1e-3`, v4's default since 2026-11-28: plots.EPSILON_UNMARKED says why)
+        1e-6 (`-eps1e-3`, v4's default: plots.EPSILON_UNMARKED says why)
         after the task: `push-v1-her-cs-lockstep-s2`."""
         variant = "".join(f"-{v}" for v, default in ((self.schedule, "async"),
                                                      (self.precision, "fp32"),
@@ -175,7 +175,7 @@ def epsilon_changed(cells: Sequence[GridRun], run_root: Path) -> str | None:
     return (f"{run_root} holds this sweep's {', '.join(c.name for c in moved[:3])}"
             f"{' …' if len(moved) > 3 else ''} planned with energy.epsilon "
             f"{moved[0].energy_epsilon:g}, which the cells would now be named apart from (v4's "
-            f"default ε is 1e-3 since 2026-11-28): give --energy-epsilon "
+            f"default ε is 1e-3): give --energy-epsilon "
             f"{moved[0].energy_epsilon:g} to go on with them, or another --run-dir")
 
 
