@@ -76,8 +76,9 @@ class ClusterConfig:
     k: int = 8
     """Number of k-means clusters of failed goals [HER-CS]."""
     fgb_size: int = 150
-    """Failed-goal buffer capacity; a refit happens each time it has been entirely replaced
-    [HER-CS]."""
+    """How many goals the FGB holds, the paper's failed-goal buffer: the desired goals of the
+    last `fgb_size` failed episodes, which the clusterer fits its k clusters to; it refits
+    each time all of them have been replaced by newer ones [HER-CS]."""
     small_cluster_repeat: int = 4
     """A cluster with fewer than share/repeat episodes contributes each member ~repeat times
     and fills the rest of its share uniformly [HER-CS]."""
