@@ -1,11 +1,11 @@
 """DDPG update of DDPG+HER, as the reference PyTorch HER code (`rl_modules/ddpg_agent.py`).
 
-`DDPGLearner.update(batch)` (or `train`, the loop's) is one reference `_update_network` call;
+`DDPGLearner.train(batch)` is one reference `_update_network` call;
 `update_targets()` is the once-per-cycle Polyak average (docs/DESIGN.md §4.6). Networks are
 built on the CPU and checkpoints hold host tensors, so neither depends on the device. The
 normalisers are the replay's; the learner adopts their statistics. A served batch is checked
-once, on arrival (`decode_minibatch` returns a `CheckedBatch` that `update` takes as it is);
-a batch handed to `update` directly is checked there. Torch's thread count is the service's to
+once, on arrival (`decode_minibatch` returns a `CheckedBatch` that `train` takes as it is);
+a batch handed to `train` directly is checked there. Torch's thread count is the service's to
 set, never this module's (docs/DESIGN.md §10).
 """
 
@@ -101,7 +101,7 @@ def _to_host(value: Any) -> Any:
 
 
 class DDPGLearner:
-    """Actor, critic, their targets and optimisers; one `update` per minibatch."""
+    """Actor, critic, their targets and optimisers; one `train` step per minibatch."""
 
     def __init__(self, *, spec: TaskSpec, config: DDPGConfig, seed: int,
                  device: str | torch.device = "cpu", precision: str = "fp32",
@@ -354,7 +354,7 @@ class DDPGLearner:
 
     def _check_batch(self, batch: TransitionBatch) -> TransitionBatch:
         """The same minibatch with float32 arrays of checked shapes (r as (B,): a (B,) r plus
-        a (B, 1) Q' would silently broadcast to (B, B), so `update` reshapes it); a
+        a (B, 1) Q' would silently broadcast to (B, B), so `train` reshapes it); a
         `CheckedBatch` (decoded from the wire, checked there) as it is."""
         if isinstance(batch, CheckedBatch):
             return batch
@@ -363,9 +363,9 @@ class DDPGLearner:
         want = transition_shapes(self.spec, b)
         for key, arr in zip(("o", "g", "u", "o2"), (o, g, u, o2), strict=True):
             if b < 1 or arr.shape != want[key]:
-                raise ValueError(f"DDPGLearner.update: {key!r} has shape {arr.shape}, "
+                raise ValueError(f"DDPGLearner.train: {key!r} has shape {arr.shape}, "
                                  f"expected {want[key]} (B from 'o')")
         if r.size != b or r.ndim > 2:
-            raise ValueError(f"DDPGLearner.update: 'r' has shape {r.shape}, expected ({b},) "
+            raise ValueError(f"DDPGLearner.train: 'r' has shape {r.shape}, expected ({b},) "
                              f"or ({b}, 1)")
         return TransitionBatch(o=o, g=g, u=u, r=np.ascontiguousarray(r.reshape(b)), o2=o2)
