@@ -77,8 +77,9 @@ test: lint
 	$(PY) -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadfile \
 		-m "not full and not docs_check" tests
 
-# What `make test` leaves out, and only that: the Slurm cluster, network faults between
-# namespaced hosts, the chaos soak, the runs that must learn (FetchReach, a goal env, a
+# What `make test` leaves out, and only that: every test that took 15 s or more alone in a
+# clean clone (whole-run scenarios, benchmarks' quick modes), the Slurm cluster, network
+# faults between namespaced hosts, the chaos soak, the runs that must learn (FetchReach, a goal env, a
 # poisoned run, SB3), and the committed reports (`make studies-check`'s tests). .ci/run runs
 # both, so that together they are the whole suite, each test once.
 test-full: $(STAMP)

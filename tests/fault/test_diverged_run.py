@@ -64,6 +64,7 @@ DIVERGED = re.compile(
 TASK = "tests.goal_envs:reach_with_a_reward_scale_file"
 
 
+@pytest.mark.full
 def test_a_learner_that_diverges_mid_run_stops_the_run_and_keeps_its_last_checkpoint(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     scale = tmp_path / "reward-scale"

@@ -81,6 +81,7 @@ def run_killing_after_epoch_1(tmp_path: Path, run: str, ident: str, *extra: str)
     return run_dir
 
 
+@pytest.mark.full
 def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path: Path) -> None:
     launcher = Launcher(up_argv(tmp_path, "--run", "bumpy"), cwd=tmp_path)
     run_dir = tmp_path / "runs" / "bumpy"
@@ -100,6 +101,7 @@ def test_a_killed_learner_is_restarted_and_resumes_from_its_checkpoint(tmp_path:
     assert not [i for i, pid in launcher.child_pids.items() if process_alive(pid)]
 
 
+@pytest.mark.full
 def test_a_killed_replay_keeps_the_lag_its_episodes_were_stored_with(tmp_path: Path) -> None:
     """SIGKILL of the replay in epoch 2 of an asynchronous run: the restarted replay recovers
     its log and measures every later episode in the same schedule, so no epoch reads a
@@ -123,6 +125,7 @@ def wait_for_episodes(run_dir: Path, count: int, *, timeout_s: float) -> bool:
     return False
 
 
+@pytest.mark.full
 def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
         tmp_path: Path) -> None:
     """`training.max_policy_lag=1`: the restarted learner broadcasts versions below those the
@@ -148,6 +151,7 @@ def test_a_killed_learner_under_a_tight_lag_bound_does_not_hold_the_actors_back(
     assert "resumed from the checkpoint of epoch 1" in log_text(run_dir, "learner-0")
 
 
+@pytest.mark.full
 def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> None:
     """The run's only actor (the last --actors wins): the run cannot end on another actor's
     episodes before the killed one is back, so its new incarnation always inserts."""
@@ -158,6 +162,7 @@ def test_a_killed_actor_comes_back_under_a_new_incarnation(tmp_path: Path) -> No
     assert all(i.startswith("actor-0@") for i in wire_ids)
 
 
+@pytest.mark.full
 def test_a_run_whose_processes_all_died_resumes_to_the_same_epoch_count(tmp_path: Path) -> None:
     """SIGKILL of the launcher kills every child (PR_SET_PDEATHSIG): nothing is left
     running. `hercs up --resume` then finishes the run: every epoch recorded once, the
@@ -199,6 +204,7 @@ def _wait_all_gone(pids, timeout_s: float = 20.0) -> bool:
     return True
 
 
+@pytest.mark.full
 def test_lockstep_survives_a_killed_replay_and_learner_without_breaking_its_schedule(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`training.schedule=lockstep`, HER-CS, two actors: SIGKILL the replay during epoch 2
@@ -258,6 +264,7 @@ def metrics_rows(run_dir: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.full
 def test_a_learner_killed_mid_epoch_changes_only_the_wall_time(tmp_path: Path) -> None:
     """The learner dies half-way through epoch 2, long after its checkpoint of epoch 1; the
     updates it loses are redone on the episodes already stored (the limiter follows its kept

@@ -46,6 +46,7 @@ def epochs(metrics: Path) -> list[int]:
         return [int(row["epoch"]) for row in csv.DictReader(f)]
 
 
+@pytest.mark.full
 def test_services_ride_out_a_router_restart(tmp_path: Path) -> None:
     endpoint = free_endpoint()
     config, path = make_test_config(tmp_path, endpoint, [

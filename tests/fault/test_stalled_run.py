@@ -43,6 +43,7 @@ STALLED = re.compile(
     r"run \(exit 5\)\.")
 
 
+@pytest.mark.full
 def test_a_run_whose_learner_is_frozen_stops_within_its_bound(tmp_path: Path) -> None:
     run_dir = tmp_path / "runs" / "stuck"
     started = time.monotonic()

@@ -109,6 +109,7 @@ def user(run_dir: Path, observations: dict[str, np.ndarray],
         return json.loads((folder / "out.json").read_text()), dict(actions)
 
 
+@pytest.mark.full
 def test_a_fresh_process_chooses_the_evaluators_actions(
         run_dir: Path, observations: dict[str, np.ndarray], user) -> None:
     import torch

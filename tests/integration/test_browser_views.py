@@ -91,6 +91,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory
         stop(proxy)
 
 
+@pytest.mark.full
 def test_the_live_web_view_of_a_running_run_draws_its_episodes(
         live_run: tuple[Path, str, Launcher], tmp_path: Path) -> None:
     _, url, run = live_run
@@ -99,6 +100,7 @@ def test_the_live_web_view_of_a_running_run_draws_its_episodes(
     assert run.proc.poll() is None, "the run was still going: a live view, not a recording"
 
 
+@pytest.mark.full
 def test_the_offline_web_view_of_a_run_draws_its_episodes(
         live_run: tuple[Path, str, Launcher], tmp_path: Path) -> None:
     run_dir, _, _ = live_run

@@ -109,6 +109,7 @@ def one_curve_paint_s(tmp_path: Path) -> float:
     return shown.after_s
 
 
+@pytest.mark.full
 def test_the_demo_log_paints_its_curves_and_clusters_at_once(tmp_path: Path) -> None:
     chromium()
     floor_s = one_curve_paint_s(tmp_path)

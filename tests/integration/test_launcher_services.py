@@ -100,6 +100,7 @@ def test_up_on_the_authors_v1_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     assert len(list(read_episode_messages(run_dir))) >= 8, "the actor's v1 episodes were logged"
 
 
+@pytest.mark.full
 @pytest.mark.slow
 @pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
                     reason="a service module is not written yet")
@@ -142,6 +143,7 @@ COMPUTED_COLUMNS = ("env_steps", "episodes", "updates", "success_rate", "mean_fi
                     "q_mean")
 
 
+@pytest.mark.full
 @pytest.mark.slow
 @pytest.mark.skipif(not all(find_spec(m) for m in SERVICE_MODULES),
                     reason="a service module is not written yet")

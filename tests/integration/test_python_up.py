@@ -59,6 +59,7 @@ def _state(pid: int) -> str:
     return status.split("State:")[1].split()[0]
 
 
+@pytest.mark.full
 def test_a_run_started_from_python_yields_its_rows_and_its_policy(tmp_path: Path) -> None:
     out = _python(tmp_path, f"""
 import json, numpy as np, hercs
@@ -87,6 +88,7 @@ print(json.dumps({{"epochs": epochs, "code": code, "dir": str(run.dir), "name": 
     assert re.fullmatch(r"tcp/127\.0\.0\.1:\d+", endpoint) and not endpoint.endswith(":0")
 
 
+@pytest.mark.full
 def test_stop_keeps_the_epochs_and_resume_goes_on_to_the_end(tmp_path: Path) -> None:
     # 200 epochs: the stop lands mid-run on any machine (it follows the first row at once)
     out = _python(tmp_path, f"""
@@ -210,6 +212,7 @@ def test_a_bad_value_raises_before_anything_starts(tmp_path: Path) -> None:
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.full
 def test_the_docs_example_runs_as_written(tmp_path: Path) -> None:
     """docs/python_api.md's notebook cell, verbatim: 3 epochs watched, stopped, evaluated."""
     text = (REPO / "docs" / "python_api.md").read_text()

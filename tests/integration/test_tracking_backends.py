@@ -126,6 +126,7 @@ def csv_history(run_dir: Path) -> dict[int, dict[str, float]]:
 
 # -- one real run ---------------------------------------------------------------------------
 
+@pytest.mark.full
 @pytest.mark.slow
 def test_a_hercs_up_run_reaches_wandb_and_mlflow_with_metrics_csvs_numbers(
         tmp_path: Path, wandb_offline: Path, mlflow_uri: str) -> None:

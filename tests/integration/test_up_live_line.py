@@ -42,6 +42,7 @@ def service_logs(run_dir: Path, lines: int = 40) -> str:
     return "\n".join(tails)
 
 
+@pytest.mark.full
 def test_a_run_on_a_terminal_shows_its_cycles_steps_and_updates(tmp_path: Path) -> None:
     master, slave = pty.openpty()
     stderr_path = tmp_path / "stderr.txt"

@@ -18,6 +18,7 @@ faults = load_module("bench.faults.service_kills")
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 
 
+@pytest.mark.full
 def test_quick_mode_kills_an_actor_and_loses_nothing(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.faults.service_kills", "--quick",
                            "--out", str(tmp_path)],

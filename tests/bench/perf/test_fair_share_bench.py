@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.support import REPO
 
 
+@pytest.mark.full
 def test_quick_mode_normal_actors_get_their_fair_share_beside_a_flooder(
         tmp_path: Path) -> None:
     out = tmp_path / "fair_share"

@@ -13,6 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.full
 def test_quick_mode_times_a_grid_per_jobs_value(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.grid_throughput", "--quick",
                            "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True,

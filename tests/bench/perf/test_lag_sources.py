@@ -9,9 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.full
 def test_quick_mode_measures_lag_and_epoch_time_beside_the_old_default(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.lag_sources", "--quick", "--beside",
                            "--out", str(tmp_path / "lag")], cwd=REPO, capture_output=True,

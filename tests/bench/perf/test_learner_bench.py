@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from tests.support import load_module
@@ -17,6 +18,7 @@ REPO = Path(__file__).resolve().parents[3]
 bench = load_module("bench.perf.learner")
 
 
+@pytest.mark.full
 def test_quick_mode_reports_the_roofline_ratio_per_precision(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.learner", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)

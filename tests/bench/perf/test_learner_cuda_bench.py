@@ -9,11 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.full
 def test_quick_mode_fills_every_cell(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.learner_cuda", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)

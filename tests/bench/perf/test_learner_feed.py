@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from bench.perf.learner_feed import fed_at, parse_args, render, summarise
 
 REPO = Path(__file__).resolve().parents[3]
@@ -32,6 +34,7 @@ def test_a_partial_report_says_which_counts_were_run() -> None:
     assert whole["complete"] and "Partial" not in render(whole)
 
 
+@pytest.mark.full
 def test_quick_mode_runs_each_actor_count(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.learner_feed", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=900)

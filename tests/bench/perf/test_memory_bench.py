@@ -8,10 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[3]
 ROLES = {"up", "replay", "clusterer", "learner", "evaluator", "actor"}
 
 
+@pytest.mark.full
 def test_quick_mode_samples_every_service_of_a_run(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.memory", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)

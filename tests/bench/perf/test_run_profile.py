@@ -58,6 +58,7 @@ def test_each_stack_lands_in_its_function_group() -> None:
     assert role_of("py-spy record") == "other"
 
 
+@pytest.mark.full
 def test_quick_mode_splits_every_process_of_a_real_run(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.run_profile", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=900)

@@ -13,6 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.full
 def test_quick_mode_times_both_settings_and_the_limit(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "bench.perf.run_time", "--quick", "--out",
                            str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=900)

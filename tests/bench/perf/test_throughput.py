@@ -143,6 +143,7 @@ def test_figure_keys_cover_every_phase() -> None:
     assert len(keys) == 6 + 2 + 2 * 4 + 2 + 1
 
 
+@pytest.mark.full
 @pytest.mark.integration
 @pytest.mark.slow
 def test_quick_mode_reports_every_figure(tmp_path: Path) -> None:

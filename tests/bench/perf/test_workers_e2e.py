@@ -17,6 +17,7 @@ from tests.support import REPO
 COMMITTED = REPO / "docs" / "results" / "workers_e2e"
 
 
+@pytest.mark.full
 def test_a_two_worker_run_takes_twice_the_episodes_through_the_same_updates(
         tmp_path: Path) -> None:
     # 5 cycles per epoch (--quick): 2 workers × 4 episodes and 40 updates per cycle.

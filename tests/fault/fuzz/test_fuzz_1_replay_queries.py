@@ -51,6 +51,7 @@ def refused_for_the_replays_state(msg: pb.Episode, reason: str) -> bool:
     return False
 
 
+@pytest.mark.full
 def test_replay_insert_rejects_bad_episodes_and_stores_only_valid_ones(world: World) -> None:
     w = world
     bases = [m.SerializeToString() for m in BASE_EPISODES]

@@ -129,6 +129,7 @@ def test_dry_run_says_what_each_cell_would_do_and_starts_nothing(
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
 
 
+@pytest.mark.full
 @pytest.mark.integration
 @pytest.mark.slow
 def test_quick_grid_trains_resumes_and_reports(tmp_path: Path) -> None:

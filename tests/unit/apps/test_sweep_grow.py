@@ -24,6 +24,7 @@ def _hercs(*args: str, timeout_s: float = 300) -> subprocess.CompletedProcess[st
                           text=True, timeout=timeout_s, cwd=REPO)
 
 
+@pytest.mark.full
 @pytest.mark.integration
 @pytest.mark.slow
 def test_a_finished_cell_grows_to_a_larger_epochs_from_its_checkpoint(tmp_path: Path) -> None:

@@ -167,6 +167,7 @@ def test_the_slurm_cells_keep_the_tasks_in_the_order_given() -> None:
     assert cmd[cmd.index("--first-seed") + 1] == "3"  # the task plans the submitter's seeds
 
 
+@pytest.mark.full
 @pytest.mark.integration
 @pytest.mark.slow
 def test_a_killed_sweep_stops_its_runs_in_order_and_the_next_call_resumes_them(
