@@ -112,6 +112,7 @@ def _built(task: str | None, method: str | None, epochs: int | None, seed: int |
     YAML file, the named arguments, the trackers, then `overrides` (typed values from a dict,
     or "field=value" strings as `--set` takes them). Task names given here are trusted, as
     the command trusts those on its command line (hercs.rl.code_names)."""
+    from hercs.apps.cli.config_flags import file_task
     from hercs.apps.tracking.flags import backends_override
     from hercs.config import HercsConfig, apply_overrides, load_yaml, with_values
     from hercs.rl.code_names import trust_task
@@ -129,11 +130,13 @@ def _built(task: str | None, method: str | None, epochs: int | None, seed: int |
              "run.seed": seed, "actor.num_actors": actors, "run.name": name,
              "run.run_dir": None if run_dir is None else str(run_dir),
              "transport.listen": [listen]}
+    # trusted before any config is built, since building one resolves its task (the file's
+    # task too, read as written, as the command line does)
+    for named in [*named_tasks, file_task(str(config)) if config else None]:
+        if isinstance(named, str) and named:
+            trust_task(named)
     try:
         base = load_yaml(Path(config)) if config else HercsConfig()
-        for named in [*named_tasks, base.task.name if config else None]:
-            if isinstance(named, str) and named:
-                trust_task(named)
         built = with_values(base, {k: v for k, v in given.items() if v is not None})
         trackers = [track] if isinstance(track, str) else list(track)
         built = apply_overrides(built, backends_override(built.tracking.backends,

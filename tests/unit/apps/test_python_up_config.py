@@ -88,3 +88,19 @@ def test_with_values_leaves_the_config_it_was_given_as_it_was() -> None:
     changed = with_values(base, {"ddpg.hidden_size": 64, "transport.listen": ("tcp/a:1",)})
     assert (changed.ddpg.hidden_size, changed.transport.listen) == (64, ["tcp/a:1"])
     assert base == HercsConfig()
+
+
+def test_a_config_file_naming_code_is_trusted_before_it_is_built(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """As on the command line, `config=`'s own task name is trusted (the user named the file)
+    before the config is built, since building it imports the code the name names."""
+    from hercs.rl.code_names import TRUST_ENV
+
+    monkeypatch.delenv(TRUST_ENV, raising=False)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "lab_envs.py").write_text(
+        "import gymnasium as gym\n\n\ndef make():\n    return gym.make('FetchReach-v4')\n")
+    (tmp_path / "c.yaml").write_text("task:\n  name: lab_envs:make\n")
+    built = python(config=tmp_path / "c.yaml")
+    assert built.task.name == "lab_envs:make"
+    assert built.task.spec.goal_dim == 3
