@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
@@ -22,23 +21,13 @@ import numpy as np
 import torch
 
 from bench.common import add_out_option, git_commit, show_report
-from bench.perf.learner import bf16_note, cpu_features, cpu_flags, make_batch
+from bench.perf.learner import bf16_note, cpu_features, cpu_flags, cpu_seconds, make_batch
 from hercs.config import DDPGConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.stacked import StackedDDPG, stacked_inputs
 from hercs.rl.task_registry import task_spec
 
 ARMS = ("lone fp32", "stacked fp32", "stacked bf16")
-
-
-def cpu_ms(fn: Callable[[], object], repeats: int) -> float:
-    """CPU ms of this thread per call, after a warm-up (oneDNN picks its kernels)."""
-    for _ in range(max(2, repeats // 5)):
-        fn()
-    start = time.thread_time()
-    for _ in range(repeats):
-        fn()
-    return 1e3 * (time.thread_time() - start) / repeats
 
 
 def arms_for(k: int, spec: Any, config: DDPGConfig, batch_size: int
@@ -69,7 +58,7 @@ def measure(ks: tuple[int, ...], *, batch_size: int, updates: int, rounds: int
     for _ in range(rounds):
         for k in ks:
             for arm in ARMS:
-                times[k][arm].append(cpu_ms(calls[k][arm], updates) / k)
+                times[k][arm].append(1e3 * cpu_seconds(calls[k][arm], updates) / k)
     return {k: {arm: float(np.median(t)) for arm, t in by_arm.items()}
             for k, by_arm in times.items()}
 
