@@ -105,7 +105,7 @@ def trust_named_tasks(args: argparse.Namespace) -> None:
     task.name=`, a `--config` file's) and, with --trust-task, any: `hercs.rl.code_names`."""
     if getattr(args, "trust_task", False):
         trust_task(ANY)
-    named = [getattr(args, "task", None), file_task(getattr(args, "config", None))]
+    named = [getattr(args, "task", None), _file_task(getattr(args, "config", None))]
     named += [item.partition("=")[2].strip() for item in getattr(args, "overrides", [])
               if item.partition("=")[0].strip() == "task.name"]
     for name in named:
@@ -113,7 +113,7 @@ def trust_named_tasks(args: argparse.Namespace) -> None:
             trust_task(name)
 
 
-def file_task(path: str | None) -> str | None:
+def _file_task(path: str | None) -> str | None:
     """task.name of the YAML file `path` as written (load_yaml reports a bad file)."""
     if not path:
         return None

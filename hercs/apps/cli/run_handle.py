@@ -10,6 +10,7 @@ caller exits.
 
 from __future__ import annotations
 
+import argparse
 import atexit
 import contextlib
 import io
@@ -112,7 +113,7 @@ def _built(task: str | None, method: str | None, epochs: int | None, seed: int |
     YAML file, the named arguments, the trackers, then `overrides` (typed values from a dict,
     or "field=value" strings as `--set` takes them). Task names given here are trusted, as
     the command trusts those on its command line (hercs.rl.code_names)."""
-    from hercs.apps.cli.config_flags import file_task
+    from hercs.apps.cli.config_flags import SHORTCUTS, trust_named_tasks
     from hercs.apps.tracking.flags import backends_override
     from hercs.config import HercsConfig, apply_overrides, load_yaml, with_values
     from hercs.rl.code_names import trust_task
@@ -122,22 +123,23 @@ def _built(task: str | None, method: str | None, epochs: int | None, seed: int |
                           f"the string {overrides!r}")
     typed: Mapping[str, Any] | None = overrides if isinstance(overrides, Mapping) else None
     strings: list[str] = [] if typed is not None else list(overrides)
-    named_tasks = [task, *(value for key, value in (typed or {}).items()
-                           if str(key).strip() == "task.name"),
-                   *(item.partition("=")[2].strip() for item in strings
-                     if item.partition("=")[0].strip() == "task.name")]
-    given = {"task.name": task, "run.method": method, "training.epochs": epochs,
-             "run.seed": seed, "actor.num_actors": actors, "run.name": name,
-             "run.run_dir": None if run_dir is None else str(run_dir),
-             "transport.listen": [listen]}
-    # trusted before any config is built, since building one resolves its task (the file's
-    # task too, read as written, as the command line does)
-    for named in [*named_tasks, file_task(str(config)) if config else None]:
-        if isinstance(named, str) and named:
-            trust_task(named)
+    # the command's flags by name, so that SHORTCUTS maps them to their fields as it does there
+    flags = {"task": task, "method": method, "epochs": epochs, "seed": seed, "actors": actors,
+             "run": name, "run_dir": None if run_dir is None else str(run_dir)}
+    given: dict[str, Any] = {SHORTCUTS[flag]: value for flag, value in flags.items()
+                             if value is not None}
+    given["transport.listen"] = [listen]
+    # trusted before any config is built, since building one resolves its task: the names
+    # the command line would trust (task, the file's, --set task.name=), then a dict's
+    trust_named_tasks(argparse.Namespace(task=task, config=str(config) if config else None,
+                                         overrides=strings))
+    typed_task = {str(key).strip(): value for key, value in (typed or {}).items()}.get(
+        "task.name")
+    if isinstance(typed_task, str) and typed_task:
+        trust_task(typed_task)
     try:
         base = load_yaml(Path(config)) if config else HercsConfig()
-        built = with_values(base, {k: v for k, v in given.items() if v is not None})
+        built = with_values(base, given)
         trackers = [track] if isinstance(track, str) else list(track)
         built = apply_overrides(built, backends_override(built.tracking.backends,
                                                          [str(t) for t in trackers]))
