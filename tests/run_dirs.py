@@ -19,7 +19,6 @@ from hercs.learner.resume import save_learner_state
 from hercs.replay_service.builder import ReplayBuilder
 from hercs.run.metrics import MetricsCsv
 from hercs.run.rundir import RunDir
-from hercs.wire.served import ReplayCounters, ServedBatch
 
 
 def run_config(run_dir: Path, epochs: int) -> HercsConfig:
@@ -39,19 +38,15 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     run_dir.mkdir(parents=True)
     save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
-    loop = LearnerBuilder(config).loop(learner)
     table = ReplayBuilder(config).table(rng=np.random.default_rng(0))
+    loop = LearnerBuilder(config).loop(learner, replay_status=table.status_at)
     rng = np.random.default_rng(1)
     metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
     skip = set(unevaluated)
     for epoch in range(1, trained + 1):
         table.store_episode(random_episode(table.spec, rng, seq=epoch))
         served = table.draw(1, config.ddpg.batch_size)
-        loop.step(ServedBatch(
-            minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
-            cluster_draws=served.cluster_draws,
-            status=ReplayCounters(inserts=table.inserts, env_steps=table.env_steps,
-                                  size_transitions=table.store.num_transitions)))
+        loop.step(served)
         if epoch == checkpoint:
             save_learner_state(RunDir(run_dir).checkpoints, learner=learner, loop=loop,
                                eval_requests=EvalRequests(resend_s=60.0),

@@ -1,9 +1,10 @@
 """The learner's builder: the one reader of `HercsConfig` in hercs.learner.
 
 It unpacks the config into the parts the learner process runs (the DDPG learner, the loop,
-the prefetcher, the evaluation requests and the policy keeper), each of which takes explicit
-arguments, as Acme's builders do for their learners. The shell (learner_shell.py) asks it for
-parts and for the few settings of its own; tests and tools that want a part build it here.
+the prefetcher, the replay-status client, the evaluation requests and the policy keeper),
+each of which takes explicit arguments, as Acme's builders do for their learners. The shell
+(learner_shell.py) asks it for parts and for the few settings of its own; tests and tools
+that want a part build it here.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from hercs.config import HercsConfig
 from hercs.learner.ddpg import DDPGLearner
 from hercs.learner.evaluations import EvalRequests, PolicyKeeper
 from hercs.learner.loop import LearnerLoop
-from hercs.learner.prefetch import BatchShape, Prefetcher
+from hercs.learner.prefetch import ASK_AGAIN_S, BatchShape, Prefetcher
+from hercs.learner.replay_status import ReplayStatusClient
 from hercs.net.service_shell import ServiceRuntime
+from hercs.wire.served import ReplayCounters
 
 
 @dataclass(frozen=True)
@@ -55,11 +58,17 @@ class LearnerBuilder:
                            parallel_halves=settings.parallel_halves,
                            cuda_graph=settings.cuda_graph)
 
-    def loop(self, learner: DDPGLearner) -> LearnerLoop:
+    def loop(self, learner: DDPGLearner, *,
+             replay_status: Callable[[int], ReplayCounters]) -> LearnerLoop:
         training = self._config.training
         return LearnerLoop(learner=learner, epochs=training.epochs,
                            cycles_per_epoch=training.cycles_per_epoch,
-                           clusters=self._config.cluster.k)
+                           clusters=self._config.cluster.k, replay_status=replay_status)
+
+    def replay_status(self, runtime: ServiceRuntime) -> ReplayStatusClient:
+        replay = self._config.replay
+        return ReplayStatusClient(runtime, timeout_s=min(replay.sample_timeout_s, ASK_AGAIN_S),
+                                  max_bytes=replay.max_message_bytes)
 
     def eval_requests(self) -> EvalRequests:
         return EvalRequests(resend_s=self._config.training.eval_resend_s)

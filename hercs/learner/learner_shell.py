@@ -18,6 +18,7 @@ from hercs.config import HercsConfig
 from hercs.errors import Diverged, InvalidMessage
 from hercs.learner.builder import LearnerBuilder
 from hercs.learner.checkpoint import load_policy_file, save_policy
+from hercs.learner.replay_status import Stopping
 from hercs.learner.resume import resume_learner_state, save_learner_state
 from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.proto import SCHEMA_VERSION
@@ -56,7 +57,8 @@ class LearnerService:
         self.learner = parts.learner()
         log.info("learner on %s (learner.device=%s), %s", self.learner.device,
                  self.settings.device_request, self.learner.precision)
-        self.loop = parts.loop(self.learner)
+        self.replay_status = parts.replay_status(runtime)
+        self.loop = parts.loop(self.learner, replay_status=self.replay_status)
         self.batch_wait_s: dict[int, float] = {}  # epoch -> seconds the updates waited
         self.eval_requests = parts.eval_requests()
         self.prefetcher_bad: Counter[str] = Counter()
@@ -212,6 +214,8 @@ class LearnerService:
                 result = self.loop.step(batch)
             except Diverged as exc:  # nothing of this cycle is published or saved
                 raise Diverged(f"{exc}; {self._kept_checkpoint()}") from None
+            except Stopping:  # at an epoch's end, before its row or checkpoint: redone on resume
+                return 0
             self.publish_weights(evaluate=result.epoch_ended is not None,
                                  epoch=result.epoch_ended or self.loop.epoch)
             prefetcher.cycle_done()

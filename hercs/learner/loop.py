@@ -2,14 +2,16 @@
 
 `LearnerLoop.step(batch)` is the unit (Acme's `Learner.step()`): one `ServedBatch` of
 `minibatches_per_cycle` minibatches → that many DDPG updates → one Polyak update → a new
-weights version; every `cycles_per_epoch` cycles an epoch ends, and `record_eval` completes
-its metrics row. The service runs it in a loop; tests drive it directly.
+weights version; every `cycles_per_epoch` cycles an epoch ends, its row taking the replay's
+counters of the moment its last batch was drawn (`replay_status`), and `record_eval`
+completes that row. The service runs it in a loop; tests drive it directly.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,7 +19,7 @@ import numpy as np
 
 from hercs.errors import Diverged
 from hercs.learner.ddpg import DDPGLearner
-from hercs.wire.served import ServedBatch
+from hercs.wire.served import ReplayCounters, ServedBatch
 
 
 @dataclass
@@ -58,10 +60,14 @@ class EpochSnapshot:
 
 class LearnerLoop:
     def __init__(self, *, learner: DDPGLearner, epochs: int, cycles_per_epoch: int,
-                 clusters: int, clock=time.monotonic) -> None:
+                 clusters: int, replay_status: Callable[[int], ReplayCounters],
+                 clock=time.monotonic) -> None:
         """`epochs` to train, `cycles_per_epoch` batches to an epoch, `clusters` the k whose
-        draws each epoch's row reports (hercs.learner.builder unpacks them from the config)."""
+        draws each epoch's row reports (hercs.learner.builder unpacks them from the config);
+        `replay_status(samples_served)`: the replay's counters when the batch that ended at
+        that count was drawn (hercs.learner.replay_status over the wire)."""
         self.epochs = epochs
+        self.replay_status = replay_status
         self.cycles_per_epoch = cycles_per_epoch
         self.learner = learner
         self.clock = clock
@@ -132,7 +138,7 @@ class LearnerLoop:
         self._epoch_lags.append(batch.policy_lags)
         self._epoch_moved += (batch.sampled_moved, batch.sampled_transitions)
         if batch.sampled_transitions:
-            self._epoch_buffer_share.append(batch.status.buffer_moved_share)
+            self._epoch_buffer_share.append(batch.buffer_moved_share)
         self._last = batch
         ended = None
         if self.cycle % self.cycles_per_epoch == 0:
@@ -154,7 +160,7 @@ class LearnerLoop:
         p50, p95, top = ((float(np.percentile(lags, 50)), float(np.percentile(lags, 95)),
                           float(lags.max())) if lags.size else (float("nan"),) * 3)
         moved, sampled = (int(v) for v in self._epoch_moved)
-        status = batch.status
+        status = self.replay_status(batch.samples_served)
         snap = EpochSnapshot(
             epoch=self.epoch, version=self.version, env_steps=status.env_steps,
             inserts=status.inserts, updates=updates, wall_s=now - self._start,

@@ -89,14 +89,15 @@ ROLE_GRANTS: dict[str, list[tuple[str, list[str]]]] = {
     "replay": [
         *_common("replay"),
         ("serve", [_run_key(k) for k in ("replay/insert", "replay/sample", "replay/episode",
-                                          "replay/clusterer_state", "config")]),
+                                          "replay/clusterer_state", "replay/status_at",
+                                          "config")]),
         ("publish", [_run_key("replay/inserted"), _run_key("replay/status")]),
         *_latest_subscribe("cluster/model"),
         ("subscribe", [_run_key("eval/result")]),
     ],
     "learner": [
         *_common("learner"),
-        ("query", [_run_key("replay/sample")]),
+        ("query", [_run_key("replay/sample"), _run_key("replay/status_at")]),
         *_latest_publish("weights"),
         *_latest_publish("run/progress"),
         ("publish", [_run_key("eval/request")]),

@@ -149,7 +149,7 @@ class Minibatch(_message.Message):
     def __init__(self, o: _Optional[_Union[Array, _Mapping]] = ..., o2: _Optional[_Union[Array, _Mapping]] = ..., g: _Optional[_Union[Array, _Mapping]] = ..., u: _Optional[_Union[Array, _Mapping]] = ..., r: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class Batch(_message.Message):
-    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_draws", "policy_lags", "sampled_moved", "sampled_transitions", "status")
+    __slots__ = ("schema_version", "request_id", "minibatches", "o_stats", "g_stats", "cluster_draws", "policy_lags", "sampled_moved", "sampled_transitions", "samples_served", "buffer_moved_share")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     MINIBATCHES_FIELD_NUMBER: _ClassVar[int]
@@ -159,7 +159,8 @@ class Batch(_message.Message):
     POLICY_LAGS_FIELD_NUMBER: _ClassVar[int]
     SAMPLED_MOVED_FIELD_NUMBER: _ClassVar[int]
     SAMPLED_TRANSITIONS_FIELD_NUMBER: _ClassVar[int]
-    STATUS_FIELD_NUMBER: _ClassVar[int]
+    SAMPLES_SERVED_FIELD_NUMBER: _ClassVar[int]
+    BUFFER_MOVED_SHARE_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     request_id: int
     minibatches: _containers.RepeatedCompositeFieldContainer[Minibatch]
@@ -169,8 +170,9 @@ class Batch(_message.Message):
     policy_lags: _containers.RepeatedScalarFieldContainer[int]
     sampled_moved: int
     sampled_transitions: int
-    status: ReplayStatus
-    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., status: _Optional[_Union[ReplayStatus, _Mapping]] = ...) -> None: ...
+    samples_served: int
+    buffer_moved_share: float
+    def __init__(self, schema_version: _Optional[int] = ..., request_id: _Optional[int] = ..., minibatches: _Optional[_Iterable[_Union[Minibatch, _Mapping]]] = ..., o_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., g_stats: _Optional[_Union[NormalizerStats, _Mapping]] = ..., cluster_draws: _Optional[_Iterable[int]] = ..., policy_lags: _Optional[_Iterable[int]] = ..., sampled_moved: _Optional[int] = ..., sampled_transitions: _Optional[int] = ..., samples_served: _Optional[int] = ..., buffer_moved_share: _Optional[float] = ...) -> None: ...
 
 class ClusterModel(_message.Message):
     __slots__ = ("schema_version", "version", "centroids", "fitted_on", "failures_seen")
@@ -219,6 +221,14 @@ class EvalResult(_message.Message):
     success_rate: float
     mean_final_distance: float
     def __init__(self, schema_version: _Optional[int] = ..., epoch: _Optional[int] = ..., weights_version: _Optional[int] = ..., episodes: _Optional[int] = ..., success_rate: _Optional[float] = ..., mean_final_distance: _Optional[float] = ...) -> None: ...
+
+class ReplayStatusRequest(_message.Message):
+    __slots__ = ("schema_version", "samples")
+    SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
+    SAMPLES_FIELD_NUMBER: _ClassVar[int]
+    schema_version: int
+    samples: int
+    def __init__(self, schema_version: _Optional[int] = ..., samples: _Optional[int] = ...) -> None: ...
 
 class ReplayStatus(_message.Message):
     __slots__ = ("schema_version", "size_episodes", "size_transitions", "inserts", "duplicates", "samples", "rate_limiter", "rejects", "cluster_sizes", "cluster_model_version", "env_steps", "policy_lag", "policy_lag_request", "buffer_moved_share", "inserts_waiting", "samples_waiting")

@@ -37,7 +37,14 @@ class RunKeys:
 
     @property
     def status(self) -> str:
+        """The replay's `ReplayStatus`, put about once a second (views, `hercs up`)."""
         return self._key("replay/status")
+
+    @property
+    def status_at(self) -> str:
+        """Queryable (replay): `ReplayStatusRequest` → the `ReplayStatus` of the moment a
+        batch was drawn (the learner's epoch rows)."""
+        return self._key("replay/status_at")
 
     @property
     def cluster_model(self) -> str:

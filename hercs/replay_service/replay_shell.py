@@ -2,7 +2,8 @@
 
 It decodes and validates each query and hands it to the table with a waiter that answers it,
 now or later; every decision is the table's. Queries are served on our own worker threads,
-never inside Zenoh callbacks; `replay/status` is put about once a second, and parked calls
+never inside Zenoh callbacks; `replay/status` is put about once a second (and
+`replay/status_at` answers with the counters of a served batch's moment), and parked calls
 past their caller's timeout are answered `expired` at that pace. On start the episode log is
 replayed into the table (from its newest saved state, for a bounded log), so nothing acked is
 lost across a restart; the limiter restarts balanced at the recovered size and the log's
@@ -87,6 +88,7 @@ class ReplayService:
         transport.serve(keys.episode, self._on_episode_request,
                         on_error=self._on_episode_request_error)
         transport.serve(keys.clusterer_state, self._on_clusterer_state, on_error=self._on_reject)
+        transport.serve(keys.status_at, self._on_status_at, on_error=self._on_reject)
         transport.subscribe(keys.cluster_model, self._on_cluster_model, latest=True)
         transport.subscribe(keys.eval_result, self._on_eval_result)
         transport.serve_deferred(keys.insert, self._on_insert, on_error=self._on_reject,
@@ -185,6 +187,11 @@ class ReplayService:
     # -- status ----------------------------------------------------------------------------
     def status(self) -> pb.ReplayStatus:
         return counters_to_msg(self.table.status())
+
+    def _on_status_at(self, payload: bytes) -> bytes:
+        request = parse_message(payload, pb.ReplayStatusRequest,
+                                max_bytes=self.settings.max_message_bytes)
+        return counters_to_msg(self.table.status_at(int(request.samples))).SerializeToString()
 
     def tick(self) -> None:
         """Once a second: expire parked calls past their deadline, put the status."""

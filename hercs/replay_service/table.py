@@ -61,6 +61,10 @@ __all__ = ["LOCKSTEP_CLUSTER_WAIT_S", "ClustererSnapshot", "EpisodeLogSink", "Re
 
 log = logging.getLogger("hercs.replay")
 
+STATUS_SNAPSHOTS = 64
+"""Served batches whose counters `status_at` still answers with: far more than a learner
+samples ahead of its epoch's end (`learner.prefetch_depth` batches)."""
+
 
 class ReplayTable:
     def __init__(self, *, spec: TaskSpec, store: EpisodeStore, sampler: EpisodeSampler,
@@ -96,6 +100,9 @@ class ReplayTable:
         """(actor_id, seq) -> episode id, for the episodes still in the ring."""
         self._learner: str | None = None
         """The learner process whose kept samples the limiter counts from (`follow_learner`)."""
+        self._status_at: OrderedDict[int, ReplayCounters] = OrderedDict()
+        """samples served -> the counters when that batch was drawn, for the newest
+        `STATUS_SNAPSHOTS` batches (`status_at`)."""
         self.inserts = 0
         self.duplicates = 0
         self.samples = 0
@@ -413,7 +420,9 @@ class ReplayTable:
         the normaliser statistics to train them with, and no limiter: an in-process table's
         sample (a bench's, a study's, a test's)."""
         with self._lock:
-            return self._draw(num_minibatches, batch_size)
+            served = self._draw(num_minibatches, batch_size)
+            self._remember_status()
+            return served
 
     def _draw(self, num_minibatches: int, batch_size: int) -> ServedBatch:
         draws = np.zeros(self.clusters, np.int64)
@@ -430,7 +439,9 @@ class ReplayTable:
         self.cluster_draws_total += draws
         o_stats, g_stats = self.normalizers.state()
         return ServedBatch(minibatches=out, o_stats=o_stats, g_stats=g_stats,
-                           cluster_draws=draws, sampled_moved=moved, sampled_transitions=sampled)
+                           cluster_draws=draws, sampled_moved=moved, sampled_transitions=sampled,
+                           samples_served=self.samples,
+                           buffer_moved_share=self.store.moved_count / max(self.store.size, 1))
 
     def _serve(self, item: ParkedSample) -> None:
         call = item.call
@@ -442,8 +453,8 @@ class ReplayTable:
                                         model_version=self._model_version())
         if warning is not None:
             log.warning("%s", warning)
-        served = dataclasses.replace(
-            served, policy_lags=self.lags.take_since_sample(), status=self._counters())
+        served = dataclasses.replace(served, policy_lags=self.lags.take_since_sample())
+        self._remember_status()
         for waiter in item.waiters:
             waiter.done(served)
 
@@ -549,9 +560,23 @@ class ReplayTable:
                                             minlength=self.clusters)]
 
     def status(self) -> ReplayCounters:
-        """The counters as one consistent snapshot (`ReplayStatus`, and each served batch's)."""
+        """The counters as one consistent snapshot (`ReplayStatus`)."""
         with self._lock:
             return self._counters()
+
+    def _remember_status(self) -> None:
+        """Keep the counters of the batch just drawn, for `status_at`."""
+        self._status_at[self.samples] = self._counters()
+        while len(self._status_at) > STATUS_SNAPSHOTS:
+            self._status_at.popitem(last=False)
+
+    def status_at(self, samples: int) -> ReplayCounters:
+        """The counters as they stood when the batch that brought `samples` to its value was
+        served, while it is among the newest `STATUS_SNAPSHOTS`; otherwise (a restarted
+        replay, an old or unknown count) the current ones, whose `samples` then differs."""
+        with self._lock:
+            held = self._status_at.get(samples)
+            return held if held is not None else self._counters()
 
     def _counters(self) -> ReplayCounters:
         store = self.store

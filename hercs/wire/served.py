@@ -1,8 +1,12 @@
 """The served batch: what one sample call hands from the replay to the learner, as one Python
 type with one field list shared with its wire message, and its one encode/decode pair.
 
-`ReplayCounters` mirrors `ReplayStatus` field for field (a test holds them equal) and travels
-in every `Batch`, so the learner needs no subscription to write its metrics rows.
+A batch carries what describes its own draw. The replay's standing counters (`ReplayCounters`,
+`ReplayStatus` field for field: a test holds them equal) travel on a channel of their own:
+`replay/status`, put about once a second, and `replay/status_at`, which answers a
+`ReplayStatusRequest` with the counters as they stood when the batch that ended at
+`samples_served` was drawn. An epoch's metrics row is read that way, so two lockstep runs with
+one seed write the same numbers whatever their timing.
 """
 
 from __future__ import annotations
@@ -75,7 +79,12 @@ class ServedBatch:
     sampled_moved: int = 0
     """Transitions of this batch whose episode's achieved goal moved."""
     sampled_transitions: int = 0
-    status: ReplayCounters = field(default_factory=ReplayCounters)
+    samples_served: int = 0
+    """The replay's `samples` (minibatches served) once this batch was drawn: what the learner
+    asks `replay/status_at` for to read the counters of that moment."""
+    buffer_moved_share: float = 0.0
+    """Share of the stored episodes whose achieved goal moved, when this batch was drawn (what
+    `sampled_moved / sampled_transitions` is set against)."""
 
 
 BATCH_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(ServedBatch))
@@ -103,7 +112,7 @@ def served_batch_to_bytes(batch: ServedBatch, *, request_id: int) -> bytes:
         cluster_draws=[int(c) for c in batch.cluster_draws],
         policy_lags=[int(lag) for lag in batch.policy_lags],
         sampled_moved=batch.sampled_moved, sampled_transitions=batch.sampled_transitions,
-        status=counters_to_msg(batch.status))
+        samples_served=batch.samples_served, buffer_moved_share=batch.buffer_moved_share)
     return batch_to_bytes(header, batch.minibatches)
 
 
@@ -137,11 +146,10 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.sampled_moved {msg.sampled_moved} exceeds "
                              f"Batch.sampled_transitions {msg.sampled_transitions}")
-    share = msg.status.buffer_moved_share
+    share = msg.buffer_moved_share
     if not 0.0 <= share <= 1.0:
         raise InvalidMessage(Reason.BAD_VALUE,
-                             f"Batch.status.buffer_moved_share {share!r} is not a share in "
-                             "[0, 1]")
+                             f"Batch.buffer_moved_share {share!r} is not a share in [0, 1]")
     if any(d > MAX_INT64 for d in msg.cluster_draws):  # they are summed in an int64 array
         raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.cluster_draws: {list(msg.cluster_draws)} holds a value "
@@ -151,5 +159,23 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         cluster_draws=np.asarray(msg.cluster_draws, np.int64),
         policy_lags=np.asarray(msg.policy_lags, np.int64),
         sampled_moved=int(msg.sampled_moved), sampled_transitions=int(msg.sampled_transitions),
-        status=msg_to_counters(msg.status))
+        samples_served=int(msg.samples_served), buffer_moved_share=float(share))
+
+
+def status_request(samples: int) -> bytes:
+    """The `replay/status_at` query for the counters once `samples` minibatches were served."""
+    return pb.ReplayStatusRequest(schema_version=SCHEMA_VERSION,
+                                  samples=samples).SerializeToString()
+
+
+def decode_status(raw: bytes, *, max_bytes: int) -> ReplayCounters:
+    """A `ReplayStatus` reply, checked: a moved share outside [0, 1] raises `InvalidMessage`
+    naming it (non-finite means read as 0, as `msg_to_counters` says)."""
+    msg = parse_message(raw, pb.ReplayStatus, max_bytes=max_bytes)
+    share = msg.buffer_moved_share
+    if math.isfinite(share) and not 0.0 <= share <= 1.0:
+        raise InvalidMessage(Reason.BAD_VALUE,
+                             f"ReplayStatus.buffer_moved_share {share!r} is not a share in "
+                             "[0, 1]")
+    return msg_to_counters(msg)
 

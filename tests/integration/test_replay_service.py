@@ -55,6 +55,13 @@ def status(client: Transport) -> pb.ReplayStatus:
     return next_replay_status(client, KEYS.status, TIMEOUT)
 
 
+def status_at(client: Transport, batch: pb.Batch) -> pb.ReplayStatus:
+    """The counters when `batch` was drawn, as the learner reads them (`replay/status_at`)."""
+    request = pb.ReplayStatusRequest(schema_version=SCHEMA_VERSION, samples=batch.samples_served)
+    return pb.ReplayStatus.FromString(client.request(KEYS.status_at, request.SerializeToString(),
+                                                     timeout_s=TIMEOUT))
+
+
 def test_config_is_served_for_remote_actors(replay, open_client) -> None:
     raw = open_client().request(KEYS.config, b"", timeout_s=TIMEOUT)
     assert yaml.safe_load(raw)["run"]["method"] == "her-cs"
@@ -118,8 +125,27 @@ def test_rate_limiter_holds_samples_until_inserts_arrive(replay, open_client) ->
     assert status(client).rate_limiter == "holding-samples"
     insert_episodes(client, spec, range(4, 8))  # 4 more episodes: d = −8 + 8 = 0 ≥ −8 + 8, admitted
     assert done.wait(TIMEOUT)
-    assert result[0].request_id == 3 and result[0].status.inserts == 8
+    assert result[0].request_id == 3 and status_at(client, result[0]).inserts == 8
     thread.join()
+    # the counters of each batch's moment, later, on their own channel
+    assert result[0].samples_served == 24 and status_at(client, result[0]).samples == 24
+    assert "status" not in {f.name for f in pb.Batch.DESCRIPTOR.fields}, "no counters inside"
+    late = status(client)
+    assert (late.inserts, late.samples) == (8, 24)
+
+
+def test_status_at_answers_garbage_with_an_error_and_an_unknown_moment_with_now(
+        replay, open_client) -> None:
+    config, _ = replay
+    client = open_client()
+    insert_episodes(client, config.task.spec, range(4))
+    first = sample(client, 2, 1)
+    with pytest.raises(RemoteError, match="ReplayStatusRequest"):
+        client.request(KEYS.status_at, b"\xff\xfe not a message", timeout_s=TIMEOUT)
+    unknown = pb.Batch(samples_served=10**6)
+    now = status_at(client, unknown)
+    assert (now.samples, now.inserts) == (2, 4), "the current counters, which say so"
+    assert status_at(client, first).samples == first.samples_served == 2, "still serving"
 
 
 @pytest.mark.parametrize("replay", [["replay.free_run=true"]], indirect=True, ids=["free-run"])
@@ -136,9 +162,9 @@ def test_cluster_model_relabels_and_balances_batches(replay, open_client) -> Non
     batch = None
     for request_id in range(1, 50):  # until the replay has adopted the model
         batch = sample(client, 8, request_id)
-        if batch.status.cluster_model_version == 1:
+        if status_at(client, batch).cluster_model_version == 1:
             break
-    assert batch is not None and batch.status.cluster_model_version == 1
+    assert batch is not None and status_at(client, batch).cluster_model_version == 1
     draws = np.asarray(batch.cluster_draws)
     assert draws.sum() == 8 * 64
     sizes = np.asarray(status(client).cluster_sizes)

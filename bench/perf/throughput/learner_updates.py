@@ -19,7 +19,7 @@ from hercs.learner.builder import LearnerBuilder
 from hercs.learner.ddpg import DDPGLearner
 from hercs.replay_service.builder import ReplayBuilder
 from hercs.rl.seeding import generator
-from hercs.wire.served import ServedBatch
+from hercs.wire.served import ReplayCounters, ServedBatch
 
 
 def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
@@ -27,8 +27,9 @@ def reference_learner(bench: Harness, batches: Sequence[ServedBatch]
     """A `LearnerLoop` in this process; returns run(seconds) -> (updates, seconds, CPU
     seconds), whole cycles only. One untimed cycle first."""
     config = bench.configs["her"][0]
-    loop = LearnerBuilder(config).loop(DDPGLearner(spec=bench.spec, config=config.ddpg,
-                                                   seed=config.run.seed))
+    loop = LearnerBuilder(config).loop(
+        DDPGLearner(spec=bench.spec, config=config.ddpg, seed=config.run.seed),
+        replay_status=lambda samples: ReplayCounters(samples=samples))  # rows are not timed
     loop.step(batches[0])
     turn = 0
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from hercs.config import HercsConfig
 from hercs.errors import ConfigError, InvalidMessage
@@ -39,7 +39,7 @@ def check_learner_state(state: dict[str, Any], config: HercsConfig, path: Path) 
     _same_run(state.get("config"), config, path)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=config.run.seed)
     parts = LearnerBuilder(config)
-    loop = parts.loop(learner)
+    loop = parts.loop(learner, replay_status=_never_asked)
     try:
         learner.load_state_dict(state["learner"])
         _optimiser_shapes(learner)
@@ -163,3 +163,7 @@ def _check_replay_state(msg: Any, config: HercsConfig, path: Path) -> None:
 def _first_line(exc: BaseException) -> str:
     return (str(exc).strip().splitlines() or [""])[0]
 
+
+def _never_asked(samples: int) -> NoReturn:
+    """A checked checkpoint's loop only loads its state: it never ends an epoch."""
+    raise AssertionError(f"a checkpoint check asked the replay's status ({samples} samples)")

@@ -258,10 +258,8 @@ def make_batch(seed: int, *, n: int = LEARNER_N, b: int = LEARNER_B) -> pb.Batch
     return pb.Batch(schema_version=SCHEMA_VERSION, request_id=seed, minibatches=minibatches,
                     o_stats=stats_to_msg(stats(SPEC.obs_dim, seed)),
                     g_stats=stats_to_msg(stats(SPEC.goal_dim, seed)),
-                    cluster_draws=[int(d) for d in draws],
-                    status=pb.ReplayStatus(cluster_model_version=0, inserts=100 + seed,
-                                           env_steps=5000 + 50 * seed, policy_lag=0.5,
-                                           size_transitions=4242))
+                    cluster_draws=[int(d) for d in draws], samples_served=n * (seed + 1),
+                    buffer_moved_share=0.25)
 
 
 BASE_BATCHES = [make_batch(seed) for seed in range(3)]

@@ -297,7 +297,8 @@ def weights_probes(draw: st.DrawFn, *, evaluate: bool | None = None) -> Probe:
 @st.composite
 def batch_probes(draw: st.DrawFn) -> Probe:
     what = draw(st.sampled_from(["schema", "count", "minibatch", "minibatch", "minibatch",
-                                 "stats", "draws-length", "draws-big", "valid-extreme"]))
+                                 "stats", "draws-length", "draws-big", "moved-share",
+                                 "valid-extreme"]))
     seed = draw(SEEDS)
     rng = np.random.default_rng(seed)
     msg = pb.Batch()
@@ -328,12 +329,14 @@ def batch_probes(draw: st.DrawFn) -> Probe:
     elif what == "draws-big":  # beyond int64: the learner sums draws in an int64 array
         msg.cluster_draws[int(rng.integers(0, K))] = draw(st.integers(2**63, 2**64 - 1))
         expect = "bad_value"
-    else:  # counters as large as their types go, a policy lag that is not a number
+    elif what == "moved-share":  # a share that is no share, or not a number
+        msg.buffer_moved_share = draw(st.sampled_from([np.nan, np.inf, -np.inf, 1.5, -0.1]))
+        expect = "bad_value"
+    else:  # numbers as large as their types go, lags at their extremes
         msg.request_id = draw(st.integers(0, 2**64 - 1))
-        msg.status.inserts = draw(st.integers(0, 2**64 - 1))
-        msg.status.env_steps = draw(st.integers(0, 2**64 - 1))
-        msg.status.cluster_model_version = draw(st.integers(0, 2**64 - 1))
-        msg.status.policy_lag = draw(st.sampled_from([np.nan, np.inf, -np.inf, 1e308, -5.0]))
+        msg.samples_served = draw(st.integers(0, 2**64 - 1))
+        msg.buffer_moved_share = draw(st.sampled_from([0.0, 1.0, 5e-324]))
+        msg.policy_lags[:] = draw(st.lists(st.integers(-2**63, 2**63 - 1), max_size=4))
         del msg.cluster_draws[:]
     return Probe(msg.SerializeToString(), f"batch:{kind}", expect)
 

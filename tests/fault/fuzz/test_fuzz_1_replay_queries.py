@@ -8,7 +8,7 @@ import pytest
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.wire.codec import episode_to_msg, msg_to_array, msg_to_episode
-from hercs.wire.served import decode_served_batch
+from hercs.wire.served import decode_served_batch, decode_status, status_request
 from tests.fault.fuzz.oracles import insert_verdict, parse_verdict, sample_verdict
 from tests.fault.fuzz.probes import (
     BASE_EPISODES,
@@ -21,6 +21,7 @@ from tests.fault.fuzz.runs import (
     KR,
     MAX_BYTES,
     MAX_VALID_SAMPLE_ROWS,
+    REQUEST_TIMEOUT_S,
     RUN_R,
     SPEC,
     VALID,
@@ -112,7 +113,9 @@ def test_replay_sample_rejects_bad_requests_and_serves_valid_ones(world: World) 
                                         num_minibatches=msg.num_minibatches)
             assert pb.Batch.FromString(reply).request_id == msg.request_id
             assert int(batch.cluster_draws.sum()) == msg.num_minibatches * msg.batch_size
-            assert batch.status.cluster_model_version == w.model_oracle.version
+            status = decode_status(w.client.request(KR.status_at, status_request(
+                batch.samples_served), timeout_s=REQUEST_TIMEOUT_S), max_bytes=1 << 16)
+            assert status.cluster_model_version == w.model_oracle.version
         sent(w, "replay/sample", [p for p, _ in keep])
 
     run_barrage(barrage, sample_request_probes(), bases, MAX_BYTES, examples=65)

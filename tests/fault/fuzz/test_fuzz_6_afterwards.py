@@ -11,7 +11,7 @@ import pytest
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
 from hercs.run.runlog import read_cluster_models, read_episode_messages, read_eval_results
-from hercs.wire.served import decode_served_batch
+from hercs.wire.served import decode_served_batch, decode_status, status_request
 from tests.fault.fuzz.probes import base_episode, make_weights
 from tests.fault.fuzz.runs import CYCLES_PER_EPOCH, KR, REQUEST_TIMEOUT_S, RUN_R, SPEC, WAIT_S, K
 from tests.fault.fuzz.world import World, check_clusterer
@@ -41,7 +41,9 @@ def test_after_the_barrage_every_service_serves_valid_input_and_stops_cleanly(
     batch = decode_served_batch(w.client.request(KR.sample, request.SerializeToString(),
                                                  timeout_s=REQUEST_TIMEOUT_S),
                                 spec=SPEC, k=K, batch_size=32, num_minibatches=3)
-    assert batch.status.cluster_model_version == w.model_oracle.version
+    status = decode_status(w.client.request(KR.status_at, status_request(batch.samples_served),
+                                            timeout_s=REQUEST_TIMEOUT_S), max_bytes=1 << 16)
+    assert status.cluster_model_version == w.model_oracle.version
     w.check_replay_counters()
     check_clusterer(w)
     # the actor: valid weights are still adopted

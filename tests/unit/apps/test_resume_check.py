@@ -217,12 +217,14 @@ def test_the_learner_sets_rows_past_its_checkpoint_aside(tmp_path: Path) -> None
     from hercs.learner.ddpg import DDPGLearner
     from hercs.learner.evaluations import EvalRequests
     from hercs.learner.resume import resume_learner_state
+    from hercs.wire.served import ReplayCounters
 
     for checkpoint, kept in ((2, [1, 2]), (None, [])):
         run = tmp_path / f"r{checkpoint}"
         config = make_run(run, epochs=4, trained=3, checkpoint=checkpoint)
         learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
-        loop = LearnerBuilder(config).loop(learner)
+        loop = LearnerBuilder(config).loop(
+            learner, replay_status=lambda samples: ReplayCounters(samples=samples))
         resumed = resume_learner_state(RunDir(run).checkpoints, RunDir(run).metrics,
                                        learner=learner, loop=loop,
                                        eval_requests=EvalRequests(resend_s=60.0))

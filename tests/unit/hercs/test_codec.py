@@ -158,8 +158,7 @@ def test_batch_to_bytes_is_the_message_serialize_to_string_gives(count: int,
                                                                    batch_size: int) -> None:
     minibatches = _random_minibatches(count, batch_size, seed=count)
     fields = {"schema_version": SCHEMA_VERSION, "request_id": 7, "cluster_draws": [3, 0, 5],
-              "status": pb.ReplayStatus(inserts=12, env_steps=600, policy_lag=1.5,
-                                        policy_lag_request=0.25),
+              "samples_served": 40, "buffer_moved_share": 0.25, "policy_lags": [1, -2],
               "o_stats": stats_to_msg({"sum": np.ones(3), "sumsq": np.ones(3), "count": 2.0,
                                        "mean": np.ones(3), "std": np.ones(3)})}
     plain = pb.Batch(**fields, minibatches=[minibatch_to_msg(mb) for mb in minibatches])
@@ -187,7 +186,8 @@ def _sample_of_each_message() -> list:
                          num_minibatches=40, batch_size=256),
         pb.Batch(schema_version=v, request_id=5, minibatches=[pb.Minibatch(o=arr)],
                  o_stats=stats, g_stats=stats, cluster_draws=[32] * 8,
-                 status=pb.ReplayStatus(cluster_model_version=2, inserts=100, env_steps=5000)),
+                 samples_served=40, buffer_moved_share=0.5),
+        pb.ReplayStatusRequest(schema_version=v, samples=40),
         pb.ClusterModel(schema_version=v, version=2, centroids=arr, fitted_on=150,
                         failures_seen=300),
         pb.Weights(schema_version=v, version=7, o_stats=stats, g_stats=stats, epoch=1,

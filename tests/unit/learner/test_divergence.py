@@ -20,7 +20,7 @@ from hercs.learner.loop import LearnerLoop
 from hercs.learner.resume import save_learner_state
 from hercs.rl.normalizer import Normalizer
 from hercs.run.rundir import RunDir
-from hercs.wire.served import ServedBatch
+from hercs.wire.served import ReplayCounters, ServedBatch
 from tests.support import random_transition_batch
 
 HAS_CUDA = torch.cuda.is_available()
@@ -51,7 +51,8 @@ def served(cfg: HercsConfig, seed: int, *, reward: float | None = None) -> Serve
 def learner_and_loop(cfg: HercsConfig, device: str = "cpu", **kwargs: bool
                      ) -> tuple[DDPGLearner, LearnerLoop]:
     learner = DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg, seed=0, device=device, **kwargs)
-    return learner, LearnerBuilder(cfg).loop(learner)
+    return learner, LearnerBuilder(cfg).loop(
+        learner, replay_status=lambda samples: ReplayCounters(samples=samples))
 
 
 def target_weights(learner: DDPGLearner) -> list[torch.Tensor]:

@@ -29,7 +29,8 @@ def config() -> HercsConfig:
 
 
 def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
-    """Batches as the replay serves them, without the moved-goal figures."""
+    """Batches as the replay serves them (one episode stored before each), without the
+    moved-goal figures; each names its moment at the replay (`samples_served`)."""
     table = ReplayBuilder(cfg).table(rng=np.random.default_rng(0))
     rng = np.random.default_rng(1)
     out = []
@@ -38,27 +39,45 @@ def batches(cfg: HercsConfig, n: int) -> list[ServedBatch]:
         served = table.draw(cfg.training.minibatches_per_cycle, cfg.ddpg.batch_size)
         out.append(ServedBatch(
             minibatches=served.minibatches, o_stats=served.o_stats, g_stats=served.g_stats,
-            cluster_draws=served.cluster_draws,
-            status=ReplayCounters(inserts=table.inserts, env_steps=table.env_steps,
-                                  policy_lag=1.5,
-                                  size_transitions=table.store.num_transitions,
-                                  rejects={"non_finite": 2})))
+            cluster_draws=served.cluster_draws, samples_served=served.samples_served))
     return out
 
 
-def loop_of(cfg: HercsConfig, clock: Callable[[], float] = time.monotonic) -> LearnerLoop:
+class FakeReplayStatus:
+    """The replay's counters at each batch's moment, as `batches` stored them (one 50-step
+    episode per batch), with a lag and a reject count of its own; remembers what it was asked."""
+
+    def __init__(self, cfg: HercsConfig) -> None:
+        self.per_batch = cfg.training.minibatches_per_cycle
+        self.asked: list[int] = []
+
+    def __call__(self, samples: int) -> ReplayCounters:
+        self.asked.append(samples)
+        episodes = samples // self.per_batch
+        return ReplayCounters(samples=samples, inserts=episodes, env_steps=50 * episodes,
+                              size_transitions=50 * episodes, policy_lag=1.5,
+                              rejects={"non_finite": 2})
+
+
+def loop_of(cfg: HercsConfig, clock: Callable[[], float] = time.monotonic,
+            replay_status: Callable[[int], ReplayCounters] | None = None) -> LearnerLoop:
     """A fresh loop (and learner) of `cfg`, its arguments unpacked as the builder does."""
     return LearnerLoop(learner=DDPGLearner(spec=cfg.task.spec, config=cfg.ddpg, seed=0),
                        epochs=cfg.training.epochs, cycles_per_epoch=cfg.training.cycles_per_epoch,
-                       clusters=cfg.cluster.k, clock=clock)
+                       clusters=cfg.cluster.k, clock=clock,
+                       replay_status=replay_status or FakeReplayStatus(cfg))
 
 
 def test_epochs_versions_and_rows(tmp_path) -> None:
     cfg = config()
     ticks = iter(range(100))
-    loop = loop_of(cfg, clock=lambda: float(next(ticks)))
-    ended = [loop.step(b).epoch_ended for b in batches(cfg, 6)]
+    status = FakeReplayStatus(cfg)
+    loop = loop_of(cfg, clock=lambda: float(next(ticks)), replay_status=status)
+    served = batches(cfg, 6)
+    ended = [loop.step(b).epoch_ended for b in served]
     assert ended == [None, None, 1, None, None, 2]
+    # once an epoch, for the moment its last batch was drawn
+    assert status.asked == [served[2].samples_served, served[5].samples_served] == [6, 12]
     assert loop.version == 6 and loop.learner.updates == 12 and loop.learner.target_updates == 6
     assert loop.done
     # the replay's counters come from the epoch's last batch
@@ -171,8 +190,7 @@ def test_the_epoch_row_reports_the_lag_distribution_and_moved_shares() -> None:
     for batch, lag, (m, n, share) in zip(batches(cfg, 3), lags, moved, strict=True):
         loop.step(dataclasses.replace(
             batch, policy_lags=np.asarray(lag, np.int64), sampled_moved=m,
-            sampled_transitions=n,
-            status=dataclasses.replace(batch.status, buffer_moved_share=share)))
+            sampled_transitions=n, buffer_moved_share=share))
     row = loop.record_eval(epoch=1, success_rate=0.0, mean_final_distance=0.0)
     every = np.asarray([3, 4, 4, 4, 5, 12])
     assert row["policy_lag_p50"] == np.percentile(every, 50) == 4.0

@@ -196,8 +196,8 @@ def test_policy_lags_against_the_learners_request_and_the_lockstep_schedule() ->
     assert isinstance(got, ServedBatch)
     # mean over the 8 stored: 4 random episodes (version −1) stored while the learner was at
     # 0 → lag 1 each; 4 at version 3 stored while it was at 5 → lag 2 each
-    assert got.status.policy_lag_request == pytest.approx(1.5)
+    assert h.table.status_at(got.samples_served).policy_lag_request == pytest.approx(1.5)
     # against the lockstep schedule (4 episodes per cycle): ids 0–3 belong to cycle 0 (lag
     # 0 − (−1) = 1), ids 4–7 to cycle 1, acted with version 3 (1 − 3 = −2: ahead of the
     # schedule, which reads 0, never below)
-    assert got.status.policy_lag == pytest.approx(0.5)
+    assert h.table.status_at(got.samples_served).policy_lag == pytest.approx(0.5)

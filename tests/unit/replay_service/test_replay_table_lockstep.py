@@ -36,11 +36,11 @@ def test_lockstep_alternates_cycles_exactly_and_refuses_what_it_cannot_use() -> 
     insert_acted(h, 10, 1, actor="b")
     got = request1.results[0]
     assert isinstance(got, ServedBatch)
-    assert got.status.policy_lag == 0.0
+    assert h.table.status_at(got.samples_served).policy_lag == 0.0
     # the older measure takes the learner's version from the requests served so far: cycle
     # 1's episodes were stored before request 1 was served, acted with weights newer than
     # that (0 − 1), which reads 0, never below (hercs.replay_service.policy_lag)
-    assert got.status.policy_lag_request == 0.0
+    assert h.table.status_at(got.samples_served).policy_lag_request == 0.0
     status = h.table.status()
     assert (status.inserts, status.rate_limiter) == (8, "lockstep")
     assert status.rejects == {"stale_policy": 2, "cycle_full": 1}
@@ -63,7 +63,8 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     model = ClusterModel(version=1, centroids=np.zeros((2, 3), np.float32), n_goals=4,
                          failures_seen=4)
     assert h.table.adopt_cluster_model(model, None)
-    assert request.results and request.results[0].status.cluster_model_version == 1
+    assert request.results
+    assert h.table.status_at(request.results[0].samples_served).cluster_model_version == 1
     assert isinstance(h.table.admission, LockstepAdmission)
     assert h.table.admission.late_cluster_models == 0
 
@@ -77,7 +78,8 @@ def test_lockstep_waits_for_the_cluster_model_due_or_for_its_grace_time() -> Non
     retry = h.sample(8, "cycle 1 again", version=1)
     h.clock.now += LOCKSTEP_CLUSTER_WAIT_S - 20
     h.table.expire()  # the service's once-a-second tick
-    assert retry.results and retry.results[0].status.cluster_model_version == 1
+    assert retry.results
+    assert h.table.status_at(retry.results[0].samples_served).cluster_model_version == 1
     assert h.table.admission.late_cluster_models == 1
     request2 = h.sample(8, "cycle 2", version=2)
     for seq in range(8, 12):
