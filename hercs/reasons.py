@@ -69,7 +69,7 @@ class Reason(StrEnum):
     """Zenoh itself answered with an error (not a hercs reply); the detail is its text."""
     ACTOR_QUEUE_FULL = "actor_queue_full", Disposition.RETRY
     """Fair sharing: this actor id already has `replay.waiting_inserts_per_actor` inserts
-    waiting for the rate limiter (hercs.replay_service.waiting_inserts); its backoff slows it."""
+    waiting for the rate limiter (hercs.replay_service.parked_calls); its backoff slows it."""
 
 
 _BY_VALUE: dict[str, Reason] = {r.value: r for r in Reason}

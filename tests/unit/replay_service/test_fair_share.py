@@ -1,7 +1,8 @@
-"""Fair sharing of the insert capacity between actors (hercs.replay_service.waiting_inserts), on the
-ReplayTable without any transport: while the rate limiter holds inserts they are admitted
-round-robin across actor ids, one actor's excess is refused as a retry and comes back, and an
-actor alone is admitted exactly as in arrival order."""
+"""Fair sharing of the insert capacity between actors (WaitingInserts, in
+hercs.replay_service.parked_calls), on the ReplayTable without any transport: while the rate
+limiter holds inserts they are admitted round-robin across actor ids, one actor's excess is
+refused as a retry and comes back, and an actor alone is admitted exactly as in arrival
+order."""
 
 from __future__ import annotations
 
