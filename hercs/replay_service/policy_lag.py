@@ -18,7 +18,7 @@ from hercs.replay_service.lag_bound import PolicyLagBound
 from hercs.replay_service.lockstep import schedule_cycle
 
 POLICY_LAG_WINDOW = 64
-"""Recent episodes whose policy lags are averaged into each served batch's counters."""
+"""Recent episodes whose policy lags are averaged into `ReplayCounters.policy_lag`."""
 POLICY_LAGS_KEPT = 65536
 """At most this many per-episode lags wait for the next sample call (`ServedBatch.policy_lags`);
 the rate limiter keeps far fewer, unless it runs free with no learner sampling."""
