@@ -39,7 +39,8 @@ def make_run(run_dir: Path, *, epochs: int, trained: int, checkpoint: int | None
     save_yaml(config, RunDir(run_dir).config)
     learner = DDPGLearner(spec=config.task.spec, config=config.ddpg, seed=0)
     table = ReplayBuilder(config).table(rng=np.random.default_rng(0))
-    loop = LearnerBuilder(config).loop(learner, replay_status=table.status_at)
+    # in-process, each step follows its draw at once: the table's counters now are that moment's
+    loop = LearnerBuilder(config).loop(learner, replay_status=lambda _samples: table.status())
     rng = np.random.default_rng(1)
     metrics = MetricsCsv(RunDir(run_dir).metrics) if trained else None
     skip = set(unevaluated)

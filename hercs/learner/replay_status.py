@@ -34,8 +34,6 @@ class ReplayStatusClient:
         self.timeout_s = timeout_s
         self.max_bytes = max_bytes
         self.warn = WarnOncePerMinute(log)
-        self.stale = 0
-        """Answers that were the current counters, not the batch's (a restarted replay)."""
 
     def __call__(self, samples: int) -> ReplayCounters:
         """The counters once `samples` minibatches were served. The row cannot be written
@@ -55,8 +53,7 @@ class ReplayStatusClient:
                 self.warn.warn(type(exc).__name__, f"replay status request failed ({exc}); "
                                                    "retrying")
             else:
-                if counters.samples != samples:
-                    self.stale += 1
+                if counters.samples != samples:  # a restarted replay: that moment is gone
                     log.info("the replay no longer holds the counters of %d samples served "
                              "(it has served %d); the row reports the current ones", samples,
                              counters.samples)

@@ -420,9 +420,7 @@ class ReplayTable:
         the normaliser statistics to train them with, and no limiter: an in-process table's
         sample (a bench's, a study's, a test's)."""
         with self._lock:
-            served = self._draw(num_minibatches, batch_size)
-            self._remember_status()
-            return served
+            return self._draw(num_minibatches, batch_size)
 
     def _draw(self, num_minibatches: int, batch_size: int) -> ServedBatch:
         draws = np.zeros(self.clusters, np.int64)
@@ -440,8 +438,7 @@ class ReplayTable:
         o_stats, g_stats = self.normalizers.state()
         return ServedBatch(minibatches=out, o_stats=o_stats, g_stats=g_stats,
                            cluster_draws=draws, sampled_moved=moved, sampled_transitions=sampled,
-                           samples_served=self.samples,
-                           buffer_moved_share=self.store.moved_count / max(self.store.size, 1))
+                           samples_served=self.samples, buffer_moved_share=self._moved_share())
 
     def _serve(self, item: ParkedSample) -> None:
         call = item.call
@@ -564,6 +561,10 @@ class ReplayTable:
         with self._lock:
             return self._counters()
 
+    def _moved_share(self) -> float:
+        """Share of the stored episodes whose achieved goal moved."""
+        return self.store.moved_count / max(self.store.size, 1)
+
     def _remember_status(self) -> None:
         """Keep the counters of the batch just drawn, for `status_at`."""
         self._status_at[self.samples] = self._counters()
@@ -590,7 +591,7 @@ class ReplayTable:
             cluster_model_version=self._model_version(), env_steps=self.env_steps,
             policy_lag=self.lags.mean_schedule_lag,
             policy_lag_request=self.lags.mean_request_lag,
-            buffer_moved_share=store.moved_count / max(store.size, 1),
+            buffer_moved_share=self._moved_share(),
             inserts_waiting=waiting_inserts, samples_waiting=waiting_samples,
         )
 

@@ -146,10 +146,7 @@ def decode_served_batch(raw: bytes, *, spec: TaskSpec, k: int, batch_size: int,
         raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.sampled_moved {msg.sampled_moved} exceeds "
                              f"Batch.sampled_transitions {msg.sampled_transitions}")
-    share = msg.buffer_moved_share
-    if not 0.0 <= share <= 1.0:
-        raise InvalidMessage(Reason.BAD_VALUE,
-                             f"Batch.buffer_moved_share {share!r} is not a share in [0, 1]")
+    share = checked_share(msg.buffer_moved_share, where="Batch.buffer_moved_share")
     if any(d > MAX_INT64 for d in msg.cluster_draws):  # they are summed in an int64 array
         raise InvalidMessage(Reason.BAD_VALUE,
                              f"Batch.cluster_draws: {list(msg.cluster_draws)} holds a value "
@@ -169,13 +166,16 @@ def status_request(samples: int) -> bytes:
 
 
 def decode_status(raw: bytes, *, max_bytes: int) -> ReplayCounters:
-    """A `ReplayStatus` reply, checked: a moved share outside [0, 1] raises `InvalidMessage`
-    naming it (non-finite means read as 0, as `msg_to_counters` says)."""
+    """A `ReplayStatus` reply, checked: a moved share that is not a share in [0, 1] raises
+    `InvalidMessage` naming it, as it did when these counters rode in the `Batch`."""
     msg = parse_message(raw, pb.ReplayStatus, max_bytes=max_bytes)
-    share = msg.buffer_moved_share
-    if math.isfinite(share) and not 0.0 <= share <= 1.0:
-        raise InvalidMessage(Reason.BAD_VALUE,
-                             f"ReplayStatus.buffer_moved_share {share!r} is not a share in "
-                             "[0, 1]")
+    checked_share(msg.buffer_moved_share, where="ReplayStatus.buffer_moved_share")
     return msg_to_counters(msg)
+
+
+def checked_share(share: float, *, where: str) -> float:
+    """`share` if it is a share in [0, 1] (NaN is not), else `InvalidMessage` naming `where`."""
+    if not 0.0 <= share <= 1.0:
+        raise InvalidMessage(Reason.BAD_VALUE, f"{where} {share!r} is not a share in [0, 1]")
+    return share
 

@@ -99,13 +99,11 @@ class LearnerRunReplay:
         self._stop = threading.Event()
         transport.serve_deferred(KL.sample, self._requests.put)
         transport.serve(KL.status_at, self._status_at)
-        self.status_requests = 0
         self._thread = threading.Thread(target=self._serve, name="fz-sampler", daemon=True)
         self._thread.start()
 
     def _status_at(self, raw: bytes) -> bytes:
         """`replay/status_at`: the counters of the moment the learner names (its epoch row)."""
-        self.status_requests += 1
         samples = pb.ReplayStatusRequest.FromString(raw).samples
         return pb.ReplayStatus(schema_version=SCHEMA_VERSION, samples=samples, inserts=100,
                                env_steps=5000, size_transitions=4242).SerializeToString()

@@ -81,6 +81,9 @@ def test_the_counters_travel_on_their_own_channel_and_come_back_as_sent() -> Non
     bad.buffer_moved_share = 2.0
     with pytest.raises(InvalidMessage, match=r"ReplayStatus\.buffer_moved_share 2\.0 is not"):
         decode_status(bad.SerializeToString(), max_bytes=1 << 16)
+    bad.buffer_moved_share = float("nan")
+    with pytest.raises(InvalidMessage, match=r"ReplayStatus\.buffer_moved_share nan is not"):
+        decode_status(bad.SerializeToString(), max_bytes=1 << 16)
     with pytest.raises(InvalidMessage):
         decode_status(b"\xff\xff garbage", max_bytes=1 << 16)
     with pytest.raises(InvalidMessage):
