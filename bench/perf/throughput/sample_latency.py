@@ -36,8 +36,11 @@ def sample_over_zenoh(bench: Harness, method: str) -> list[float]:
         if len(batch.minibatches) != p.sample_minibatches:
             raise BenchError(f"{method}: a Batch of {len(batch.minibatches)} minibatches, "
                              f"asked for {p.sample_minibatches}")
-        if method.endswith("-cs") and batch.status.cluster_model_version < 1:
-            raise BenchError(f"{method}: the replay sampled without a cluster model")
+        # Episodes without a cluster label are not counted in cluster_draws, so a Batch
+        # drawn before the replay adopted a model counts none.
+        if bench.configs[method][0].run.uses_clusters and sum(batch.cluster_draws) == 0:
+            raise BenchError(f"{method}: the replay sampled without a cluster model "
+                             f"(Batch.cluster_draws {list(batch.cluster_draws)})")
         if i >= p.sample_warmup_requests:
             out.append(elapsed)
     return out
