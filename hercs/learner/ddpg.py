@@ -173,6 +173,13 @@ class DDPGLearner:
         self._loss_count += 1
         self.updates += 1
 
+    def count_update(self, losses: torch.Tensor) -> None:
+        """An update done for this learner elsewhere (a stack's slot, hercs.learner.stacked):
+        its `LOSS_NAMES` row added to the sums `loss_means` reads, and the update counted."""
+        self.loss_sums += losses.to(self.loss_sums)
+        self._loss_count += 1
+        self.updates += 1
+
     def check_finite(self, *, first_update: int) -> None:
         """Raise `Diverged` if a loss of the updates since the last epoch end, or a parameter of
         μ or Q, is not finite, naming which; the caller says which update its last check

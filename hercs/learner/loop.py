@@ -126,11 +126,21 @@ class LearnerLoop:
             # before the targets average the weights in and before anyone publishes them
             self.learner.check_finite(first_update=first_update)
         except Diverged as exc:
-            cycles = self.cycles_per_epoch
-            raise Diverged(f"training diverged in epoch {self.epoch + 1}, cycle "
-                           f"{self.cycle % cycles + 1} of {cycles} (the run's cycle "
-                           f"{self.cycle + 1}), {exc}") from None
+            raise self.diverged(exc) from None
         self.learner.update_targets()
+        return self.account(batch)
+
+    def diverged(self, exc: Diverged) -> Diverged:
+        """`exc` (what turned non-finite in the learner) placed in this cycle of the run."""
+        cycles = self.cycles_per_epoch
+        return Diverged(f"training diverged in epoch {self.epoch + 1}, cycle "
+                        f"{self.cycle % cycles + 1} of {cycles} (the run's cycle "
+                        f"{self.cycle + 1}), {exc}")
+
+    def account(self, batch: ServedBatch) -> CycleResult:
+        """The cycle's bookkeeping once its updates and the targets' are done (by `step`, or
+        by a stack of learners, hercs.learner.stacked_cells): a new version, the epoch's
+        draws, lags and moved shares, and the epoch's snapshot when it ends."""
         self.version += 1
         self.cycle += 1
         if batch.cluster_draws.shape == self._epoch_draws.shape:

@@ -11,9 +11,10 @@ learner)` writes slot k back, so a slot's checkpoint is a lone learner's (hercs.
 and a stacked cell resumes alone or a lone one joins. The stack does no host synchronisation;
 its caller reads the losses.
 
-On this repository's 2-core AMD CPU (avx2, no bf16 GEMM) stacking buys nothing in fp32, as the
-issue measured on an AMX Xeon; the gain there was bf16 autocast on stacked GEMMs (bench/perf/
-stacked_learner.py measures both).
+Stacking buys little in fp32 (1.05-1.18x on an AVX2 EPYC and on an AMX Xeon); the gain is bf16
+autocast on stacked GEMMs where the CPU multiplies bf16 natively (1.79x at K = 4 on the Xeon,
+0.15x on the EPYC, which has no bf16 GEMM; bench/perf/stacked_learner.py, docs/PERFORMANCE.md).
+hercs.learner.stacked_cells runs the cells' loops around one stack.
 """
 
 from __future__ import annotations
@@ -212,6 +213,19 @@ class StackedDDPG:
             stacked.store(k, net)
         for optim, state, params in optims:
             optim.store(k, state, params)
+
+    def store_actor(self, k: int, learner: DDPGLearner) -> None:
+        """Slot k's actor μ alone written into `learner` (what a weights broadcast reads),
+        cheaper than `store_learner` once a cycle."""
+        self.actor.store(k, learner.actor.net)
+
+    @torch.no_grad()
+    def nonfinite_slots(self) -> list[int]:
+        """The slots with a non-finite parameter in μ or Q (one reduction per tensor)."""
+        bad = torch.zeros(self.slots, dtype=torch.bool)
+        for tensor in (*self.actor.parameters(), *self.critic.parameters()):
+            bad |= ~torch.isfinite(tensor).flatten(1).all(dim=1)
+        return [k for k in range(self.slots) if bool(bad[k])]
 
     # -- the update ------------------------------------------------------------------------
     def _autocast(self) -> torch.autocast:
