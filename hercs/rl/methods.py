@@ -11,7 +11,7 @@ from hercs.errors import ConfigError
 from hercs.rl.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
-    EnergySampler,
+    EnergyPrioritisedSampler,
     EpisodeSampler,
     Needs,
     SamplerSettings,
@@ -36,7 +36,7 @@ class Method:
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("her", "HER", UniformSampler),
     Method("her-cs", "HER-CS", ClusterBalancedSampler),
-    Method("her-ebp", "HER-EBP", EnergySampler),
+    Method("her-ebp", "HER-EBP", EnergyPrioritisedSampler),
     Method("her-ebp-cs", "HER-EBP-CS", EnergyClusterSampler),
 )}
 """In the paper's order: HER, then with cluster-balanced shares (HER-CS), with energy-based

@@ -17,13 +17,13 @@ from hercs.rl.samplers.base import (
 )
 from hercs.rl.samplers.cluster_balanced import ClusterBalancedSampler
 from hercs.rl.samplers.energy_cluster import EnergyClusterSampler
-from hercs.rl.samplers.energy_prioritised import EnergySampler
+from hercs.rl.samplers.energy_prioritised import EnergyPrioritisedSampler
 from hercs.rl.samplers.uniform import UniformSampler
 
 __all__ = [
     "ClusterBalancedSampler",
     "EnergyClusterSampler",
-    "EnergySampler",
+    "EnergyPrioritisedSampler",
     "EpisodeSampler",
     "Needs",
     "SampleInfo",

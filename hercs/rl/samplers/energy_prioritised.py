@@ -24,7 +24,7 @@ from hercs.rl.samplers.base import (
 from hercs.rl.samplers.sampling_index import WHOLE_BUFFER
 
 
-class EnergySampler:
+class EnergyPrioritisedSampler:
     """p(slot) = (e_slot + ε) / Σ (e + ε). Stateless."""
 
     needs: ClassVar[Needs] = Needs(energy=True)

@@ -21,7 +21,7 @@ from hercs.rl.methods import METHODS, make_sampler
 from hercs.rl.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
-    EnergySampler,
+    EnergyPrioritisedSampler,
     UniformSampler,
 )
 from hercs.rl.samplers.cluster_balanced import plan_shares
@@ -130,7 +130,7 @@ def test_energy_sampler_frequencies_are_proportional_to_energy() -> None:
     energy = rng.uniform(0.05, 2.0, size=200)
     energy[17] = 0.0
     store = _store(np.full(200, -1, np.int32), energy)
-    counts, _ = _draw_counts(EnergySampler(epsilon=EPS), store, 256, 800, seed=2)
+    counts, _ = _draw_counts(EnergyPrioritisedSampler(epsilon=EPS), store, 256, 800, seed=2)
     p = (energy + EPS) / (energy + EPS).sum()
     drawable = energy > 0
     total = counts.sum()
@@ -140,7 +140,7 @@ def test_energy_sampler_frequencies_are_proportional_to_energy() -> None:
 
 def test_energy_sampler_all_zero_energy_is_uniform() -> None:
     store = _store(np.full(200, -1, np.int32), np.zeros(200))
-    counts, _ = _draw_counts(EnergySampler(epsilon=EPS), store, 256, 800, seed=3)
+    counts, _ = _draw_counts(EnergyPrioritisedSampler(epsilon=EPS), store, 256, 800, seed=3)
     assert _chi2(counts, np.full(200, counts.sum() / 200)) < _chi2_9999(199)
 
 
@@ -289,7 +289,8 @@ def test_energy_temperature_raises_energies_to_the_reference_exponent() -> None:
     energy = np.random.default_rng(12).uniform(0.05, 1.0, size=150)
     store = _store(np.full(150, -1, np.int32), energy)
     exponent = 1 / (0.2 + 0.01)
-    counts, _ = _draw_counts(EnergySampler(epsilon=EPS, exponent=exponent), store, 256, 800, 13)
+    sampler = EnergyPrioritisedSampler(epsilon=EPS, exponent=exponent)
+    counts, _ = _draw_counts(sampler, store, 256, 800, 13)
     p = (energy**exponent + EPS) / (energy**exponent + EPS).sum()
     assert _chi2(counts, counts.sum() * p) < _chi2_9999(149)
     linear = (energy + EPS) / (energy + EPS).sum()
@@ -321,7 +322,7 @@ def test_energy_cluster_with_uniform_fill_draws_members_uniformly() -> None:
 
 @pytest.mark.parametrize(
     "sampler",
-    [UniformSampler(), EnergySampler(epsilon=EPS), ClusterBalancedSampler(K),
+    [UniformSampler(), EnergyPrioritisedSampler(epsilon=EPS), ClusterBalancedSampler(K),
      EnergyClusterSampler(K, epsilon=EPS)],
     ids=["her", "her-ebp", "her-cs", "her-ebp-cs"],
 )
@@ -347,7 +348,7 @@ def test_label_from_a_bigger_model_is_refused(sampler) -> None:
     [
         (lambda: ClusterBalancedSampler(0), "cluster.k: got 0"),
         (lambda: ClusterBalancedSampler(K, small_cluster_repeat=0), "repeat: got 0"),
-        (lambda: EnergySampler(epsilon=0.0), "epsilon: got 0.0"),
+        (lambda: EnergyPrioritisedSampler(epsilon=0.0), "epsilon: got 0.0"),
         (lambda: EnergyClusterSampler(K, epsilon=-1.0), "epsilon: got -1.0"),
     ],
     ids=["k-zero", "repeat-zero", "ebp-eps-zero", "ebp-cs-eps-negative"],
@@ -360,7 +361,7 @@ def test_constructor_errors_name_the_value(make, match: str) -> None:
 @pytest.mark.parametrize(
     ("method", "cls"),
     [("her", UniformSampler), ("her-cs", ClusterBalancedSampler),
-     ("her-ebp", EnergySampler), ("her-ebp-cs", EnergyClusterSampler)],
+     ("her-ebp", EnergyPrioritisedSampler), ("her-ebp-cs", EnergyClusterSampler)],
     ids=["her", "her-cs", "her-ebp", "her-ebp-cs"],
 )
 def test_make_sampler_maps_methods_with_config_values(method: str, cls: type) -> None:
@@ -379,7 +380,7 @@ def test_make_sampler_maps_methods_with_config_values(method: str, cls: type) ->
 
 def test_every_method_has_a_sampler_of_its_kind() -> None:
     kinds = {(True, True): EnergyClusterSampler, (True, False): ClusterBalancedSampler,
-             (False, True): EnergySampler, (False, False): UniformSampler}
+             (False, True): EnergyPrioritisedSampler, (False, False): UniformSampler}
     for name, method in METHODS.items():
         sampler = make_sampler(name, HercsConfig().sampler_settings)
         assert type(sampler) is kinds[method.needs.clusters, method.needs.energy], name

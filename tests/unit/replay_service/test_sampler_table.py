@@ -15,7 +15,7 @@ from hercs.rl.methods import METHODS, Method, make_sampler
 from hercs.rl.samplers import (
     ClusterBalancedSampler,
     EnergyClusterSampler,
-    EnergySampler,
+    EnergyPrioritisedSampler,
     Needs,
     SamplerSettings,
     UniformSampler,
@@ -29,7 +29,7 @@ def test_each_method_is_its_sampler_and_needs_what_the_sampler_reads() -> None:
     assert {name: (m.sampler, m.needs) for name, m in METHODS.items()} == {
         "her": (UniformSampler, Needs()),
         "her-cs": (ClusterBalancedSampler, Needs(clusters=True)),
-        "her-ebp": (EnergySampler, Needs(energy=True)),
+        "her-ebp": (EnergyPrioritisedSampler, Needs(energy=True)),
         "her-ebp-cs": (EnergyClusterSampler, Needs(clusters=True, energy=True)),
     }
 
