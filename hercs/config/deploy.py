@@ -131,8 +131,15 @@ class LaunchConfig:
     service's restart or a network cut of a minute without a false alarm: the chaos soaks'
     slowest epochs, with a kill or a cut in them, took 1.5x their median [DESIGN]. 0: never
     (a learner held in a debugger)."""
+    learner_elsewhere: bool = False
+    """`hercs up` starts no learner: the run's learner is a process of its own that joins the
+    run over the router, as a stacked learner serving several runs does (`hercs learner
+    --stack`, `hercs sweep --stacked`). The run ends when that learner says it finished (its
+    `RunProgress`), and with status 4 when it says the run's training diverged."""
 
     def __post_init__(self) -> None:
+        _check(isinstance(self.learner_elsewhere, bool), "launch.learner_elsewhere",
+               self.learner_elsewhere, "be true or false")
         _check(self.max_restarts >= 0, "launch.max_restarts", self.max_restarts, "be >= 0")
         _positive("launch.restart_backoff_s", self.restart_backoff_s)
         _check(self.stall_factor == 0 or self.stall_factor >= 2, "launch.stall_factor",

@@ -86,11 +86,11 @@ class LearnerService:
                                        config_record=self.settings.config_record)
         except Diverged as exc:
             raise Diverged(f"training diverged by the end of epoch {self.loop.epoch}: {exc}; "
-                           f"{self._kept_checkpoint()}") from None
+                           f"{self.kept_checkpoint()}") from None
         if saved:
             self.checkpointed_epoch = self.loop.epoch
 
-    def _kept_checkpoint(self) -> str:
+    def kept_checkpoint(self) -> str:
         """What a diverged learner leaves to continue from, and how."""
         if self.checkpointed_epoch is None:
             return ("no checkpoint was written before it; start a new run with other "
@@ -213,7 +213,7 @@ class LearnerService:
             try:
                 result = self.loop.step(batch)
             except Diverged as exc:  # nothing of this cycle is published or saved
-                raise Diverged(f"{exc}; {self._kept_checkpoint()}") from None
+                raise Diverged(f"{exc}; {self.kept_checkpoint()}") from None
             except Stopping:  # at an epoch's end, before its row or checkpoint: redone on resume
                 return 0
             self.publish_weights(evaluate=result.epoch_ended is not None,

@@ -83,6 +83,8 @@ class Prefetcher:
         """Minibatches received and kept: each request tells the replay (SampleRequest)."""
         self.incarnation = f"{runtime.ident}@{time.time_ns()}"
         self.waiting_s = 0.0
+        self._credit_returned = False
+        """`take`: the credit of the batch it waits for was given back."""
         self.bad_batches: Counter[str] = Counter()
         """Batch replies skipped because they failed validation, by reason."""
         self._thread = runtime.start_thread(self._run, name="prefetch")
@@ -169,6 +171,25 @@ class Prefetcher:
         self.samples_kept += len(batch.minibatches)
         self.batches.put(batch)
         return True
+
+    def take(self, timeout_s: float) -> ServedBatch | None:
+        """The next batch if one is here within `timeout_s`, else None (a stacked learner's
+        poll of each of its cells: hercs.learner.stacked_shell). The credit for the batch
+        after the ones sampled is given back once per batch taken, however often it polls;
+        time spent waiting adds to `waiting_s`."""
+        if not self._credit_returned:
+            self._credits.release()
+            self._credit_returned = True
+        started = time.monotonic()
+        try:
+            batch = self.batches.get(timeout=timeout_s) if timeout_s > 0 \
+                else self.batches.get_nowait()
+        except queue.Empty:
+            return None
+        finally:
+            self.waiting_s += time.monotonic() - started
+        self._credit_returned = False
+        return batch
 
     def get(self) -> ServedBatch | None:
         """The next batch, or None once the service is stopping. Time spent waiting for one

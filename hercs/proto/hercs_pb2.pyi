@@ -303,7 +303,7 @@ class Reject(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., reason: _Optional[str] = ..., detail: _Optional[str] = ...) -> None: ...
 
 class RunProgress(_message.Message):
-    __slots__ = ("schema_version", "epoch", "epochs", "finished", "cycle", "cycles_per_epoch", "updates")
+    __slots__ = ("schema_version", "epoch", "epochs", "finished", "cycle", "cycles_per_epoch", "updates", "diverged")
     SCHEMA_VERSION_FIELD_NUMBER: _ClassVar[int]
     EPOCH_FIELD_NUMBER: _ClassVar[int]
     EPOCHS_FIELD_NUMBER: _ClassVar[int]
@@ -311,6 +311,7 @@ class RunProgress(_message.Message):
     CYCLE_FIELD_NUMBER: _ClassVar[int]
     CYCLES_PER_EPOCH_FIELD_NUMBER: _ClassVar[int]
     UPDATES_FIELD_NUMBER: _ClassVar[int]
+    DIVERGED_FIELD_NUMBER: _ClassVar[int]
     schema_version: int
     epoch: int
     epochs: int
@@ -318,7 +319,8 @@ class RunProgress(_message.Message):
     cycle: int
     cycles_per_epoch: int
     updates: int
-    def __init__(self, schema_version: _Optional[int] = ..., epoch: _Optional[int] = ..., epochs: _Optional[int] = ..., finished: _Optional[bool] = ..., cycle: _Optional[int] = ..., cycles_per_epoch: _Optional[int] = ..., updates: _Optional[int] = ...) -> None: ...
+    diverged: bool
+    def __init__(self, schema_version: _Optional[int] = ..., epoch: _Optional[int] = ..., epochs: _Optional[int] = ..., finished: _Optional[bool] = ..., cycle: _Optional[int] = ..., cycles_per_epoch: _Optional[int] = ..., updates: _Optional[int] = ..., diverged: _Optional[bool] = ...) -> None: ...
 
 class ClustererStateRequest(_message.Message):
     __slots__ = ("schema_version",)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import yaml
 
@@ -21,7 +22,7 @@ from hercs.apps.cli.config_flags import (
     resolve_config,
     trust_named_tasks,
 )
-from hercs.apps.cli.services import Command, service_command
+from hercs.apps.cli.services import Command, exit_after_close, service_command
 from hercs.apps.output_paths import OutputPathError, check_outputs
 from hercs.apps.plots.curves import BANDS, DEFAULT_BAND
 from hercs.apps.tracking.flags import add_track_argument
@@ -201,6 +202,18 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
         commands[name] = service_command(role.module)
 
     p = sub.add_parser(
+        "learner-stack", help="one learner process training several runs, their updates "
+                              "stacked (runs started with launch.learner_elsewhere)",
+        description="Trains each run to its end in this one process, all their DDPG updates "
+                    "as one stacked update (each run keeps its weights, batches, checkpoints "
+                    "and metrics; a run's checkpoint resumes with a lone learner too). Start "
+                    "each run first with `hercs up ... --set launch.learner_elsewhere=true`. "
+                    "Example: hercs learner-stack runs/push-her-s1 runs/push-her-s2")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR",
+                   help="the runs' folders (each holds the config.yaml its hercs up wrote)")
+    p.add_argument("--id", dest="ident", help="process id (default: learner-stack)")
+
+    p = sub.add_parser(
         "sweep", help="a grid of runs (tasks × methods × seeds × variants), resumable, locally "
                       "or as a Slurm job array; `hercs sweep report` its curves and claims table",
         description="hercs sweep [OPTIONS] runs the grid; hercs sweep report RUN_DIR writes "
@@ -312,6 +325,17 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Command]]:
     return parser, commands
 
 
+def _cmd_learner_stack(args: argparse.Namespace) -> int:
+    from hercs.learner.stacked_shell import run as run_stack
+
+    try:
+        code = run_stack([Path(d) for d in args.run_dirs], ident=args.ident)
+    except ConfigError as exc:
+        print(f"hercs learner-stack: {exc}", file=sys.stderr)
+        return 2
+    exit_after_close(code)
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from hercs.apps.evaluation.policy_eval import run_eval
 
@@ -357,7 +381,8 @@ def _needs_extras(command: Callable[[argparse.Namespace], int]
 # Commands that read existing run directories or make files, and need no config.
 NO_CONFIG_COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "plot": _needs_extras(_cmd_plot), "view": _needs_extras(_cmd_view), "certs": _cmd_certs,
-    "eval": _needs_extras(_cmd_eval), "sweep": _needs_extras(_cmd_sweep), "zoo": _cmd_zoo}
+    "eval": _needs_extras(_cmd_eval), "sweep": _needs_extras(_cmd_sweep), "zoo": _cmd_zoo,
+    "learner-stack": _cmd_learner_stack}
 
 
 ENV_COMMANDS = frozenset({"up", "actor", "evaluator"})

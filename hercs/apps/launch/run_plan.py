@@ -39,9 +39,11 @@ def child_argv(spec: ChildSpec, config_path: Path) -> list[str]:
 
 
 def plan_children(config: HercsConfig) -> list[ChildSpec]:
-    """Every child of a run, in start order (the live view only with `view.live`)."""
+    """Every child of a run, in start order (the live view only with `view.live`, the
+    learner not with `launch.learner_elsewhere`)."""
     roles = [r.name for r in SERVICE_ROLES.values()  # in start order
-             if not r.actor_node and (not r.optional or config.view.live)]
+             if not r.actor_node and (not r.optional or config.view.live)
+             and not (r.name == "learner" and config.launch.learner_elsewhere)]
     specs = [ChildSpec(role, f"{role}-0") for role in roles]
     specs += [ChildSpec("actor", f"actor-{i}") for i in range(config.actor.num_actors)]
     return specs

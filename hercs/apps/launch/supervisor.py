@@ -61,6 +61,14 @@ LIVE_REDRAW_S = 0.1
 _POLL_S = 1.0
 
 
+@dataclass(frozen=True)
+class RunProgressEnd:
+    """The last `RunProgress` of a learner that `hercs up` did not start."""
+
+    diverged: bool
+    epoch: int
+
+
 @dataclass
 class Child:
     spec: ChildSpec
@@ -104,6 +112,9 @@ class Supervisor:
                                 first_epoch_s=expected_first_epoch_s(self.config))
         self._print_lock = threading.RLock()
         self._ours = {self.keys.alive(s.role, s.ident) for s in plan_children(self.config)}
+        self.learner_ended: RunProgressEnd | None = None
+        """With `launch.learner_elsewhere`: how the run's learner, a process not ours, said
+        the run ended (None while it trains)."""
 
     # ------------------------------------------------------------------ output
 
@@ -164,6 +175,9 @@ class Supervisor:
                 # each epoch's first and last cycle always, others at most LIVE_REDRAW_S apart
                 status = self.progress.live_status()
                 self._draw_live(force=status.cycle in (1, status.cycles_per_epoch))
+            if self.config.launch.learner_elsewhere and (msg.finished or msg.diverged):
+                self.learner_ended = RunProgressEnd(diverged=msg.diverged, epoch=int(msg.epoch))
+                self.signals.wake()
 
     def _draw_live(self, *, force: bool) -> None:
         """Redraw the live line (a terminal's), unless it was drawn under `LIVE_REDRAW_S` ago
@@ -225,6 +239,14 @@ class Supervisor:
         the learner is done; 1 if a child died more often than `launch.max_restarts` or
         refused its configuration; `EXIT_DIVERGED` if the learner's training diverged."""
         self._reap_optional()
+        ended = self.learner_ended
+        if ended is not None and ended.diverged:
+            self.say(f"hercs up: the run's learner (not started here: launch.learner_elsewhere) "
+                     f"says its training diverged after epoch {ended.epoch}; its own log says "
+                     "where and what is kept, so the run stops", error=True)
+            return EXIT_DIVERGED
+        if ended is not None:
+            return 0
         exited = [(c, code) for c in self.children
                   if not c.expected_exit and (code := c.proc.poll()) is not None]
         for child, code in exited:

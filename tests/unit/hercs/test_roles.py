@@ -33,3 +33,9 @@ def test_hercs_up_starts_the_replay_first_and_stops_it_last() -> None:
 
 def test_every_role_has_its_grants() -> None:
     assert set(ROLE_GRANTS) == set(ROLES)
+
+
+def test_a_run_whose_learner_is_elsewhere_starts_none() -> None:
+    config = apply_overrides(HercsConfig(), ["launch.learner_elsewhere=true"])
+    assert [s.role for s in plan_children(config)] == ["replay", "clusterer", "evaluator",
+                                                       "actor"]
