@@ -265,8 +265,17 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
     # found once it serves, a silent one cannot make us spin, and the request still waits its
     # whole timeout (three quick empty gets once gave up in milliseconds, "within 30 s").
     pause = 0.0
+    silent = False  # a queryable matched and let a get end unanswered
     while True:
-        reply = _get_one(session, key, payload, deadline=deadline, timeout_s=timeout_s)
+        try:
+            reply = _get_one(session, key, payload, deadline=deadline, timeout_s=timeout_s)
+        except TransportTimeout as exc:
+            if not silent or exc.no_queryable:
+                raise
+            # the last get to a queryable that never answered ran into the deadline before
+            # its empty answer came (a loaded machine: later than _LAST_GET_S): still silent
+            raise TransportTimeout(key, timeout_s, "no queryable answered",
+                                   no_queryable=True) from None
         if reply is not None:
             return reply
         if session.is_closed():
@@ -279,8 +288,9 @@ def request(session: zenoh.Session, key: str, payload: bytes, *, timeout_s: floa
         if found is None:
             raise TransportTimeout(key, timeout_s, "no queryable appeared", no_queryable=True)
         if found == "appeared":  # a new queryable: ask it at once
-            pause = 0.0
+            pause, silent = 0.0, False
         else:
+            silent = True
             remaining = deadline - time.monotonic()
             if remaining < _LAST_GET_S:
                 # a get this short may end in Zenoh's own timeout before the silent

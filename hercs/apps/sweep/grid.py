@@ -33,6 +33,7 @@ from hercs.apps.sweep.cells import (
     plan_grid,
     write_manifest,
 )
+from hercs.apps.sweep.learner_stack import LEARNER_ELSEWHERE
 from hercs.apps.sweep.report import main_report, write_reports
 from hercs.apps.sweep.runner import run_grid
 from hercs.apps.sweep.slurm_array import run_one_cell, submit_slurm
@@ -101,6 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=None,
                    help="runs at once (default: one per core)")
     p.add_argument("--actors", type=int, default=1, help="actors per run (default 1)")
+    p.add_argument("--stacked", action="store_true",
+                   help="the runs' learners as one process (hercs learner-stack), their "
+                        "updates stacked: runs go in waves of --jobs, each a run of its own "
+                        "(replay, actors, evaluator, checkpoints, metrics) but its learner "
+                        "(docs/PERFORMANCE.md, the stacked learner)")
     p.add_argument("--set", dest="overrides", action="append", default=[],
                    metavar="SECTION.FIELD=VALUE", help="config override for every run")
     p.add_argument("--run-dir", default=None,
@@ -187,7 +193,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     tasks = list(dict.fromkeys(tasks))
     methods = list(dict.fromkeys(args.methods))
     epochs = args.epochs or (1 if args.quick else 100)
-    overrides = list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
+    overrides = (list(args.overrides) + (list(QUICK_OVERRIDES) if args.quick else [])
+                 + ([LEARNER_ELSEWHERE] if args.stacked else []))
+    if args.stacked and (args.slurm or args.cell_index is not None):
+        return _fail("--stacked runs a wave of --jobs runs here with one learner process; a "
+                     "Slurm array runs each cell on its own node (drop one of them)")
     tmp = (tempfile.mkdtemp(prefix="hercs-sweep-")
            if args.quick and not args.run_dir and not args.dry_run else None)
     # --quick without --run-dir gets here only in a dry run, which makes no temporary folder
@@ -267,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             results = run_grid(cells, run_root=run_root, epochs=epochs, jobs=jobs,
                                actors=args.actors, overrides=overrides, committed=committed,
-                               command=command)
+                               command=command, stacked=args.stacked)
         except KeyboardInterrupt:
             print(f"{PROG}: stopped; the same command resumes it", flush=True)
             return 130

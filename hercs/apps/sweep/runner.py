@@ -26,6 +26,7 @@ from hercs.apps.sweep.cells import (
     up_command,
     write_manifest,
 )
+from hercs.apps.sweep.learner_stack import WaveLearner
 from hercs.apps.sweep.tally import SweepTally
 
 LOG_DIR = "_logs"
@@ -53,7 +54,8 @@ def started_commit(run_root: Path, name: str) -> str:
 
 def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int, actors: int,
              overrides: Sequence[str], committed: Path | None = None, command: str = "",
-             sweep: Sequence[GridRun] | None = None) -> list[tuple[GridRun, int]]:
+             sweep: Sequence[GridRun] | None = None,
+             stacked: bool = False) -> list[tuple[GridRun, int]]:
     """Train every unfinished cell, `jobs` at a time; returns (cell, exit code) per run started.
 
     A run that exits 0 gets `bench_done.json` (the env id it trained on, command, wall time of
@@ -62,7 +64,10 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     with `hercs up --resume` (its epochs already trained are kept). A run finished with fewer
     than `epochs` is continued the same way to `epochs`; its new record adds the earlier
     one's wall time and says how many epochs it had (`grown_from_epochs`). The manifest lists
-    `sweep`'s cells (default: `cells`; a Slurm array task runs one cell of the sweep)."""
+    `sweep`'s cells (default: `cells`; a Slurm array task runs one cell of the sweep).
+
+    `stacked`: the cells run in waves of `jobs`, whose learners are one `hercs learner-stack`
+    process (hercs.apps.sweep.learner_stack); `overrides` then hold its LEARNER_ELSEWHERE."""
     run_root.mkdir(parents=True, exist_ok=True)
     (run_root / LOG_DIR).mkdir(exist_ok=True)
     todo: list[GridRun] = []
@@ -115,9 +120,12 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
     commit = git_commit()  # the code the runs train with (the report may be written later)
     machine = machine_identity()  # runs differ across CPUs even with one seed (DESIGN §10)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    wave = WaveLearner(run_root / LOG_DIR, env) if stacked else None
     try:
         while todo or running:
-            while todo and len(running) < jobs:
+            wave_open = wave is None or not running  # a stacked sweep's next wave: all ended
+            wave_since, wave_cells = time.time(), []
+            while todo and len(running) < jobs and wave_open:
                 cell = todo.pop(0)
                 # port 0: the router takes a free one itself (a port found free here could be
                 # taken before `hercs up` binds it); router.json records it
@@ -136,6 +144,12 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
                 manifest()
                 print(f"[start] {cell.name}: {' '.join(cmd[1:])}", flush=True)
                 say_tally()
+                wave_cells.append(run_root / cell.name)
+            if wave is not None and wave_cells:
+                wave.start_when_ready(wave_cells, wave_since, any_alive=lambda: any(
+                    r.proc.poll() is None for r in running))
+            if wave is not None:
+                wave.watch([run_root / r.cell.name for r in running if r.proc.poll() is None])
             # Wait for any one child; polling at 1 s costs nothing next to runs of minutes.
             finished = [r for r in running if r.proc.poll() is not None]
             if not finished:
@@ -191,8 +205,13 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
             with contextlib.suppress(subprocess.TimeoutExpired):
                 r.proc.wait(60)
             state[r.cell] = "stopped (resumed by the next call)"
+        if wave is not None:
+            wave.stop()
         manifest()
         raise
+    finally:
+        if wave is not None:
+            wave.stop()
     return results
 
 
