@@ -166,6 +166,7 @@ class StackedLearner:
         service = cell.service
         if service.loop.done and not service.loop.pending:
             log.info("%s: its %d epochs are already done", cell.name, service.settings.epochs)
+            service.publish_progress(finished=True)
             self._end(cell, 0)
             return
         service.publish_weights(evaluate=False, epoch=service.loop.epoch)
@@ -187,6 +188,8 @@ class StackedLearner:
         training = self._training()
         got: dict[str, ServedBatch] = {}
         grace_ends: float | None = None
+        if not training:  # only runs waiting for their last evaluations
+            self.stop.wait(POLL_S)
         while training and not self.stop.is_set():
             for cell in training:
                 if cell.name not in got:
@@ -201,10 +204,10 @@ class StackedLearner:
                 grace_ends = now + GATHER_GRACE_S
             if grace_ends is not None and now >= grace_ends:
                 break
+            self.stop.wait(POLL_S)
             if not got and any(c.finishing_until is not None and c.status is None
                                for c in self.cells.values()):
                 break  # a finishing cell's evaluations are looked at between waits
-            self.stop.wait(POLL_S)
         return got
 
     def _step(self, batches: dict[str, ServedBatch]) -> None:
