@@ -81,6 +81,10 @@ def load_cells(run_dirs: list[Path]) -> list[HercsConfig]:
     names = [c.run.name for c in configs]
     if len(set(names)) != len(names):
         raise ConfigError(f"a run is named twice: {names}")
+    per_cycle = {c.run.name: c.training.minibatches_per_cycle for c in configs}
+    if len(set(per_cycle.values())) > 1:
+        raise ConfigError("the runs of one stack update together, so they share "
+                          f"training.minibatches_per_cycle; these have {per_cycle}")
     return configs
 
 

@@ -193,3 +193,29 @@ def test_cells_that_cannot_share_an_update_are_refused_by_name() -> None:
                         cluster_draws=wider.cluster_draws, samples_served=4)
     with pytest.raises(ValueError, match=r"different numbers of minibatches \(\[3, 4\]\)"):
         cells.step({"a": batch, "d": wider})
+
+
+def test_learner_stack_refuses_run_folders_it_cannot_serve(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """`hercs learner-stack`'s check of its run folders, before any session opens: a folder
+    without a run, a run whose hercs up starts its own learner, runs that do not update
+    alike; each refused with the file or the setting named."""
+    from hercs.config import save_yaml
+    from hercs.errors import ConfigError
+    from hercs.learner.stacked_shell import load_cells
+
+    def run_dir(name: str, *overrides: str):  # type: ignore[no-untyped-def]
+        folder = tmp_path / name
+        folder.mkdir()
+        save_yaml(config(f"run.name={name}", *overrides), folder / "config.yaml")
+        return folder
+
+    with pytest.raises(ConfigError, match="no config.yaml"):
+        load_cells([tmp_path / "nothing"])
+    own = run_dir("own")
+    with pytest.raises(ConfigError, match=r"launch\.learner_elsewhere is false"):
+        load_cells([own])
+    a = run_dir("a", "launch.learner_elsewhere=true")
+    b = run_dir("b", "launch.learner_elsewhere=true", "training.minibatches_per_cycle=4")
+    with pytest.raises(ConfigError, match=r"'a': 3, 'b': 4"):
+        load_cells([a, b])
+    assert [c.run.name for c in load_cells([a])] == ["a"]
