@@ -209,7 +209,7 @@ def test_learner_stack_refuses_run_folders_it_cannot_serve(tmp_path) -> None:  #
         save_yaml(config(f"run.name={name}", *overrides), folder / "config.yaml")
         return folder
 
-    with pytest.raises(ConfigError, match="no config.yaml"):
+    with pytest.raises(ConfigError, match=r"no config\.yaml"):
         load_cells([tmp_path / "nothing"])
     own = run_dir("own")
     with pytest.raises(ConfigError, match=r"launch\.learner_elsewhere is false"):
