@@ -12,7 +12,7 @@ and a stacked cell resumes alone or a lone one joins. The stack does no host syn
 its caller reads the losses.
 
 Stacking buys little in fp32 (1.05-1.18x on an AVX2 EPYC and on an AMX Xeon); the gain is bf16
-autocast on stacked GEMMs where the CPU multiplies bf16 natively (1.79x at K = 4 on the Xeon,
+autocast on stacked GEMMs where the CPU multiplies bf16 natively (1.6-1.8x at K = 4 on the Xeon,
 0.15x on the EPYC, which has no bf16 GEMM; bench/perf/stacked_learner.py, docs/PERFORMANCE.md).
 hercs.learner.stacked_cells runs the cells' loops around one stack.
 """
