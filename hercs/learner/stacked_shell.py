@@ -104,7 +104,10 @@ class StackedLearner:
     def __init__(self, process: ServiceRuntime, configs: list[HercsConfig]) -> None:
         self.stop = process.stop
         precision = configs[0].learner.precision
-        self.stack = StackedCells(precision=precision)
+        try:
+            self.stack = StackedCells(precision=precision)
+        except ValueError as exc:
+            raise ConfigError(f"{configs[0].run.name}: {exc}") from None
         self.cells: dict[str, Cell] = {}
         self._cell_stops = [threading.Event() for _ in configs]
         process.start_thread(self._pass_stop_on, name="stop-cells")
