@@ -69,6 +69,9 @@ class WaveLearner:
         deadline = time.monotonic() + ROUTER_WAIT_S
         while not routers_ready(run_dirs, since):
             if not any_alive() or time.monotonic() > deadline:
+                print(f"[stack] no learner-stack for this wave: its runs' routers were not all "
+                      f"up within {ROUTER_WAIT_S:g} s or the runs ended first (each run's log "
+                      "says why); its runs end without a learner", flush=True)
                 return False
             time.sleep(0.5)
         self.restarts = 0
