@@ -133,8 +133,8 @@ class LaunchConfig:
     (a learner held in a debugger)."""
     learner_elsewhere: bool = False
     """`hercs up` starts no learner: the run's learner is a process of its own that joins the
-    run over the router, as a stacked learner serving several runs does (`hercs learner
-    --stack`, `hercs sweep --stacked`). The run ends when that learner says it finished (its
+    run over the router, as a stacked learner serving several runs does (`hercs
+    learner-stack`, `hercs sweep --stacked`). The run ends when that learner says it finished (its
     `RunProgress`), and with status 4 when it says the run's training diverged."""
 
     def __post_init__(self) -> None:

@@ -120,13 +120,15 @@ class LearnerService:
             self.eval_requests.sent(epoch, raw)
         self.weights_pub.put(raw)
 
-    def publish_progress(self, *, finished: bool = False) -> None:
+    def publish_progress(self, *, finished: bool = False, diverged: bool = False) -> None:
         """Where the run stands: epochs recorded, and the cycles and updates done (what
-        `hercs up`'s live line shows within an epoch)."""
+        `hercs up`'s live line shows within an epoch); `diverged`: the run's training stopped
+        for good (a learner `hercs up` did not start says so: hercs.learner.stacked_shell)."""
         recorded = self.loop.epoch - len(self.loop.pending)
         self.progress_pub.put(pb.RunProgress(
             schema_version=SCHEMA_VERSION, epoch=max(recorded, 0),
-            epochs=self.settings.epochs, finished=finished, cycle=self.loop.cycle,
+            epochs=self.settings.epochs, finished=finished, diverged=diverged,
+            cycle=self.loop.cycle,
             cycles_per_epoch=self.settings.cycles_per_epoch,
             updates=self.learner.updates).SerializeToString())
 

@@ -33,8 +33,6 @@ from hercs.learner.learner_shell import LearnerService
 from hercs.learner.prefetch import Prefetcher
 from hercs.learner.stacked_cells import StackedCells
 from hercs.net.service_shell import ServiceRuntime, service_main
-from hercs.proto import SCHEMA_VERSION
-from hercs.proto import hercs_pb2 as pb
 from hercs.run.rundir import RunDir, run_dir_of
 from hercs.wire.served import ServedBatch
 
@@ -271,10 +269,7 @@ class StackedLearner:
         service = cell.service
         log.error("%s: %s; %s; the other runs go on", cell.name, exc,
                   service.kept_checkpoint())
-        service.progress_pub.put(pb.RunProgress(
-            schema_version=SCHEMA_VERSION, epoch=max(service.loop.epoch - len(
-                service.loop.pending), 0), epochs=service.settings.epochs,
-            diverged=True).SerializeToString())
+        service.publish_progress(diverged=True)
         self._end(cell, 4)
 
     def _end(self, cell: Cell, status: int) -> None:

@@ -52,7 +52,6 @@ class WaveLearner:
         self.wave = 0
 
     def start(self, run_dirs: list[Path]) -> None:
-        self.wave += 1 if self.proc is None else 0
         log = self.log_dir / f"learner-stack-{self.wave}.log"
         with log.open("ab") as out:
             self.proc = subprocess.Popen(
@@ -74,6 +73,7 @@ class WaveLearner:
                       "says why); its runs end without a learner", flush=True)
                 return False
             time.sleep(0.5)
+        self.wave += 1
         self.restarts = 0
         self.start(run_dirs)
         return True
@@ -112,7 +112,3 @@ class WaveLearner:
             proc.kill()
             with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.wait(STOP_WAIT_S)
-
-    @property
-    def running(self) -> bool:
-        return self.proc is not None

@@ -205,8 +205,6 @@ def run_grid(cells: Sequence[GridRun], *, run_root: Path, epochs: int, jobs: int
             with contextlib.suppress(subprocess.TimeoutExpired):
                 r.proc.wait(60)
             state[r.cell] = "stopped (resumed by the next call)"
-        if wave is not None:
-            wave.stop()
         manifest()
         raise
     finally:
