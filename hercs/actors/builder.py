@@ -35,6 +35,9 @@ class ShellSettings:
     episodes_per_cycle: int
     """`training.episodes_per_cycle`: lockstep refuses an actor's surplus over it."""
     eval_episodes: int
+    epochs: int
+    """`training.epochs`: the evaluator refuses a request for a later epoch, whose goals it
+    would have to skip to."""
     max_message_bytes: int
     """`replay.max_message_bytes`: the largest message a subscription parses."""
 
@@ -50,6 +53,7 @@ class ActorBuilder:
                              spec=config.task.spec,
                              episodes_per_cycle=config.training.episodes_per_cycle,
                              eval_episodes=config.training.eval_episodes,
+                             epochs=config.training.epochs,
                              max_message_bytes=config.replay.max_message_bytes)
 
     def _policy(self, seed: int) -> Policy:

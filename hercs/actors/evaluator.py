@@ -2,8 +2,9 @@
 
 Every `Weights` with `evaluate=True` is queued (FIFO, so newer weights never push an epoch's
 policy out) and evaluated once, without noise, in the evaluator's own env, seeded once: every
-method of one seed is tested on the same goals (docs/DESIGN.md §9.7). Its `EvalResult` must
-arrive, so the publisher blocks rather than drops, and each put first waits up to
+method of one seed is tested on the same goals (docs/DESIGN.md §9.7), epoch e on the stream's
+episodes after (e - 1) x eval_episodes, however often the evaluator restarted. Its
+`EvalResult` must arrive, so the publisher blocks rather than drops, and each put first waits up to
 `SUBSCRIBER_WAIT_S` for the learner to match: a put with no matched subscriber is lost. A stop
 abandons an evaluation between episodes; no partial result is sent.
 """
@@ -97,7 +98,10 @@ class EvaluatorService:
         self.settings = parts.shell
         self.spec = self.settings.spec
         self.policy = parts.evaluator_policy()
+        self._parts = parts
         self.worker = parts.evaluator_env()
+        self.episodes_run = 0
+        """Episodes drawn from the worker's goal stream since its seed (run or skipped)."""
         self.requests = EvalQueue()
         self.evaluations = 0
         self.weights_rejected = 0
@@ -118,6 +122,12 @@ class EvaluatorService:
             msg = self._decoder.parse(raw)
             if not msg.evaluate:
                 return
+            if msg.epoch > self.settings.epochs:
+                # Its goals lie (epoch - 1) x eval_episodes episodes down the stream: a request
+                # past the run's last epoch, which no learner of this run sends, would have
+                # the evaluator reset its env that often (up to 2^64) before answering.
+                raise InvalidMessage("bad_value", f"an evaluation of epoch {msg.epoch}, past "
+                                     f"the run's {self.settings.epochs} epochs")
             request = EvalRequest(epoch=int(msg.epoch), weights=self._decoder.decode(msg))
         except InvalidMessage as exc:
             self.weights_rejected += 1
@@ -135,11 +145,13 @@ class EvaluatorService:
         """Run the test episodes of one request; None if stopped before the last one."""
         self.policy.load(request.weights)
         n = self.settings.eval_episodes
+        self._goals_of(request.epoch)
         successes, distances = 0, []
         for _ in range(n):
             if self.runtime.stop.is_set():
                 return None
             episode = self.worker.run_episode(self._act)
+            self.episodes_run += 1
             successes += int(episode.success)
             distances.append(float(goal_distance(episode.final_ag, episode.desired_goal)))
         return pb.EvalResult(
@@ -150,6 +162,20 @@ class EvaluatorService:
             success_rate=successes / n,
             mean_final_distance=float(np.mean(distances)),
         )
+
+    def _goals_of(self, epoch: int) -> None:
+        """Put the goal stream where epoch `epoch`'s goals begin: after (epoch - 1) x
+        eval_episodes episodes from the seed, the goals an unbroken run's evaluator tests that
+        epoch on and `hercs eval` reproduces. A restarted evaluator (a resumed run) skips to
+        them rather than testing epoch 31 on epoch 1's goals; an earlier epoch than the
+        stream's place (asked again after a restart of the learner) starts a new stream."""
+        start = (max(epoch, 1) - 1) * self.settings.eval_episodes
+        if self.episodes_run > start:
+            self.worker.close()
+            self.worker, self.episodes_run = self._parts.evaluator_env(), 0
+        if self.episodes_run < start:
+            self.worker.skip(start - self.episodes_run)
+            self.episodes_run = start
 
     def _publish(self, result: pb.EvalResult) -> None:
         deadline = time.monotonic() + SUBSCRIBER_WAIT_S

@@ -17,7 +17,7 @@ from hercs.net.transport import RemoteError, Transport, TransportError
 from hercs.proto import hercs_pb2 as pb
 from tests.fault.fuzz.oracles import ModelOracle
 from tests.fault.fuzz.probes import Probe
-from tests.fault.fuzz.runs import LOG_PROBLEMS, REQUEST_TIMEOUT_S, VALID, WAIT_S
+from tests.fault.fuzz.runs import ACTOR_CONFIG, LOG_PROBLEMS, REQUEST_TIMEOUT_S, VALID, WAIT_S
 from tests.fault.fuzz.standins import ActorRunReplay, LearnerRunReplay
 from tests.integration.services import ServiceProcess
 
@@ -206,6 +206,8 @@ def account_weights(w: World, verdict: str, msg: pb.Weights | None, *, actor: bo
             w.ledger.actor_rejects_at_most += 1
     if msg is None or (msg.evaluate and verdict != VALID):  # parse error or bad eval request
         w.ledger.evaluator_rejects += 1
+    elif msg.evaluate and msg.epoch > ACTOR_CONFIG.training.epochs:
+        w.ledger.evaluator_rejects += 1  # valid weights, but an epoch the run never reaches
     elif msg.evaluate:
         w.ledger.eval_keys.add((int(msg.epoch), int(msg.version)))
 
