@@ -33,7 +33,7 @@ def _first_module(*names: str) -> Any:
     for name in names:
         try:
             module = importlib.import_module(name)
-        except (ModuleNotFoundError, ImportError):
+        except ImportError:  # ModuleNotFoundError, or a module of the wrong tree's
             continue
         if Path(str(module.__file__)).resolve().is_relative_to(tree):
             return module

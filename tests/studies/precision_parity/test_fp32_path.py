@@ -4,6 +4,7 @@ arithmetic as this tree's (studies/precision_parity/fp32_path.py)."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
@@ -58,8 +59,7 @@ def test_docs_check_the_fp32_arms_commits_train_as_this_tree_does(tmp_path: Path
         if archive.returncode != 0:
             archive = git("archive", "--format=tar", commit, "hercs")
         assert archive.returncode == 0, f"{commit}: {archive.stderr.decode()}"
-        (tmp_path / f"{commit}.tar").write_bytes(archive.stdout)
-        with tarfile.open(tmp_path / f"{commit}.tar") as tar:
+        with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
             tar.extractall(tree, filter="data")
         equal, worst = compare(here, path_of(tree, tmp_path / f"{commit}.npz"))
         assert equal, (f"{commit}'s fp32 learner differs from this tree's after 100 updates "
