@@ -26,6 +26,7 @@ from hercs.net.service_shell import ServiceRuntime, service_main
 from hercs.net.transport import Publisher, TransportError
 from hercs.proto import SCHEMA_VERSION
 from hercs.proto import hercs_pb2 as pb
+from hercs.reasons import Reason
 from hercs.rl.policy import PolicyWeights
 from hercs.rl.task_registry import goal_distance
 from hercs.run.warn_once import WarnOncePerMinute
@@ -126,7 +127,7 @@ class EvaluatorService:
                 # Its goals lie (epoch - 1) x eval_episodes episodes down the stream: a request
                 # past the run's last epoch, which no learner of this run sends, would have
                 # the evaluator reset its env that often (up to 2^64) before answering.
-                raise InvalidMessage("bad_value", f"an evaluation of epoch {msg.epoch}, past "
+                raise InvalidMessage(Reason.BAD_VALUE, f"an evaluation of epoch {msg.epoch}, past "
                                      f"the run's {self.settings.epochs} epochs")
             request = EvalRequest(epoch=int(msg.epoch), weights=self._decoder.decode(msg))
         except InvalidMessage as exc:
